@@ -1,0 +1,120 @@
+"""Array interop: NumPy arrays, ``wp.array``s and foreign GPU arrays.
+
+Public functions accept NumPy arrays, ``wp.array``s, and objects exposing
+``__cuda_array_interface__`` or DLPack (PyTorch, CuPy, JAX). Output kind follows input:
+NumPy in, NumPy out; a device array in, a ``wp.array`` on that device out, with no host
+round trip.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .backend import _is_warp_array, init_warp
+from .errors import WarpvxTypeError
+
+
+def is_warp_array(x) -> bool:
+    """True for a ``wp.array`` (any dimensionality)."""
+    return _is_warp_array(x)
+
+
+def is_host(x) -> bool:
+    """True when ``x`` is host data (NumPy), False for device arrays."""
+    return isinstance(x, np.ndarray)
+
+
+def as_input(x, name: str):
+    """Normalise an input to a NumPy array or a ``wp.array`` (no copy where possible).
+
+    Foreign GPU arrays become ``wp.array`` views through DLPack or the CUDA array interface.
+    Raises a warpvx type error naming ``name`` for anything else (lists, scalars, None).
+    """
+    if isinstance(x, np.ndarray):
+        return x
+    if _is_warp_array(x):
+        return x
+    if hasattr(x, "__cuda_array_interface__") or hasattr(x, "__dlpack__"):
+        wp = init_warp()
+        if hasattr(x, "__dlpack__"):
+            try:
+                return wp.from_dlpack(x)
+            except Exception:  # noqa: BLE001 - fall through to the interface
+                if not hasattr(x, "__cuda_array_interface__"):
+                    raise
+        iface = x.__cuda_array_interface__
+        dtype = np.dtype(iface["typestr"])
+        return wp.array(
+            ptr=iface["data"][0],
+            dtype=wp.dtype_from_numpy(dtype),
+            shape=tuple(iface["shape"]),
+            strides=iface.get("strides"),
+            device=wp.get_cuda_device(),
+        )
+    if hasattr(x, "__array_interface__") or hasattr(x, "__array__"):
+        return np.asarray(x)
+    raise WarpvxTypeError(
+        f"{name}: expected a NumPy array, a wp.array or a GPU array (DLPack / "
+        f"__cuda_array_interface__), got {type(x).__name__}"
+    )
+
+
+def numpy_dtype(x) -> np.dtype:
+    """The NumPy dtype of a NumPy or Warp array."""
+    if isinstance(x, np.ndarray):
+        return x.dtype
+    wp = init_warp()
+    return np.dtype(wp.dtype_to_numpy(x.dtype))
+
+
+def is_contiguous(x) -> bool:
+    if isinstance(x, np.ndarray):
+        return x.flags.c_contiguous
+    return bool(x.is_contiguous)
+
+
+def to_numpy(x) -> np.ndarray:
+    """Host copy (or the array itself when already NumPy)."""
+    if isinstance(x, np.ndarray):
+        return x
+    return x.numpy()
+
+
+def to_warp(x, device: str):
+    """A ``wp.array`` on ``device`` holding ``x`` (no copy when it already lives there)."""
+    wp = init_warp()
+    if _is_warp_array(x):
+        if str(x.device) == str(wp.get_device(device)):
+            return x
+        return x.to(device)
+    arr = np.ascontiguousarray(x)
+    return wp.array(arr, dtype=wp.dtype_from_numpy(arr.dtype), device=device)
+
+
+def like_input(result, template):
+    """Convert ``result`` (arrays, tuples, lists, objects with ``.to()``) to the template's kind.
+
+    NumPy template: every array leaf becomes NumPy. Warp template: every leaf becomes a
+    ``wp.array`` on the template's device.
+    """
+    host = isinstance(template, np.ndarray)
+    device = None if host else str(template.device)
+    return _convert(result, host, device)
+
+
+def _convert(obj, host: bool, device):
+    if obj is None or isinstance(obj, (int, float, str, bool, np.generic)):
+        return obj
+    if isinstance(obj, np.ndarray):
+        return obj if host else to_warp(obj, device)
+    if _is_warp_array(obj):
+        if host:
+            return obj.numpy()
+        return obj if str(obj.device) == device else obj.to(device)
+    if isinstance(obj, tuple):
+        return tuple(_convert(o, host, device) for o in obj)
+    if isinstance(obj, list):
+        return [_convert(o, host, device) for o in obj]
+    if hasattr(obj, "to") and callable(obj.to):
+        return obj.to("host" if host else device)
+    return obj

@@ -1,0 +1,166 @@
+"""One checker for every public entry point: typed warpvx errors naming the argument.
+
+Each function raises a :mod:`warpvx.errors` error whose message reads
+``"<name>: expected <what>, got <actual>"``.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+from .arrays import as_input, is_contiguous, numpy_dtype
+from .errors import DTypeError, ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
+
+
+def check_image(
+    x,
+    name: str = "src",
+    *,
+    dtypes=(np.uint8,),
+    channels=(1, 3, 4),
+    min_size: tuple[int, int] = (1, 1),
+):
+    """Validate an image and return it as a NumPy array or ``wp.array``.
+
+    Parameters
+    ----------
+    x : array-like
+        HxW (one channel) or HxWxC image, C-contiguous.
+    dtypes : tuple of dtypes
+        Accepted element types.
+    channels : tuple of int
+        Accepted channel counts; 1 means an HxW array (an HxWx1 array is accepted too).
+    min_size : (int, int)
+        Smallest accepted (height, width).
+    """
+    arr = as_input(x, name)
+    shape = tuple(arr.shape)
+    if len(shape) == 2:
+        c = 1
+    elif len(shape) == 3:
+        c = shape[2]
+    else:
+        raise ShapeError(f"{name}: expected an HxW or HxWxC image, got an array of shape {shape}")
+    if c not in channels:
+        want = " or ".join(str(k) for k in channels)
+        raise ShapeError(f"{name}: expected {want} channel(s), got {c} (shape {shape})")
+    dt = numpy_dtype(arr)
+    accepted = [np.dtype(d) for d in dtypes]
+    if dt not in accepted:
+        want = " or ".join(str(d) for d in accepted)
+        raise DTypeError(f"{name}: expected dtype {want}, got {dt}")
+    h, w = shape[0], shape[1]
+    if h == 0 or w == 0:
+        raise ShapeError(f"{name}: image is empty (shape {shape})")
+    if h < min_size[0] or w < min_size[1]:
+        raise ShapeError(
+            f"{name}: image of {w}x{h} (WxH) is smaller than the {min_size[1]}x{min_size[0]} minimum"
+        )
+    if not is_contiguous(arr):
+        raise WarpvxValueError(
+            f"{name}: expected a C-contiguous array (use np.ascontiguousarray), got strides "
+            f"{getattr(arr, 'strides', None)}"
+        )
+    return arr
+
+
+def check_array(x, name: str, *, shape=None, dtypes=None, ndim=None, finite=False):
+    """Validate a general array (maps, matrices, point sets).
+
+    ``shape`` may hold None for a free dimension. ``finite`` rejects NaN/inf (host copy for
+    device arrays, so use it only on small arrays).
+    """
+    arr = as_input(x, name)
+    s = tuple(arr.shape)
+    if ndim is not None and len(s) != ndim:
+        raise ShapeError(f"{name}: expected {ndim} dimension(s), got shape {s}")
+    if shape is not None:
+        ok = len(s) == len(shape) and all(e is None or e == a for e, a in zip(shape, s))
+        if not ok:
+            want = "x".join("N" if e is None else str(e) for e in shape)
+            raise ShapeError(f"{name}: expected shape {want}, got {s}")
+    if dtypes is not None:
+        dt = numpy_dtype(arr)
+        accepted = [np.dtype(d) for d in dtypes]
+        if dt not in accepted:
+            want = " or ".join(str(d) for d in accepted)
+            raise DTypeError(f"{name}: expected dtype {want}, got {dt}")
+    if not is_contiguous(arr):
+        raise WarpvxValueError(f"{name}: expected a C-contiguous array")
+    if finite:
+        host = arr if isinstance(arr, np.ndarray) else arr.numpy()
+        if not np.all(np.isfinite(host)):
+            raise WarpvxValueError(f"{name}: contains NaN or inf")
+    return arr
+
+
+def check_matrix(m, name: str = "M", shape=(3, 3), *, invertible=False) -> np.ndarray:
+    """A small host matrix as float64; finite, and invertible when asked."""
+    if isinstance(m, (list, tuple)):
+        m = np.asarray(m)
+    arr = as_input(m, name)
+    host = np.asarray(arr if isinstance(arr, np.ndarray) else arr.numpy())
+    if host.shape != tuple(shape):
+        raise ShapeError(f"{name}: expected a {shape[0]}x{shape[1]} matrix, got shape {host.shape}")
+    if not np.issubdtype(host.dtype, np.number):
+        raise DTypeError(f"{name}: expected a numeric matrix, got dtype {host.dtype}")
+    host = host.astype(np.float64)
+    if not np.all(np.isfinite(host)):
+        raise WarpvxValueError(f"{name}: matrix contains NaN or inf")
+    if invertible:
+        cond = np.linalg.cond(host)
+        if not np.isfinite(cond) or cond > 1e12:
+            raise WarpvxValueError(f"{name}: matrix is singular (condition number {cond:.3g})")
+    return host
+
+
+def check_int(v, name: str, *, min_value=None, max_value=None) -> int:
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+        raise WarpvxTypeError(f"{name}: expected an integer, got {type(v).__name__} {v!r}")
+    v = int(v)
+    _check_range(v, name, min_value, max_value)
+    return v
+
+
+def check_float(v, name: str, *, min_value=None, max_value=None, strict_min=False) -> float:
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
+        raise WarpvxTypeError(f"{name}: expected a number, got {type(v).__name__} {v!r}")
+    v = float(v)
+    if not math.isfinite(v):
+        raise WarpvxValueError(f"{name}: expected a finite number, got {v}")
+    if strict_min and min_value is not None and v <= min_value:
+        raise WarpvxValueError(f"{name}: expected a value > {min_value}, got {v}")
+    _check_range(v, name, None if strict_min else min_value, max_value)
+    return v
+
+
+def check_size(dsize, name: str = "dsize") -> tuple[int, int]:
+    """A (width, height) pair of positive integers, OpenCV order."""
+    try:
+        w, h = dsize
+    except (TypeError, ValueError):
+        raise WarpvxTypeError(f"{name}: expected (width, height), got {dsize!r}") from None
+    w = check_int(w, f"{name}[0] (width)", min_value=1)
+    h = check_int(h, f"{name}[1] (height)", min_value=1)
+    return w, h
+
+
+def check_choice(v, name: str, choices):
+    """``v`` must be one of ``choices`` (a dict maps accepted names to canonical values)."""
+    if isinstance(choices, dict):
+        if v in choices:
+            return choices[v]
+    elif v in choices:
+        return v
+    opts = ", ".join(repr(c) for c in choices)
+    raise UnsupportedError(f"{name}: expected one of {opts}, got {v!r}")
+
+
+def _check_range(v, name, lo, hi):
+    if lo is not None and v < lo:
+        raise WarpvxValueError(f"{name}: expected a value >= {lo}, got {v}")
+    if hi is not None and v > hi:
+        raise WarpvxValueError(f"{name}: expected a value <= {hi}, got {v}")

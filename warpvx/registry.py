@@ -1,0 +1,225 @@
+"""The one registry of primitives: implementations, processing elements, benchmark cases.
+
+Each primitive names its public function and its implementations as ``"module:function"``
+strings, imported lazily so ``import warpvx`` stays light (no Warp import, no JIT) and the
+CPU path works without touching Warp. The scheduler reads :attr:`Primitive.processing_elements`
+and :attr:`Primitive.exclusive`; the benchmark harness reads :attr:`Primitive.bench`.
+
+Public functions validate their arguments once, then call :func:`dispatch`, which converts the
+inputs to what the chosen implementation takes (NumPy for ``"cpu"``, ``wp.array`` on the
+backend's device for Warp), runs it on the right device and stream, and converts the result
+back to the kind of the input (NumPy in, NumPy out; device array in, device array out).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .arrays import _convert, is_warp_array, like_input
+from .backend import Backend, init_warp
+from .errors import BackendError, WarpvxValueError
+
+
+def _load(path: str) -> Callable:
+    module, _, attr = path.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+@dataclass
+class Primitive:
+    """A registered primitive.
+
+    Attributes
+    ----------
+    name : str
+        Registry key, also the kernel module name in ``kernels_cpu``/``kernels_warp``.
+    public : str
+        ``"module:function"`` of the validating public function.
+    impls : dict
+        ``{"cpu": "module:function", "warp": "module:function"}``; a missing key means no
+        implementation of that kind (an *exclusive* primitive, thesis §5.1).
+    bench : str or None
+        ``"module:function"`` returning benchmark cases for an input image (see
+        :class:`BenchCase`).
+    """
+
+    name: str
+    public: str
+    impls: dict = field(default_factory=dict)
+    bench: str | None = None
+
+    def implementation(self, kind: str) -> Callable:
+        if kind not in self.impls:
+            raise BackendError(
+                f"backend: {self.name} has no {kind!r} implementation "
+                f"(available: {sorted(self.impls)})"
+            )
+        return _load(self.impls[kind])
+
+    def function(self) -> Callable:
+        return _load(self.public)
+
+    @property
+    def processing_elements(self) -> frozenset:
+        """``{"cpu", "gpu"}`` or a subset: which processing elements can run it."""
+        pes = set()
+        if "cpu" in self.impls:
+            pes.add("cpu")
+        if "warp" in self.impls:
+            pes.add("gpu")
+        return frozenset(pes)
+
+    @property
+    def exclusive(self) -> bool:
+        """True when only one kind of processing element can run it."""
+        return len(self.processing_elements) == 1
+
+
+@dataclass
+class BenchCase:
+    """One benchmark row: a primitive call at one size, with OpenCV (and peers) beside it.
+
+    Attributes
+    ----------
+    primitive : str
+        Registry name.
+    label : str
+        What is run, e.g. ``"BGR2GRAY"``.
+    size : (int, int)
+        (width, height) of the input.
+    prepare : callable(backend_name) -> callable() -> object
+        Allocates inputs (and ``out=`` buffers) on the backend's device once and returns a
+        zero-argument function doing one call; the harness warms it up and times it.
+    opencv : callable() -> callable() -> object, optional
+        The same for the OpenCV reference on host data.
+    peers : dict of name -> callable() -> callable() or None
+        Other libraries (CV-CUDA, Kornia); each prepare may raise ImportError to be skipped.
+    bytes_moved : int, optional
+        Bytes read plus written by one call, for the memory-bandwidth floor.
+    """
+
+    primitive: str
+    label: str
+    size: tuple
+    prepare: Callable
+    opencv: Callable | None = None
+    peers: dict = field(default_factory=dict)
+    bytes_moved: int | None = None
+
+
+REGISTRY: dict[str, Primitive] = {}
+
+
+def register(name, *, public, cpu=None, warp=None, bench=None) -> Primitive:
+    """Register (or replace) a primitive; implementations are ``"module:function"`` strings."""
+    impls = {}
+    if cpu:
+        impls["cpu"] = cpu
+    if warp:
+        impls["warp"] = warp
+    prim = Primitive(name=name, public=public, impls=impls, bench=bench)
+    REGISTRY[name] = prim
+    return prim
+
+
+def get_primitive(name: str) -> Primitive:
+    try:
+        return REGISTRY[name]
+    except KeyError:
+        raise WarpvxValueError(
+            f"primitive: unknown {name!r}; registered: {sorted(REGISTRY)}"
+        ) from None
+
+
+def _std(name, public_module, bench=True):
+    register(
+        name,
+        public=f"warpvx.{public_module}:{name}",
+        cpu=f"warpvx.kernels_cpu.{name}:{name}",
+        warp=f"warpvx.kernels_warp.{name}:{name}",
+        bench=f"warpvx.{public_module}:bench_cases_{name}" if bench else None,
+    )
+
+
+# The built-in primitives: public module (by domain, as kornia), kernel modules by name.
+_std("color_convert", "color")
+_std("remap", "geometry")
+_std("warp_perspective", "geometry")
+_std("gaussian_pyramid", "pyramid")
+_std("scale_pyramid", "pyramid")
+_std("gaussian_blur", "filters")
+_std("fast_corners", "features")
+_std("harris_response", "features")
+_std("harris_corners", "features")
+_std("optical_flow_pyr_lk", "flow")
+_std("orb", "orb_extractor")
+_std("match_hamming", "matching")
+
+
+def dispatch(name: str, backend: Backend, *args, out=None, stream=None, template=None, **kwargs):
+    """Run primitive ``name`` on ``backend`` and return a result of the template's kind.
+
+    ``args`` may hold NumPy arrays, ``wp.array``s, :class:`warpvx.Keypoints` and scalars;
+    arrays are moved to where the implementation runs. ``template`` (default: the first
+    array argument) decides the kind of the result. ``out`` is handed to the implementation
+    when it already lives where the implementation writes, otherwise the result is copied
+    into it.
+    """
+    prim = get_primitive(name)
+    impl = prim.implementation(backend.kind)
+    if template is None:
+        template = next((a for a in args if isinstance(a, np.ndarray) or is_warp_array(a)), None)
+    host = backend.kind == "cpu"
+    call_args = _convert(args, host, backend.device)
+    call_kwargs = {k: _convert(v, host, backend.device) for k, v in kwargs.items()}
+    native_out = out if _is_native(out, backend) else None
+    with _device_scope(backend, stream):
+        result = impl(*call_args, out=native_out, **call_kwargs)
+    if template is not None:
+        result = like_input(result, template)
+    if out is not None and native_out is None:
+        _copy_into(out, result)
+        return out
+    return result
+
+
+def _is_native(out, backend: Backend) -> bool:
+    if out is None:
+        return False
+    if isinstance(out, (list, tuple)):
+        return all(_is_native(o, backend) for o in out)
+    if backend.kind == "cpu":
+        return isinstance(out, np.ndarray)
+    return is_warp_array(out) and str(out.device) == str(init_warp().get_device(backend.device))
+
+
+def _copy_into(out, result):
+    if isinstance(out, (list, tuple)):
+        for o, r in zip(out, result):
+            _copy_into(o, r)
+        return
+    if isinstance(out, np.ndarray):
+        np.copyto(out, result if isinstance(result, np.ndarray) else result.numpy())
+    else:
+        wp = init_warp()
+        src = result if is_warp_array(result) else wp.array(result, dtype=out.dtype, device=out.device)
+        wp.copy(out, src)
+
+
+@contextlib.contextmanager
+def _device_scope(backend: Backend, stream):
+    if backend.kind == "cpu":
+        yield
+        return
+    wp = init_warp()
+    with wp.ScopedDevice(backend.device):
+        if stream is not None:
+            with wp.ScopedStream(stream):
+                yield
+        else:
+            yield

@@ -1,0 +1,3 @@
+"""DAG scheduling: baseline, HEFT, XEFT and best-of policies, metrics, generator, executor."""
+
+from .schedule import Schedule, ScheduledTask
