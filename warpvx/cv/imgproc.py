@@ -1,0 +1,3 @@
+"""warpvx.cv.imgproc (see warpvx.cv)."""
+
+__all__: list[str] = []

@@ -1,0 +1,3 @@
+"""warpvx.cv.orb (see warpvx.cv)."""
+
+__all__: list[str] = []

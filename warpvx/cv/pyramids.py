@@ -1,0 +1,3 @@
+"""warpvx.cv.pyramids (see warpvx.cv)."""
+
+__all__: list[str] = []

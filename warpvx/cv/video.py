@@ -1,0 +1,3 @@
+"""warpvx.cv.video (see warpvx.cv)."""
+
+__all__: list[str] = []
