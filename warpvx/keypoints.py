@@ -8,7 +8,7 @@ import numpy as np
 
 from .arrays import is_warp_array
 from .backend import init_warp
-from .errors import WarpvxTypeError
+from .errors import ShapeError, WarpvxTypeError
 
 FIELDS = ("x", "y", "response", "size", "angle", "octave")
 _DTYPES = {"x": np.float32, "y": np.float32, "response": np.float32, "size": np.float32,
@@ -54,7 +54,10 @@ class Keypoints:
         def col(v, fill, name):
             if v is None:
                 return np.full(n, fill, _DTYPES[name])
-            return np.ascontiguousarray(v, _DTYPES[name]).reshape(-1)
+            arr = np.ascontiguousarray(v, _DTYPES[name]).reshape(-1)
+            if arr.shape[0] != n:
+                raise ShapeError(f"{name}: expected {n} values (one per x), got {arr.shape[0]}")
+            return arr
 
         return cls(x=x, y=col(y, 0, "y"), response=col(response, 0, "response"),
                    size=col(size, default_size, "size"), angle=col(angle, -1, "angle"),
@@ -115,7 +118,7 @@ class Keypoints:
     def from_cv(cls, keypoints) -> "Keypoints":
         """From an iterable of ``cv2.KeyPoint`` (host arrays)."""
         kps = list(keypoints)
-        for k in kps[:1]:
+        for k in kps:
             if not hasattr(k, "pt"):
                 raise WarpvxTypeError(f"keypoints: expected cv2.KeyPoint items, got {type(k).__name__}")
         return cls(

@@ -1,0 +1,202 @@
+"""warpvx.harris_corners (and warpvx.cv.goodFeaturesToTrack) against cv2.goodFeaturesToTrack."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+import warpvx
+from warpvx import cv as wcv
+from warpvx.backend import init_warp, resolve_backend
+from warpvx.errors import (DTypeError, ShapeError, UnsupportedError, WarpvxTypeError,
+                           WarpvxValueError)
+from tests.images import bgr, gray
+
+IMAGES = ["camera", "brick", "text", "coffee", "astronaut", "motorcycle"]
+
+
+def _cv_gftt(img, max_corners, quality, min_distance, block_size=3, harris=True, k=0.04):
+    pts = cv2.goodFeaturesToTrack(img, max_corners, quality, min_distance, blockSize=block_size,
+                                  useHarrisDetector=harris, k=k)
+    return np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2)
+
+
+def _host(a):
+    return a if isinstance(a, np.ndarray) else a.numpy()
+
+
+def _unmatched(a, b, tol=5.0):
+    """Fraction of points of ``a`` farther than ``tol`` px from every point of ``b``."""
+    if len(a) == 0:
+        return 0.0
+    if len(b) == 0:
+        return 1.0
+    d = np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(-1))
+    return float((d.min(axis=1) > tol).mean())
+
+
+def _assert_parity(got, ref):
+    got = _host(got)
+    assert got.dtype == np.float32 and got.ndim == 2 and got.shape[1] == 2
+    assert _unmatched(got, ref) <= 0.10, "extra corners"
+    assert _unmatched(ref, got) <= 0.10, "missing corners"
+
+
+def _on_device(img, backend):
+    be = resolve_backend(backend)
+    return img if be.kind == "cpu" else init_warp().array(img, device=be.device)
+
+
+# --- smoke and shapes ------------------------------------------------------------------------
+
+def test_smoke(backend):
+    img = gray("camera")
+    pts = warpvx.harris_corners(img, 1000, 0.01, 10, 3, backend=backend)
+    assert isinstance(pts, np.ndarray) and pts.dtype == np.float32 and pts.shape[1] == 2
+    assert 50 < len(pts) <= 1000
+    _assert_parity(pts, _cv_gftt(img, 1000, 0.01, 10))
+
+
+@pytest.mark.parametrize("shape", [(3, 3), (9, 14), (47, 33), (120, 161)])
+def test_shapes(backend, shape):
+    img = np.ascontiguousarray(cv2.resize(gray("brick"), (shape[1], shape[0])))
+    pts = _host(warpvx.harris_corners(img, 50, 0.01, 3, 3, backend=backend))
+    _assert_parity(pts, _cv_gftt(img, 50, 0.01, 3))
+    if len(pts):
+        h, w = shape
+        x, y = pts[:, 0], pts[:, 1]
+        assert np.all((x >= 1) & (x < w - 1) & (y >= 1) & (y < h - 1))
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (2, 9), (9, 2)])
+def test_too_small_gives_no_corners(backend, shape):
+    img = np.random.default_rng(1).integers(0, 256, shape, dtype=np.uint8)
+    pts = warpvx.harris_corners(img, 10, 0.01, 1, 3, backend=backend)
+    assert pts.shape == (0, 2)
+    assert cv2.goodFeaturesToTrack(img, 10, 0.01, 1, blockSize=3, useHarrisDetector=True) is None
+
+
+def test_flat_image_gives_no_corners(backend):
+    pts = warpvx.harris_corners(np.full((40, 50), 77, np.uint8), 10, backend=backend)
+    assert pts.shape == (0, 2)
+
+
+# --- bad input -------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("kwargs,match,err", [
+    ({"quality_level": 0.0}, "quality_level", WarpvxValueError),
+    ({"quality_level": -0.5}, "quality_level", WarpvxValueError),
+    ({"min_distance": -1.0}, "min_distance", WarpvxValueError),
+    ({"min_distance": float("inf")}, "min_distance", WarpvxValueError),
+    ({"max_corners": 2.5}, "max_corners", WarpvxTypeError),
+    ({"block_size": 0}, "block_size", WarpvxValueError),
+    ({"ksize": 4}, "ksize", UnsupportedError),
+    ({"score": "fast"}, "score", UnsupportedError),
+])
+def test_bad_arguments(backend, kwargs, match, err):
+    with pytest.raises(err, match=match):
+        warpvx.harris_corners(gray("text"), backend=backend, **kwargs)
+
+
+def test_wrong_dtype(backend):
+    with pytest.raises(DTypeError, match="src"):
+        warpvx.harris_corners(gray("text").astype(np.int16), backend=backend)
+
+
+def test_colour_image_rejected(backend):
+    with pytest.raises(ShapeError, match="src"):
+        warpvx.harris_corners(bgr("coffee"), backend=backend)
+
+
+def test_empty_image(backend):
+    with pytest.raises(ShapeError, match="src"):
+        warpvx.harris_corners(np.zeros((0, 0), np.uint8), backend=backend)
+
+
+# --- OpenCV parity on real images ------------------------------------------------------------
+
+@pytest.mark.parametrize("name", IMAGES)
+def test_parity_harris(backend, name):
+    img = gray(name)
+    got = warpvx.harris_corners(img, 1000, 0.01, 10, 3, 0.04, backend=backend)
+    _assert_parity(got, _cv_gftt(img, 1000, 0.01, 10))
+
+
+@pytest.mark.parametrize("name", ["camera", "coffee"])
+@pytest.mark.parametrize("max_corners,quality,min_distance,block_size", [
+    (0, 0.005, 5, 3), (200, 0.02, 7.5, 2), (100, 0.01, 0, 3), (300, 0.001, 20, 5)])
+def test_parity_harris_settings(backend, name, max_corners, quality, min_distance, block_size):
+    img = gray(name)
+    got = warpvx.harris_corners(img, max_corners, quality, min_distance, block_size,
+                                backend=backend)
+    ref = _cv_gftt(img, max_corners, quality, min_distance, block_size)
+    _assert_parity(got, ref)
+    if max_corners > 0:
+        assert len(got) <= max_corners
+
+
+@pytest.mark.parametrize("name", ["brick", "astronaut"])
+def test_parity_min_eigen(backend, name):
+    img = gray(name)
+    got = warpvx.harris_corners(img, 500, 0.01, 8, 3, score="min_eigen", backend=backend)
+    _assert_parity(got, _cv_gftt(img, 500, 0.01, 8, harris=False))
+
+
+def test_min_distance_respected(backend):
+    pts = _host(warpvx.harris_corners(gray("brick"), 0, 0.001, 12, backend=backend))
+    d = np.sqrt(((pts[:, None, :] - pts[None, :, :]) ** 2).sum(-1))
+    np.fill_diagonal(d, np.inf)
+    assert len(pts) > 20 and d.min() >= 12
+
+
+def test_max_corners_is_a_prefix(backend):
+    img = gray("camera")
+    everything = _host(warpvx.harris_corners(img, 0, 0.005, 6, backend=backend))
+    first = _host(warpvx.harris_corners(img, 25, 0.005, 6, backend=backend))
+    assert len(everything) > 25 and np.array_equal(first, everything[:25])
+
+
+# --- kinds, devices, determinism -------------------------------------------------------------
+
+def test_device_array_in_device_array_out(warp_backend):
+    wp = init_warp()
+    src = _on_device(gray("coffee"), warp_backend)
+    pts = warpvx.harris_corners(src, 300, 0.01, 10, backend=warp_backend)
+    assert isinstance(pts, wp.array) and str(pts.device) == str(src.device)
+    assert pts.dtype == wp.float32 and pts.shape[1] == 2
+    _assert_parity(pts, _cv_gftt(gray("coffee"), 300, 0.01, 10))
+
+
+def test_deterministic_repeated_runs(warp_backend):
+    img = gray("motorcycle")
+    a = warpvx.harris_corners(img, 0, 0.001, 5, backend=warp_backend)
+    b = warpvx.harris_corners(img, 0, 0.001, 5, backend=warp_backend)
+    assert len(a) > 100 and np.array_equal(a, b)
+
+
+# --- warpvx.cv drop-in -----------------------------------------------------------------------
+
+@pytest.mark.parametrize("harris", [True, False])
+def test_cv_good_features_to_track(backend, harris):
+    img = gray("camera")
+    ref = cv2.goodFeaturesToTrack(img, 400, 0.01, 10, None, None, 3, harris, 0.04)
+    got = wcv.goodFeaturesToTrack(img, 400, 0.01, 10, None, None, 3, harris, 0.04,
+                                  backend=backend)
+    assert got.dtype == np.float32 and got.shape[1:] == (1, 2) == ref.shape[1:]
+    _assert_parity(got.reshape(-1, 2), ref.reshape(-1, 2))
+
+
+def test_cv_good_features_defaults_use_min_eigen(backend):
+    img = gray("brick")
+    got = wcv.goodFeaturesToTrack(img, 200, 0.02, 5, backend=backend)
+    ref = cv2.goodFeaturesToTrack(img, 200, 0.02, 5)
+    _assert_parity(got.reshape(-1, 2), ref.reshape(-1, 2))
+
+
+def test_cv_good_features_none_and_mask(backend):
+    flat = np.zeros((30, 30), np.uint8)
+    assert wcv.goodFeaturesToTrack(flat, 10, 0.01, 3, backend=backend) is None
+    with pytest.raises(UnsupportedError, match="mask"):
+        wcv.goodFeaturesToTrack(gray("text"), 10, 0.01, 3, mask=np.ones_like(gray("text")),
+                                backend=backend)

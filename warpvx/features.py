@@ -1,0 +1,288 @@
+"""Corner detectors: FAST-9/16, Harris / minimum-eigenvalue responses, goodFeaturesToTrack.
+
+Public functions validate their arguments and dispatch to ``warpvx.kernels_cpu`` (OpenCV)
+or ``warpvx.kernels_warp`` (Warp kernels on the CPU or a CUDA device); see
+:mod:`warpvx.registry`. Pixel centres are at integer coordinates (OpenCV's convention).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .arrays import is_warp_array, to_warp
+from .backend import resolve_backend
+from .check import check_array, check_choice, check_float, check_image, check_int
+from .errors import WarpvxTypeError
+from .keypoints import Keypoints
+from .registry import BenchCase, dispatch
+
+KSIZES = (1, 3, 5, 7)
+SCORES = ("harris", "min_eigen")
+
+
+def _gray(src, name: str = "src"):
+    """A gray uint8 image as an HxW array (an HxWx1 one is viewed as HxW)."""
+    src = check_image(src, name, dtypes=(np.uint8,), channels=(1,))
+    if len(src.shape) == 3:
+        src = src.reshape(tuple(src.shape[:2]))
+    return src
+
+
+def _check_bool(v, name: str) -> bool:
+    if not isinstance(v, (bool, np.bool_)):
+        raise WarpvxTypeError(f"{name}: expected a bool, got {type(v).__name__} {v!r}")
+    return bool(v)
+
+
+def fast_corners(src, threshold: int = 10, nonmax: bool = True, *, backend=None,
+                 stream=None) -> Keypoints:
+    """FAST-9/16 corners with OpenCV's score, strongest first.
+
+    A pixel is a corner when 9 contiguous pixels of the 16-pixel circle of radius 3 around it
+    are all brighter than ``centre + threshold`` or all darker than ``centre - threshold``;
+    its score is OpenCV's ``cornerScore<16>`` (the largest threshold at which it stays a
+    corner, ``>= threshold``). With ``nonmax``, a corner is kept when its score is strictly
+    greater than those of its 8 neighbours (OpenCV's rule). Pixels within 3 px of the edge
+    are never corners; an image smaller than 7x7 gives no keypoints.
+
+    Parameters
+    ----------
+    src : uint8 HxW (or HxWx1)
+        Gray image (NumPy or device array).
+    threshold : int in [0, 255]
+        Intensity difference to the centre pixel.
+    nonmax : bool
+        3x3 non-maximum suppression on the score.
+    backend, stream
+        See :mod:`warpvx.backend`.
+
+    Returns
+    -------
+    Keypoints
+        On the input's device (host arrays for NumPy input), sorted by score descending, then
+        y, then x (deterministic). ``x``, ``y`` integer pixel positions, ``response`` the
+        score, ``size`` 7, ``angle`` -1, ``octave`` 0, as ``cv2.FastFeatureDetector``
+        gives, except that cv2 returns raster order and leaves ``response`` 0 when
+        ``nonmax`` is False (here the score is reported either way).
+
+    Raises
+    ------
+    DTypeError, ShapeError
+        ``src`` not a gray uint8 image, or empty.
+    WarpvxValueError
+        ``threshold`` outside [0, 255].
+
+    References
+    ----------
+    Rosten and Drummond 2006; OpenCV ``cv::FAST`` (``features2d/src/fast.cpp``).
+    """
+    be = resolve_backend(backend, like=src)
+    src = _gray(src)
+    threshold = check_int(threshold, "threshold", min_value=0, max_value=255)
+    nonmax = _check_bool(nonmax, "nonmax")
+    return dispatch("fast_corners", be, src, threshold, nonmax, stream=stream)
+
+
+def harris_response(src, block_size: int = 2, ksize: int = 3, k: float = 0.04, *,
+                    score: str = "harris", out=None, backend=None, stream=None):
+    """Harris corner response (or the minimum eigenvalue) of a gray image, as cv2.cornerHarris.
+
+    With Sobel derivatives ``dx``, ``dy`` (aperture ``ksize``, scaled by
+    ``1 / (2^(ksize-1) * block_size * 255)``, OpenCV's factor for 8-bit input) and the
+    unnormalised sums ``a = S(dx^2)``, ``b = S(dx dy)``, ``c = S(dy^2)`` over a
+    ``block_size`` x ``block_size`` window (anchor ``block_size // 2``),
+    ``R = a c - b^2 - k (a + c)^2`` (``score="harris"``) or the smaller eigenvalue of
+    ``[[a, b], [b, c]]`` (``score="min_eigen"``, ``cv2.cornerMinEigenVal``). Both the Sobel
+    and the box filter use BORDER_REFLECT_101.
+
+    Parameters
+    ----------
+    src : uint8 HxW (or HxWx1)
+        Gray image.
+    block_size : int >= 1
+        Window of the structure tensor.
+    ksize : {1, 3, 5, 7}
+        Sobel aperture.
+    k : float
+        Harris free parameter (ignored for ``"min_eigen"``).
+    score : {"harris", "min_eigen"}
+    out : float32 HxW, optional
+        Written and returned.
+
+    Returns
+    -------
+    float32 HxW, of the input's kind (NumPy or a ``wp.array`` on its device).
+
+    Raises
+    ------
+    UnsupportedError
+        ``ksize`` not in {1, 3, 5, 7} (Scharr, ``ksize=-1``, is not offered) or unknown score.
+    DTypeError, ShapeError, WarpvxValueError
+        Bad image, ``block_size`` < 1, non-finite ``k``, bad ``out``.
+
+    References
+    ----------
+    Harris and Stephens 1988; OpenCV ``cornerEigenValsVecs`` (``imgproc/src/corner.cpp``).
+    """
+    be = resolve_backend(backend, like=src)
+    src = _gray(src)
+    block_size = check_int(block_size, "block_size", min_value=1)
+    if not isinstance(ksize, (int, np.integer)) or isinstance(ksize, bool):
+        raise WarpvxTypeError(f"ksize: expected an integer, got {type(ksize).__name__} {ksize!r}")
+    ksize = check_choice(int(ksize), "ksize", KSIZES)
+    k = check_float(k, "k")
+    score = check_choice(score, "score", SCORES)
+    if out is not None:
+        check_array(out, "out", shape=tuple(src.shape[:2]), dtypes=(np.float32,))
+    return dispatch("harris_response", be, src, block_size, ksize, k, score=score, out=out,
+                    stream=stream)
+
+
+def harris_corners(src, max_corners: int = 1000, quality_level: float = 0.01,
+                   min_distance: float = 10, block_size: int = 3, k: float = 0.04, *,
+                   ksize: int = 3, score: str = "harris", backend=None, stream=None):
+    """Strongest corners, as cv2.goodFeaturesToTrack(useHarrisDetector=True).
+
+    The response (:func:`harris_response`, or the minimum eigenvalue with
+    ``score="min_eigen"``) is thresholded at ``quality_level * max`` (values at or below go to
+    0), pixels 1 px inside the image that equal the 3x3 maximum of the thresholded map and are
+    non-zero are candidates, sorted strongest first (ties: later raster position first, as
+    OpenCV), and taken greedily unless a taken corner lies closer than ``min_distance``
+    (OpenCV's grid of cells ``round(min_distance)`` wide bounds the search), up to
+    ``max_corners``.
+
+    On Warp every step runs on the device; the greedy pass is computed exactly by parallel
+    rounds (see :mod:`warpvx.kernels_warp.harris_corners`), with a host sync per few rounds.
+
+    Parameters
+    ----------
+    src : uint8 HxW (or HxWx1)
+    max_corners : int
+        At most this many corners; ``<= 0`` means no limit.
+    quality_level : float > 0
+    min_distance : float >= 0
+        Below 1, no distance suppression (as OpenCV).
+    block_size : int >= 1
+    k : float
+    ksize : {1, 3, 5, 7}
+        Sobel aperture (OpenCV's ``gradientSize``).
+    score : {"harris", "min_eigen"}
+
+    Returns
+    -------
+    float32 [N, 2]
+        (x, y) per corner, strongest first, of the input's kind (cv2 returns [N, 1, 2] or
+        None; :func:`warpvx.cv.goodFeaturesToTrack` does too).
+
+    Raises
+    ------
+    DTypeError, ShapeError, WarpvxValueError, UnsupportedError
+        As :func:`harris_response`; ``quality_level <= 0``; ``min_distance < 0``.
+    """
+    be = resolve_backend(backend, like=src)
+    src = _gray(src)
+    max_corners = check_int(max_corners, "max_corners")
+    quality_level = check_float(quality_level, "quality_level", min_value=0.0, strict_min=True)
+    min_distance = check_float(min_distance, "min_distance", min_value=0.0)
+    block_size = check_int(block_size, "block_size", min_value=1)
+    k = check_float(k, "k")
+    if not isinstance(ksize, (int, np.integer)) or isinstance(ksize, bool):
+        raise WarpvxTypeError(f"ksize: expected an integer, got {type(ksize).__name__} {ksize!r}")
+    ksize = check_choice(int(ksize), "ksize", KSIZES)
+    score = check_choice(score, "score", SCORES)
+    return dispatch("harris_corners", be, src, max_corners, quality_level, min_distance,
+                    block_size, k, ksize=ksize, score=score, stream=stream)
+
+
+# --- benchmark cases -------------------------------------------------------------------------
+
+def _bench_gray(image_bgr: np.ndarray) -> np.ndarray:
+    import cv2
+
+    return np.ascontiguousarray(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY))
+
+
+def _on_backend(gray: np.ndarray, backend_name: str):
+    be = resolve_backend(backend_name)
+    return gray if be.kind == "cpu" else to_warp(gray, be.device)
+
+
+def bench_cases_fast_corners(image_bgr: np.ndarray) -> list[BenchCase]:
+    """FAST-9/16 at threshold 20 with NMS; OpenCV's FastFeatureDetector beside it."""
+    gray = _bench_gray(image_bgr)
+    h, w = gray.shape
+
+    def prepare(backend_name):
+        src = _on_backend(gray, backend_name)
+        return lambda: fast_corners(src, 20, True, backend=backend_name)
+
+    def opencv():
+        import cv2
+
+        det = cv2.FastFeatureDetector_create(20, True)
+        return lambda: det.detect(gray)
+
+    return [BenchCase("fast_corners", "threshold 20, nonmax", (w, h), prepare, opencv,
+                      bytes_moved=h * w)]
+
+
+def bench_cases_harris_response(image_bgr: np.ndarray) -> list[BenchCase]:
+    """Harris response, block 2, Sobel 3; OpenCV's cornerHarris (and Kornia) beside it."""
+    gray = _bench_gray(image_bgr)
+    h, w = gray.shape
+
+    def prepare(backend_name):
+        src = _on_backend(gray, backend_name)
+        if is_warp_array(src):
+            from .backend import init_warp
+
+            out = init_warp().empty((h, w), dtype=init_warp().float32, device=src.device)
+        else:
+            out = np.empty((h, w), np.float32)
+        return lambda: harris_response(src, 2, 3, 0.04, out=out, backend=backend_name)
+
+    def opencv():
+        import cv2
+
+        dst = np.empty((h, w), np.float32)
+        return lambda: cv2.cornerHarris(gray, 2, 3, 0.04, dst=dst)
+
+    def kornia_peer():
+        import kornia  # noqa: F401 - ImportError skips the peer
+        import torch
+
+        if not torch.cuda.is_available():
+            raise ImportError("kornia peer needs CUDA")
+        t = torch.from_numpy(gray).cuda().float().div_(255.0)[None, None]
+        return lambda: kornia.feature.harris_response(t, k=0.04, grads_mode="sobel")
+
+    return [BenchCase("harris_response", "block 2, ksize 3", (w, h), prepare, opencv,
+                      peers={"kornia": kornia_peer}, bytes_moved=h * w * 5)]
+
+
+def bench_cases_harris_corners(image_bgr: np.ndarray) -> list[BenchCase]:
+    """goodFeaturesToTrack (Harris, 1000 corners, quality 0.01, distance 10, block 3)."""
+    gray = _bench_gray(image_bgr)
+    h, w = gray.shape
+
+    def prepare(backend_name):
+        src = _on_backend(gray, backend_name)
+        return lambda: harris_corners(src, 1000, 0.01, 10, 3, 0.04, backend=backend_name)
+
+    def opencv():
+        import cv2
+
+        return lambda: cv2.goodFeaturesToTrack(gray, 1000, 0.01, 10, blockSize=3,
+                                               useHarrisDetector=True, k=0.04)
+
+    return [BenchCase("harris_corners", "max 1000, Harris", (w, h), prepare, opencv)]
+
+
+__all__ = [
+    "fast_corners",
+    "harris_response",
+    "harris_corners",
+    "bench_cases_fast_corners",
+    "bench_cases_harris_response",
+    "bench_cases_harris_corners",
+]

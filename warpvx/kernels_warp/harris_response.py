@@ -1,0 +1,153 @@
+"""Corner responses on Warp from the structure tensor: Harris and the minimum eigenvalue.
+
+OpenCV's ``cornerEigenValsVecs`` (``modules/imgproc/src/corner.cpp``), in two kernels:
+
+1. ``compute_gradient_products``: Sobel derivatives ``dx``, ``dy`` of aperture ``ksize``
+   (1, 3, 5, 7) with BORDER_REFLECT_101, scaled by ``1 / (2^(ksize-1) * block_size * 255)``
+   (OpenCV's scale for 8-bit input; ``2^0`` for ksize 1), stored as (dx*dx, dx*dy, dy*dy).
+2. ``compute_corner_response``: unnormalised box sums of the products over ``block_size``
+   x ``block_size`` (anchor at ``block_size // 2``, BORDER_REFLECT_101) giving the tensor
+   (a, b, c), then Harris ``a*c - b*b - k*(a+c)^2`` or the minimum eigenvalue
+   ``(a+c)/2 - sqrt(((a-c)/2)^2 + b^2)`` (``cv2.cornerMinEigenVal``).
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ._sampling import BORDER_REFLECT_101, border_index
+
+vec7 = wp.types.vector(length=7, dtype=wp.int32)
+
+# Sobel taps centred on index 3 (OpenCV's getSobelKernels, derivative order 1 and 0).
+SMOOTH_1 = wp.constant(vec7(0, 0, 0, 1, 0, 0, 0))
+SMOOTH_3 = wp.constant(vec7(0, 0, 1, 2, 1, 0, 0))
+SMOOTH_5 = wp.constant(vec7(0, 1, 4, 6, 4, 1, 0))
+SMOOTH_7 = wp.constant(vec7(1, 6, 15, 20, 15, 6, 1))
+DERIV_3 = wp.constant(vec7(0, 0, -1, 0, 1, 0, 0))  # also ksize 1
+DERIV_5 = wp.constant(vec7(0, -1, -2, 0, 2, 1, 0))
+DERIV_7 = wp.constant(vec7(-1, -4, -5, 0, 5, 4, 1))
+
+SCORE_HARRIS = wp.constant(0)
+SCORE_MIN_EIGEN = wp.constant(1)
+SCORES = {"harris": 0, "min_eigen": 1}
+
+
+@wp.func
+def reflect101(p: int, n: int) -> int:
+    """OpenCV's BORDER_REFLECT_101 index (gfedcb|abcdefgh|gfedcba), always in [0, n)."""
+    return border_index(p, n, BORDER_REFLECT_101)
+
+
+@wp.func
+def smooth_tap(ksize: int, i: int) -> int:
+    """Smoothing tap at offset i (-3..3) of the Sobel aperture ``ksize``."""
+    if ksize == 7:
+        return SMOOTH_7[i + 3]
+    if ksize == 5:
+        return SMOOTH_5[i + 3]
+    if ksize == 3:
+        return SMOOTH_3[i + 3]
+    return SMOOTH_1[i + 3]
+
+
+@wp.func
+def deriv_tap(ksize: int, i: int) -> int:
+    """First-derivative tap at offset i (-3..3) of the Sobel aperture ``ksize``."""
+    if ksize == 7:
+        return DERIV_7[i + 3]
+    if ksize == 5:
+        return DERIV_5[i + 3]
+    return DERIV_3[i + 3]
+
+
+@wp.func
+def sobel_gradient(img: wp.array2d(dtype=wp.uint8), y: int, x: int, ksize: int) -> wp.vec2i:
+    """Integer Sobel (dx, dy) at (y, x) with REFLECT_101 (correlation, as cv2.Sobel)."""
+    h = img.shape[0]
+    w = img.shape[1]
+    r = wp.max(ksize // 2, 1)
+    gx = int(0)
+    gy = int(0)
+    for i in range(-r, r + 1):
+        row = reflect101(y + i, h)
+        sy = smooth_tap(ksize, i)
+        dy = deriv_tap(ksize, i)
+        for j in range(-r, r + 1):
+            v = int(img[row, reflect101(x + j, w)])
+            gx += sy * deriv_tap(ksize, j) * v
+            gy += dy * smooth_tap(ksize, j) * v
+    return wp.vec2i(gx, gy)
+
+
+@wp.func
+def corner_score(cov: wp.vec3, k: float, score: int) -> float:
+    a = cov[0]
+    b = cov[1]
+    c = cov[2]
+    if score == SCORE_MIN_EIGEN:
+        ha = a * 0.5
+        hc = c * 0.5
+        return (ha + hc) - wp.sqrt((ha - hc) * (ha - hc) + b * b)
+    return a * c - b * b - k * (a + c) * (a + c)
+
+
+@wp.kernel
+def compute_gradient_products(
+    img: wp.array2d(dtype=wp.uint8),
+    ksize: int,
+    scale: float,
+    products: wp.array2d(dtype=wp.vec3),
+):
+    y, x = wp.tid()
+    g = sobel_gradient(img, y, x, ksize)
+    dx = float(g[0]) * scale
+    dy = float(g[1]) * scale
+    products[y, x] = wp.vec3(dx * dx, dx * dy, dy * dy)
+
+
+@wp.kernel
+def compute_corner_response(
+    products: wp.array2d(dtype=wp.vec3),
+    block_size: int,
+    k: float,
+    score: int,
+    response: wp.array2d(dtype=wp.float32),
+):
+    y, x = wp.tid()
+    h = products.shape[0]
+    w = products.shape[1]
+    lo = -(block_size // 2)
+    cov = wp.vec3()
+    for i in range(lo, lo + block_size):
+        row = reflect101(y + i, h)
+        for j in range(lo, lo + block_size):
+            cov += products[row, reflect101(x + j, w)]
+    response[y, x] = corner_score(cov, k, score)
+
+
+def derivative_scale(ksize: int, block_size: int) -> float:
+    """OpenCV's scale of the Sobel derivatives for 8-bit input in cornerEigenValsVecs."""
+    return 1.0 / (float(1 << (ksize - 1)) * block_size * 255.0)
+
+
+def corner_response(src, block_size: int, ksize: int, k: float, score: str, response) -> None:
+    """Launch both kernels on ``src.device``, writing the float32 map into ``response``."""
+    device = src.device
+    h, w = src.shape
+    products = wp.empty((h, w), dtype=wp.vec3, device=device)
+    wp.launch(compute_gradient_products, dim=(h, w),
+              inputs=[src, int(ksize), derivative_scale(ksize, block_size)],
+              outputs=[products], device=device)
+    wp.launch(compute_corner_response, dim=(h, w),
+              inputs=[products, int(block_size), float(k), SCORES[score]],
+              outputs=[response], device=device)
+
+
+def harris_response(src, block_size: int, ksize: int, k: float, *, score: str = "harris",
+                    out=None):
+    """Harris (or minimum-eigenvalue) response of a gray uint8 ``wp.array2d`` as float32 HxW."""
+    if out is None:
+        out = wp.empty(src.shape, dtype=wp.float32, device=src.device)
+    corner_response(src, block_size, ksize, k, score, out)
+    return out
