@@ -1,0 +1,336 @@
+"""Sparse optical flow: pyramidal Lucas-Kanade (OpenCV's ``calcOpticalFlowPyrLK``).
+
+:func:`optical_flow_pyr_lk` tracks points from one gray frame to the next, coarse to fine
+over a Gaussian pyramid; :func:`build_optical_flow_pyramid` builds that pyramid once per
+frame so a video loop hands each frame's pyramid to two calls (as ``next``, then as ``prev``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .arrays import to_warp
+from .backend import resolve_backend
+from .check import check_array, check_float, check_image, check_int, check_size
+from .errors import ShapeError, WarpvxValueError
+from .registry import BenchCase, dispatch
+
+MAX_ITERS_LIMIT = 100  # OpenCV clamps the iteration count to [0, 100] ...
+EPS_LIMIT = 10.0  # ... and the step threshold to [0, 10]
+
+
+def optical_flow_pyr_lk(
+    prev,
+    next,  # noqa: A002 - OpenCV's name
+    prev_pts,
+    next_pts=None,
+    win_size=(21, 21),
+    max_level=3,
+    max_iters=30,
+    eps=0.01,
+    min_eig_threshold=1e-4,
+    *,
+    out=None,
+    backend=None,
+    stream=None,
+):
+    """Track points from ``prev`` to ``next`` with pyramidal Lucas-Kanade.
+
+    Parameters
+    ----------
+    prev, next : array or list of arrays
+        Gray uint8 HxW frames of one size, or their pyramids as returned by
+        :func:`build_optical_flow_pyramid` (lists of levels, level 0 first, each level
+        ``((w + 1) // 2, (h + 1) // 2)`` of the one before), so a video loop builds each
+        frame's pyramid once.
+    prev_pts : array
+        float32 [N, 2] (or [N, 1, 2]) points (x, y) in ``prev``, pixel centres at integers;
+        NaN/inf are rejected. Points whose window lies entirely outside the image are not an
+        error: they come back with status 0, as in OpenCV.
+    next_pts : array, optional
+        float32 initial guesses in ``next``, shaped as ``prev_pts`` (OpenCV's
+        ``OPTFLOW_USE_INITIAL_FLOW``); by default the search starts at ``prev_pts``.
+    win_size : (int, int)
+        Integration window (width, height), each at least 3 and at most the image size.
+    max_level : int
+        Highest pyramid level (0 = no pyramid). Limited as OpenCV limits it: the pyramid
+        stops before a level whose width or height would not exceed the window; and by the
+        levels given when pyramids are passed.
+    max_iters, eps : int, float
+        Stop criteria per level (OpenCV's ``TermCriteria(COUNT | EPS, max_iters, eps)``): at
+        most ``max_iters`` steps (clamped to [0, 100]), or a step shorter than ``eps`` pixels
+        (clamped to [0, 10]).
+    min_eig_threshold : float
+        A point is lost when the smaller eigenvalue of its window's gradient matrix, divided
+        by the window area (gradients scaled as OpenCV's: Scharr / 32), is below this.
+    out : tuple, optional
+        (next_pts float32 [N, 2], status uint8 [N], err float32 [N]) to fill.
+    backend, stream
+        See :mod:`warpvx.backend`.
+
+    Returns
+    -------
+    next_pts : array
+        float32 [N, 2] tracked positions (for lost points: the last estimate).
+    status : array
+        uint8 [N]: 1 where the point was tracked, 0 where it was lost (window out of the
+        image, too flat a window, or the track left the image).
+    err : array
+        float32 [N]: mean absolute difference (gray levels) between the window around the
+        point in ``prev`` and the one around the tracked point in ``next`` (OpenCV's default
+        error); 0 where status is 0. Of the kind of ``prev_pts`` (NumPy or ``wp.array``).
+
+    Raises
+    ------
+    DTypeError, ShapeError, WarpvxValueError, WarpvxTypeError
+        Bad frames (dtype, channels, sizes differing between ``prev`` and ``next``, a broken
+        pyramid), points (dtype, shape, NaN/inf, counts), ``win_size`` (too small, larger
+        than the image), ``max_level`` < 0, ``max_iters`` < 0, ``eps`` < 0, or ``out``.
+
+    Notes
+    -----
+    Reference: ``cv2.calcOpticalFlowPyrLK(prev, next, prev_pts, next_pts, winSize=win_size,
+    maxLevel=max_level, criteria=(TERM_CRITERIA_COUNT | TERM_CRITERIA_EPS, max_iters, eps),
+    flags=0 or OPTFLOW_USE_INITIAL_FLOW, minEigThreshold=min_eig_threshold)``. The CPU backend
+    calls it; the Warp kernels reproduce its fixed-point arithmetic (Scharr derivatives,
+    14-bit bilinear weights, BORDER_REFLECT_101 image padding). Device point arrays are read
+    back to the host once for the NaN check (8 bytes per point).
+    """
+    first = prev[0] if isinstance(prev, (list, tuple)) and len(prev) else prev
+    be = resolve_backend(backend, like=first)
+    win = _check_win_size(win_size)
+    max_level = check_int(max_level, "max_level", min_value=0)
+    max_iters = min(check_int(max_iters, "max_iters", min_value=0), MAX_ITERS_LIMIT)
+    eps = min(check_float(eps, "eps", min_value=0.0), EPS_LIMIT)
+    min_eig_threshold = check_float(min_eig_threshold, "min_eig_threshold")
+
+    prev, size, prev_levels = _check_frame(prev, "prev")
+    next, next_size, next_levels = _check_frame(next, "next")
+    if next_size != size:
+        raise ShapeError(
+            f"next: expected a frame of prev's size {size[0]}x{size[1]} (WxH), "
+            f"got {next_size[0]}x{next_size[1]}"
+        )
+    _check_window_fits(win, size)
+    levels = min(max_level, _level_limit(size, win, max_level), prev_levels - 1, next_levels - 1)
+
+    pts = _check_points(prev_pts, "prev_pts")
+    n = pts.shape[0]
+    guess = None if next_pts is None else _check_points(next_pts, "next_pts", n)
+    if out is not None:
+        out = _check_out(out, n)
+    return dispatch(
+        "optical_flow_pyr_lk",
+        be,
+        prev,
+        next,
+        pts,
+        guess,
+        win,
+        levels,
+        max_iters,
+        eps,
+        min_eig_threshold,
+        out=out,
+        stream=stream,
+        template=pts,
+    )
+
+
+def build_optical_flow_pyramid(img, win_size=(21, 21), max_level=3, *, backend=None, stream=None):
+    """Gaussian pyramid of a gray frame for :func:`optical_flow_pyr_lk`.
+
+    Parameters
+    ----------
+    img : array
+        Gray uint8 HxW (or HxWx1) frame, C-contiguous.
+    win_size : (int, int)
+        The LK window (width, height) the pyramid is for; each at least 3, at most the image.
+    max_level : int
+        Highest level wanted (>= 0). As OpenCV's ``buildOpticalFlowPyramid``, the pyramid
+        stops before a level whose width or height would not exceed the window.
+    backend, stream
+        See :mod:`warpvx.backend`.
+
+    Returns
+    -------
+    list of arrays
+        ``L + 1`` uint8 levels (L <= max_level), level 0 the image itself, level k the pyrDown
+        of level k-1 (5x5 [1 4 6 4 1]^2/256, BORDER_REFLECT_101, size ((w+1)//2, (h+1)//2)),
+        of the input's kind. Unlike OpenCV, levels carry no border padding: the LK kernels
+        reflect (BORDER_REFLECT_101) at read time.
+
+    Raises
+    ------
+    DTypeError, ShapeError, WarpvxValueError, WarpvxTypeError
+        Bad ``img``, ``win_size`` or ``max_level``.
+    """
+    be = resolve_backend(backend, like=img)
+    img = _as_hw(check_image(img, "img", dtypes=(np.uint8,), channels=(1,)))
+    win = _check_win_size(win_size)
+    max_level = check_int(max_level, "max_level", min_value=0)
+    size = (img.shape[1], img.shape[0])
+    _check_window_fits(win, size)
+    levels = _level_limit(size, win, max_level)
+    return _pyramid(img, levels, be, stream)
+
+
+def bench_cases_optical_flow_pyr_lk(image_bgr: np.ndarray) -> list[BenchCase]:
+    """1000 Shi-Tomasi corners tracked between the gray photo and a slightly rotated and
+    shifted copy (0.4 degrees, (1.7, -1.2) px), 21x21 window, ``max_level=3``.
+
+    Two rows: both frames as images (each call builds both pyramids, as OpenCV does), and a
+    video loop's step (the previous frame's pyramid is kept, the new frame's is built in
+    the call). OpenCV's ``calcOpticalFlowPyrLK`` on the same data beside both.
+    """
+    import cv2
+
+    gray = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
+    h, w = gray.shape
+    m = cv2.getRotationMatrix2D((w / 2.0, h / 2.0), 0.4, 1.0)
+    m[:, 2] += (1.7, -1.2)
+    moved = cv2.warpAffine(gray, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+    pts = cv2.goodFeaturesToTrack(gray, 1000, 0.01, 5).reshape(-1, 2).astype(np.float32)
+    win, max_level = (21, 21), 3
+    label = f"{len(pts)} pts, 21x21, max_level 3"
+
+    def on_device(backend_name):
+        be = resolve_backend(backend_name)
+        if be.kind == "cpu":
+            return be, gray, moved, pts
+        return be, to_warp(gray, be.device), to_warp(moved, be.device), to_warp(pts, be.device)
+
+    def prepare_images(backend_name):
+        be, a, b, p = on_device(backend_name)
+        n = p.shape[0]
+        out = _alloc_out(be, n)
+        return lambda: optical_flow_pyr_lk(a, b, p, None, win, max_level, out=out, backend=be)
+
+    def prepare_video(backend_name):
+        be, a, b, p = on_device(backend_name)
+        prev_pyr = build_optical_flow_pyramid(a, win, max_level, backend=be)
+        out = _alloc_out(be, p.shape[0])
+
+        def step():
+            next_pyr = build_optical_flow_pyramid(b, win, max_level, backend=be)
+            return optical_flow_pyr_lk(prev_pyr, next_pyr, p, None, win, max_level, out=out, backend=be)
+
+        return step
+
+    def opencv():
+        p = pts.reshape(-1, 1, 2)
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
+        return lambda: cv2.calcOpticalFlowPyrLK(
+            gray, moved, p, None, winSize=win, maxLevel=max_level, criteria=criteria
+        )
+
+    return [
+        BenchCase("optical_flow_pyr_lk", label, (w, h), prepare_images, opencv=opencv),
+        BenchCase(
+            "optical_flow_pyr_lk", label + ", video loop (one new pyramid)", (w, h), prepare_video, opencv=opencv
+        ),
+    ]
+
+
+# ---------------------------------------------------------------------------------------------
+# helpers
+
+
+def _level_limit(size, win, max_level: int) -> int:
+    """OpenCV's level limit: stop before a level whose width or height <= the window's."""
+    w, h = size
+    for level in range(max_level):
+        w, h = (w + 1) // 2, (h + 1) // 2
+        if w <= win[0] or h <= win[1]:
+            return level
+    return max_level
+
+
+def _check_win_size(win_size) -> tuple[int, int]:
+    w, h = check_size(win_size, "win_size")
+    if w < 3 or h < 3:
+        raise WarpvxValueError(f"win_size: expected a window of at least 3x3, got {w}x{h}")
+    return w, h
+
+
+def _check_window_fits(win, size):
+    if win[0] > size[0] or win[1] > size[1]:
+        raise ShapeError(
+            f"win_size: window {win[0]}x{win[1]} is larger than the {size[0]}x{size[1]} (WxH) image"
+        )
+
+
+def _as_hw(img):
+    """HxWx1 -> HxW (a view)."""
+    if img.ndim == 3:
+        return img.reshape((img.shape[0], img.shape[1]))
+    return img
+
+
+def _check_frame(x, name):
+    """A gray frame or a pyramid: (image or list of levels, (w, h) of level 0, level count)."""
+    if isinstance(x, (list, tuple)):
+        if len(x) == 0:
+            raise ShapeError(f"{name}: expected an image or a non-empty list of pyramid levels, got []")
+        levels = []
+        for k, level in enumerate(x):
+            lv = _as_hw(check_image(level, f"{name}[{k}]", dtypes=(np.uint8,), channels=(1,)))
+            if k > 0:
+                ph, pw = levels[-1].shape
+                want = ((pw + 1) // 2, (ph + 1) // 2)
+                got = (lv.shape[1], lv.shape[0])
+                if got != want:
+                    raise ShapeError(
+                        f"{name}[{k}]: expected a pyramid level of {want[0]}x{want[1]} (WxH, half "
+                        f"of level {k - 1} rounded up), got {got[0]}x{got[1]}"
+                    )
+            levels.append(lv)
+        return levels, (levels[0].shape[1], levels[0].shape[0]), len(levels)
+    img = _as_hw(check_image(x, name, dtypes=(np.uint8,), channels=(1,)))
+    return img, (img.shape[1], img.shape[0]), 1 << 30
+
+
+def _check_points(p, name, n=None):
+    """float32 [N, 2] or [N, 1, 2], finite; returned as [N, 2]."""
+    arr = check_array(p, name, dtypes=(np.float32,), finite=True)
+    shape = tuple(arr.shape)
+    if not ((len(shape) == 2 and shape[1] == 2) or (len(shape) == 3 and shape[1:] == (1, 2))):
+        raise ShapeError(f"{name}: expected shape Nx2 or Nx1x2, got {shape}")
+    if n is not None and shape[0] != n:
+        raise ShapeError(f"{name}: expected {n} points (as prev_pts), got {shape[0]}")
+    if len(shape) == 3:
+        arr = arr.reshape((shape[0], 2))
+    return arr
+
+
+def _check_out(out, n):
+    try:
+        pts, status, err = out
+    except (TypeError, ValueError):
+        raise WarpvxValueError(
+            "out: expected a tuple (next_pts, status, err), got " + type(out).__name__
+        ) from None
+    return (
+        check_array(pts, "out[0] (next_pts)", shape=(n, 2), dtypes=(np.float32,)),
+        check_array(status, "out[1] (status)", shape=(n,), dtypes=(np.uint8,)),
+        check_array(err, "out[2] (err)", shape=(n,), dtypes=(np.float32,)),
+    )
+
+
+def _alloc_out(be, n):
+    if be.kind == "cpu":
+        return np.empty((n, 2), np.float32), np.empty(n, np.uint8), np.empty(n, np.float32)
+    import warp as wp
+
+    return (
+        wp.empty((n, 2), dtype=wp.float32, device=be.device),
+        wp.empty(n, dtype=wp.uint8, device=be.device),
+        wp.empty(n, dtype=wp.float32, device=be.device),
+    )
+
+
+def _pyramid(img, max_level: int, be, stream) -> list:
+    """Levels 0..max_level of ``img`` (level 0 is ``img`` itself) via :func:`warpvx.gaussian_pyramid`."""
+    from .pyramid import gaussian_pyramid
+
+    return gaussian_pyramid(img, max_level + 1, backend=be, stream=stream)
