@@ -1,0 +1,255 @@
+"""Colour conversion (OpenCV's ``cvtColor`` for uint8 images).
+
+Codes are cv2's integers or their names (``"BGR2GRAY"``, ``"COLOR_BGR2GRAY"``); see
+:data:`CODES`. Arithmetic, bit-exact with OpenCV:
+
+- to gray: ``Y = (3735*B + 19235*G + 9798*R + 2^14) >> 15`` (ITU-R BT.601 weights in 15-bit
+  fixed point, as OpenCV's ``RGB2Gray<uchar>``); alpha is ignored.
+- channel swaps / alpha: copy with R and B exchanged as named; a new alpha is 255.
+- NV12 / NV21 (one (H*3/2) x W uint8 plane: H rows of Y, then H/2 rows of interleaved
+  U,V (NV12) or V,U (NV21) at half resolution) to BGR/RGB(A), ITU-R BT.601 limited range in
+  20-bit fixed point as OpenCV's ``YUV420sp2RGB``::
+
+      y' = max(Y - 16, 0) * 1220542,  u = U - 128,  v = V - 128
+      R = (y' + 1673527 v + 2^19) >> 20
+      G = (y' - 852492 v - 409993 u + 2^19) >> 20
+      B = (y' + 2116026 u + 2^19) >> 20        (each saturated to [0, 255])
+"""
+
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+
+import numpy as np
+
+from .arrays import to_warp
+from .backend import resolve_backend
+from .check import check_array, check_image
+from .errors import ShapeError, UnsupportedError
+from .registry import BenchCase, dispatch
+
+
+@dataclass(frozen=True)
+class ColorCode:
+    """What a conversion code does.
+
+    Attributes
+    ----------
+    kind : str
+        ``"gray"`` (colour to gray), ``"reorder"`` (channel copy/swap/alpha),
+        ``"expand"`` (gray to colour), ``"nv"`` (NV12/NV21 to colour), ``"luma"`` (NV to gray).
+    src_channels : tuple of int
+        Accepted input channel counts (1 for gray and NV planes).
+    dst_channels : int
+        Output channels (1 means an HxW output).
+    swap_rb : bool
+        Whether R and B change places (or, for ``"gray"``, whether the input is RGB order).
+    uv_first : int
+        For ``"nv"``: 0 when U precedes V (NV12), 1 when V precedes U (NV21).
+    """
+
+    kind: str
+    src_channels: tuple
+    dst_channels: int
+    swap_rb: bool = False
+    uv_first: int = 0
+
+
+# cv2's integer codes (shared by aliases such as BGR2RGB/RGB2BGR, which do the same thing).
+_SPECS = {
+    0: ColorCode("reorder", (3, 4), 4),  # BGR2BGRA, RGB2RGBA
+    1: ColorCode("reorder", (3, 4), 3),  # BGRA2BGR, RGBA2RGB
+    2: ColorCode("reorder", (3, 4), 4, swap_rb=True),  # BGR2RGBA, RGB2BGRA
+    3: ColorCode("reorder", (3, 4), 3, swap_rb=True),  # RGBA2BGR, BGRA2RGB
+    4: ColorCode("reorder", (3, 4), 3, swap_rb=True),  # BGR2RGB, RGB2BGR
+    5: ColorCode("reorder", (3, 4), 4, swap_rb=True),  # BGRA2RGBA, RGBA2BGRA
+    6: ColorCode("gray", (3, 4), 1),  # BGR2GRAY
+    7: ColorCode("gray", (3, 4), 1, swap_rb=True),  # RGB2GRAY
+    8: ColorCode("expand", (1,), 3),  # GRAY2BGR, GRAY2RGB
+    9: ColorCode("expand", (1,), 4),  # GRAY2BGRA, GRAY2RGBA
+    10: ColorCode("gray", (3, 4), 1),  # BGRA2GRAY
+    11: ColorCode("gray", (3, 4), 1, swap_rb=True),  # RGBA2GRAY
+    90: ColorCode("nv", (1,), 3, swap_rb=True, uv_first=0),  # YUV2RGB_NV12
+    91: ColorCode("nv", (1,), 3, swap_rb=False, uv_first=0),  # YUV2BGR_NV12
+    92: ColorCode("nv", (1,), 3, swap_rb=True, uv_first=1),  # YUV2RGB_NV21
+    93: ColorCode("nv", (1,), 3, swap_rb=False, uv_first=1),  # YUV2BGR_NV21
+    94: ColorCode("nv", (1,), 4, swap_rb=True, uv_first=0),  # YUV2RGBA_NV12
+    95: ColorCode("nv", (1,), 4, swap_rb=False, uv_first=0),  # YUV2BGRA_NV12
+    96: ColorCode("nv", (1,), 4, swap_rb=True, uv_first=1),  # YUV2RGBA_NV21
+    97: ColorCode("nv", (1,), 4, swap_rb=False, uv_first=1),  # YUV2BGRA_NV21
+    106: ColorCode("luma", (1,), 1),  # YUV2GRAY_NV12 / NV21 / 420sp
+}
+
+#: Accepted names (without the ``COLOR_`` prefix) and their cv2 integer codes.
+CODES = {
+    "BGR2BGRA": 0, "RGB2RGBA": 0, "BGRA2BGR": 1, "RGBA2RGB": 1,
+    "BGR2RGBA": 2, "RGB2BGRA": 2, "RGBA2BGR": 3, "BGRA2RGB": 3,
+    "BGR2RGB": 4, "RGB2BGR": 4, "BGRA2RGBA": 5, "RGBA2BGRA": 5,
+    "BGR2GRAY": 6, "RGB2GRAY": 7, "GRAY2BGR": 8, "GRAY2RGB": 8,
+    "GRAY2BGRA": 9, "GRAY2RGBA": 9, "BGRA2GRAY": 10, "RGBA2GRAY": 11,
+    "YUV2RGB_NV12": 90, "YUV2BGR_NV12": 91, "YUV2RGB_NV21": 92, "YUV2BGR_NV21": 93,
+    "YUV420sp2RGB": 92, "YUV420sp2BGR": 93,
+    "YUV2RGBA_NV12": 94, "YUV2BGRA_NV12": 95, "YUV2RGBA_NV21": 96, "YUV2BGRA_NV21": 97,
+    "YUV420sp2RGBA": 96, "YUV420sp2BGRA": 97,
+    "YUV2GRAY_NV12": 106, "YUV2GRAY_NV21": 106, "YUV420sp2GRAY": 106,
+}
+_BY_UPPER = {k.upper(): v for k, v in CODES.items()}
+
+
+def resolve_code(code) -> int:
+    """cv2's integer for ``code`` (an int or a name with or without ``COLOR_``)."""
+    if isinstance(code, str):
+        key = code.strip().upper()
+        if key.startswith("COLOR_"):
+            key = key[len("COLOR_"):]
+        if key in _BY_UPPER:
+            return _BY_UPPER[key]
+    elif isinstance(code, numbers.Integral) and not isinstance(code, bool) and int(code) in _SPECS:
+        return int(code)
+    raise UnsupportedError(
+        f"code: unsupported colour conversion {code!r}; supported: {', '.join(CODES)} "
+        f"(names, with or without COLOR_, or cv2's integers)"
+    )
+
+
+def code_spec(code: int) -> ColorCode:
+    """The :class:`ColorCode` of a resolved integer code."""
+    return _SPECS[code]
+
+
+def output_shape(code: int, src_shape: tuple) -> tuple:
+    """Output shape of ``code`` on an input of ``src_shape`` (HxW for NV planes is the luma size)."""
+    spec = _SPECS[code]
+    h, w = src_shape[0], src_shape[1]
+    if spec.kind in ("nv", "luma"):
+        h = h * 2 // 3
+    return (h, w) if spec.dst_channels == 1 else (h, w, spec.dst_channels)
+
+
+def color_convert(src, code, *, out=None, backend=None, stream=None):
+    """Convert a uint8 image between colour spaces, as ``cv2.cvtColor(src, code)``.
+
+    Parameters
+    ----------
+    src : array
+        uint8, C-contiguous. Gray inputs HxW (or HxWx1); colour inputs HxWx3 or HxWx4 (any
+        code from 3 or 4 channels accepts both, alpha ignored); NV12/NV21 inputs one
+        (H*3/2) x W plane with H and W even.
+    code : int or str
+        A cv2 code (``cv2.COLOR_BGR2GRAY``) or its name (``"BGR2GRAY"``,
+        ``"COLOR_BGR2GRAY"``); see :data:`CODES` and the module docstring for the arithmetic.
+    out : array, optional
+        uint8 output of the converted shape (HxW for gray results).
+    backend, stream
+        See :mod:`warpvx.backend`.
+
+    Returns
+    -------
+    array
+        uint8 HxW (gray) or HxWxC, of the input's kind (NumPy or ``wp.array``).
+
+    Raises
+    ------
+    UnsupportedError
+        ``code`` is unknown.
+    DTypeError, ShapeError, WarpvxValueError
+        Bad ``src`` (dtype, channel count for the code, empty, odd NV12 size, not contiguous)
+        or ``out``.
+    """
+    be = resolve_backend(backend, like=src)
+    c = resolve_code(code)
+    spec = _SPECS[c]
+    src = check_image(src, "src", dtypes=(np.uint8,), channels=spec.src_channels)
+    if src.ndim == 3 and src.shape[2] == 1:
+        src = src.reshape((src.shape[0], src.shape[1]))
+    if spec.kind in ("nv", "luma"):
+        rows, width = src.shape
+        if rows % 3 != 0 or width % 2 != 0:
+            raise ShapeError(
+                f"src: an NV12/NV21 plane must have H*3/2 rows and an even width W (H even), "
+                f"got shape {tuple(src.shape)}"
+            )
+    if out is not None:
+        check_array(out, "out", shape=output_shape(c, tuple(src.shape)), dtypes=(np.uint8,))
+    return dispatch("color_convert", be, src, c, out=out, stream=stream)
+
+
+# --- benchmark cases ------------------------------------------------------------------------
+
+
+def bgr_to_nv12(image_bgr: np.ndarray) -> np.ndarray:
+    """An NV12 plane ((H*3/2) x W) of a BGR image cropped to even size (OpenCV's encoder)."""
+    import cv2
+
+    h, w = image_bgr.shape[0] & ~1, image_bgr.shape[1] & ~1
+    i420 = cv2.cvtColor(np.ascontiguousarray(image_bgr[:h, :w]), cv2.COLOR_BGR2YUV_I420)
+    flat = i420.ravel()  # Y plane, then the U and V planes of (H/2)*(W/2) bytes each
+    q = (h // 2) * (w // 2)
+    u = flat[h * w:h * w + q].reshape(h // 2, w // 2)
+    v = flat[h * w + q:].reshape(h // 2, w // 2)
+    uv = np.stack([u, v], axis=-1).reshape(h // 2, w)
+    return np.ascontiguousarray(np.vstack([i420[:h], uv]))
+
+
+def bench_cases_color_convert(image_bgr: np.ndarray) -> list[BenchCase]:
+    """BGR2GRAY, BGR2RGB and NV12->BGR on a real photo (NV12 made from it)."""
+    import cv2
+
+    nv12 = bgr_to_nv12(image_bgr)
+    cases = []
+    for label, src_host, code in (
+        ("BGR2GRAY", image_bgr, cv2.COLOR_BGR2GRAY),
+        ("BGR2RGB", image_bgr, cv2.COLOR_BGR2RGB),
+        ("YUV2BGR_NV12", nv12, cv2.COLOR_YUV2BGR_NV12),
+    ):
+        cases.append(_color_case(label, src_host, code))
+    return cases
+
+
+def _color_case(label, src_host, code) -> BenchCase:
+    import cv2
+
+    out_shape = output_shape(code, src_host.shape)
+    h, w = out_shape[0], out_shape[1]
+
+    def prepare(backend_name):
+        be = resolve_backend(backend_name)
+        src = src_host if be.kind == "cpu" else to_warp(src_host, be.device)
+        host_out = np.empty(out_shape, np.uint8)
+        out = host_out if be.kind == "cpu" else to_warp(host_out, be.device)
+        return lambda: color_convert(src, code, out=out, backend=be)
+
+    def opencv():
+        dst = np.empty(out_shape, np.uint8)
+        return lambda: cv2.cvtColor(src_host, code, dst=dst)
+
+    def cvcuda_peer():
+        import cvcuda
+        import torch
+
+        t = torch.from_numpy(src_host).cuda()
+        t = t[None] if t.ndim == 3 else t[None, :, :, None]
+        src = cvcuda.as_tensor(t.contiguous(), "NHWC")
+        c = 1 if len(out_shape) == 2 else out_shape[2]
+        dst = cvcuda.as_tensor(torch.empty((1, h, w, c), dtype=torch.uint8, device="cuda"), "NHWC")
+        cv_code = getattr(cvcuda.ColorConversion, label)
+        return lambda: cvcuda.cvtcolor_into(dst, src, cv_code)
+
+    def kornia_peer():
+        import kornia
+        import torch
+
+        if label == "YUV2BGR_NV12":
+            y = torch.from_numpy(src_host[:h]).cuda().float().div(255)[None, None]
+            uv = torch.from_numpy(src_host[h:].reshape(h // 2, w // 2, 2)).cuda().float()
+            uv = uv.permute(2, 0, 1)[None].div(255).sub(0.5).contiguous()
+            return lambda: kornia.color.yuv420_to_rgb(y, uv).flip(1)
+        img = torch.from_numpy(src_host).cuda().permute(2, 0, 1)[None].float().div(255).contiguous()
+        if label == "BGR2GRAY":
+            return lambda: kornia.color.bgr_to_grayscale(img)
+        return lambda: kornia.color.bgr_to_rgb(img)
+
+    nbytes = src_host.nbytes + int(np.prod(out_shape))
+    peers = {"cvcuda": cvcuda_peer, "kornia": kornia_peer}
+    return BenchCase("color_convert", label, (w, h), prepare, opencv, peers, nbytes)
