@@ -105,11 +105,15 @@ def get_backend() -> Backend:
     return resolve_backend(None)
 
 
+_resolved: dict = {}
+
+
 def resolve_backend(backend=None, *, like=None) -> Backend:
     """Turn a backend name (or None) into a :class:`Backend`.
 
     ``like`` is an input array: with ``backend=None`` and no process default, a ``wp.array``
     input selects the Warp backend on its own device, so device data stays where it is.
+    Resolutions are cached: this runs on every primitive call.
     """
     if isinstance(backend, Backend):
         return backend
@@ -117,9 +121,21 @@ def resolve_backend(backend=None, *, like=None) -> Backend:
         if _default_backend is not None:
             backend = _default_backend
         elif like is not None and _is_warp_array(like):
-            backend = "warp-cpu" if str(like.device) == "cpu" else str(like.device)
+            backend = "warp-cpu" if like.device.is_cpu else str(like.device)
         else:
-            backend = "cuda" if cuda_available() else "cpu"
+            backend = "auto"
+    hit = _resolved.get(backend) if isinstance(backend, str) else None
+    if hit is not None:
+        return hit
+    if backend == "auto":
+        resolved = _resolve("cuda" if cuda_available() else "cpu")
+    else:
+        resolved = _resolve(backend)
+    _resolved[backend] = resolved
+    return resolved
+
+
+def _resolve(backend) -> Backend:
     if not isinstance(backend, str):
         raise BackendError(
             f"backend: expected one of 'cpu', 'warp-cpu', 'cuda', 'cuda:N' or None, got {backend!r}"

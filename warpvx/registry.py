@@ -195,7 +195,7 @@ def _is_native(out, backend: Backend) -> bool:
         return all(_is_native(o, backend) for o in out)
     if backend.kind == "cpu":
         return isinstance(out, np.ndarray)
-    return is_warp_array(out) and str(out.device) == str(init_warp().get_device(backend.device))
+    return is_warp_array(out) and str(out.device) == backend.device
 
 
 def _copy_into(out, result):
