@@ -159,6 +159,15 @@ _std("harris_corners", "features")
 _std("optical_flow_pyr_lk", "flow")
 _std("orb", "orb_extractor")
 _std("match_hamming", "matching")
+# Primitives with no bench case of their own: resize shares the scale pyramid's kernel modules;
+# orb_compute and knn_match_hamming are timed through orb and match_hamming.
+register("resize", public="warpvx.pyramid:resize",
+         cpu="warpvx.kernels_cpu.scale_pyramid:resize", warp="warpvx.kernels_warp.scale_pyramid:resize")
+register("orb_compute", public="warpvx.orb_extractor:orb_compute",
+         cpu="warpvx.kernels_cpu.orb:orb_compute", warp="warpvx.kernels_warp.orb:orb_compute")
+register("knn_match_hamming", public="warpvx.matching:knn_match_hamming",
+         cpu="warpvx.kernels_cpu.match_hamming:knn_match_hamming",
+         warp="warpvx.kernels_warp.match_hamming:knn_match_hamming")
 
 
 def dispatch(name: str, backend: Backend, *args, out=None, stream=None, template=None, **kwargs):

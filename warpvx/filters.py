@@ -1,0 +1,188 @@
+"""Linear filters: Gaussian blur (OpenCV's ``GaussianBlur``, bit-exact on uint8)."""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+from .arrays import to_warp
+from .backend import resolve_backend
+from .check import check_array, check_choice, check_float, check_image, check_int
+from .errors import UnsupportedError, WarpvxTypeError
+from .registry import BenchCase, dispatch
+
+#: Border names (and cv2's integer codes) accepted by :func:`gaussian_blur`.
+BORDERS = {
+    "constant": 0, "replicate": 1, "reflect": 2, "reflect101": 4, "reflect_101": 4,
+    0: 0, 1: 1, 2: 2, 4: 4,
+}
+MAX_KSIZE = 31
+
+
+def gaussian_blur(src, ksize, sigma, border="reflect101", *, out=None, backend=None, stream=None):
+    """Blur a uint8 image with a Gaussian kernel, bit-exact with ``cv2.GaussianBlur``.
+
+    ``dst = (sum_ij kx[i] ky[j] src[y+j, x+i] + 2^15) >> 16`` with ``kx``, ``ky`` OpenCV's
+    8-bit fixed-point Gaussian kernels (1/256 units, summing to 256).
+
+    Parameters
+    ----------
+    src : array
+        uint8 HxW, HxWx1 (treated as HxW) or HxWxC (C = 3, 4), C-contiguous.
+    ksize : int or (int, int)
+        Odd kernel size, or (width, height) of odd sizes, each in 1..31.
+    sigma : float or (float, float)
+        Standard deviation, or (sigma_x, sigma_y); each >= 0. 0 derives sigma from the size
+        (``0.3 * ((ksize - 1) * 0.5 - 1) + 0.8``); a sigma_y of 0 means sigma_x (OpenCV's
+        rules).
+    border : {"reflect101", "replicate", "reflect", "constant"} or int
+        Pixels beyond the image: ``gfedcb|abcdefgh|gfedcba`` (default, ``BORDER_DEFAULT``),
+        ``aaaaaa|abcdefgh|hhhhhhh``, ``fedcba|abcdefgh|hgfedcb``, or zeros; cv2's
+        ``BORDER_*`` integers are accepted too.
+    out : array, optional
+        uint8 output of ``src``'s shape; may be ``src`` itself (in place).
+    backend, stream
+        See :mod:`warpvx.backend`.
+
+    Returns
+    -------
+    array
+        uint8 image of ``src``'s shape and kind (NumPy or ``wp.array``).
+
+    Raises
+    ------
+    DTypeError, ShapeError, WarpvxValueError, WarpvxTypeError, UnsupportedError
+        Bad ``src``, ``ksize`` (even, < 1, > 31), ``sigma`` (negative, not finite),
+        ``border`` or ``out``.
+
+    References
+    ----------
+    OpenCV ``GaussianBlur`` (``smooth.dispatch.cpp``: ``getGaussianKernelBitExact``,
+    ``getGaussianKernelFixedPoint_ED``, ``GaussianBlurFixedPoint``).
+    """
+    be = resolve_backend(backend, like=src)
+    src = _as_hw(check_image(src, "src", dtypes=(np.uint8,), channels=(1, 3, 4)))
+    kx, ky = _ksize(ksize)
+    sx, sy = _sigma(sigma)
+    if sy == 0:
+        sy = sx
+    code = border_code(border)
+    if out is not None:
+        check_array(out, "out", shape=tuple(src.shape), dtypes=(np.uint8,))
+    return dispatch("gaussian_blur", be, src, (kx, ky), (sx, sy), code, out=out, stream=stream)
+
+
+def border_code(border) -> int:
+    """cv2's integer code of a border given by name or code (see :data:`BORDERS`)."""
+    if isinstance(border, bool) or not isinstance(border, (str, numbers.Integral)):
+        names = ", ".join(repr(k) for k in BORDERS if isinstance(k, str))
+        raise UnsupportedError(f"border: expected one of {names} or its cv2 integer, got {border!r}")
+    return check_choice(border.lower() if isinstance(border, str) else int(border), "border", BORDERS)
+
+
+def _ksize(ksize) -> tuple[int, int]:
+    if isinstance(ksize, (tuple, list)):
+        if len(ksize) != 2:
+            raise WarpvxTypeError(f"ksize: expected an int or (width, height), got {ksize!r}")
+        pair = (ksize[0], ksize[1])
+        names = ("ksize[0] (width)", "ksize[1] (height)")
+    else:
+        pair = (ksize, ksize)
+        names = ("ksize", "ksize")
+    out = []
+    for v, name in zip(pair, names):
+        k = check_int(v, name, min_value=1, max_value=MAX_KSIZE)
+        if k % 2 == 0:
+            raise UnsupportedError(f"{name}: expected an odd size, got {k}")
+        out.append(k)
+    return out[0], out[1]
+
+
+def _sigma(sigma) -> tuple[float, float]:
+    if isinstance(sigma, (tuple, list)):
+        if len(sigma) != 2:
+            raise WarpvxTypeError(f"sigma: expected a number or (sigma_x, sigma_y), got {sigma!r}")
+        return (check_float(sigma[0], "sigma[0]", min_value=0.0),
+                check_float(sigma[1], "sigma[1]", min_value=0.0))
+    s = check_float(sigma, "sigma", min_value=0.0)
+    return s, s
+
+
+def _as_hw(src):
+    """An HxWx1 image as an HxW view."""
+    if src.ndim == 3 and src.shape[2] == 1:
+        return src.reshape((src.shape[0], src.shape[1]))
+    return src
+
+
+# --- benchmark cases ------------------------------------------------------------------------
+
+
+def bench_cases_gaussian_blur(image_bgr: np.ndarray) -> list[BenchCase]:
+    """5x5 sigma 1 (gray, BGR) and ORB's 7x7 sigma 2 (gray) blurs of ``image_bgr``'s size."""
+    import cv2
+
+    gray = np.ascontiguousarray(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY))
+    h, w = gray.shape
+    cases = []
+    for label, img, k, s in (
+        ("5x5 s1 gray", gray, 5, 1.0),
+        ("7x7 s2 gray (ORB)", gray, 7, 2.0),
+        ("5x5 s1 BGR", np.ascontiguousarray(image_bgr), 5, 1.0),
+    ):
+        cases.append(BenchCase(
+            primitive="gaussian_blur",
+            label=label,
+            size=(w, h),
+            prepare=_prepare_blur(img, k, s),
+            opencv=_opencv_blur(img, k, s),
+            peers={"cvcuda": _cvcuda_blur(img, k, s), "kornia": _kornia_blur(img, k, s)},
+            bytes_moved=2 * img.nbytes,
+        ))
+    return cases
+
+
+def _prepare_blur(img, k, s):
+    def prepare(backend):
+        if backend == "cpu":
+            src = img
+            out = np.empty_like(img)
+        else:
+            dev = resolve_backend(backend).device
+            src = to_warp(img, dev)
+            out = to_warp(np.empty_like(img), dev)
+        return lambda: gaussian_blur(src, k, s, out=out, backend=backend)
+    return prepare
+
+
+def _opencv_blur(img, k, s):
+    def prepare():
+        import cv2
+
+        dst = np.empty_like(img)
+        return lambda: cv2.GaussianBlur(img, (k, k), s, dst=dst, borderType=cv2.BORDER_REFLECT_101)
+    return prepare
+
+
+def _cvcuda_blur(img, k, s):
+    def prepare():
+        import cvcuda
+        import torch
+
+        t = torch.from_numpy(img.reshape(1, img.shape[0], img.shape[1], -1)).cuda()
+        src = cvcuda.as_tensor(t, "NHWC")
+        dst = cvcuda.as_tensor(torch.empty_like(t), "NHWC")
+        return lambda: cvcuda.gaussian_into(dst, src, (k, k), (s, s), cvcuda.Border.REFLECT101)
+    return prepare
+
+
+def _kornia_blur(img, k, s):
+    def prepare():
+        import kornia
+        import torch
+
+        t = torch.from_numpy(img.reshape(img.shape[0], img.shape[1], -1)).cuda()
+        x = t.permute(2, 0, 1)[None].float()
+        return lambda: kornia.filters.gaussian_blur2d(x, (k, k), (s, s), border_type="reflect")
+    return prepare

@@ -1,0 +1,208 @@
+"""ORB features extracted exactly as ORB-SLAM2's ``ORBextractor`` does (SPEC section 6).
+
+Public functions validate their arguments and dispatch to ``warpvx.kernels_cpu.orb``
+(NumPy/OpenCV) or ``warpvx.kernels_warp.orb`` (Warp kernels; the quadtree on the host); see
+:mod:`warpvx.registry`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .arrays import to_warp
+from .backend import resolve_backend
+from .check import check_float, check_image, check_int
+from .errors import ShapeError, WarpvxTypeError, WarpvxValueError
+from .kernels_cpu.orb import MAX_SIDE, MIN_LEVEL_SIZE
+from .keypoints import Keypoints
+from .pyramid import scale_pyramid_sizes
+from .registry import BenchCase, dispatch
+
+def _gray(src, name: str = "src"):
+    """A gray uint8 HxW image (HxWx1 viewed as HxW); colour input is refused, not converted."""
+    shape = tuple(getattr(src, "shape", ()))
+    if len(shape) == 3 and shape[2] in (3, 4):
+        raise ShapeError(
+            f"{name}: expected a gray uint8 HxW image, got {shape[2]} channels (shape {shape}); "
+            f"convert it first, e.g. warpvx.color_convert(src, 'BGR2GRAY')"
+        )
+    src = check_image(src, name, dtypes=(np.uint8,), channels=(1,))
+    if len(src.shape) == 3:
+        src = src.reshape(tuple(src.shape[:2]))
+    return src
+
+
+def orb(src, n_features: int = 2000, scale_factor: float = 1.2, n_levels: int = 8,
+        ini_th_fast: int = 20, min_th_fast: int = 7, *, backend=None, stream=None) -> tuple:
+    """ORB keypoints and descriptors, extracted as ORB-SLAM2's ``ORBextractor::operator()``.
+
+    Per pyramid level l (scale s_l = scale_factor^l, size cvRound(w / s_l), resized
+    INTER_LINEAR from level l-1):
+
+    1. FAST-9/16 with non-max suppression on 30x30 cells over the level less a 16 px border
+       (``ComputeKeyPointsOctTree``'s grid, cells overlapping by 6 px): a cell keeps its points
+       scoring >= ``ini_th_fast`` when it has any, else those >= ``min_th_fast``. Computed in
+       data-flow form (FAST once at the lower threshold, then the per-cell rule), which gives
+       ORB-SLAM2's points exactly, cell-local non-max suppression included.
+    2. ``DistributeOctTree``: a quadtree spreads the points and keeps the strongest per node,
+       aiming at n_l nodes, n_l = cvRound(n0 f^l), f = 1 / scale_factor,
+       n0 = N (1 - f) / (1 - f^L), the last level the remainder (2000, 1.2, 8: 434 362 302 251
+       209 175 145 122). It can return a few more than n_l (ORB-SLAM2 stops splitting only
+       once n_l is reached) or fewer (not enough corners). Sequential: it runs on the host on
+       every backend; the Warp path copies the candidates down and the chosen points back up.
+    3. Orientation: ``IC_Angle``, the intensity centroid over the radius-15 disc (umax rows
+       15 15 15 15 14 14 14 13 13 12 11 10 9 8 6 3) of the unblurred level, angle =
+       OpenCV's ``fastAtan2(m01, m10)`` in degrees [0, 360).
+    4. Descriptors: the level blurred by a 7x7 Gaussian, sigma 2, BORDER_REFLECT_101; rotated
+       BRIEF with the 256 pairs of ORB's 31x31 pattern: a = cos, b = sin of the angle, point
+       (x, y) sampled at (cvRound(x a - y b), cvRound(x b + y a)), bit i (bit i % 8 of byte
+       i // 8) = I(p1) < I(p2).
+    5. Coordinates back to level 0: (x s_l, y s_l).
+
+    Keypoints are never within 19 px (EDGE_THRESHOLD) of their level's border (the cells own
+    pixels from 19 px in), so every patch lies inside the level, as in ORB-SLAM2 where the
+    level carries a 19 px reflected border.
+
+    Parameters
+    ----------
+    src : uint8 HxW (or HxWx1)
+        Gray image, NumPy or device array, at most 15000 px a side. Colour images are
+        refused: convert first.
+    n_features : int >= 1
+        Features wanted over all levels (N).
+    scale_factor : float > 1
+        Scale between levels.
+    n_levels : int in [1, 32]
+        Pyramid levels (L). The smallest level must be at least 62x62 (one 30 px cell plus
+        the 16 px borders).
+    ini_th_fast, min_th_fast : int in [0, 255]
+        FAST thresholds: the preferred one and the per-cell fallback.
+    backend, stream
+        See :mod:`warpvx.backend`.
+
+    Returns
+    -------
+    keypoints : Keypoints
+        N keypoints, level by level, each level in the quadtree's node order: x, y at level 0
+        (float32), response = FAST score, size = int(31 s_l) (ORB-SLAM2's truncated
+        PATCH_SIZE x scale), angle in degrees, octave = level.
+    descriptors : uint8 [N, 32]
+
+    Raises
+    ------
+    ShapeError
+        ``src`` not a gray HxW image, or too small for ``n_levels`` levels.
+    DTypeError
+        ``src`` not uint8.
+    WarpvxTypeError, WarpvxValueError
+        A parameter of the wrong type or out of range (``n_features`` 0, ``scale_factor`` <= 1).
+
+    Notes
+    -----
+    Deviations from ORB-SLAM2: it orders equal-sized quadtree nodes by heap address (not
+    reproducible; here the later-created node goes first), and it would divide by zero on a
+    level more than twice as tall as wide (here: one root node). Reference: ORB-SLAM2
+    ``src/ORBextractor.cc`` (Mur-Artal and Tardos 2017); descriptors agree with
+    ``cv2.ORB_create().compute`` on the same keypoints and angles.
+    """
+    be = resolve_backend(backend, like=src)
+    src = _gray(src)
+    n_features = check_int(n_features, "n_features", min_value=1)
+    scale_factor = check_float(scale_factor, "scale_factor", min_value=1.0, strict_min=True)
+    n_levels = check_int(n_levels, "n_levels", min_value=1, max_value=32)
+    ini_th_fast = check_int(ini_th_fast, "ini_th_fast", min_value=0, max_value=255)
+    min_th_fast = check_int(min_th_fast, "min_th_fast", min_value=0, max_value=255)
+    h, w = int(src.shape[0]), int(src.shape[1])
+    if max(h, w) > MAX_SIDE:
+        raise ShapeError(f"src: image of {w}x{h} (WxH) is larger than {MAX_SIDE} px a side")
+    sizes = scale_pyramid_sizes(w, h, n_levels, scale_factor)
+    lw, lh = sizes[-1]
+    if lw < MIN_LEVEL_SIZE or lh < MIN_LEVEL_SIZE:
+        raise ShapeError(
+            f"src: image of {w}x{h} (WxH) is too small for n_levels={n_levels} at scale_factor "
+            f"{scale_factor}: level {n_levels - 1} would be {lw}x{lh}, every level must be at "
+            f"least {MIN_LEVEL_SIZE}x{MIN_LEVEL_SIZE} (a 30 px FAST cell plus 16 px borders); "
+            f"use fewer levels or a larger image"
+        )
+    return dispatch("orb", be, src, n_features, scale_factor, n_levels, ini_th_fast,
+                    min_th_fast, stream=stream)
+
+
+def orb_compute(src, keypoints, scale_factor: float = 1.2, *, backend=None, stream=None):
+    """Descriptors of given keypoints, as :func:`orb` computes them (cv2's ``ORB.compute``).
+
+    Each keypoint is described on level ``octave`` of ORB-SLAM2's pyramid (as many levels as
+    the largest octave needs), blurred 7x7 sigma 2, at centre cvRound((x, y) / s_octave), with
+    its own ``angle``. Patch reads past the level's edge reflect (BORDER_REFLECT_101), as on
+    OpenCV's bordered pyramid; drop keypoints near the border first if that matters
+    (``warpvx.cv.ORB_create().compute`` drops them as cv2 does).
+
+    Parameters
+    ----------
+    src : uint8 HxW
+        Gray image.
+    keypoints : Keypoints or list of cv2.KeyPoint
+        Level-0 coordinates, ``octave`` >= 0, ``angle`` in degrees.
+    scale_factor : float > 1
+    backend, stream
+        See :mod:`warpvx.backend`.
+
+    Returns
+    -------
+    uint8 [N, 32]
+        In the keypoints' order.
+    """
+    be = resolve_backend(backend, like=src)
+    src = _gray(src)
+    scale_factor = check_float(scale_factor, "scale_factor", min_value=1.0, strict_min=True)
+    if not isinstance(keypoints, Keypoints):
+        if isinstance(keypoints, (list, tuple)):
+            keypoints = Keypoints.from_cv(keypoints)
+        else:
+            raise WarpvxTypeError(f"keypoints: expected Keypoints or a list of cv2.KeyPoint, got "
+                                  f"{type(keypoints).__name__}")
+    host = keypoints.to("host")
+    if len(host) and not (np.all(np.isfinite(host.x)) and np.all(np.isfinite(host.y))
+                          and np.all(np.isfinite(host.angle))):
+        raise WarpvxValueError("keypoints: coordinates and angles must be finite")
+    if len(host) and host.octave.min() < 0:
+        raise WarpvxValueError(f"keypoints: octave must be >= 0, got {int(host.octave.min())}")
+    n_levels = int(host.octave.max()) + 1 if len(host) else 1
+    h, w = int(src.shape[0]), int(src.shape[1])
+    lw, lh = scale_pyramid_sizes(w, h, n_levels, scale_factor)[-1]
+    if lw < 1 or lh < 1:
+        raise ShapeError(f"src: image of {w}x{h} (WxH) has no pyramid level {n_levels - 1} "
+                         f"(keypoints: octave {n_levels - 1}) at scale_factor {scale_factor}")
+    return dispatch("orb_compute", be, src, keypoints, scale_factor, n_levels, stream=stream)
+
+
+# --- benchmark cases -------------------------------------------------------------------------
+
+def bench_cases_orb(image_bgr: np.ndarray) -> list[BenchCase]:
+    """ORB-SLAM2 extraction, 2000 features at 1.2 over 8 levels (fewer on an image too small
+    for 8); ``cv2.ORB_create(2000, 1.2, levels).detectAndCompute`` beside it. The harness runs
+    it at 1920x1080 and at KITTI's 1241x376."""
+    import cv2
+
+    gray = np.ascontiguousarray(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY))
+    h, w = gray.shape
+    levels = 8
+    while levels > 1 and min(scale_pyramid_sizes(w, h, levels, 1.2)[-1]) < MIN_LEVEL_SIZE:
+        levels -= 1
+    if min(h, w) < MIN_LEVEL_SIZE:
+        return []
+
+    def prepare(backend_name):
+        be = resolve_backend(backend_name)
+        src = gray if be.kind == "cpu" else to_warp(gray, be.device)
+        return lambda: orb(src, 2000, 1.2, levels, 20, 7, backend=backend_name)
+
+    def opencv():
+        det = cv2.ORB_create(2000, 1.2, levels)
+        return lambda: det.detectAndCompute(gray, None)
+
+    return [BenchCase("orb", f"2000 features, {levels} levels", (w, h), prepare, opencv,
+                      bytes_moved=h * w)]
+
+
+__all__ = ["orb", "orb_compute", "bench_cases_orb"]
