@@ -30,12 +30,15 @@ class Schedule:
         Name of the policy that produced it.
     priority : list
         The task order the policy placed tasks in (HEFT's rank list, XEFT's reordered list).
+    info : dict
+        Policy extras, e.g. ``{"chosen": "xeft"}`` from the ``best`` policy.
     """
 
     tasks: dict
     processors: list
     policy: str = ""
     priority: list = field(default_factory=list)
+    info: dict = field(default_factory=dict)
 
     @property
     def makespan(self) -> float:

@@ -1,0 +1,270 @@
+"""Graph nodes: registered primitives and user callables, their ports and their callables.
+
+A node's *input ports* are named after the parameters of the function it calls (``src``,
+``prev_pts``, ...), its *output ports* after what the function returns (:data:`OUTPUTS`; one
+output named ``out`` by default). A node runs the public function of its primitive with
+``backend="cpu"`` on a CPU worker and with the GPU role's backend on the GPU, so arguments are
+validated by the primitive's own checks and each implementation gets what it takes.
+"""
+
+from __future__ import annotations
+
+import inspect
+import re
+import weakref
+
+from ..errors import GraphError, WarpvxError
+from ..registry import REGISTRY, get_primitive
+from .data import Data, DelayRef
+
+#: Output ports of primitives that return several values (all others return one, ``out``).
+OUTPUTS = {
+    "optical_flow_pyr_lk": ("next_pts", "status", "err"),
+    "orb": ("keypoints", "descriptors"),
+    "match_hamming": ("pairs", "distances"),
+}
+
+#: Arguments the runtime owns: a node may not set them.
+RESERVED = ("backend", "stream", "out")
+
+TARGETS = ("cpu", "gpu")
+
+
+def _is_data(x) -> bool:
+    return isinstance(x, (Data, DelayRef))
+
+
+class Node:
+    """A node of a :class:`~warpvx.graph.Graph`.
+
+    Attributes
+    ----------
+    name : str
+        Unique within the graph (``"color_convert_0"`` unless named).
+    kind : str
+        The primitive's registry name, or ``"user"``.
+    inputs : dict
+        port -> :class:`Data` or :class:`DelayRef`.
+    outputs : dict
+        port -> :class:`Data`.
+    target : str or None
+        ``"cpu"`` or ``"gpu"`` pins the node to that kind of processing element
+        (``vxSetNodeTarget``); None lets the scheduler choose.
+    """
+
+    kind = "node"
+
+    def __init__(self, graph, name: str):
+        self._graph = weakref.ref(graph)
+        self.name = name
+        self.inputs: dict = {}
+        self.outputs: dict = {}
+        self._target = None
+
+    @property
+    def graph(self):
+        return self._graph()
+
+    @property
+    def target(self):
+        return self._target
+
+    @target.setter
+    def target(self, value):
+        if value is not None and value not in TARGETS:
+            raise GraphError(f"node {self.name!r}, port 'target': expected 'cpu', 'gpu' or None, "
+                             f"got {value!r}")
+        if value is not None and value not in self.implementations:
+            raise GraphError(f"node {self.name!r} ({self.kind}), port 'target': pinned to "
+                             f"{value!r} but it has only {sorted(self.implementations)} "
+                             f"implementation(s)")
+        self._target = value
+        self.graph._invalidate_plan()
+
+    @property
+    def implementations(self) -> frozenset:
+        """``{"cpu", "gpu"}`` or a subset: the processing elements that can run it."""
+        raise NotImplementedError
+
+    @property
+    def processing_elements(self) -> frozenset:
+        """The implementations, narrowed to the pinned target."""
+        if self._target is not None:
+            return frozenset({self._target})
+        return self.implementations
+
+    @property
+    def exclusive(self) -> bool:
+        return len(self.implementations) == 1
+
+    def callable(self, pe: str, backend):
+        """``fn(*input_values) -> output value(s)`` running on ``pe`` (``"cpu"``/``"gpu"``)."""
+        raise NotImplementedError
+
+    def cache_key(self) -> str:
+        """What identifies this node's work for the calibration cache (kind and constants)."""
+        raise NotImplementedError
+
+    def error(self, port, message) -> GraphError:
+        where = f", port {port!r}" if port else ""
+        return GraphError(f"node {self.name!r} ({self.kind}){where}: {message}")
+
+    def __repr__(self):
+        return f"{type(self).__name__}({self.name!r})"
+
+
+class PrimitiveNode(Node):
+    """A node calling a registered primitive's public function."""
+
+    def __init__(self, graph, name: str, primitive: str, args: tuple, kwargs: dict):
+        super().__init__(graph, name)
+        self.kind = primitive
+        try:
+            self.primitive = get_primitive(primitive)
+        except WarpvxError:
+            raise GraphError(f"node {name!r}: unknown primitive {primitive!r}; registered: "
+                             f"{sorted(REGISTRY)}") from None
+        try:
+            self.function = self.primitive.function()
+        except (ImportError, AttributeError) as exc:
+            raise GraphError(f"node {name!r}: primitive {primitive!r} is registered but its "
+                             f"function cannot be imported ({exc})") from exc
+        for key in RESERVED:
+            if key in kwargs:
+                raise self.error(key, f"{key!r} is set by the graph runtime, not by the node")
+        self.signature = inspect.signature(self.function)
+        try:
+            bound = self.signature.bind(*args, **kwargs)
+        except TypeError as exc:
+            found = re.search(r"'(\w+)'", str(exc))
+            raise self.error(found.group(1) if found else None, str(exc)) from None
+        self.arguments = dict(bound.arguments)
+        self.input_ports = []
+        for pname, value in self.arguments.items():
+            kind = self.signature.parameters[pname].kind
+            if kind in (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD):
+                if any(_is_data(v) for v in (value if kind == inspect.Parameter.VAR_POSITIONAL
+                                             else value.values())):
+                    raise self.error(pname, "data objects must be passed to named parameters")
+                continue
+            if _is_data(value):
+                self.inputs[pname] = value
+                self.input_ports.append(pname)
+        self.output_ports = OUTPUTS.get(primitive, ("out",))
+
+    @property
+    def implementations(self) -> frozenset:
+        return self.primitive.processing_elements
+
+    def bind_values(self, values) -> tuple:
+        arguments = dict(self.arguments)
+        for port, value in zip(self.input_ports, values):
+            arguments[port] = value
+        ba = inspect.BoundArguments(self.signature, arguments)
+        return ba.args, ba.kwargs
+
+    def callable(self, pe: str, backend):
+        fn = self.function
+        ports = self.input_ports
+        base = dict(self.arguments)
+        sig = self.signature
+        simple = all(sig.parameters[p].kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD,
+                                                inspect.Parameter.KEYWORD_ONLY)
+                     for p in base)
+
+        if simple:
+            # Hot path: keyword call, no BoundArguments per frame.
+            def run(*values):
+                kw = dict(base)
+                for p, v in zip(ports, values):
+                    kw[p] = v
+                return fn(**kw, backend=backend)
+        else:
+            def run(*values):
+                args, kwargs = self.bind_values(values)
+                return fn(*args, **kwargs, backend=backend)
+
+        return run
+
+    def constants(self) -> dict:
+        return {k: v for k, v in self.arguments.items() if k not in self.inputs}
+
+    def cache_key(self) -> str:
+        return self.kind + "|" + _const_text(self.constants())
+
+
+class UserNode(Node):
+    """A node running a Python callable (and optionally a Warp implementation of it).
+
+    ``fn(*inputs)`` runs on a CPU worker with host (NumPy) inputs; ``warp_fn(*inputs)``, when
+    given, runs in the GPU role with ``wp.array`` inputs on the GPU device (inside
+    ``wp.ScopedDevice`` with the executor's stream current). With one of the two the node is
+    *exclusive* (thesis §5.1).
+    """
+
+    kind = "user"
+
+    def __init__(self, graph, name: str, fn, warp_fn, inputs: dict, n_outputs_ports: tuple):
+        super().__init__(graph, name)
+        if fn is None and warp_fn is None:
+            raise GraphError(f"node {name!r} (user): give fn, warp_fn or both")
+        for label, f in (("fn", fn), ("warp_fn", warp_fn)):
+            if f is not None and not callable(f):
+                raise GraphError(f"node {name!r} (user), port {label!r}: expected a callable, "
+                                 f"got {type(f).__name__}")
+        self.fn = fn
+        self.warp_fn = warp_fn
+        self.inputs = dict(inputs)
+        self.input_ports = list(inputs)
+        self.output_ports = tuple(n_outputs_ports)
+
+    @property
+    def implementations(self) -> frozenset:
+        pes = set()
+        if self.fn is not None:
+            pes.add("cpu")
+        if self.warp_fn is not None:
+            pes.add("gpu")
+        return frozenset(pes)
+
+    def callable(self, pe: str, backend):
+        return self.fn if pe == "cpu" else self.warp_fn
+
+    def cache_key(self) -> str:
+        parts = []
+        for f in (self.fn, self.warp_fn):
+            if f is None:
+                parts.append("-")
+                continue
+            code = getattr(f, "__code__", None)
+            where = f"@{code.co_filename}:{code.co_firstlineno}" if code is not None else ""
+            parts.append(f"{getattr(f, '__module__', '?')}.{getattr(f, '__qualname__', repr(f))}{where}")
+        return "user:" + "/".join(parts)
+
+
+def _const_text(consts: dict) -> str:
+    import zlib
+
+    import numpy as np
+
+    out = []
+    for k in sorted(consts):
+        v = consts[k]
+        if isinstance(v, np.ndarray):
+            text = f"{v.dtype}[{'x'.join(map(str, v.shape))}]#{zlib.crc32(v.tobytes()):08x}"
+        else:
+            text = repr(v)
+            if len(text) > 80:
+                text = text[:60] + f"...#{zlib.crc32(text.encode()):08x}"
+        out.append(f"{k}={text}")
+    return ",".join(out)
+
+
+def port_of(message: str, ports) -> str | None:
+    """The argument a warpvx error names (its messages start with ``"<argument>: "``)."""
+    head = message.split(":", 1)[0].strip()
+    head = re.split(r"[\[\s(]", head)[0]
+    return head if head in ports else None
+
+
+__all__ = ["Node", "PrimitiveNode", "UserNode", "OUTPUTS", "TARGETS", "port_of"]

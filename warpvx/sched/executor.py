@@ -1,0 +1,800 @@
+"""Run a :class:`~warpvx.sched.schedule.Schedule` for real: CPU worker threads beside one GPU queue.
+
+The executor is the runtime half of SPEC §7. It knows nothing of graphs: it runs a
+:class:`Program` (tasks with named inputs and outputs and one callable per processing
+element) according to a schedule, frame after frame.
+
+Threads
+    One thread per processor of the schedule. A CPU worker (``"cpu<i>"``) runs its tasks' CPU
+    callables in schedule order on host data (NumPy/OpenCV release the GIL, so workers
+    overlap). The GPU host thread (``"gpu"``) runs the GPU callables in schedule order with the
+    device's current stream set to the executor's ``wp.Stream``; on CUDA the calls only enqueue
+    kernels, so the thread runs ahead of the device.
+Cross-queue edges
+    Every (frame, value) pair is a :class:`Slot` with a ``threading.Event`` set when its
+    producer has finished (CPU) or enqueued (GPU). GPU -> CPU: the GPU thread records a CUDA
+    event after the producer; the CPU consumer waits for the slot, then for the event
+    (``wp.synchronize_event``), then downloads on its own copy stream. CPU -> GPU: the GPU
+    thread waits for the CPU producer's slot and uploads on the GPU stream (stream-ordered, so
+    the kernel after it sees the data). Between two GPU tasks data stays on the device: one
+    in-order stream needs no synchronisation at all.
+Timing
+    CPU tasks: host ``time.perf_counter`` before the task's downloads and after its call
+    (waiting for a producer is not counted). GPU tasks on CUDA: timing events recorded on the
+    stream before the task's uploads and after its kernels, mapped to the host clock through
+    an anchor event recorded while the stream was idle (:meth:`Executor.reanchor`), so a GPU
+    interval is when the device ran it, not when the host enqueued it. Without CUDA (the
+    ``"warp-cpu"`` GPU role) calls are synchronous and host times are used; events are not
+    used at all.
+CPU threads
+    Calibration times each CPU implementation alone; OpenCV's own thread pool then competes
+    with the workers when they run together, so predictions hold best with
+    ``cv2.setNumThreads(1)`` (one core per worker, the thesis' model), as the graph benchmark
+    does.
+Pipelining
+    :meth:`Executor.submit` hands a frame to every processor's queue and returns at once; each
+    processor works through frames in order, so frame *i+1*'s early tasks run while frame *i*'s
+    late ones finish. Inputs with a negative frame offset (delays) read the slot of an earlier
+    frame from a :class:`Ring`, waiting for it like any other slot.
+Errors
+    A task that raises fails its frame: that frame and every later frame in flight are
+    cancelled (their waits see the cancel flag within :data:`WAIT_SLICE` seconds and their
+    remaining tasks are skipped), earlier frames complete, and :meth:`Executor.wait` raises
+    :class:`~warpvx.errors.NodeExecutionError` with the task's exception as ``__cause__``. No
+    wait is unbounded: each checks its frame's cancel flag and the executor's shutdown flag.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import networkx as nx
+
+from ..errors import NodeExecutionError, ScheduleError, WarpvxValueError
+from ..keypoints import FIELDS, Keypoints
+from .schedule import Schedule, ScheduledTask
+
+#: Seconds between cancellation checks of a blocked wait.
+WAIT_SLICE = 0.02
+
+HOST = "host"
+DEVICE = "device"
+
+
+class _Cancelled(Exception):
+    """Internal: the frame a wait belongs to was cancelled."""
+
+
+# --------------------------------------------------------------------------- program
+
+
+@dataclass(frozen=True)
+class InputRef:
+    """A task input: value ``key`` of this frame (``offset=0``) or of ``-offset`` frames ago."""
+
+    key: str
+    offset: int = 0
+
+
+@dataclass
+class ExecTask:
+    """One task: inputs, outputs and its callables.
+
+    ``cpu(*host_values)`` and ``gpu(*device_values)`` return one value per output (a tuple
+    when there are several); ``None`` marks a missing implementation.
+    """
+
+    name: str
+    inputs: tuple
+    outputs: tuple
+    cpu: Callable | None = None
+    gpu: Callable | None = None
+
+
+@dataclass
+class Program:
+    """What the executor runs each frame.
+
+    Attributes
+    ----------
+    tasks : dict
+        name -> :class:`ExecTask`.
+    inputs : tuple of str
+        Keys fed by :meth:`Executor.submit`.
+    outputs : dict
+        output name -> key, returned by :meth:`Executor.wait`.
+    rings : dict
+        key -> :class:`Ring` for every key read with a negative offset.
+    """
+
+    tasks: dict
+    inputs: tuple
+    outputs: dict
+    rings: dict = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- values
+
+
+class Slot:
+    """One value of one frame, where its producer left it, with cached copies elsewhere.
+
+    ``where`` is ``"host"`` (NumPy data) or ``"device"`` (``wp.array`` data on the GPU role's
+    device). ``done`` is set once the value may be read (after the CUDA ``event``, if any).
+    """
+
+    __slots__ = ("value", "where", "event", "external", "done", "_host", "_device", "_lock")
+
+    def __init__(self):
+        self.value = None
+        self.where = HOST
+        self.event = None
+        self.external = False  # a device value made outside the executor's stream
+        self.done = threading.Event()
+        self._host = None
+        self._device = None
+        self._lock = threading.Lock()
+
+    @classmethod
+    def ready(cls, value, where=HOST) -> "Slot":
+        s = cls()
+        s.set(value, where)
+        return s
+
+    def set(self, value, where, event=None):
+        self.value, self.where, self.event = value, where, event
+        self.done.set()
+
+    def host(self, io: "Transfers"):
+        """The value as host data, downloaded once (thread-safe)."""
+        if self.where == HOST:
+            return self.value
+        with self._lock:
+            if self._host is None:
+                self._host = (io.download(self.value, self.event),)
+            return self._host[0]
+
+    def device(self, io: "Transfers"):
+        """The value on the GPU role's device, uploaded once (call from the GPU thread)."""
+        if self.where == DEVICE:
+            return self.value
+        with self._lock:
+            if self._device is None:
+                self._device = (io.upload(self.value),)
+            return self._device[0]
+
+    def get(self, where, io):
+        return self.host(io) if where == HOST else self.device(io)
+
+
+class Ring:
+    """Slots of one key for past frames (a delay's storage), indexed by absolute frame number.
+
+    A frame's slot is reserved when the frame is submitted and filled when its producer runs.
+    Frames before the first one, and frames whose slot was dropped (a cancelled frame), read
+    the latest earlier slot that was filled, else the initial value. ``lock`` guards every
+    access; the graph layer shares it with user threads (thesis §4.2).
+    """
+
+    def __init__(self, slots: int, initial, lock=None):
+        self.slots = int(slots)
+        self.lock = lock if lock is not None else threading.RLock()
+        self._initial = Slot.ready(initial)
+        self._by_frame: dict[int, Slot] = {}
+        self.last_aged = -1
+
+    def reserve(self, frame: int, slot: Slot):
+        with self.lock:
+            self._by_frame[frame] = slot
+
+    def get(self, frame: int) -> Slot:
+        with self.lock:
+            slot = self._by_frame.get(frame)
+            if slot is not None:
+                return slot
+            earlier = [f for f, s in self._by_frame.items() if f < frame and s.done.is_set()]
+            return self._by_frame[max(earlier)] if earlier else self._initial
+
+    def put(self, frame: int, value, where=HOST):
+        """Replace frame ``frame``'s value (a user write through the communication wrapper)."""
+        with self.lock:
+            self._by_frame[frame] = Slot.ready(value, where)
+
+    @property
+    def initial(self):
+        """The value frames before the first one read."""
+        return self._initial.value
+
+    def set_initial(self, value):
+        with self.lock:
+            self._initial = Slot.ready(value)
+
+    def reset(self):
+        """Forget every frame: reads return the initial value again."""
+        with self.lock:
+            self._by_frame.clear()
+            self.last_aged = -1
+
+    def age(self, frame: int):
+        """Frame ``frame`` completed: it becomes the newest value; forget what no frame needs."""
+        with self.lock:
+            self.last_aged = max(self.last_aged, frame)
+            keep_from = self.last_aged - self.slots
+            for f in [f for f in self._by_frame if f < keep_from]:
+                del self._by_frame[f]
+
+    def discard_pending(self, frame: int):
+        """Drop frame ``frame``'s slot if its producer never ran (the frame was cancelled)."""
+        with self.lock:
+            slot = self._by_frame.get(frame)
+            if slot is not None and not slot.done.is_set():
+                del self._by_frame[frame]
+
+
+# --------------------------------------------------------------------------- transfers
+
+
+def _wp():
+    from ..backend import init_warp
+
+    return init_warp()
+
+
+def _is_warp(x) -> bool:
+    mod = type(x).__module__
+    return mod.startswith("warp") and hasattr(x, "device") and hasattr(x, "ptr")
+
+
+def tree_map(fn, obj):
+    """Apply ``fn`` to every array leaf (NumPy or Warp) of tuples, lists, dicts and Keypoints."""
+    import numpy as np
+
+    if isinstance(obj, np.ndarray) or _is_warp(obj):
+        return fn(obj)
+    if isinstance(obj, tuple):
+        return tuple(tree_map(fn, o) for o in obj)
+    if isinstance(obj, list):
+        return [tree_map(fn, o) for o in obj]
+    if isinstance(obj, dict):
+        return {k: tree_map(fn, v) for k, v in obj.items()}
+    if isinstance(obj, Keypoints):
+        return Keypoints(**{f: tree_map(fn, getattr(obj, f)) for f in FIELDS})
+    return obj
+
+
+class Transfers:
+    """Host <-> device copies for one thread.
+
+    On CUDA each thread that downloads owns a ``wp.Stream``: a download makes that stream wait
+    for the producer's event, copies, and synchronises only that stream, so it never touches
+    the device's current stream (which belongs to the GPU thread) and never waits for
+    unrelated kernels. Uploads run on the current stream (the GPU thread's).
+    """
+
+    def __init__(self, device: str | None):
+        self.device = device
+        self.cuda = bool(device) and device.startswith("cuda")
+        self._stream = None
+
+    @property
+    def stream(self):
+        if self._stream is None and self.cuda:
+            self._stream = _wp().Stream(self.device)
+        return self._stream
+
+    def download(self, value, event=None):
+        wp = _wp() if self.cuda else None
+
+        def leaf(a):
+            if not _is_warp(a):
+                return a
+            if not a.device.is_cuda:
+                return a.numpy()
+            if not a.is_contiguous:
+                # A strided view needs a gather kernel on the device's current stream (the GPU
+                # thread's); wait for the producer, then let Warp copy synchronously.
+                if event is not None:
+                    wp.synchronize_event(event)
+                return a.numpy()
+            host = wp.empty(a.shape, dtype=a.dtype, device="cpu")
+            s = self.stream
+            if event is not None:
+                s.wait_event(event)
+            wp.copy(host, a, stream=s)
+            wp.synchronize_stream(s)
+            return host.numpy()
+
+        return tree_map(leaf, value)
+
+    def upload(self, value):
+        import numpy as np
+
+        wp = _wp()
+        dev = wp.get_device(self.device)
+
+        def leaf(a):
+            if _is_warp(a):
+                if a.device == dev:
+                    return a
+                a = a.numpy()
+            a = np.ascontiguousarray(a)
+            dtype = wp.dtype_from_numpy(a.dtype)
+            if dev.is_cpu:
+                # Warp's CPU device shares host memory: alias, do not copy (host values are
+                # never written after their producer finished).
+                return wp.array(a, dtype=dtype, device=dev, copy=False)
+            return wp.array(a, dtype=dtype, device=dev)
+
+        return tree_map(leaf, value)
+
+
+# --------------------------------------------------------------------------- frames
+
+
+class Frame:
+    """A frame in flight: its slots, cancel flag, completion and timeline."""
+
+    def __init__(self, index: int, slots: dict, n_procs: int):
+        self.index = index
+        self.slots = slots
+        self.cancel = threading.Event()
+        self.finished = threading.Event()
+        self.error = None  # (task, processor, exception)
+        self.cancelled_by = None
+        self.trace = {}  # task -> (processor, start, end) host seconds, or (processor, ev0, ev1)
+        self.t0 = time.perf_counter()
+        self.gpu_last_event = None
+        self._remaining = n_procs
+        self._lock = threading.Lock()
+        if n_procs == 0:
+            self.finished.set()
+
+    def processor_done(self):
+        with self._lock:
+            self._remaining -= 1
+            if self._remaining == 0:
+                self.finished.set()
+
+    def wait_slot(self, slot: Slot, closing: threading.Event):
+        if slot.done.is_set():
+            return
+        while not slot.done.wait(WAIT_SLICE):
+            if self.cancel.is_set() or closing.is_set():
+                raise _Cancelled()
+
+
+@dataclass
+class FrameResult:
+    """What :meth:`Executor.wait` returns: outputs, the measured timeline and the makespan.
+
+    ``timeline`` maps task -> :class:`ScheduledTask` with times in ms from the frame's
+    submission (``t0``, host ``perf_counter`` seconds); ``makespan`` is the latest finish.
+    """
+
+    index: int
+    outputs: dict
+    timeline: dict
+    t0: float
+
+    @property
+    def makespan(self) -> float:
+        return max((t.finish for t in self.timeline.values()), default=0.0)
+
+
+# --------------------------------------------------------------------------- executor
+
+
+def _is_gpu_processor(name: str) -> bool:
+    return name.startswith("gpu")
+
+
+class Executor:
+    """Run ``program`` according to ``schedule`` on CPU worker threads and a GPU host thread.
+
+    Parameters
+    ----------
+    schedule : Schedule
+        Every task of ``program`` placed once; processors ``"cpu<i>"`` and ``"gpu"``.
+    program : Program
+        Tasks, inputs, outputs and rings (delays).
+    gpu_device : str, optional
+        Warp device of the GPU role: ``"cuda:N"`` or ``"cpu"`` (Warp's CPU device, the
+        ``"warp-cpu"`` role). Required when a task is placed on ``"gpu"``.
+    name : str
+        For thread names and messages.
+
+    Raises
+    ------
+    ScheduleError
+        A task unscheduled or scheduled twice, a task on a processor it has no callable for,
+        an unknown processor, or per-processor orders that contradict the data dependencies
+        (running them would deadlock).
+    """
+
+    def __init__(self, schedule: Schedule, program: Program, *, gpu_device: str | None = None,
+                 name: str = "graph"):
+        self.schedule = schedule
+        self.program = program
+        self.name = name
+        self.processors = list(schedule.processors)
+        self.gpu_device = gpu_device
+        self.cuda = bool(gpu_device) and str(gpu_device).startswith("cuda")
+        unknown = [t for t in schedule.tasks if t not in program.tasks]
+        if unknown:
+            raise ScheduleError(f"schedule: places unknown task {unknown[0]!r}")
+        self.queues = {p: [program.tasks[t] for t in self._order(p)] for p in self.processors}
+        self._check()
+        self._active = [p for p in self.processors if self.queues[p]]
+        self._inbox = {p: queue.SimpleQueue() for p in self._active}
+        self._threads: dict[str, threading.Thread] = {}
+        self._closing = threading.Event()
+        self._inflight: list[Frame] = []
+        self._lock = threading.Lock()
+        self._local = threading.local()
+        self._stream = None
+        self._anchor = None  # (host seconds, timing event) on CUDA
+
+    # ------------------------------------------------------------------ checks
+
+    def _order(self, proc: str) -> list:
+        """Tasks on ``proc`` by start time; ties (zero-cost tasks) in dependency order."""
+        if not hasattr(self, "_topo"):
+            producer = {k: t.name for t in self.program.tasks.values() for k in t.outputs}
+            g = nx.DiGraph()
+            g.add_nodes_from(self.program.tasks)
+            g.add_edges_from((producer[r.key], t.name) for t in self.program.tasks.values()
+                             for r in t.inputs if r.offset == 0 and r.key in producer)
+            try:
+                self._topo = {n: i for i, n in enumerate(nx.topological_sort(g))}
+            except nx.NetworkXUnfeasible:
+                raise ScheduleError("program: its data dependencies have a cycle") from None
+        on = [st for st in self.schedule.tasks.values() if st.processor == proc]
+        on.sort(key=lambda st: (st.start, st.finish, self._topo.get(st.task, 0)))
+        return [st.task for st in on]
+
+    def _check(self):
+        placed = {}
+        for p in self.processors:
+            for task in self.queues[p]:
+                if task.name in placed:
+                    raise ScheduleError(f"schedule: task {task.name!r} is placed on both "
+                                        f"{placed[task.name]!r} and {p!r}")
+                placed[task.name] = p
+                kind = "gpu" if _is_gpu_processor(p) else "cpu"
+                if getattr(task, kind) is None:
+                    raise ScheduleError(f"schedule: task {task.name!r} is placed on {p!r} but has "
+                                        f"no {kind.upper()} implementation")
+        missing = [t for t in self.program.tasks if t not in placed]
+        if missing:
+            raise ScheduleError(f"schedule: tasks {missing!r} are not scheduled")
+        gpus = [p for p in self.processors if _is_gpu_processor(p)]
+        if len(gpus) > 1:
+            raise ScheduleError(f"schedule: one GPU processor is supported, got {gpus}")
+        if any(_is_gpu_processor(p) and self.queues[p] for p in self.processors) and not self.gpu_device:
+            raise ScheduleError("schedule: tasks are placed on the GPU but no gpu_device was given")
+        # Data edges plus each processor's order must be acyclic, or some wait never returns.
+        producer = {k: t.name for t in self.program.tasks.values() for k in t.outputs}
+        g = nx.DiGraph()
+        g.add_nodes_from(self.program.tasks)
+        for t in self.program.tasks.values():
+            for ref in t.inputs:
+                if ref.offset == 0 and ref.key in producer:
+                    g.add_edge(producer[ref.key], t.name)
+        for p in self.processors:
+            names = [t.name for t in self.queues[p]]
+            g.add_edges_from(zip(names, names[1:]))
+        if not nx.is_directed_acyclic_graph(g):
+            cyc = " -> ".join(u for u, _ in nx.find_cycle(g))
+            raise ScheduleError(f"schedule: processor orders contradict data dependencies "
+                                f"(would deadlock): {cyc}")
+
+    # ------------------------------------------------------------------ threads
+
+    def _io(self) -> Transfers:
+        io = getattr(self._local, "io", None)
+        if io is None:
+            io = self._local.io = Transfers(self.gpu_device)
+        return io
+
+    def _start(self):
+        if self._threads:
+            return
+        if self.cuda:
+            wp = _wp()
+            self._stream = wp.Stream(self.gpu_device)
+            self.reanchor()
+        for p in self._active:
+            th = threading.Thread(target=self._loop, args=(p,), name=f"warpvx-{self.name}-{p}",
+                                  daemon=True)
+            self._threads[p] = th
+            th.start()
+
+    def reanchor(self, max_age: float | None = None):
+        """Tie the GPU clock to the host clock (CUDA only; call while no frame is in flight).
+
+        With ``max_age`` (seconds), only when the last anchor is older than that.
+        """
+        if not self.cuda or self._stream is None:
+            return
+        if max_age is not None and self._anchor is not None and \
+                time.perf_counter() - self._anchor[0] < max_age:
+            return
+        wp = _wp()
+        wp.synchronize_stream(self._stream)
+        ev = wp.Event(self.gpu_device, enable_timing=True)
+        t_before = time.perf_counter()
+        self._stream.record_event(ev)
+        wp.synchronize_event(ev)
+        t_after = time.perf_counter()
+        self._anchor = (0.5 * (t_before + t_after), ev)
+
+    def _loop(self, proc: str):
+        gpu = _is_gpu_processor(proc)
+        inbox = self._inbox[proc]
+        while True:
+            frame = inbox.get()
+            if frame is None:
+                return
+            try:
+                if not frame.cancel.is_set():
+                    if gpu:
+                        self._run_gpu(proc, frame)
+                    else:
+                        self._run_cpu(proc, frame)
+            except BaseException as exc:  # noqa: BLE001 - an executor bug must not kill the thread
+                self._fail(frame, "<executor>", proc, exc)
+            finally:
+                frame.processor_done()
+
+    def _slot(self, frame: Frame, ref: InputRef) -> Slot:
+        if ref.offset == 0:
+            return frame.slots[ref.key]
+        return self.program.rings[ref.key].get(frame.index + ref.offset)
+
+    def _publish(self, frame: Frame, task: ExecTask, result, where, event=None):
+        n = len(task.outputs)
+        if n == 1:
+            values = (result,)
+        else:
+            if not isinstance(result, (tuple, list)) or len(result) != n:
+                raise TypeError(f"expected {n} outputs {task.outputs}, got "
+                                f"{type(result).__name__}")
+            values = tuple(result)
+        for key, value in zip(task.outputs, values):
+            frame.slots[key].set(value, where, event)
+
+    def _run_cpu(self, proc: str, frame: Frame):
+        io = self._io()
+        for task in self.queues[proc]:
+            if frame.cancel.is_set():
+                return
+            try:
+                slots = [self._slot(frame, ref) for ref in task.inputs]
+                for s in slots:
+                    frame.wait_slot(s, self._closing)
+                if self.cuda:
+                    for s in slots:
+                        if s.where == DEVICE and s.event is not None:
+                            _wp().synchronize_event(s.event)
+                t0 = time.perf_counter()
+                values = [s.host(io) for s in slots]
+                result = task.cpu(*values)
+                t1 = time.perf_counter()
+                self._publish(frame, task, result, HOST)
+            except _Cancelled:
+                return
+            except BaseException as exc:  # noqa: BLE001 - reported to the caller
+                self._fail(frame, task.name, proc, exc)
+                return
+            frame.trace[task.name] = (proc, t0, t1)
+
+    def _run_gpu(self, proc: str, frame: Frame):
+        wp = _wp()
+        io = self._io()
+        with wp.ScopedDevice(self.gpu_device):
+            if self.cuda:
+                # sync_enter=False: the stream's order is ours; the user's stream is not a producer.
+                with wp.ScopedStream(self._stream, sync_enter=False):
+                    self._run_gpu_tasks(proc, frame, io, wp)
+            else:
+                self._run_gpu_tasks(proc, frame, io, wp)
+
+    def _run_gpu_tasks(self, proc, frame, io, wp):
+        for task in self.queues[proc]:
+            if frame.cancel.is_set():
+                return
+            try:
+                slots = [self._slot(frame, ref) for ref in task.inputs]
+                for s in slots:
+                    frame.wait_slot(s, self._closing)
+                if self.cuda:
+                    for s in slots:
+                        if s.external and s.event is not None:
+                            self._stream.wait_event(s.event)
+                    ev0 = wp.Event(self.gpu_device, enable_timing=True)
+                    self._stream.record_event(ev0)
+                else:
+                    t0 = time.perf_counter()
+                values = [s.device(io) for s in slots]
+                result = task.gpu(*values)
+                if self.cuda:
+                    ev1 = wp.Event(self.gpu_device, enable_timing=True)
+                    self._stream.record_event(ev1)
+                    frame.gpu_last_event = ev1
+                    self._publish(frame, task, result, DEVICE, ev1)
+                    frame.trace[task.name] = (proc, ev0, ev1)
+                else:
+                    t1 = time.perf_counter()
+                    self._publish(frame, task, result, DEVICE)
+                    frame.trace[task.name] = (proc, t0, t1)
+            except _Cancelled:
+                return
+            except BaseException as exc:  # noqa: BLE001 - reported to the caller
+                self._fail(frame, task.name, proc, exc)
+                return
+
+    def _fail(self, frame: Frame, task: str, proc: str, exc: BaseException):
+        with self._lock:
+            if frame.error is None:
+                frame.error = (task, proc, exc)
+            later = [f for f in self._inflight if f.index >= frame.index]
+        frame.cancel.set()
+        for f in later:
+            if f is not frame and f.cancelled_by is None:
+                f.cancelled_by = frame.index
+            f.cancel.set()
+
+    # ------------------------------------------------------------------ API
+
+    def submit(self, frame_index: int, inputs: Mapping) -> Frame:
+        """Start frame ``frame_index`` with ``inputs``: key -> ``(value, "host" | "device")``.
+
+        Returns at once; the processors pick the frame up after the frames before it.
+        """
+        if self._closing.is_set():
+            raise RuntimeError(f"executor {self.name!r} is closed")
+        self._start()
+        missing = [k for k in self.program.inputs if k not in inputs]
+        if missing:
+            raise WarpvxValueError(f"inputs: missing {missing} for frame {frame_index}")
+        slots = {}
+        for key in self.program.inputs:
+            value, where = inputs[key]
+            slot = slots[key] = Slot.ready(value, where)
+            if where == DEVICE and self.cuda:
+                # The caller's device data may still be in flight on any stream: an event on
+                # the legacy default stream completes after all work queued so far.
+                wp = _wp()
+                slot.event = wp.Event(self.gpu_device)
+                wp.get_device(self.gpu_device).null_stream.record_event(slot.event)
+                slot.external = True
+        for task in self.program.tasks.values():
+            for key in task.outputs:
+                slots[key] = Slot()
+        frame = Frame(frame_index, slots, len(self._active))
+        for key, ring in self.program.rings.items():
+            ring.reserve(frame_index, slots[key])
+        with self._lock:
+            failed = [f.index for f in self._inflight if f.error is not None]
+            self._inflight.append(frame)
+        if failed:
+            frame.cancelled_by = failed[0]
+            frame.cancel.set()
+        for p in self._active:
+            self._inbox[p].put(frame)
+        return frame
+
+    def wait(self, frame: Frame, *, host: bool = True) -> FrameResult:
+        """Wait for ``frame`` and return its outputs (host data when ``host``) and timeline.
+
+        Raises
+        ------
+        NodeExecutionError
+            A task of this frame raised (``__cause__`` is its exception), or the frame was
+            cancelled because an earlier frame failed.
+        """
+        while not frame.finished.wait(WAIT_SLICE):
+            dead = [p for p, th in self._threads.items() if not th.is_alive()]
+            if dead:
+                raise NodeExecutionError(f"{self.name}: executor thread(s) {dead} died")
+        try:
+            if frame.error is not None or frame.cancel.is_set():
+                for ring in self.program.rings.values():
+                    ring.discard_pending(frame.index)
+            if frame.error is not None:
+                task, proc, exc = frame.error
+                raise NodeExecutionError(
+                    f"{self.name}: node {task!r} on {proc} failed in frame {frame.index}: "
+                    f"{type(exc).__name__}: {exc}"
+                ) from exc
+            if frame.cancel.is_set():
+                raise NodeExecutionError(
+                    f"{self.name}: frame {frame.index} was cancelled after frame "
+                    f"{frame.cancelled_by} failed"
+                )
+            if self.cuda and frame.gpu_last_event is not None:
+                _wp().synchronize_event(frame.gpu_last_event)
+            io = self._io()
+            outputs = {}
+            for name, key in self.program.outputs.items():
+                slot = frame.slots[key]
+                outputs[name] = slot.host(io) if host else slot.value
+            timeline = self._timeline(frame)
+            for ring in self.program.rings.values():
+                ring.age(frame.index)
+            return FrameResult(frame.index, outputs, timeline, frame.t0)
+        finally:
+            with self._lock:
+                if frame in self._inflight:
+                    self._inflight.remove(frame)
+
+    def _timeline(self, frame: Frame) -> dict:
+        out = {}
+        for task, (proc, a, b) in frame.trace.items():
+            if self.cuda and _is_gpu_processor(proc):
+                base, anchor = self._anchor
+                wp = _wp()
+                a = base + wp.get_event_elapsed_time(anchor, a, synchronize=False) / 1e3
+                b = base + wp.get_event_elapsed_time(anchor, b, synchronize=False) / 1e3
+            out[task] = ScheduledTask(task, proc, (a - frame.t0) * 1e3, (b - frame.t0) * 1e3)
+        return out
+
+    def abort(self):
+        """Cancel every frame in flight and wait until the processors have dropped them."""
+        with self._lock:
+            frames = list(self._inflight)
+        for f in frames:
+            f.cancel.set()
+        for f in frames:
+            while not f.finished.wait(WAIT_SLICE):
+                if not any(th.is_alive() for th in self._threads.values()):
+                    break
+            for ring in self.program.rings.values():
+                ring.discard_pending(f.index)
+        with self._lock:
+            self._inflight = [f for f in self._inflight if f not in frames]
+
+    @property
+    def in_flight(self) -> int:
+        with self._lock:
+            return len(self._inflight)
+
+    def close(self):
+        """Cancel what is in flight and stop the threads (idempotent)."""
+        if self._closing.is_set():
+            return
+        self.abort()
+        self._closing.set()
+        for p in self._threads:
+            self._inbox[p].put(None)
+        for th in self._threads.values():
+            th.join(timeout=5.0)
+        self._threads.clear()
+
+
+def run_schedule(schedule: Schedule, program: Program, inputs: Mapping, *, gpu_device=None,
+                 frame_index: int = 0) -> FrameResult:
+    """Run one frame of ``program`` with a throw-away :class:`Executor` (tests, examples)."""
+    ex = Executor(schedule, program, gpu_device=gpu_device, name="run")
+    try:
+        return ex.wait(ex.submit(frame_index, inputs))
+    finally:
+        ex.close()
+
+__all__ = [
+    "Executor",
+    "ExecTask",
+    "FrameResult",
+    "InputRef",
+    "Program",
+    "Ring",
+    "Slot",
+    "Transfers",
+    "WAIT_SLICE",
+    "run_schedule",
+    "tree_map",
+]

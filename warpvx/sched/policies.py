@@ -1,0 +1,444 @@
+"""Scheduling policies: VisionWorks baseline, HEFT, XEFT and best-of.
+
+Every policy is a plain function ``policy(dag) -> Schedule`` over the task-DAG model of
+:mod:`warpvx.sched.dag`. HEFT follows Topcuoglu, Hariri and Wu, "Performance-effective and
+low-complexity task scheduling for heterogeneous computing", IEEE TPDS 13(3), 2002; XEFT is
+Algorithm 1 of the thesis (§5.2); the baseline is the VisionWorks policy of thesis §5.1.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_left
+from collections.abc import Callable
+
+import networkx as nx
+
+from ..errors import UnsupportedError, WarpvxTypeError
+from .dag import DEVICE, GPU, Problem, prepare
+from .schedule import Schedule, ScheduledTask
+
+
+# --------------------------------------------------------------------------- ranking
+
+
+def _mean_costs(pb: Problem) -> list:
+    return [sum(row[k] for k in runs) / len(runs) for row, runs in zip(pb.cost, pb.can)]
+
+
+def _upward_rank(pb: Problem) -> list:
+    """rank(t) = mean_w(t) + max over successors q of (mean_c(t, q) + rank(q)) (thesis eq. 1).
+
+    mean_w: mean cost over the processors that can run t. mean_c: without a memory model the
+    edge's ``comm`` (Topcuoglu's edge weights are already the average cost); with one, ``comm``
+    times the share of processor pairs (p able to run t, q able to run the successor, p == q
+    included) that lie in different memory spaces.
+    """
+    w = _mean_costs(pb)
+    n = len(w)
+    rank = [0.0] * n
+    succs = pb.succs
+    if not pb.memory_model:
+        for v in reversed(pb.topo):
+            best = 0.0
+            for q, c in succs[v]:
+                x = c + rank[q]
+                if x > best:
+                    best = x
+            rank[v] = w[v] + best
+        return rank
+    # Tasks fall into few patterns of runnable processors (CPU-only, GPU-only, both): the share
+    # of cross-space pairs is computed once per pair of patterns.
+    space = pb.space
+    pattern_of, patterns = [], {}
+    for runs in pb.can:
+        pattern_of.append(patterns.setdefault(runs, len(patterns)))
+    counts = []
+    for runs in patterns:
+        c = [0] * pb.n_spaces
+        for k in runs:
+            c[space[k]] += 1
+        counts.append((c, len(runs)))
+    share = [
+        [1.0 - sum(a * b for a, b in zip(ca, cb)) / (na * nb) for cb, nb in counts] for ca, na in counts
+    ]
+    for v in reversed(pb.topo):
+        best = 0.0
+        sv = share[pattern_of[v]]
+        for q, c in succs[v]:
+            x = c * sv[pattern_of[q]] + rank[q]
+            if x > best:
+                best = x
+        rank[v] = w[v] + best
+    return rank
+
+
+def _rank_order(pb: Problem, rank: list) -> list:
+    # Decreasing rank; ranks equal up to round-off (1e-9 of the largest) fall back to the
+    # topological order, which keeps insertion order among independent tasks and keeps the
+    # list a valid topological order when zero-cost tasks tie with their successors.
+    pos = [0] * len(rank)
+    for i, v in enumerate(pb.topo):
+        pos[v] = i
+    unit = 1e-9 * max(rank)
+    if unit > 0:
+        return sorted(range(len(rank)), key=lambda v: (-round(rank[v] / unit), pos[v]))
+    return sorted(range(len(rank)), key=lambda v: pos[v])
+
+
+def upward_rank(dag: nx.DiGraph) -> dict:
+    """HEFT's upward rank of every task (Topcuoglu et al. 2002, eq. 8; thesis eq. 1).
+
+    Parameters
+    ----------
+    dag : networkx.DiGraph
+        A task DAG (:mod:`warpvx.sched.dag`).
+
+    Returns
+    -------
+    dict
+        task -> rank: mean computation cost over the processors that can run the task plus the
+        largest (mean communication cost + rank) over its successors. The mean communication
+        cost is the edge's ``comm`` without a ``memory`` attribute (as in the paper), else
+        ``comm`` times the share of (processor of the task, processor of the successor) pairs
+        in different memory spaces.
+    """
+    pb = prepare(dag)
+    rank = _upward_rank(pb)
+    return {pb.names[i]: r for i, r in enumerate(rank)}
+
+
+# --------------------------------------------------------------------------- placement
+
+
+def _place_eft(pb: Problem, order: list):
+    """Insertion-based earliest-finish-time placement of tasks in ``order`` (Topcuoglu §4.1).
+
+    Each processor keeps its free intervals as two sorted lists (starts, ends; the last one is
+    open-ended); a task takes, on each processor that can run it, the first free interval that
+    holds it after its data-ready time, and goes to the processor where it finishes first
+    (ties: the first in ``processors`` order).
+    """
+    n = len(pb.names)
+    P = len(pb.procs)
+    inf = math.inf
+    gap_s = [[0.0] for _ in range(P)]
+    gap_e = [[inf] for _ in range(P)]
+    start = [0.0] * n
+    finish = [0.0] * n
+    proc = [-1] * n
+    pspace = [-1] * n  # memory space of each placed task's processor
+    space = pb.space
+    cost = pb.cost
+    preds = pb.preds
+    can = pb.can
+    for v in order:
+        pv = preds[v]
+        row = cost[v]
+        best_f = inf
+        best_k = best_g = -1
+        best_st = 0.0
+        ready_of = {}
+        for k in can[v]:
+            sp = space[k]
+            ready = ready_of.get(sp)
+            if ready is None:
+                ready = 0.0
+                for u, c in pv:
+                    t = finish[u] if pspace[u] == sp else finish[u] + c
+                    if t > ready:
+                        ready = t
+                ready_of[sp] = ready
+            w = row[k]
+            starts = gap_s[k]
+            ends = gap_e[k]
+            g = bisect_left(ends, ready + w)
+            while True:
+                s = starts[g]
+                if s <= ready:
+                    st = ready
+                    break
+                if s + w <= ends[g]:
+                    st = s
+                    break
+                g += 1
+            f = st + w
+            if f < best_f:
+                best_f, best_k, best_g, best_st = f, k, g, st
+        k, g = best_k, best_g
+        s, e = gap_s[k][g], gap_e[k][g]
+        new_s, new_e = [], []
+        if best_st > s:
+            new_s.append(s)
+            new_e.append(best_st)
+        if e > best_f:
+            new_s.append(best_f)
+            new_e.append(e)
+        gap_s[k][g : g + 1] = new_s
+        gap_e[k][g : g + 1] = new_e
+        start[v], finish[v], proc[v], pspace[v] = best_st, best_f, k, space[k]
+    return proc, start, finish
+
+
+def _to_schedule(pb: Problem, proc, start, finish, policy: str, order) -> Schedule:
+    names, procs = pb.names, pb.procs
+    tasks = {
+        names[i]: ScheduledTask(names[i], procs[proc[i]], start[i], finish[i])
+        for i in range(len(names))
+    }
+    return Schedule(tasks, list(procs), policy, [names[i] for i in order])
+
+
+# --------------------------------------------------------------------------- policies
+
+
+def heft(dag: nx.DiGraph) -> Schedule:
+    """HEFT: upward-rank order, insertion-based earliest finish time.
+
+    Parameters
+    ----------
+    dag : networkx.DiGraph
+        A task DAG (:mod:`warpvx.sched.dag`).
+
+    Returns
+    -------
+    Schedule
+        ``policy="heft"``, ``priority`` the rank list (decreasing upward rank, ties in
+        topological order).
+
+    Raises
+    ------
+    ScheduleError
+        Bad DAG (see :func:`warpvx.sched.dag.prepare`).
+
+    References
+    ----------
+    Topcuoglu, Hariri, Wu, IEEE TPDS 13(3):260-274, 2002.
+    """
+    pb = prepare(dag)
+    order = _rank_order(pb, _upward_rank(pb))
+    return _to_schedule(pb, *_place_eft(pb, order), "heft", order)
+
+
+def xeft(dag: nx.DiGraph) -> Schedule:
+    """XEFT: HEFT's rank list reordered by thesis Algorithm 1, then HEFT's placement.
+
+    The reordering builds clusters of mutually independent exclusive tasks that are adjacent
+    in the list, so tasks that cannot compete for one processor kind run side by side
+    (exclusive overlap, thesis §5.2). See :func:`xeft_order` for the exact rules.
+
+    Returns
+    -------
+    Schedule
+        ``policy="xeft"``, ``priority`` the reordered list.
+    """
+    pb = prepare(dag)
+    order = _xeft_order(pb, _rank_order(pb, _upward_rank(pb)))
+    return _to_schedule(pb, *_place_eft(pb, order), "xeft", order)
+
+
+def xeft_order(dag: nx.DiGraph) -> list:
+    """XEFT's priority list: HEFT's rank list reordered by thesis Algorithm 1.
+
+    Walking the list, each exclusive task ``a`` at position ``i`` collects *candidates*: ``a``
+    and every later exclusive task not reachable from a candidate collected before it (rows
+    5-11). With ``load[K] = sum(mean cost of the candidates exclusive to kind K) / number of
+    processors of kind K``, the kind with the smallest load (ties: the kind of the earliest
+    processor in ``processors``, i.e. the CPUs for :func:`cpu_gpu_dag`) gives the cluster
+    all its candidates; candidates of each other kind, in list order, join while each brings
+    that kind's load closer to the smallest one (rows 16-26). Candidates of fewer than two
+    kinds make no cluster. APPLY (row 27, thesis Fig. 5.3) makes the cluster contiguous: of
+    the tasks between its first and last member, those that reach a later member move before
+    the cluster, the others after it (the member moves up); the walk goes on after the
+    cluster. A cluster of fewer than two tasks changes nothing and the walk goes on at
+    ``i + 1``. Paths between cluster members are impossible (row 9), so the list stays a
+    topological order.
+
+    With two kinds (CPUs and one GPU) this is the thesis' algorithm: ``total_gpu <
+    total_cpu / n_cores`` picks the GPU tasks, else the CPU tasks.
+    """
+    pb = prepare(dag)
+    order = _xeft_order(pb, _rank_order(pb, _upward_rank(pb)))
+    return [pb.names[i] for i in order]
+
+
+def _descendant_bits(pb: Problem) -> list:
+    """Reachability as Python-int bitsets: bit j of desc[i] set when i reaches j (i included)."""
+    desc = [0] * len(pb.names)
+    for v in reversed(pb.topo):
+        b = 1 << v
+        for q, _ in pb.succs[v]:
+            b |= desc[q]
+        desc[v] = b
+    return desc
+
+
+def _xeft_order(pb: Problem, rank_order: list) -> list:
+    excl = pb.excl
+    if all(e < 0 for e in excl):
+        return list(rank_order)
+    order = list(rank_order)
+    n = len(order)
+    desc = _descendant_bits(pb)
+    w = _mean_costs(pb)
+    kind_size = pb.kind_size
+    # Tie rule for the smallest load: the kind whose first processor comes first.
+    kind_first = {}
+    for k, kd in enumerate(pb.kind):
+        kind_first.setdefault(kd, k)
+    i = 0
+    while i < n:
+        a = order[i]
+        if excl[a] < 0:
+            i += 1
+            continue
+        cand = [a]
+        reach = desc[a]
+        for b in [b for b in order[i + 1 :] if excl[b] >= 0]:
+            if not (reach >> b) & 1:
+                cand.append(b)
+                reach |= desc[b]
+        cluster = _balance(cand, excl, w, kind_size, kind_first)
+        if len(cluster) < 2:
+            i += 1
+            continue
+        order, end = _apply(order, cluster, desc)
+        i = end + 1
+    return order
+
+
+def _balance(cand, excl, w, kind_size, kind_first) -> list:
+    """Rows 12-26 of Algorithm 1: the cluster chosen among the candidates (list order kept)."""
+    by_kind = {}
+    for c in cand:
+        by_kind.setdefault(excl[c], []).append(c)
+    if len(by_kind) < 2:
+        return []
+    load = {kd: sum(w[c] for c in cs) / kind_size[kd] for kd, cs in by_kind.items()}
+    base = min(load, key=lambda kd: (load[kd], kind_first[kd]))
+    target = load[base]
+    chosen = set(by_kind[base])
+    for kd, cs in by_kind.items():
+        if kd == base:
+            continue
+        m = kind_size[kd]
+        t = 0.0
+        for c in cs:
+            if abs(target - (t + w[c]) / m) < abs(target - t / m):
+                chosen.add(c)
+                t += w[c]
+    return [c for c in cand if c in chosen]
+
+
+def _apply(order, cluster, desc):
+    """APPLY(rank, cluster): make the cluster contiguous; return (new order, cluster end)."""
+    members = set(cluster)
+    bits = 0
+    for c in cluster:
+        bits |= 1 << c
+    pos = [i for i, v in enumerate(order) if v in members]
+    first, last = pos[0], pos[-1]
+    before, inside, after = [], [], []
+    for v in order[first : last + 1]:
+        if v in members:
+            inside.append(v)
+        elif desc[v] & bits:
+            before.append(v)  # an ancestor of a later member: the cluster moves down past it
+        else:
+            after.append(v)  # independent of the members after it: they move up past it
+    new = order[:first] + before + inside + after + order[last + 1 :]
+    return new, first + len(before) + len(inside) - 1
+
+
+def _is_gpu(pb: Problem, k: int) -> bool:
+    name = pb.procs[k]
+    return name.lower().startswith(GPU) or (pb.memory_model and pb.kinds[pb.kind[k]] == DEVICE)
+
+
+def baseline(dag: nx.DiGraph) -> Schedule:
+    """The VisionWorks policy (thesis §5.1): GPU when possible, serial, no overlap.
+
+    Each task goes to a GPU when it has a GPU implementation (a processor named ``gpu*`` or in
+    memory space ``"device"``; the fastest such), else to its fastest processor (ties: the
+    first in ``processors``). Tasks run one at a time in HEFT's rank order (a topological
+    order): each starts when the previous one has finished and its inputs, with their
+    transfers, are ready.
+
+    Returns
+    -------
+    Schedule
+        ``policy="baseline"``.
+    """
+    pb = prepare(dag)
+    order = _rank_order(pb, _upward_rank(pb))
+    n = len(pb.names)
+    start = [0.0] * n
+    finish = [0.0] * n
+    proc = [-1] * n
+    space = pb.space
+    gpus = [k for k in range(len(pb.procs)) if _is_gpu(pb, k)]
+    t = 0.0
+    for v in order:
+        row = pb.cost[v]
+        on_gpu = [k for k in gpus if row[k] < math.inf]
+        pool = on_gpu or pb.can[v]
+        k = min(pool, key=lambda k: row[k])
+        ready = t
+        for u, c in pb.preds[v]:
+            x = finish[u] if space[proc[u]] == space[k] else finish[u] + c
+            if x > ready:
+                ready = x
+        start[v], finish[v], proc[v] = ready, ready + row[k], k
+        t = finish[v]
+    return _to_schedule(pb, proc, start, finish, "baseline", order)
+
+
+def best(dag: nx.DiGraph) -> Schedule:
+    """Both HEFT and XEFT; the schedule with the shorter makespan (ties: HEFT).
+
+    Never worse than HEFT by construction. The returned schedule has ``policy="best"`` and
+    ``info["chosen"]`` set to ``"heft"`` or ``"xeft"``.
+    """
+    pb = prepare(dag)
+    order_h = _rank_order(pb, _upward_rank(pb))
+    placed_h = _place_eft(pb, order_h)
+    order_x = _xeft_order(pb, order_h)
+    if order_x == order_h:
+        chosen, order, placed = "heft", order_h, placed_h
+    else:
+        placed_x = _place_eft(pb, order_x)
+        if max(placed_x[2]) < max(placed_h[2]):
+            chosen, order, placed = "xeft", order_x, placed_x
+        else:
+            chosen, order, placed = "heft", order_h, placed_h
+    sched = _to_schedule(pb, *placed, "best", order)
+    sched.info["chosen"] = chosen
+    return sched
+
+
+POLICIES: dict = {"baseline": baseline, "heft": heft, "xeft": xeft, "best": best}
+
+
+def schedule(dag: nx.DiGraph, policy="heft") -> Schedule:
+    """Schedule ``dag`` with a policy given by name (a key of :data:`POLICIES`) or callable.
+
+    Raises
+    ------
+    UnsupportedError
+        Unknown policy name.
+    WarpvxTypeError
+        ``policy`` is neither a string nor a callable, or the callable returns no Schedule.
+    """
+    if isinstance(policy, str):
+        fn = POLICIES.get(policy.lower())
+        if fn is None:
+            opts = ", ".join(repr(p) for p in POLICIES)
+            raise UnsupportedError(f"policy: expected one of {opts} or a callable, got {policy!r}")
+    elif isinstance(policy, Callable):
+        fn = policy
+    else:
+        raise WarpvxTypeError(f"policy: expected a policy name or a callable, got {type(policy).__name__}")
+    result = fn(dag)
+    if not isinstance(result, Schedule):
+        raise WarpvxTypeError(f"policy: {policy!r} returned {type(result).__name__}, expected a Schedule")
+    return result
