@@ -8,10 +8,11 @@ import pytest
 
 import warpvx
 from warpvx import cv as wcv
-from warpvx.backend import init_warp, resolve_backend
+from warpvx.backend import init_warp
 from warpvx.errors import (DTypeError, ShapeError, UnsupportedError, WarpvxTypeError,
                            WarpvxValueError)
 from tests.images import bgr, gray
+from tests.parity import on_device as _on_device
 
 IMAGES = ["camera", "brick", "text", "coffee", "chelsea"]
 BORDER = 3
@@ -33,9 +34,6 @@ def _inner(points, shape):
             if BORDER <= p[0] < w - BORDER and BORDER <= p[1] < h - BORDER}
 
 
-def _on_device(img, backend):
-    be = resolve_backend(backend)
-    return img if be.kind == "cpu" else init_warp().array(img, device=be.device)
 
 
 # --- smoke and shapes ------------------------------------------------------------------------

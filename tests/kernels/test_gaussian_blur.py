@@ -9,6 +9,7 @@ import pytest
 
 import warpvx
 from tests.images import bgr, gray
+from tests.parity import assert_images_match as assert_parity, crop
 from warpvx import cv as wcv
 from warpvx.errors import (
     BackendError,
@@ -23,17 +24,8 @@ CV_BORDERS = {"reflect101": cv2.BORDER_REFLECT_101, "reflect": cv2.BORDER_REFLEC
               "replicate": cv2.BORDER_REPLICATE, "constant": cv2.BORDER_CONSTANT}
 
 
-def assert_parity(out, ref):
-    """SPEC bar: each pixel within 1; the arithmetic is OpenCV's own, so also (nearly) all equal."""
-    out = np.asarray(out)
-    assert out.shape == ref.shape and out.dtype == ref.dtype
-    diff = np.abs(out.astype(np.int16) - ref.astype(np.int16))
-    assert diff.max() <= 1, f"max diff {diff.max()}"
-    assert (diff == 0).mean() >= 0.999, f"equal: {(diff == 0).mean():.5f}"
 
 
-def crop(img, h, w):
-    return np.ascontiguousarray(img[:h, :w])
 
 
 # --- smoke ----------------------------------------------------------------------------------

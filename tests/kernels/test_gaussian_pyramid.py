@@ -10,21 +10,13 @@ import pytest
 
 import warpvx
 from tests.images import bgr, gray
+from tests.parity import assert_images_match as assert_parity, crop
 from warpvx import cv as wcv
 from warpvx.errors import BackendError, DTypeError, ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
 
 
-def assert_parity(out, ref):
-    """SPEC bar: each pixel within 1; also (nearly) all equal, the arithmetic being OpenCV's."""
-    out = np.asarray(out)
-    assert out.shape == ref.shape and out.dtype == ref.dtype
-    diff = np.abs(out.astype(np.int16) - ref.astype(np.int16))
-    assert diff.max() <= 1, f"max diff {diff.max()}"
-    assert (diff == 0).mean() >= 0.999, f"equal: {(diff == 0).mean():.5f}"
 
 
-def crop(img, h, w):
-    return np.ascontiguousarray(img[:h, :w])
 
 
 def cv_pyramid(src, levels):

@@ -8,10 +8,11 @@ import pytest
 
 import warpvx
 from warpvx import cv as wcv
-from warpvx.backend import init_warp, resolve_backend
+from warpvx.backend import init_warp
 from warpvx.errors import (DTypeError, ShapeError, UnsupportedError, WarpvxTypeError,
                            WarpvxValueError)
 from tests.images import bgr, gray
+from tests.parity import on_device as _on_device
 
 IMAGES = ["camera", "brick", "text", "coffee", "astronaut", "motorcycle"]
 
@@ -43,9 +44,6 @@ def _assert_parity(got, ref):
     assert _unmatched(ref, got) <= 0.10, "missing corners"
 
 
-def _on_device(img, backend):
-    be = resolve_backend(backend)
-    return img if be.kind == "cpu" else init_warp().array(img, device=be.device)
 
 
 # --- smoke and shapes ------------------------------------------------------------------------

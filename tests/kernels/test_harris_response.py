@@ -12,6 +12,7 @@ from warpvx.backend import init_warp, resolve_backend
 from warpvx.errors import (DTypeError, ShapeError, UnsupportedError, WarpvxTypeError,
                            WarpvxValueError)
 from tests.images import bgr, gray
+from tests.parity import on_device as _on_device
 
 IMAGES = ["camera", "brick", "text", "coffee", "rocket"]
 TOL = 1e-3  # relative to the largest |response| (SPEC §4)
@@ -22,9 +23,6 @@ def _rel_err(got, ref):
     return float(np.abs(got - ref).max() / max(np.abs(ref).max(), 1e-30))
 
 
-def _on_device(img, backend):
-    be = resolve_backend(backend)
-    return img if be.kind == "cpu" else init_warp().array(img, device=be.device)
 
 
 # --- smoke and shapes ------------------------------------------------------------------------

@@ -10,6 +10,7 @@ import warpvx
 from warpvx import DTypeError, ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
 from warpvx.matching import knn_match_hamming
 from tests.images import gray
+from warpvx.arrays import to_numpy as _np
 
 
 @pytest.fixture(scope="module")
@@ -24,8 +25,6 @@ def real_descriptors():
     return d1, d2
 
 
-def _np(a):
-    return a if isinstance(a, np.ndarray) else a.numpy()
 
 
 def _cv_match(d1, d2, cross_check):

@@ -16,6 +16,7 @@ import pytest
 import warpvx
 from warpvx import cv as wcv
 from tests.images import gray
+from warpvx.arrays import to_numpy as _np
 
 DATA = Path(__file__).resolve().parent.parent / "data"
 CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
@@ -66,8 +67,6 @@ def _assert_parity(ours, ref, *, max_lost=0.05, max_far=0.10):
     return lost, far, float(np.median(dist))
 
 
-def _np(x):
-    return x if isinstance(x, np.ndarray) else x.numpy()
 
 
 # --------------------------------------------------------------------------------------------

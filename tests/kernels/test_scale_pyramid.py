@@ -10,6 +10,7 @@ import pytest
 
 import warpvx
 from tests.images import bgr, gray
+from tests.parity import assert_images_match as assert_parity, crop
 from warpvx import cv as wcv
 from warpvx.errors import DTypeError, ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
 from warpvx.pyramid import resize, scale_pyramid_sizes
@@ -19,17 +20,8 @@ KITTI_SIZES = [(1241, 376), (1034, 313), (862, 261), (718, 218), (598, 181), (49
                (346, 105)]
 
 
-def assert_parity(out, ref):
-    """SPEC bar: each pixel within 1; also (nearly) all equal, the arithmetic being OpenCV's."""
-    out = np.asarray(out)
-    assert out.shape == ref.shape and out.dtype == ref.dtype
-    diff = np.abs(out.astype(np.int16) - ref.astype(np.int16))
-    assert diff.max() <= 1, f"max diff {diff.max()}"
-    assert (diff == 0).mean() >= 0.999, f"equal: {(diff == 0).mean():.5f}"
 
 
-def crop(img, h, w):
-    return np.ascontiguousarray(img[:h, :w])
 
 
 def cv_scale_pyramid(src, sizes):
