@@ -26,3 +26,18 @@ def on_device(img: np.ndarray, backend: str):
     """``img`` as the backend takes it natively: NumPy for ``cpu``, else a ``wp.array``."""
     be = resolve_backend(backend)
     return img if be.kind == "cpu" else init_warp().array(img, device=be.device)
+
+
+def assert_bench_cases_match_opencv(cases, backend: str, *, n_cases: int, peers=("cvcuda", "kornia")):
+    """Each benchmark case computes what its OpenCV twin computes (so the bench compares like
+    with like), declares the bytes it moves, and offers the expected peers."""
+    from warpvx.arrays import to_numpy
+
+    assert len(cases) == n_cases
+    for case in cases:
+        assert case.bytes_moved and case.bytes_moved > 0
+        ours = to_numpy(case.prepare(backend)())
+        ref = case.opencv()()
+        diff = np.abs(ours.astype(np.int16) - ref.astype(np.int16))
+        assert ours.shape == ref.shape and diff.max() <= 1, case.label
+        assert set(case.peers) == set(peers)

@@ -8,7 +8,7 @@ import pytest
 
 import warpvx
 from tests.images import bgr, gray
-from tests.parity import assert_images_match
+from tests.parity import assert_images_match, assert_bench_cases_match_opencv
 from warpvx.color import CODES, bgr_to_nv12, code_spec
 
 PHOTOS = ["chelsea", "rocket", "motorcycle"]  # 451x300, 640x427, 741x500
@@ -210,15 +210,6 @@ def _device(backend_name: str) -> str:
 
 
 def test_bench_cases(backend):
-    from warpvx.arrays import to_numpy
     from warpvx.color import bench_cases_color_convert
 
-    cases = bench_cases_color_convert(bgr("chelsea"))
-    assert len(cases) == 3
-    for case in cases:
-        assert case.bytes_moved and case.bytes_moved > 0
-        ours = to_numpy(case.prepare(backend)())
-        ref = case.opencv()()
-        diff = np.abs(ours.astype(np.int16) - ref.astype(np.int16))
-        assert ours.shape == ref.shape and diff.max() <= 1, case.label
-        assert set(case.peers) == {"cvcuda", "kornia"}
+    assert_bench_cases_match_opencv(bench_cases_color_convert(bgr("chelsea")), backend, n_cases=3)

@@ -9,6 +9,7 @@ import pytest
 
 import warpvx
 from tests.images import bgr, gray
+from tests.parity import assert_bench_cases_match_opencv
 from warpvx.geometry import undistort_maps
 
 PHOTOS = ["chelsea", "rocket", "motorcycle"]
@@ -283,15 +284,6 @@ def test_out_argument(backend):
 
 
 def test_bench_cases(backend):
-    from warpvx.arrays import to_numpy
     from warpvx.geometry import bench_cases_remap
 
-    cases = bench_cases_remap(bgr("chelsea"))
-    assert len(cases) == 1
-    for case in cases:
-        assert case.bytes_moved and case.bytes_moved > 0
-        ours = to_numpy(case.prepare(backend)())
-        ref = case.opencv()()
-        diff = np.abs(ours.astype(np.int16) - ref.astype(np.int16))
-        assert ours.shape == ref.shape and diff.max() <= 1, case.label
-        assert set(case.peers) == {"cvcuda", "kornia"}
+    assert_bench_cases_match_opencv(bench_cases_remap(bgr("chelsea")), backend, n_cases=1)
