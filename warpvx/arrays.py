@@ -59,12 +59,18 @@ def as_input(x, name: str):
     )
 
 
+_numpy_dtypes: dict = {}  # Warp scalar type -> NumPy dtype
+
+
 def numpy_dtype(x) -> np.dtype:
     """The NumPy dtype of a NumPy or Warp array."""
     if isinstance(x, np.ndarray):
         return x.dtype
-    wp = init_warp()
-    return np.dtype(wp.dtype_to_numpy(x.dtype))
+    dt = _numpy_dtypes.get(x.dtype)
+    if dt is None:
+        wp = init_warp()
+        dt = _numpy_dtypes[x.dtype] = np.dtype(wp.dtype_to_numpy(x.dtype))
+    return dt
 
 
 def is_contiguous(x) -> bool:

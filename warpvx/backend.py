@@ -121,7 +121,8 @@ def resolve_backend(backend=None, *, like=None) -> Backend:
         if _default_backend is not None:
             backend = _default_backend
         elif like is not None and _is_warp_array(like):
-            backend = "warp-cpu" if like.device.is_cpu else str(like.device)
+            device = like.device
+            backend = "warp-cpu" if device.is_cpu else device.alias
         else:
             backend = "auto"
     hit = _resolved.get(backend) if isinstance(backend, str) else None
@@ -167,6 +168,19 @@ def _resolve(backend) -> Backend:
     )
 
 
+# type -> whether its instances are Warp arrays; filled as types are met (this runs on every
+# call, several times, so the module-name test is paid once per type).
+_warp_array_types: dict = {}
+
+
 def _is_warp_array(x) -> bool:
-    mod = type(x).__module__
-    return mod.startswith("warp") and hasattr(x, "device") and hasattr(x, "ptr")
+    t = type(x)
+    known = _warp_array_types.get(t)
+    if known is not None:
+        return known
+    is_array = t.__module__.startswith("warp") and hasattr(x, "device") and hasattr(x, "ptr")
+    if is_array or not t.__module__.startswith("warp"):
+        # Warp types other than arrays (vectors, structs) are not cached: the attribute test
+        # is per instance there.
+        _warp_array_types[t] = is_array
+    return is_array

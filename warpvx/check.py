@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 import numbers
+import threading
+from collections import OrderedDict
 
 import numpy as np
 
@@ -47,11 +49,7 @@ def check_image(
     if c not in channels:
         want = " or ".join(str(k) for k in channels)
         raise ShapeError(f"{name}: expected {want} channel(s), got {c} (shape {shape})")
-    dt = numpy_dtype(arr)
-    accepted = [np.dtype(d) for d in dtypes]
-    if dt not in accepted:
-        want = " or ".join(str(d) for d in accepted)
-        raise DTypeError(f"{name}: expected dtype {want}, got {dt}")
+    _check_dtype(arr, name, dtypes)
     h, w = shape[0], shape[1]
     if h == 0 or w == 0:
         raise ShapeError(f"{name}: image is empty (shape {shape})")
@@ -83,11 +81,7 @@ def check_array(x, name: str, *, shape=None, dtypes=None, ndim=None, finite=Fals
             want = "x".join("N" if e is None else str(e) for e in shape)
             raise ShapeError(f"{name}: expected shape {want}, got {s}")
     if dtypes is not None:
-        dt = numpy_dtype(arr)
-        accepted = [np.dtype(d) for d in dtypes]
-        if dt not in accepted:
-            want = " or ".join(str(d) for d in accepted)
-            raise DTypeError(f"{name}: expected dtype {want}, got {dt}")
+        _check_dtype(arr, name, dtypes)
     if not is_contiguous(arr):
         raise WarpvxValueError(f"{name}: expected a C-contiguous array")
     if finite:
@@ -98,9 +92,20 @@ def check_array(x, name: str, *, shape=None, dtypes=None, ndim=None, finite=Fals
 
 
 def check_matrix(m, name: str = "M", shape=(3, 3), *, invertible=False) -> np.ndarray:
-    """A small host matrix as float64; finite, and invertible when asked."""
+    """A small host matrix as float64; finite, and invertible when asked.
+
+    The result is read-only: validated NumPy matrices are remembered (a few dozen), since a
+    warp is often called frame after frame with the same matrix and the invertibility test
+    (an SVD) costs tens of microseconds.
+    """
     if isinstance(m, (list, tuple)):
         m = np.asarray(m)
+    key = None
+    if type(m) is np.ndarray and m.size <= 16:
+        key = (m.dtype.str, m.shape, m.tobytes(), tuple(shape), invertible)
+        hit = _matrices.get(key)
+        if hit is not None:
+            return hit
     arr = as_input(m, name)
     host = np.asarray(arr if isinstance(arr, np.ndarray) else arr.numpy())
     if host.shape != tuple(shape):
@@ -114,7 +119,17 @@ def check_matrix(m, name: str = "M", shape=(3, 3), *, invertible=False) -> np.nd
         cond = np.linalg.cond(host)
         if not np.isfinite(cond) or cond > 1e12:
             raise WarpvxValueError(f"{name}: matrix is singular (condition number {cond:.3g})")
+    host.setflags(write=False)
+    if key is not None:
+        with _matrices_lock:
+            _matrices[key] = host
+            while len(_matrices) > 64:
+                _matrices.popitem(last=False)
     return host
+
+
+_matrices: OrderedDict = OrderedDict()
+_matrices_lock = threading.Lock()
 
 
 def check_int(v, name: str, *, min_value=None, max_value=None) -> int:
@@ -157,6 +172,28 @@ def check_choice(v, name: str, choices):
         return v
     opts = ", ".join(repr(c) for c in choices)
     raise UnsupportedError(f"{name}: expected one of {opts}, got {v!r}")
+
+
+# (array dtype, accepted dtypes) pairs seen to pass: every public call checks its arrays'
+# dtypes, and NumPy dtype construction and comparison cost microseconds each time.
+_dtype_ok: set = set()
+
+
+def _check_dtype(arr, name: str, dtypes) -> None:
+    """``arr``'s dtype (NumPy or Warp) must be one of ``dtypes``."""
+    try:
+        key = (arr.dtype, dtypes)
+        if key in _dtype_ok:
+            return
+    except TypeError:  # unhashable dtypes (a list): check without the cache
+        key = None
+    dt = numpy_dtype(arr)
+    accepted = [np.dtype(d) for d in dtypes]
+    if dt not in accepted:
+        want = " or ".join(str(d) for d in accepted)
+        raise DTypeError(f"{name}: expected dtype {want}, got {dt}")
+    if key is not None:
+        _dtype_ok.add(key)
 
 
 def _check_range(v, name, lo, hi):

@@ -95,10 +95,19 @@ CODES = {
     "YUV2GRAY_NV12": 106, "YUV2GRAY_NV21": 106, "YUV420sp2GRAY": 106,
 }
 _BY_UPPER = {k.upper(): v for k, v in CODES.items()}
+# Every exact spelling in CODES, with and without COLOR_, for a lookup without normalising.
+_BY_SPELLING = {**CODES, **{f"COLOR_{k}": v for k, v in CODES.items()}}
 
 
 def resolve_code(code) -> int:
     """cv2's integer for ``code`` (an int or a name with or without ``COLOR_``)."""
+    t = type(code)
+    if t is int and code in _SPECS:
+        return code
+    if t is str:
+        hit = _BY_SPELLING.get(code)
+        if hit is not None:
+            return hit
     if isinstance(code, str):
         key = code.strip().upper()
         if key.startswith("COLOR_"):

@@ -138,8 +138,7 @@ def warp_perspective(src, M, dsize, interpolation="linear", inverse_map=False, b
     channels = 1 if src.ndim == 2 else src.shape[2]
     bval = _border_value(border_value)
     _check_out(out, (h, w) if channels == 1 else (h, w, channels))
-    m_inv = m if inverse_map else np.linalg.inv(m)
-    coeffs = tuple(float(v) for v in m_inv.ravel())
+    coeffs = _dst_to_src(m, bool(inverse_map))
     return dispatch("warp_perspective", be, src, coeffs, (w, h), interp, bmode, bval, out=out,
                     stream=stream)
 
@@ -151,8 +150,29 @@ def _as_hw(src):
     return src
 
 
+_coeffs: dict = {}  # (matrix bytes, inverse_map) -> dst->src coefficients
+
+
+def _dst_to_src(m: np.ndarray, inverse_map: bool) -> tuple:
+    """The dst->src matrix (``inv(m)`` unless ``inverse_map``) as 9 floats, row order."""
+    key = (m.tobytes(), inverse_map)
+    coeffs = _coeffs.get(key)
+    if coeffs is None:
+        m_inv = m if inverse_map else np.linalg.inv(m)
+        coeffs = tuple(float(v) for v in m_inv.ravel())
+        if len(_coeffs) >= 64:
+            _coeffs.clear()
+        _coeffs[key] = coeffs
+    return coeffs
+
+
 def _mode(value, name, table):
     """A mode given by name or cv2 integer, as the kernels' integer."""
+    t = type(value)
+    if t is str or t is int:  # the common spellings, looked up directly
+        mode = table.get(value.lower() if t is str else value)
+        if mode is not None:
+            return mode
     if isinstance(value, bool) or not isinstance(value, (str, numbers.Integral)):
         names = ", ".join(repr(k) for k in table if isinstance(k, str))
         raise UnsupportedError(f"{name}: expected one of {names} or its cv2 integer, got {value!r}")
@@ -163,8 +183,31 @@ def _empty(name, shape):
     return ShapeError(f"{name}: expected a non-empty array, got shape {tuple(shape)}")
 
 
+_border_values: dict = {}  # (types, value) -> saturated border values
+
+
 def _border_value(value) -> tuple:
     """Four border values saturated as ``saturate_cast<uchar>`` (round half to even, clip)."""
+    t = type(value)
+    if t is int or t is float or t is tuple:
+        # Keyed with the element types too: True == 1 but a bool is rejected.
+        key = (t, tuple(map(type, value)) if t is tuple else None, value)
+        try:
+            hit = _border_values.get(key)
+        except TypeError:  # unhashable elements
+            key = hit = None
+        if hit is not None:
+            return hit
+        result = _saturated_border_value(value)
+        if key is not None:
+            if len(_border_values) >= 64:
+                _border_values.clear()
+            _border_values[key] = result
+        return result
+    return _saturated_border_value(value)
+
+
+def _saturated_border_value(value) -> tuple:
     if isinstance(value, numbers.Real) and not isinstance(value, bool):
         vals = [check_float(value, "border_value")] * 4
     elif isinstance(value, (tuple, list, np.ndarray)):

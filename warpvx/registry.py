@@ -52,14 +52,19 @@ class Primitive:
     public: str
     impls: dict = field(default_factory=dict)
     bench: str | None = None
+    _loaded: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def implementation(self, kind: str) -> Callable:
+        impl = self._loaded.get(kind)
+        if impl is not None:
+            return impl
         if kind not in self.impls:
             raise BackendError(
                 f"backend: {self.name} has no {kind!r} implementation "
                 f"(available: {sorted(self.impls)})"
             )
-        return _load(self.impls[kind])
+        impl = self._loaded[kind] = _load(self.impls[kind])
+        return impl
 
     def function(self) -> Callable:
         return _load(self.public)
@@ -177,10 +182,29 @@ def dispatch(name: str, backend: Backend, *args, out=None, stream=None, template
     arrays are moved to where the implementation runs. ``template`` (default: the first
     array argument) decides the kind of the result. ``out`` is handed to the implementation
     when it already lives where the implementation writes, otherwise the result is copied
-    into it.
+    into it. ``stream`` (Warp backends) is made the device's current stream for the call;
+    without it the implementation runs on the current stream.
+
+    Warp implementations name their device on every allocation and launch, but a few Warp
+    utilities (``wp.utils.radix_sort_pairs``, ``array_scan``) run in the current CUDA
+    context, so the backend's device is made current (``wp.ScopedDevice``) unless it already
+    is, which is the usual case and saves the scope's cost. When every array argument and
+    ``out`` already are ``wp.array``s on the backend's device (the usual case in a
+    pipeline), nothing is converted and the implementation is called directly.
     """
-    prim = get_primitive(name)
+    prim = REGISTRY.get(name) or get_primitive(name)
     impl = prim.implementation(backend.kind)
+    if backend.kind != "cpu" and template is None:
+        device = _warp_device(backend.device)
+        if _on_device(args, device) and _on_device(kwargs.values(), device) and _out_on_device(out, device):
+            if stream is None and device.runtime.default_device is device:
+                result = impl(*args, out=out, **kwargs)
+            else:
+                with _device_scope(backend, stream):
+                    result = impl(*args, out=out, **kwargs)
+            if type(result) is _wp.array or not any(_is_array(a) for a in args):
+                return result
+            return like_input(result, next(a for a in args if _is_array(a)))
     if template is None:
         template = next((a for a in args if isinstance(a, np.ndarray) or is_warp_array(a)), None)
     host = backend.kind == "cpu"
@@ -195,6 +219,54 @@ def dispatch(name: str, backend: Backend, *args, out=None, stream=None, template
         _copy_into(out, result)
         return out
     return result
+
+
+# --- the fast path: Warp arrays already on the backend's device ------------------------------
+
+_wp = None  # the warp module, once a Warp backend has been used
+_devices: dict = {}  # device alias -> wp.Device
+_SCALARS = frozenset((int, float, bool, str, type(None)))
+
+
+def _warp_device(alias: str):
+    global _wp
+    device = _devices.get(alias)
+    if device is None:
+        _wp = init_warp()
+        device = _devices[alias] = _wp.get_device(alias)
+    return device
+
+
+def _is_array(a) -> bool:
+    return isinstance(a, np.ndarray) or is_warp_array(a)
+
+
+def _on_device(values, device) -> bool:
+    """True when ``values`` hold only scalars and ``wp.array``s on ``device`` (also inside
+    tuples and lists): nothing to convert."""
+    for v in values:
+        t = type(v)
+        if t in _SCALARS or isinstance(v, np.generic):
+            continue
+        if t is _wp.array:
+            if v.device is not device:
+                return False
+        elif t is tuple or t is list:
+            if not _on_device(v, device):
+                return False
+        else:
+            return False
+    return True
+
+
+def _out_on_device(out, device) -> bool:
+    if out is None:
+        return True
+    if type(out) is _wp.array:
+        return out.device is device
+    if isinstance(out, (list, tuple)):
+        return all(type(o) is _wp.array and o.device is device for o in out)
+    return False
 
 
 def _is_native(out, backend: Backend) -> bool:
@@ -222,13 +294,15 @@ def _copy_into(out, result):
 
 @contextlib.contextmanager
 def _device_scope(backend: Backend, stream):
+    """On Warp backends: the backend's device made current (unless it is) and ``stream``,
+    when given, made its current stream."""
     if backend.kind == "cpu":
         yield
         return
-    wp = init_warp()
-    with wp.ScopedDevice(backend.device):
+    device = _warp_device(backend.device)
+    with contextlib.ExitStack() as scopes:
+        if device.runtime.default_device is not device:
+            scopes.enter_context(_wp.ScopedDevice(device))
         if stream is not None:
-            with wp.ScopedStream(stream):
-                yield
-        else:
-            yield
+            scopes.enter_context(_wp.ScopedStream(stream))
+        yield

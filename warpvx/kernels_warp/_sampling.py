@@ -1,8 +1,12 @@
-"""Shared image sampling for Warp kernels: border handling and nearest/bilinear taps.
+"""Shared image sampling for Warp kernels: border handling, nearest/bilinear taps, and
+*pixel words* (a pixel's channels packed in a uint32, for kernels that move 4 pixels at a time
+as 32-bit words).
 
 Used by ``remap`` and ``warp_perspective`` (and any later kernel that samples a uint8 image at
-real coordinates). The arithmetic follows OpenCV >= 4.11 (``warp_common.scalar.hpp``), which
-samples in float32 rather than with the older 1/32-px fixed-point tables:
+real coordinates; :func:`make_samplers` gives the samplers for a channel count), and the
+pixel words by ``color_convert``. The arithmetic follows OpenCV >= 4.11
+(``warp_common.scalar.hpp``), which samples in float32 rather than with the older 1/32-px
+fixed-point tables:
 
 - pixel centres at integer coordinates;
 - nearest: ``ix = cvRound(sx)`` (round half to even);
@@ -52,7 +56,8 @@ def round_coord(v: float) -> int:
 
 @wp.func
 def is_finite_point(sx: float, sy: float) -> bool:
-    return wp.isfinite(sx) and wp.isfinite(sy)
+    """Whether both are finite (x * 0 is 0 for finite x, NaN otherwise; no branch)."""
+    return wp.isfinite(sx * 0.0 + sy * 0.0)
 
 
 @wp.func
@@ -83,29 +88,35 @@ def nearest_tap(sx: float, sy: float, width: int, height: int, border: int) -> w
     return wp.vec2i(x, y)
 
 
-@wp.func
-def linear_taps(sx: float, sy: float, width: int, height: int, border: int) -> tuple[wp.vec4i, float, float]:
-    """Resolved ``(x0, x1, y0, y1)`` of the 2x2 neighbourhood and the weights ``(ax, ay)``."""
-    ix, ax = split_coord(sx)
-    iy, ay = split_coord(sy)
-    taps = wp.vec4i(
-        border_index(ix, width, border),
-        border_index(ix + 1, width, border),
-        border_index(iy, height, border),
-        border_index(iy + 1, height, border),
-    )
-    return taps, ax, ay
-
-
-@wp.func
+@wp.func_native("return fmaf(a, b, c);")
 def fma32(a: float, b: float, c: float) -> float:
-    """``a*b + c`` rounded once to float32, as the ``v_fma`` of OpenCV's vector paths.
+    """``a*b + c`` rounded once to float32 (C's ``fmaf``), as the ``v_fma`` of OpenCV's
+    vector paths, on CPU and CUDA alike (no double-precision work on the GPU)."""
+    ...
 
-    Computed in float64, where the product of two float32 is exact, so the result does not
-    depend on whether the compiler contracts (CUDA does, Warp's CPU build does not); a plain
-    ``a*b + c`` differs by an ulp now and then, which flips rounding ties.
-    """
-    return wp.float32(wp.float64(a) * wp.float64(b) + wp.float64(c))
+
+# Raw reads at offsets the caller has resolved in bounds. Array indexing (``a[i]``) adds a
+# run-time stride multiply and a negative-index wrap to every read, and a bilinear sample makes
+# 4 reads per channel. On CUDA the reads go through the read-only data cache.
+_LOAD = """
+#if defined(__CUDA_ARCH__)
+return __ldg(reinterpret_cast<const {t}*>(ptr) + offset);
+#else
+return reinterpret_cast<const {t}*>(ptr)[offset];
+#endif
+"""
+
+
+@wp.func_native(_LOAD.format(t="unsigned char"))
+def load_byte(ptr: wp.uint64, offset: int) -> int:
+    """Byte ``offset`` from address ``ptr``."""
+    ...
+
+
+@wp.func_native(_LOAD.format(t="float"))
+def load_float(ptr: wp.uint64, offset: int) -> float:
+    """float32 number ``offset`` from address ``ptr``."""
+    ...
 
 
 @wp.func
@@ -117,92 +128,169 @@ def lerp2(p00: float, p01: float, p10: float, p11: float, ax: float, ay: float) 
 
 
 @wp.func
-def saturate_u8(v: float) -> wp.uint8:
-    """``saturate_cast<uchar>(v)``: round half to even, clamp to [0, 255]."""
-    return wp.uint8(wp.clamp(int(wp.rint(v)), 0, 255))
+def saturate_int(v: float) -> int:
+    """``saturate_cast<uchar>(v)`` as an int: round half to even, clamp to [0, 255]."""
+    return wp.clamp(int(wp.rint(v)), 0, 255)
+
+
+# --- pixel words ----------------------------------------------------------------------------
+# A pixel word holds one pixel's channels in the bytes of a uint32, channel 0 in the low byte.
+# Kernels that handle 4 pixels per thread read and write image rows as 32-bit words through
+# these (a quad of 3-channel pixels is 3 words, of 4-channel pixels 4 words, of gray pixels 1).
+
+ALPHA = wp.constant(wp.uint32(0xFF000000))
+LOW24 = wp.constant(wp.uint32(0x00FFFFFF))
 
 
 @wp.func
-def texel_gray(src: wp.array2d(dtype=wp.uint8), x: int, y: int, bval: float) -> float:
-    if x < 0 or y < 0:
-        return bval
-    return float(src[y, x])
+def byte_of(w: wp.uint32, k: int) -> int:
+    """Byte ``k`` (0 = lowest) of ``w``."""
+    return int((w >> wp.uint32(8 * k)) & wp.uint32(0xFF))
 
 
 @wp.func
-def texel_color(src: wp.array3d(dtype=wp.uint8), x: int, y: int, c: int, bval: float) -> float:
-    if x < 0 or y < 0:
-        return bval
-    return float(src[y, x, c])
+def pack_bytes(b0: int, b1: int, b2: int, b3: int) -> wp.uint32:
+    """A word of four bytes given as ints in [0, 255], ``b0`` lowest."""
+    return (wp.uint32(b0) | (wp.uint32(b1) << wp.uint32(8)) | (wp.uint32(b2) << wp.uint32(16))
+            | (wp.uint32(b3) << wp.uint32(24)))
 
 
 @wp.func
-def sample_gray(
-    src: wp.array2d(dtype=wp.uint8), sx: float, sy: float, interpolation: int, border: int, bval: float
-) -> wp.uint8:
-    """One gray output pixel sampled at ``(sx, sy)``."""
-    if not is_finite_point(sx, sy):
-        return saturate_u8(bval)
-    width = src.shape[1]
-    height = src.shape[0]
-    if interpolation == INTER_NEAREST:
-        t = nearest_tap(sx, sy, width, height, border)
-        return saturate_u8(texel_gray(src, t[0], t[1], bval))
-    taps, ax, ay = linear_taps(sx, sy, width, height, border)
-    p00 = texel_gray(src, taps[0], taps[2], bval)
-    p01 = texel_gray(src, taps[1], taps[2], bval)
-    p10 = texel_gray(src, taps[0], taps[3], bval)
-    p11 = texel_gray(src, taps[1], taps[3], bval)
-    return saturate_u8(lerp2(p00, p01, p10, p11, ax, ay))
+def load_quad(src: wp.array2d(dtype=wp.uint32), channels: int, y: int, q: int) -> wp.vec4ui:
+    """Pixel words of pixels 4q..4q+3 of row ``y`` of a 3- or 4-channel image viewed as words
+    (alpha 255 for 3 channels)."""
+    if channels == 4:
+        return wp.vec4ui(src[y, 4 * q], src[y, 4 * q + 1], src[y, 4 * q + 2], src[y, 4 * q + 3])
+    a = src[y, 3 * q]
+    b = src[y, 3 * q + 1]
+    c = src[y, 3 * q + 2]
+    return wp.vec4ui(
+        (a & LOW24) | ALPHA,
+        (a >> wp.uint32(24)) | ((b & wp.uint32(0xFFFF)) << wp.uint32(8)) | ALPHA,
+        (b >> wp.uint32(16)) | ((c & wp.uint32(0xFF)) << wp.uint32(16)) | ALPHA,
+        (c >> wp.uint32(8)) | ALPHA,
+    )
 
 
 @wp.func
-def blend_color(
-    src: wp.array3d(dtype=wp.uint8), taps: wp.vec4i, ax: float, ay: float, c: int, bval: float
-) -> wp.uint8:
-    """Channel ``c`` of the bilinear sample at resolved ``taps``."""
-    p00 = texel_color(src, taps[0], taps[2], c, bval)
-    p01 = texel_color(src, taps[1], taps[2], c, bval)
-    p10 = texel_color(src, taps[0], taps[3], c, bval)
-    p11 = texel_color(src, taps[1], taps[3], c, bval)
-    return saturate_u8(lerp2(p00, p01, p10, p11, ax, ay))
+def store_quad(dst: wp.array2d(dtype=wp.uint32), channels: int, y: int, q: int, p: wp.vec4ui):
+    """Write 4 pixel words to a 1-, 3- or 4-channel image viewed as words: 1 word of gray
+    pixels (channel 0 of each), 3 words of 3-channel pixels or 4 words of 4-channel ones."""
+    if channels == 4:
+        dst[y, 4 * q] = p[0]
+        dst[y, 4 * q + 1] = p[1]
+        dst[y, 4 * q + 2] = p[2]
+        dst[y, 4 * q + 3] = p[3]
+    elif channels == 3:
+        dst[y, 3 * q] = (p[0] & LOW24) | (p[1] << wp.uint32(24))
+        dst[y, 3 * q + 1] = ((p[1] >> wp.uint32(8)) & wp.uint32(0xFFFF)) | (p[2] << wp.uint32(16))
+        dst[y, 3 * q + 2] = ((p[2] >> wp.uint32(16)) & wp.uint32(0xFF)) | (p[3] << wp.uint32(8))
+    else:
+        dst[y, q] = pack_bytes(byte_of(p[0], 0), byte_of(p[1], 0), byte_of(p[2], 0), byte_of(p[3], 0))
 
 
 @wp.func
-def sample_color_into(
-    src: wp.array3d(dtype=wp.uint8),
-    sx: float,
-    sy: float,
-    interpolation: int,
-    border: int,
-    bval: wp.vec4,
-    dst: wp.array3d(dtype=wp.uint8),
-    dy: int,
-    dx: int,
-):
-    """Sample every channel (3 or 4) at ``(sx, sy)`` into ``dst[dy, dx, :]``; the taps are
-    computed once, and channels are spelled out so ``bval`` stays in registers."""
-    four = dst.shape[2] == 4
-    if not is_finite_point(sx, sy):
-        dst[dy, dx, 0] = saturate_u8(bval[0])
-        dst[dy, dx, 1] = saturate_u8(bval[1])
-        dst[dy, dx, 2] = saturate_u8(bval[2])
-        if four:
-            dst[dy, dx, 3] = saturate_u8(bval[3])
-        return
-    width = src.shape[1]
-    height = src.shape[0]
-    if interpolation == INTER_NEAREST:
-        t = nearest_tap(sx, sy, width, height, border)
-        dst[dy, dx, 0] = saturate_u8(texel_color(src, t[0], t[1], 0, bval[0]))
-        dst[dy, dx, 1] = saturate_u8(texel_color(src, t[0], t[1], 1, bval[1]))
-        dst[dy, dx, 2] = saturate_u8(texel_color(src, t[0], t[1], 2, bval[2]))
-        if four:
-            dst[dy, dx, 3] = saturate_u8(texel_color(src, t[0], t[1], 3, bval[3]))
-        return
-    taps, ax, ay = linear_taps(sx, sy, width, height, border)
-    dst[dy, dx, 0] = blend_color(src, taps, ax, ay, 0, bval[0])
-    dst[dy, dx, 1] = blend_color(src, taps, ax, ay, 1, bval[1])
-    dst[dy, dx, 2] = blend_color(src, taps, ax, ay, 2, bval[2])
-    if four:
-        dst[dy, dx, 3] = blend_color(src, taps, ax, ay, 3, bval[3])
+def store_pixel(dst: wp.array2d(dtype=wp.uint8), channels: int, y: int, x: int, p: wp.uint32):
+    """Write the ``channels`` low bytes of pixel word ``p`` to pixel (y, x) of an image
+    viewed as rows of ``width * channels`` bytes."""
+    o = x * channels
+    dst[y, o] = wp.uint8(byte_of(p, 0))
+    if channels > 1:
+        dst[y, o + 1] = wp.uint8(byte_of(p, 1))
+        dst[y, o + 2] = wp.uint8(byte_of(p, 2))
+        if channels == 4:
+            dst[y, o + 3] = wp.uint8(byte_of(p, 3))
+
+
+# --- sampling -------------------------------------------------------------------------------
+
+
+@wp.struct
+class SourceImage:
+    """A C-contiguous uint8 image (HxW or HxWxC), read at flat byte offsets from ``ptr``:
+    channel ``c`` of pixel (x, y) is byte ``(y * width + x) * C + c``. The samplers compute
+    the offset of a tap once for all its channels and read with :func:`load_byte`."""
+
+    ptr: wp.uint64
+    width: int
+    height: int
+
+
+@wp.func
+def border_pixel(bval: wp.vec4) -> wp.uint32:
+    """The pixel word of the border value."""
+    return pack_bytes(saturate_int(bval[0]), saturate_int(bval[1]), saturate_int(bval[2]),
+                      saturate_int(bval[3]))
+
+
+def make_samplers(channels: int):
+    """``(sample_nearest, sample_linear)`` for :class:`SourceImage` s of ``channels`` channels
+    (1, 3 or 4), each ``f(img, sx, sy, border, bval: vec4) -> pixel word`` (a gray image:
+    byte 0; bytes past ``channels`` are 0).
+
+    The channel count is a compile-time constant of the returned functions (one pair per
+    count, made once at import), so their channel loops unroll. Bilinear sampling takes a
+    straight path when the 2x2 neighbourhood lies inside the image (no border rule, no border
+    value); elsewhere each tap is resolved by :func:`border_index` and border taps read pixel
+    (0, 0), in bounds, whose value the border value then replaces. A non-finite coordinate is
+    sampled at (0, 0) and replaced by the border value likewise. Within each path the reads are
+    unconditional, so the compiler can issue a pixel's reads together.
+    """
+
+    @wp.func
+    def offset(img: SourceImage, x: int, y: int) -> int:
+        # A border tap (-1) reads pixel 0; its value is replaced by the border value.
+        return (wp.max(y, 0) * img.width + wp.max(x, 0)) * wp.static(channels)
+
+    @wp.func
+    def blend(img: SourceImage, o00: int, o01: int, o10: int, o11: int, in00: bool, in01: bool,
+              in10: bool, in11: bool, ax: float, ay: float, bval: wp.vec4) -> wp.vec4i:
+        """Each channel of the bilinear blend of the taps at offsets ``o00..o11`` (a tap not
+        ``in`` the image takes the border value)."""
+        c = wp.vec4i(0, 0, 0, 0)
+        for k in range(wp.static(channels)):
+            b = bval[k]
+            p00 = wp.where(in00, float(load_byte(img.ptr, o00 + k)), b)
+            p01 = wp.where(in01, float(load_byte(img.ptr, o01 + k)), b)
+            p10 = wp.where(in10, float(load_byte(img.ptr, o10 + k)), b)
+            p11 = wp.where(in11, float(load_byte(img.ptr, o11 + k)), b)
+            c[k] = saturate_int(lerp2(p00, p01, p10, p11, ax, ay))
+        return c
+
+    @wp.func
+    def sample_nearest(img: SourceImage, sx: float, sy: float, border: int, bval: wp.vec4) -> wp.uint32:
+        finite = is_finite_point(sx, sy)
+        t = nearest_tap(wp.where(finite, sx, 0.0), wp.where(finite, sy, 0.0), img.width, img.height, border)
+        o = offset(img, t[0], t[1])
+        c = wp.vec4i(0, 0, 0, 0)
+        for k in range(wp.static(channels)):
+            c[k] = load_byte(img.ptr, o + k)
+        inside = finite and t[0] >= 0 and t[1] >= 0
+        return wp.where(inside, pack_bytes(c[0], c[1], c[2], c[3]), border_pixel(bval))
+
+    @wp.func
+    def sample_linear(img: SourceImage, sx: float, sy: float, border: int, bval: wp.vec4) -> wp.uint32:
+        finite = is_finite_point(sx, sy)
+        ix, ax = split_coord(wp.where(finite, sx, 0.0))
+        iy, ay = split_coord(wp.where(finite, sy, 0.0))
+        # Unsigned compares: a negative index is out too.
+        if wp.uint32(ix) < wp.uint32(img.width - 1) and wp.uint32(iy) < wp.uint32(img.height - 1):
+            o = (iy * img.width + ix) * wp.static(channels)
+            below = img.width * wp.static(channels)
+            c = blend(img, o, o + wp.static(channels), o + below, o + below + wp.static(channels),
+                      True, True, True, True, ax, ay, bval)
+        else:
+            x0 = border_index(ix, img.width, border)
+            x1 = border_index(ix + 1, img.width, border)
+            y0 = border_index(iy, img.height, border)
+            y1 = border_index(iy + 1, img.height, border)
+            c = blend(img, offset(img, x0, y0), offset(img, x1, y0), offset(img, x0, y1), offset(img, x1, y1),
+                      x0 >= 0 and y0 >= 0, x1 >= 0 and y0 >= 0, x0 >= 0 and y1 >= 0, x1 >= 0 and y1 >= 0,
+                      ax, ay, bval)
+        return wp.where(finite, pack_bytes(c[0], c[1], c[2], c[3]), border_pixel(bval))
+
+    return sample_nearest, sample_linear
+
+
+#: ``{channels: (sample_nearest, sample_linear)}`` for 1, 3 and 4 channels.
+SAMPLERS = {c: make_samplers(c) for c in (1, 3, 4)}

@@ -1,46 +1,119 @@
-"""Warp remap: ``dst[y, x] = src(map_x[y, x], map_y[y, x])``, one thread per output pixel.
+"""Warp remap: ``dst[y, x] = src(map_x[y, x], map_y[y, x])``.
 
 Sampling (nearest/bilinear, borders, rounding) is the shared code of
 :mod:`warpvx.kernels_warp._sampling`, which follows ``cv2.remap`` (OpenCV >= 4.11, float32).
+When the output width is a multiple of 4 and the output starts on a 4-byte boundary, one
+thread samples 4 consecutive output pixels and writes them as 32-bit words (more memory
+requests in flight per thread, no byte stores); otherwise one thread per output pixel.
 """
 
 from __future__ import annotations
 
 import warp as wp
 
-from ._sampling import sample_color_into, sample_gray
+from ._launch import array_key, as_view, as_words, launch_cached, view
+from ._sampling import INTER_NEAREST, SAMPLERS, SourceImage, load_float, store_pixel, store_quad
 
 # Inference only: no adjoint kernels (halves JIT time). No implicit FMA contraction: the
 # sampling code fuses explicitly where OpenCV does, so CPU and CUDA builds agree bit for bit.
 wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 
-@wp.kernel
-def remap_gray(
-    src: wp.array2d(dtype=wp.uint8),
-    map_x: wp.array2d(dtype=wp.float32),
-    map_y: wp.array2d(dtype=wp.float32),
-    interpolation: int,
-    border: int,
-    bval: float,
-    dst: wp.array2d(dtype=wp.uint8),
-):
-    y, x = wp.tid()
-    dst[y, x] = sample_gray(src, map_x[y, x], map_y[y, x], interpolation, border, bval)
+def make_kernels(channels: int):
+    """``(per-pixel kernel, quad kernel)`` remapping images of ``channels`` channels (a
+    compile-time constant: one pair per count, made once at import)."""
+    sample_nearest, sample_linear = SAMPLERS[channels]
+
+    @wp.kernel
+    def remap_pixels(
+        src: SourceImage,
+        map_x: wp.array2d(dtype=wp.float32),
+        map_y: wp.array2d(dtype=wp.float32),
+        interpolation: int,
+        border: int,
+        bval: wp.vec4,
+        dst: wp.array2d(dtype=wp.uint8),
+    ):
+        """One output pixel per thread; ``dst`` is the output as rows of width * C bytes."""
+        y, x = wp.tid()
+        i = y * map_x.shape[1] + x  # the maps are C-contiguous
+        sx = load_float(map_x.ptr, i)
+        sy = load_float(map_y.ptr, i)
+        if interpolation == INTER_NEAREST:
+            p = sample_nearest(src, sx, sy, border, bval)
+        else:
+            p = sample_linear(src, sx, sy, border, bval)
+        store_pixel(dst, wp.static(channels), y, x, p)
+
+    @wp.kernel
+    def remap_quads(
+        src: SourceImage,
+        map_x: wp.array2d(dtype=wp.float32),
+        map_y: wp.array2d(dtype=wp.float32),
+        interpolation: int,
+        border: int,
+        bval: wp.vec4,
+        dst: wp.array2d(dtype=wp.uint32),
+    ):
+        """Output pixels 4q..4q+3 of row y per thread; ``dst`` is the output as rows of
+        words. The interpolation branch is taken once per thread, so each branch is
+        straight-line code whose reads the compiler can issue together."""
+        y, q = wp.tid()
+        i = y * map_x.shape[1] + 4 * q  # the maps are C-contiguous
+        mx = map_x.ptr
+        my = map_y.ptr
+        sx = wp.vec4(load_float(mx, i), load_float(mx, i + 1), load_float(mx, i + 2), load_float(mx, i + 3))
+        sy = wp.vec4(load_float(my, i), load_float(my, i + 1), load_float(my, i + 2), load_float(my, i + 3))
+        if interpolation == INTER_NEAREST:
+            p = wp.vec4ui(
+                sample_nearest(src, sx[0], sy[0], border, bval),
+                sample_nearest(src, sx[1], sy[1], border, bval),
+                sample_nearest(src, sx[2], sy[2], border, bval),
+                sample_nearest(src, sx[3], sy[3], border, bval),
+            )
+        else:
+            p = wp.vec4ui(
+                sample_linear(src, sx[0], sy[0], border, bval),
+                sample_linear(src, sx[1], sy[1], border, bval),
+                sample_linear(src, sx[2], sy[2], border, bval),
+                sample_linear(src, sx[3], sy[3], border, bval),
+            )
+        store_quad(dst, wp.static(channels), y, q, p)
+
+    return remap_pixels, remap_quads
 
 
-@wp.kernel
-def remap_color(
-    src: wp.array3d(dtype=wp.uint8),
-    map_x: wp.array2d(dtype=wp.float32),
-    map_y: wp.array2d(dtype=wp.float32),
-    interpolation: int,
-    border: int,
-    bval: wp.vec4,
-    dst: wp.array3d(dtype=wp.uint8),
-):
-    y, x = wp.tid()
-    sample_color_into(src, map_x[y, x], map_y[y, x], interpolation, border, bval, dst, y, x)
+#: ``{(channels, quads): kernel}``: the per-pixel (quads False) and quad kernels.
+KERNELS = {(c, quads): k for c in (1, 3, 4) for quads, k in zip((False, True), make_kernels(c))}
+
+
+#: Quad kernels on (tests and benchmarks turn them off to exercise the per-pixel kernels).
+USE_QUADS = True
+
+
+def source_image(src) -> SourceImage:
+    """The :class:`SourceImage` of a C-contiguous uint8 image (its address: keeps nothing
+    alive)."""
+    img = SourceImage()
+    img.ptr = src.ptr
+    img.height = src.shape[0]
+    img.width = src.shape[1]
+    return img
+
+
+def channels_of(a) -> int:
+    """Channels of an HxW (1) or HxWxC image."""
+    return 1 if a.ndim == 2 else a.shape[2]
+
+
+def output_plan(out):
+    """``(quads, launch dim, make output view)`` of an output image: quads when its rows can
+    be written as words, 4 pixels per thread; else one pixel per thread, rows of bytes."""
+    h, w = out.shape[0], out.shape[1]
+    if USE_QUADS and w % 4 == 0 and out.ptr % 4 == 0:
+        return True, (h, w // 4), lambda: as_words(out)
+    row = w * channels_of(out)
+    return False, (h, w), lambda: view(out, wp.uint8, (h, row), (row, 1))
 
 
 def remap(src, map_x, map_y, interpolation, border, border_value, *, out=None):
@@ -70,20 +143,15 @@ def remap(src, map_x, map_y, interpolation, border, border_value, *, out=None):
     if out is None:
         shape = (h, w) if src.ndim == 2 else (h, w, src.shape[2])
         out = wp.empty(shape, dtype=wp.uint8, device=src.device)
-    if src.ndim == 2:
-        wp.launch(
-            remap_gray,
-            dim=(h, w),
-            inputs=[src, map_x, map_y, int(interpolation), int(border), float(border_value[0])],
-            outputs=[out],
-            device=src.device,
-        )
-    else:
-        wp.launch(
-            remap_color,
-            dim=(h, w),
-            inputs=[src, map_x, map_y, int(interpolation), int(border), wp.vec4(*border_value)],
-            outputs=[out],
-            device=src.device,
-        )
+    interpolation, border = int(interpolation), int(border)
+    quads, dim, dst = output_plan(out)
+    kernel = KERNELS[channels_of(src), quads]
+
+    def args():
+        return ([source_image(src), as_view(map_x), as_view(map_y), interpolation, border,
+                 wp.vec4(*border_value)], [dst()])
+
+    key = (array_key(src), array_key(map_x), array_key(map_y), interpolation, border,
+           tuple(border_value), array_key(out))
+    launch_cached(kernel, dim, args, None, src.device, key)
     return out

@@ -4,14 +4,18 @@ with the shared code of :mod:`warpvx.kernels_warp._sampling` (as ``cv2.remap``).
 Coordinates follow OpenCV >= 4.11: the dst->src matrix is rounded to float32 and, for output
 pixel (x, y), ``X = fma(M00, x, M01*y + M02)`` (likewise Y, W) in float32, then
 ``sx = X / W``, ``sy = Y / W``. W == 0 gives a non-finite coordinate: the pixel takes the
-border value (as OpenCV under a constant border; see ``_sampling``).
+border value (as OpenCV under a constant border; see ``_sampling``). As in
+:mod:`warpvx.kernels_warp.remap`, one thread handles 4 output pixels when the output rows can
+be written as 32-bit words.
 """
 
 from __future__ import annotations
 
 import warp as wp
 
-from ._sampling import fma32, sample_color_into, sample_gray
+from ._launch import array_key, launch_cached
+from ._sampling import INTER_NEAREST, SAMPLERS, SourceImage, fma32, store_pixel, store_quad
+from .remap import channels_of, output_plan, source_image
 
 # Inference only: no adjoint kernels (halves JIT time). No implicit FMA contraction: the
 # sampling code fuses explicitly where OpenCV does, so CPU and CUDA builds agree bit for bit.
@@ -19,41 +23,82 @@ wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 
 @wp.func
-def project(m: wp.mat33, x: int, y: int) -> wp.vec2:
-    xf = float(x)
-    yf = float(y)
+def project(m: wp.mat33, xf: float, yf: float) -> wp.vec2:
+    """Source coordinates of output pixel (x, y), given as floats (exact: x, y < 2^24)."""
     sx = fma32(m[0, 0], xf, m[0, 1] * yf + m[0, 2])
     sy = fma32(m[1, 0], xf, m[1, 1] * yf + m[1, 2])
     sw = fma32(m[2, 0], xf, m[2, 1] * yf + m[2, 2])
     return wp.vec2(sx / sw, sy / sw)
 
 
-@wp.kernel
-def warp_perspective_gray(
-    src: wp.array2d(dtype=wp.uint8),
-    m: wp.mat33,
-    interpolation: int,
-    border: int,
-    bval: float,
-    dst: wp.array2d(dtype=wp.uint8),
-):
-    y, x = wp.tid()
-    p = project(m, x, y)
-    dst[y, x] = sample_gray(src, p[0], p[1], interpolation, border, bval)
+def make_kernels(channels: int):
+    """``(per-pixel kernel, quad kernel)`` warping images of ``channels`` channels (a
+    compile-time constant: one pair per count, made once at import)."""
+    sample_nearest, sample_linear = SAMPLERS[channels]
+
+    @wp.func
+    def warp_linear(src: SourceImage, m: wp.mat33, x: float, y: float, border: int, bval: wp.vec4) -> wp.uint32:
+        p = project(m, x, y)
+        return sample_linear(src, p[0], p[1], border, bval)
+
+    @wp.func
+    def warp_nearest(src: SourceImage, m: wp.mat33, x: float, y: float, border: int, bval: wp.vec4) -> wp.uint32:
+        p = project(m, x, y)
+        return sample_nearest(src, p[0], p[1], border, bval)
+
+    @wp.kernel
+    def warp_perspective_pixels(
+        src: SourceImage,
+        m: wp.mat33,
+        interpolation: int,
+        border: int,
+        bval: wp.vec4,
+        dst: wp.array2d(dtype=wp.uint8),
+    ):
+        """One output pixel per thread; ``dst`` is the output as rows of width * C bytes."""
+        y, x = wp.tid()
+        if interpolation == INTER_NEAREST:
+            p = warp_nearest(src, m, float(x), float(y), border, bval)
+        else:
+            p = warp_linear(src, m, float(x), float(y), border, bval)
+        store_pixel(dst, wp.static(channels), y, x, p)
+
+    @wp.kernel
+    def warp_perspective_quads(
+        src: SourceImage,
+        m: wp.mat33,
+        interpolation: int,
+        border: int,
+        bval: wp.vec4,
+        dst: wp.array2d(dtype=wp.uint32),
+    ):
+        """Output pixels 4q..4q+3 of row y per thread; ``dst`` is the output as rows of
+        words (one interpolation branch per thread, as in remap)."""
+        y, q = wp.tid()
+        # One int->float conversion per thread (quarter rate on GPUs); x + k is exact.
+        xf = float(4 * q)
+        yf = float(y)
+        if interpolation == INTER_NEAREST:
+            p = wp.vec4ui(
+                warp_nearest(src, m, xf, yf, border, bval),
+                warp_nearest(src, m, xf + 1.0, yf, border, bval),
+                warp_nearest(src, m, xf + 2.0, yf, border, bval),
+                warp_nearest(src, m, xf + 3.0, yf, border, bval),
+            )
+        else:
+            p = wp.vec4ui(
+                warp_linear(src, m, xf, yf, border, bval),
+                warp_linear(src, m, xf + 1.0, yf, border, bval),
+                warp_linear(src, m, xf + 2.0, yf, border, bval),
+                warp_linear(src, m, xf + 3.0, yf, border, bval),
+            )
+        store_quad(dst, wp.static(channels), y, q, p)
+
+    return warp_perspective_pixels, warp_perspective_quads
 
 
-@wp.kernel
-def warp_perspective_color(
-    src: wp.array3d(dtype=wp.uint8),
-    m: wp.mat33,
-    interpolation: int,
-    border: int,
-    bval: wp.vec4,
-    dst: wp.array3d(dtype=wp.uint8),
-):
-    y, x = wp.tid()
-    p = project(m, x, y)
-    sample_color_into(src, p[0], p[1], interpolation, border, bval, dst, y, x)
+#: ``{(channels, quads): kernel}``: the per-pixel (quads False) and quad kernels.
+KERNELS = {(c, quads): k for c in (1, 3, 4) for quads, k in zip((False, True), make_kernels(c))}
 
 
 def warp_perspective(src, m_inv, dsize, interpolation, border, border_value, *, out=None):
@@ -81,21 +126,15 @@ def warp_perspective(src, m_inv, dsize, interpolation, border, border_value, *, 
     if out is None:
         shape = (h, w) if src.ndim == 2 else (h, w, src.shape[2])
         out = wp.empty(shape, dtype=wp.uint8, device=src.device)
-    m = wp.mat33(*[float(v) for v in m_inv])
-    if src.ndim == 2:
-        wp.launch(
-            warp_perspective_gray,
-            dim=(h, w),
-            inputs=[src, m, int(interpolation), int(border), float(border_value[0])],
-            outputs=[out],
-            device=src.device,
-        )
-    else:
-        wp.launch(
-            warp_perspective_color,
-            dim=(h, w),
-            inputs=[src, m, int(interpolation), int(border), wp.vec4(*border_value)],
-            outputs=[out],
-            device=src.device,
-        )
+    interpolation, border = int(interpolation), int(border)
+    m_inv = tuple(m_inv)
+    quads, dim, dst = output_plan(out)
+    kernel = KERNELS[channels_of(src), quads]
+
+    def args():
+        m = wp.mat33(*[float(v) for v in m_inv])
+        return [source_image(src), m, interpolation, border, wp.vec4(*border_value)], [dst()]
+
+    key = (array_key(src), m_inv, interpolation, border, tuple(border_value), array_key(out))
+    launch_cached(kernel, dim, args, None, src.device, key)
     return out

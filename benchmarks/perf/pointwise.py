@@ -1,0 +1,197 @@
+"""GPU micro-benchmark of the pointwise primitives: colour conversion, remap, perspective warp.
+
+Usage (on the GPU machine, from the repository root)::
+
+    PYTHONPATH=. python3 benchmarks/perf/pointwise.py [--size 1920x1080] [--old DIR]
+
+For each benchmark case of ``color_convert``, ``remap`` and ``warp_perspective`` (the cases
+``warpvx bench`` runs: BGR2GRAY, BGR2RGB, NV12->BGR, lens-undistortion remap, mild homography;
+all bilinear BGR, out= buffers on the device) it prints, per call:
+
+- ``call``: the public function called 100 times back to back, then one device
+  synchronisation (host overhead and kernel together, as a user sees them);
+- ``host``: the same 100 calls without the synchronisation (the host side alone);
+- ``graph``: the calls captured in a CUDA graph and replayed (the kernel alone);
+- ``pixel``: the graph time with the 4-pixels-per-thread kernels turned off;
+- ``floor``: bytes read and written over the measured device-to-device copy bandwidth;
+- ``cvcuda``: CV-CUDA's call, 100 back to back then one synchronisation, when it imports.
+
+``--profile`` adds the recorded launch replayed alone and a cProfile of each public call.
+
+``--old DIR`` names a directory holding ``warpvx_old``, an earlier copy of the package (its
+registry strings pointing at itself), timed the same way for a before/after table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+
+
+def _timer(fn, sync, calls, repeat):
+    """Median seconds per call over ``repeat`` batches of ``calls`` calls then ``sync()``."""
+    samples = []
+    for _ in range(repeat):
+        sync()
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        sync()
+        samples.append((time.perf_counter() - t0) / calls)
+    return statistics.median(samples)
+
+
+def _host_timer(fn, sync, calls, repeat):
+    """Median seconds per call to issue ``calls`` calls (the device may still be busy)."""
+    samples = []
+    for _ in range(repeat):
+        sync()
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        samples.append((time.perf_counter() - t0) / calls)
+        sync()
+    return statistics.median(samples)
+
+
+def _graph_timer(wp, fn, device, per_graph=20, replays=20, repeat=7):
+    with wp.ScopedDevice(device):
+        fn()
+        wp.synchronize_device(device)
+        with wp.ScopedCapture(device=device) as capture:
+            for _ in range(per_graph):
+                fn()
+    graph = capture.graph
+    sync = lambda: wp.synchronize_device(device)  # noqa: E731
+    for _ in range(3):
+        wp.capture_launch(graph)
+    return _timer(lambda: wp.capture_launch(graph), sync, replays, repeat) / per_graph
+
+
+def _cases(lib, image):
+    return (lib.color.bench_cases_color_convert(image) + lib.geometry.bench_cases_remap(image)
+            + lib.geometry.bench_cases_warp_perspective(image))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", default="1920x1080")
+    parser.add_argument("--old", default=None, help="directory holding warpvx_old")
+    parser.add_argument("--calls", type=int, default=100)
+    parser.add_argument("--repeat", type=int, default=7)
+    parser.add_argument("--backend", default="cuda", help="cuda (default); warp-cpu for a dry run")
+    parser.add_argument("--profile", action="store_true", help="also show where the host time goes")
+    args = parser.parse_args(argv)
+    w, h = (int(v) for v in args.size.lower().split("x"))
+
+    import warpvx
+    import warpvx.color
+    import warpvx.geometry
+    from warpvx.backend import init_warp, resolve_backend
+    from warpvx.bench import load_photo, photo_at
+    from warpvx.kernels_warp import color_convert as k_color
+    from warpvx.kernels_warp import remap as k_remap
+
+    wp = init_warp()
+    device = resolve_backend(args.backend).device
+    graphs = device != "cpu"  # CUDA graphs need a CUDA device
+    sync = lambda: wp.synchronize_device(device)  # noqa: E731
+    image = photo_at(load_photo(), (w, h))
+
+    nbytes = 256 << 20
+    a = wp.zeros(nbytes, dtype=wp.uint8, device=device)
+    b = wp.empty(nbytes, dtype=wp.uint8, device=device)
+    bandwidth = 2 * nbytes / _timer(lambda: wp.copy(b, a), sync, 20, 5)
+    print(f"{wp.get_device(device).name}, {w}x{h}, copy bandwidth {bandwidth / 1e9:.0f} GB/s", flush=True)
+
+    libs = [("new", warpvx)]
+    if args.old:
+        sys.path.insert(0, args.old)
+        import warpvx_old
+        import warpvx_old.color
+        import warpvx_old.geometry
+
+        libs.append(("old", warpvx_old))
+
+    rows = {}
+    new_cases = {}
+    for tag, lib in libs:
+        for case in _cases(lib, image):
+            fn = case.prepare(args.backend)
+            for _ in range(3):  # warm-up: JIT, recorded launches, clocks
+                _timer(fn, sync, args.calls, 1)
+            row = rows.setdefault(case.label, {"floor": case.bytes_moved / bandwidth})
+            row[f"{tag} call"] = _timer(fn, sync, args.calls, args.repeat)
+            row[f"{tag} host"] = _host_timer(fn, sync, args.calls, args.repeat)
+            row[f"{tag} graph"] = _graph_timer(wp, fn, device) if graphs else float("nan")
+            if tag == "new":
+                new_cases[case.label] = (case, fn)
+                if graphs:
+                    k_color.USE_QUADS = k_remap.USE_QUADS = False
+                    try:
+                        row["new pixel"] = _graph_timer(wp, fn, device)
+                    finally:
+                        k_color.USE_QUADS = k_remap.USE_QUADS = True
+            print(f"{case.label} {tag}: done", flush=True)
+
+    # Peers last, so that nothing they leave running (threads, streams) touches our timings.
+    for label, (case, _) in new_cases.items():
+        peer = case.peers.get("cvcuda")
+        try:
+            import torch
+
+            pfn = peer()
+            for _ in range(5):
+                pfn()
+            rows[label]["cvcuda"] = _timer(pfn, torch.cuda.synchronize, args.calls, args.repeat)
+        except Exception as exc:  # noqa: BLE001 - a missing peer is reported, not fatal
+            print(f"cvcuda {label}: {exc!r}", flush=True)
+
+    cols = ["floor", "new call", "new host", "new graph", "new pixel", "cvcuda", "old call", "old host",
+            "old graph"]
+    cols = [c for c in cols if any(c in r for r in rows.values())]
+    print(f"\n{'per call, us':<22}" + "".join(f"{c:>11}" for c in cols) + "   graph/floor")
+    for label, row in rows.items():
+        cells = "".join(f"{row.get(c, float('nan')) * 1e6:11.1f}" for c in cols)
+        print(f"{label[:22]:<22}{cells}   {row['new graph'] / row['floor']:.1f}x")
+    if args.profile:
+        _diagnose(new_cases, sync, args.calls)
+    return 0
+
+
+def _diagnose(new_cases, sync, calls):
+    """Where a plain call's host time goes: the recorded launch replayed alone, then the top
+    of a cProfile of the public call."""
+    import cProfile
+    import io
+    import pstats
+
+    from warpvx.kernels_warp import _launch
+
+    print("\nreplay alone, us per call (host: issue only; call: with the kernel)")
+    for label, (_, fn) in new_cases.items():
+        _launch.clear_recorded()
+        fn()
+        (plan,) = _launch._RECORDED.values()  # the launches of fn
+        replay = lambda: [cmd.launch() for cmd in plan]  # noqa: E731
+        host = _host_timer(replay, sync, calls, 5) * 1e6
+        call = _timer(replay, sync, calls, 5) * 1e6
+        print(f"  {label[:22]:<22} host {host:6.1f}  call {call:6.1f}", flush=True)
+    for label, (_, fn) in new_cases.items():
+        prof = cProfile.Profile()
+        sync()
+        prof.enable()
+        for _ in range(300):
+            fn()
+        prof.disable()
+        sync()
+        out = io.StringIO()
+        pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(8)
+        lines = [ln for ln in out.getvalue().splitlines() if ln.strip()][3:]
+        print(f"\ncProfile, 300 calls of {label}:\n" + "\n".join(ln[:150] for ln in lines), flush=True)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

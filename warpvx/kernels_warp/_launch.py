@@ -1,0 +1,120 @@
+"""Recorded kernel launches: replay ``wp.launch`` calls without re-packing their arguments.
+
+``wp.launch`` spends tens of microseconds of Python per call checking and packing every
+argument; for a small image on a GPU that is most of a primitive call. Warp can record a
+launch (``wp.launch(..., record_cmd=True)`` returns a ``wp.Launch``) whose ``.launch()`` only
+hands the packed parameters to the driver. :func:`run_recorded` keeps the recorded launches
+of recent calls, keyed by everything their kernels see, and replays them;
+:func:`launch_cached` does it for one launch.
+
+A replayed ``wp.Launch`` runs on the device's *current* stream (``Launch.launch`` reads
+``device.stream`` at every call), so ``wp.ScopedStream`` and CUDA-graph capture
+(``wp.ScopedCapture``) see it as they see any launch.
+
+The cache holds what the recorded launches hold. Callers that pass non-owning views
+(:func:`view`, :func:`as_view`, :func:`as_words`) keep no image alive: a stale entry is only
+ever replayed for arrays at the same address with the same shape and strides, which is
+exactly what it was recorded for.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+
+import warp as wp
+
+_RECORDED: OrderedDict = OrderedDict()
+_RECORDED_MAX = 64
+_recorded_lock = threading.Lock()
+
+
+def array_key(a) -> tuple:
+    """What a kernel sees of an array: pointer, shape, strides."""
+    return (a.ptr, a.shape, a.strides)
+
+
+def view(a, dtype, shape, strides):
+    """A ``wp.array`` over ``a``'s memory with another element type or layout (byte
+    ``strides``), owning nothing: it does not keep ``a`` alive."""
+    return wp.array(ptr=a.ptr, dtype=dtype, shape=shape, strides=strides, device=a.device)
+
+
+def as_view(a):
+    """A non-owning view of ``a`` itself."""
+    return view(a, a.dtype, a.shape, a.strides)
+
+
+def as_words(a, rows: int | None = None):
+    """The first ``rows`` rows (default: all) of a C-contiguous uint8 image as a non-owning
+    ``rows x (row bytes / 4)`` uint32 view; the row size must be a multiple of 4 bytes and
+    the image must start on a 4-byte boundary."""
+    row_bytes = a.strides[0]
+    return view(a, wp.uint32, (a.shape[0] if rows is None else rows, row_bytes // 4), (row_bytes, 4))
+
+
+def run_recorded(key, build, device) -> None:
+    """Run a sequence of launches, recorded on first use and replayed afterwards.
+
+    ``build()`` returns ``[(kernel, dim, inputs, outputs), ...]``; it is called only when
+    ``key`` is new on ``device``, so it may do the costly work (views, look-ups). ``key`` must
+    determine every parameter value (array pointers, shapes and strides, scalars, struct
+    contents, and the stream when a per-stream scratch buffer is involved).
+    """
+    full_key = (device.alias, key)
+    plan = _RECORDED.get(full_key)
+    if plan is None:
+        cmds = (wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device, record_cmd=True)
+                for kernel, dim, inputs, outputs in build())
+        plan = tuple(cmd for cmd in cmds if cmd is not None)  # None: an empty grid
+        with _recorded_lock:
+            _RECORDED[full_key] = plan
+            while len(_RECORDED) > _RECORDED_MAX:
+                _RECORDED.popitem(last=False)
+    for cmd in plan:
+        cmd.launch()
+
+
+def run_direct(launches, device) -> None:
+    """Run ``[(kernel, dim, inputs, outputs), ...]`` without recording."""
+    for kernel, dim, inputs, outputs in launches:
+        wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
+
+
+def launch_cached(kernel, dim, inputs, outputs, device, key) -> None:
+    """One ``wp.launch`` through :func:`run_recorded` (``key`` as there).
+
+    ``inputs`` may be a zero-argument callable returning ``(inputs, outputs)`` (``outputs``
+    is then ignored), so the arguments (views, structs) are built only when the launch is
+    recorded.
+    """
+    if callable(inputs):
+        make = inputs
+
+        def build():
+            ins, outs = make()
+            return [(kernel, dim, ins, outs)]
+    else:
+        def build():
+            return [(kernel, dim, inputs, outputs)]
+
+    # The kernel object itself, not its name: kernels made by one factory share a name.
+    run_recorded((kernel, key), build, device)
+
+
+def clear_recorded() -> None:
+    """Drop every recorded launch (and whatever arrays they hold)."""
+    with _recorded_lock:
+        _RECORDED.clear()
+
+
+__all__ = [
+    "array_key",
+    "as_view",
+    "as_words",
+    "clear_recorded",
+    "launch_cached",
+    "run_direct",
+    "run_recorded",
+    "view",
+]
