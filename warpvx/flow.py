@@ -45,7 +45,8 @@ def optical_flow_pyr_lk(
         frame's pyramid once.
     prev_pts : array
         float32 [N, 2] (or [N, 1, 2]) points (x, y) in ``prev``, pixel centres at integers;
-        NaN/inf are rejected. Points whose window lies entirely outside the image are not an
+        NaN/inf are rejected in host arrays (device arrays are not read back: such a point
+        comes back lost). Points whose window lies entirely outside the image are not an
         error: they come back with status 0, as in OpenCV.
     next_pts : array, optional
         float32 initial guesses in ``next``, shaped as ``prev_pts`` (OpenCV's
@@ -84,8 +85,9 @@ def optical_flow_pyr_lk(
     ------
     DTypeError, ShapeError, WarpvxValueError, WarpvxTypeError
         Bad frames (dtype, channels, sizes differing between ``prev`` and ``next``, a broken
-        pyramid), points (dtype, shape, NaN/inf, counts), ``win_size`` (too small, larger
-        than the image), ``max_level`` < 0, ``max_iters`` < 0, ``eps`` < 0, or ``out``.
+        pyramid), points (dtype, shape, NaN/inf in host arrays, counts), ``win_size`` (too
+        small, larger than the image), ``max_level`` < 0, ``max_iters`` < 0, ``eps`` < 0, or
+        ``out``.
 
     Notes
     -----
@@ -93,8 +95,9 @@ def optical_flow_pyr_lk(
     maxLevel=max_level, criteria=(TERM_CRITERIA_COUNT | TERM_CRITERIA_EPS, max_iters, eps),
     flags=0 or OPTFLOW_USE_INITIAL_FLOW, minEigThreshold=min_eig_threshold)``. The CPU backend
     calls it; the Warp kernels reproduce its fixed-point arithmetic (Scharr derivatives,
-    14-bit bilinear weights, BORDER_REFLECT_101 image padding). Device point arrays are read
-    back to the host once for the NaN check (8 bytes per point).
+    14-bit bilinear weights, BORDER_REFLECT_101 image padding). Device point arrays are not read
+    back to the host: a device point that is NaN or inf is returned lost (status 0) instead
+    of raising, as any point whose window leaves the image.
     """
     first = prev[0] if isinstance(prev, (list, tuple)) and len(prev) else prev
     be = resolve_backend(backend, like=first)
@@ -291,8 +294,11 @@ def _check_frame(x, name):
 
 
 def _check_points(p, name, n=None):
-    """float32 [N, 2] or [N, 1, 2], finite; returned as [N, 2]."""
-    arr = check_array(p, name, dtypes=(np.float32,), finite=True)
+    """float32 [N, 2] or [N, 1, 2], finite (checked for host arrays; device arrays are not
+    read back: a non-finite device point comes back lost); returned as [N, 2]."""
+    arr = check_array(p, name, dtypes=(np.float32,))
+    if isinstance(arr, np.ndarray) and not np.all(np.isfinite(arr)):
+        raise WarpvxValueError(f"{name}: contains NaN or inf")
     shape = tuple(arr.shape)
     if not ((len(shape) == 2 and shape[1] == 2) or (len(shape) == 3 and shape[1:] == (1, 2))):
         raise ShapeError(f"{name}: expected shape Nx2 or Nx1x2, got {shape}")

@@ -1,5 +1,12 @@
 """FAST-9/16 corners on Warp: score map, 3x3 non-maximum suppression, compaction, sort.
 
+Per call (NMS): ``score_fast_map`` (uint8 score map; also resets the corner counter),
+``collect_maxima`` (strict 3x3 maxima compacted with an atomic counter as sort keys), one
+host sync for the count, ``rank_keys`` (up to :data:`RANK_MAX` keys: each key's sorted position
+by counting the smaller ones; more keys take a radix sort) and ``decode_keypoints``.
+Scratch buffers and recorded launches are reused between calls of one image size on one
+device, stream and thread (:func:`workspace`).
+
 Stable building blocks (the ORB extractor uses them too):
 
 ``fast_score(img, y, x, threshold) -> int``
@@ -21,9 +28,15 @@ Stable building blocks (the ORB extractor uses them too):
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
+
 import warp as wp
 
 from ..keypoints import Keypoints
+
+# Forward-only kernels: no adjoint code to generate and compile.
+wp.set_module_options({"enable_backward": False})
 
 vec16i = wp.types.vector(length=16, dtype=wp.int32)
 
@@ -56,8 +69,8 @@ def circle_diffs(img: wp.array2d(dtype=wp.uint8), y: int, x: int) -> vec16i:
 
 
 @wp.func
-def fast_corner_score(img: wp.array2d(dtype=wp.uint8), y: int, x: int, threshold: int) -> int:
-    """OpenCV's FAST-9/16 score when (y, x) is a corner at ``threshold``, else -1."""
+def corner_score_full(img: wp.array2d(dtype=wp.uint8), y: int, x: int, threshold: int) -> int:
+    """:func:`fast_corner_score` without the quick rejection."""
     d = circle_diffs(img, y, x)
     dark = int(0)
     bright = int(0)
@@ -88,6 +101,34 @@ def fast_corner_score(img: wp.array2d(dtype=wp.uint8), y: int, x: int, threshold
             b0 = wp.min(b0, wp.max(b, d[k]))
             b0 = wp.min(b0, wp.max(b, d[(k + 9) & 15]))
     return -b0 - 1
+
+
+@wp.func
+def fast_corner_score(img: wp.array2d(dtype=wp.uint8), y: int, x: int, threshold: int) -> int:
+    """OpenCV's FAST-9/16 score when (y, x) is a corner at ``threshold``, else -1."""
+    # Any 9 contiguous circle pixels include pixel k or k + 8 for every k (OpenCV's first
+    # tests, on pairs (0, 8), (4, 12), then (2, 10), (6, 14)): most pixels are rejected
+    # after 5 reads, nearly all after 9.
+    v = int(img[y, x])
+    lo = v - threshold
+    hi = v + threshold
+    p0 = int(img[y + 3, x])
+    p4 = int(img[y, x + 3])
+    p8 = int(img[y - 3, x])
+    p12 = int(img[y, x - 3])
+    dark = (p0 < lo or p8 < lo) and (p4 < lo or p12 < lo)
+    bright = (p0 > hi or p8 > hi) and (p4 > hi or p12 > hi)
+    if not dark and not bright:
+        return -1
+    p2 = int(img[y + 2, x + 2])
+    p6 = int(img[y - 2, x + 2])
+    p10 = int(img[y - 2, x - 2])
+    p14 = int(img[y + 2, x - 2])
+    dark = dark and (p2 < lo or p10 < lo) and (p6 < lo or p14 < lo)
+    bright = bright and (p2 > hi or p10 > hi) and (p6 > hi or p14 > hi)
+    if not dark and not bright:
+        return -1
+    return corner_score_full(img, y, x, threshold)
 
 
 @wp.func
@@ -152,19 +193,53 @@ def compute_fast_scores(
 
 
 @wp.kernel
-def collect_local_maxima(
-    scores: wp.array2d(dtype=wp.int32),
+def score_fast_map(
+    img: wp.array2d(dtype=wp.uint8),
+    threshold: int,
+    count: wp.array(dtype=wp.int32),
+    rank: wp.array(dtype=wp.int32),
+    scores: wp.array2d(dtype=wp.uint8),
+):
+    """``scores[y, x] = fast_score`` (at most 254, so uint8) 3 px inside, else 0.
+
+    It also resets ``count`` (thread (0, 0)) and ``rank`` (one entry per thread) for the
+    kernels after it on the same stream (saves memset launches).
+    """
+    y, x = wp.tid()
+    if y == 0 and x == 0:
+        count[0] = 0
+    idx = y * img.shape[1] + x
+    if idx < rank.shape[0]:
+        rank[idx] = 0
+    s = int(0)
+    if inside_fast_border(img.shape[0], img.shape[1], y, x, 3):
+        s = fast_score(img, y, x, threshold)
+    scores[y, x] = wp.uint8(s)
+
+
+@wp.kernel
+def collect_maxima(
+    scores: wp.array2d(dtype=wp.uint8),
     x_bits: int,
     y_bits: int,
     count: wp.array(dtype=wp.int32),
     keys: wp.array(dtype=wp.int64),
 ):
+    """Strict 3x3 maxima of the uint8 map as sort keys (OpenCV's rule, as is_local_max_3x3)."""
     y, x = wp.tid()
-    if is_local_max_3x3(scores, y, x):
-        slot = wp.atomic_add(count, 0, 1)
-        # The capacity is a proven bound; the guard only keeps a bug from writing out of bounds.
-        if slot < keys.shape[0] // 2:
-            keys[slot] = sort_key(scores[y, x], y, x, x_bits, y_bits)
+    s = scores[y, x]
+    if s == wp.uint8(0):
+        return
+    # A nonzero score lies 3 px inside the map, so all 8 neighbours exist.
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            if dy != 0 or dx != 0:
+                if scores[y + dy, x + dx] >= s:
+                    return
+    slot = wp.atomic_add(count, 0, 1)
+    # The capacity is a proven bound; the guard only keeps a bug from writing out of bounds.
+    if slot < keys.shape[0] // 2:
+        keys[slot] = sort_key(int(s), y, x, x_bits, y_bits)
 
 
 @wp.kernel
@@ -186,27 +261,57 @@ def collect_all_corners(
 
 
 @wp.kernel
+def rank_keys(keys: wp.array(dtype=wp.int64), n: int, rank: wp.array(dtype=wp.int32)):
+    """``rank[i] += `` how many keys of chunk ``c`` of ``keys[:n]`` are smaller than key
+    ``i``. Threads (c, i): a warp's threads read the same key at a time (one broadcast load)."""
+    c, i = wp.tid()
+    j0 = c * RANK_CHUNK
+    if i >= n or j0 >= n:
+        return
+    key = keys[i]
+    r = int(0)
+    for j in range(j0, wp.min(j0 + RANK_CHUNK, n)):
+        r += wp.where(keys[j] < key, 1, 0)
+    if r > 0:
+        wp.atomic_add(rank, i, r)
+
+
+@wp.kernel
 def decode_keypoints(
     keys: wp.array(dtype=wp.int64),
+    n: int,
+    ranked: int,
+    rank: wp.array(dtype=wp.int32),
     x_bits: int,
     y_bits: int,
-    kp_x: wp.array(dtype=wp.float32),
-    kp_y: wp.array(dtype=wp.float32),
-    kp_response: wp.array(dtype=wp.float32),
-    kp_size: wp.array(dtype=wp.float32),
-    kp_angle: wp.array(dtype=wp.float32),
-    kp_octave: wp.array(dtype=wp.int32),
+    fields: wp.array2d(dtype=wp.float32),
+    octave: wp.array(dtype=wp.int32),
 ):
+    """Keypoint ``r`` from key ``i`` of ``keys[:n]``: ``r = i`` when the keys are sorted
+    (``ranked`` 0), else ``rank[i]``, the number of smaller keys (keys are unique).
+    ``fields`` rows: x, y, response, size, angle."""
     i = wp.tid()
+    if i >= n:
+        return
     key = keys[i]
+    r = i
+    if ranked != 0:
+        r = rank[i]
     x_mask = (wp.int64(1) << wp.int64(x_bits)) - wp.int64(1)
     y_mask = (wp.int64(1) << wp.int64(y_bits)) - wp.int64(1)
-    kp_x[i] = float(int(key & x_mask))
-    kp_y[i] = float(int((key >> wp.int64(x_bits)) & y_mask))
-    kp_response[i] = float(255 - int(key >> wp.int64(x_bits + y_bits)))
-    kp_size[i] = FAST_KEYPOINT_SIZE
-    kp_angle[i] = -1.0
-    kp_octave[i] = 0
+    fields[0, r] = float(int(key & x_mask))
+    fields[1, r] = float(int((key >> wp.int64(x_bits)) & y_mask))
+    fields[2, r] = float(255 - int(key >> wp.int64(x_bits + y_bits)))
+    fields[3, r] = FAST_KEYPOINT_SIZE
+    fields[4, r] = -1.0
+    octave[r] = 0
+
+
+RANK_CHUNK = wp.constant(64)
+RANK_MAX = 8192
+"""With NMS, up to this many corners are sorted by counting (``rank_keys``, n^2 / 64
+threads); more go through a radix sort."""
+RANK_MAX_CPU = 0  # Warp's CPU device runs one thread at a time: always the radix sort
 
 
 def _bits(n: int) -> int:
@@ -223,6 +328,130 @@ def max_fast_corners(height: int, width: int, nonmax: bool) -> int:
     return inner_h * inner_w
 
 
+# --- per-call scratch and recorded launches (used by the other feature kernels too) ----------
+
+_WORKSPACES: OrderedDict = OrderedDict()
+_WORKSPACES_MAX = 32
+_workspaces_lock = threading.Lock()
+
+
+def workspace(kind: str, key: tuple, device, build):
+    """Scratch state of one kind of call, built once by ``build()`` and reused.
+
+    Reused by calls with the same ``kind`` and ``key`` (sizes) on the same device, current
+    stream and thread, so two calls sharing it always run one after the other on one stream
+    (a call may keep scratch buffers and recorded launches in it, never its results). The
+    least recently used of :data:`_WORKSPACES_MAX` are dropped.
+    """
+    stream = None if device.is_cpu else device.stream.cuda_stream
+    full = (kind, key, str(device), stream, threading.get_ident())
+    with _workspaces_lock:
+        ws = _WORKSPACES.get(full)
+        if ws is not None:
+            _WORKSPACES.move_to_end(full)
+            return ws
+    ws = build()
+    with _workspaces_lock:
+        _WORKSPACES[full] = ws
+        while len(_WORKSPACES) > _WORKSPACES_MAX:
+            _WORKSPACES.popitem(last=False)
+    return ws
+
+
+def drop_workspace(kind: str, key: tuple, device) -> None:
+    """Forget a workspace (after an error left its buffers in an unknown state)."""
+    stream = None if device.is_cpu else device.stream.cuda_stream
+    with _workspaces_lock:
+        _WORKSPACES.pop((kind, key, str(device), stream, threading.get_ident()), None)
+
+
+def record(kernel, dim, inputs, device, block_dim=None):
+    """A recorded launch (``wp.Launch``): replay with ``.launch()`` on the current stream
+    after ``.set_param_at_index(i, value)`` for the arguments that change (a few
+    microseconds instead of tens for ``wp.launch``); ``block_dim`` makes it a tiled launch."""
+    if block_dim is None:
+        return wp.launch(kernel, dim=dim, inputs=inputs, device=device, record_cmd=True)
+    return wp.launch_tiled(kernel, dim=dim, inputs=inputs, device=device, block_dim=block_dim,
+                           record_cmd=True)
+
+
+class Recorded:
+    """A recorded launch (:func:`record`) that re-packs an argument only when it changes
+    (another object, or another scalar value): replaying costs a few microseconds."""
+
+    def __init__(self, kernel, dim, inputs, device, block_dim=None):
+        self.cmd = record(kernel, dim, inputs, device, block_dim)
+        self.args = list(inputs)
+        self.block_dim = block_dim
+
+    def set(self, index: int, value) -> None:
+        old = self.args[index]
+        if value is old or (type(value) in (int, float) and type(old) is type(value)
+                            and value == old):
+            return
+        self.cmd.set_param_at_index(index, value)
+        self.args[index] = value
+
+    def set_dim(self, dim) -> None:
+        """New launch size (grid size for a tiled launch)."""
+        dims = list(dim) if isinstance(dim, (list, tuple)) else [dim]
+        if self.block_dim is not None:
+            dims.append(self.cmd.block_dim)
+        self.cmd.set_dim(dims)
+
+    def launch(self, changes=()) -> None:
+        """Launch on the current stream after ``set(i, v)`` for each ``(i, v)`` of ``changes``."""
+        for index, value in changes:
+            self.set(index, value)
+        self.cmd.launch()
+
+
+class HostReadback:
+    """A small device array read back through a pinned host buffer (the one host sync)."""
+
+    def __init__(self, n: int, dtype, device):
+        self.device = device
+        self.host = wp.empty(n, dtype=dtype, device="cpu", pinned=not device.is_cpu)
+        self.view = self.host.numpy()
+
+    def read(self, src):
+        """``src`` (on the device) as a NumPy array; waits for the current stream."""
+        if self.device.is_cpu:
+            return src.numpy()
+        wp.copy(self.host, src)
+        wp.synchronize_stream(self.device.stream)
+        return self.view
+
+
+# --- FAST -------------------------------------------------------------------------------------
+
+
+class _FastWorkspace:
+    """Scratch of one image size: score map, counter, key/value storage for the sort."""
+
+    def __init__(self, src, nonmax: bool, capacity: int, x_bits: int, y_bits: int):
+        device = src.device
+        h, w = src.shape
+        self.count = wp.zeros(1, dtype=wp.int32, device=device)
+        # radix_sort_pairs wants 2x storage (the upper half is its scratch).
+        self.keys = wp.empty(2 * capacity, dtype=wp.int64, device=device)
+        self.values = wp.empty(2 * capacity, dtype=wp.int32, device=device)
+        self.readback = HostReadback(1, wp.int32, device)
+        # rank[i]: the sorted position of keys[i] when counted (zeroed by score_fast_map).
+        self.rank = wp.zeros(capacity if nonmax else 1, dtype=wp.int32, device=device)
+        self.rank_cmd = None
+        if nonmax:
+            self.scores = wp.empty((h, w), dtype=wp.uint8, device=device)
+            self.score = Recorded(score_fast_map, (h, w),
+                                  [src, 0, self.count, self.rank, self.scores], device)
+            self.collect = Recorded(collect_maxima, (h, w),
+                                    [self.scores, x_bits, y_bits, self.count, self.keys], device)
+        else:
+            self.collect = Recorded(collect_all_corners, (h, w),
+                                    [src, 0, x_bits, y_bits, self.count, self.keys], device)
+        self.decode = None
+
+
 def fast_corners(src, threshold: int, nonmax: bool, *, out=None) -> Keypoints:
     """FAST-9/16 keypoints of a gray uint8 ``wp.array2d``, sorted by (score desc, y, x).
 
@@ -235,41 +464,52 @@ def fast_corners(src, threshold: int, nonmax: bool, *, out=None) -> Keypoints:
     capacity = max_fast_corners(h, w, nonmax)
     if capacity == 0:
         return Keypoints.empty().to(str(device))
-    count = wp.zeros(1, dtype=wp.int32, device=device)
-    # radix_sort_pairs wants 2x storage (the upper half is its scratch).
-    keys = wp.empty(2 * capacity, dtype=wp.int64, device=device)
+    ws = workspace("fast", (h, w, bool(nonmax)), device,
+                   lambda: _FastWorkspace(src, nonmax, capacity, x_bits, y_bits))
     if nonmax:
-        scores = wp.empty((h, w), dtype=wp.int32, device=device)
-        wp.launch(compute_fast_scores, dim=(h, w), inputs=[src, int(threshold), 3, scores],
-                  device=device)
-        wp.launch(collect_local_maxima, dim=(h, w), inputs=[scores, x_bits, y_bits],
-                  outputs=[count, keys], device=device)
+        ws.score.launch([(0, src), (1, int(threshold))])
+        ws.collect.launch()
     else:
-        wp.launch(collect_all_corners, dim=(h, w), inputs=[src, int(threshold), x_bits, y_bits],
-                  outputs=[count, keys], device=device)
-    n = min(int(count.numpy()[0]), capacity)  # the host sync: the result's length
-    return _sorted_keypoints(keys, n, x_bits, y_bits, device)
+        ws.count.zero_()
+        ws.collect.launch([(0, src), (1, int(threshold))])
+    n = min(int(ws.readback.read(ws.count)[0]), capacity)  # the host sync: the result's length
+    return _sorted_keypoints(ws, n, x_bits, y_bits, device, nonmax)
 
 
-def _sorted_keypoints(keys, n: int, x_bits: int, y_bits: int, device) -> Keypoints:
-    fields = {
-        "x": wp.empty(n, dtype=wp.float32, device=device),
-        "y": wp.empty(n, dtype=wp.float32, device=device),
-        "response": wp.empty(n, dtype=wp.float32, device=device),
-        "size": wp.empty(n, dtype=wp.float32, device=device),
-        "angle": wp.empty(n, dtype=wp.float32, device=device),
-        "octave": wp.empty(n, dtype=wp.int32, device=device),
-    }
+def _sorted_keypoints(ws, n: int, x_bits: int, y_bits: int, device, nonmax: bool) -> Keypoints:
     if n == 0:
-        return Keypoints(**fields)
-    values = wp.empty(2 * n, dtype=wp.int32, device=device)
+        return Keypoints(*[wp.empty(0, dtype=wp.float32, device=device) for _ in range(5)],
+                         wp.empty(0, dtype=wp.int32, device=device))
+    # One allocation for the float fields (rows viewed as arrays), one for the octaves.
+    fields = wp.empty((5, n), dtype=wp.float32, device=device)
+    octave = wp.empty(n, dtype=wp.int32, device=device)
+    kps = Keypoints(fields[0], fields[1], fields[2], fields[3], fields[4], octave)
     # Keys are unique per pixel, so the order is the same run to run whatever the atomics did.
-    wp.utils.radix_sort_pairs(keys, values, n, 0, x_bits + y_bits + 8)
-    wp.launch(decode_keypoints, dim=n, inputs=[keys, x_bits, y_bits],
-              outputs=[fields["x"], fields["y"], fields["response"], fields["size"],
-                       fields["angle"], fields["octave"]], device=device)
-    return Keypoints(**fields)
+    size = max(256, 1 << (n - 1).bit_length())  # launch size: rarely changes between calls
+    ranked = nonmax and n <= (RANK_MAX_CPU if device.is_cpu else RANK_MAX)
+    if ranked:
+        chunks = -(-size // RANK_CHUNK)
+        if ws.rank_cmd is None:
+            ws.rank_cmd = Recorded(rank_keys, (chunks, size), [ws.keys, n, ws.rank], device)
+            ws.rank_size = size
+        elif size != ws.rank_size:
+            ws.rank_cmd.set_dim((chunks, size))
+            ws.rank_size = size
+        ws.rank_cmd.launch([(1, n)])
+    else:
+        wp.utils.radix_sort_pairs(ws.keys, ws.values, n, 0, x_bits + y_bits + 8)
+    if ws.decode is None:
+        ws.decode = Recorded(decode_keypoints, size,
+                             [ws.keys, n, int(ranked), ws.rank, x_bits, y_bits, fields, octave],
+                             device)
+        ws.decode_size = size
+    elif size != ws.decode_size:
+        ws.decode.set_dim(size)
+        ws.decode_size = size
+    ws.decode.launch([(1, n), (2, int(ranked)), (6, fields), (7, octave)])
+    return kps
 
 
-__all__ = ["fast_score", "compute_fast_scores", "is_local_max_3x3", "fast_corners",
-           "max_fast_corners"]
+__all__ = ["fast_score", "fast_corner_score", "compute_fast_scores", "is_local_max_3x3",
+           "fast_corners", "max_fast_corners", "workspace", "drop_workspace", "record",
+           "Recorded", "HostReadback"]

@@ -3,7 +3,8 @@
 OpenCV's ``goodFeaturesToTrack`` (``featureselect.cpp``), all on ``src.device``:
 
 1. the Harris or minimum-eigenvalue map (:mod:`.harris_response` kernels);
-2. its maximum (``reduce_max_rows`` + ``atomic_max``), kept on the device;
+2. its maximum: a block reduction per row (``reduce_row_max``), then one block over the rows
+   (``finish_max``, which also resets the per-call counters), kept on the device;
 3. candidates: pixels 1 px inside the image whose value survives THRESH_TOZERO at
    ``quality_level * max`` and equals the 3x3 dilation of the thresholded map, compacted
    with an atomic counter as 64-bit keys (value descending, then raster index descending:
@@ -15,10 +16,20 @@ OpenCV's ``goodFeaturesToTrack`` (``featureselect.cpp``), all on ``src.device``:
    candidate is rejected once a conflicting better-ranked candidate is accepted, accepted
    once all conflicting better-ranked ones are rejected. Decisions are final, so racing reads
    only delay a decision to the next round; the result equals the sequential one exactly.
-5. the first ``max_corners`` accepted points in rank order (a prefix scan), as float32 [N, 2].
+   First ``find_conflicts`` walks each candidate's window once (a thread per window row) and
+   lists its better-ranked conflicts (up to :data:`MAX_CONFLICTS`; a candidate with more
+   walks its window in every round), so the rounds only read short lists. Rounds are launched in
+   batches; a round whose predecessor left nothing undecided returns at once, so no host
+   sync is needed between rounds.
+5. the first ``max_corners`` accepted points in rank order (a block scan, ``write_selected``,
+   which stops once ``max_corners`` are written), as float32 [N, 2].
 
-Host syncs: the candidate count (to size the sort), one flag read per batch of rounds, and
-the final count.
+Host syncs: two; the candidate count (to size the sort), and the accepted count together with
+the number of candidates still undecided after the batch (a further batch runs when it is not
+zero, which the batch size, learnt from the previous call, makes rare). Scratch buffers
+(response, keys, rank map) and recorded launches are reused between calls of one image size
+(:func:`.fast_corners.workspace`); the rank map is kept at -1 between calls by clearing only
+the entries a call set.
 """
 
 from __future__ import annotations
@@ -27,14 +38,21 @@ import math
 
 import warp as wp
 
+from .fast_corners import HostReadback, Recorded, drop_workspace, workspace
 from .harris_response import corner_response
+
+# Forward-only kernels: no adjoint code to generate and compile.
+wp.set_module_options({"enable_backward": False})
 
 UNDECIDED = wp.constant(0)
 ACCEPTED = wp.constant(1)
 REJECTED = wp.constant(2)
 
-ROW_CHUNK = 64  # pixels per thread in the max reduction
-ROUNDS_PER_CHECK = 4
+BLOCK = 256  # lanes of the block reductions and of the output scan
+MAX_ROUNDS = 64  # undecided counters per call (rounds launched over all batches)
+FIRST_BATCH = 8  # rounds launched in the first call of a size (later: learnt)
+MAX_CONFLICTS = 16  # better-ranked conflicts listed per candidate (more: walk the window)
+NEG_INF = wp.constant(-math.inf)
 
 
 @wp.func
@@ -55,15 +73,44 @@ def thresholded(v: float, thresh: float) -> float:
 
 
 @wp.kernel
-def reduce_max_rows(response: wp.array2d(dtype=wp.float32), chunk: int,
-                    max_value: wp.array(dtype=wp.float32)):
-    y, cx = wp.tid()
+def reduce_row_max(response: wp.array2d(dtype=wp.float32), row_max: wp.array(dtype=wp.float32)):
+    """row_max[y] = max of row y (one block per row)."""
+    y, lane = wp.tid()
+    lanes = wp.block_dim()
     w = response.shape[1]
-    x0 = cx * chunk
-    m = response[y, x0]
-    for x in range(x0 + 1, wp.min(x0 + chunk, w)):
+    m = float(NEG_INF)
+    x = lane
+    while x < w:
         m = wp.max(m, response[y, x])
-    wp.atomic_max(max_value, 0, m)
+        x += lanes
+    v = wp.tile_extract(wp.tile_max(wp.tile(m)), 0)
+    if lane == 0:
+        row_max[y] = v
+
+
+@wp.kernel
+def finish_max(
+    row_max: wp.array(dtype=wp.float32),
+    max_value: wp.array(dtype=wp.float32),
+    count: wp.array(dtype=wp.int32),
+    undecided: wp.array(dtype=wp.int32),
+):
+    """max_value[0] = max of row_max (one block); also resets the per-call counters."""
+    _blk, lane = wp.tid()
+    lanes = wp.block_dim()
+    m = float(NEG_INF)
+    y = lane
+    while y < row_max.shape[0]:
+        m = wp.max(m, row_max[y])
+        y += lanes
+    v = wp.tile_extract(wp.tile_max(wp.tile(m)), 0)
+    if lane == 0:
+        max_value[0] = v
+        count[0] = 0
+    r = lane
+    while r < undecided.shape[0]:
+        undecided[r] = 0
+        r += lanes
 
 
 @wp.kernel
@@ -72,6 +119,7 @@ def collect_candidates(
     response_bits: wp.array2d(dtype=wp.int32),
     max_value: wp.array(dtype=wp.float32),
     quality_level: float,
+    raster_bits: int,
     count: wp.array(dtype=wp.int32),
     keys: wp.array(dtype=wp.int64),
 ):
@@ -91,29 +139,48 @@ def collect_candidates(
     slot = wp.atomic_add(count, 0, 1)
     if slot < keys.shape[0] // 2:
         order = wp.int64(0xFFFFFFFF) - float_order_key(v, response_bits[y, x])
+        mask = (wp.int64(1) << wp.int64(raster_bits)) - wp.int64(1)
         raster = wp.int64(y * w + x)
-        keys[slot] = (order << wp.int64(31)) | (wp.int64(0x7FFFFFFF) - raster)
+        keys[slot] = (order << wp.int64(raster_bits)) | (mask - raster)
+
+
+@wp.func
+def candidate_count(count: wp.array(dtype=wp.int32), capacity: int) -> int:
+    return wp.min(count[0], capacity)
 
 
 @wp.kernel
 def rank_candidates(
     keys: wp.array(dtype=wp.int64),
-    width: int,
+    count: wp.array(dtype=wp.int32),
+    raster_bits: int,
+    initial_state: int,
     cand_x: wp.array(dtype=wp.int32),
     cand_y: wp.array(dtype=wp.int32),
     rank: wp.array2d(dtype=wp.int32),
+    state: wp.array(dtype=wp.int32),
+    n_conflicts: wp.array(dtype=wp.int32),
 ):
     i = wp.tid()
-    raster = int(wp.int64(0x7FFFFFFF) - (keys[i] & wp.int64(0x7FFFFFFF)))
+    if i >= candidate_count(count, cand_x.shape[0]):
+        return
+    if i < n_conflicts.shape[0]:
+        n_conflicts[i] = 0
+    width = rank.shape[1]
+    mask = (wp.int64(1) << wp.int64(raster_bits)) - wp.int64(1)
+    raster = int(mask - (keys[i] & mask))
     y = raster // width
     x = raster - y * width
     cand_x[i] = x
     cand_y[i] = y
     rank[y, x] = i
+    state[i] = initial_state
 
 
-@wp.kernel
-def select_candidates(
+@wp.func
+def conflicts_in_row(
+    i: int,
+    yy: int,
     cand_x: wp.array(dtype=wp.int32),
     cand_y: wp.array(dtype=wp.int32),
     rank: wp.array2d(dtype=wp.int32),
@@ -121,57 +188,275 @@ def select_candidates(
     cell: int,
     min_dist_sq: wp.float64,
     state: wp.array(dtype=wp.int32),
-    undecided: wp.array(dtype=wp.int32),
-):
-    i = wp.tid()
-    if state[i] != UNDECIDED:
-        return
+    conflicts: wp.array2d(dtype=wp.int32),
+    n_conflicts: wp.array(dtype=wp.int32),
+    record_list: bool,
+) -> wp.vec2i:
+    """The better-ranked candidates in row ``yy`` conflicting with candidate ``i`` (within
+    ``min_distance``, in the neighbouring grid cells). With ``record_list`` they are appended
+    to ``conflicts[i]`` (counted in ``n_conflicts[i]``, kept while there is room); else their
+    states are read: returns (any accepted, any undecided), stopping at the first accepted."""
     x = cand_x[i]
     y = cand_y[i]
-    h = rank.shape[0]
     w = rank.shape[1]
     cx = x // cell
-    cy = y // cell
-    blocked = bool(False)
-    for yy in range(wp.max(y - radius, 0), wp.min(y + radius, h - 1) + 1):
-        if wp.abs(yy // cell - cy) <= 1:
-            for xx in range(wp.max(x - radius, 0), wp.min(x + radius, w - 1) + 1):
-                j = rank[yy, xx]
-                if j >= 0 and j < i and wp.abs(xx // cell - cx) <= 1:
-                    d2 = wp.float64((xx - x) * (xx - x) + (yy - y) * (yy - y))
-                    if d2 < min_dist_sq:
+    accepted = int(0)
+    undecided = int(0)
+    if wp.abs(yy // cell - y // cell) <= 1:
+        for xx in range(wp.max(x - radius, 0), wp.min(x + radius, w - 1) + 1):
+            j = rank[yy, xx]
+            if j >= 0 and j < i and wp.abs(xx // cell - cx) <= 1:
+                d2 = wp.float64((xx - x) * (xx - x) + (yy - y) * (yy - y))
+                if d2 < min_dist_sq:
+                    if record_list:
+                        slot = wp.atomic_add(n_conflicts, i, 1)
+                        if slot < conflicts.shape[1]:
+                            conflicts[i, slot] = j
+                    else:
                         s = state[j]
                         if s == ACCEPTED:
-                            state[i] = REJECTED
-                            return
+                            return wp.vec2i(1, undecided)
                         if s == UNDECIDED:
-                            blocked = True
-    if blocked:
-        wp.atomic_add(undecided, 0, 1)
-    else:
-        state[i] = ACCEPTED
+                            undecided = 1
+    return wp.vec2i(accepted, undecided)
 
 
 @wp.kernel
-def flag_accepted(state: wp.array(dtype=wp.int32), flags: wp.array(dtype=wp.int32)):
+def find_conflicts(
+    cand_x: wp.array(dtype=wp.int32),
+    cand_y: wp.array(dtype=wp.int32),
+    rank: wp.array2d(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    radius: int,
+    cell: int,
+    min_dist_sq: wp.float64,
+    state: wp.array(dtype=wp.int32),
+    conflicts: wp.array2d(dtype=wp.int32),
+    n_conflicts: wp.array(dtype=wp.int32),
+    undecided: wp.array(dtype=wp.int32),
+):
+    """List each candidate's better-ranked conflicts once, a thread per (candidate, window
+    row); ``n_conflicts`` above the list's room means later rounds walk the window again."""
+    i, row = wp.tid()
+    if i == 0 and row == 0:
+        undecided[0] = 1  # round 1 decides (a candidate without conflicts is accepted there)
+    if i >= candidate_count(count, cand_x.shape[0]) or i >= n_conflicts.shape[0]:
+        return
+    yy = cand_y[i] - radius + row
+    if yy >= 0 and yy < rank.shape[0]:
+        conflicts_in_row(i, yy, cand_x, cand_y, rank, radius, cell, min_dist_sq, state,
+                         conflicts, n_conflicts, True)
+
+
+@wp.kernel
+def select_candidates(
+    cand_x: wp.array(dtype=wp.int32),
+    cand_y: wp.array(dtype=wp.int32),
+    rank: wp.array2d(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    radius: int,
+    cell: int,
+    min_dist_sq: wp.float64,
+    round_index: int,
+    conflicts: wp.array2d(dtype=wp.int32),
+    n_conflicts: wp.array(dtype=wp.int32),
+    state: wp.array(dtype=wp.int32),
+    undecided: wp.array(dtype=wp.int32),
+):
+    """One round (``round_index`` >= 1); ``undecided[round_index]`` counts the candidates it
+    left undecided."""
     i = wp.tid()
-    flags[i] = wp.where(state[i] == ACCEPTED, 1, 0)
+    if i >= candidate_count(count, cand_x.shape[0]):
+        return
+    if undecided[round_index - 1] == 0:
+        return  # the previous round decided everything
+    if state[i] != UNDECIDED:
+        return
+    accepted = int(0)
+    blocked = int(0)
+    listed = n_conflicts[i]
+    if listed <= conflicts.shape[1]:
+        for c in range(listed):
+            s = state[conflicts[i, c]]
+            if s == ACCEPTED:
+                accepted = 1
+                break
+            if s == UNDECIDED:
+                blocked = 1
+    else:
+        y = cand_y[i]
+        for yy in range(wp.max(y - radius, 0), wp.min(y + radius, rank.shape[0] - 1) + 1):
+            if accepted == 0:
+                r = conflicts_in_row(i, yy, cand_x, cand_y, rank, radius, cell, min_dist_sq,
+                                     state, conflicts, n_conflicts, False)
+                accepted = r[0]
+                blocked = wp.max(blocked, r[1])
+    if accepted != 0:
+        state[i] = REJECTED
+    elif blocked != 0:
+        wp.atomic_add(undecided, round_index, 1)
+    else:
+        state[i] = ACCEPTED
 
 
 @wp.kernel
 def write_selected(
     cand_x: wp.array(dtype=wp.int32),
     cand_y: wp.array(dtype=wp.int32),
-    flags: wp.array(dtype=wp.int32),
-    slots: wp.array(dtype=wp.int32),
-    limit: int,
+    state: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    undecided: wp.array(dtype=wp.int32),
+    last_round: int,
     points: wp.array2d(dtype=wp.float32),
+    result: wp.array(dtype=wp.int32),
 ):
+    """The first ``len(points)`` accepted candidates in rank order (one block, a scan per
+    chunk of candidates); result = (points written, undecided after ``last_round``, rounds
+    that had work)."""
+    _blk, lane = wp.tid()
+    lanes = wp.block_dim()
+    n = candidate_count(count, cand_x.shape[0])
+    limit = points.shape[0]
+    base = int(0)
+    start = int(0)
+    while start < n:
+        if base >= limit:
+            break
+        i = start + lane
+        f = int(0)
+        if i < n:
+            if state[i] == ACCEPTED:
+                f = 1
+        t = wp.tile(f)
+        rank_incl = wp.untile(wp.tile_scan_inclusive(t))
+        s = base + rank_incl - f
+        if f == 1 and s < limit:
+            points[s, 0] = float(cand_x[i])
+            points[s, 1] = float(cand_y[i])
+        base += wp.tile_extract(wp.tile_sum(t), 0)
+        start += lanes
+    if lane == 0:
+        result[0] = wp.min(base, limit)
+        result[1] = undecided[last_round]
+        used = last_round + 1
+        for r in range(last_round + 1):
+            if used == last_round + 1 and undecided[r] == 0:
+                used = r + 1
+        result[2] = used
+
+
+@wp.kernel
+def clear_ranks(
+    cand_x: wp.array(dtype=wp.int32),
+    cand_y: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    rank: wp.array2d(dtype=wp.int32),
+):
+    """Put the rank map back to -1 where this call wrote it."""
     i = wp.tid()
-    s = slots[i] - 1  # inclusive scan: the rank among accepted points, from 1
-    if flags[i] == 1 and s < limit:
-        points[s, 0] = float(cand_x[i])
-        points[s, 1] = float(cand_y[i])
+    if i < candidate_count(count, cand_x.shape[0]):
+        rank[cand_y[i], cand_x[i]] = -1
+
+
+def _bucket(n: int) -> int:
+    """Launch size for ``n`` candidates: a power of two, so it rarely changes between calls."""
+    return max(256, 1 << (n - 1).bit_length())
+
+
+class _CornersWorkspace:
+    """Scratch of one image size, with recorded launches of the fixed-size kernels."""
+
+    def __init__(self, h: int, w: int, device):
+        self.h, self.w = h, w
+        capacity = (h - 2) * (w - 2)
+        self.capacity = capacity
+        self.raster_bits = max(1, int(h * w - 1).bit_length())
+        self.response = wp.empty((h, w), dtype=wp.float32, device=device)
+        # The float map seen as its bit patterns, to build exact sort keys.
+        self.response_bits = self.response.view(wp.int32)
+        self.row_max = wp.empty(h, dtype=wp.float32, device=device)
+        self.max_value = wp.empty(1, dtype=wp.float32, device=device)
+        self.count = wp.zeros(1, dtype=wp.int32, device=device)
+        self.undecided = wp.zeros(MAX_ROUNDS, dtype=wp.int32, device=device)
+        self.result = wp.zeros(3, dtype=wp.int32, device=device)
+        self.keys = wp.empty(2 * capacity, dtype=wp.int64, device=device)
+        self.values = wp.empty(2 * capacity, dtype=wp.int32, device=device)
+        self.cand_x = wp.empty(capacity, dtype=wp.int32, device=device)
+        self.cand_y = wp.empty(capacity, dtype=wp.int32, device=device)
+        self.state = wp.empty(capacity, dtype=wp.int32, device=device)
+        self.rank = wp.full((h, w), -1, dtype=wp.int32, device=device)
+        self.count_back = HostReadback(1, wp.int32, device)
+        self.result_back = HostReadback(3, wp.int32, device)
+        self.batch = FIRST_BATCH
+        self.row_max_cmd = Recorded(reduce_row_max, [h], [self.response, self.row_max], device,
+                                  block_dim=BLOCK)
+        self.finish_cmd = Recorded(finish_max, [1],
+                                 [self.row_max, self.max_value, self.count, self.undecided],
+                                 device, block_dim=BLOCK)
+        self.collect_cmd = Recorded(collect_candidates, (h, w),
+                                  [self.response, self.response_bits, self.max_value, 0.0,
+                                   self.raster_bits, self.count, self.keys], device)
+        self.bucket = 256
+        self.rank_cmd = Recorded(rank_candidates, self.bucket,
+                               [self.keys, self.count, self.raster_bits, 0, self.cand_x,
+                                self.cand_y, self.rank, self.state, self.state], device)
+        self.clear_cmd = Recorded(clear_ranks, self.bucket,
+                                [self.cand_x, self.cand_y, self.count, self.rank], device)
+        self.select_cmd = Recorded(write_selected, [1],
+                                 [self.cand_x, self.cand_y, self.state, self.count,
+                                  self.undecided, 0, wp.empty((0, 2), dtype=wp.float32,
+                                                              device=device), self.result],
+                                 device, block_dim=BLOCK)
+        self.round_cmds: list = [None]  # recorded per round index (>= 1) on first use
+        self.round_params = None
+        self.find_cmd = None
+        self.conflicts = None  # [rows, MAX_CONFLICTS] better-ranked conflicts per candidate
+        self.n_conflicts = None
+        self.device = device
+
+    def resize(self, n: int):
+        """Launch the per-candidate kernels over ``_bucket(n)`` threads."""
+        b = _bucket(n)
+        if b != self.bucket:
+            self.bucket = b
+            for cmd in [self.rank_cmd, self.clear_cmd, *self.round_cmds]:
+                if cmd is not None:
+                    cmd.set_dim(b)
+            if self.find_cmd is not None:
+                self.find_cmd.set_dim((b, self.window_rows))
+        if self.conflicts is None or self.conflicts.shape[0] < b:
+            # Sized by the launch bucket; the recorded launches are updated at their next use.
+            self.conflicts = wp.empty((b, MAX_CONFLICTS), dtype=wp.int32, device=self.device)
+            self.n_conflicts = wp.empty(b, dtype=wp.int32, device=self.device)
+
+    def set_params(self, params: tuple):
+        """Record round 0 (:data:`find_conflicts`) for ``params`` = (radius, cell,
+        min_dist_sq); the rounds are recorded again on first use."""
+        if params == self.round_params:
+            return
+        self.round_params = params
+        self.round_cmds = [None]
+        radius, cell, min_dist_sq = params
+        self.window_rows = 2 * radius + 1
+        self.find_cmd = Recorded(
+            find_conflicts, (self.bucket, self.window_rows),
+            [self.cand_x, self.cand_y, self.rank, self.count, radius, cell,
+             wp.float64(min_dist_sq), self.state, self.conflicts, self.n_conflicts,
+             self.undecided], self.device)
+
+    def find(self):
+        self.find_cmd.launch([(8, self.conflicts), (9, self.n_conflicts)])
+
+    def run_round(self, r: int):
+        """Launch round ``r`` >= 1 (recorded on first use)."""
+        while len(self.round_cmds) <= r:
+            radius, cell, min_dist_sq = self.round_params
+            self.round_cmds.append(Recorded(
+                select_candidates, self.bucket,
+                [self.cand_x, self.cand_y, self.rank, self.count, radius, cell,
+                 wp.float64(min_dist_sq), len(self.round_cmds), self.conflicts,
+                 self.n_conflicts, self.state, self.undecided], self.device))
+        self.round_cmds[r].launch([(8, self.conflicts), (9, self.n_conflicts)])
 
 
 def harris_corners(src, max_corners: int, quality_level: float, min_distance: float,
@@ -180,60 +465,60 @@ def harris_corners(src, max_corners: int, quality_level: float, min_distance: fl
     """Strongest corners of a gray uint8 ``wp.array2d``: float32 [N, 2] (x, y) on its device."""
     device = src.device
     h, w = src.shape
-    response = wp.empty((h, w), dtype=wp.float32, device=device)
-    corner_response(src, block_size, ksize, k, score, response)
     if h < 3 or w < 3:  # no pixel 1 px inside the image
         return wp.empty((0, 2), dtype=wp.float32, device=device)
+    ws = workspace("harris_corners", (h, w), device, lambda: _CornersWorkspace(h, w, device))
+    try:
+        return _select(ws, src, max_corners, quality_level, min_distance, block_size, k,
+                       ksize, score)
+    except BaseException:
+        # An interrupted call may leave ranks set in the map: start afresh next time.
+        drop_workspace("harris_corners", (h, w), device)
+        raise
 
-    max_value = wp.full(1, -math.inf, dtype=wp.float32, device=device)
-    chunks = (w + ROW_CHUNK - 1) // ROW_CHUNK
-    wp.launch(reduce_max_rows, dim=(h, chunks), inputs=[response, ROW_CHUNK],
-              outputs=[max_value], device=device)
 
-    # The float map seen as its bit patterns, to build exact sort keys.
-    bits = response.view(wp.int32)
-    capacity = (h - 2) * (w - 2)
-    count = wp.zeros(1, dtype=wp.int32, device=device)
-    keys = wp.empty(2 * capacity, dtype=wp.int64, device=device)
-    wp.launch(collect_candidates, dim=(h, w),
-              inputs=[response, bits, max_value, float(quality_level)],
-              outputs=[count, keys], device=device)
-    n = min(int(count.numpy()[0]), capacity)  # host sync: sizes the sort
+def _select(ws, src, max_corners, quality_level, min_distance, block_size, k, ksize, score):
+    device = src.device
+    corner_response(src, block_size, ksize, k, score, ws.response)
+    ws.row_max_cmd.launch()
+    ws.finish_cmd.launch()
+    ws.collect_cmd.launch([(3, float(quality_level))])
+    n = min(int(ws.count_back.read(ws.count)[0]), ws.capacity)  # host sync: sizes the sort
     if n == 0:
         return wp.empty((0, 2), dtype=wp.float32, device=device)
-    values = wp.empty(2 * n, dtype=wp.int32, device=device)
-    wp.utils.radix_sort_pairs(keys, values, n, 0, 63)
+    wp.utils.radix_sort_pairs(ws.keys, ws.values, n, 0, 32 + ws.raster_bits)
+    ws.resize(n)
+    suppress = min_distance >= 1
+    # Initial state UNDECIDED, or ACCEPTED without suppression; the conflict counts zeroed.
+    ws.rank_cmd.launch([(3, 0 if suppress else 1), (8, ws.n_conflicts)])
 
-    cand_x = wp.empty(n, dtype=wp.int32, device=device)
-    cand_y = wp.empty(n, dtype=wp.int32, device=device)
-    rank = wp.full((h, w), -1, dtype=wp.int32, device=device)
-    wp.launch(rank_candidates, dim=n, inputs=[keys, w], outputs=[cand_x, cand_y, rank],
-              device=device)
-
-    state = wp.zeros(n, dtype=wp.int32, device=device)
-    if min_distance >= 1:
-        cell = int(round(min_distance))  # cvRound (half to even, as Python's round)
-        radius = int(math.ceil(min_distance))
-        undecided = wp.zeros(1, dtype=wp.int32, device=device)
-        while True:
-            for _ in range(ROUNDS_PER_CHECK):
-                undecided.zero_()
-                wp.launch(select_candidates, dim=n,
-                          inputs=[cand_x, cand_y, rank, radius, cell,
-                                  float(min_distance) ** 2],
-                          outputs=[state, undecided], device=device)
-            if int(undecided.numpy()[0]) == 0:  # host sync per batch of rounds
-                break
-    else:
-        state.fill_(1)  # no suppression: every candidate is kept
-
-    flags = wp.empty(n, dtype=wp.int32, device=device)
-    wp.launch(flag_accepted, dim=n, inputs=[state], outputs=[flags], device=device)
-    slots = wp.empty(n, dtype=wp.int32, device=device)
-    wp.utils.array_scan(flags, slots, inclusive=True)
     limit = n if max_corners <= 0 else min(int(max_corners), n)
     points = wp.empty((limit, 2), dtype=wp.float32, device=device)
-    wp.launch(write_selected, dim=n, inputs=[cand_x, cand_y, flags, slots, limit],
-              outputs=[points], device=device)
-    accepted = int(slots[n - 1 :].numpy()[0])  # host sync: the count
-    return points[: min(accepted, limit)]
+    select = ws.select_cmd
+    select.set(6, points)
+    select.set(5, 0)
+    if suppress:
+        ws.set_params((int(math.ceil(min_distance)), int(round(min_distance)),  # cvRound: half
+                       float(min_distance) ** 2))                              # to even
+        ws.find()
+        first = 1
+        while True:
+            last = min(first + ws.batch, MAX_ROUNDS) - 1
+            for r in range(first, last + 1):
+                ws.run_round(r)
+            select.launch([(5, last)])
+            accepted, still, used = (int(v) for v in ws.result_back.read(ws.result))  # host sync
+            if still == 0:
+                ws.batch = min(max(used + 1, 2), 32)
+                break
+            if last == MAX_ROUNDS - 1:
+                # Out of counters: start them again (every decision so far stays); round 1
+                # must see a nonzero count before it.
+                ws.undecided.zero_()
+                ws.undecided[0:1].fill_(1)
+            first = 1 if last == MAX_ROUNDS - 1 else last + 1
+    else:
+        select.launch()
+        accepted = int(ws.result_back.read(ws.result)[0])  # host sync: the count
+    ws.clear_cmd.launch()
+    return points[:accepted]

@@ -1,6 +1,10 @@
 """Corner responses on Warp from the structure tensor: Harris and the minimum eigenvalue.
 
-OpenCV's ``cornerEigenValsVecs`` (``modules/imgproc/src/corner.cpp``), in two kernels:
+OpenCV's ``cornerEigenValsVecs`` (``modules/imgproc/src/corner.cpp``). For the usual Sobel
+aperture 3 and blocks up to :data:`FUSED_MAX_BLOCK`, one kernel (``compute_response_sobel3``)
+recomputes the few gradients each output pixel needs straight from the image (read through
+the L1 cache; no intermediate image, no border logic away from the edges). Other apertures
+use two kernels:
 
 1. ``compute_gradient_products``: Sobel derivatives ``dx``, ``dy`` of aperture ``ksize``
    (1, 3, 5, 7) with BORDER_REFLECT_101, scaled by ``1 / (2^(ksize-1) * block_size * 255)``
@@ -16,6 +20,10 @@ from __future__ import annotations
 import warp as wp
 
 from ._sampling import BORDER_REFLECT_101, border_index
+from .fast_corners import Recorded, workspace
+
+# Forward-only kernels: no adjoint code to generate and compile.
+wp.set_module_options({"enable_backward": False})
 
 vec7 = wp.types.vector(length=7, dtype=wp.int32)
 
@@ -126,6 +134,118 @@ def compute_corner_response(
     response[y, x] = corner_score(cov, k, score)
 
 
+@wp.func
+def reflect_near(p: int, n: int) -> int:
+    """REFLECT_101 of an index at most one step outside [0, n) (also for n = 1)."""
+    q = p
+    if q < 0:
+        q = -q
+    if q >= n:
+        q = 2 * n - 2 - q
+    return wp.clamp(q, 0, n - 1)
+
+
+@wp.func
+def sobel3_gradient(img: wp.array2d(dtype=wp.uint8), y: int, x: int, interior: bool) -> wp.vec2i:
+    """Integer 3x3 Sobel (dx, dy) at (y, x), which lies in the image; its neighbours are read
+    directly when ``interior`` (all inside), else reflected (BORDER_REFLECT_101)."""
+    ym = y - 1
+    yp = y + 1
+    xm = x - 1
+    xp = x + 1
+    if not interior:
+        h = img.shape[0]
+        w = img.shape[1]
+        ym = reflect_near(ym, h)
+        yp = reflect_near(yp, h)
+        xm = reflect_near(xm, w)
+        xp = reflect_near(xp, w)
+    a = int(img[ym, xm])
+    b = int(img[ym, x])
+    c = int(img[ym, xp])
+    d = int(img[y, xm])
+    f = int(img[y, xp])
+    g = int(img[yp, xm])
+    hh = int(img[yp, x])
+    i = int(img[yp, xp])
+    gx = (c - a) + 2 * (f - d) + (i - g)
+    gy = (g - a) + 2 * (hh - b) + (i - c)
+    return wp.vec2i(gx, gy)
+
+
+mat55i = wp.types.matrix(shape=(5, 5), dtype=wp.int32)
+
+
+@wp.func
+def cov_from_patch5(img: wp.array2d(dtype=wp.uint8), top: int, left: int, block_size: int,
+                    scale: float) -> wp.vec3:
+    """Structure tensor of a block of at most 3x3 (Sobel 3) whose 5x5 pixel neighbourhood,
+    rows ``top`` .. ``top + 4``, lies inside the image: 25 reads into registers, the
+    gradients from them, summed in the order of the general path."""
+    p = mat55i()
+    for i in range(5):
+        for j in range(5):
+            p[i, j] = int(img[top + i, left + j])
+    cov = wp.vec3()
+    for i in range(3):
+        if i < block_size:
+            for j in range(3):
+                if j < block_size:
+                    gx = (p[i, j + 2] - p[i, j]) + 2 * (p[i + 1, j + 2] - p[i + 1, j]) + (
+                        p[i + 2, j + 2] - p[i + 2, j])
+                    gy = (p[i + 2, j] - p[i, j]) + 2 * (p[i + 2, j + 1] - p[i, j + 1]) + (
+                        p[i + 2, j + 2] - p[i, j + 2])
+                    dx = float(gx) * scale
+                    dy = float(gy) * scale
+                    cov += wp.vec3(dx * dx, dx * dy, dy * dy)
+    return cov
+
+
+@wp.kernel
+def compute_response_sobel3(
+    img: wp.array2d(dtype=wp.uint8),
+    block_size: int,
+    scale: float,
+    k: float,
+    score: int,
+    response: wp.array2d(dtype=wp.float32),
+):
+    """Sobel 3 gradients, their products summed over the block, and the score, per pixel.
+
+    Window positions outside the image reflect (the box filter's BORDER_REFLECT_101 on the
+    product image), then each gradient reflects its own neighbours (the Sobel's border).
+    """
+    y, x = wp.tid()
+    h = img.shape[0]
+    w = img.shape[1]
+    lo = -(block_size // 2)
+    y0 = y + lo
+    x0 = x + lo
+    if block_size <= 3 and y0 >= 1 and x0 >= 1 and y0 + 4 < h and x0 + 4 < w:
+        response[y, x] = corner_score(cov_from_patch5(img, y0 - 1, x0 - 1, block_size, scale),
+                                      k, score)
+        return
+    interior = y0 >= 1 and x0 >= 1 and y0 + block_size < h and x0 + block_size < w
+    cov = wp.vec3()
+    for i in range(block_size):
+        yy = y0 + i
+        if not interior:
+            yy = reflect101(yy, h)
+        for j in range(block_size):
+            xx = x0 + j
+            if not interior:
+                xx = reflect101(xx, w)
+            g = sobel3_gradient(img, yy, xx, interior)
+            dx = float(g[0]) * scale
+            dy = float(g[1]) * scale
+            cov += wp.vec3(dx * dx, dx * dy, dy * dy)
+    response[y, x] = corner_score(cov, k, score)
+
+
+FUSED_MAX_BLOCK = 5
+"""Largest block the one-kernel Sobel-3 path takes (it recomputes block^2 gradients per pixel)."""
+
+
 def derivative_scale(ksize: int, block_size: int) -> float:
     """OpenCV's scale of the Sobel derivatives for 8-bit input in cornerEigenValsVecs."""
     return 1.0 / (float(1 << (ksize - 1)) * block_size * 255.0)
@@ -135,6 +255,15 @@ def corner_response(src, block_size: int, ksize: int, k: float, score: str, resp
     """Launch both kernels on ``src.device``, writing the float32 map into ``response``."""
     device = src.device
     h, w = src.shape
+    if ksize == 3 and block_size <= FUSED_MAX_BLOCK:
+        # A recorded launch per (size, parameters); only the two arrays change between calls.
+        cmd = workspace(
+            "harris_response", (h, w, int(block_size), float(k), score), device,
+            lambda: Recorded(compute_response_sobel3, (h, w),
+                             [src, int(block_size), derivative_scale(3, block_size), float(k),
+                              SCORES[score], response], device))
+        cmd.launch([(0, src), (5, response)])
+        return
     products = wp.empty((h, w), dtype=wp.vec3, device=device)
     wp.launch(compute_gradient_products, dim=(h, w),
               inputs=[src, int(ksize), derivative_scale(ksize, block_size)],

@@ -1,29 +1,73 @@
 """Brute-force Hamming matching on Warp (rules as :mod:`warpvx.kernels_cpu.match_hamming`).
 
 1. ``pack_words``: each descriptor row's bytes as little-endian uint32 words (zero padded);
-2. ``find_nearest``: one thread per query row keeps the best and second-best distance over all
-   train rows (``wp.bit_count`` of the XOR of 32-bit words; strict ``<`` updates, so the
-   lowest train index wins a tie, as cv2's batchDistance);
-3. with ``cross_check``: ``find_nearest`` again with the roles swapped (a query is kept when
-   its best train row's best query is itself);
-4. ``flag_matches``, a prefix sum and ``write_matches`` compact the kept pairs in query order.
+2. ``find_nearest_sliced``: the train rows are cut into slices; a thread per (slice, query
+   row) keeps the best and second-best (distance, index) pair of its slice as int64 keys
+   (distance high, index low: the smaller key is the smaller distance, then the lower index,
+   cv2's batchDistance tie rule). The query row's words sit in registers and the threads of
+   a warp read the same train row at the same time (one broadcast load per word). Rows up to
+   :data:`MAX_WORDS` words (64 bytes: ORB, BRISK); wider ones take ``find_nearest``, a thread
+   per query over all train rows. ``merge_slices`` keeps the two smallest keys per query;
+3. with ``cross_check``: the same with the roles swapped (a query is kept when its best
+   train row's best query is itself);
+4. ``compact_matches``: one block flags the kept queries, scans the flags and writes the
+   pairs in query order, and the number of matches.
 
-Host sync: one, to read the number of matches (the result's length).
+Host sync: one, to read the number of matches (the result's length). Scratch buffers and
+recorded launches are reused between calls of the same sizes
+(:func:`.fast_corners.workspace`).
 """
 
 from __future__ import annotations
 
 import warp as wp
 
+from .fast_corners import HostReadback, Recorded, workspace
+
+# Forward-only kernels: no adjoint code to generate and compile.
+wp.set_module_options({"enable_backward": False})
+
 NO_MATCH = wp.constant(2147483647)
+NONE_KEY = wp.constant(wp.int64(0x7FFFFFFFFFFFFFFF))
+
+MAX_WORDS = 16
+TARGET_THREADS = 65536  # (slice, query) threads to aim for
+MIN_SLICE_ROWS = 16  # train rows per slice at least
+COMPACT_BLOCK = 1024  # lanes of compact_matches
+
+vec16u = wp.types.vector(length=MAX_WORDS, dtype=wp.uint32)
+vec2l = wp.types.vector(length=2, dtype=wp.int64)
 
 
 @wp.func
-def hamming(a: wp.array2d(dtype=wp.uint32), i: int, b: wp.array2d(dtype=wp.uint32), j: int) -> int:
-    d = int(0)
-    for w in range(a.shape[1]):
-        d += int(wp.bit_count(a[i, w] ^ b[j, w]))
-    return d
+def pair_key(dist: int, index: int) -> wp.int64:
+    return (wp.int64(dist) << wp.int64(32)) | wp.int64(index)
+
+
+@wp.func
+def push_top2(top: vec2l, key: wp.int64) -> vec2l:
+    """The two smallest of ``top`` and ``key``, smallest first."""
+    if key < top[0]:
+        return vec2l(key, top[0])
+    if key < top[1]:
+        return vec2l(top[0], key)
+    return top
+
+
+@wp.func
+def write_top2(q: int, top: vec2l, best_idx: wp.array(dtype=wp.int32),
+               best_dist: wp.array(dtype=wp.int32), second_idx: wp.array(dtype=wp.int32),
+               second_dist: wp.array(dtype=wp.int32)):
+    best_idx[q] = -1
+    best_dist[q] = NO_MATCH
+    second_idx[q] = -1
+    second_dist[q] = NO_MATCH
+    if top[0] != NONE_KEY:
+        best_idx[q] = int(top[0] & wp.int64(0xFFFFFFFF))
+        best_dist[q] = int(top[0] >> wp.int64(32))
+    if top[1] != NONE_KEY:
+        second_idx[q] = int(top[1] & wp.int64(0xFFFFFFFF))
+        second_dist[q] = int(top[1] >> wp.int64(32))
 
 
 @wp.kernel
@@ -38,89 +82,105 @@ def pack_words(desc: wp.array2d(dtype=wp.uint8), words: wp.array2d(dtype=wp.uint
 
 
 @wp.kernel
+def find_nearest_sliced(query: wp.array2d(dtype=wp.uint32), train: wp.array2d(dtype=wp.uint32),
+                        slice_rows: int, partial: wp.array3d(dtype=wp.int64)):
+    """partial[s, q] = the two smallest keys of query row q over train rows of slice s."""
+    s, q = wp.tid()
+    nwords = query.shape[1]
+    qv = vec16u()
+    for w in range(MAX_WORDS):
+        if w < nwords:
+            qv[w] = query[q, w]
+    t0 = s * slice_rows
+    t1 = wp.min(t0 + slice_rows, train.shape[0])
+    top = vec2l(NONE_KEY, NONE_KEY)
+    for t in range(t0, t1):
+        d = int(0)
+        for w in range(MAX_WORDS):
+            if w < nwords:
+                d += int(wp.bit_count(qv[w] ^ train[t, w]))
+        top = push_top2(top, pair_key(d, t))
+    partial[s, q, 0] = top[0]
+    partial[s, q, 1] = top[1]
+
+
+@wp.kernel
+def merge_slices(partial: wp.array3d(dtype=wp.int64), best_idx: wp.array(dtype=wp.int32),
+                 best_dist: wp.array(dtype=wp.int32), second_idx: wp.array(dtype=wp.int32),
+                 second_dist: wp.array(dtype=wp.int32)):
+    q = wp.tid()
+    top = vec2l(NONE_KEY, NONE_KEY)
+    for s in range(partial.shape[0]):
+        top = push_top2(top, partial[s, q, 0])
+        top = push_top2(top, partial[s, q, 1])
+    write_top2(q, top, best_idx, best_dist, second_idx, second_dist)
+
+
+@wp.kernel
 def find_nearest(query: wp.array2d(dtype=wp.uint32), train: wp.array2d(dtype=wp.uint32),
                  best_idx: wp.array(dtype=wp.int32), best_dist: wp.array(dtype=wp.int32),
                  second_idx: wp.array(dtype=wp.int32), second_dist: wp.array(dtype=wp.int32)):
+    """Rows wider than MAX_WORDS words: a thread per query row over all train rows."""
     q = wp.tid()
-    bd = int(NO_MATCH)
-    sd = int(NO_MATCH)
-    bi = int(-1)
-    si = int(-1)
+    top = vec2l(NONE_KEY, NONE_KEY)
     for t in range(train.shape[0]):
-        d = hamming(query, q, train, t)
-        if d < bd:
-            sd = bd
-            si = bi
-            bd = d
-            bi = t
-        elif d < sd:
-            sd = d
-            si = t
-    best_idx[q] = bi
-    best_dist[q] = bd
-    second_idx[q] = si
-    second_dist[q] = sd
+        d = int(0)
+        for w in range(query.shape[1]):
+            d += int(wp.bit_count(query[q, w] ^ train[t, w]))
+        top = push_top2(top, pair_key(d, t))
+    write_top2(q, top, best_idx, best_dist, second_idx, second_dist)
 
 
-@wp.kernel
-def flag_matches(best_idx: wp.array(dtype=wp.int32), best_dist: wp.array(dtype=wp.int32),
-                 second_dist: wp.array(dtype=wp.int32), t_query: wp.array(dtype=wp.int32),
-                 cross_check: int, use_ratio: int, ratio: wp.float64,
-                 pair_idx: wp.array(dtype=wp.int32), pair_dist: wp.array(dtype=wp.int32),
-                 keep: wp.array(dtype=wp.int32)):
-    q = wp.tid()
+# --- selection -------------------------------------------------------------------------------
+
+
+@wp.func
+def kept_pair(q: int, best_idx: wp.array(dtype=wp.int32), best_dist: wp.array(dtype=wp.int32),
+              second_dist: wp.array(dtype=wp.int32), t_query: wp.array(dtype=wp.int32),
+              cross_check: int, use_ratio: int, ratio: wp.float64) -> int:
+    """The train row matched to query ``q``, or -1 when the pair is dropped."""
     t = best_idx[q]
-    d = best_dist[q]
     if cross_check != 0 and t >= 0:
         if t_query[t] != q:
             t = -1
-    k = int(0)
-    if t >= 0:
-        k = 1
-        # No second row (a single train row): the test cannot reject.
-        if use_ratio != 0 and second_dist[q] != NO_MATCH:
-            if not (wp.float64(d) < ratio * wp.float64(second_dist[q])):
-                k = 0
-    pair_idx[q] = t
-    pair_dist[q] = d
-    keep[q] = k
+    # No second row (a single train row): the ratio test cannot reject.
+    if t >= 0 and use_ratio != 0 and second_dist[q] != NO_MATCH:
+        if not (wp.float64(best_dist[q]) < ratio * wp.float64(second_dist[q])):
+            t = -1
+    return t
 
 
 @wp.kernel
-def write_matches(pair_idx: wp.array(dtype=wp.int32), pair_dist: wp.array(dtype=wp.int32),
-                  keep: wp.array(dtype=wp.int32), offset: wp.array(dtype=wp.int32),
-                  pairs: wp.array2d(dtype=wp.int32), dist: wp.array(dtype=wp.int32)):
-    q = wp.tid()
-    if keep[q] != 0:
-        m = offset[q]
-        pairs[m, 0] = q
-        pairs[m, 1] = pair_idx[q]
-        dist[m] = pair_dist[q]
-
-
-@wp.kernel
-def count_matches(keep: wp.array(dtype=wp.int32), offset: wp.array(dtype=wp.int32),
-                  total: wp.array(dtype=wp.int32)):
-    n = keep.shape[0]
-    total[0] = offset[n - 1] + keep[n - 1]
-
-
-def _words(desc):
-    n, width = desc.shape
-    words = wp.empty((n, max(1, (width + 3) // 4)), dtype=wp.uint32, device=desc.device)
-    if n:
-        wp.launch(pack_words, dim=words.shape, inputs=[desc], outputs=[words], device=desc.device)
-    return words
-
-
-def _nearest(query_words, train_words):
-    """(best index, best distance, second index, second distance) per query row."""
-    n = query_words.shape[0]
-    device = query_words.device
-    out = [wp.empty(n, dtype=wp.int32, device=device) for _ in range(4)]
-    wp.launch(find_nearest, dim=n, inputs=[query_words, train_words], outputs=out,
-              device=device)
-    return out
+def compact_matches(best_idx: wp.array(dtype=wp.int32), best_dist: wp.array(dtype=wp.int32),
+                    second_dist: wp.array(dtype=wp.int32), t_query: wp.array(dtype=wp.int32),
+                    cross_check: int, use_ratio: int, ratio: wp.float64,
+                    pairs: wp.array2d(dtype=wp.int32), dist: wp.array(dtype=wp.int32),
+                    total: wp.array(dtype=wp.int32)):
+    """Kept pairs in query order (one block: a scan of the keep flags per chunk)."""
+    _blk, lane = wp.tid()
+    lanes = wp.block_dim()
+    nq = best_idx.shape[0]
+    base = int(0)
+    start = int(0)
+    while start < nq:
+        q = start + lane
+        t = int(-1)
+        if q < nq:
+            t = kept_pair(q, best_idx, best_dist, second_dist, t_query, cross_check, use_ratio,
+                          ratio)
+        keep = int(0)
+        if t >= 0:
+            keep = 1
+        flags = wp.tile(keep)
+        m = base + wp.untile(wp.tile_scan_inclusive(flags)) - keep
+        if keep == 1:
+            pairs[m, 0] = q
+            pairs[m, 1] = t
+            dist[m] = best_dist[q]
+        base += wp.tile_extract(wp.tile_sum(flags), 0)
+        start += lanes
+    if lane == 0:
+        total[0] = base
 
 
 @wp.kernel
@@ -135,16 +195,93 @@ def write_knn(best_idx: wp.array(dtype=wp.int32), best_dist: wp.array(dtype=wp.i
         dist[q, 1] = second_dist[q]
 
 
+# --- host side -------------------------------------------------------------------------------
+
+
+class _Words:
+    """A descriptor set packed into uint32 words (a recorded ``pack_words`` launch)."""
+
+    def __init__(self, desc):
+        n, width = desc.shape
+        self.words = wp.empty((n, (width + 3) // 4), dtype=wp.uint32, device=desc.device)
+        self.cmd = Recorded(pack_words, self.words.shape, [desc, self.words], desc.device)
+
+    def pack(self, desc):
+        self.cmd.launch([(0, desc)])
+        return self.words
+
+
+class _Nearest:
+    """Best/second-best train row of each query row for one pair of packed word sets."""
+
+    def __init__(self, query_words, train_words):
+        device = query_words.device
+        nq, words = query_words.shape
+        nt = train_words.shape[0]
+        self.out = [wp.empty(nq, dtype=wp.int32, device=device) for _ in range(4)]
+        if words <= MAX_WORDS:
+            slices = max(1, min(-(-nt // MIN_SLICE_ROWS), -(-TARGET_THREADS // nq)))
+            rows = -(-nt // slices)
+            slices = -(-nt // rows)
+            partial = wp.empty((slices, nq, 2), dtype=wp.int64, device=device)
+            self.cmds = [
+                Recorded(find_nearest_sliced, (slices, nq),
+                         [query_words, train_words, rows, partial], device),
+                Recorded(merge_slices, nq, [partial, *self.out], device),
+            ]
+        else:
+            self.cmds = [Recorded(find_nearest, nq, [query_words, train_words, *self.out],
+                                  device)]
+
+    def run(self):
+        for cmd in self.cmds:
+            cmd.launch()
+        return self.out
+
+
+class _MatchWorkspace:
+    def __init__(self, desc1, desc2):
+        device = desc1.device
+        self.query = _Words(desc1)
+        self.train = _Words(desc2)
+        self.forward = _Nearest(self.query.words, self.train.words)
+        self.backward = None  # cross check: train rows against the query rows
+        self.total = wp.zeros(1, dtype=wp.int32, device=device)
+        self.readback = HostReadback(1, wp.int32, device)
+        b = self.forward.out
+        nq = desc1.shape[0]
+        self.compact = Recorded(compact_matches, [1],
+                                [b[0], b[1], b[3], b[0], 0, 0, wp.float64(0.0),
+                                 wp.empty((nq, 2), dtype=wp.int32, device=device),
+                                 wp.empty(nq, dtype=wp.int32, device=device), self.total],
+                                device, block_dim=COMPACT_BLOCK)
+        self.ratio = 0.0  # the ratio recorded in compact
+
+    def nearest(self, desc1, desc2, cross_check: bool):
+        """Forward (best, best distance, second, second distance) and, with ``cross_check``,
+        the best query row of each train row."""
+        self.query.pack(desc1)
+        self.train.pack(desc2)
+        forward = self.forward.run()
+        if not cross_check:
+            return forward, forward[0]
+        if self.backward is None:
+            self.backward = _Nearest(self.train.words, self.query.words)
+        return forward, self.backward.run()[0]
+
+
 def knn_match_hamming(desc1, desc2, k: int, *, out=None) -> tuple:
     """(int32 [N1, k] train indices, int32 [N1, k] distances), nearest first, k in {1, 2},
-    k <= N2 (``find_nearest``'s best and second best). No host sync; ``out`` is ignored."""
+    k <= N2 (the best and second best). No host sync; ``out`` is ignored."""
     device = desc1.device
     nq = desc1.shape[0]
     idx = wp.empty((nq, k), dtype=wp.int32, device=device)
     dist = wp.empty((nq, k), dtype=wp.int32, device=device)
     if nq == 0 or k == 0:
         return idx, dist
-    nearest = _nearest(_words(desc1), _words(desc2))
+    ws = workspace("match_hamming", (nq, desc2.shape[0], desc1.shape[1]), device,
+                   lambda: _MatchWorkspace(desc1, desc2))
+    nearest, _ = ws.nearest(desc1, desc2, False)
     wp.launch(write_knn, dim=nq, inputs=nearest, outputs=[idx, dist], device=device)
     return idx, dist
 
@@ -152,34 +289,25 @@ def knn_match_hamming(desc1, desc2, k: int, *, out=None) -> tuple:
 def match_hamming(desc1, desc2, cross_check: bool, ratio, *, out=None) -> tuple:
     """(int32 [M, 2] (query, train) pairs, int32 [M] distances) on ``desc1.device``.
 
-    Pairs are listed by increasing query index. One host sync reads M; ``out`` is ignored.
+    Pairs are listed by increasing query index. One host sync reads M (the arrays are views
+    of the first M rows of [N1]-row allocations); ``out`` is ignored.
     """
     device = desc1.device
     nq, nt = desc1.shape[0], desc2.shape[0]
     if nq == 0 or nt == 0:
         return (wp.zeros((0, 2), dtype=wp.int32, device=device),
                 wp.zeros(0, dtype=wp.int32, device=device))
-    qw, tw = _words(desc1), _words(desc2)
-    best_idx, best_dist, _, second_dist = _nearest(qw, tw)
-    t_query = _nearest(tw, qw)[0] if cross_check else best_idx  # unread without cross_check
-    pair_idx = wp.empty(nq, dtype=wp.int32, device=device)
-    pair_dist = wp.empty(nq, dtype=wp.int32, device=device)
-    keep = wp.empty(nq, dtype=wp.int32, device=device)
-    wp.launch(flag_matches, dim=nq,
-              inputs=[best_idx, best_dist, second_dist, t_query, int(bool(cross_check)),
-                      int(ratio is not None), wp.float64(0.0 if ratio is None else ratio)],
-              outputs=[pair_idx, pair_dist, keep], device=device)
-    offset = wp.empty(nq, dtype=wp.int32, device=device)
-    wp.utils.array_scan(keep, offset, inclusive=False)
-    total = wp.empty(1, dtype=wp.int32, device=device)
-    wp.launch(count_matches, dim=1, inputs=[keep, offset], outputs=[total], device=device)
-    m = int(total.numpy()[0])  # the one host sync: the number of matches sizes the result
-    pairs = wp.empty((m, 2), dtype=wp.int32, device=device)
-    dist = wp.empty(m, dtype=wp.int32, device=device)
-    if m:
-        wp.launch(write_matches, dim=nq, inputs=[pair_idx, pair_dist, keep, offset],
-                  outputs=[pairs, dist], device=device)
-    return pairs, dist
+    ws = workspace("match_hamming", (nq, nt, desc1.shape[1]), device,
+                   lambda: _MatchWorkspace(desc1, desc2))
+    _, t_query = ws.nearest(desc1, desc2, bool(cross_check))  # t_query: unread without it
+    pairs = wp.empty((nq, 2), dtype=wp.int32, device=device)
+    dist = wp.empty(nq, dtype=wp.int32, device=device)
+    rule = (int(bool(cross_check)), int(ratio is not None), 0.0 if ratio is None else float(ratio))
+    ws.compact.launch([(3, t_query), (4, rule[0]), (5, rule[1]), (7, pairs), (8, dist)]
+                      + ([(6, wp.float64(rule[2]))] if rule[2] != ws.ratio else []))
+    ws.ratio = rule[2]
+    m = int(ws.readback.read(ws.total)[0])  # the one host sync: the number of matches
+    return pairs[:m], dist[:m]
 
 
 __all__ = ["match_hamming", "knn_match_hamming"]
