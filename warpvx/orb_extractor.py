@@ -1,11 +1,13 @@
 """ORB features extracted exactly as ORB-SLAM2's ``ORBextractor`` does (SPEC section 6).
 
 Public functions validate their arguments and dispatch to ``warpvx.kernels_cpu.orb``
-(NumPy/OpenCV) or ``warpvx.kernels_warp.orb`` (Warp kernels; the quadtree on the host); see
-:mod:`warpvx.registry`.
+(NumPy/OpenCV) or ``warpvx.kernels_warp.orb`` (Warp kernels, the quadtree included: one CUDA
+graph per image size and parameter set); see :mod:`warpvx.registry`.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
@@ -17,6 +19,9 @@ from .kernels_cpu.orb import MAX_SIDE, MIN_LEVEL_SIZE
 from .keypoints import Keypoints
 from .pyramid import scale_pyramid_sizes
 from .registry import BenchCase, dispatch
+
+# Level sizes of a (width, height, levels, scale) (validation runs on every call).
+_level_sizes = functools.lru_cache(maxsize=256)(scale_pyramid_sizes)
 
 def _gray(src, name: str = "src"):
     """A gray uint8 HxW image (HxWx1 viewed as HxW); colour input is refused, not converted."""
@@ -48,8 +53,10 @@ def orb(src, n_features: int = 2000, scale_factor: float = 1.2, n_levels: int = 
        aiming at n_l nodes, n_l = cvRound(n0 f^l), f = 1 / scale_factor,
        n0 = N (1 - f) / (1 - f^L), the last level the remainder (2000, 1.2, 8: 434 362 302 251
        209 175 145 122). It can return a few more than n_l (ORB-SLAM2 stops splitting only
-       once n_l is reached) or fewer (not enough corners). Sequential: it runs on the host on
-       every backend; the Warp path copies the candidates down and the chosen points back up.
+       once n_l is reached) or fewer (not enough corners). Sequential as written; the Warp
+       path computes the same result in parallel on the device, from the number of
+       quadtree nodes per depth (see :mod:`warpvx.kernels_warp.orb`), and reads back only
+       the keypoint count.
     3. Orientation: ``IC_Angle``, the intensity centroid over the radius-15 disc (umax rows
        15 15 15 15 14 14 14 13 13 12 11 10 9 8 6 3) of the unblurred level, angle =
        OpenCV's ``fastAtan2(m01, m10)`` in degrees [0, 360).
@@ -115,8 +122,7 @@ def orb(src, n_features: int = 2000, scale_factor: float = 1.2, n_levels: int = 
     h, w = int(src.shape[0]), int(src.shape[1])
     if max(h, w) > MAX_SIDE:
         raise ShapeError(f"src: image of {w}x{h} (WxH) is larger than {MAX_SIDE} px a side")
-    sizes = scale_pyramid_sizes(w, h, n_levels, scale_factor)
-    lw, lh = sizes[-1]
+    lw, lh = _level_sizes(w, h, n_levels, scale_factor)[-1]
     if lw < MIN_LEVEL_SIZE or lh < MIN_LEVEL_SIZE:
         raise ShapeError(
             f"src: image of {w}x{h} (WxH) is too small for n_levels={n_levels} at scale_factor "

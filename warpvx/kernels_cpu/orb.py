@@ -244,19 +244,28 @@ def fast_atan2(y: np.ndarray, x: np.ndarray) -> np.ndarray:
     return a.astype(np.float32)
 
 
-def patches(img: np.ndarray, x, y, radius: int) -> np.ndarray:
-    """uint8 [N, 2r+1, 2r+1]: the square patches around the rounded centres (cvRound(x),
-    cvRound(y)), BORDER_REFLECT_101 beyond the image; centres are clamped into the image."""
+def padded_centres(img: np.ndarray, x, y, radius: int) -> tuple:
+    """(padded image, cx, cy): ``img`` with ``radius`` px of BORDER_REFLECT_101 around it and
+    the rounded centres (cvRound(x), cvRound(y)), clamped into the image, in padded
+    coordinates."""
     h, w = img.shape
     r = int(radius)
     if r >= min(h, w):  # cv2's reflection needs the image larger than the pad
         padded = np.pad(img, r, mode="reflect") if min(h, w) > 1 else np.pad(img, r, mode="edge")
     else:
         padded = cv2.copyMakeBorder(img, r, r, r, r, cv2.BORDER_REFLECT_101)
-    cx = np.clip(np.rint(np.asarray(x, np.float32)).astype(np.intp), 0, w - 1)
-    cy = np.clip(np.rint(np.asarray(y, np.float32)).astype(np.intp), 0, h - 1)
+    cx = np.clip(np.rint(np.asarray(x, np.float32)).astype(np.intp), 0, w - 1) + r
+    cy = np.clip(np.rint(np.asarray(y, np.float32)).astype(np.intp), 0, h - 1) + r
+    return padded, cx, cy
+
+
+def patches(img: np.ndarray, x, y, radius: int) -> np.ndarray:
+    """uint8 [N, 2r+1, 2r+1]: the square patches around the rounded centres (cvRound(x),
+    cvRound(y)), BORDER_REFLECT_101 beyond the image; centres are clamped into the image."""
+    r = int(radius)
+    padded, cx, cy = padded_centres(img, x, y, r)
     windows = np.lib.stride_tricks.sliding_window_view(padded, (2 * r + 1, 2 * r + 1))
-    return windows[cy, cx]
+    return windows[cy - r, cx - r]
 
 
 # --------------------------------------------------------------------------------------------
@@ -452,20 +461,25 @@ def detect_cells(level: np.ndarray, threshold: int) -> tuple:
     """
     h, w = level.shape
     grid = cell_grid(w, h)
-    det = _fast_detector(threshold)
-    xs, ys, ss = [], [], []
+    detect = _fast_detector(threshold).detect
+    # One cv2 call per cell (its own non-max suppression); the keypoints of all cells are
+    # converted at once, each shifted by its cell's origin.
+    found, x_off, y_off, counts = [], [], [], []
     for y0, y1 in grid.row_spans:
         for x0, x1 in grid.col_spans:
-            kps = det.detect(level[y0:y1, x0:x1])
+            kps = detect(level[y0:y1, x0:x1])
             if kps:
-                pts = cv2.KeyPoint_convert(kps)
-                xs.append(pts[:, 0].astype(np.int32) + x0)
-                ys.append(pts[:, 1].astype(np.int32) + y0)
-                ss.append(np.array([k.response for k in kps], np.int32))
-    if not xs:
+                found.extend(kps)
+                x_off.append(x0)
+                y_off.append(y0)
+                counts.append(len(kps))
+    if not found:
         z = np.zeros(0, np.int32)
         return z, z.copy(), z.copy()
-    x, y, s = np.concatenate(xs), np.concatenate(ys), np.concatenate(ss)
+    pts = cv2.KeyPoint_convert(found)
+    x = pts[:, 0].astype(np.int32) + np.repeat(np.array(x_off, np.int32), counts)
+    y = pts[:, 1].astype(np.int32) + np.repeat(np.array(y_off, np.int32), counts)
+    s = np.fromiter((k.response for k in found), np.float32, len(found)).astype(np.int32)
     order = order_candidates(x, y, grid)
     return x[order], y[order], s[order]
 
@@ -487,12 +501,28 @@ def compute_orientation(level: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.n
     rounded keypoint. Reads beyond the level reflect (BORDER_REFLECT_101); extracted
     keypoints never need it.
     """
-    if x.size == 0:
+    if np.asarray(x).size == 0:
         return np.zeros(0, np.float32)
-    disc = patches(level, x, y, HALF_PATCH_SIZE) * _disc_mask()
-    r = np.arange(-HALF_PATCH_SIZE, HALF_PATCH_SIZE + 1, dtype=np.int64)
-    m01 = disc.sum(axis=2, dtype=np.int64) @ r  # sum over v of v * (row sum)
-    m10 = disc.sum(axis=1, dtype=np.int64) @ r  # sum over u of u * (column sum)
+    # Row v of the disc spans |u| <= umax[|v|], column u spans |v| <= umax[|u|] (the disc is
+    # symmetric): each row and column sum is four reads of the integral image.
+    hp = HALF_PATCH_SIZE
+    padded, cx, cy = padded_centres(level, x, y, hp)
+    exact_int32 = padded.size * 255 < 2 ** 31
+    integral = cv2.integral(padded, sdepth=cv2.CV_32S if exact_int32 else cv2.CV_64F)
+    off = np.arange(-hp, hp + 1)
+    half = umax()[np.abs(off)].astype(np.intp)
+    yy = cy[:, None] + off
+    left = cx[:, None] - half
+    right = cx[:, None] + half + 1
+    row_sums = (integral[yy + 1, right] - integral[yy, right]
+                - integral[yy + 1, left] + integral[yy, left])
+    xx = cx[:, None] + off
+    top = cy[:, None] - half
+    bottom = cy[:, None] + half + 1
+    col_sums = (integral[bottom, xx + 1] - integral[bottom, xx]
+                - integral[top, xx + 1] + integral[top, xx])
+    m01 = row_sums.astype(np.int64) @ off  # sum over v of v * (row sum)
+    m10 = col_sums.astype(np.int64) @ off  # sum over u of u * (column sum)
     return fast_atan2(m01.astype(np.float32), m10.astype(np.float32))
 
 
@@ -518,21 +548,21 @@ def compute_descriptors(blurred: np.ndarray, x, y, angle, *, out=None) -> np.nda
     rad = np.asarray(angle, np.float32) * np.float32(math.pi / 180.0)
     a = np.cos(rad).astype(np.float32)[:, None]
     b = np.sin(rad).astype(np.float32)[:, None]
-    side = 2 * PATTERN_RADIUS + 1
-    # Flat index of (cvRound(px a - py b), cvRound(px b + py a)) in the patch around the
-    # centre; products and differences in float32, as ORB-SLAM2 (integers stay exact).
+    padded, cx, cy = padded_centres(blurred, x, y, PATTERN_RADIUS)
+    width = np.float32(padded.shape[1])
+    # Flat index of (cvRound(px a - py b), cvRound(px b + py a)) from the centre in the padded
+    # level; products and differences in float32, as ORB-SLAM2 (integers stay exact).
     dx = px * a
     dx -= py * b
     np.rint(dx, out=dx)
     dy = px * b
     dy += py * a
     np.rint(dy, out=dy)
-    dy *= np.float32(side)
+    dy *= width
     dy += dx
-    dy += np.float32(PATTERN_RADIUS * side + PATTERN_RADIUS)
-    index = dy.astype(np.int32)
-    index += (np.arange(n, dtype=np.int32) * np.int32(side * side))[:, None]
-    vals = np.take(patches(blurred, x, y, PATTERN_RADIUS).reshape(-1), index)
+    index = dy.astype(np.int64)
+    index += (cy * padded.shape[1] + cx)[:, None]
+    vals = np.take(padded.reshape(-1), index)
     bits = vals[:, 0::2] < vals[:, 1::2]
     desc[...] = np.packbits(bits, axis=1, bitorder="little")
     return desc
