@@ -1,4 +1,4 @@
-"""Shared separable filtering for Warp kernels: Gaussian blur and pyrDown in one kernel.
+"""Shared separable filtering for Warp kernels: Gaussian blur and pyrDown.
 
 Both are a separable integer filter over a uint8 image followed by one rounding shift, which
 is how OpenCV computes them for 8-bit images, so the results are bit-exact:
@@ -10,11 +10,30 @@ is how OpenCV computes them for 8-bit images, so the results are bit-exact:
 - ``cv2.pyrDown``: the kernel [1 4 6 4 1] in both directions on every second pixel,
   ``(sum + 2^7) >> 8``.
 
-Images are filtered as 2-D ``rows x (width * channels)`` uint8 arrays (a colour image is viewed
-that way), so one kernel serves gray and interleaved colour images; taps step over
-``channels`` elements. Borders use OpenCV's integer codes (``BORDER_CONSTANT`` reads 0,
-``BORDER_REPLICATE``, ``BORDER_REFLECT``, ``BORDER_REFLECT_101``), resolved by
-:func:`filter_index` before every read, so no input can read out of bounds.
+The filter runs in two passes: horizontal sums of the source rows (exact integers: at most
+255 * 256, so they fit uint16), then the vertical sum of those with the rounding shift. Two
+ways, the same integers:
+
+- fused (kernel radius <= :data:`FUSED_MAX_RADIUS`, every pyrDown): one launch, no
+  intermediate in memory. A thread owns a small block of outputs (:data:`ROWS_PER_THREAD`
+  rows by :data:`PIXELS_PER_THREAD` pixels, all channels); for each source row under the
+  block it reads the pixels the block's taps span once, forms the exact horizontal sums and
+  adds each, weighted, into every output row it feeds, all in registers. The kernel is
+  specialised on its shape (:func:`fused_filter_kernel`), so loops unroll and tap indices are
+  constants;
+- two launches (larger radii): :data:`filter_rows` writes the horizontal sums into a uint16
+  scratch image, :data:`filter_columns` finishes. The scratch comes from
+  :func:`scratch_image`, one per (device, stream, shape), allocated once.
+
+Images are addressed as 2-D ``rows x (width * channels)`` uint8 arrays (a colour image is
+viewed that way); neighbouring threads read neighbouring bytes (coalesced). Borders use
+OpenCV's integer codes (``BORDER_CONSTANT`` reads 0, ``BORDER_REPLICATE``,
+``BORDER_REFLECT``, ``BORDER_REFLECT_101``), resolved by :func:`filter_index` only where a
+footprint leaves the image (once per thread and tap column, once per row): no input can read
+out of bounds.
+
+Calls with caller-owned buffers (``out=``, reused frame after frame) replay recorded launches
+(:func:`run_recorded`), which skips Warp's per-call argument packing.
 """
 
 from __future__ import annotations
@@ -23,6 +42,7 @@ import functools
 import math
 import threading
 from collections import OrderedDict
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -34,32 +54,30 @@ wp.set_module_options({"enable_backward": False})
 
 BORDER_REFLECT = wp.constant(2)
 
-#: Largest kernel radius the taps struct holds (ksize up to 2 * 15 + 1 = 31); filter_row's
-#: unrolled loop is written for it.
+#: Largest kernel radius (ksize up to 2 * 15 + 1 = 31); the two-pass kernels' unrolled tap
+#: loops are written for it.
 MAX_RADIUS = 15
 taps16i = wp.types.vector(length=MAX_RADIUS + 1, dtype=wp.int32)
+
+#: Largest radius (either axis) filtered by the fused one-launch kernel. On an H200 it beats
+#: the two launches through the scratch image 4x at radius 3 and 2x at radius 7 (1920x1080);
+#: past 7 its unrolled code and registers grow with the square of the radius.
+FUSED_MAX_RADIUS = 7
+
+#: Output rows and pixels per thread of the fused kernel, by (stride, channels): more rows
+#: reuse each horizontal sum more often, more pixels share more of their source pixels (a
+#: thread reads each once); fewer of either give more threads and fewer registers.
+ROWS_PER_THREAD = {(1, 1): 8, (1, 3): 8, (1, 4): 8, (2, 1): 8, (2, 3): 8, (2, 4): 8}
+PIXELS_PER_THREAD = {(1, 1): 4, (1, 3): 2, (1, 4): 2, (2, 1): 1, (2, 3): 1, (2, 4): 1}
+
+#: Threads a launch should keep (enough warps per SM to hide memory latency): smaller images
+#: get smaller blocks per thread (:func:`fit_block`).
+MIN_THREADS = 32768
 
 BORDER_CODES = {
     "constant": 0, "replicate": 1, "reflect": 2, "reflect101": 4, "reflect_101": 4,
     0: 0, 1: 1, 2: 2, 4: 4,
 }
-
-
-@wp.struct
-class FilterTaps:
-    """A symmetric separable integer filter: ``kx[|i|]`` for i in [-rx, rx], same for y.
-
-    ``stride`` is the source step per output pixel (1: filter, 2: pyrDown); the output is
-    ``(sum + 2^(shift-1)) >> shift`` saturated to uint8.
-    """
-
-    kx: taps16i
-    ky: taps16i
-    rx: int
-    ry: int
-    stride: int
-    shift: int
-    border: int
 
 
 @wp.func
@@ -90,53 +108,206 @@ def read_tap(src: wp.array2d(dtype=wp.uint8), yy: int, p: int, width: int, chann
 
 
 @wp.func
-def filter_row(src: wp.array2d(dtype=wp.uint8), yy: int, cx: int, width: int, channels: int, c: int,
-               taps: FilterTaps) -> int:
-    """Horizontal integer sum of row ``yy`` around column ``cx``, symmetric taps paired."""
-    s = taps.kx[0] * read_tap(src, yy, cx, width, channels, c, taps.border)
-    # A constant trip count (MAX_RADIUS) so Warp unrolls it and every kx[k] is a register,
-    # not a dynamically indexed local array; the uniform k <= rx test skips unused taps.
-    for k in range(1, 16):
-        if k <= taps.rx:
-            s += taps.kx[k] * (read_tap(src, yy, cx - k, width, channels, c, taps.border)
-                               + read_tap(src, yy, cx + k, width, channels, c, taps.border))
-    return s
+def read_row_sum(rows: wp.array2d(dtype=wp.uint16), p: int, xc: int, border: int) -> int:
+    """Horizontal sum of row ``p`` (resolved under the border rule, 0 outside for constant)."""
+    yy = filter_index(p, rows.shape[0], border)
+    if yy < 0:
+        return 0
+    return int(rows[yy, xc])
 
 
 @wp.func
-def filter_at(src: wp.array2d(dtype=wp.uint8), channels: int, cy: int, cx: int, c: int, taps: FilterTaps) -> int:
-    """Exact integer filter sum of channel ``c`` centred on source pixel (cx, cy)."""
-    height = src.shape[0]
-    width = src.shape[1] // channels
-    acc = int(0)
-    for j in range(-taps.ry, taps.ry + 1):
-        yy = filter_index(cy + j, height, taps.border)
-        if yy >= 0:
-            acc += taps.ky[wp.abs(j)] * filter_row(src, yy, cx, width, channels, c, taps)
-    return acc
+def round_shift(s: int, shift: int) -> wp.uint8:
+    """``(s + 2^(shift-1)) >> shift`` saturated to uint8 (``s`` >= 0)."""
+    return wp.uint8(wp.min((s + ((1 << shift) >> 1)) >> shift, 255))
+
+
+# --- fused kernel: one launch, horizontal sums kept in registers ----------------------------
+
+
+@functools.cache
+def fused_filter_kernel(stride: int, rx: int, ry: int, rows: int, pixels: int, channels: int, zeros: bool):
+    """The fused separable filter, specialised on its shape.
+
+    Launched over ``(ceil(dst_rows / rows), ceil(dst_width / pixels))``: thread (by, bx) writes
+    every channel of output pixels ``bx*pixels ... + pixels - 1`` on output rows
+    ``by*rows ... + rows - 1``. Per source row it covers (``(rows - 1) * stride + 2 ry + 1`` of
+    them) it reads the ``(pixels - 1) * stride + 2 rx + 1`` source pixels its outputs' taps
+    span once, forms each output column's exact horizontal sum and adds it, weighted, into
+    every output row it feeds. All loops are unrolled and all tap indices constant, so the
+    sums live in registers; every source index is resolved before the loads, which are
+    unconditional (the compiler can issue many at once). ``zeros``: the border is
+    ``BORDER_CONSTANT`` (pixels outside read 0). ``pixels > 1`` requires that no output column
+    is stepped by pyrDown's right-border rule (``edge_x``). Compiled on first use, in a module
+    of its own.
+    """
+    span = (pixels - 1) * stride + 2 * rx + 1
+    window = (rows - 1) * stride + 2 * ry + 1
+    spanvec = wp.types.vector(length=span, dtype=wp.int32)
+    rowvec = wp.types.vector(length=window, dtype=wp.int32)
+    valvec = wp.types.vector(length=span * channels, dtype=wp.int32)
+    accvec = wp.types.vector(length=rows * pixels * channels, dtype=wp.int32)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def filter_separable_fused(
+        src: wp.array2d(dtype=wp.uint8),
+        kx: taps16i,
+        ky: taps16i,
+        border: int,
+        shift: int,
+        edge_x: int,
+        dst: wp.array2d(dtype=wp.uint8),
+    ):
+        by, bx = wp.tid()
+        width = src.shape[1] // wp.static(channels)
+        height = src.shape[0]
+        x0 = bx * wp.static(pixels)
+        cx = x0 * wp.static(stride)
+        if x0 > edge_x:
+            # OpenCV's pyrDown steps its right-border table by one source pixel per output
+            # pixel (not two); only a dstsize of w/2 + 1 reaches here (one pixel per thread).
+            cx = edge_x * wp.static(stride) + (x0 - edge_x)
+        # Where each spanned source pixel starts in its row and each covered source row is,
+        # resolved once per thread; under the constant border one outside reads 0 ("keep" 0).
+        left = cx - wp.static(rx)
+        inside_x = left >= 0 and left + wp.static(span) <= width
+        base = spanvec()
+        keep_x = spanvec()
+        for l in range(wp.static(span)):
+            p = left + l
+            kept = int(1)
+            if not inside_x:
+                p = filter_index(p, width, border)
+                if p < 0:
+                    p = 0
+                    kept = 0
+            base[l] = p * wp.static(channels)
+            keep_x[l] = kept
+        y0 = by * wp.static(rows)
+        top = y0 * wp.static(stride) - wp.static(ry)
+        inside_y = top >= 0 and top + wp.static(window) <= height
+        row = rowvec()
+        keep_y = rowvec()
+        for t in range(wp.static(window)):
+            yy = top + t
+            kept = int(1)
+            if not inside_y:
+                yy = filter_index(yy, height, border)
+                if yy < 0:
+                    yy = 0
+                    kept = 0
+            row[t] = yy
+            keep_y[t] = kept
+        acc = accvec()
+        for t in range(wp.static(window)):
+            vals = valvec()
+            for l in range(wp.static(span)):
+                for c in range(wp.static(channels)):
+                    v = int(src[row[t], base[l] + c])
+                    if wp.static(zeros):
+                        v = v * keep_x[l]
+                    vals[wp.static(l * channels + c)] = v
+            for q in range(wp.static(pixels)):
+                for c in range(wp.static(channels)):
+                    # Exact horizontal sum of output column (q, c) on source row t ...
+                    h = int(0)
+                    for k in range(wp.static(2 * rx + 1)):
+                        h += kx[wp.static(abs(k - rx))] * vals[wp.static((q * stride + k) * channels + c)]
+                    if wp.static(zeros):
+                        h = h * keep_y[t]
+                    # ... weighted into every output row whose window holds row t.
+                    for i in range(wp.static(rows)):
+                        if wp.static(0 <= t - i * stride <= 2 * ry):
+                            a = wp.static((i * pixels + q) * channels + c)
+                            acc[a] += ky[wp.static(abs(t - i * stride - ry))] * h
+        for i in range(wp.static(rows)):
+            y = y0 + i
+            if y < dst.shape[0]:
+                for q in range(wp.static(pixels)):
+                    x = x0 + q
+                    if x * wp.static(channels) < dst.shape[1]:
+                        for c in range(wp.static(channels)):
+                            a = wp.static((i * pixels + q) * channels + c)
+                            dst[y, x * wp.static(channels) + c] = round_shift(acc[a], shift)
+
+    return filter_separable_fused
+
+
+# --- two-pass kernels: any radius, through a uint16 scratch image ---------------------------
 
 
 @wp.kernel
-def filter_separable(
+def filter_rows(
     src: wp.array2d(dtype=wp.uint8),
     channels: int,
-    taps: FilterTaps,
-    edge_x: int,
+    kx: taps16i,
+    rx: int,
+    border: int,
+    sums: wp.array2d(dtype=wp.uint16),
+):
+    """Exact horizontal sums (<= 255 * 256) of every source pixel, stride 1."""
+    y, xc = wp.tid()
+    x = xc // channels
+    c = xc - x * channels
+    width = src.shape[1] // channels
+    s = kx[0] * int(src[y, xc])
+    # Constant trip counts: Warp unrolls them, every kx[k] is a register; the uniform
+    # k <= rx test skips unused taps.
+    if x >= rx and x + rx < width:
+        for k in range(1, 16):
+            if k <= rx:
+                s += kx[k] * (int(src[y, xc - k * channels]) + int(src[y, xc + k * channels]))
+    else:
+        for k in range(1, 16):
+            if k <= rx:
+                s += kx[k] * (read_tap(src, y, x - k, width, channels, c, border)
+                              + read_tap(src, y, x + k, width, channels, c, border))
+    sums[y, xc] = wp.uint16(s)
+
+
+@wp.kernel
+def filter_columns(
+    sums: wp.array2d(dtype=wp.uint16),
+    ky: taps16i,
+    ry: int,
+    border: int,
+    shift: int,
     dst: wp.array2d(dtype=wp.uint8),
 ):
-    y, x = wp.tid()
-    half = 1 << (taps.shift - 1)
-    cx = x * taps.stride
-    if x > edge_x:
-        # OpenCV's pyrDown steps its right-border table by one source pixel per output
-        # pixel (not two); only a dstsize of w/2 + 1 reaches here.
-        cx = edge_x * taps.stride + (x - edge_x)
-    for c in range(channels):
-        s = filter_at(src, channels, y * taps.stride, cx, c, taps)
-        dst[y, x * channels + c] = wp.uint8(wp.min((s + half) >> taps.shift, 255))
+    """Vertical sums of :data:`filter_rows`' output and the rounding shift, stride 1."""
+    y, xc = wp.tid()
+    height = sums.shape[0]
+    s = ky[0] * int(sums[y, xc])
+    if y >= ry and y + ry < height:
+        for k in range(1, 16):
+            if k <= ry:
+                s += ky[k] * (int(sums[y - k, xc]) + int(sums[y + k, xc]))
+    else:
+        for k in range(1, 16):
+            if k <= ry:
+                s += ky[k] * (read_row_sum(sums, y - k, xc, border) + read_row_sum(sums, y + k, xc, border))
+    dst[y, xc] = round_shift(s, shift)
 
 
-# --- host side ------------------------------------------------------------------------------
+# --- host side: taps ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FilterTaps:
+    """A symmetric separable integer filter: ``kx[|i|]`` for i in [-rx, rx], same for y.
+
+    ``stride`` is the source step per output pixel (1: filter, 2: pyrDown); the output is
+    ``(sum + 2^(shift-1)) >> shift`` saturated to uint8. ``key`` identifies the taps.
+    """
+
+    kx: object  # taps16i
+    ky: object  # taps16i
+    rx: int
+    ry: int
+    stride: int
+    shift: int
+    border: int
+    key: tuple
 
 
 def gaussian_kernel_q8(ksize: int, sigma: float) -> np.ndarray:
@@ -181,38 +352,19 @@ def _half(kernel: np.ndarray):
 
 
 @functools.lru_cache(maxsize=64)
-def blur_taps(kx: int, ky: int, sigma_x: float, sigma_y: float, border: int) -> tuple[FilterTaps, tuple]:
-    """``(taps, key)`` of ``cv2.GaussianBlur(src, (kx, ky), sigma_x, sigmaY=sigma_y,
-    borderType=border)`` (sigma_y already resolved: <= 0 means sigma_x, as OpenCV); ``key``
-    identifies the taps for :func:`launch_cached`."""
-    t = FilterTaps()
-    t.kx, t.rx = _half(gaussian_kernel_q8(kx, sigma_x))
-    t.ky, t.ry = _half(gaussian_kernel_q8(ky, sigma_y))
-    t.stride = 1
-    t.shift = 16
-    t.border = int(border)
-    return t, ("blur", kx, ky, sigma_x, sigma_y, int(border))
+def blur_taps(kx: int, ky: int, sigma_x: float, sigma_y: float, border: int) -> FilterTaps:
+    """The taps of ``cv2.GaussianBlur(src, (kx, ky), sigma_x, sigmaY=sigma_y,
+    borderType=border)`` (sigma_y already resolved: <= 0 means sigma_x, as OpenCV)."""
+    hx, rx = _half(gaussian_kernel_q8(kx, sigma_x))
+    hy, ry = _half(gaussian_kernel_q8(ky, sigma_y))
+    return FilterTaps(hx, hy, rx, ry, 1, 16, int(border), ("blur", kx, ky, sigma_x, sigma_y, int(border)))
 
 
 @functools.lru_cache(maxsize=1)
-def pyr_down_taps() -> tuple[FilterTaps, tuple]:
-    """``(taps, key)`` of ``cv2.pyrDown``: [1 4 6 4 1] both ways, stride 2, REFLECT_101,
-    shift 8."""
-    t = FilterTaps()
-    t.kx, t.rx = _half(np.array([1, 4, 6, 4, 1]))
-    t.ky, t.ry = _half(np.array([1, 4, 6, 4, 1]))
-    t.stride = 2
-    t.shift = 8
-    t.border = int(BORDER_REFLECT_101)
-    return t, ("pyrdown",)
-
-
-def as_rows(a):
-    """``(view, channels)``: an HxW array itself, an HxWxC array as an H x (W*C) view."""
-    if a.ndim == 2:
-        return a, 1
-    h, w, c = a.shape
-    return a.reshape((h, w * c)), c
+def pyr_down_taps() -> FilterTaps:
+    """The taps of ``cv2.pyrDown``: [1 4 6 4 1] both ways, stride 2, REFLECT_101, shift 8."""
+    h, r = _half(np.array([1, 4, 6, 4, 1]))
+    return FilterTaps(h, h, r, r, 2, 8, int(BORDER_REFLECT_101), ("pyrdown",))
 
 
 def pyr_down_edge(src_width: int, dst_width: int) -> int:
@@ -224,30 +376,12 @@ def pyr_down_edge(src_width: int, dst_width: int) -> int:
 NO_EDGE = 1 << 30
 
 
-def launch_filter(src, taps, out, edge_x: int = NO_EDGE, *, cache: bool = False):
-    """Run :data:`filter_separable` from ``src`` into ``out`` (same channels; out's size sets
-    the launch). ``taps`` is a ``(FilterTaps, key)`` pair from :func:`blur_taps` or
-    :func:`pyr_down_taps`. ``out`` must not alias ``src``. Output columns after ``edge_x``
-    follow OpenCV's pyrDown right-border stepping (see :func:`pyr_down_edge`). ``cache``:
-    replay a recorded launch (caller-owned, reused buffers; see :func:`launch_cached`)."""
-    struct, key = taps
-    src2d, channels = as_rows(src)
-    dst2d, _ = as_rows(out)
-    args = ([src2d, channels, struct, int(edge_x)], [dst2d])
-    dim = (out.shape[0], out.shape[1])
-    if cache:
-        launch_cached(filter_separable, dim, *args, src.device,
-                      (array_key(src2d), array_key(dst2d), channels, key, int(edge_x)))
-    else:
-        wp.launch(filter_separable, dim=dim, inputs=args[0], outputs=args[1], device=src.device)
-    return out
-
-
-# --- recorded launches ----------------------------------------------------------------------
-
-_LAUNCHES: OrderedDict = OrderedDict()
-_LAUNCHES_MAX = 32
-_launches_lock = threading.Lock()
+def as_rows(a):
+    """``(view, channels)``: an HxW array itself, an HxWxC array as an H x (W*C) view."""
+    if a.ndim == 2:
+        return a, 1
+    h, w, c = a.shape
+    return a.reshape((h, w * c)), c
 
 
 def array_key(a) -> tuple:
@@ -255,25 +389,153 @@ def array_key(a) -> tuple:
     return (a.ptr, a.shape, a.strides)
 
 
-def launch_cached(kernel, dim, inputs, outputs, device, key):
-    """``wp.launch`` through a small cache of recorded launches (``record_cmd=True``).
+# --- host side: scratch images --------------------------------------------------------------
 
-    ``key`` must determine every parameter value (array pointers, shapes and strides, scalars,
-    struct contents): replaying the recorded ``wp.Launch`` skips Warp's per-call argument
-    packing (tens of microseconds of Python per launch) and still runs on the device's current
-    stream, so it is captured into CUDA graphs like any launch. Meant for buffers reused
-    frame after frame (``out=``); the cache keeps the arrays of its last
-    ``_LAUNCHES_MAX`` entries alive.
+_SCRATCH: dict = {}
+_scratch_lock = threading.Lock()
+
+
+def stream_key(device):
+    """The current stream of ``device`` as a hashable handle (None on the CPU, which runs
+    launches in order)."""
+    return wp.get_stream(device).cuda_stream if device.is_cuda else None
+
+
+def scratch_image(device, shape: tuple, dtype=wp.uint16):
+    """A scratch array of ``shape`` on ``device``, one per (device, current stream, shape,
+    dtype), allocated on first use and kept for the life of the process.
+
+    Two calls on the same stream run in order, so they may share it; calls on different
+    streams get different arrays. Never freed, so a CUDA graph that captured a launch using it
+    stays valid; :func:`release_scratch` drops them all (only when no graph or pending work
+    still uses them).
     """
-    full_key = (kernel.key, str(device), key)
-    cmd = _LAUNCHES.get(full_key)
-    if cmd is None:
-        cmd = wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device, record_cmd=True)
-        with _launches_lock:
-            _LAUNCHES[full_key] = cmd
-            while len(_LAUNCHES) > _LAUNCHES_MAX:
-                _LAUNCHES.popitem(last=False)
-    cmd.launch()
+    key = (device.alias, stream_key(device), tuple(shape), dtype)
+    buf = _SCRATCH.get(key)
+    if buf is None:
+        with _scratch_lock:
+            buf = _SCRATCH.get(key)
+            if buf is None:
+                buf = _SCRATCH[key] = wp.empty(shape, dtype=dtype, device=device)
+    return buf
+
+
+def release_scratch() -> None:
+    """Drop every scratch image and recorded launch (frees their memory once unreferenced)."""
+    with _scratch_lock:
+        _SCRATCH.clear()
+    with _plans_lock:
+        _PLANS.clear()
+
+
+# --- host side: recorded launches -----------------------------------------------------------
+
+_PLANS: OrderedDict = OrderedDict()
+_PLANS_MAX = 64
+_plans_lock = threading.Lock()
+
+
+def run_recorded(key, build, device) -> None:
+    """Run a sequence of launches, recorded on first use and replayed afterwards.
+
+    ``build()`` returns ``[(kernel, dim, inputs, outputs), ...]``; it is called only when
+    ``key`` is new, so it may do the costly work (views, scratch look-ups). ``key`` must
+    determine every parameter value (array pointers, shapes and strides, scalars, taps, and
+    the stream when a scratch image is involved). Replaying the recorded ``wp.Launch``es skips
+    Warp's per-call argument packing (tens of microseconds of Python per launch) and still runs
+    on the device's current stream, so they are captured into CUDA graphs like any launch.
+    Meant for buffers reused frame after frame (``out=``); the cache keeps the arrays of its
+    last ``_PLANS_MAX`` entries alive.
+    """
+    full_key = (device.alias, key)
+    plan = _PLANS.get(full_key)
+    if plan is None:
+        plan = tuple(wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device, record_cmd=True)
+                     for kernel, dim, inputs, outputs in build())
+        with _plans_lock:
+            _PLANS[full_key] = plan
+            while len(_PLANS) > _PLANS_MAX:
+                _PLANS.popitem(last=False)
+    for cmd in plan:
+        cmd.launch()
+
+
+def run_direct(launches, device) -> None:
+    """Run ``[(kernel, dim, inputs, outputs), ...]`` without recording (fresh buffers)."""
+    for kernel, dim, inputs, outputs in launches:
+        wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
+
+
+def launch_cached(kernel, dim, inputs, outputs, device, key):
+    """One ``wp.launch`` through :func:`run_recorded`; ``key`` as there."""
+    run_recorded((kernel.key, key), lambda: [(kernel, dim, inputs, outputs)], device)
+
+
+# --- host side: the filter ------------------------------------------------------------------
+
+
+def uses_fused(taps: FilterTaps) -> bool:
+    """Whether ``taps`` run in the fused one-launch kernel (else the two-pass kernels)."""
+    return taps.stride != 1 or max(taps.rx, taps.ry) <= FUSED_MAX_RADIUS
+
+
+def fit_block(rows: int, pixels: int, out_rows: int, out_cols: int, device) -> tuple[int, int]:
+    """``(rows, pixels)`` per thread, on a GPU halved (rows first, down to 2, then pixels)
+    while the launch over an ``out_rows x out_cols`` output would have fewer than
+    :data:`MIN_THREADS` threads (the CPU runs threads in turn: it keeps the largest blocks)."""
+    if device.is_cpu:
+        return rows, pixels
+
+    def threads(r, p):
+        return ((out_rows + r - 1) // r) * ((out_cols + p - 1) // p)
+
+    while rows > 2 and threads(rows, pixels) < MIN_THREADS:
+        rows //= 2
+    while pixels > 1 and threads(rows, pixels) < MIN_THREADS:
+        pixels //= 2
+    return rows, pixels
+
+
+def filter_launches(src, taps: FilterTaps, out, edge_x: int = NO_EDGE) -> list:
+    """The launches filtering ``src`` into ``out``: ``[(kernel, dim, inputs, outputs)]``."""
+    src2d, channels = as_rows(src)
+    dst2d, _ = as_rows(out)
+    if uses_fused(taps):
+        shape = (taps.stride, channels)
+        rows, pixels = fit_block(ROWS_PER_THREAD.get(shape, 8), PIXELS_PER_THREAD.get(shape, 1),
+                                 out.shape[0], out.shape[1], src.device)
+        if edge_x < out.shape[1] - 1:
+            pixels = 1  # a pixel stepped by pyrDown's right-border rule needs a thread of its own
+        # One radius for both axes (the shorter axis' taps are zero-padded): fewer kernels to
+        # compile, the same sums.
+        radius = max(taps.rx, taps.ry)
+        kernel = fused_filter_kernel(taps.stride, radius, radius, rows, pixels, channels,
+                                     bool(taps.border == BORDER_CONSTANT))
+        dim = ((out.shape[0] + rows - 1) // rows, (out.shape[1] + pixels - 1) // pixels)
+        return [(kernel, dim, [src2d, taps.kx, taps.ky, taps.border, taps.shift, int(edge_x)], [dst2d])]
+    # Only blurs (stride 1) have radii past FUSED_MAX_RADIUS.
+    sums = scratch_image(src.device, src2d.shape)
+    return [
+        (filter_rows, src2d.shape, [src2d, channels, taps.kx, taps.rx, taps.border], [sums]),
+        (filter_columns, dst2d.shape, [sums, taps.ky, taps.ry, taps.border, taps.shift], [dst2d]),
+    ]
+
+
+def launch_filter(src, taps: FilterTaps, out, edge_x: int = NO_EDGE, *, cache: bool = False):
+    """Filter ``src`` into ``out`` (same channels; out's size sets the launch; ``out`` must
+    not alias ``src``). ``taps`` from :func:`blur_taps` or :func:`pyr_down_taps`. Output
+    columns after ``edge_x`` follow OpenCV's pyrDown right-border stepping (see
+    :func:`pyr_down_edge`). ``cache``: replay recorded launches (caller-owned, reused buffers;
+    see :func:`run_recorded`)."""
+    device = src.device
+    if cache:
+        key = ("filter", taps.key, array_key(src), array_key(out), int(edge_x))
+        if not uses_fused(taps):
+            key += (stream_key(device),)  # the scratch image is per stream
+        run_recorded(key, lambda: filter_launches(src, taps, out, edge_x), device)
+    else:
+        run_direct(filter_launches(src, taps, out, edge_x), device)
+    return out
 
 
 __all__ = [
@@ -282,16 +544,31 @@ __all__ = [
     "BORDER_REFLECT",
     "BORDER_REFLECT_101",
     "BORDER_REPLICATE",
+    "FUSED_MAX_RADIUS",
     "FilterTaps",
     "MAX_RADIUS",
+    "MIN_THREADS",
+    "NO_EDGE",
+    "PIXELS_PER_THREAD",
+    "ROWS_PER_THREAD",
+    "array_key",
     "as_rows",
     "blur_taps",
+    "filter_columns",
     "filter_index",
-    "filter_separable",
+    "filter_launches",
+    "fit_block",
+    "filter_rows",
+    "fused_filter_kernel",
     "gaussian_kernel_q8",
-    "array_key",
     "launch_cached",
     "launch_filter",
     "pyr_down_edge",
     "pyr_down_taps",
+    "release_scratch",
+    "run_direct",
+    "run_recorded",
+    "scratch_image",
+    "stream_key",
+    "uses_fused",
 ]

@@ -28,12 +28,11 @@ Stable building blocks (the ORB extractor uses them too):
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 
 import warp as wp
 
 from ..keypoints import Keypoints
+from ._launch import HostReadback, Recorded, drop_workspace, workspace
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
@@ -328,101 +327,6 @@ def max_fast_corners(height: int, width: int, nonmax: bool) -> int:
     return inner_h * inner_w
 
 
-# --- per-call scratch and recorded launches (used by the other feature kernels too) ----------
-
-_WORKSPACES: OrderedDict = OrderedDict()
-_WORKSPACES_MAX = 32
-_workspaces_lock = threading.Lock()
-
-
-def workspace(kind: str, key: tuple, device, build):
-    """Scratch state of one kind of call, built once by ``build()`` and reused.
-
-    Reused by calls with the same ``kind`` and ``key`` (sizes) on the same device, current
-    stream and thread, so two calls sharing it always run one after the other on one stream
-    (a call may keep scratch buffers and recorded launches in it, never its results). The
-    least recently used of :data:`_WORKSPACES_MAX` are dropped.
-    """
-    stream = None if device.is_cpu else device.stream.cuda_stream
-    full = (kind, key, str(device), stream, threading.get_ident())
-    with _workspaces_lock:
-        ws = _WORKSPACES.get(full)
-        if ws is not None:
-            _WORKSPACES.move_to_end(full)
-            return ws
-    ws = build()
-    with _workspaces_lock:
-        _WORKSPACES[full] = ws
-        while len(_WORKSPACES) > _WORKSPACES_MAX:
-            _WORKSPACES.popitem(last=False)
-    return ws
-
-
-def drop_workspace(kind: str, key: tuple, device) -> None:
-    """Forget a workspace (after an error left its buffers in an unknown state)."""
-    stream = None if device.is_cpu else device.stream.cuda_stream
-    with _workspaces_lock:
-        _WORKSPACES.pop((kind, key, str(device), stream, threading.get_ident()), None)
-
-
-def record(kernel, dim, inputs, device, block_dim=None):
-    """A recorded launch (``wp.Launch``): replay with ``.launch()`` on the current stream
-    after ``.set_param_at_index(i, value)`` for the arguments that change (a few
-    microseconds instead of tens for ``wp.launch``); ``block_dim`` makes it a tiled launch."""
-    if block_dim is None:
-        return wp.launch(kernel, dim=dim, inputs=inputs, device=device, record_cmd=True)
-    return wp.launch_tiled(kernel, dim=dim, inputs=inputs, device=device, block_dim=block_dim,
-                           record_cmd=True)
-
-
-class Recorded:
-    """A recorded launch (:func:`record`) that re-packs an argument only when it changes
-    (another object, or another scalar value): replaying costs a few microseconds."""
-
-    def __init__(self, kernel, dim, inputs, device, block_dim=None):
-        self.cmd = record(kernel, dim, inputs, device, block_dim)
-        self.args = list(inputs)
-        self.block_dim = block_dim
-
-    def set(self, index: int, value) -> None:
-        old = self.args[index]
-        if value is old or (type(value) in (int, float) and type(old) is type(value)
-                            and value == old):
-            return
-        self.cmd.set_param_at_index(index, value)
-        self.args[index] = value
-
-    def set_dim(self, dim) -> None:
-        """New launch size (grid size for a tiled launch)."""
-        dims = list(dim) if isinstance(dim, (list, tuple)) else [dim]
-        if self.block_dim is not None:
-            dims.append(self.cmd.block_dim)
-        self.cmd.set_dim(dims)
-
-    def launch(self, changes=()) -> None:
-        """Launch on the current stream after ``set(i, v)`` for each ``(i, v)`` of ``changes``."""
-        for index, value in changes:
-            self.set(index, value)
-        self.cmd.launch()
-
-
-class HostReadback:
-    """A small device array read back through a pinned host buffer (the one host sync)."""
-
-    def __init__(self, n: int, dtype, device):
-        self.device = device
-        self.host = wp.empty(n, dtype=dtype, device="cpu", pinned=not device.is_cpu)
-        self.view = self.host.numpy()
-
-    def read(self, src):
-        """``src`` (on the device) as a NumPy array; waits for the current stream."""
-        if self.device.is_cpu:
-            return src.numpy()
-        wp.copy(self.host, src)
-        wp.synchronize_stream(self.device.stream)
-        return self.view
-
-
 # --- FAST -------------------------------------------------------------------------------------
 
 
@@ -511,5 +415,4 @@ def _sorted_keypoints(ws, n: int, x_bits: int, y_bits: int, device, nonmax: bool
 
 
 __all__ = ["fast_score", "fast_corner_score", "compute_fast_scores", "is_local_max_3x3",
-           "fast_corners", "max_fast_corners", "workspace", "drop_workspace", "record",
-           "Recorded", "HostReadback"]
+           "fast_corners", "max_fast_corners"]

@@ -1,5 +1,6 @@
-"""Warp Gaussian blur: OpenCV's bit-exact 8-bit separable filter, one launch, one thread per
-output pixel (the kernel is the shared :data:`warpvx.kernels_warp._filtering.filter_separable`).
+"""Warp Gaussian blur: OpenCV's bit-exact 8-bit separable filter (the shared two-pass filter of
+:mod:`warpvx.kernels_warp._filtering`: one fused launch up to radius 4, else two launches
+through a cached scratch image).
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ import math
 
 import warp as wp
 
-from .fast_corners import HostReadback, Recorded, drop_workspace, workspace
+from ._launch import HostReadback, Recorded, drop_workspace, workspace
 from .harris_response import corner_response
 
 # Forward-only kernels: no adjoint code to generate and compile.

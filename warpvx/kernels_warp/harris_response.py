@@ -20,7 +20,7 @@ from __future__ import annotations
 import warp as wp
 
 from ._sampling import BORDER_REFLECT_101, border_index
-from .fast_corners import Recorded, workspace
+from ._launch import Recorded, workspace
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})

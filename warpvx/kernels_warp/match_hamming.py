@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .fast_corners import HostReadback, Recorded, workspace
+from ._launch import HostReadback, Recorded, workspace
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})

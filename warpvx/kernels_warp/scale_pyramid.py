@@ -1,8 +1,10 @@
 """Warp bilinear resize (``cv2.resize`` INTER_LINEAR on uint8, bit-exact) and the ORB-SLAM2
-scale pyramid built from it, one launch per level, one thread per output pixel.
+scale pyramid built from it, one launch per level, a thread per output column and
+:data:`RESIZE_ROWS` rows.
 
 OpenCV's arithmetic (``resize.cpp``, ``resizeGeneric_`` with ``HResizeLinear`` and the SIMD
-``VResizeLinearVec_32s8u``), reproduced per output pixel:
+``VResizeLinearVec_32s8u``); the taps and weights of every output column and row are computed
+once on the host (:func:`linear_taps`, cached per size) as OpenCV computes its tables:
 
 - source coordinate ``f = float((d + 0.5) * scale - 0.5)`` (the product in double, then
   float32), ``s = floor(f)``, ``f -= s``; along x a coordinate left of 0 or at/after the last
@@ -21,10 +23,13 @@ rounded half to even; the ``area2`` flag reproduces that.
 
 from __future__ import annotations
 
+import functools
+
+import numpy as np
 import warp as wp
 
 from ..pyramid import resize_scales, scale_pyramid_sizes
-from ._filtering import array_key, as_rows, launch_cached
+from ._filtering import array_key, as_rows, fit_block, run_direct, run_recorded
 
 _DBL_EPSILON = 2.220446049250313e-16
 
@@ -32,74 +37,108 @@ _DBL_EPSILON = 2.220446049250313e-16
 wp.set_module_options({"enable_backward": False})
 
 
-@wp.func
-def linear_coord(d: int, scale: wp.float64) -> tuple[int, wp.float32]:
-    """``(floor(f), f - floor(f))`` of the source coordinate of output index ``d``."""
-    f = wp.float32((wp.float64(d) + wp.float64(0.5)) * scale - wp.float64(0.5))
-    s = int(wp.floor(f))
-    return s, f - wp.float32(s)
+def linear_taps(dst_len: int, src_len: int, scale: float, pin: bool) -> np.ndarray:
+    """int32 [dst_len, 4]: ``(s0, s1, w0, w1)`` per output index, OpenCV's arithmetic.
+
+    ``f = float32((d + 0.5) * scale - 0.5)`` (double product), ``s = floor(f)``, ``f -= s``;
+    ``pin`` (x): a coordinate left of 0 or at/after the last pixel is pinned there with
+    ``f = 0``, else (y) the taps are clamped into the image with ``f`` kept; 11-bit weights
+    ``w0 = cvRound((1 - f) * 2048)``, ``w1 = cvRound(f * 2048)`` (float32, half to even).
+    """
+    d = np.arange(dst_len, dtype=np.float64)
+    f = ((d + 0.5) * scale - 0.5).astype(np.float32)
+    s = np.floor(f).astype(np.int64)
+    f = (f - s.astype(np.float32)).astype(np.float32)
+    if pin:
+        low, high = s < 0, s >= src_len - 1
+        s = np.where(low, 0, np.where(high, src_len - 1, s))
+        f = np.where(low | high, np.float32(0.0), f).astype(np.float32)
+    s0 = np.clip(s, 0, src_len - 1)
+    s1 = np.clip(s + 1, 0, src_len - 1)
+    w0 = np.rint((np.float32(1.0) - f) * np.float32(2048.0))
+    w1 = np.rint(f * np.float32(2048.0))
+    return np.ascontiguousarray(np.stack([s0, s1, w0, w1], axis=1).astype(np.int32))
 
 
-@wp.func
-def weight_q11(f: wp.float32) -> int:
-    """``saturate_cast<short>(f * 2048)`` (round half to even)."""
-    return int(wp.rint(f * wp.float32(2048.0)))
+_TABLES: dict = {}
+
+
+def resize_tables(src_size, dst_size, scales, device):
+    """``(x taps, y taps)`` of a resize, as ``wp.vec4i`` arrays on ``device`` (built on the host
+    once per sizes and scales, then kept)."""
+    key = (device.alias, src_size, dst_size, scales)
+    tables = _TABLES.get(key)
+    if tables is None:
+        (sw, sh), (dw, dh), (scale_x, scale_y) = src_size, dst_size, scales
+        tables = _TABLES[key] = (
+            wp.array(linear_taps(dw, sw, scale_x, True), dtype=wp.vec4i, device=device),
+            wp.array(linear_taps(dh, sh, scale_y, False), dtype=wp.vec4i, device=device),
+        )
+    return tables
 
 
 @wp.func
 def average_cut_block(src: wp.array2d(dtype=wp.uint8), channels: int, src_width: int, dy: int, dx: int,
-                      dst: wp.array2d(dtype=wp.uint8)):
+                      c: int) -> wp.uint8:
     """OpenCV's INTER_AREA 2x edge pixel: ``cvRound(sum / count)`` over the block's pixels
-    inside the image."""
+    inside the image (channel ``c``)."""
     nx = wp.min(2, src_width - 2 * dx)
     ny = wp.min(2, src.shape[0] - 2 * dy)
-    for c in range(channels):
-        s = int(0)
-        for j in range(ny):
-            for i in range(nx):
-                s += int(src[2 * dy + j, (2 * dx + i) * channels + c])
-        v = wp.rint(wp.float32(s) / wp.float32(nx * ny))
-        dst[dy, dx * channels + c] = wp.uint8(wp.clamp(int(v), 0, 255))
+    s = int(0)
+    for j in range(ny):
+        for i in range(nx):
+            s += int(src[2 * dy + j, (2 * dx + i) * channels + c])
+    v = wp.rint(wp.float32(s) / wp.float32(nx * ny))
+    return wp.uint8(wp.clamp(int(v), 0, 255))
 
 
-@wp.kernel
-def resize_linear(
-    src: wp.array2d(dtype=wp.uint8),
-    channels: int,
-    src_width: int,
-    scale_x: wp.float64,
-    scale_y: wp.float64,
-    area2: int,
-    dst: wp.array2d(dtype=wp.uint8),
-):
-    dy, dx = wp.tid()
-    src_height = src.shape[0]
-    if area2 != 0:
-        if 2 * dx + 1 >= src_width or 2 * dy + 1 >= src_height:
-            average_cut_block(src, channels, src_width, dy, dx, dst)
-            return
-    sx, fx = linear_coord(dx, scale_x)
-    if sx < 0:
-        sx = 0
-        fx = wp.float32(0.0)
-    if sx >= src_width - 1:
-        sx = src_width - 1
-        fx = wp.float32(0.0)
-    sx1 = wp.min(sx + 1, src_width - 1)
-    a0 = weight_q11(wp.float32(1.0) - fx)
-    a1 = weight_q11(fx)
-    sy, fy = linear_coord(dy, scale_y)
-    b0 = weight_q11(wp.float32(1.0) - fy)
-    b1 = weight_q11(fy)
-    y0 = wp.clamp(sy, 0, src_height - 1)
-    y1 = wp.clamp(sy + 1, 0, src_height - 1)
-    for c in range(channels):
-        i0 = sx * channels + c
-        i1 = sx1 * channels + c
-        h0 = int(src[y0, i0]) * a0 + int(src[y0, i1]) * a1
-        h1 = int(src[y1, i0]) * a0 + int(src[y1, i1]) * a1
-        v = (((h0 >> 4) * b0) >> 16) + (((h1 >> 4) * b1) >> 16)
-        dst[dy, dx * channels + c] = wp.uint8(wp.clamp((v + 2) >> 2, 0, 255))
+#: Output rows per thread of :func:`resize_kernel`: the column's taps are read once per
+#: thread, and fewer threads carry less fixed cost.
+RESIZE_ROWS = 4
+
+
+@functools.cache
+def resize_kernel(rows: int):
+    """The bilinear resize kernel writing ``rows`` output rows per thread.
+
+    Launched over ``(ceil(dst_rows / rows), dst_cols)``: thread (by, xc) writes rows
+    ``by*rows ...`` of column ``xc`` (pixel ``xc // channels``, channel ``xc % channels``),
+    its taps and weights read from the tables of :func:`linear_taps`. Rows past the image
+    are computed on its last row (so every load is unconditional) and not stored.
+    """
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def resize_linear(
+        src: wp.array2d(dtype=wp.uint8),
+        channels: int,
+        x_taps: wp.array(dtype=wp.vec4i),
+        y_taps: wp.array(dtype=wp.vec4i),
+        area2: int,
+        dst: wp.array2d(dtype=wp.uint8),
+    ):
+        by, xc = wp.tid()
+        dx = xc // channels
+        c = xc - dx * channels
+        src_width = src.shape[1] // channels
+        src_height = src.shape[0]
+        tx = x_taps[dx]
+        i0 = tx[0] * channels + c
+        i1 = tx[1] * channels + c
+        cut_x = area2 != 0 and 2 * dx + 1 >= src_width
+        for r in range(wp.static(rows)):
+            dy = by * wp.static(rows) + r
+            y = wp.min(dy, dst.shape[0] - 1)
+            ty = y_taps[y]
+            h0 = int(src[ty[0], i0]) * tx[2] + int(src[ty[0], i1]) * tx[3]
+            h1 = int(src[ty[1], i0]) * tx[2] + int(src[ty[1], i1]) * tx[3]
+            v = (((h0 >> 4) * ty[2]) >> 16) + (((h1 >> 4) * ty[3]) >> 16)
+            out = wp.uint8(wp.clamp((v + 2) >> 2, 0, 255))
+            if cut_x or (area2 != 0 and 2 * y + 1 >= src_height):
+                out = average_cut_block(src, channels, src_width, y, dx, c)
+            if dy < dst.shape[0]:
+                dst[dy, xc] = out
+
+    return resize_linear
 
 
 def resize(src, dsize=None, fx=0.0, fy=0.0, *, out=None):
@@ -113,26 +152,21 @@ def resize(src, dsize=None, fx=0.0, fy=0.0, *, out=None):
     dsize : (int, int) or None
         Output (width, height); None or (0, 0) takes the size from ``fx``, ``fy`` (> 0).
     out : wp.array, optional
-        uint8 output of the target shape on ``src.device``.
+        uint8 output of the target shape on ``src.device`` (reused: the launch is recorded
+        once and replayed).
 
     Returns
     -------
     wp.array
         The resized image (``out`` when given).
     """
-    (dw, dh), (scale_x, scale_y) = resize_scales((src.shape[1], src.shape[0]), dsize, fx, fy)
-    cache = out is not None  # caller-owned buffers are reused: replay a recorded launch
+    (dw, dh), scales = resize_scales((src.shape[1], src.shape[0]), dsize, fx, fy)
     if out is None:
         out = wp.empty((dh, dw) + tuple(src.shape[2:]), dtype=wp.uint8, device=src.device)
-    src2d, channels = as_rows(src)
-    dst2d, _ = as_rows(out)
-    area2 = int(abs(scale_x - 2.0) < _DBL_EPSILON and abs(scale_y - 2.0) < _DBL_EPSILON)
-    inputs = [src2d, channels, int(src.shape[1]), wp.float64(scale_x), wp.float64(scale_y), area2]
-    if cache:
-        launch_cached(resize_linear, (dh, dw), inputs, [dst2d], src.device,
-                      (array_key(src2d), array_key(dst2d), channels, scale_x, scale_y))
-    else:
-        wp.launch(resize_linear, dim=(dh, dw), inputs=inputs, outputs=[dst2d], device=src.device)
+        run_direct([_resize_launch(src, out, scales)], src.device)
+        return out
+    key = ("resize", array_key(src), array_key(out), scales)
+    run_recorded(key, lambda: [_resize_launch(src, out, scales)], src.device)
     return out
 
 
@@ -150,15 +184,45 @@ def scale_pyramid(src, levels, scale_factor, *, out=None):
         > 1.
     out : list of wp.array, optional
         ``levels`` arrays on ``src.device`` of the level shapes; ``out[0]`` is ``src``.
+        Reused frame after frame, so the whole pyramid's launches are recorded once and
+        replayed.
 
     Returns
     -------
     list of wp.array
         ``[src, level1, ...]`` (the ``out`` arrays when given).
     """
+    if out is not None:
+        pyramid = [src] + list(out[1:levels])
+        key = ("scale_pyramid", array_key(src)) + tuple(array_key(a) for a in pyramid[1:])
+        run_recorded(key, lambda: _pyramid_launches(pyramid), src.device)
+        return pyramid
     sizes = scale_pyramid_sizes(src.shape[1], src.shape[0], levels, scale_factor)
-    pyramid = [src]
-    for lvl in range(1, levels):
-        dst = out[lvl] if out is not None else None
-        pyramid.append(resize(pyramid[-1], sizes[lvl], out=dst))
+    pyramid = [src] + [wp.empty((h, w) + tuple(src.shape[2:]), dtype=wp.uint8, device=src.device)
+                       for w, h in sizes[1:]]
+    run_direct(_pyramid_launches(pyramid), src.device)
     return pyramid
+
+
+def _pyramid_launches(pyramid) -> list:
+    """The launches resizing ``pyramid[l-1]`` into ``pyramid[l]`` (to its size), level by level."""
+    launches = []
+    for prev, dst in zip(pyramid[:-1], pyramid[1:]):
+        _, scales = resize_scales((prev.shape[1], prev.shape[0]), (dst.shape[1], dst.shape[0]))
+        launches.append(_resize_launch(prev, dst, scales))
+    return launches
+
+
+def _resize_launch(src, out, scales) -> tuple:
+    """``(kernel, dim, inputs, outputs)`` resizing ``src`` into ``out`` with source steps
+    ``scales`` (x, y)."""
+    scale_x, scale_y = scales
+    src2d, channels = as_rows(src)
+    dst2d, _ = as_rows(out)
+    x_taps, y_taps = resize_tables((src.shape[1], src.shape[0]), (out.shape[1], out.shape[0]), tuple(scales),
+                                   src.device)
+    # OpenCV's fast INTER_AREA path when both scales are exactly 2.
+    area2 = int(abs(scale_x - 2.0) < _DBL_EPSILON and abs(scale_y - 2.0) < _DBL_EPSILON)
+    rows, _ = fit_block(RESIZE_ROWS, 1, dst2d.shape[0], dst2d.shape[1], src.device)
+    return (resize_kernel(rows), ((dst2d.shape[0] + rows - 1) // rows, dst2d.shape[1]),
+            [src2d, channels, x_taps, y_taps, area2], [dst2d])
