@@ -4,7 +4,10 @@ model, and the task DAG built from them."""
 from __future__ import annotations
 
 import json
+import math
 import socket
+
+import cv2
 
 import numpy as np
 import pytest
@@ -96,11 +99,117 @@ def test_task_dag_from_calibration(fresh_cache, frames):
     assert set(dag.nodes["gray"]["cost"]) == {"cpu0", "cpu1", "cpu2", "gpu"}
     assert set(dag.nodes["pyr"]["cost"]) == {"cpu0", "cpu1", "cpu2"}  # pinned
     assert set(dag.nodes["hist"]["cost"]) == {"cpu0", "cpu1", "cpu2"}  # exclusive
-    assert dag.nodes["pyr"]["cost"]["cpu1"] == c.nodes["pyr"]["cpu"]
-    # The GPU pays the upload of the input frame; an edge pays the gray image's transfer.
+    d = c.dispatch
+    assert set(d) >= {"cpu_node", "gpu_node", "cpu_gap", "gpu_gap", "handoff", "start"}
+    assert d["cpu_node"] > 0 and d["gpu_node"] > 0 and d["handoff"] >= 0
+    # A node costs its calibrated time plus the executor's dispatch cost on that processor.
+    assert dag.nodes["pyr"]["cost"]["cpu1"] == pytest.approx(c.nodes["pyr"]["cpu"] + d["cpu_node"])
+    # The GPU pays the upload of the input frame; an edge pays the gray image's transfer plus
+    # the hand-off between a CPU worker and the GPU thread.
     frame_bytes = frames[0].nbytes
     assert dag.nodes["gray"]["cost"]["gpu"] == pytest.approx(
-        c.nodes["gray"]["gpu"] + c.transfer.upload(frame_bytes))
+        c.nodes["gray"]["gpu"] + d["gpu_node"] + c.transfer.upload(frame_bytes))
     gray_bytes = frame_bytes // 3
-    assert dag.edges["gray", "pyr"]["comm"] == pytest.approx(c.transfer.time(gray_bytes))
-    assert dag.edges["gray", "hist"]["comm"] == pytest.approx(c.transfer.time(gray_bytes))
+    assert dag.edges["gray", "pyr"]["comm"] == pytest.approx(c.transfer.time(gray_bytes) + d["handoff"])
+    assert dag.edges["gray", "hist"]["comm"] == pytest.approx(c.transfer.time(gray_bytes) + d["handoff"])
+
+
+def test_dispatch_costs_are_measured_through_the_executor_and_cached(fresh_cache, frames):
+    c = _graph(frames[0]).calibrate(gpu="warp-cpu", repeats=1, warmup=0)
+    d = c.dispatch
+    for key in ("cpu_node", "gpu_node", "cpu_gap", "gpu_gap", "handoff", "start"):
+        assert math.isfinite(d[key]) and d[key] >= 0, key
+    # A task costs more than nothing and far less than a millisecond-scale kernel would.
+    assert 0 < d["cpu_node"] < 5 and 0 < d["gpu_node"] < 5
+    assert d["cpu_gap"] <= d["cpu_node"] + 1e-9 and d["gpu_gap"] <= d["gpu_node"] + 1e-9
+    cached = json.loads(fresh_cache.read_text())["machines"][c.machine]["executor"]["warp-cpu"]
+    assert cached == pytest.approx(d)
+    again = _graph(frames[0]).calibrate(gpu="warp-cpu")
+    assert again.dispatch == pytest.approx(d)  # from the cache, not measured again
+    assert cal_mod.measure_dispatch(None, n_nodes=4, frames=2)["gpu_node"] == 0.0
+
+
+def test_learnt_history_drives_the_history_costs(fresh_cache, frames):
+    g = _graph(frames[0])
+    g.node("gray").target = "gpu"  # one node of each kind, and copies between them
+    plan = g.schedule("heft", n_cpus=2, gpu="warp-cpu")
+    runs = []
+    for f in frames:
+        g.process({"frame": f})
+        runs.append(plan.last_run[-1])
+    learnt = g.learn(runs=runs)
+    assert set(learnt) == set(g.nodes)
+    c = plan.calibration
+    for node, proc in plan.placement.items():
+        pe = "gpu" if proc == "gpu" else "cpu"
+        if pe == "gpu":  # the GPU role is busy for the longer of the device and host times
+            per_frame = [max(r.compute_ms(node), r.host[node][1] - r.host[node][0] - r.transfers[node])
+                         for r in runs[1:]]
+        else:
+            per_frame = [r.compute_ms(node) for r in runs[1:]]  # the first frame is skipped
+        assert learnt[node][pe] == pytest.approx(np.median(per_frame))
+        assert c.history[node][pe] == learnt[node][pe]
+        assert c.history[node][f"{pe}_copies"] == pytest.approx(
+            np.median([r.transfers.get(node, 0.0) for r in runs[1:]]))
+        assert c.placement[node] == pe
+    # Copies: measured over modelled time, per frame, the median.
+    ratios = []
+    for r in runs[1:]:
+        measured = sum(r.transfers[t] for t in r.copied)
+        modelled = sum(c.transfer.upload(b) if r.timeline[t].processor == "gpu" else c.transfer.download(b)
+                       for t, b in r.copied.items())
+        ratios.append(measured / modelled)
+    assert c.transfer_scale == pytest.approx(np.median(ratios))
+    hdag = g.to_task_dag(2, gpu="warp-cpu", costs="history")
+    cdag = g.to_task_dag(2, gpu="warp-cpu")
+    node, proc = "hist", plan.placement["hist"]
+    # History: the node's measured time plus the copies it made where it ran (the executor
+    # copies on the consumer's processor), plus the executor's cost between tasks.
+    h = c.history[node]
+    assert hdag.nodes[node]["cost"][proc] == pytest.approx(h["cpu"] + h["cpu_copies"] + c.dispatch["cpu_gap"])
+    assert h["cpu_copies"] > 0  # hist downloads gray from the GPU
+    assert cdag.nodes[node]["cost"][proc] == pytest.approx(c.nodes[node]["cpu"] + c.dispatch["cpu_node"])
+    gray_bytes = frames[0].nbytes // 3
+    assert hdag.edges["gray", "hist"]["comm"] == pytest.approx(c.dispatch["handoff"])  # copies: on nodes
+    assert cdag.edges["gray", "hist"]["comm"] == pytest.approx(c.dispatch["handoff"] + c.transfer.time(gray_bytes))
+    # Where a node has not run, history charges the copies its inputs would need given where
+    # their producers ran, scaled as copies were in the frames: pyr on the GPU would upload gray
+    # only if gray ran on the CPU; gray ran on the GPU, so pyr on the CPU downloads it.
+    pyr_pe = c.placement["pyr"]
+    other = "gpu" if pyr_pe == "cpu" else "cpu"
+    want = c.nodes["pyr"][other] + c.dispatch[f"{other}_node"]
+    if other == "cpu":
+        want += c.transfer_scale * c.transfer.download(gray_bytes)
+    got = hdag.nodes["pyr"]["cost"]["gpu" if other == "gpu" else "cpu0"]
+    assert got == pytest.approx(want)
+    assert g.schedule("heft", n_cpus=2, gpu="warp-cpu", costs="history").costs == "history"
+    # The history is cached with the calibration: a new graph of the same nodes finds it.
+    again = _graph(frames[0]).calibrate(gpu="warp-cpu")
+    assert again.history == c.history and again.transfer_scale == pytest.approx(c.transfer_scale)
+    with pytest.raises(warpvx.GraphError, match="costs"):
+        g.to_task_dag(2, gpu="warp-cpu", costs="guess")
+    with pytest.raises(warpvx.GraphError, match="learn: nothing measured"):
+        _graph(frames[0]).learn()
+    g.close()
+
+
+def test_two_verification_frames_give_temporal_nodes_real_motion(fresh_cache, frames):
+    from warpvx.graph.calibration import input_values
+
+    g = warpvx.Graph("lk")
+    f = g.input("frame", shape=frames[0].shape, dtype=np.uint8)
+    gray = g.color_convert(f, code="BGR2GRAY", name="gray")
+    pyr = g.gaussian_pyramid(gray, levels=2, name="pyr")
+    pts = g.harris_corners(gray, max_corners=40, quality_level=0.01, min_distance=5, name="pts")
+    prev_pyr, prev_pts = g.delay(pyr), g.delay(pts)
+    g.output("next", g.optical_flow_pyr_lk(prev_pyr[-1], pyr, prev_pts[-1], max_level=1, name="lk")[0])
+    g.verify([{"frame": frames[0]}, {"frame": frames[3]}])
+    gray0 = cv2.cvtColor(frames[0], cv2.COLOR_BGR2GRAY)
+    gray3 = cv2.cvtColor(frames[3], cv2.COLOR_BGR2GRAY)
+    prev, nxt, prev_points = input_values(g, g.node("lk"))
+    np.testing.assert_array_equal(prev[0], gray0)  # delay[-1]: the first frame's pyramid
+    np.testing.assert_array_equal(nxt[0], gray3)  # this frame's
+    assert len(prev_points) > 0
+    with pytest.raises(warpvx.GraphError, match="inputs"):
+        g.verify([{"frame": frames[0]}] * 3)
+    g.close()

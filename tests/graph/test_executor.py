@@ -197,3 +197,105 @@ def test_zero_cost_ties_run_in_dependency_order():
     x = np.ones(2, np.float32)
     res = run_schedule(s, diamond(), {"x": (x, HOST)})
     np.testing.assert_array_equal(res.outputs["out"], 3 * x)
+
+
+# --------------------------------------------------------------------------- flags, buffers, timing
+
+
+def test_flag_is_a_one_shot_event_for_many_waiters():
+    import threading
+
+    from warpvx.sched.executor import Flag
+
+    f = Flag()
+    assert not f.is_set() and f.wait(0.001) is False
+    woke = []
+    threads = [threading.Thread(target=lambda: woke.append(f.wait(5.0))) for _ in range(4)]
+    for t in threads:
+        t.start()
+    time.sleep(0.01)
+    f.set()
+    f.set()  # idempotent
+    for t in threads:
+        t.join(5)
+    assert woke == [True] * 4 and f.is_set() and f.wait(0) and f.wait()
+
+
+def _pooled_program(ring: bool = False):
+    """x -> a (GPU, pooled output buffer: x * 2) -> b (CPU: a + 1); a also a graph output."""
+    import warp as wp
+
+    made = []
+
+    def new_buffer():
+        buf = wp.empty(3, dtype=wp.float32, device="cpu")
+        made.append(buf)
+        return buf
+
+    def double(x, out=None):  # like a primitive: allocates when given no buffer
+        out = new_buffer() if out is None else out
+        out.assign(x.numpy() * 2)
+        return out
+
+    tasks = {
+        "a": ExecTask("a", (InputRef("x"),), ("a",), gpu=double, gpu_out=new_buffer),
+        "b": ExecTask("b", (InputRef("a"),), ("b",), cpu=lambda a: a + 1),
+    }
+    rings = {"a": Ring(1, np.zeros(3, np.float32))} if ring else {}
+    if ring:  # a task reading a's previous value keeps it alive past its frame
+        tasks["c"] = ExecTask("c", (InputRef("a", -1),), ("c",), cpu=lambda p: p.copy())
+    outputs = {"a": "a", "b": "b"} | ({"c": "c"} if ring else {})
+    return Program(tasks, ("x",), outputs, rings=rings), made
+
+
+@pytest.mark.parametrize("depth", [1, 3])
+def test_gpu_output_buffers_are_reused_across_frames_without_aliasing(depth):
+    prog, made = _pooled_program()
+    placement = {"a": "gpu", "b": "cpu0"}
+    ex = Executor(sched(placement, ["a", "b"]), prog, gpu_device="cpu")
+    pending, got = [], []
+    for i in range(12):
+        pending.append(ex.submit(i, {"x": (np.full(3, i, np.float32), HOST)}))
+        if len(pending) >= depth:
+            got.append(ex.wait(pending.pop(0)))
+    got += [ex.wait(f) for f in pending]
+    ex.close()
+    # Values are each frame's own, though the buffers are shared between frames.
+    assert [float(r.outputs["a"][0]) for r in got] == [2.0 * i for i in range(12)]
+    assert [float(r.outputs["b"][0]) for r in got] == [2.0 * i + 1 for i in range(12)]
+    assert 1 <= len(made) <= depth + 1  # a steady state allocates nothing
+
+
+def test_buffers_a_delay_or_the_caller_may_hold_are_not_reused():
+    prog, made = _pooled_program(ring=True)
+    ex = Executor(sched({"a": "gpu", "b": "cpu0", "c": "cpu1"}, ["a", "b", "c"]), prog,
+                  gpu_device="cpu")
+    outs = [ex.wait(ex.submit(i, {"x": (np.full(3, i + 1, np.float32), HOST)})) for i in range(5)]
+    ex.close()
+    assert len(made) == 5  # a delay reads a: every frame gets a new buffer
+    assert [float(r.outputs["c"][0]) for r in outs] == [0.0, 2.0, 4.0, 6.0, 8.0]
+
+    prog, made = _pooled_program()
+    ex = Executor(sched({"a": "gpu", "b": "cpu0"}, ["a", "b"]), prog, gpu_device="cpu")
+    device_outs = [ex.wait(ex.submit(i, {"x": (np.full(3, i, np.float32), HOST)}), host=False)
+                   for i in range(4)]
+    ex.close()
+    assert len(made) == 4  # handed to the caller on the device: never reused
+    assert [float(r.outputs["a"].numpy()[0]) for r in device_outs] == [0.0, 2.0, 4.0, 6.0]
+
+
+def test_frame_result_reports_transfers_copies_and_host_times():
+    x = np.arange(5, dtype=np.float32)
+    res = run_schedule(sched({"a": "gpu", "b": "cpu0", "c": "cpu1", "d": "gpu"}), diamond(),
+                       {"x": (x, HOST)}, gpu_device="cpu")
+    # a (GPU) uploads x; c (CPU) downloads a; d (GPU) uploads c.
+    assert res.copied["a"] == x.nbytes and res.copied["c"] == x.nbytes and res.copied["d"] == x.nbytes
+    assert "b" not in res.copied  # x is host data for a CPU task: no copy
+    for t in ("a", "c", "d"):
+        assert 0 <= res.transfers[t] <= res.timeline[t].finish - res.timeline[t].start + 1e-9
+        assert res.compute_ms(t) == pytest.approx(
+            res.timeline[t].finish - res.timeline[t].start - res.transfers[t])
+    assert set(res.host) == {"a", "d"}  # the GPU thread's own time per GPU task
+    for t in ("a", "d"):
+        h0, h1 = res.host[t]
+        assert 0 <= h0 <= h1

@@ -1,16 +1,29 @@
-"""Calibration: measured costs of each node's implementations and of host <-> device copies.
+"""Calibration: measured costs of each node's implementations, of host <-> device copies and
+of the executor itself.
 
 SPEC §7: costs are measured, not guessed, and cached per machine and size, after StarPU's
 history-based performance models. For a graph and a GPU role:
 
 - each node's CPU implementation (``backend="cpu"``) and GPU implementation (the GPU role's
-  Warp backend) run on the data :meth:`Graph.verify` produced at the graph's real sizes:
+  Warp backend) run on the data :meth:`Graph.verify` produced at the graph's real sizes
+  (two frames when the graph has delays, so temporal nodes such as LK track real motion):
   ``warmup`` calls first (they include Warp's JIT and module load), then the median of
-  ``repeats`` timed calls; GPU calls are followed by a device synchronisation, so a time is
-  what the call costs end to end, launch overhead included;
-- the transfer model: host -> device and device -> host copies of a few sizes (4 KiB to
-  16 MiB on CUDA) are timed once per machine and fitted as ``latency + bytes / bandwidth``;
-  an edge's transfer time is the mean of both directions for its data's bytes.
+  ``repeats`` timed calls. A GPU node is timed as the executor runs it: on a stream of its
+  own made current, with CUDA events recorded before and after the call, starting from an
+  idle device. Its cost is the device interval between the events — what the executor's
+  timeline measures — which covers the host's enqueue time too when the host is the
+  bottleneck, and the host syncs some primitives make (FAST reads its count back). The
+  host-side time of the call is kept beside it (``gpu_host``);
+- the transfer model: uploads and downloads of a few sizes (4 KiB to 16 MiB on CUDA), through
+  the executor's own copy paths, timed once per machine and fitted as
+  ``latency + bytes / bandwidth``; an edge's transfer time is the mean of both directions;
+- the executor's dispatch cost (:func:`measure_dispatch`): chains of trivial tasks run through
+  the real executor give its cost per CPU task, per GPU task and per hand-off between the CPU
+  workers and the GPU thread, which :meth:`Graph.to_task_dag` adds to the model;
+- history (:func:`learn`): what nodes cost inside running frames, where workers contend for
+  cores, memory bandwidth and Python's GIL. :meth:`Graph.learn` folds a run's measured
+  timelines in, and ``Graph.schedule(..., costs="history")`` schedules with them, as StarPU
+  refines its models from the tasks it ran.
 
 The cache is one JSON file, ``$WARPVX_CACHE_DIR/calibration.json`` (default
 ``~/.cache/warpvx/``, or ``$XDG_CACHE_HOME/warpvx/``), keyed by machine (host name and GPU
@@ -38,7 +51,7 @@ from ..sched.executor import Transfers
 from .data import describe
 
 CACHE_ENV = "WARPVX_CACHE_DIR"
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: GPU nodes timed with events on the executor's path
 _file_lock = threading.Lock()
 
 
@@ -107,10 +120,23 @@ class Calibration:
     gpu : str or None
         The GPU role's backend name (``"cuda:0"``, ``"warp-cpu"``).
     nodes : dict
-        node name -> ``{"cpu": ms or None, "gpu": ms or None}`` (None: no implementation).
+        node name -> ``{"cpu": ms or None, "gpu": ms or None, "gpu_host": ms or None}``
+        (None: no implementation; ``gpu_host``: the host-side time of the GPU call).
     transfer : TransferModel
     fresh : list
         Nodes measured now (the others came from the cache).
+    dispatch : dict
+        :func:`measure_dispatch`'s executor costs (ms), empty when not measured.
+    history : dict
+        node name -> ``{"cpu": ms, "gpu": ms}`` measured inside running frames
+        (:func:`learn`); a node or processing element not run yet is absent.
+    keys : dict
+        node name -> its cache key (kind, constants, input sizes).
+    transfer_scale : float
+        Measured over modelled time of the copies in running frames (:func:`learn`); the
+        history costs scale the transfer model by it.
+    placement : dict
+        node -> ``"cpu"``/``"gpu"``: where each node ran when :func:`learn` last saw it.
     """
 
     machine: str
@@ -118,6 +144,20 @@ class Calibration:
     nodes: dict
     transfer: TransferModel
     fresh: list = field(default_factory=list)
+    dispatch: dict = field(default_factory=dict)
+    history: dict = field(default_factory=dict)
+    keys: dict = field(default_factory=dict)
+    transfer_scale: float = 1.0
+    placement: dict = field(default_factory=dict)
+
+    def cost(self, node: str, pe: str, costs: str = "calibrated"):
+        """``node``'s cost (ms) on ``pe`` (``"cpu"``/``"gpu"``), None without an
+        implementation; ``costs="history"`` prefers what running frames measured."""
+        if costs == "history":
+            t = self.history.get(node, {}).get(pe)
+            if t is not None:
+                return t
+        return self.nodes[node][pe]
 
 
 # --------------------------------------------------------------------------- cache
@@ -199,7 +239,11 @@ def _fit(sizes, times) -> tuple:
 
 
 def measure_transfer(gpu_backend, *, sizes=None, repeats: int = 5) -> TransferModel:
-    """Time uploads and downloads of a few sizes on the GPU role's device and fit the model."""
+    """Time uploads and downloads of a few sizes on the GPU role's device and fit the model.
+
+    Uploads run as the executor's GPU thread runs them (on a stream of its own made current,
+    through :class:`~warpvx.sched.executor.Transfers`), downloads as a CPU worker's do.
+    """
     from ..backend import init_warp
 
     wp = init_warp()
@@ -207,18 +251,135 @@ def measure_transfer(gpu_backend, *, sizes=None, repeats: int = 5) -> TransferMo
     if sizes is None:
         sizes = [1 << 12, 1 << 16, 1 << 20, 1 << 22, 1 << 24] if gpu_backend.is_cuda else \
                 [1 << 12, 1 << 16, 1 << 20, 1 << 22]
-    io = Transfers(device)
-    sync = (lambda: wp.synchronize_device(device)) if gpu_backend.is_cuda else None
+    up_io, down_io = Transfers(device), Transfers(device)
+    stream = wp.Stream(device) if gpu_backend.is_cuda else None
+    sync = (lambda: wp.synchronize_stream(stream)) if stream is not None else None
     up, down = [], []
-    with wp.ScopedDevice(device):
+    with _gpu_scope(wp, device, stream):
         for n in sizes:
             host = np.random.default_rng(0).integers(0, 255, n, dtype=np.uint8)
-            dev = io.upload(host)
-            up.append(time_call(lambda: io.upload(host), sync=sync, warmup=1, repeats=repeats))
-            down.append(time_call(lambda: io.download(dev), sync=None, warmup=1, repeats=repeats))
+            dev = up_io.upload(host)
+            if sync is not None:
+                sync()
+            up.append(time_call(lambda: up_io.upload(host), sync=sync, warmup=1, repeats=repeats))
+            down.append(time_call(lambda: down_io.download(dev), sync=None, warmup=1, repeats=repeats))
     a_up, b_up = _fit(sizes, up)
     a_dn, b_dn = _fit(sizes, down)
     return TransferModel(a_up, b_up, a_dn, b_dn)
+
+
+def _gpu_scope(wp, device, stream):
+    """The GPU thread's scope: the device current and, on CUDA, ``stream`` as its stream."""
+    import contextlib
+
+    stack = contextlib.ExitStack()
+    stack.enter_context(wp.ScopedDevice(device))
+    if stream is not None:
+        stack.enter_context(wp.ScopedStream(stream, sync_enter=False))
+    return stack
+
+
+def time_gpu_call(fn, gpu_backend, *, warmup: int = 2, repeats: int = 5) -> tuple:
+    """``(device_ms, host_ms)``: medians of ``fn()`` run as the executor's GPU thread runs a
+    node, each call from an idle device.
+
+    On CUDA ``device_ms`` is the interval between events recorded on the current stream just
+    before and just after the call (what the executor's timeline records for a GPU task), and
+    ``host_ms`` the host time of the call (enqueue plus any host sync inside it). On Warp's
+    CPU device both are the host time. Call it inside :func:`_gpu_scope`.
+    """
+    if not gpu_backend.is_cuda:
+        t = time_call(fn, warmup=warmup, repeats=repeats)
+        return t, t
+    from ..backend import init_warp
+
+    wp = init_warp()
+    device = gpu_backend.device
+    stream = wp.get_device(device).stream
+    e0 = wp.Event(device, enable_timing=True)
+    e1 = wp.Event(device, enable_timing=True)
+    dev, host = [], []
+    for i in range(max(0, warmup) + max(1, repeats)):
+        wp.synchronize_device(device)
+        h0 = time.perf_counter()
+        stream.record_event(e0)
+        fn()
+        stream.record_event(e1)
+        h1 = time.perf_counter()
+        wp.synchronize_event(e1)
+        if i >= warmup:
+            dev.append(wp.get_event_elapsed_time(e0, e1, synchronize=False))
+            host.append((h1 - h0) * 1e3)
+    return statistics.median(dev), statistics.median(host)
+
+
+def _identity(v):
+    return v
+
+
+def measure_dispatch(gpu_backend, transfer: TransferModel | None = None, *, n_nodes: int = 24,
+                     frames: int = 25) -> dict:
+    """The executor's own costs (ms), measured through it with chains of identity tasks.
+
+    Three chains of ``n_nodes`` tasks run ``frames`` frames one at a time: all on one CPU
+    worker, all on the GPU thread, and alternating (every edge crosses between a CPU worker
+    and the GPU thread, a thread hand-off plus a host/device copy of 16 bytes).
+
+    Returns
+    -------
+    dict
+        ``cpu_node``, ``gpu_node``: a task's cost on each kind of processor (the frame's
+        makespan over the tasks); ``cpu_gap``, ``gpu_gap``: the part of it outside the
+        tasks' measured intervals (between tasks); ``handoff``: the extra cost of an edge
+        between a CPU worker and the GPU thread, beyond the transfer model's time for its
+        bytes; ``start``: from a frame's submission to its first task's start. Without a
+        GPU role the GPU entries are 0.
+    """
+    from ..sched.executor import HOST, Executor, ExecTask, InputRef, Program
+    from ..sched.schedule import Schedule, ScheduledTask
+
+    device = gpu_backend.device if gpu_backend is not None else None
+    x = np.zeros(4, np.float32)
+
+    def run(kinds):
+        tasks, prev, placed = {}, "x", {}
+        for i, kind in enumerate(kinds):
+            name = f"t{i}"
+            tasks[name] = ExecTask(name, (InputRef(prev),), (name,), cpu=_identity, gpu=_identity)
+            placed[name] = ScheduledTask(name, "cpu0" if kind == "cpu" else "gpu", i, i + 1)
+            prev = name
+        procs = ["cpu0", "gpu"] if device else ["cpu0"]
+        ex = Executor(Schedule(placed, procs), Program(tasks, ("x",), {"y": prev}),
+                      gpu_device=device, name="dispatch")
+        spans, gaps, starts = [], [], []
+        try:
+            for f in range(frames + 3):
+                ex.reanchor()
+                r = ex.wait(ex.submit(f, {"x": (x, HOST)}))
+                if f < 3:
+                    continue  # threads, streams and pools warm up
+                busy = sum(t.finish - t.start for t in r.timeline.values())
+                first = min(t.start for t in r.timeline.values())
+                spans.append(r.makespan - first)
+                gaps.append(r.makespan - first - busy)
+                starts.append(first)
+        finally:
+            ex.close()
+        return statistics.median(spans), statistics.median(gaps), statistics.median(starts)
+
+    n = max(2, int(n_nodes))
+    span, gap, start = run(["cpu"] * n)
+    out = {"cpu_node": span / n, "cpu_gap": max(0.0, gap) / n, "start": start,
+           "gpu_node": 0.0, "gpu_gap": 0.0, "handoff": 0.0}
+    if device:
+        span, gap, _ = run(["gpu"] * n)
+        out["gpu_node"], out["gpu_gap"] = span / n, max(0.0, gap) / n
+        span, _, _ = run(["cpu", "gpu"] * (n // 2))
+        m = 2 * (n // 2)
+        crossing = (span - (m // 2) * (out["cpu_node"] + out["gpu_node"])) / (m - 1)
+        tiny = transfer.time(x.nbytes) if transfer is not None else 0.0
+        out["handoff"] = max(0.0, crossing - tiny)
+    return out
 
 
 def cpu_backend_key() -> str:
@@ -260,13 +421,15 @@ def footprint(value) -> str:
 
 
 def input_values(graph, node) -> list:
-    """The sample values of ``node``'s inputs (delay inputs read the delay's initial value)."""
+    """The sample values of ``node``'s inputs, as in verification's last frame: a delay slot
+    reads the frame before (else the delay's initial value)."""
     from .data import DelayRef
 
     out = []
     for ref in node.inputs.values():
         if isinstance(ref, DelayRef):
-            out.append(ref.delay.initial if ref.data.sample is None else ref.data.sample)
+            prev = ref.delay.sample_previous
+            out.append(ref.delay.initial if prev is None else prev)
         else:
             out.append(ref.sample)
     return out
@@ -274,7 +437,8 @@ def input_values(graph, node) -> list:
 
 def calibrate(graph, gpu_backend, *, recalibrate: bool = False, warmup: int = 2,
               repeats: int = 5, path: Path | None = None) -> Calibration:
-    """Measure (or load from the cache) every node's costs and the transfer model.
+    """Measure (or load from the cache) every node's costs, the transfer model and the
+    executor's dispatch costs.
 
     ``graph`` must be verified (its data objects carry samples at the real sizes).
     ``gpu_backend`` is the GPU role's :class:`~warpvx.backend.Backend` or None (CPU only).
@@ -286,12 +450,14 @@ def calibrate(graph, gpu_backend, *, recalibrate: bool = False, warmup: int = 2,
     mcache = cache["machines"].get(machine, {})
     gpu_name = gpu_backend.name if gpu_backend is not None else None
     node_cache = mcache.get("nodes", {})
+    host_cache = mcache.get("gpu_host", {}).get(gpu_name, {}) if gpu_name else {}
     cpu_key = cpu_backend_key()
     update_nodes = {cpu_key: {}}
+    update_host = {}
     if gpu_name:
         update_nodes[gpu_name] = {}
     cpu_backend = resolve_backend("cpu")
-    nodes, fresh = {}, []
+    nodes, fresh, keys = {}, [], {}
 
     transfer = None
     if gpu_name:
@@ -304,9 +470,10 @@ def calibrate(graph, gpu_backend, *, recalibrate: bool = False, warmup: int = 2,
         transfer = TransferModel()
 
     wp = init_warp() if gpu_name else None
+    stream = None
     for node in graph.nodes.values():
-        key = _node_key(node)
-        times = {"cpu": None, "gpu": None}
+        key = keys[node.name] = _node_key(node)
+        times = {"cpu": None, "gpu": None, "gpu_host": None}
         values = None
         for pe in ("cpu", "gpu"):
             if pe not in node.implementations or (pe == "gpu" and gpu_backend is None):
@@ -315,6 +482,8 @@ def calibrate(graph, gpu_backend, *, recalibrate: bool = False, warmup: int = 2,
             hit = node_cache.get(bname, {}).get(key)
             if hit is not None and not recalibrate:
                 times[pe] = float(hit)
+                if pe == "gpu":
+                    times["gpu_host"] = host_cache.get(key)
                 continue
             if values is None:
                 values = input_values(graph, node)
@@ -324,21 +493,128 @@ def calibrate(graph, gpu_backend, *, recalibrate: bool = False, warmup: int = 2,
             else:
                 device = gpu_backend.device
                 fn = node.callable("gpu", gpu_backend)
+                if stream is None and gpu_backend.is_cuda:
+                    stream = wp.Stream(device)
                 with wp.ScopedDevice(device):
                     dvals = Transfers(device).upload(list(values))
-                    sync = (lambda: wp.synchronize_device(device)) if gpu_backend.is_cuda else None
-                    t = time_call(lambda: fn(*dvals), sync=sync, warmup=warmup, repeats=repeats)
+                    wp.synchronize_device(device)
+                with _gpu_scope(wp, device, stream):
+                    t, host = time_gpu_call(lambda: fn(*dvals), gpu_backend, warmup=warmup,
+                                            repeats=repeats)
+                times["gpu_host"] = update_host[key] = host
             times[pe] = t
             update_nodes[bname][key] = t
             if node.name not in fresh:
                 fresh.append(node.name)
         nodes[node.name] = times
 
-    update = {"machines": {machine: {"nodes": update_nodes}}}
+    dkey = gpu_name or "none"
+    dispatch = mcache.get("executor", {}).get(dkey)
+    if not dispatch or recalibrate:
+        dispatch = measure_dispatch(gpu_backend, transfer)
+
+    history = {}
+    hcache = mcache.get("history", {})
+    for node in graph.nodes.values():
+        for pe, bname in (("cpu", cpu_key), ("gpu", gpu_name)):
+            t = hcache.get(bname or "-", {}).get(keys[node.name]) if bname else None
+            if t is not None and not recalibrate:
+                history.setdefault(node.name, {})[pe] = float(t)
+                x = hcache.get(bname + "|copies", {}).get(keys[node.name])
+                history[node.name][f"{pe}_copies"] = float(x) if x is not None else 0.0
+
+    scale = mcache.get("transfer_scale", {}).get(gpu_name) if gpu_name and not recalibrate else None
+
+    mupdate = {"nodes": update_nodes, "executor": {dkey: dispatch}}
     if gpu_name:
-        update["machines"][machine]["transfer"] = {gpu_name: transfer.__dict__.copy()}
-    save_cache(update, path)
-    return Calibration(machine, gpu_name, nodes, transfer, fresh)
+        mupdate["transfer"] = {gpu_name: transfer.__dict__.copy()}
+        mupdate["gpu_host"] = {gpu_name: update_host}
+    save_cache({"machines": {machine: mupdate}}, path)
+    return Calibration(machine, gpu_name, nodes, transfer, fresh, dict(dispatch), history, keys,
+                       1.0 if scale is None else float(scale))
+
+
+def learn(calibration: Calibration, runs, placement: dict, *, skip: int = 1,
+          path: Path | None = None) -> dict:
+    """Fold measured frames into ``calibration.history`` (and the cache); returns what changed.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        Of the graph and GPU role that ran.
+    runs : list of FrameResult
+        Frames run with ``placement`` (a plan's ``last_run``), the first ``skip`` left out.
+        A CPU node's cost is the median of its measured interval minus the transfers inside
+        it; the transfers' median is kept apart (``"<pe>_copies"``): the executor makes a
+        task's copies on the task's own processor (a GPU task's uploads on the GPU thread, a
+        CPU task's downloads on its worker), so history costs charge them to the node. A GPU node occupies the GPU role as long as
+        the longer of its device interval and its host call (without transfers): when the
+        host thread runs ahead the interval is the device's time, when the host is the
+        bottleneck (Python, host syncs, GIL) the host time is the cost.
+        The ratio of the copies' measured time to the transfer model's becomes
+        ``calibration.transfer_scale`` (copies in a running frame compete for memory
+        bandwidth and the GIL).
+    placement : dict
+        node -> processor (``"cpu<i>"``/``"gpu"``) of the plan that ran.
+
+    Returns
+    -------
+    dict
+        node -> ``{pe: ms}`` learnt now.
+    """
+    runs = list(runs)[skip:] or list(runs)
+    learnt = {}
+    cpu_key = cpu_backend_key()
+    update = {}
+    for node, proc in placement.items():
+        pe = "gpu" if proc.startswith("gpu") else "cpu"
+        samples, copies = [], []
+        for r in runs:
+            if node not in r.timeline:
+                continue
+            t = r.compute_ms(node)
+            if pe == "gpu" and node in r.host:
+                h0, h1 = r.host[node]
+                t = max(t, h1 - h0 - r.transfers.get(node, 0.0))
+            samples.append(t)
+            copies.append(r.transfers.get(node, 0.0))
+        if not samples:
+            continue
+        t, x = statistics.median(samples), statistics.median(copies)
+        entry = calibration.history.setdefault(node, {})
+        entry[pe], entry[f"{pe}_copies"] = t, x
+        learnt.setdefault(node, {})[pe] = t
+        calibration.placement[node] = pe
+        bname = cpu_key if pe == "cpu" else calibration.gpu
+        key = calibration.keys.get(node)
+        if bname and key:
+            update.setdefault(bname, {})[key] = t
+            update.setdefault(bname + "|copies", {})[key] = x
+    scale = _transfer_scale(calibration.transfer, runs)
+    if scale is not None:
+        calibration.transfer_scale = scale
+    mupdate = {"history": update}
+    if scale is not None and calibration.gpu:
+        mupdate["transfer_scale"] = {calibration.gpu: scale}
+    if update or scale is not None:
+        save_cache({"machines": {calibration.machine: mupdate}}, path)
+    return learnt
+
+
+def _transfer_scale(model: TransferModel, runs):
+    """Median over frames of (measured copy time) / (the model's time for those bytes)."""
+    ratios = []
+    for r in runs:
+        measured = modelled = 0.0
+        for task, nbytes in r.copied.items():
+            if task not in r.transfers or task not in r.timeline:
+                continue
+            gpu = r.timeline[task].processor.startswith("gpu")
+            modelled += model.upload(nbytes) if gpu else model.download(nbytes)
+            measured += r.transfers[task]
+        if modelled > 0:
+            ratios.append(measured / modelled)
+    return statistics.median(ratios) if ratios else None
 
 
 __all__ = [
@@ -348,9 +624,12 @@ __all__ = [
     "cache_dir",
     "cache_file",
     "calibrate",
+    "learn",
     "load_cache",
     "machine_id",
+    "measure_dispatch",
     "measure_transfer",
     "save_cache",
     "time_call",
+    "time_gpu_call",
 ]

@@ -138,6 +138,9 @@ class Delay(Ring):
         self._graph = weakref.ref(graph)
         self.data = data
         self.init = init
+        # The previous verification frame's value (what delay[-1] read in verification's
+        # second frame): what calibration times readers of delay slots on.
+        self.sample_previous = None
         self._local = threading.local()
 
     def __getitem__(self, index):

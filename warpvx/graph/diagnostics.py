@@ -44,6 +44,36 @@ def gpu_memory_bytes(gpu: str | None):
     return int(dev.total_memory - dev.free_memory)
 
 
+def nvidia_smi_mb(gpu: str | None):
+    """This process's GPU memory in MB as ``nvidia-smi`` reports it (the CUDA context, pools
+    and every allocation); None without CUDA or nvidia-smi. ``gpu``'s ordinal is taken as
+    nvidia-smi's index (true unless ``CUDA_VISIBLE_DEVICES`` reorders devices)."""
+    if not gpu or not gpu.startswith("cuda"):
+        return None
+    import shutil
+    import subprocess
+
+    exe = shutil.which("nvidia-smi")
+    if exe is None:
+        return None
+    index = gpu.split(":", 1)[1] if ":" in gpu else "0"
+    try:
+        res = subprocess.run([exe, "-i", index, "--query-compute-apps=pid,used_memory",
+                              "--format=csv,noheader,nounits"], capture_output=True, text=True,
+                             timeout=10, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    pid = os.getpid()
+    for line in res.stdout.splitlines():
+        parts = [p.strip() for p in line.split(",")]
+        if len(parts) == 2 and parts[0].isdigit() and int(parts[0]) == pid:
+            try:
+                return float(parts[1])
+            except ValueError:
+                return None
+    return None
+
+
 def _identity(v):
     return v
 
@@ -67,7 +97,7 @@ def _chain(n_nodes: int, mixed: bool) -> Graph:
 
 
 def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = False,
-                      gpu=None, depth: int = 4) -> dict:
+                      gpu=None, depth: int = 4, spin: float | None = None) -> dict:
     """Per-node dispatch overhead of the executor, with trivial nodes.
 
     Builds a chain of ``n_nodes`` identity user nodes on one CPU worker (``mixed``: alternating
@@ -76,37 +106,75 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
     :meth:`Graph.stream` (``depth`` frames in flight). The overhead per node is the wall time
     per frame, minus the nodes' own time, over the number of nodes.
 
+    ``spin`` is the executor's (:data:`warpvx.sched.executor.SPIN_SECONDS` by default).
+
     Returns
     -------
     dict
-        ``per_node_us`` (process), ``per_node_us_stream``, ``frame_us`` and the settings.
+        ``per_node_us`` (process), ``per_node_us_stream``, ``frame_us``, the settings, and
+        for ``mixed`` a ``breakdown`` of one CPU -> GPU -> CPU round (medians, us): the GPU
+        thread's time in a task (``gpu_task``), a CPU task's interval with its download
+        (``cpu_task``), and the hand-offs from a CPU task's end to the GPU thread starting
+        the next task (``cpu_to_gpu``) and from the GPU thread's end of a task to the CPU
+        worker starting the next (``gpu_to_cpu``: wake-up, event wait).
     """
+    from ..sched import executor as _executor
+
     g = _chain(n_nodes, mixed)
     x = np.arange(4, dtype=np.float32)
-    g.schedule("heft", n_cpus=1, gpu=gpu if mixed else False)
-    g.process({"x": x})  # start the threads
+    saved = _executor.SPIN_SECONDS
+    if spin is not None:
+        _executor.SPIN_SECONDS = spin
+    try:
+        g.schedule("heft", n_cpus=1, gpu=gpu if mixed else False)
+        g.process({"x": x})  # start the threads
+    finally:
+        _executor.SPIN_SECONDS = saved
     t_call = _time_direct(n_nodes)
-    wall = []
+    wall, runs = [], []
     for _ in range(frames):
         t0 = time.perf_counter()
         g.process({"x": x})
         wall.append(time.perf_counter() - t0)
+        runs.append(g.plan.last_run[-1])
     frame_s = statistics.median(wall)
     t0 = time.perf_counter()
     for _ in g.stream(({"x": x} for _ in range(frames)), depth=depth):
         pass
     stream_s = (time.perf_counter() - t0) / frames
     plan = g.plan
+    spin_used = plan.executor().spin
     g.close()
-    return {
+    out = {
         "n_nodes": n_nodes,
         "frames": frames,
         "mixed": mixed,
         "gpu": plan.gpu,
+        "spin_us": spin_used * 1e6,
         "frame_us": frame_s * 1e6,
         "per_node_us": max(0.0, frame_s - t_call) / n_nodes * 1e6,
         "per_node_us_stream": max(0.0, stream_s - t_call) / n_nodes * 1e6,
     }
+    if mixed:
+        out["breakdown"] = _breakdown(runs, n_nodes)
+    return out
+
+
+def _breakdown(runs, n_nodes: int) -> dict:
+    """Medians (us) of the parts of the alternating chain's rounds (see executor_overhead)."""
+    parts = {"gpu_task": [], "cpu_task": [], "cpu_to_gpu": [], "gpu_to_cpu": []}
+    for r in runs:
+        for i in range(1, n_nodes):
+            prev, cur = f"n{i - 1}", f"n{i}"
+            if cur in r.host:  # a GPU task after a CPU one
+                h0, h1 = r.host[cur]
+                parts["gpu_task"].append(h1 - h0)
+                parts["cpu_to_gpu"].append(h0 - r.timeline[prev].finish)
+            elif prev in r.host:  # a CPU task after a GPU one
+                t = r.timeline[cur]
+                parts["cpu_task"].append(t.finish - t.start)
+                parts["gpu_to_cpu"].append(t.start - r.host[prev][1])
+    return {k: statistics.median(v) * 1e3 if v else None for k, v in parts.items()}
 
 
 def _time_direct(n_nodes: int) -> float:
@@ -119,7 +187,8 @@ def _time_direct(n_nodes: int) -> float:
     return (time.perf_counter() - t0) / 20
 
 
-def soak(graph: Graph, make_inputs, n: int, *, depth: int = 2, report_every: int = 0) -> dict:
+def soak(graph: Graph, make_inputs, n: int, *, depth: int = 2, report_every: int = 0,
+         max_seconds: float | None = None) -> dict:
     """Run ``n`` frames through ``graph.stream`` and report memory at start and end.
 
     Parameters
@@ -134,43 +203,74 @@ def soak(graph: Graph, make_inputs, n: int, *, depth: int = 2, report_every: int
         Frames in flight.
     report_every : int
         Also sample memory every that many frames (0: start and end only).
+    max_seconds : float, optional
+        Stop after this long (the frames in flight finish); ``frames`` then says how many ran.
 
     Returns
     -------
     dict
-        ``frames``, ``seconds``, ``fps``, ``rss_start_mb``, ``rss_end_mb``,
-        ``gpu_mem_start_mb``, ``gpu_mem_end_mb`` (None without CUDA), ``samples``
-        (frame, rss MB, GPU MB) when asked.
+        ``frames`` (run), ``requested``, ``seconds``, ``fps``, ``rss_start_mb``, ``rss_end_mb``,
+        ``gpu_mem_start_mb``, ``gpu_mem_end_mb`` (Warp's mempool in use; None without
+        CUDA), ``smi_start_mb``, ``smi_end_mb`` (nvidia-smi's figure for this process; None
+        without it), ``samples`` (frame, rss MB, GPU MB, nvidia-smi MB) when asked. Start is
+        after a warm-up of ``KEEP_FRAMES + 2 * depth`` frames in the same stream (plan,
+        threads, JIT, pools, the plan's window of kept timelines), end after the last frame.
     """
-    first = make_inputs(0)
-    graph.process(first)  # warm: plan, threads, JIT, first allocations
-    gc.collect()
-    gpu = graph.plan.gpu
+    from .plan import KEEP_FRAMES
+
+    # Warm-up in the same stream: plan, threads, JIT, pools, and the plan's window of kept
+    # timelines filled, so that start and end compare like with like.
+    warm = KEEP_FRAMES + 2 * depth
+    gpu = graph.plan.gpu if graph.plan is not None else None
     mb = 1.0 / (1 << 20)
 
     def gpu_mb():
         v = gpu_memory_bytes(gpu)
         return None if v is None else v * mb
 
-    rss0, gpu0 = host_rss_bytes() * mb, gpu_mb()
     samples = []
+    start = {}
     t0 = time.perf_counter()
-    for i, _ in enumerate(graph.stream((make_inputs(i) for i in range(n)), depth=depth)):
-        if report_every and (i + 1) % report_every == 0:
-            samples.append((i + 1, host_rss_bytes() * mb, gpu_mb()))
+    deadline = None if max_seconds is None else t0 + max_seconds
+
+    def inputs():
+        for i in range(warm + n):
+            if deadline is not None and i >= warm and time.perf_counter() > deadline:
+                return
+            yield make_inputs(i)
+
+    done = 0
+    for k, _ in enumerate(graph.stream(inputs(), depth=depth), 1):
+        if k == warm:
+            gpu = graph.plan.gpu
+            gc.collect()
+            start = {"rss": host_rss_bytes() * mb, "gpu": gpu_mb(), "smi": nvidia_smi_mb(gpu)}
+            t0 = time.perf_counter()
+            if deadline is not None:
+                deadline = t0 + max_seconds
+            continue
+        if k < warm:
+            continue
+        done = k - warm
+        if report_every and done % report_every == 0:
+            samples.append((done, host_rss_bytes() * mb, gpu_mb(), nvidia_smi_mb(gpu)))
     seconds = time.perf_counter() - t0
     gc.collect()
+    rss0, gpu0, smi0 = start.get("rss"), start.get("gpu"), start.get("smi")
     return {
-        "frames": n,
+        "frames": done,
+        "requested": n,
         "depth": depth,
         "seconds": seconds,
-        "fps": n / seconds if seconds > 0 else float("inf"),
+        "fps": done / seconds if seconds > 0 else float("inf"),
         "rss_start_mb": rss0,
         "rss_end_mb": host_rss_bytes() * mb,
         "gpu_mem_start_mb": gpu0,
         "gpu_mem_end_mb": gpu_mb(),
+        "smi_start_mb": smi0,
+        "smi_end_mb": nvidia_smi_mb(gpu),
         "samples": samples,
     }
 
 
-__all__ = ["executor_overhead", "soak", "host_rss_bytes", "gpu_memory_bytes"]
+__all__ = ["executor_overhead", "soak", "host_rss_bytes", "gpu_memory_bytes", "nvidia_smi_mb"]

@@ -20,6 +20,7 @@ arguments; they return the node's output data object (a tuple for several, see
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import threading
@@ -295,12 +296,15 @@ class Graph:
 
     # ------------------------------------------------------------------ verify
 
-    def verify(self, inputs: dict | None = None) -> "Graph":
+    def verify(self, inputs=None) -> "Graph":
         """Check the graph; raise one :class:`~warpvx.errors.GraphError` naming node and port.
 
         Checks missing inputs, cycles, pin feasibility, then types and shapes by running each
         node once on samples at the graph's real sizes (``inputs``, the inputs' values, or
-        synthetic data from their shape and dtype). See :mod:`warpvx.graph.verify`.
+        synthetic data from their shape and dtype). ``inputs`` may be a list of two input
+        dicts, two consecutive frames: a graph with delays then runs its second verification
+        frame on the second one, so the samples calibration times temporal nodes on (LK
+        tracking from one frame to the next) show real motion. See :mod:`warpvx.graph.verify`.
         """
         with self._run_lock:
             self._order = _verify(self, inputs)
@@ -353,30 +357,68 @@ class Graph:
             self._calibrations[cal.gpu] = cal
         return cal
 
-    def to_task_dag(self, n_cpus: int | None = None, *, gpu=None, calibration=None):
+    def to_task_dag(self, n_cpus: int | None = None, *, gpu=None, calibration=None,
+                    costs: str = "calibrated"):
         """The scheduler's task DAG of one frame (times in ms).
 
-        Node costs come from calibration (run now if needed), narrowed by pins; each edge's
-        ``comm`` is the transfer model's time for the bytes of its data. A GPU node reading a
-        graph input also pays that input's upload (frames arrive in host memory).
+        Node costs come from calibration (run now if needed), narrowed by pins, plus the
+        executor's dispatch cost per task on that kind of processor; each edge's ``comm`` is
+        the transfer model's time for the bytes of its data plus the executor's hand-off
+        between a CPU worker and the GPU thread (the scheduler charges ``comm`` only between
+        them). A GPU node reading a graph input also pays that input's upload (frames arrive
+        in host memory).
+
+        ``costs="history"`` uses what running frames measured (:meth:`learn`) where known:
+        those intervals already hold the executor's work inside a task, so only its cost
+        between tasks is added. The executor makes a task's copies on the task's own
+        processor (the GPU thread uploads, a CPU worker downloads), so history costs charge
+        copies to the consumer, not to the edge: a node's measured copies where it ran, or,
+        elsewhere, the transfer model's time for the inputs whose producers ran on the
+        other side, scaled by what copies took in running frames
+        (``calibration.transfer_scale``); an edge keeps only the hand-off.
         """
         from ..sched import cpu_gpu_dag
 
+        if costs not in ("calibrated", "history"):
+            raise GraphError(f"costs: expected 'calibrated' or 'history', got {costs!r}")
         n_cpus = default_n_cpus() if n_cpus is None else n_cpus
         be = self._gpu_backend(gpu)
         cal = calibration or self._calibrations.get(be.name if be else None)
         if cal is None or not self.verified:
             cal = self.calibrate(gpu=be.name if be else False)
+        d = cal.dispatch or {}
+        history = costs == "history"
+        scale = cal.transfer_scale if history else 1.0
         tasks, edges = {}, {}
         for node in self.nodes.values():
-            t = cal.nodes[node.name]
             pes = node.processing_elements
-            cpu_t = t["cpu"] if "cpu" in pes else None
-            gpu_t = t["gpu"] if "gpu" in pes and be is not None else None
-            if gpu_t is not None:
+            known = cal.history.get(node.name, {}) if history else {}
+
+            def copies(pe):
+                """Copies ``node`` makes on ``pe`` (graph inputs on the GPU; in history mode
+                also inputs whose producers last ran on the other side)."""
+                ms = 0.0
                 for ref in node.inputs.values():
-                    if isinstance(ref, Data) and ref.kind == INPUT:
-                        gpu_t += cal.transfer.upload(nbytes(ref.sample))
+                    if not isinstance(ref, Data):
+                        continue
+                    if ref.kind == INPUT:
+                        if pe == "gpu":
+                            ms += scale * cal.transfer.upload(nbytes(ref.sample))
+                    elif history and ref.producer is not None:
+                        where = cal.placement.get(ref.producer.name)
+                        if where is not None and where != pe:
+                            n = nbytes(ref.sample)
+                            ms += scale * (cal.transfer.upload(n) if pe == "gpu" else cal.transfer.download(n))
+                return ms
+
+            def cost(pe):
+                if pe not in pes or (pe == "gpu" and be is None):
+                    return None
+                if pe in known:
+                    return known[pe] + known.get(f"{pe}_copies", 0.0) + d.get(f"{pe}_gap", 0.0)
+                return cal.nodes[node.name][pe] + d.get(f"{pe}_node", 0.0) + copies(pe)
+
+            cpu_t, gpu_t = cost("cpu"), cost("gpu")
             if cpu_t is None and gpu_t is None:
                 raise GraphError(f"node {node.name!r} ({node.kind}), port 'target': no processing "
                                  f"element of this plan can run it (pinned to {node.target!r}, "
@@ -385,11 +427,14 @@ class Graph:
             for ref in node.inputs.values():
                 if isinstance(ref, Data) and ref.producer is not None:
                     key = (ref.producer.name, node.name)
-                    edges[key] = edges.get(key, 0.0) + cal.transfer.time(nbytes(ref.sample))
+                    if key not in edges:
+                        edges[key] = d.get("handoff", 0.0)
+                    if not history:
+                        edges[key] += cal.transfer.time(nbytes(ref.sample))
         return cpu_gpu_dag(tasks, edges, n_cpus)
 
     def schedule(self, policy="best", *, n_cpus: int | None = None, gpu=None,
-                 recalibrate: bool = False):
+                 recalibrate: bool = False, costs: str = "calibrated"):
         """Calibrate (cached), schedule with ``policy`` and make the result the current plan.
 
         Parameters
@@ -401,6 +446,9 @@ class Graph:
         gpu : str, None or False
             The GPU role: ``"cuda"``/``"cuda:N"``, ``"warp-cpu"`` (Warp's CPU device, for
             tests), None (CUDA if present, else warp-cpu) or False (CPU workers only).
+        costs : str
+            ``"calibrated"`` (nodes timed alone) or ``"history"`` (what running frames
+            measured, after :meth:`learn`; calibrated costs where none was measured).
 
         Returns
         -------
@@ -417,16 +465,35 @@ class Graph:
             cal = self._calibrations.get(be.name if be else None)
             if cal is None or recalibrate:
                 cal = self.calibrate(gpu=be.name if be else False, recalibrate=recalibrate)
-            dag = self.to_task_dag(n_cpus, gpu=be.name if be else False, calibration=cal)
+            dag = self.to_task_dag(n_cpus, gpu=be.name if be else False, calibration=cal,
+                                   costs=costs)
             sch = sched.schedule(dag, policy)
             sched.validate_schedule(dag, sch)
             plan = Plan(weakref.ref(self), sch, dag, sched.metrics(dag, sch),
                         policy if isinstance(policy, str) else getattr(policy, "__name__", "custom"),
-                        n_cpus, be.name if be else None, cal)
+                        n_cpus, be.name if be else None, cal, costs=costs)
             self._invalidate_plan()
             self._plan = plan
             self._plan_box[0] = plan
         return plan
+
+    def learn(self, plan=None, *, runs=None, skip: int = 1) -> dict:
+        """Fold measured frames into the plan's calibration history (and the cache), for
+        ``schedule(..., costs="history")``.
+
+        ``runs``: the :class:`~warpvx.sched.executor.FrameResult` of frames run with ``plan``
+        (default: the plan's ``last_run``; :meth:`process` keeps only its latest frame there,
+        so collect them to learn from many). Each node's cost on the processing element it
+        ran on becomes the median of its measured intervals without their transfers, over
+        the frames after the first ``skip``. Returns node -> ``{pe: ms}`` learnt.
+        """
+        from .calibration import learn as _learn
+
+        plan = plan or self._plan
+        runs = list(plan.last_run) if runs is None and plan is not None else runs
+        if plan is None or not runs:
+            raise GraphError("learn: nothing measured yet; run g.process() or g.stream() first")
+        return _learn(plan.calibration, runs, plan.placement, skip=skip)
 
     @property
     def plan(self):
@@ -446,10 +513,13 @@ class Graph:
             refs = tuple(InputRef(r.data.name, r.offset) if isinstance(r, DelayRef)
                          else InputRef(r.name) for r in node.inputs.values())
             pes = node.processing_elements
+            on_gpu = "gpu" in pes and gpu_be is not None
+            out_factory = getattr(node, "out_factory", None)
             tasks[node.name] = ExecTask(
                 node.name, refs, tuple(d.name for d in node.outputs.values()),
                 cpu=node.callable("cpu", cpu_be) if "cpu" in pes else None,
-                gpu=node.callable("gpu", gpu_be) if "gpu" in pes and gpu_be is not None else None,
+                gpu=node.callable("gpu", gpu_be) if on_gpu else None,
+                gpu_out=out_factory(gpu_be) if on_gpu and out_factory is not None else None,
             )
         return Program(tasks, tuple(self.inputs), {n: d.name for n, d in self.outputs.items()},
                        {d.data.name: d for d in self.delays})
@@ -526,7 +596,7 @@ class Graph:
                 ex.abort()
                 raise
             plan.last_run.clear()
-            plan.last_run.append(result)
+            plan.last_run.append(_timing_only(result))
             self._publish(result)
             return result.outputs
 
@@ -570,7 +640,7 @@ class Graph:
         except NodeExecutionError:
             ex.abort()
             raise
-        plan.last_run.append(result)
+        plan.last_run.append(_timing_only(result))
         self._publish(result)
         return result.outputs
 
@@ -601,6 +671,12 @@ class Graph:
     def __repr__(self):
         return (f"Graph({self.name!r}, {len(self.nodes)} nodes, inputs={list(self.inputs)}, "
                 f"outputs={list(self.outputs)})")
+
+
+def _timing_only(result):
+    """A frame's result as a plan keeps it: the measurements, not the outputs (a plan keeps
+    dozens of frames; their outputs, images among them, went to the caller)."""
+    return dataclasses.replace(result, outputs={})
 
 
 def _device_name(device):

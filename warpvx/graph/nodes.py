@@ -13,6 +13,8 @@ import inspect
 import re
 import weakref
 
+import numpy as np
+
 from ..errors import GraphError, WarpvxError
 from ..registry import REGISTRY, get_primitive
 from .data import Data, DelayRef
@@ -164,6 +166,8 @@ class PrimitiveNode(Node):
         return ba.args, ba.kwargs
 
     def callable(self, pe: str, backend):
+        """``fn(*input_values, out=None)``; ``out`` (a buffer from :meth:`out_factory`) is
+        used only while the inputs have the shapes verification saw, so it fits."""
         fn = self.function
         ports = self.input_ports
         base = dict(self.arguments)
@@ -171,20 +175,59 @@ class PrimitiveNode(Node):
         simple = all(sig.parameters[p].kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD,
                                                 inspect.Parameter.KEYWORD_ONLY)
                      for p in base)
+        shapes = self._input_shapes()
+
+        def fits(values):
+            return all(s is None or tuple(getattr(v, "shape", ())) == s
+                       for v, s in zip(values, shapes))
 
         if simple:
             # Hot path: keyword call, no BoundArguments per frame.
-            def run(*values):
+            def run(*values, out=None):
                 kw = dict(base)
                 for p, v in zip(ports, values):
                     kw[p] = v
+                if out is not None and fits(values):
+                    kw["out"] = out
                 return fn(**kw, backend=backend)
         else:
-            def run(*values):
+            def run(*values, out=None):
                 args, kwargs = self.bind_values(values)
+                if out is not None and fits(values):
+                    kwargs["out"] = out
                 return fn(*args, **kwargs, backend=backend)
 
         return run
+
+    def _input_shapes(self) -> tuple:
+        """Shapes of the array inputs as verification saw them (None: not an array)."""
+        out = []
+        for port in self.input_ports:
+            ref = self.inputs[port]
+            sample = ref.data.sample if isinstance(ref, DelayRef) else ref.sample
+            out.append(tuple(sample.shape) if isinstance(sample, np.ndarray) else None)
+        return tuple(out)
+
+    def out_factory(self, backend):
+        """A maker of this node's output buffer on ``backend``'s device, for the executor's
+        buffer pools; None unless the primitive takes ``out=`` and returns one array whose
+        shape follows from its inputs' (verification's sample fixes shape and dtype)."""
+        if backend is None or backend.kind != "warp" or len(self.output_ports) != 1:
+            return None
+        if "out" not in self.signature.parameters:
+            return None
+        sample = self.outputs[self.output_ports[0]].sample
+        if not isinstance(sample, np.ndarray) or sample.ndim == 0 or sample.dtype.kind not in "uif":
+            return None
+        shape, dtype, device = tuple(sample.shape), sample.dtype, backend.device
+
+        def make():
+            from ..backend import init_warp
+
+            wp = init_warp()
+            return wp.empty(shape, dtype=wp.dtype_from_numpy(dtype), device=device)
+
+        return make
 
     def constants(self) -> dict:
         return {k: v for k, v in self.arguments.items() if k not in self.inputs}
@@ -244,8 +287,6 @@ class UserNode(Node):
 
 def _const_text(consts: dict) -> str:
     import zlib
-
-    import numpy as np
 
     out = []
     for k in sorted(consts):

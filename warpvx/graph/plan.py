@@ -31,9 +31,12 @@ class Plan:
     gpu : str or None
         The GPU role's backend name (``"cuda:0"``, ``"warp-cpu"``) or None.
     calibration : Calibration
+    costs : str
+        ``"calibrated"`` or ``"history"``: which node costs the schedule used.
     last_run : collections.deque of FrameResult
         Measured timelines (ms from each frame's submission) of the last ``process`` or
-        ``stream`` call, newest last, at most :data:`KEEP_FRAMES`.
+        ``stream`` call, newest last, at most :data:`KEEP_FRAMES` (without their outputs,
+        which went to the caller).
     """
 
     graph_ref: object
@@ -46,6 +49,7 @@ class Plan:
     calibration: object
     last_run: deque = field(default_factory=lambda: deque(maxlen=KEEP_FRAMES))
     _executor: object = None
+    costs: str = "calibrated"
 
     @property
     def graph(self):

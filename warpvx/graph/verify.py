@@ -114,16 +114,19 @@ def _warp_np_dtype(a):
     return numpy_dtype(a)
 
 
-def dry_run(graph, order, given: dict | None = None):
+def dry_run(graph, order, given=None):
     """Run every node on samples; set each data object's ``sample`` and the delays' inits.
 
     With delays, two frames run: the first reads the delays' initial values (checking that
     they fit), the second reads the first frame's values, so the samples calibration times
-    nodes on are those of a running video (LK tracking real points, not zeros).
+    nodes on are those of a running video (LK tracking real points, not zeros). ``given``
+    is one dict of input values, or a list of two: the inputs of both frames, so that the
+    second frame differs from the first (LK then tracks real motion, as in a video, instead
+    of converging at once on a still image).
     """
-    given = given or {}
+    frames = _given_frames(given)
     for name, data in graph.inputs.items():
-        data.sample = input_sample(data, given.get(name))
+        data.sample = input_sample(data, frames[0].get(name))
     for node in graph.nodes.values():
         for d in node.outputs.values():
             d.sample = None
@@ -138,7 +141,24 @@ def dry_run(graph, order, given: dict | None = None):
             delay.set_initial(zeros_like(delay.data.sample))
     if graph.delays:
         previous = {d.data.name: d.data.sample for d in graph.delays}
+        for d in graph.delays:
+            d.sample_previous = previous[d.data.name]
+        if len(frames) > 1:
+            for name, data in graph.inputs.items():
+                if name in frames[1]:
+                    data.sample = input_sample(data, frames[1][name])
         _dry_frame(graph, order, cpu, previous=previous)
+
+
+def _given_frames(given) -> list:
+    if given is None:
+        return [{}]
+    if isinstance(given, dict):
+        return [given]
+    if isinstance(given, (list, tuple)) and 1 <= len(given) <= 2 and all(isinstance(g, dict) for g in given):
+        return list(given)
+    raise GraphError(f"inputs: expected a dict name -> value, or a list of two such dicts (two "
+                     f"consecutive frames), got {type(given).__name__}")
 
 
 def _dry_frame(graph, order, cpu, previous):

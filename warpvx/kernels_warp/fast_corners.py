@@ -32,7 +32,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..keypoints import Keypoints
-from ._launch import HostReadback, Recorded, drop_workspace, workspace
+from ._launch import HostReadback, Recorded, workspace
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})

@@ -16,16 +16,28 @@ Cross-queue edges
     event after the producer; the CPU consumer waits for the slot, then for the event
     (``wp.synchronize_event``), then downloads on its own copy stream. CPU -> GPU: the GPU
     thread waits for the CPU producer's slot and uploads on the GPU stream (stream-ordered, so
-    the kernel after it sees the data). Between two GPU tasks data stays on the device: one
-    in-order stream needs no synchronisation at all.
+    the kernel after it sees the data; large arrays go through reusable pinned staging
+    buffers, so the copy is asynchronous and the GPU thread does not wait for the kernels
+    queued before it). Between two GPU tasks data stays on the device: one in-order stream
+    needs no synchronisation at all.
 Timing
     CPU tasks: host ``time.perf_counter`` before the task's downloads and after its call
     (waiting for a producer is not counted). GPU tasks on CUDA: timing events recorded on the
     stream before the task's uploads and after its kernels, mapped to the host clock through
     an anchor event recorded while the stream was idle (:meth:`Executor.reanchor`), so a GPU
-    interval is when the device ran it, not when the host enqueued it. Without CUDA (the
+    interval is when the device ran it, not when the host enqueued it. When the GPU thread
+    did not have to wait between two tasks, the first one's end event is the second one's
+    start (one event per task, not two). Events come from a pool and return to it once their
+    frame has been waited for. The host-side time of each GPU call (enqueue plus any host
+    syncs inside the primitive) is kept too (:attr:`FrameResult.host`), and so is the time
+    each task spent on transfers (:attr:`FrameResult.transfers`). Without CUDA (the
     ``"warp-cpu"`` GPU role) calls are synchronous and host times are used; events are not
     used at all.
+Buffers
+    A task may come with ``gpu_out``, a factory of its output buffer: the executor then calls
+    ``gpu(*values, out=buffer)`` with a buffer from the task's pool and returns the buffer to
+    the pool once the frame has been waited for (unless a delay keeps the value or it was
+    handed to the caller on the device), so steady-state frames allocate nothing for it.
 CPU threads
     Calibration times each CPU implementation alone; OpenCV's own thread pool then competes
     with the workers when they run together, so predictions hold best with
@@ -46,6 +58,7 @@ Errors
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 import time
@@ -60,6 +73,10 @@ from .schedule import Schedule, ScheduledTask
 
 #: Seconds between cancellation checks of a blocked wait.
 WAIT_SLICE = 0.02
+
+#: Default of :class:`Executor`'s ``spin``: seconds a thread polls for a value (yielding the
+#: GIL between polls) before it blocks on it. Blocking costs a thread wake-up per hand-off.
+SPIN_SECONDS = 0.0
 
 HOST = "host"
 DEVICE = "device"
@@ -85,7 +102,9 @@ class ExecTask:
     """One task: inputs, outputs and its callables.
 
     ``cpu(*host_values)`` and ``gpu(*device_values)`` return one value per output (a tuple
-    when there are several); ``None`` marks a missing implementation.
+    when there are several); ``None`` marks a missing implementation. ``gpu_out``, when
+    given, makes a fresh output buffer for the GPU callable, which then takes it as
+    ``gpu(*device_values, out=buffer)`` (buffers are pooled across frames).
     """
 
     name: str
@@ -93,6 +112,7 @@ class ExecTask:
     outputs: tuple
     cpu: Callable | None = None
     gpu: Callable | None = None
+    gpu_out: Callable | None = None
 
 
 @dataclass
@@ -120,6 +140,41 @@ class Program:
 # --------------------------------------------------------------------------- values
 
 
+class Flag:
+    """A one-shot ``threading.Event`` (``set``, ``is_set``, ``wait(timeout)``) made of one
+    lock: cheaper to create, set and wait on than an Event (a Condition per wait), and the
+    executor makes one per value per frame and waits on them on every cross-thread edge."""
+
+    __slots__ = ("_lock", "_set")
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._lock.acquire()
+        self._set = False
+
+    def set(self):
+        if not self._set:
+            self._set = True
+            try:
+                self._lock.release()
+            except RuntimeError:  # released by a concurrent set()
+                pass
+
+    def is_set(self) -> bool:
+        return self._set
+
+    def wait(self, timeout: float | None = None) -> bool:
+        if self._set:
+            return True
+        if self._lock.acquire(timeout=-1 if timeout is None else timeout):
+            try:
+                self._lock.release()  # let the other waiters through
+            except RuntimeError:
+                pass
+            return True
+        return self._set
+
+
 class Slot:
     """One value of one frame, where its producer left it, with cached copies elsewhere.
 
@@ -134,7 +189,7 @@ class Slot:
         self.where = HOST
         self.event = None
         self.external = False  # a device value made outside the executor's stream
-        self.done = threading.Event()
+        self.done = Flag()
         self._host = None
         self._device = None
         self._lock = threading.Lock()
@@ -149,13 +204,17 @@ class Slot:
         self.value, self.where, self.event = value, where, event
         self.done.set()
 
-    def host(self, io: "Transfers"):
-        """The value as host data, downloaded once (thread-safe)."""
+    def host(self, io: "Transfers", *, ready: bool = False):
+        """The value as host data, downloaded once (thread-safe).
+
+        ``ready``: the caller already waited for the producer's event on the host, so the
+        copy need not wait for it again.
+        """
         if self.where == HOST:
             return self.value
         with self._lock:
             if self._host is None:
-                self._host = (io.download(self.value, self.event),)
+                self._host = (io.download(self.value, None if ready else self.event),)
             return self._host[0]
 
     def device(self, io: "Transfers"):
@@ -266,19 +325,98 @@ def tree_map(fn, obj):
     return obj
 
 
+def _native():
+    """Warp's native copy and sync entry points, or None when this Warp lacks them.
+
+    The executor's small copies use them directly: through ``wp.copy``, ``wp.empty(device=
+    "cpu")`` and ``array.numpy()`` a 16-byte download costs tens of microseconds of Python,
+    paid on every edge between a GPU task and a CPU task. Only contiguous arrays of scalar
+    dtypes take this path, with the same calls ``wp.copy`` makes.
+    """
+    global _NATIVE
+    if _NATIVE is False:
+        try:
+            from warp._src import context as ctx
+
+            core = ctx.runtime.core
+            _NATIVE = (core.wp_memcpy_h2d, core.wp_memcpy_d2h, core.wp_cuda_stream_synchronize,
+                       core.wp_cuda_event_record, core.wp_cuda_event_synchronize)
+        except (ImportError, AttributeError):
+            _NATIVE = None
+    return _NATIVE
+
+
+def _record(stream, event):
+    """``stream.record_event(event)`` (a timing event) without Warp's Python checks."""
+    native = _native()
+    if native is None:
+        stream.record_event(event)
+    else:
+        native[3](event.cuda_event, stream.cuda_stream, True)
+
+
+def _sync_event(event):
+    """``wp.synchronize_event(event)`` without Warp's capture checks (never capturing here)."""
+    native = _native()
+    if native is None or not native[4](event.cuda_event):
+        _wp().synchronize_event(event)  # the checked path, which also reports errors
+
+
+_NATIVE = False
+_NP_DTYPES: dict = {}
+
+
+def _numpy_dtype(wp, dtype):
+    """The NumPy dtype of a scalar Warp dtype, None for vectors, matrices and structs."""
+    try:
+        return _NP_DTYPES[dtype]
+    except KeyError:
+        pass
+    try:
+        np_dtype = wp.dtype_to_numpy(dtype)  # scalar types only; TypeError for the others
+    except (TypeError, KeyError):
+        np_dtype = None
+    _NP_DTYPES[dtype] = np_dtype
+    return np_dtype
+
+
+class _Staging:
+    """A pinned host buffer for uploads of one shape and dtype, and the event of its last copy."""
+
+    __slots__ = ("buffer", "view", "event")
+
+    def __init__(self, buffer, event):
+        self.buffer = buffer
+        self.view = buffer.numpy()  # aliases the pinned memory
+        self.event = event
+
+
 class Transfers:
     """Host <-> device copies for one thread.
 
     On CUDA each thread that downloads owns a ``wp.Stream``: a download makes that stream wait
     for the producer's event, copies, and synchronises only that stream, so it never touches
     the device's current stream (which belongs to the GPU thread) and never waits for
-    unrelated kernels. Uploads run on the current stream (the GPU thread's).
+    unrelated kernels. Uploads run on the device's current stream (the GPU thread's), so
+    the device buffer is allocated and filled in that stream's order. An upload of
+    :data:`PINNED_MIN_BYTES` or more goes through a pinned staging buffer (one per shape and
+    dtype, a few in rotation, reused once their copy has completed): the host copies into it
+    and the device copy is asynchronous. From pageable memory, a large copy would wait for
+    every kernel queued before it on the stream, stalling the GPU thread.
     """
+
+    #: Uploads from this size on use pinned staging buffers (smaller ones are staged by the
+    #: driver at once anyway).
+    PINNED_MIN_BYTES = 1 << 16
+    #: Staging buffers per shape and dtype before an upload waits for the oldest one.
+    STAGING_DEPTH = 4
 
     def __init__(self, device: str | None):
         self.device = device
         self.cuda = bool(device) and device.startswith("cuda")
         self._stream = None
+        self._staging: dict = {}
+        self.moved = 0  # bytes copied so far, both ways
 
     @property
     def stream(self):
@@ -287,30 +425,39 @@ class Transfers:
         return self._stream
 
     def download(self, value, event=None):
+        """``value`` with every device array copied to host NumPy (fresh arrays, never views
+        of device-role memory: a pooled buffer may be overwritten by a later frame)."""
         wp = _wp() if self.cuda else None
 
         def leaf(a):
             if not _is_warp(a):
                 return a
             if not a.device.is_cuda:
-                return a.numpy()
-            if not a.is_contiguous:
+                # Warp's CPU device shares host memory: copy, so the value outlives the buffer.
+                out = a.numpy().copy()
+            elif not a.is_contiguous:
                 # A strided view needs a gather kernel on the device's current stream (the GPU
                 # thread's); wait for the producer, then let Warp copy synchronously.
                 if event is not None:
                     wp.synchronize_event(event)
-                return a.numpy()
-            host = wp.empty(a.shape, dtype=a.dtype, device="cpu")
-            s = self.stream
-            if event is not None:
-                s.wait_event(event)
-            wp.copy(host, a, stream=s)
-            wp.synchronize_stream(s)
-            return host.numpy()
+                out = a.numpy()
+            else:
+                s = self.stream
+                if event is not None:
+                    s.wait_event(event)
+                out = self._download_native(wp, a, s)
+                if out is None:
+                    host = wp.empty(a.shape, dtype=a.dtype, device="cpu")
+                    wp.copy(host, a, stream=s)
+                    wp.synchronize_stream(s)
+                    out = host.numpy()
+            self.moved += out.nbytes
+            return out
 
         return tree_map(leaf, value)
 
     def upload(self, value):
+        """``value`` with every host array copied to the device (on its current stream)."""
         import numpy as np
 
         wp = _wp()
@@ -321,15 +468,106 @@ class Transfers:
                 if a.device == dev:
                     return a
                 a = a.numpy()
-            a = np.ascontiguousarray(a)
+            if not isinstance(a, np.ndarray):
+                return a
             dtype = wp.dtype_from_numpy(a.dtype)
+            self.moved += a.nbytes
             if dev.is_cpu:
                 # Warp's CPU device shares host memory: alias, do not copy (host values are
                 # never written after their producer finished).
-                return wp.array(a, dtype=dtype, device=dev, copy=False)
-            return wp.array(a, dtype=dtype, device=dev)
+                return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev, copy=False)
+            if a.nbytes < self.PINNED_MIN_BYTES:
+                return self._upload_small(wp, dev, np.ascontiguousarray(a), dtype)
+            return self._upload_staged(wp, dev, a, dtype)
 
         return tree_map(leaf, value)
+
+    @staticmethod
+    def _download_native(wp, a, stream):
+        """Contiguous scalar-dtype device array -> new NumPy array, copied on ``stream``
+        (None: not this path)."""
+        native = _native()
+        np_dtype = _numpy_dtype(wp, a.dtype)
+        if native is None or np_dtype is None:
+            return None
+        d2h, sync = native[1], native[2]
+        import numpy as np
+
+        out = np.empty(a.shape, dtype=np_dtype)
+        if out.nbytes:
+            if not d2h(a.device.context, out.ctypes.data, a.ptr, out.nbytes, stream.cuda_stream):
+                raise RuntimeError(f"download of {out.nbytes} bytes failed")
+            if not sync(stream.cuda_stream):
+                raise RuntimeError("download: stream synchronisation failed")
+        return out
+
+    @staticmethod
+    def _upload_small(wp, dev, a, dtype):
+        """A small contiguous host array -> device, on the current stream (pageable: the
+        driver stages it at once)."""
+        native = _native()  # dtype is a scalar type: wp.dtype_from_numpy made it
+        if native is None:
+            return wp.array(a, dtype=dtype, device=dev)
+        dst = wp.empty(a.shape, dtype=dtype, device=dev)
+        if a.nbytes and not native[0](dev.context, dst.ptr, a.ctypes.data, a.nbytes,
+                                      dev.stream.cuda_stream):
+            raise RuntimeError(f"upload of {a.nbytes} bytes failed")
+        return dst
+
+    def _upload_staged(self, wp, dev, a, dtype):
+        import numpy as np
+
+        stream = dev.stream
+        key = (a.shape, a.dtype.str)
+        ring = self._staging.setdefault(key, [])
+        stage = None
+        for s in ring:
+            if s.event is None or s.event.is_complete:
+                stage = s
+                break
+        if stage is None:
+            if len(ring) < self.STAGING_DEPTH:
+                stage = _Staging(wp.empty(a.shape, dtype=dtype, device="cpu", pinned=True), None)
+                ring.append(stage)
+            else:  # all in flight: wait for the oldest (the first recorded)
+                stage = ring.pop(0)
+                wp.synchronize_event(stage.event)
+                ring.append(stage)
+        np.copyto(stage.view, a)
+        dst = wp.empty(a.shape, dtype=dtype, device=dev)
+        wp.copy(dst, stage.buffer, stream=stream)
+        if stage.event is None:
+            stage.event = wp.Event(dev)
+        stream.record_event(stage.event)
+        return dst
+
+
+class EventPool:
+    """Reusable CUDA timing events of one device (creating events per task costs more than
+    recording them). :meth:`get` hands out a free one; :meth:`put` takes back events whose
+    frame is over."""
+
+    MAX_FREE = 4096
+
+    def __init__(self, device: str):
+        self.device = device
+        self._free: list = []
+        self._lock = threading.Lock()
+
+    def get(self):
+        with self._lock:
+            if self._free:
+                return self._free.pop()
+        return _wp().Event(self.device, enable_timing=True)
+
+    def put(self, events):
+        with self._lock:
+            room = self.MAX_FREE - len(self._free)
+            if room > 0:
+                self._free.extend(events[:room])
+
+    def __len__(self):
+        return len(self._free)
 
 
 # --------------------------------------------------------------------------- frames
@@ -345,9 +583,15 @@ class Frame:
         self.finished = threading.Event()
         self.error = None  # (task, processor, exception)
         self.cancelled_by = None
-        self.trace = {}  # task -> (processor, start, end) host seconds, or (processor, ev0, ev1)
+        # task -> (processor, start, end, after_transfers or None): host seconds, or CUDA
+        # events for GPU tasks on CUDA.
+        self.trace = {}
+        self.host_trace = {}  # GPU task -> (start, end) host seconds of its call
+        self.copied = {}  # task -> bytes it moved between host and device
         self.t0 = time.perf_counter()
         self.gpu_last_event = None
+        self.events = []  # pooled CUDA events this frame recorded
+        self.leases = []  # (task, buffer) output buffers taken from the pools
         self._remaining = n_procs
         self._lock = threading.Lock()
         if n_procs == 0:
@@ -359,10 +603,17 @@ class Frame:
             if self._remaining == 0:
                 self.finished.set()
 
-    def wait_slot(self, slot: Slot, closing: threading.Event):
-        if slot.done.is_set():
+    def wait_slot(self, slot: Slot, closing: threading.Event, spin: float = 0.0):
+        done = slot.done
+        if done.is_set():
             return
-        while not slot.done.wait(WAIT_SLICE):
+        if spin > 0:
+            deadline = time.perf_counter() + spin
+            while time.perf_counter() < deadline:
+                time.sleep(0)  # lets the producer have the GIL
+                if done.is_set():
+                    return
+        while not done.wait(WAIT_SLICE):
             if self.cancel.is_set() or closing.is_set():
                 raise _Cancelled()
 
@@ -373,12 +624,24 @@ class FrameResult:
 
     ``timeline`` maps task -> :class:`ScheduledTask` with times in ms from the frame's
     submission (``t0``, host ``perf_counter`` seconds); ``makespan`` is the latest finish.
+    ``transfers``: task -> ms of its interval spent on host <-> device copies (uploads of a
+    GPU task, downloads of a CPU task); ``copied``: task -> bytes it copied; ``host``: GPU
+    task -> (start, finish) ms of the GPU thread's call (enqueue plus host syncs inside it),
+    on the same axis as ``timeline``.
     """
 
     index: int
     outputs: dict
     timeline: dict
     t0: float
+    transfers: dict = field(default_factory=dict)
+    copied: dict = field(default_factory=dict)
+    host: dict = field(default_factory=dict)
+
+    def compute_ms(self, task) -> float:
+        """The task's measured time without its transfers (ms)."""
+        t = self.timeline[task]
+        return max(0.0, t.finish - t.start - self.transfers.get(task, 0.0))
 
     @property
     def makespan(self) -> float:
@@ -406,6 +669,10 @@ class Executor:
         ``"warp-cpu"`` role). Required when a task is placed on ``"gpu"``.
     name : str
         For thread names and messages.
+    spin : float, optional
+        Seconds a thread polls for an input (yielding the GIL) before it blocks on it
+        (default :data:`SPIN_SECONDS`): a short poll saves the thread wake-up of a
+        hand-off, at the price of GIL traffic while it polls.
 
     Raises
     ------
@@ -416,7 +683,8 @@ class Executor:
     """
 
     def __init__(self, schedule: Schedule, program: Program, *, gpu_device: str | None = None,
-                 name: str = "graph"):
+                 name: str = "graph", spin: float | None = None):
+        self.spin = SPIN_SECONDS if spin is None else float(spin)
         self.schedule = schedule
         self.program = program
         self.name = name
@@ -428,7 +696,11 @@ class Executor:
             raise ScheduleError(f"schedule: places unknown task {unknown[0]!r}")
         self.queues = {p: [program.tasks[t] for t in self._order(p)] for p in self.processors}
         self._check()
-        self._active = [p for p in self.processors if self.queues[p]]
+        # The GPU thread first: it hands frames out in this order, and the threads woken
+        # first take Python's GIL first; the GPU thread (Python-heavy, usually the critical
+        # path) should not start its frame behind every CPU worker's Python prologue.
+        self._active = sorted((p for p in self.processors if self.queues[p]),
+                              key=lambda p: not _is_gpu_processor(p))
         self._inbox = {p: queue.SimpleQueue() for p in self._active}
         self._threads: dict[str, threading.Thread] = {}
         self._closing = threading.Event()
@@ -437,6 +709,13 @@ class Executor:
         self._local = threading.local()
         self._stream = None
         self._anchor = None  # (host seconds, timing event) on CUDA
+        self._events = EventPool(gpu_device) if self.cuda else None
+        self._out_pools: dict[str, list] = {t: [] for t, task in program.tasks.items()
+                                            if task.gpu_out is not None}
+        self._pool_rule = self._pool_rules()
+        for name, rule in self._pool_rule.items():
+            if rule == "never":  # the primitive allocates, as without a pool
+                del self._out_pools[name]
 
     # ------------------------------------------------------------------ checks
 
@@ -539,16 +818,38 @@ class Executor:
             frame = inbox.get()
             if frame is None:
                 return
-            try:
-                if not frame.cancel.is_set():
-                    if gpu:
-                        self._run_gpu(proc, frame)
-                    else:
-                        self._run_cpu(proc, frame)
-            except BaseException as exc:  # noqa: BLE001 - an executor bug must not kill the thread
-                self._fail(frame, "<executor>", proc, exc)
-            finally:
-                frame.processor_done()
+            if gpu:
+                if self._gpu_frames(proc, frame, inbox):
+                    return
+            else:
+                self._one_frame(proc, frame, self._run_cpu)
+
+    def _one_frame(self, proc: str, frame: Frame, run):
+        try:
+            if not frame.cancel.is_set():
+                run(proc, frame)
+        except BaseException as exc:  # noqa: BLE001 - an executor bug must not kill the thread
+            self._fail(frame, "<executor>", proc, exc)
+        finally:
+            frame.processor_done()
+
+    def _gpu_frames(self, proc: str, frame: Frame, inbox) -> bool:
+        """Run ``frame`` and the frames queued behind it in one device/stream scope (entering
+        and leaving the scope per frame costs host time on the critical thread). Returns True
+        when the stop sentinel came."""
+        wp = _wp()
+        scope = (wp.ScopedStream(self._stream, sync_enter=False) if self.cuda
+                 # sync_enter=False: the stream's order is ours; the user's stream is not a producer.
+                 else contextlib.nullcontext())
+        with wp.ScopedDevice(self.gpu_device), scope:
+            while True:
+                self._one_frame(proc, frame, self._run_gpu_tasks)
+                try:
+                    frame = inbox.get_nowait()
+                except queue.Empty:
+                    return False
+                if frame is None:
+                    return True
 
     def _slot(self, frame: Frame, ref: InputRef) -> Slot:
         if ref.offset == 0:
@@ -575,13 +876,23 @@ class Executor:
             try:
                 slots = [self._slot(frame, ref) for ref in task.inputs]
                 for s in slots:
-                    frame.wait_slot(s, self._closing)
+                    frame.wait_slot(s, self._closing, self.spin)
+                remote = [s for s in slots if s.where == DEVICE]
                 if self.cuda:
-                    for s in slots:
-                        if s.where == DEVICE and s.event is not None:
-                            _wp().synchronize_event(s.event)
+                    for s in remote:
+                        ev = s.event
+                        if ev is not None:
+                            _sync_event(ev)
                 t0 = time.perf_counter()
-                values = [s.host(io) for s in slots]
+                t_mid = None
+                if remote:
+                    before = io.moved
+                    values = [s.host(io, ready=True) for s in slots]
+                    t_mid = time.perf_counter()
+                    if io.moved > before:
+                        frame.copied[task.name] = io.moved - before
+                else:
+                    values = [s.value for s in slots]
                 result = task.cpu(*values)
                 t1 = time.perf_counter()
                 self._publish(frame, task, result, HOST)
@@ -590,52 +901,115 @@ class Executor:
             except BaseException as exc:  # noqa: BLE001 - reported to the caller
                 self._fail(frame, task.name, proc, exc)
                 return
-            frame.trace[task.name] = (proc, t0, t1)
+            frame.trace[task.name] = (proc, t0, t1, t_mid)
 
-    def _run_gpu(self, proc: str, frame: Frame):
-        wp = _wp()
+    def _run_gpu_tasks(self, proc: str, frame: Frame):
         io = self._io()
-        with wp.ScopedDevice(self.gpu_device):
-            if self.cuda:
-                # sync_enter=False: the stream's order is ours; the user's stream is not a producer.
-                with wp.ScopedStream(self._stream, sync_enter=False):
-                    self._run_gpu_tasks(proc, frame, io, wp)
-            else:
-                self._run_gpu_tasks(proc, frame, io, wp)
-
-    def _run_gpu_tasks(self, proc, frame, io, wp):
+        cuda = self.cuda
+        stream = self._stream
+        pool = self._events
+        prev_end = None  # the last task's end event while the thread has not waited since
         for task in self.queues[proc]:
             if frame.cancel.is_set():
                 return
             try:
                 slots = [self._slot(frame, ref) for ref in task.inputs]
                 for s in slots:
-                    frame.wait_slot(s, self._closing)
-                if self.cuda:
+                    if not s.done.is_set():
+                        prev_end = None  # the stream may idle while we wait: a fresh start event
+                        frame.wait_slot(s, self._closing, self.spin)
+                h0 = time.perf_counter()
+                if cuda:
                     for s in slots:
                         if s.external and s.event is not None:
-                            self._stream.wait_event(s.event)
-                    ev0 = wp.Event(self.gpu_device, enable_timing=True)
-                    self._stream.record_event(ev0)
-                else:
-                    t0 = time.perf_counter()
+                            stream.wait_event(s.event)
+                            prev_end = None
+                    if prev_end is None:
+                        ev0 = pool.get()
+                        frame.events.append(ev0)
+                        _record(stream, ev0)
+                    else:
+                        ev0 = prev_end
+                before = io.moved
                 values = [s.device(io) for s in slots]
-                result = task.gpu(*values)
-                if self.cuda:
-                    ev1 = wp.Event(self.gpu_device, enable_timing=True)
-                    self._stream.record_event(ev1)
+                mid = None
+                moved = io.moved - before
+                if moved:
+                    frame.copied[task.name] = moved
+                    if not cuda:
+                        mid = time.perf_counter()
+                    elif moved >= io.PINNED_MIN_BYTES:  # a tiny copy is not worth an event
+                        mid = pool.get()
+                        frame.events.append(mid)
+                        _record(stream, mid)
+                if task.name in self._out_pools:
+                    result = task.gpu(*values, out=self._lease(frame, task))
+                else:
+                    result = task.gpu(*values)
+                if cuda:
+                    ev1 = pool.get()
+                    frame.events.append(ev1)
+                    _record(stream, ev1)
+                    h1 = time.perf_counter()
                     frame.gpu_last_event = ev1
                     self._publish(frame, task, result, DEVICE, ev1)
-                    frame.trace[task.name] = (proc, ev0, ev1)
+                    frame.trace[task.name] = (proc, ev0, ev1, mid)
+                    prev_end = ev1
                 else:
-                    t1 = time.perf_counter()
+                    h1 = time.perf_counter()
                     self._publish(frame, task, result, DEVICE)
-                    frame.trace[task.name] = (proc, t0, t1)
+                    frame.trace[task.name] = (proc, h0, h1, mid)
+                frame.host_trace[task.name] = (h0, h1)
             except _Cancelled:
                 return
             except BaseException as exc:  # noqa: BLE001 - reported to the caller
                 self._fail(frame, task.name, proc, exc)
                 return
+
+    def _lease(self, frame: Frame, task: ExecTask):
+        pool = self._out_pools[task.name]
+        try:
+            buf = pool.pop()
+        except IndexError:
+            buf = task.gpu_out()
+        frame.leases.append((task, buf))
+        return buf
+
+    def _pool_rules(self) -> dict:
+        """task -> when its pooled output buffer may be reused after its frame: ``"never"``
+        when a delay may hold it, ``"host"`` when a graph output may be it (reusable only
+        if outputs went to the host as copies), ``"always"`` otherwise. Any task may return
+        its input or a view of it (a pyramid's level 0 is its source), so everything
+        downstream of the task counts."""
+        if not self._out_pools:
+            return {}
+        producer = {k: t.name for t in self.program.tasks.values() for k in t.outputs}
+        g = nx.DiGraph()
+        g.add_nodes_from(self.program.tasks)
+        g.add_edges_from((producer[r.key], t.name) for t in self.program.tasks.values()
+                         for r in t.inputs if r.offset == 0 and r.key in producer)
+        outputs = set(self.program.outputs.values())
+        rules = {}
+        for name in self._out_pools:
+            keys = {k for t in nx.descendants(g, name) | {name} for k in self.program.tasks[t].outputs}
+            if keys & set(self.program.rings):
+                rules[name] = "never"
+            elif keys & outputs:
+                rules[name] = "host"
+            else:
+                rules[name] = "always"
+        return rules
+
+    def _release(self, frame: Frame, host: bool):
+        """Frame waited for: its output buffers go back to their pools where nothing else
+        can still hold them (see :meth:`_pool_rules`)."""
+        for task, buf in frame.leases:
+            if self._pool_rule[task.name] == "host" and not host:
+                continue
+            pool = self._out_pools[task.name]
+            if len(pool) < 16:
+                pool.append(buf)
+        frame.leases = []
 
     def _fail(self, frame: Frame, task: str, proc: str, exc: BaseException):
         with self._lock:
@@ -662,6 +1036,7 @@ class Executor:
         if missing:
             raise WarpvxValueError(f"inputs: missing {missing} for frame {frame_index}")
         slots = {}
+        events = []
         for key in self.program.inputs:
             value, where = inputs[key]
             slot = slots[key] = Slot.ready(value, where)
@@ -669,13 +1044,15 @@ class Executor:
                 # The caller's device data may still be in flight on any stream: an event on
                 # the legacy default stream completes after all work queued so far.
                 wp = _wp()
-                slot.event = wp.Event(self.gpu_device)
+                slot.event = self._events.get()
+                events.append(slot.event)
                 wp.get_device(self.gpu_device).null_stream.record_event(slot.event)
                 slot.external = True
         for task in self.program.tasks.values():
             for key in task.outputs:
                 slots[key] = Slot()
         frame = Frame(frame_index, slots, len(self._active))
+        frame.events.extend(events)
         for key, ring in self.program.rings.items():
             ring.reserve(frame_index, slots[key])
         with self._lock:
@@ -723,25 +1100,62 @@ class Executor:
             for name, key in self.program.outputs.items():
                 slot = frame.slots[key]
                 outputs[name] = slot.host(io) if host else slot.value
-            timeline = self._timeline(frame)
+            result = self._result(frame, outputs)
+            self._recycle(frame)
+            self._release(frame, host)
             for ring in self.program.rings.values():
                 ring.age(frame.index)
-            return FrameResult(frame.index, outputs, timeline, frame.t0)
+            return result
         finally:
             with self._lock:
                 if frame in self._inflight:
                     self._inflight.remove(frame)
 
-    def _timeline(self, frame: Frame) -> dict:
-        out = {}
-        for task, (proc, a, b) in frame.trace.items():
-            if self.cuda and _is_gpu_processor(proc):
-                base, anchor = self._anchor
-                wp = _wp()
-                a = base + wp.get_event_elapsed_time(anchor, a, synchronize=False) / 1e3
-                b = base + wp.get_event_elapsed_time(anchor, b, synchronize=False) / 1e3
-            out[task] = ScheduledTask(task, proc, (a - frame.t0) * 1e3, (b - frame.t0) * 1e3)
-        return out
+    def _recycle(self, frame: Frame):
+        """Every GPU task of the frame has completed: its events go back to the pool. Slots
+        that outlive the frame (delays) forget them: their data is ready for any reader."""
+        if not frame.events:
+            return
+        mine = {id(e) for e in frame.events}
+        for slot in frame.slots.values():
+            if slot.event is not None and id(slot.event) in mine:
+                if slot.external:  # the caller's copy, which no task of the frame may have awaited
+                    _wp().synchronize_event(slot.event)
+                slot.event = None
+                slot.external = False
+        self._events.put(frame.events)
+        frame.events = []
+        frame.gpu_last_event = None
+
+    def _result(self, frame: Frame, outputs: dict) -> FrameResult:
+        """Outputs plus the frame's measured timeline (ms from submission)."""
+        timeline, transfers, host = {}, {}, {}
+        t0 = frame.t0
+        to_host = self._event_clock() if self.cuda else None
+        for task, (proc, a, b, mid) in frame.trace.items():
+            if to_host is not None and _is_gpu_processor(proc):
+                a, b = to_host(a), to_host(b)
+                mid = None if mid is None else to_host(mid)
+            timeline[task] = ScheduledTask(task, proc, (a - t0) * 1e3, (b - t0) * 1e3)
+            if mid is not None:
+                transfers[task] = (mid - a) * 1e3
+        for task, (a, b) in frame.host_trace.items():
+            host[task] = ((a - t0) * 1e3, (b - t0) * 1e3)
+        return FrameResult(frame.index, outputs, timeline, t0, transfers, dict(frame.copied), host)
+
+    def _event_clock(self):
+        """event -> host seconds, through the anchor; each event read once."""
+        wp = _wp()
+        base, anchor = self._anchor
+        seen = {}
+
+        def convert(ev):
+            t = seen.get(id(ev))
+            if t is None:
+                t = seen[id(ev)] = base + wp.get_event_elapsed_time(anchor, ev, synchronize=False) / 1e3
+            return t
+
+        return convert
 
     def abort(self):
         """Cancel every frame in flight and wait until the processors have dropped them."""
@@ -786,14 +1200,17 @@ def run_schedule(schedule: Schedule, program: Program, inputs: Mapping, *, gpu_d
         ex.close()
 
 __all__ = [
+    "EventPool",
     "Executor",
     "ExecTask",
+    "Flag",
     "FrameResult",
     "InputRef",
     "Program",
     "Ring",
     "Slot",
     "Transfers",
+    "SPIN_SECONDS",
     "WAIT_SLICE",
     "run_schedule",
     "tree_map",
