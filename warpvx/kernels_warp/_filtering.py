@@ -23,7 +23,7 @@ ways, the same integers:
   constants;
 - two launches (larger radii): :data:`filter_rows` writes the horizontal sums into a uint16
   scratch image, :data:`filter_columns` finishes. The scratch comes from
-  :func:`scratch_image`, one per (device, stream, shape), allocated once.
+  :func:`scratch_image`, one per shape, device, stream and thread, allocated once.
 
 Images are addressed as 2-D ``rows x (width * channels)`` uint8 arrays (a colour image is
 viewed that way); neighbouring threads read neighbouring bytes (coalesced). Borders use
@@ -33,20 +33,20 @@ footprint leaves the image (once per thread and tap column, once per row): no in
 out of bounds.
 
 Calls with caller-owned buffers (``out=``, reused frame after frame) replay recorded launches
-(:func:`run_recorded`), which skips Warp's per-call argument packing.
+(:func:`warpvx.kernels_warp._launch.run_recorded`), which skips Warp's per-call argument
+packing.
 """
 
 from __future__ import annotations
 
 import functools
 import math
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
+from ._launch import array_key, run_direct, run_recorded, workspace
 from ._sampling import BORDER_CONSTANT, BORDER_REFLECT_101, BORDER_REPLICATE, border_index
 
 # Forward-only kernels: no adjoint code to generate and compile.
@@ -384,91 +384,17 @@ def as_rows(a):
     return a.reshape((h, w * c)), c
 
 
-def array_key(a) -> tuple:
-    """What a kernel sees of an array: pointer, shape, strides."""
-    return (a.ptr, a.shape, a.strides)
-
-
-# --- host side: scratch images --------------------------------------------------------------
-
-_SCRATCH: dict = {}
-_scratch_lock = threading.Lock()
+def scratch_image(device, shape: tuple):
+    """The uint16 scratch image of the two-pass filter: one per shape, device, stream and thread
+    (a :func:`warpvx.kernels_warp._launch.workspace`), so calls sharing it run one after the
+    other on one stream; allocated on first use, then reused."""
+    return workspace("filter_rows", (tuple(shape),), device,
+                     lambda: wp.empty(shape, dtype=wp.uint16, device=device))
 
 
 def stream_key(device):
-    """The current stream of ``device`` as a hashable handle (None on the CPU, which runs
-    launches in order)."""
-    return wp.get_stream(device).cuda_stream if device.is_cuda else None
-
-
-def scratch_image(device, shape: tuple, dtype=wp.uint16):
-    """A scratch array of ``shape`` on ``device``, one per (device, current stream, shape,
-    dtype), allocated on first use and kept for the life of the process.
-
-    Two calls on the same stream run in order, so they may share it; calls on different
-    streams get different arrays. Never freed, so a CUDA graph that captured a launch using it
-    stays valid; :func:`release_scratch` drops them all (only when no graph or pending work
-    still uses them).
-    """
-    key = (device.alias, stream_key(device), tuple(shape), dtype)
-    buf = _SCRATCH.get(key)
-    if buf is None:
-        with _scratch_lock:
-            buf = _SCRATCH.get(key)
-            if buf is None:
-                buf = _SCRATCH[key] = wp.empty(shape, dtype=dtype, device=device)
-    return buf
-
-
-def release_scratch() -> None:
-    """Drop every scratch image and recorded launch (frees their memory once unreferenced)."""
-    with _scratch_lock:
-        _SCRATCH.clear()
-    with _plans_lock:
-        _PLANS.clear()
-
-
-# --- host side: recorded launches -----------------------------------------------------------
-
-_PLANS: OrderedDict = OrderedDict()
-_PLANS_MAX = 64
-_plans_lock = threading.Lock()
-
-
-def run_recorded(key, build, device) -> None:
-    """Run a sequence of launches, recorded on first use and replayed afterwards.
-
-    ``build()`` returns ``[(kernel, dim, inputs, outputs), ...]``; it is called only when
-    ``key`` is new, so it may do the costly work (views, scratch look-ups). ``key`` must
-    determine every parameter value (array pointers, shapes and strides, scalars, taps, and
-    the stream when a scratch image is involved). Replaying the recorded ``wp.Launch``es skips
-    Warp's per-call argument packing (tens of microseconds of Python per launch) and still runs
-    on the device's current stream, so they are captured into CUDA graphs like any launch.
-    Meant for buffers reused frame after frame (``out=``); the cache keeps the arrays of its
-    last ``_PLANS_MAX`` entries alive.
-    """
-    full_key = (device.alias, key)
-    plan = _PLANS.get(full_key)
-    if plan is None:
-        plan = tuple(wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device, record_cmd=True)
-                     for kernel, dim, inputs, outputs in build())
-        with _plans_lock:
-            _PLANS[full_key] = plan
-            while len(_PLANS) > _PLANS_MAX:
-                _PLANS.popitem(last=False)
-    for cmd in plan:
-        cmd.launch()
-
-
-def run_direct(launches, device) -> None:
-    """Run ``[(kernel, dim, inputs, outputs), ...]`` without recording (fresh buffers)."""
-    for kernel, dim, inputs, outputs in launches:
-        wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
-
-
-def launch_cached(kernel, dim, inputs, outputs, device, key):
-    """One ``wp.launch`` through :func:`run_recorded`; ``key`` as there."""
-    run_recorded((kernel.key, key), lambda: [(kernel, dim, inputs, outputs)], device)
+    """The current stream of ``device`` as a hashable handle (None on the CPU)."""
+    return None if device.is_cpu else device.stream.cuda_stream
 
 
 # --- host side: the filter ------------------------------------------------------------------
@@ -551,7 +477,6 @@ __all__ = [
     "NO_EDGE",
     "PIXELS_PER_THREAD",
     "ROWS_PER_THREAD",
-    "array_key",
     "as_rows",
     "blur_taps",
     "filter_columns",
@@ -561,13 +486,9 @@ __all__ = [
     "filter_rows",
     "fused_filter_kernel",
     "gaussian_kernel_q8",
-    "launch_cached",
     "launch_filter",
     "pyr_down_edge",
     "pyr_down_taps",
-    "release_scratch",
-    "run_direct",
-    "run_recorded",
     "scratch_image",
     "stream_key",
     "uses_fused",

@@ -1,5 +1,5 @@
 """Warp Gaussian blur: OpenCV's bit-exact 8-bit separable filter (the shared two-pass filter of
-:mod:`warpvx.kernels_warp._filtering`: one fused launch up to radius 4, else two launches
+:mod:`warpvx.kernels_warp._filtering`: one fused launch up to radius 7, else two launches
 through a cached scratch image).
 """
 

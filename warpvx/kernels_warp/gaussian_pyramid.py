@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from ._filtering import array_key, filter_launches, pyr_down_edge, pyr_down_taps, run_direct, run_recorded
+from ._filtering import filter_launches, pyr_down_edge, pyr_down_taps
+from ._launch import array_key, run_direct, run_recorded
 
 
 def gaussian_pyramid(src, levels, *, out=None, sizes=None):

@@ -29,7 +29,8 @@ import numpy as np
 import warp as wp
 
 from ..pyramid import resize_scales, scale_pyramid_sizes
-from ._filtering import array_key, as_rows, fit_block, run_direct, run_recorded
+from ._filtering import as_rows, fit_block
+from ._launch import array_key, run_direct, run_recorded
 
 _DBL_EPSILON = 2.220446049250313e-16
 
