@@ -109,6 +109,15 @@ def test_opencv_parity(backend, name, h, w, ksize, sigma):
     assert_parity(out, cv2.GaussianBlur(src, (ksize, ksize), sigma, borderType=cv2.BORDER_REFLECT_101))
 
 
+@pytest.mark.parametrize("border", list(CV_BORDERS))
+@pytest.mark.parametrize("ksize,sigma", [(17, 0.0), (31, 6.0)])
+def test_large_kernels_take_the_two_pass_path(backend, border, ksize, sigma):
+    """Radii over the fused kernel's limit (7) run as a row pass plus a column pass."""
+    src = crop(bgr("rocket"), 120, 163)
+    out = warpvx.gaussian_blur(src, ksize, sigma, border, backend=backend)
+    assert_parity(out, cv2.GaussianBlur(src, (ksize, ksize), sigma, borderType=CV_BORDERS[border]))
+
+
 def test_orb_descriptor_blur_regression(backend):
     """ORB-SLAM2 blurs each level 7x7, sigma 2, REFLECT_101 before its descriptors."""
     src = crop(gray("rocket"), 427, 639)
