@@ -121,33 +121,46 @@ def _no_sync():
     return None
 
 
-def time_call(fn, sync=_no_sync, *, settings: Settings, min_calls: int = 1) -> tuple[float, int]:
-    """Median per-call seconds of ``fn`` over batches, and the batch size."""
+def time_call(fn, sync=_no_sync, *, settings: Settings, min_calls: int = 1, calls: int | None = None,
+              issue_only: bool = False) -> tuple[float, int]:
+    """Median per-call seconds of ``fn`` over ``settings.repeat`` batches, and the batch size.
+
+    ``settings.warmup`` calls come first. A batch is ``calls`` calls when given, else as many
+    as last ``settings.min_batch_s`` (at least ``min_calls``, at most ``settings.max_calls``),
+    sized by one timed call. Each batch starts after ``sync()`` and ends after ``sync()``;
+    with ``issue_only`` the clock stops before that closing ``sync()``, so the figure is the
+    host's time to issue the calls (the device may still be busy)."""
     for _ in range(settings.warmup):
         fn()
     sync()
-    t0 = time.perf_counter()
-    fn()
-    sync()
-    one = time.perf_counter() - t0
-    calls = max(min_calls, math.ceil(settings.min_batch_s / max(one, 1e-7)))
-    calls = min(calls, settings.max_calls)
     samples = []
-    if calls == 1 and one >= settings.min_batch_s:
-        samples.append(one)  # a slow call: the sizing call already is a sample
+    if calls is None:
+        t0 = time.perf_counter()
+        fn()
+        sync()
+        one = time.perf_counter() - t0
+        calls = max(min_calls, math.ceil(settings.min_batch_s / max(one, 1e-7)))
+        calls = min(calls, settings.max_calls)
+        if calls == 1 and one >= settings.min_batch_s and not issue_only:
+            samples.append(one)  # a slow call: the sizing call already is a sample
     while len(samples) < settings.repeat:
         sync()
         t0 = time.perf_counter()
         for _ in range(calls):
             fn()
-        sync()
-        samples.append((time.perf_counter() - t0) / calls)
+        if issue_only:
+            samples.append((time.perf_counter() - t0) / calls)
+            sync()
+        else:
+            sync()
+            samples.append((time.perf_counter() - t0) / calls)
     return statistics.median(samples), calls
 
 
-def time_graph(fn, device: str, *, settings: Settings) -> float:
+def time_graph(fn, device, *, settings: Settings, calls: int | None = None) -> float:
     """Median per-call seconds of ``fn`` replayed from a captured CUDA graph of
-    ``settings.graph_calls`` calls (``wp.ScopedCapture`` then ``wp.capture_launch``)."""
+    ``settings.graph_calls`` calls (``wp.ScopedCapture`` then ``wp.capture_launch``); the
+    replays are timed by :func:`time_call` (``calls`` replays a batch when given)."""
     wp = _warp()
     with wp.ScopedDevice(device):
         fn()
@@ -161,7 +174,8 @@ def time_graph(fn, device: str, *, settings: Settings) -> float:
             wp.capture_launch(graph)
 
         per_launch, _ = time_call(replay, lambda: wp.synchronize_device(device), settings=settings,
-                                  min_calls=max(1, settings.gpu_min_calls // settings.graph_calls))
+                                  min_calls=max(1, settings.gpu_min_calls // settings.graph_calls),
+                                  calls=calls)
     return per_launch / settings.graph_calls
 
 

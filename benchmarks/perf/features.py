@@ -30,11 +30,12 @@ import argparse
 import contextlib
 import importlib
 import os
-import statistics
 import sys
-import time
+from dataclasses import replace
 
 import numpy as np
+
+from warpvx.bench import Settings, time_call, time_graph
 
 PRIMS = ("fast_corners", "harris_response", "harris_corners", "optical_flow_pyr_lk",
          "match_hamming")
@@ -118,37 +119,15 @@ class Counter:
 # --- timing ------------------------------------------------------------------------------------
 
 
-def per_call(fn, sync, *, warmup=3, repeat=5, min_batch_s=0.02, min_calls=20, max_calls=2000):
-    """Median per-call seconds over ``repeat`` batches between two syncs."""
-    for _ in range(warmup):
-        fn()
-    sync()
-    t0 = time.perf_counter()
-    fn()
-    sync()
-    one = time.perf_counter() - t0
-    calls = int(min(max(min_calls, min_batch_s / max(one, 1e-7)), max_calls))
-    samples = []
-    for _ in range(repeat):
-        sync()
-        t0 = time.perf_counter()
-        for _ in range(calls):
-            fn()
-        sync()
-        samples.append((time.perf_counter() - t0) / calls)
-    return statistics.median(samples)
+#: Batches of at least 20 ms (20 to 2000 calls) after 3 warm-up calls, median of 5; CUDA graphs
+#: of 10 calls replayed in batches of at least 5.
+TIMING = Settings(repeat=5, warmup=3, min_batch_s=0.02, max_calls=2000, gpu_min_calls=50, graph_calls=10)
 
 
-def graph_per_call(wp, fn, device, calls=10):
-    """Per-call seconds of ``fn`` replayed from a CUDA graph of ``calls`` calls."""
-    fn()
-    wp.synchronize_device(device)
-    with wp.ScopedCapture(device=device) as cap:
-        for _ in range(calls):
-            fn()
-    graph = cap.graph
-    return per_call(lambda: wp.capture_launch(graph), lambda: wp.synchronize_device(device),
-                    min_calls=5) / calls
+def per_call(fn, sync, *, min_calls=20, repeat=5):
+    """Median per-call seconds over ``repeat`` batches between two syncs
+    (:func:`warpvx.bench.time_call`)."""
+    return time_call(fn, sync, settings=replace(TIMING, repeat=repeat), min_calls=min_calls)[0]
 
 
 def kernel_profile(wp, fn, device):
@@ -306,7 +285,7 @@ def main(argv=None) -> int:
                             graph = float("nan")
                             if is_cuda and syncs == 0:
                                 try:
-                                    graph = graph_per_call(wp, fn, device) * 1e6
+                                    graph = time_graph(fn, device, settings=TIMING) * 1e6
                                 except Exception as exc:  # noqa: BLE001 - report, go on
                                     graph = float("nan")
                                     print(f"  (graph capture failed: {exc!r:.80})")

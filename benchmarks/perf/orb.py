@@ -36,6 +36,7 @@ import warp as wp  # noqa: E402
 wp.config.quiet = True
 
 import warpvx  # noqa: E402
+from warpvx.bench import Settings, time_call, time_graph  # noqa: E402
 from warpvx.kernels_cpu import orb as ref  # noqa: E402
 from warpvx.kernels_warp import orb as kw  # noqa: E402
 
@@ -58,17 +59,10 @@ def photo(name: str, size: tuple) -> np.ndarray:
 
 
 def median_ms(fn, device, repeat: int, inner: int = 1) -> float:
-    """Median over ``repeat`` batches of ``inner`` calls (device synced around each batch)."""
-    fn()
-    wp.synchronize_device(device)
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        for _ in range(inner):
-            fn()
-        wp.synchronize_device(device)
-        times.append((time.perf_counter() - t0) / inner)
-    return 1e3 * statistics.median(times)
+    """Median over ``repeat`` batches of ``inner`` calls (device synced around each batch),
+    after one warm-up call, in ms (:func:`warpvx.bench.time_call`)."""
+    return 1e3 * time_call(fn, lambda: wp.synchronize_device(device),
+                           settings=Settings(repeat=repeat, warmup=1), calls=inner)[0]
 
 
 def host_result(kps, desc):
@@ -219,18 +213,9 @@ def before_stages(src, repeat):
               ("descriptors", describe), ("scale back", scale)]
     for _, fn in stages:  # warm up in order
         fn()
-    wp.synchronize_device(device)
-    out = []
-    for name, fn in stages:
-        times = []
-        for _ in range(repeat):
-            wp.synchronize_device(device)
-            t0 = time.perf_counter()
-            fn()
-            wp.synchronize_device(device)
-            times.append(time.perf_counter() - t0)
-        out.append((name, 1e3 * statistics.median(times)))
-    return out
+    settings = Settings(repeat=repeat, warmup=0)
+    sync = lambda: wp.synchronize_device(device)  # noqa: E731
+    return [(name, 1e3 * time_call(fn, sync, settings=settings, calls=1)[0]) for name, fn in stages]
 
 
 def after_stages(plan, src, repeat):
@@ -246,9 +231,8 @@ def after_stages(plan, src, repeat):
             for fn in fns:
                 fn()
         if device.is_cuda:
-            with wp.ScopedCapture(device=device) as cap:
-                call()
-            return median_ms(lambda: wp.capture_launch(cap.graph), device, repeat, inner=20)
+            return 1e3 * time_graph(call, device, settings=Settings(repeat=repeat, warmup=1, graph_calls=1),
+                                    calls=20)
         return median_ms(call, device, repeat)
 
     out = [("pyramid (7 resizes)", timed([plan.stage_pyramid])),

@@ -25,49 +25,26 @@ registry strings pointing at itself), timed the same way for a before/after tabl
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import time
 
 
-def _timer(fn, sync, calls, repeat):
-    """Median seconds per call over ``repeat`` batches of ``calls`` calls then ``sync()``."""
-    samples = []
-    for _ in range(repeat):
-        sync()
-        t0 = time.perf_counter()
-        for _ in range(calls):
-            fn()
-        sync()
-        samples.append((time.perf_counter() - t0) / calls)
-    return statistics.median(samples)
+def _timer(fn, sync, calls, repeat, *, warmup=0, issue_only=False):
+    """Median seconds per call over ``repeat`` batches of ``calls`` calls, each between two
+    ``sync()`` (``issue_only``: the clock stops before the closing one), after ``warmup``
+    calls: :func:`warpvx.bench.time_call` with a fixed batch."""
+    from warpvx.bench import Settings, time_call
+
+    return time_call(fn, sync, settings=Settings(repeat=repeat, warmup=warmup), calls=calls,
+                     issue_only=issue_only)[0]
 
 
-def _host_timer(fn, sync, calls, repeat):
-    """Median seconds per call to issue ``calls`` calls (the device may still be busy)."""
-    samples = []
-    for _ in range(repeat):
-        sync()
-        t0 = time.perf_counter()
-        for _ in range(calls):
-            fn()
-        samples.append((time.perf_counter() - t0) / calls)
-        sync()
-    return statistics.median(samples)
+def _graph_timer(fn, device, per_graph=20, replays=20, repeat=7):
+    """Per-call seconds of ``fn`` replayed from a graph of ``per_graph`` calls (3 warm-up
+    replays, ``repeat`` batches of ``replays``): :func:`warpvx.bench.time_graph`."""
+    from warpvx.bench import Settings, time_graph
 
-
-def _graph_timer(wp, fn, device, per_graph=20, replays=20, repeat=7):
-    with wp.ScopedDevice(device):
-        fn()
-        wp.synchronize_device(device)
-        with wp.ScopedCapture(device=device) as capture:
-            for _ in range(per_graph):
-                fn()
-    graph = capture.graph
-    sync = lambda: wp.synchronize_device(device)  # noqa: E731
-    for _ in range(3):
-        wp.capture_launch(graph)
-    return _timer(lambda: wp.capture_launch(graph), sync, replays, repeat) / per_graph
+    return time_graph(fn, device, settings=Settings(repeat=repeat, warmup=3, graph_calls=per_graph),
+                      calls=replays)
 
 
 def _cases(lib, image):
@@ -90,7 +67,7 @@ def main(argv=None) -> int:
     import warpvx.color
     import warpvx.geometry
     from warpvx.backend import init_warp, resolve_backend
-    from warpvx.bench import load_photo, photo_at
+    from warpvx.bench import Settings, copy_bandwidth, load_photo, photo_at
     from warpvx.kernels_warp import color_convert as k_color
     from warpvx.kernels_warp import remap as k_remap
 
@@ -100,10 +77,7 @@ def main(argv=None) -> int:
     sync = lambda: wp.synchronize_device(device)  # noqa: E731
     image = photo_at(load_photo(), (w, h))
 
-    nbytes = 256 << 20
-    a = wp.zeros(nbytes, dtype=wp.uint8, device=device)
-    b = wp.empty(nbytes, dtype=wp.uint8, device=device)
-    bandwidth = 2 * nbytes / _timer(lambda: wp.copy(b, a), sync, 20, 5)
+    bandwidth = copy_bandwidth(device, nbytes=256 << 20, settings=Settings(repeat=5, warmup=0))
     print(f"{wp.get_device(device).name}, {w}x{h}, copy bandwidth {bandwidth / 1e9:.0f} GB/s", flush=True)
 
     libs = [("new", warpvx)]
@@ -120,18 +94,17 @@ def main(argv=None) -> int:
     for tag, lib in libs:
         for case in _cases(lib, image):
             fn = case.prepare(args.backend)
-            for _ in range(3):  # warm-up: JIT, recorded launches, clocks
-                _timer(fn, sync, args.calls, 1)
             row = rows.setdefault(case.label, {"floor": case.bytes_moved / bandwidth})
-            row[f"{tag} call"] = _timer(fn, sync, args.calls, args.repeat)
-            row[f"{tag} host"] = _host_timer(fn, sync, args.calls, args.repeat)
-            row[f"{tag} graph"] = _graph_timer(wp, fn, device) if graphs else float("nan")
+            # warm-up first (JIT, recorded launches, clocks): three batches' worth of calls
+            row[f"{tag} call"] = _timer(fn, sync, args.calls, args.repeat, warmup=3 * args.calls)
+            row[f"{tag} host"] = _timer(fn, sync, args.calls, args.repeat, issue_only=True)
+            row[f"{tag} graph"] = _graph_timer(fn, device) if graphs else float("nan")
             if tag == "new":
                 new_cases[case.label] = (case, fn)
                 if graphs:
                     k_color.USE_QUADS = k_remap.USE_QUADS = False
                     try:
-                        row["new pixel"] = _graph_timer(wp, fn, device)
+                        row["new pixel"] = _graph_timer(fn, device)
                     finally:
                         k_color.USE_QUADS = k_remap.USE_QUADS = True
             print(f"{case.label} {tag}: done", flush=True)
@@ -143,9 +116,7 @@ def main(argv=None) -> int:
             import torch
 
             pfn = peer()
-            for _ in range(5):
-                pfn()
-            rows[label]["cvcuda"] = _timer(pfn, torch.cuda.synchronize, args.calls, args.repeat)
+            rows[label]["cvcuda"] = _timer(pfn, torch.cuda.synchronize, args.calls, args.repeat, warmup=5)
         except Exception as exc:  # noqa: BLE001 - a missing peer is reported, not fatal
             print(f"cvcuda {label}: {exc!r}", flush=True)
 
@@ -176,7 +147,7 @@ def _diagnose(new_cases, sync, calls):
         fn()
         (plan,) = _launch._RECORDED.values()  # the launches of fn
         replay = lambda: [cmd.launch() for cmd in plan]  # noqa: E731
-        host = _host_timer(replay, sync, calls, 5) * 1e6
+        host = _timer(replay, sync, calls, 5, issue_only=True) * 1e6
         call = _timer(replay, sync, calls, 5) * 1e6
         print(f"  {label[:22]:<22} host {host:6.1f}  call {call:6.1f}", flush=True)
     for label, (_, fn) in new_cases.items():

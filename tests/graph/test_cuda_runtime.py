@@ -12,6 +12,8 @@ import pytest
 import warpvx
 from warpvx.graph.data import zeros_like
 
+from .helpers import homography
+
 pytestmark = [
     pytest.mark.timeout(120),
     pytest.mark.skipif(not warpvx.cuda_available(), reason="needs CUDA"),
@@ -23,14 +25,6 @@ SIZE = (320, 240)  # a BGR frame of 225 KiB: uploaded through the pinned staging
 @pytest.fixture(scope="module")
 def big_frames(frames):
     return [cv2.resize(f, SIZE, interpolation=cv2.INTER_LINEAR) for f in frames]
-
-
-def homography(prev_pts, next_pts, status):
-    ok = status.reshape(-1) == 1
-    if ok.sum() < 8:
-        return np.eye(3)
-    H, _ = cv2.findHomography(prev_pts[ok], next_pts[ok], cv2.RANSAC, 3.0)
-    return np.eye(3) if H is None else H
 
 
 def build(frames):

@@ -14,17 +14,11 @@ import warpvx
 from warpvx.errors import GraphError, NodeExecutionError
 from warpvx.graph.data import zeros_like
 
+from .helpers import homography
+
 pytestmark = pytest.mark.timeout(120)
 
 POLICIES = ["baseline", "heft", "xeft", "best"]
-
-
-def homography(prev_pts, next_pts, status):
-    ok = status.reshape(-1) == 1
-    if ok.sum() < 8:
-        return np.eye(3)
-    H, _ = cv2.findHomography(prev_pts[ok], next_pts[ok], cv2.RANSAC, 3.0)
-    return np.eye(3) if H is None else H
 
 
 def build(frames):

@@ -9,7 +9,7 @@ import pytest
 
 import warpvx
 from tests.images import bgr, gray
-from tests.parity import assert_images_match as assert_parity, crop
+from tests.parity import assert_images_match as assert_parity, crop, on_device
 from warpvx import cv as wcv
 from warpvx.errors import (
     BackendError,
@@ -173,8 +173,7 @@ def test_warp_array_in_warp_array_out(warp_backend):
     import warp as wp
 
     src = crop(bgr("chelsea"), 50, 63)
-    dev = warpvx.backend.resolve_backend(warp_backend).device
-    a = wp.array(src, dtype=wp.uint8, device=dev)
+    a = on_device(src, warp_backend)
     out = warpvx.gaussian_blur(a, 5, 1.0)
     assert isinstance(out, wp.array) and str(out.device) == str(a.device)
     assert np.array_equal(out.numpy(), cv2.GaussianBlur(src, (5, 5), 1.0))

@@ -10,7 +10,7 @@ import pytest
 
 import warpvx
 from tests.images import bgr, gray
-from tests.parity import assert_images_match as assert_parity, crop
+from tests.parity import assert_images_match as assert_parity, crop, on_device
 from warpvx import cv as wcv
 from warpvx.errors import BackendError, DTypeError, ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
 
@@ -140,8 +140,7 @@ def test_warp_array_in_warp_array_out(warp_backend):
     import warp as wp
 
     src = crop(gray("camera"), 65, 97)
-    dev = warpvx.backend.resolve_backend(warp_backend).device
-    a = wp.array(src, dtype=wp.uint8, device=dev)
+    a = on_device(src, warp_backend)
     pyr = warpvx.gaussian_pyramid(a, 3)
     assert pyr[0] is a
     for got, ref in zip(pyr[1:], cv_pyramid(src, 3)[1:]):

@@ -10,7 +10,7 @@ import pytest
 
 import warpvx
 from tests.images import bgr, gray
-from tests.parity import assert_images_match as assert_parity, crop
+from tests.parity import assert_images_match as assert_parity, crop, on_device
 from warpvx import cv as wcv
 from warpvx.errors import DTypeError, ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
 from warpvx.pyramid import resize, scale_pyramid_sizes
@@ -153,8 +153,7 @@ def test_warp_array_in_warp_array_out(warp_backend):
     import warp as wp
 
     src = crop(bgr("coffee"), 81, 121)
-    dev = warpvx.backend.resolve_backend(warp_backend).device
-    a = wp.array(src, dtype=wp.uint8, device=dev)
+    a = on_device(src, warp_backend)
     pyr = warpvx.scale_pyramid(a, 3, 1.2)
     assert pyr[0] is a
     ref = cv_scale_pyramid(src, scale_pyramid_sizes(121, 81, 3, 1.2))

@@ -81,6 +81,16 @@ def run_direct(launches, device) -> None:
         wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
 
 
+def run_pyramid_into(tag: str, src, out, levels: int, launches) -> list:
+    """Fill the caller's pyramid buffers: ``[src] + out[1:levels]``, computed by the launches
+    ``launches(pyramid)`` returns, recorded once per set of buffers (``tag`` names the kind of
+    pyramid in the key) and replayed. Returns that list."""
+    pyramid = [src] + list(out[1:levels])
+    key = (tag, array_key(src)) + tuple(array_key(a) for a in pyramid[1:])
+    run_recorded(key, lambda: launches(pyramid), src.device)
+    return pyramid
+
+
 def launch_cached(kernel, dim, inputs, outputs, device, key) -> None:
     """One ``wp.launch`` through :func:`run_recorded` (``key`` as there).
 
@@ -115,6 +125,7 @@ __all__ = [
     "clear_recorded",
     "launch_cached",
     "run_direct",
+    "run_pyramid_into",
     "run_recorded",
     "view",
 ]

@@ -8,7 +8,7 @@ from __future__ import annotations
 import warp as wp
 
 from ._filtering import filter_launches, pyr_down_edge, pyr_down_taps
-from ._launch import array_key, run_direct, run_recorded
+from ._launch import run_direct, run_pyramid_into
 
 
 def gaussian_pyramid(src, levels, *, out=None, sizes=None):
@@ -35,10 +35,7 @@ def gaussian_pyramid(src, levels, *, out=None, sizes=None):
     """
     taps = pyr_down_taps()
     if out is not None:
-        pyramid = [src] + list(out[1:levels])
-        key = ("pyramid", array_key(src)) + tuple(array_key(a) for a in pyramid[1:])
-        run_recorded(key, lambda: _launches(pyramid, taps), src.device)
-        return pyramid
+        return run_pyramid_into("pyramid", src, out, levels, lambda pyramid: _launches(pyramid, taps))
     pyramid = [src]
     for lvl in range(1, levels):
         prev = pyramid[-1]

@@ -30,7 +30,7 @@ import warp as wp
 
 from ..pyramid import resize_scales, scale_pyramid_sizes
 from ._filtering import as_rows, fit_block
-from ._launch import array_key, run_direct, run_recorded
+from ._launch import array_key, run_direct, run_pyramid_into, run_recorded
 
 _DBL_EPSILON = 2.220446049250313e-16
 
@@ -194,10 +194,7 @@ def scale_pyramid(src, levels, scale_factor, *, out=None):
         ``[src, level1, ...]`` (the ``out`` arrays when given).
     """
     if out is not None:
-        pyramid = [src] + list(out[1:levels])
-        key = ("scale_pyramid", array_key(src)) + tuple(array_key(a) for a in pyramid[1:])
-        run_recorded(key, lambda: _pyramid_launches(pyramid), src.device)
-        return pyramid
+        return run_pyramid_into("scale_pyramid", src, out, levels, _pyramid_launches)
     sizes = scale_pyramid_sizes(src.shape[1], src.shape[0], levels, scale_factor)
     pyramid = [src] + [wp.empty((h, w) + tuple(src.shape[2:]), dtype=wp.uint8, device=src.device)
                        for w, h in sizes[1:]]

@@ -868,15 +868,23 @@ class Executor:
         for key, value in zip(task.outputs, values):
             frame.slots[key].set(value, where, event)
 
+    def _ready_inputs(self, frame: Frame, task: ExecTask):
+        """``task``'s input slots once all are set, and whether any had to be waited for."""
+        slots = [self._slot(frame, ref) for ref in task.inputs]
+        waited = False
+        for s in slots:
+            if not s.done.is_set():
+                waited = True
+                frame.wait_slot(s, self._closing, self.spin)
+        return slots, waited
+
     def _run_cpu(self, proc: str, frame: Frame):
         io = self._io()
         for task in self.queues[proc]:
             if frame.cancel.is_set():
                 return
             try:
-                slots = [self._slot(frame, ref) for ref in task.inputs]
-                for s in slots:
-                    frame.wait_slot(s, self._closing, self.spin)
+                slots, _ = self._ready_inputs(frame, task)
                 remote = [s for s in slots if s.where == DEVICE]
                 if self.cuda:
                     for s in remote:
@@ -913,11 +921,9 @@ class Executor:
             if frame.cancel.is_set():
                 return
             try:
-                slots = [self._slot(frame, ref) for ref in task.inputs]
-                for s in slots:
-                    if not s.done.is_set():
-                        prev_end = None  # the stream may idle while we wait: a fresh start event
-                        frame.wait_slot(s, self._closing, self.spin)
+                slots, waited = self._ready_inputs(frame, task)
+                if waited:
+                    prev_end = None  # the stream may idle while we waited: a fresh start event
                 h0 = time.perf_counter()
                 if cuda:
                     for s in slots:

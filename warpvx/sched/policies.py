@@ -86,6 +86,11 @@ def _rank_order(pb: Problem, rank: list) -> list:
     return sorted(range(len(rank)), key=lambda v: pos[v])
 
 
+def _heft_order(pb: Problem) -> list:
+    """HEFT's priority list: tasks by decreasing upward rank (see :func:`_rank_order`)."""
+    return _rank_order(pb, _upward_rank(pb))
+
+
 def upward_rank(dag: nx.DiGraph) -> dict:
     """HEFT's upward rank of every task (Topcuoglu et al. 2002, eq. 8; thesis eq. 1).
 
@@ -216,7 +221,7 @@ def heft(dag: nx.DiGraph) -> Schedule:
     Topcuoglu, Hariri, Wu, IEEE TPDS 13(3):260-274, 2002.
     """
     pb = prepare(dag)
-    order = _rank_order(pb, _upward_rank(pb))
+    order = _heft_order(pb)
     return _to_schedule(pb, *_place_eft(pb, order), "heft", order)
 
 
@@ -233,7 +238,7 @@ def xeft(dag: nx.DiGraph) -> Schedule:
         ``policy="xeft"``, ``priority`` the reordered list.
     """
     pb = prepare(dag)
-    order = _xeft_order(pb, _rank_order(pb, _upward_rank(pb)))
+    order = _xeft_order(pb, _heft_order(pb))
     return _to_schedule(pb, *_place_eft(pb, order), "xeft", order)
 
 
@@ -258,7 +263,7 @@ def xeft_order(dag: nx.DiGraph) -> list:
     total_cpu / n_cores`` picks the GPU tasks, else the CPU tasks.
     """
     pb = prepare(dag)
-    order = _xeft_order(pb, _rank_order(pb, _upward_rank(pb)))
+    order = _xeft_order(pb, _heft_order(pb))
     return [pb.names[i] for i in order]
 
 
@@ -370,7 +375,7 @@ def baseline(dag: nx.DiGraph) -> Schedule:
         ``policy="baseline"``.
     """
     pb = prepare(dag)
-    order = _rank_order(pb, _upward_rank(pb))
+    order = _heft_order(pb)
     n = len(pb.names)
     start = [0.0] * n
     finish = [0.0] * n
@@ -400,7 +405,7 @@ def best(dag: nx.DiGraph) -> Schedule:
     ``info["chosen"]`` set to ``"heft"`` or ``"xeft"``.
     """
     pb = prepare(dag)
-    order_h = _rank_order(pb, _upward_rank(pb))
+    order_h = _heft_order(pb)
     placed_h = _place_eft(pb, order_h)
     order_x = _xeft_order(pb, order_h)
     if order_x == order_h:

@@ -36,7 +36,7 @@ from ..check import check_int
 from ..errors import WarpvxValueError
 from .generator import CLASSES, random_dag
 from .metrics import metrics
-from .policies import _place_eft, _rank_order, _to_schedule, _upward_rank, _xeft_order, baseline
+from .policies import _heft_order, _place_eft, _to_schedule, _xeft_order, baseline
 from .dag import prepare
 from .validate import validate_schedule
 
@@ -83,7 +83,7 @@ def evaluate_dag(job: dict) -> dict:
         n_cpus=job["n_cpus"], seed=job["seed"],
     )
     pb = prepare(dag)
-    order_h = _rank_order(pb, _upward_rank(pb))
+    order_h = _heft_order(pb)
     order_x = _xeft_order(pb, order_h)
     sh = _to_schedule(pb, *_place_eft(pb, order_h), "heft", order_h)
     sx = _to_schedule(pb, *_place_eft(pb, order_x), "xeft", order_x)
