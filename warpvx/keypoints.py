@@ -81,13 +81,16 @@ class Keypoints:
                 return self
             return Keypoints(**{f: getattr(self, f).numpy() for f in FIELDS})
         wp = init_warp()
+        target = wp.get_device(device)
+        fields = [getattr(self, f) for f in FIELDS]
+        if all(is_warp_array(a) and a.device is target for a in fields):
+            return self  # already there: the common case on a device pipeline's hot path
         out = {}
-        for f in FIELDS:
-            a = getattr(self, f)
+        for f, a in zip(FIELDS, fields):
             if is_warp_array(a):
-                out[f] = a if str(a.device) == str(wp.get_device(device)) else a.to(device)
+                out[f] = a if a.device is target else a.to(target)
             else:
-                out[f] = wp.array(np.ascontiguousarray(a), device=device)
+                out[f] = wp.array(np.ascontiguousarray(a), device=target)
         return Keypoints(**out)
 
     def numpy(self) -> "Keypoints":
