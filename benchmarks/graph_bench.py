@@ -20,7 +20,8 @@ Steps:
    target is within 20%) and then pipelined (throughput), learn each node's cost in the
    running frames (StarPU-style history);
 4. the same with the history costs (``costs="history"``);
-5. the executor's per-node overhead with trivial nodes (target < 50 us) and, with
+5. the executor's per-node overhead with trivial nodes (target < 50 us: chains all on one
+   CPU worker, all on the GPU role, and alternating CPU and GPU) and, with
    ``--soak N``, N frames pipelined with host RSS and GPU memory at start and end.
 
 Writes ``gantt_<policy>.png`` (predicted above measured, history costs),
@@ -33,12 +34,13 @@ Usage::
     python benchmarks/graph_bench.py                 # GPU machine: CUDA, 1280x720 cameras
     python benchmarks/graph_bench.py --quick         # anywhere: warp-cpu, 160x120, few frames
     python benchmarks/graph_bench.py --soak 10000
+    python benchmarks/graph_bench.py --overhead-only # the overhead section alone: overhead.md
 
     python benchmarks/graph_bench.py --replay benchmarks/results/graph/graph_bench.json
 
 Options: --out DIR, --frames N, --n-cpus N, --gpu cuda|cuda:N|warp-cpu, --size WxH,
 --depth K, --soak N, --soak-seconds S, --cv-threads N, --switch-interval S, --spin S,
---recalibrate, --replay JSON.
+--recalibrate, --replay JSON, --overhead-only, --overhead-nodes N, --overhead-frames N.
 """
 
 from __future__ import annotations
@@ -458,17 +460,7 @@ def markdown(report) -> str:
                   f"GPU task {d.get('gpu_node', 0) * 1e3:.1f} us, CPU<->GPU hand-off "
                   f"{d.get('handoff', 0) * 1e3:.1f} us (beyond the copy), frame start "
                   f"{d.get('start', 0) * 1e3:.1f} us.", ""]
-    lines += ["Executor overhead per node (trivial identity nodes, target < 50 us):", ""]
-    for o in report["overhead"]:
-        kind = "alternating CPU/GPU" if o["mixed"] else "one CPU worker"
-        line = (f"- {o['n_nodes']} nodes, {kind}, spin {o.get('spin_us', 0):g} us: "
-                f"{o['per_node_us']:.1f} us/node (process), {o['per_node_us_stream']:.1f} us/node (stream)")
-        b = o.get("breakdown")
-        if b:
-            line += ("; one round: GPU task " + _fmt(b["gpu_task"], ".1f") + " us, CPU task "
-                     + _fmt(b["cpu_task"], ".1f") + " us, CPU->GPU hand-off " + _fmt(b["cpu_to_gpu"], ".1f")
-                     + " us, GPU->CPU hand-off " + _fmt(b["gpu_to_cpu"], ".1f") + " us")
-        lines.append(line)
+    lines += overhead_lines(report["overhead"])
     if report.get("soak"):
         s = report["soak"]
         gpu = ("n/a" if s["gpu_mem_start_mb"] is None else
@@ -488,6 +480,81 @@ def markdown(report) -> str:
     return "\n".join(lines)
 
 
+CHAIN_TEXT = {"cpu": "one CPU worker", "gpu": "all on the GPU role", "mixed": "alternating CPU/GPU"}
+
+
+def overhead_lines(overhead) -> list:
+    """Markdown lines of the executor-overhead section."""
+    lines = ["Executor overhead per node (trivial identity nodes, target < 50 us):", ""]
+    for o in overhead:
+        chain = o.get("chain", "mixed" if o["mixed"] else "cpu")
+        line = (f"- {o['n_nodes']} nodes, {CHAIN_TEXT[chain]}, spin {o.get('spin_us', 0):g} us: "
+                f"{o['per_node_us']:.1f} us/node (process), {o['per_node_us_stream']:.1f} us/node (stream)")
+        b = o.get("breakdown")
+        if b and chain == "mixed":
+            line += ("; one round: GPU task " + _fmt(b["gpu_task"], ".1f") + " us, CPU task "
+                     + _fmt(b["cpu_task"], ".1f") + " us, CPU->GPU hand-off " + _fmt(b["cpu_to_gpu"], ".1f")
+                     + " us, GPU->CPU hand-off " + _fmt(b["gpu_to_cpu"], ".1f") + " us")
+        elif b and chain == "gpu":
+            line += ("; GPU thread per task " + _fmt(b["gpu_task"], ".1f") + " us, between tasks "
+                     + _fmt(b["gpu_gap"], ".1f") + " us")
+        lines.append(line)
+    return lines
+
+
+def measure_overhead(args) -> list:
+    """The overhead section: CPU-only, GPU-only and mixed chains (mixed at spin 0 and 30 us)."""
+    n, frames = args.overhead_nodes, args.overhead_frames
+    overhead = [
+        executor_overhead(n, frames or (20 if args.quick else 200)),
+        executor_overhead(n, frames or (20 if args.quick else 200), chain="gpu", gpu=args.gpu),
+        executor_overhead(n // 2, frames or (10 if args.quick else 100), chain="mixed",
+                          gpu=args.gpu, spin=0.0),
+        executor_overhead(n // 2, frames or (10 if args.quick else 100), chain="mixed",
+                          gpu=args.gpu, spin=3e-5),
+    ]
+    for o in overhead:
+        print(f"overhead ({o['chain']}, {o['n_nodes']} nodes, spin "
+              f"{o['spin_us']:g} us): {o['per_node_us']:.1f} us/node process, "
+              f"{o['per_node_us_stream']:.1f} us/node stream; {o.get('breakdown', '')}", flush=True)
+    return overhead
+
+
+def overhead_only(args):
+    """``--overhead-only``: the overhead section alone; writes overhead.json and
+    overhead.md (never graph_bench.*)."""
+    init_warp()
+    if args.gpu is None:
+        args.gpu = "cuda" if warpvx.cuda_available() else "warp-cpu"
+    if args.switch_interval is not None:
+        sys.setswitchinterval(args.switch_interval)
+    if args.overhead_frames is None and args.frames:
+        args.overhead_frames = args.frames  # here --frames means frames per chain
+    out_dir = args.out or (ROOT / "results" / "graph" / ("quick" if args.quick else ""))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    overhead = measure_overhead(args)
+    machine = f"{platform.node()}|{_gpu_name(args.gpu)}"
+    report = {"mode": "overhead-only", "machine": machine, "platform": platform.platform(),
+              "python": sys.version.split()[0], "warp": wp.config.version, "gpu": args.gpu,
+              "switch_interval": sys.getswitchinterval(), "overhead": overhead,
+              "seconds": time.perf_counter() - t_start}
+    (out_dir / "overhead.json").write_text(json.dumps(report, indent=1, default=str))
+    text = "\n".join([f"# Executor overhead ({machine})", "",
+                      f"GPU role: {args.gpu}; GIL switch interval {sys.getswitchinterval() * 1e3:g} ms; "
+                      f"Python {report['python']}, Warp {report['warp']}.", ""]
+                     + overhead_lines(overhead) + [""])
+    (out_dir / "overhead.md").write_text(text)
+    print(f"wrote {out_dir / 'overhead.md'} in {report['seconds']:.1f} s")
+    return report
+
+
+def _gpu_name(gpu) -> str:
+    if not gpu or not gpu.startswith("cuda"):
+        return "no GPU"
+    return wp.get_device(gpu).name
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -502,6 +569,11 @@ def main(argv=None):
     p.add_argument("--soak-seconds", type=float, default=None,
                    help="stop the soak after this long (it reports the frames it ran)")
     p.add_argument("--overhead-nodes", type=int, default=100)
+    p.add_argument("--overhead-frames", type=int, default=None,
+                   help="frames per overhead chain (default 200 CPU/GPU-only, 100 mixed; quick 20/10)")
+    p.add_argument("--overhead-only", action="store_true",
+                   help="only the executor-overhead section (seconds; --frames: frames per chain); "
+                        "writes overhead.md/.json")
     p.add_argument("--cv-threads", type=int, default=1,
                    help="cv2.setNumThreads for the run (default 1: one core per CPU worker)")
     p.add_argument("--switch-interval", type=float, default=None,
@@ -522,7 +594,7 @@ def main(argv=None):
     spin_before = executor.SPIN_SECONDS
     cv2.setNumThreads(args.cv_threads)
     try:
-        return _run(args)
+        return overhead_only(args) if args.overhead_only else _run(args)
     finally:
         cv2.setNumThreads(cv_threads_before)
         sys.setswitchinterval(switch_before)
@@ -579,17 +651,7 @@ def _run(args):
     report = _report(args, cal, g, size, n_frames, switch, rows, [], None, t_start)
     _write(out_dir, report)  # so far, in case a later step is cut short
 
-    overhead = [
-        executor_overhead(args.overhead_nodes, 20 if args.quick else 200),
-        executor_overhead(args.overhead_nodes // 2, 10 if args.quick else 100, mixed=True,
-                          gpu=args.gpu, spin=0.0),
-        executor_overhead(args.overhead_nodes // 2, 10 if args.quick else 100, mixed=True,
-                          gpu=args.gpu, spin=3e-5),
-    ]
-    for o in overhead:
-        print(f"overhead ({'mixed' if o['mixed'] else 'cpu'}, {o['n_nodes']} nodes, spin "
-              f"{o['spin_us']:g} us): {o['per_node_us']:.1f} us/node process, "
-              f"{o['per_node_us_stream']:.1f} us/node stream; {o.get('breakdown', '')}", flush=True)
+    overhead = measure_overhead(args)
 
     soak_report = None
     if args.soak:

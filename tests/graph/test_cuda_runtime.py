@@ -177,3 +177,91 @@ def test_calibration_times_gpu_nodes_with_events(big_frames, tmp_path, monkeypat
     d = c.dispatch
     assert d["gpu_node"] > 0 and d["handoff"] >= 0
     g.close()
+
+
+# ----------------------------------------------------------------- pooled uploads (no kernels)
+
+
+def _plus_one(v):
+    return v + np.float32(1)
+
+
+def _twice(v):
+    return v * np.float32(2)
+
+
+def _upload_chain(seen, *, delayed=False):
+    """x -> CPU +1 -> GPU identity (returns the uploaded buffer itself, recording its address
+    in ``seen``) -> CPU *2. The GPU node's value is a graph output too (so its upload buffer
+    is what the caller gets on the device), or, ``delayed``, read one frame later."""
+
+    def gpu_identity(v):
+        seen.append(v.ptr)
+        return v
+
+    g = warpvx.Graph("cuda-uploads")
+    x = g.input("x", shape=(3, 5), dtype=np.float32)
+    a = g.user(_plus_one, [x], name="a", target="cpu")
+    b = g.user(None, [a], warp_fn=gpu_identity, name="b", target="gpu")
+    if delayed:
+        g.output("prev", g.user(_twice, [g.delay(b)[-1]], name="p", target="cpu"))
+    else:
+        g.output("b", b)
+    g.output("c", g.user(_twice, [b], name="c", target="cpu"))
+    return g
+
+
+def _xs(n):
+    return [np.arange(15, dtype=np.float32).reshape(3, 5) + 100 * i for i in range(n)]
+
+
+def test_pooled_uploads_reuse_one_buffer_and_stay_right_when_pipelined():
+    seen = []
+    g = _upload_chain(seen)
+    plan = g.schedule("heft", n_cpus=1, gpu="cuda")
+    ex = plan.executor()
+    xs = _xs(12)
+    seen.clear()
+    for x in xs[:4]:  # one frame at a time: the same device buffer every frame
+        out = g.process({"x": x})
+        np.testing.assert_array_equal(out["b"], x + 1)
+        np.testing.assert_array_equal(out["c"], (x + 1) * 2)
+    assert len(set(seen)) == 1
+    [key] = ex._up_pools
+    assert ex._upload_rule[key] == "host"  # the buffer reaches a graph output
+    for i, (x, out) in enumerate(zip(xs, g.stream(({"x": x} for x in xs), depth=3))):
+        np.testing.assert_array_equal(out["b"], x + 1, err_msg=f"frame {i}")
+        np.testing.assert_array_equal(out["c"], (x + 1) * 2, err_msg=f"frame {i}")
+    assert 1 <= len(ex._up_pools[key]) <= 4
+    g.close()
+
+
+def test_pooled_uploads_handed_to_the_caller_on_the_device_are_never_reused():
+    import warp as wp
+
+    seen = []
+    g = _upload_chain(seen)
+    g.schedule("heft", n_cpus=1, gpu="cuda")
+    xs = _xs(5)
+    seen.clear()
+    outs = [g.process({"x": x}, host=False) for x in xs]
+    assert len(set(seen)) == len(xs)
+    for x, out in zip(xs, outs):  # later frames did not write into the earlier outputs
+        assert isinstance(out["b"], wp.array)
+        np.testing.assert_array_equal(out["b"].numpy(), x + 1)
+        np.testing.assert_array_equal(out["c"], (x + 1) * 2)
+    g.close()
+
+
+def test_uploads_a_delay_may_keep_are_not_pooled():
+    seen = []
+    g = _upload_chain(seen, delayed=True)
+    plan = g.schedule("heft", n_cpus=1, gpu="cuda")
+    xs = _xs(8)
+    outs = list(g.stream(({"x": x} for x in xs), depth=3))
+    assert not plan.executor()._up_pools
+    np.testing.assert_array_equal(outs[0]["prev"], np.zeros((3, 5), np.float32))
+    for i in range(1, len(xs)):
+        np.testing.assert_array_equal(outs[i]["prev"], (xs[i - 1] + 1) * 2, err_msg=f"frame {i}")
+        np.testing.assert_array_equal(outs[i]["c"], (xs[i] + 1) * 2)
+    g.close()

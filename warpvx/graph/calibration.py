@@ -261,7 +261,9 @@ def measure_transfer(gpu_backend, *, sizes=None, repeats: int = 5) -> TransferMo
             dev = up_io.upload(host)
             if sync is not None:
                 sync()
-            up.append(time_call(lambda: up_io.upload(host), sync=sync, warmup=1, repeats=repeats))
+            # Into the same buffer each time, as the executor's pooled uploads do.
+            up.append(time_call(lambda: up_io.upload(host, lambda shape, dtype: dev), sync=sync,
+                                warmup=1, repeats=repeats))
             down.append(time_call(lambda: down_io.download(dev), sync=None, warmup=1, repeats=repeats))
     a_up, b_up = _fit(sizes, up)
     a_dn, b_dn = _fit(sizes, down)

@@ -82,14 +82,20 @@ def _warp_identity(v):
     return v
 
 
-def _chain(n_nodes: int, mixed: bool) -> Graph:
-    g = Graph(f"overhead-{'mixed' if mixed else 'cpu'}-{n_nodes}")
+#: The trivial chains :func:`executor_overhead` measures.
+CHAINS = ("cpu", "gpu", "mixed")
+
+
+def _chain(n_nodes: int, chain: str) -> Graph:
+    g = Graph(f"overhead-{chain}-{n_nodes}")
     x = g.input("x", shape=(4,), dtype=np.float32)
     v = x
     for i in range(n_nodes):
-        if mixed:
+        if chain == "mixed":
             target = "gpu" if i % 2 else "cpu"
             v = g.user(_identity, [v], warp_fn=_warp_identity, name=f"n{i}", target=target)
+        elif chain == "gpu":
+            v = g.user(None, [v], warp_fn=_warp_identity, name=f"n{i}", target="gpu")
         else:
             v = g.user(_identity, [v], name=f"n{i}")
     g.output("y", v)
@@ -97,36 +103,50 @@ def _chain(n_nodes: int, mixed: bool) -> Graph:
 
 
 def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = False,
-                      gpu=None, depth: int = 4, spin: float | None = None) -> dict:
+                      chain: str | None = None, gpu=None, depth: int = 4,
+                      spin: float | None = None) -> dict:
     """Per-node dispatch overhead of the executor, with trivial nodes.
 
-    Builds a chain of ``n_nodes`` identity user nodes on one CPU worker (``mixed``: alternating
-    CPU and GPU, so every edge crosses queues: a flag wait plus, on CUDA, an event) and runs
-    ``frames`` frames with :meth:`Graph.process` (one frame at a time) and with
-    :meth:`Graph.stream` (``depth`` frames in flight). The overhead per node is the wall time
-    per frame, minus the nodes' own time, over the number of nodes.
+    Builds a chain of ``n_nodes`` identity user nodes and runs ``frames`` frames with
+    :meth:`Graph.process` (one frame at a time) and with :meth:`Graph.stream` (``depth``
+    frames in flight). The overhead per node is the wall time per frame, minus the nodes'
+    own time, over the number of nodes. The input is 4 float32 values on the host.
 
-    ``spin`` is the executor's (:data:`warpvx.sched.executor.SPIN_SECONDS` by default).
+    ``chain`` (``mixed=True`` is ``chain="mixed"``):
+
+    - ``"cpu"``: every node on one CPU worker (a task dispatch, no hand-off);
+    - ``"gpu"``: every node on the GPU role: one upload at the first node, then data stays
+      on the device; the GPU thread's enqueue overhead per task (timing events included);
+    - ``"mixed"``: alternating CPU and GPU, so every edge crosses queues: a flag wait plus,
+      on CUDA, an event, an upload (CPU -> GPU) or a download (GPU -> CPU).
+
+    ``gpu`` is the GPU role's backend (default: CUDA when present); ``spin`` the executor's
+    (:data:`warpvx.sched.executor.SPIN_SECONDS` by default).
 
     Returns
     -------
     dict
-        ``per_node_us`` (process), ``per_node_us_stream``, ``frame_us``, the settings, and
-        for ``mixed`` a ``breakdown`` of one CPU -> GPU -> CPU round (medians, us): the GPU
-        thread's time in a task (``gpu_task``), a CPU task's interval with its download
-        (``cpu_task``), and the hand-offs from a CPU task's end to the GPU thread starting
-        the next task (``cpu_to_gpu``) and from the GPU thread's end of a task to the CPU
-        worker starting the next (``gpu_to_cpu``: wake-up, event wait).
+        ``chain``, ``mixed``, ``per_node_us`` (process), ``per_node_us_stream``,
+        ``frame_us``, the settings, and a ``breakdown`` (medians, us). ``"mixed"``: one
+        CPU -> GPU -> CPU round: the GPU thread's time in a task (``gpu_task``), a CPU task's
+        interval with its download (``cpu_task``), and the hand-offs from a CPU task's end to
+        the GPU thread starting the next task (``cpu_to_gpu``) and from the GPU thread's end
+        of a task to the CPU worker starting the next (``gpu_to_cpu``: wake-up, event wait).
+        ``"gpu"``: the GPU thread's time in a task (``gpu_task``; the first one, with the
+        upload, left out) and between two tasks (``gpu_gap``).
     """
     from ..sched import executor as _executor
 
-    g = _chain(n_nodes, mixed)
+    chain = chain or ("mixed" if mixed else "cpu")
+    if chain not in CHAINS:
+        raise ValueError(f"chain: expected one of {CHAINS}, got {chain!r}")
+    g = _chain(n_nodes, chain)
     x = np.arange(4, dtype=np.float32)
     saved = _executor.SPIN_SECONDS
     if spin is not None:
         _executor.SPIN_SECONDS = spin
     try:
-        g.schedule("heft", n_cpus=1, gpu=gpu if mixed else False)
+        g.schedule("heft", n_cpus=1, gpu=False if chain == "cpu" else gpu)
         g.process({"x": x})  # start the threads
     finally:
         _executor.SPIN_SECONDS = saved
@@ -148,15 +168,18 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
     out = {
         "n_nodes": n_nodes,
         "frames": frames,
-        "mixed": mixed,
+        "chain": chain,
+        "mixed": chain == "mixed",
         "gpu": plan.gpu,
         "spin_us": spin_used * 1e6,
         "frame_us": frame_s * 1e6,
         "per_node_us": max(0.0, frame_s - t_call) / n_nodes * 1e6,
         "per_node_us_stream": max(0.0, stream_s - t_call) / n_nodes * 1e6,
     }
-    if mixed:
+    if chain == "mixed":
         out["breakdown"] = _breakdown(runs, n_nodes)
+    elif chain == "gpu":
+        out["breakdown"] = _breakdown_gpu(runs, n_nodes)
     return out
 
 
@@ -175,6 +198,18 @@ def _breakdown(runs, n_nodes: int) -> dict:
                 parts["cpu_task"].append(t.finish - t.start)
                 parts["gpu_to_cpu"].append(t.start - r.host[prev][1])
     return {k: statistics.median(v) * 1e3 if v else None for k, v in parts.items()}
+
+
+def _breakdown_gpu(runs, n_nodes: int) -> dict:
+    """Medians (us) of the GPU-only chain's tasks and gaps, host side (see executor_overhead)."""
+    task, gap = [], []
+    for r in runs:
+        for i in range(1, n_nodes):
+            h0, h1 = r.host[f"n{i}"]
+            task.append(h1 - h0)
+            gap.append(h0 - r.host[f"n{i - 1}"][1])
+    return {"gpu_task": statistics.median(task) * 1e3 if task else None,
+            "gpu_gap": statistics.median(gap) * 1e3 if gap else None}
 
 
 def _time_direct(n_nodes: int) -> float:
@@ -273,4 +308,4 @@ def soak(graph: Graph, make_inputs, n: int, *, depth: int = 2, report_every: int
     }
 
 
-__all__ = ["executor_overhead", "soak", "host_rss_bytes", "gpu_memory_bytes", "nvidia_smi_mb"]
+__all__ = ["CHAINS", "executor_overhead", "soak", "host_rss_bytes", "gpu_memory_bytes", "nvidia_smi_mb"]

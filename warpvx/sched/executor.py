@@ -38,6 +38,9 @@ Buffers
     ``gpu(*values, out=buffer)`` with a buffer from the task's pool and returns the buffer to
     the pool once the frame has been waited for (unless a delay keeps the value or it was
     handed to the caller on the device), so steady-state frames allocate nothing for it.
+    Uploads on CUDA work the same way: each host value a GPU task reads is copied into a
+    device buffer from a pool of that edge (allocating a ``wp.array`` costs more host time
+    than a small copy), returned under the same rules (:meth:`Executor._reuse_rule`).
 CPU threads
     Calibration times each CPU implementation alone; OpenCV's own thread pool then competes
     with the workers when they run together, so predictions hold best with
@@ -59,6 +62,7 @@ Errors
 from __future__ import annotations
 
 import contextlib
+import functools
 import queue
 import threading
 import time
@@ -80,6 +84,10 @@ SPIN_SECONDS = 0.0
 
 HOST = "host"
 DEVICE = "device"
+
+#: A GPU task's uploads of this many bytes or more get a timing event of their own (the
+#: task's transfer time); a smaller copy is not worth an event.
+TIMED_COPY_MIN_BYTES = 1 << 16
 
 
 class _Cancelled(Exception):
@@ -217,13 +225,17 @@ class Slot:
                 self._host = (io.download(self.value, None if ready else self.event),)
             return self._host[0]
 
-    def device(self, io: "Transfers"):
-        """The value on the GPU role's device, uploaded once (call from the GPU thread)."""
+    def device(self, io: "Transfers", into=None):
+        """The value on the GPU role's device, uploaded once (call from the GPU thread).
+
+        ``into(shape, dtype)``: a device buffer to upload an array leaf into, or None for a
+        fresh one (see :meth:`Transfers.upload`).
+        """
         if self.where == DEVICE:
             return self.value
         with self._lock:
             if self._device is None:
-                self._device = (io.upload(self.value),)
+                self._device = (io.upload(self.value, into),)
             return self._device[0]
 
     def get(self, where, io):
@@ -297,10 +309,17 @@ class Ring:
 # --------------------------------------------------------------------------- transfers
 
 
-def _wp():
-    from ..backend import init_warp
+_WP = None
 
-    return init_warp()
+
+def _wp():
+    """The initialised ``warp`` module (cached: an import statement per copy costs ~1 us)."""
+    global _WP
+    if _WP is None:
+        from ..backend import init_warp
+
+        _WP = init_warp()
+    return _WP
 
 
 def _is_warp(x) -> bool:
@@ -398,24 +417,36 @@ class Transfers:
     for the producer's event, copies, and synchronises only that stream, so it never touches
     the device's current stream (which belongs to the GPU thread) and never waits for
     unrelated kernels. Uploads run on the device's current stream (the GPU thread's), so
-    the device buffer is allocated and filled in that stream's order. An upload of
-    :data:`PINNED_MIN_BYTES` or more goes through a pinned staging buffer (one per shape and
+    the device buffer is filled in that stream's order. An upload of
+    :attr:`PINNED_MIN_BYTES` or more goes through a pinned staging buffer (one per shape and
     dtype, a few in rotation, reused once their copy has completed): the host copies into it
     and the device copy is asynchronous. From pageable memory, a large copy would wait for
-    every kernel queued before it on the stream, stalling the GPU thread.
+    every kernel queued before it on the stream, stalling the GPU thread. A smaller upload
+    copies from pageable memory: the driver stages it at once.
+
+    Uploads take the device buffer from ``into`` when given (the executor's per-edge pools:
+    allocating a ``wp.array`` costs ~10 us of Python, more than a small copy); downloads make
+    fresh NumPy arrays. With :attr:`PINNED_DOWNLOADS`, a download up to
+    :attr:`PINNED_DOWNLOAD_MAX` bytes lands in a reusable pinned buffer of this thread and is
+    then copied out.
     """
 
-    #: Uploads from this size on use pinned staging buffers (smaller ones are staged by the
-    #: driver at once anyway).
+    #: Uploads from this size on use pinned staging buffers.
     PINNED_MIN_BYTES = 1 << 16
     #: Staging buffers per shape and dtype before an upload waits for the oldest one.
     STAGING_DEPTH = 4
+    #: Downloads through a reusable pinned buffer plus a host copy instead of straight into
+    #: a fresh pageable array (measured: see benchmarks/results/graph/overhead.md).
+    PINNED_DOWNLOADS = False
+    PINNED_DOWNLOAD_MAX = 1 << 16
 
     def __init__(self, device: str | None):
         self.device = device
         self.cuda = bool(device) and device.startswith("cuda")
         self._stream = None
+        self._dev = None
         self._staging: dict = {}
+        self._landing: dict = {}  # (shape, dtype) -> pinned download buffer (NumPy view)
         self.moved = 0  # bytes copied so far, both ways
 
     @property
@@ -456,12 +487,18 @@ class Transfers:
 
         return tree_map(leaf, value)
 
-    def upload(self, value):
-        """``value`` with every host array copied to the device (on its current stream)."""
+    def upload(self, value, into=None):
+        """``value`` with every host array copied to the device (on its current stream).
+
+        ``into(shape, dtype)``, when given, returns the contiguous device buffer an array leaf
+        is copied into (or None: a fresh one); the caller owns its reuse.
+        """
         import numpy as np
 
         wp = _wp()
-        dev = wp.get_device(self.device)
+        dev = self._dev
+        if dev is None:
+            dev = self._dev = wp.get_device(self.device)
 
         def leaf(a):
             if _is_warp(a):
@@ -476,14 +513,18 @@ class Transfers:
                 # Warp's CPU device shares host memory: alias, do not copy (host values are
                 # never written after their producer finished).
                 return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev, copy=False)
+            dst = into(a.shape, dtype) if into is not None else None
+            if dst is None:
+                dst = wp.empty(a.shape, dtype=dtype, device=dev)
             if a.nbytes < self.PINNED_MIN_BYTES:
-                return self._upload_small(wp, dev, np.ascontiguousarray(a), dtype)
-            return self._upload_staged(wp, dev, a, dtype)
+                self._upload_small(wp, dev, np.ascontiguousarray(a), dst)
+            else:
+                self._upload_staged(wp, dev, a, dst)
+            return dst
 
         return tree_map(leaf, value)
 
-    @staticmethod
-    def _download_native(wp, a, stream):
+    def _download_native(self, wp, a, stream):
         """Contiguous scalar-dtype device array -> new NumPy array, copied on ``stream``
         (None: not this path)."""
         native = _native()
@@ -493,28 +534,39 @@ class Transfers:
         d2h, sync = native[1], native[2]
         import numpy as np
 
-        out = np.empty(a.shape, dtype=np_dtype)
+        pinned = self.PINNED_DOWNLOADS
+        if pinned:
+            key = (a.shape, np_dtype)
+            land = self._landing.get(key)
+            if land is None:
+                n = int(np.prod(a.shape)) * np.dtype(np_dtype).itemsize
+                if n > self.PINNED_DOWNLOAD_MAX:
+                    pinned = False
+                else:
+                    land = self._landing[key] = wp.empty(a.shape, dtype=a.dtype, device="cpu",
+                                                         pinned=True).numpy()
+        out = land if pinned else np.empty(a.shape, dtype=np_dtype)
         if out.nbytes:
             if not d2h(a.device.context, out.ctypes.data, a.ptr, out.nbytes, stream.cuda_stream):
                 raise RuntimeError(f"download of {out.nbytes} bytes failed")
+            # The stream is this thread's alone: synchronising it waits for this copy only.
             if not sync(stream.cuda_stream):
                 raise RuntimeError("download: stream synchronisation failed")
-        return out
+        return out.copy() if pinned else out
 
     @staticmethod
-    def _upload_small(wp, dev, a, dtype):
-        """A small contiguous host array -> device, on the current stream (pageable: the
+    def _upload_small(wp, dev, a, dst):
+        """A small contiguous host array -> ``dst`` on the current stream (pageable: the
         driver stages it at once)."""
         native = _native()  # dtype is a scalar type: wp.dtype_from_numpy made it
         if native is None:
-            return wp.array(a, dtype=dtype, device=dev)
-        dst = wp.empty(a.shape, dtype=dtype, device=dev)
+            wp.copy(dst, wp.array(a, dtype=dst.dtype, device="cpu", copy=False))
+            return
         if a.nbytes and not native[0](dev.context, dst.ptr, a.ctypes.data, a.nbytes,
                                       dev.stream.cuda_stream):
             raise RuntimeError(f"upload of {a.nbytes} bytes failed")
-        return dst
 
-    def _upload_staged(self, wp, dev, a, dtype):
+    def _upload_staged(self, wp, dev, a, dst):
         import numpy as np
 
         stream = dev.stream
@@ -527,19 +579,22 @@ class Transfers:
                 break
         if stage is None:
             if len(ring) < self.STAGING_DEPTH:
-                stage = _Staging(wp.empty(a.shape, dtype=dtype, device="cpu", pinned=True), None)
+                stage = _Staging(wp.empty(a.shape, dtype=dst.dtype, device="cpu", pinned=True), None)
                 ring.append(stage)
             else:  # all in flight: wait for the oldest (the first recorded)
                 stage = ring.pop(0)
                 wp.synchronize_event(stage.event)
                 ring.append(stage)
         np.copyto(stage.view, a)
-        dst = wp.empty(a.shape, dtype=dtype, device=dev)
-        wp.copy(dst, stage.buffer, stream=stream)
+        native = _native()
+        if native is None:
+            wp.copy(dst, stage.buffer, stream=stream)
+        elif a.nbytes and not native[0](dev.context, dst.ptr, stage.buffer.ptr, a.nbytes,
+                                        stream.cuda_stream):
+            raise RuntimeError(f"upload of {a.nbytes} bytes failed")
         if stage.event is None:
             stage.event = wp.Event(dev)
         stream.record_event(stage.event)
-        return dst
 
 
 class EventPool:
@@ -592,6 +647,7 @@ class Frame:
         self.gpu_last_event = None
         self.events = []  # pooled CUDA events this frame recorded
         self.leases = []  # (task, buffer) output buffers taken from the pools
+        self.uploads = []  # (key, buffer) upload buffers taken from the pools
         self._remaining = n_procs
         self._lock = threading.Lock()
         if n_procs == 0:
@@ -682,6 +738,9 @@ class Executor:
         (running them would deadlock).
     """
 
+    #: Device buffers kept per pooled upload edge (a few frames in flight, several leaves).
+    UPLOAD_POOL = 16
+
     def __init__(self, schedule: Schedule, program: Program, *, gpu_device: str | None = None,
                  name: str = "graph", spin: float | None = None):
         self.spin = SPIN_SECONDS if spin is None else float(spin)
@@ -716,6 +775,11 @@ class Executor:
         for name, rule in self._pool_rule.items():
             if rule == "never":  # the primitive allocates, as without a pool
                 del self._out_pools[name]
+        # Per-edge device buffers for uploads (CUDA: on Warp's CPU device uploads alias).
+        self._upload_rule = self._upload_rules() if self.cuda else {}
+        self._up_pools: dict[str, list] = {k: [] for k, rule in self._upload_rule.items()
+                                           if rule != "never"}
+        self._up_lock = threading.Lock()  # the GPU thread leases, wait() returns
 
     # ------------------------------------------------------------------ checks
 
@@ -937,14 +1001,16 @@ class Executor:
                     else:
                         ev0 = prev_end
                 before = io.moved
-                values = [s.device(io) for s in slots]
+                values = [s.value if s.where == DEVICE else
+                          s.device(io, self._upload_into(frame, ref))
+                          for ref, s in zip(task.inputs, slots)]
                 mid = None
                 moved = io.moved - before
                 if moved:
                     frame.copied[task.name] = moved
                     if not cuda:
                         mid = time.perf_counter()
-                    elif moved >= io.PINNED_MIN_BYTES:  # a tiny copy is not worth an event
+                    elif moved >= TIMED_COPY_MIN_BYTES:
                         mid = pool.get()
                         frame.events.append(mid)
                         _record(stream, mid)
@@ -981,34 +1047,78 @@ class Executor:
         frame.leases.append((task, buf))
         return buf
 
-    def _pool_rules(self) -> dict:
-        """task -> when its pooled output buffer may be reused after its frame: ``"never"``
-        when a delay may hold it, ``"host"`` when a graph output may be it (reusable only
-        if outputs went to the host as copies), ``"always"`` otherwise. Any task may return
-        its input or a view of it (a pyramid's level 0 is its source), so everything
-        downstream of the task counts."""
-        if not self._out_pools:
-            return {}
+    def _upload_into(self, frame: Frame, ref: InputRef):
+        """``into`` for uploading input ``ref`` of a GPU task (see :meth:`Transfers.upload`):
+        buffers from the key's pool, leased to ``frame``; None where its uploads cannot be
+        pooled."""
+        if ref.offset or ref.key not in self._up_pools:
+            return None
+        return functools.partial(self._lease_upload, frame, ref.key)
+
+    def _lease_upload(self, frame: Frame, key: str, shape, dtype):
+        pool = self._up_pools[key]
+        buf = None
+        with self._up_lock:
+            for i in range(len(pool) - 1, -1, -1):  # the newest first
+                b = pool[i]
+                if b.shape == shape and b.dtype is dtype:
+                    buf = b
+                    del pool[i]
+                    break
+        if buf is None:
+            buf = _wp().empty(shape, dtype=dtype, device=self.gpu_device)
+        frame.uploads.append((key, buf))
+        return buf
+
+    def _graph(self):
+        """(task DAG of this frame's data edges, key -> producing task)."""
         producer = {k: t.name for t in self.program.tasks.values() for k in t.outputs}
         g = nx.DiGraph()
         g.add_nodes_from(self.program.tasks)
         g.add_edges_from((producer[r.key], t.name) for t in self.program.tasks.values()
                          for r in t.inputs if r.offset == 0 and r.key in producer)
-        outputs = set(self.program.outputs.values())
-        rules = {}
-        for name in self._out_pools:
-            keys = {k for t in nx.descendants(g, name) | {name} for k in self.program.tasks[t].outputs}
-            if keys & set(self.program.rings):
-                rules[name] = "never"
-            elif keys & outputs:
-                rules[name] = "host"
-            else:
-                rules[name] = "always"
-        return rules
+        return g
+
+    def _reuse_rule(self, g, tasks, keys) -> str:
+        """When a buffer that ``tasks`` may see (and ``keys`` may hold) can be reused after
+        its frame: ``"never"`` when a delay may hold it, ``"host"`` when a graph output may
+        be it (reusable only if outputs went to the host as copies), ``"always"`` otherwise.
+        Any task may return its input or a view of it (a pyramid's level 0 is its source), so
+        everything downstream of ``tasks`` counts."""
+        reach = set(tasks)
+        for t in tasks:
+            reach |= nx.descendants(g, t)
+        keys = set(keys) | {k for t in reach for k in self.program.tasks[t].outputs}
+        if keys & set(self.program.rings):
+            return "never"
+        if keys & set(self.program.outputs.values()):
+            return "host"
+        return "always"
+
+    def _pool_rules(self) -> dict:
+        """task -> when its pooled output buffer may be reused (:meth:`_reuse_rule`)."""
+        if not self._out_pools:
+            return {}
+        g = self._graph()
+        return {name: self._reuse_rule(g, [name], ()) for name in self._out_pools}
+
+    def _upload_rules(self) -> dict:
+        """key -> when the device copy of that host value, uploaded for the GPU tasks that
+        read it in its frame, may be reused (:meth:`_reuse_rule`; a delayed key's slot, and
+        the copy cached in it, outlive the frame: never)."""
+        gpu = {t.name for p in self.processors if _is_gpu_processor(p) for t in self.queues[p]}
+        readers: dict = {}
+        for name in gpu:
+            for r in self.program.tasks[name].inputs:
+                readers.setdefault(r.key, set()).add(name)
+        if not readers:
+            return {}
+        g = self._graph()
+        return {key: self._reuse_rule(g, tasks, [key]) for key, tasks in readers.items()}
 
     def _release(self, frame: Frame, host: bool):
-        """Frame waited for: its output buffers go back to their pools where nothing else
-        can still hold them (see :meth:`_pool_rules`)."""
+        """Frame waited for: its output and upload buffers go back to their pools where
+        nothing else can still hold them (see :meth:`_reuse_rule`)."""
         for task, buf in frame.leases:
             if self._pool_rule[task.name] == "host" and not host:
                 continue
@@ -1016,6 +1126,16 @@ class Executor:
             if len(pool) < 16:
                 pool.append(buf)
         frame.leases = []
+        if frame.uploads:
+            with self._up_lock:
+                for key, buf in frame.uploads:
+                    if self._upload_rule[key] == "host" and not host:
+                        continue
+                    pool = self._up_pools[key]
+                    if len(pool) >= self.UPLOAD_POOL:  # shapes vary: the oldest go
+                        del pool[0]
+                    pool.append(buf)
+            frame.uploads = []
 
     def _fail(self, frame: Frame, task: str, proc: str, exc: BaseException):
         with self._lock:
