@@ -243,19 +243,11 @@ def level_image(base: wp.uint64, lt: wp.array2d(dtype=wp.int32), level: int):
 
 
 @wp.func
-def level_of_pixel(i: int, lt: wp.array2d(dtype=wp.int32), n_levels: int) -> int:
-    """The level holding flat pixel index ``i``."""
+def level_holding(i: int, lt: wp.array2d(dtype=wp.int32), column: int, n_levels: int) -> int:
+    """The level whose range starts at or before ``i`` in level-table column ``column``
+    (``LT_PIX``: a flat pixel index; ``LT_NODE``: a quadtree node index)."""
     level = int(0)
-    while level + 1 < n_levels and i >= lt[level + 1, LT_PIX]:
-        level += 1
-    return level
-
-
-@wp.func
-def level_of_node(v: int, lt: wp.array2d(dtype=wp.int32), n_levels: int) -> int:
-    """The level whose node pool holds node ``v``."""
-    level = int(0)
-    while level + 1 < n_levels and v >= lt[level + 1, LT_NODE]:
+    while level + 1 < n_levels and i >= lt[level + 1, column]:
         level += 1
     return level
 
@@ -414,7 +406,7 @@ def score_pixels(pyr: wp.uint64, lt: wp.array2d(dtype=wp.int32), n_levels: int,
                  threshold: int, scores: wp.array(dtype=wp.uint8)):
     """FAST score at ``threshold`` of each pixel a cell owns (>= 19 px inside), 0 elsewhere."""
     i = wp.tid()
-    level = level_of_pixel(i, lt, n_levels)
+    level = level_holding(i, lt, LT_PIX, n_levels)
     w = lt[level, LT_W]
     r = i - lt[level, LT_PIX]
     y = r // w
@@ -436,7 +428,7 @@ def suppress_pixels(lt: wp.array2d(dtype=wp.int32), n_levels: int,
     s = int(scores[i])
     if s == 0:
         return
-    level = level_of_pixel(i, lt, n_levels)
+    level = level_holding(i, lt, LT_PIX, n_levels)
     w = lt[level, LT_W]
     r = i - lt[level, LT_PIX]
     y = r // w
@@ -695,7 +687,7 @@ def link_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array
                node_depth: wp.array(dtype=wp.int32), node_parent: wp.array(dtype=wp.int32)):
     """Each ordered node's parent (a node of the previous round), -1 at depth K."""
     v = wp.tid()
-    level = level_of_node(v, lt, n_levels)
+    level = level_holding(v, lt, LT_NODE, n_levels)
     used = counters[C_NODES + level]
     # A level past its capacity has unwritten nodes: its frame is redone on the host.
     if v - lt[level, LT_NODE] >= used or used > lt[level, LT_NODE_CAP]:
@@ -720,7 +712,7 @@ def rank_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array
     it), and the nodes those divisions add; thread c of a node compares every
     N_RANK_CHUNKS-th member of its group (both arrays zeroed first, sums by atomics)."""
     v, c = wp.tid()
-    level = level_of_node(v, lt, n_levels)
+    level = level_holding(v, lt, LT_NODE, n_levels)
     used = counters[C_NODES + level]
     if v - lt[level, LT_NODE] >= used or used > lt[level, LT_NODE_CAP]:
         return
