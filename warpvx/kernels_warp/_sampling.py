@@ -81,6 +81,14 @@ def border_index(p: int, n: int, border: int) -> int:
 
 
 @wp.func
+def read_reflect101(img: wp.array2d(dtype=wp.uint8), y: int, x: int) -> int:
+    """``img[y, x]`` with BORDER_REFLECT_101 outside the image: never reads out of bounds."""
+    yy = border_index(y, img.shape[0], BORDER_REFLECT_101)
+    xx = border_index(x, img.shape[1], BORDER_REFLECT_101)
+    return int(img[yy, xx])
+
+
+@wp.func
 def nearest_tap(sx: float, sy: float, width: int, height: int, border: int) -> wp.vec2i:
     """Resolved ``(x, y)`` of the nearest source pixel (-1 entries: border value)."""
     x = border_index(round_coord(sx), width, border)

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ._sampling import BORDER_REFLECT_101, border_index
+from ._sampling import read_reflect101
 from ._launch import Recorded, workspace
 
 # Forward-only kernels: no adjoint code to generate and compile.
@@ -65,14 +65,6 @@ class TrackParams:
 
 
 @wp.func
-def load_reflect(img: wp.array2d(dtype=wp.uint8), r: int, c: int) -> int:
-    """Pixel ``(r, c)`` of ``img`` with BORDER_REFLECT_101 outside it."""
-    r = border_index(r, img.shape[0], BORDER_REFLECT_101)
-    c = border_index(c, img.shape[1], BORDER_REFLECT_101)
-    return int(img[r, c])
-
-
-@wp.func
 def sample_fixed(
     img: wp.array2d(dtype=wp.uint8), r: int, c: int, iw00: int, iw01: int, iw10: int, iw11: int
 ) -> int:
@@ -89,10 +81,10 @@ def sample_fixed(
         )
     else:
         s = (
-            load_reflect(img, r, c) * iw00
-            + load_reflect(img, r, c + 1) * iw01
-            + load_reflect(img, r + 1, c) * iw10
-            + load_reflect(img, r + 1, c + 1) * iw11
+            read_reflect101(img, r, c) * iw00
+            + read_reflect101(img, r, c + 1) * iw01
+            + read_reflect101(img, r + 1, c) * iw10
+            + read_reflect101(img, r + 1, c + 1) * iw11
         )
     return (s + 256) >> 9
 
@@ -115,10 +107,10 @@ def scharr_column(img: wp.array2d(dtype=wp.uint8), r: int, c: int, interior: boo
         p2 = int(img[r + 1, c])
         p3 = int(img[r + 2, c])
     else:
-        p0 = load_reflect(img, r - 1, c)
-        p1 = load_reflect(img, r, c)
-        p2 = load_reflect(img, r + 1, c)
-        p3 = load_reflect(img, r + 2, c)
+        p0 = read_reflect101(img, r - 1, c)
+        p1 = read_reflect101(img, r, c)
+        p2 = read_reflect101(img, r + 1, c)
+        p3 = read_reflect101(img, r + 2, c)
     return wp.vec4i((p0 + p2) * 3 + p1 * 10, p2 - p0, (p1 + p3) * 3 + p2 * 10, p3 - p1)
 
 

@@ -63,7 +63,7 @@ import warp as wp
 from ..kernels_cpu import orb as ref
 from ..keypoints import Keypoints
 from ..pyramid import scale_pyramid_sizes
-from ._sampling import BORDER_REFLECT_101, border_index, round_coord
+from ._sampling import read_reflect101, round_coord
 from .fast_corners import fast_score
 from .gaussian_blur import gaussian_blur
 from .scale_pyramid import scale_pyramid
@@ -177,14 +177,6 @@ def fast_atan2(y: float, x: float) -> float:
 
 
 @wp.func
-def reflected(img: wp.array2d(dtype=wp.uint8), y: int, x: int) -> int:
-    """img[y, x] with BORDER_REFLECT_101 outside: never reads out of bounds."""
-    yy = border_index(y, img.shape[0], BORDER_REFLECT_101)
-    xx = border_index(x, img.shape[1], BORDER_REFLECT_101)
-    return int(img[yy, xx])
-
-
-@wp.func
 def neighbour_in_cell(scores: wp.array2d(dtype=wp.int32), row_of_y: wp.array(dtype=wp.int32),
                       col_of_x: wp.array(dtype=wp.int32), y: int, x: int, cr: int, cc: int) -> int:
     """scores[y, x] when (y, x) lies in cell (cr, cc), else 0 (what the cell's FAST sees)."""
@@ -203,7 +195,7 @@ def ic_angle(img: wp.array2d(dtype=wp.uint8), cy: int, cx: int) -> float:
     for v in range(-HALF_PATCH, HALF_PATCH + 1):
         d = UMAX[wp.abs(v)]
         for u in range(-d, d + 1):
-            val = reflected(img, cy + v, cx + u)
+            val = read_reflect101(img, cy + v, cx + u)
             m10 += u * val
             m01 += v * val
     return fast_atan2(float(m01), float(m10))
@@ -215,7 +207,7 @@ def rotated_sample(img: wp.array2d(dtype=wp.uint8), cy: int, cx: int, px: float,
     """The blurred value at pattern point (px, py) rotated by (a = cos, b = sin), rounded."""
     dx = round_coord(px * a - py * b)
     dy = round_coord(px * b + py * a)
-    return reflected(img, cy + dy, cx + dx)
+    return read_reflect101(img, cy + dy, cx + dx)
 
 
 @wp.func
@@ -680,6 +672,18 @@ def alloc_nodes(paths: wp.array(dtype=wp.int64), lcp: wp.array(dtype=wp.int32),
         groups[level, g, slot] = v
 
 
+@wp.func
+def live_node_level(v: int, lt: wp.array2d(dtype=wp.int32), n_levels: int,
+                    counters: wp.array(dtype=wp.int32)) -> int:
+    """The level of node slot ``v``, or -1 when the slot holds no node: past the level's used
+    nodes, or the level overflowed its capacity (its frame is then redone on the host)."""
+    level = level_holding(v, lt, LT_NODE, n_levels)
+    used = counters[C_NODES + level]
+    if v - lt[level, LT_NODE] >= used or used > lt[level, LT_NODE_CAP]:
+        return -1
+    return level
+
+
 @wp.kernel
 def link_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array(dtype=wp.int32),
                ctl: wp.array2d(dtype=wp.int32), lcp: wp.array(dtype=wp.int32),
@@ -687,10 +691,8 @@ def link_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array
                node_depth: wp.array(dtype=wp.int32), node_parent: wp.array(dtype=wp.int32)):
     """Each ordered node's parent (a node of the previous round), -1 at depth K."""
     v = wp.tid()
-    level = level_holding(v, lt, LT_NODE, n_levels)
-    used = counters[C_NODES + level]
-    # A level past its capacity has unwritten nodes: its frame is redone on the host.
-    if v - lt[level, LT_NODE] >= used or used > lt[level, LT_NODE_CAP]:
+    level = live_node_level(v, lt, n_levels, counters)
+    if level < 0:
         return
     g = node_depth[v]
     k = ctl[level, CT_K]
@@ -712,9 +714,8 @@ def rank_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array
     it), and the nodes those divisions add; thread c of a node compares every
     N_RANK_CHUNKS-th member of its group (both arrays zeroed first, sums by atomics)."""
     v, c = wp.tid()
-    level = level_holding(v, lt, LT_NODE, n_levels)
-    used = counters[C_NODES + level]
-    if v - lt[level, LT_NODE] >= used or used > lt[level, LT_NODE_CAP]:
+    level = live_node_level(v, lt, n_levels, counters)
+    if level < 0:
         return
     g = node_depth[v]
     k = ctl[level, CT_K]
@@ -835,7 +836,7 @@ def accumulate_moments(pyr: wp.uint64, lt: wp.array2d(dtype=wp.int32),
     row = int(0)
     weighted = int(0)
     for u in range(-d, d + 1):
-        val = reflected(img, cy + v, cx + u)
+        val = read_reflect101(img, cy + v, cx + u)
         row += val
         weighted += u * val
     wp.atomic_add(moments, i, 0, weighted)
