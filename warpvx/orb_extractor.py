@@ -15,7 +15,7 @@ from .arrays import to_warp
 from .backend import resolve_backend
 from .check import check_float, check_image, check_int
 from .errors import ShapeError, WarpvxTypeError, WarpvxValueError
-from .kernels_cpu.orb import MAX_SIDE, MIN_LEVEL_SIZE
+from ._orb_spec import MAX_SIDE, MIN_LEVEL_SIZE
 from .keypoints import Keypoints
 from .pyramid import scale_pyramid_sizes
 from .registry import BenchCase, dispatch

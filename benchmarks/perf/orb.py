@@ -37,7 +37,7 @@ wp.config.quiet = True
 
 import warpvx  # noqa: E402
 from warpvx.bench import Settings, time_call, time_graph  # noqa: E402
-from warpvx.kernels_cpu import orb as ref  # noqa: E402
+from warpvx import _orb_spec as ref  # noqa: E402
 from warpvx.kernels_warp import orb as kw  # noqa: E402
 
 FIELDS = ("x", "y", "response", "size", "angle", "octave")

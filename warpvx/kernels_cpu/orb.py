@@ -12,219 +12,26 @@ separate functions so a graph can run them as nodes (SPEC section 6):
 ``compute_descriptors``  rotated BRIEF with the 256 pairs of the 31x31 pattern
 ``scale_back``           level coordinates times s_l
 
-The helpers that define the algorithm rather than an implementation (level scales, features
-per level, the cell grid, the disc, the pattern, ``fastAtan2``, the quadtree) live here once
-and the Warp implementation imports them; level sizes are
-:func:`warpvx.pyramid.scale_pyramid_sizes`.
+What defines the algorithm rather than an implementation (level scales, features per level,
+the cell grid, the disc, the pattern, ``fastAtan2``'s coefficients) is in the neutral
+:mod:`warpvx._orb_spec`, the host quadtree in :mod:`warpvx._orb_quadtree`; both backends
+import them from there.
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
-from importlib import resources
 
 import cv2
 import numpy as np
 
+from .._orb_quadtree import distribute_octtree, order_candidates
+from .._orb_spec import (ATAN_EPS, ATAN_P1, ATAN_P3, ATAN_P5, ATAN_P7, DESCRIPTOR_BYTES,
+                         HALF_PATCH_SIZE, PATTERN_RADIUS, CellGrid, cell_grid, features_per_level,
+                         keypoint_sizes, level_scales, pattern, refuse_out, umax)
 from ..keypoints import Keypoints
 from .scale_pyramid import scale_pyramid
-
-PATCH_SIZE = 31
-HALF_PATCH_SIZE = 15
-EDGE_THRESHOLD = 19
-# ComputeKeyPointsOctTree: cells are laid over [EDGE_THRESHOLD - 3, size - EDGE_THRESHOLD + 3).
-MIN_BORDER = EDGE_THRESHOLD - 3
-FAST_CELL = 30
-# A level needs one whole cell inside its borders (nCols = width / 30 >= 1).
-MIN_LEVEL_SIZE = 2 * MIN_BORDER + FAST_CELL
-DESCRIPTOR_BYTES = 32
-# Largest image side accepted (the Warp candidate keys hold 16-bit coordinates and 2^18 cells).
-MAX_SIDE = 15000
-# Rotated pattern points land within 18 px of the centre on each axis (|(13, 13)| < 18.4).
-PATTERN_RADIUS = 19
-
-
-# --------------------------------------------------------------------------------------------
-# The algorithm's constants and helpers (shared with kernels_warp.orb)
-# --------------------------------------------------------------------------------------------
-
-
-def level_scales(scale_factor: float, n_levels: int) -> np.ndarray:
-    """float32 [n_levels]: s_0 = 1, s_l = s_(l-1) * scale_factor in float (mvScaleFactor)."""
-    scales = np.ones(n_levels, np.float32)
-    f = np.float32(scale_factor)
-    for level in range(1, n_levels):
-        scales[level] = np.float32(scales[level - 1] * f)
-    return scales
-
-
-def c_round(v: float) -> int:
-    """cvRound of a float: round half to even (what lrint does in the default mode)."""
-    return int(np.rint(np.float32(v)))
-
-
-def features_per_level(n_features: int, scale_factor: float, n_levels: int) -> list:
-    """Features wanted per level, ORB-SLAM2's rule (float arithmetic, cvRound, remainder last).
-
-    n0 = N (1 - f) / (1 - f^L) with f = 1 / scale_factor, level l gets cvRound(n0 f^l), the
-    last level ``max(N - sum, 0)``. For N = 2000, 1.2, 8: 434 362 302 251 209 175 145 122.
-    """
-    factor = np.float32(1.0) / np.float32(scale_factor)
-    per_scale = np.float32(
-        np.float32(n_features) * (np.float32(1.0) - factor)
-        / (np.float32(1.0) - np.float32(math.pow(float(factor), float(n_levels))))
-    )
-    counts = []
-    total = 0
-    for _ in range(n_levels - 1):
-        c = c_round(per_scale)
-        counts.append(c)
-        total += c
-        per_scale = np.float32(per_scale * factor)
-    counts.append(max(n_features - total, 0))
-    return counts
-
-
-def keypoint_sizes(scale_factor: float, n_levels: int) -> np.ndarray:
-    """float32 [n_levels]: ORB-SLAM2's ``int(PATCH_SIZE * s_l)`` (truncated to an integer)."""
-    return np.array([int(np.float32(PATCH_SIZE) * s) for s in level_scales(scale_factor, n_levels)],
-                    np.float32)
-
-
-@dataclass(frozen=True)
-class CellGrid:
-    """ComputeKeyPointsOctTree's cells for one level of ``width`` x ``height``.
-
-    FAST runs on cell (i, j) over rows ``row_spans[i]`` and columns ``col_spans[j]`` (each
-    ``[start, stop)``, cells overlapping by 6 px); FAST reports corners 3 px inside its input,
-    so each cell *owns* the pixels of ``[start + 3, stop - 3)``; those inner areas tile the
-    level without overlap. ``row_of_y[y]`` / ``col_of_x[x]`` give the owning cell row / column
-    of a pixel, -1 where no cell owns it.
-    """
-
-    width: int
-    height: int
-    row_spans: tuple
-    col_spans: tuple
-    row_of_y: np.ndarray
-    col_of_x: np.ndarray
-
-    @property
-    def n_rows(self) -> int:
-        return len(self.row_spans)
-
-    @property
-    def n_cols(self) -> int:
-        return len(self.col_spans)
-
-    @property
-    def max_border_x(self) -> int:
-        return self.width - EDGE_THRESHOLD + 3
-
-    @property
-    def max_border_y(self) -> int:
-        return self.height - EDGE_THRESHOLD + 3
-
-
-def _spans(size: int, skip_margin: int) -> tuple:
-    """Cell spans along one axis (ComputeKeyPointsOctTree, float arithmetic as there)."""
-    max_border = size - EDGE_THRESHOLD + 3
-    extent = np.float32(max_border - MIN_BORDER)
-    n = int(extent / np.float32(FAST_CELL))
-    if n < 1:
-        return ()
-    step = int(math.ceil(np.float32(extent / np.float32(n))))
-    spans = []
-    for i in range(n):
-        start = MIN_BORDER + i * step
-        if start >= max_border - skip_margin:
-            continue
-        spans.append((start, min(start + step + 6, max_border)))
-    return tuple(spans)
-
-
-@functools.lru_cache(maxsize=64)
-def cell_grid(width: int, height: int) -> CellGrid:
-    """The cell grid of a ``width`` x ``height`` level (cached per size)."""
-    # ORB-SLAM2 skips a row of cells starting within 3 px of the bottom border, a column
-    # within 6 px of the right one.
-    rows = _spans(height, 3)
-    cols = _spans(width, 6)
-    row_of_y = np.full(height, -1, np.int32)
-    col_of_x = np.full(width, -1, np.int32)
-    for i, (a, b) in enumerate(rows):
-        row_of_y[a + 3:max(b - 3, a + 3)] = i
-    for j, (a, b) in enumerate(cols):
-        col_of_x[a + 3:max(b - 3, a + 3)] = j
-    row_of_y.setflags(write=False)
-    col_of_x.setflags(write=False)
-    return CellGrid(width, height, rows, cols, row_of_y, col_of_x)
-
-
-@functools.lru_cache(maxsize=1)
-def umax() -> np.ndarray:
-    """int32 [16]: half-width of each row of the radius-15 disc (ORB-SLAM2's umax)."""
-    hp = HALF_PATCH_SIZE
-    u = np.zeros(hp + 1, np.int32)
-    vmax = int(math.floor(hp * math.sqrt(2.0) / 2 + 1))
-    vmin = int(math.ceil(hp * math.sqrt(2.0) / 2))
-    for v in range(vmax + 1):
-        u[v] = c_round(math.sqrt(hp * hp - v * v))
-    v0 = 0
-    for v in range(hp, vmin - 1, -1):  # make the disc symmetric in u and v
-        while u[v0] == u[v0 + 1]:
-            v0 += 1
-        u[v] = v0
-        v0 += 1
-    u.setflags(write=False)
-    return u
-
-
-@functools.lru_cache(maxsize=1)
-def disc_offsets() -> tuple:
-    """(du, dv) int32 arrays of every pixel of the radius-15 disc, |du| <= umax[|dv|]."""
-    um = umax()
-    du, dv = [], []
-    for v in range(-HALF_PATCH_SIZE, HALF_PATCH_SIZE + 1):
-        d = int(um[abs(v)])
-        du.extend(range(-d, d + 1))
-        dv.extend([v] * (2 * d + 1))
-    return np.array(du, np.int32), np.array(dv, np.int32)
-
-
-@functools.lru_cache(maxsize=1)
-def _disc_mask() -> np.ndarray:
-    """uint8 [31, 31]: 1 on the radius-15 disc (|u| <= umax[|v|]), 0 outside."""
-    du, dv = disc_offsets()
-    mask = np.zeros((PATCH_SIZE, PATCH_SIZE), np.uint8)
-    mask[dv + HALF_PATCH_SIZE, du + HALF_PATCH_SIZE] = 1
-    mask.setflags(write=False)
-    return mask
-
-
-@functools.lru_cache(maxsize=1)
-def pattern() -> np.ndarray:
-    """int32 [256, 4]: the (x1, y1, x2, y2) point pairs of ORB's 31x31 pattern (package data)."""
-    text = resources.files("warpvx").joinpath("data/orb_pattern_31.txt").read_text()
-    rows = [line.split() for line in text.splitlines() if line.strip() and not line.startswith("#")]
-    table = np.array(rows, np.int32)
-    if table.shape != (256, 4):
-        raise RuntimeError(f"orb_pattern_31.txt: expected 256 rows of 4 integers, got "
-                           f"{table.shape}")
-    table.setflags(write=False)
-    return table
-
-
-# OpenCV's fastAtan2 (atan_f32 in core/src/mathfuncs_core.simd.hpp): a 7th-order polynomial in
-# degrees, float arithmetic; each coefficient is a float product as there.
-_DEG = np.float32(180.0 / math.pi)
-ATAN_P1 = float(np.float32(np.float32(0.9997878412794807) * _DEG))
-ATAN_P3 = float(np.float32(np.float32(-0.3258083974640975) * _DEG))
-ATAN_P5 = float(np.float32(np.float32(0.1555786518463281) * _DEG))
-ATAN_P7 = float(np.float32(np.float32(-0.04432655554792128) * _DEG))
-ATAN_EPS = float(np.float32(np.finfo(np.float64).eps))
 
 
 def fast_atan2(y: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -244,6 +51,11 @@ def fast_atan2(y: np.ndarray, x: np.ndarray) -> np.ndarray:
     return a.astype(np.float32)
 
 
+# --------------------------------------------------------------------------------------------
+# Stages
+# --------------------------------------------------------------------------------------------
+
+
 def padded_centres(img: np.ndarray, x, y, radius: int) -> tuple:
     """(padded image, cx, cy): ``img`` with ``radius`` px of BORDER_REFLECT_101 around it and
     the rounded centres (cvRound(x), cvRound(y)), clamped into the image, in padded
@@ -257,186 +69,6 @@ def padded_centres(img: np.ndarray, x, y, radius: int) -> tuple:
     cx = np.clip(np.rint(np.asarray(x, np.float32)).astype(np.intp), 0, w - 1) + r
     cy = np.clip(np.rint(np.asarray(y, np.float32)).astype(np.intp), 0, h - 1) + r
     return padded, cx, cy
-
-
-def patches(img: np.ndarray, x, y, radius: int) -> np.ndarray:
-    """uint8 [N, 2r+1, 2r+1]: the square patches around the rounded centres (cvRound(x),
-    cvRound(y)), BORDER_REFLECT_101 beyond the image; centres are clamped into the image."""
-    r = int(radius)
-    padded, cx, cy = padded_centres(img, x, y, r)
-    windows = np.lib.stride_tricks.sliding_window_view(padded, (2 * r + 1, 2 * r + 1))
-    return windows[cy - r, cx - r]
-
-
-# --------------------------------------------------------------------------------------------
-# The quadtree (DistributeOctTree), sequential: CPU in both implementations
-# --------------------------------------------------------------------------------------------
-
-
-def order_candidates(x: np.ndarray, y: np.ndarray, grid: CellGrid) -> np.ndarray:
-    """Permutation putting candidates in ORB-SLAM2's order: cell row, cell column, y, x.
-
-    That is the order in which ComputeKeyPointsOctTree hands them to DistributeOctTree; it
-    decides which point of a node wins a tie of responses.
-    """
-    cell = grid.row_of_y[y].astype(np.int64) * grid.n_cols + grid.col_of_x[x]
-    return np.argsort((cell * grid.height + y) * grid.width + x)
-
-
-# Columns of the quadtree's node table.
-_X0, _Y0, _X1, _Y1, _COUNT, _ID = range(6)
-
-
-def _divide(nodes, point_node, px, py, parents, next_id, stop_at=None):
-    """Divide ``parents`` (list positions, in processing order) as ``DivideNode`` does.
-
-    ``nodes`` is the node list as an int64 table (columns _X0.._ID), ``point_node`` each
-    point's list position. Children go to the front of the list (the last processed parent's
-    first, each as n4 n3 n2 n1); the other nodes keep their order. With ``stop_at``,
-    processing stops after the division that brings the list to ``stop_at`` nodes. Returns
-    the new table, the points' new positions, the ids of the new children holding more than
-    one point (in creation order) and the next free id.
-    """
-    n_nodes = nodes.shape[0]
-    rank = np.full(n_nodes, -1, np.int64)
-    rank[parents] = np.arange(parents.size)
-    pts = np.flatnonzero(rank[point_node] >= 0)
-    r = rank[point_node[pts]]
-    bounds = nodes[parents][:, :4]
-    # Quadrant split at (x0 + ceil((x1 - x0) / 2), y0 + ceil((y1 - y0) / 2)).
-    mid_x = bounds[:, _X0] - ((bounds[:, _X0] - bounds[:, _X1]) // 2)
-    mid_y = bounds[:, _Y0] - ((bounds[:, _Y0] - bounds[:, _Y1]) // 2)
-    keys = r * 4 + (px[pts] >= mid_x[r]) + 2 * (py[pts] >= mid_y[r])
-    # Group the points by child (keys are small: a bincount); children in key order.
-    bins = np.bincount(keys, minlength=4 * parents.size)
-    child_keys = np.flatnonzero(bins)
-    child_counts = bins[child_keys]
-    lookup = np.empty(bins.size, np.int64)
-    lookup[child_keys] = np.arange(child_keys.size)
-    child_of_point = lookup[keys]
-    child_rank = child_keys // 4
-    if stop_at is not None:
-        # List size after each parent's division: + its children - itself.
-        sizes = n_nodes + np.cumsum(np.bincount(child_rank, minlength=parents.size) - 1)
-        reached = np.flatnonzero(sizes >= stop_at)
-        if reached.size:
-            last = int(reached[0])
-            parents = parents[:last + 1]
-            # The divided parents' children are a prefix in key order; the points of the
-            # undivided parents stay where they are.
-            n_keep = int(np.searchsorted(child_rank, last, side="right"))
-            child_keys, child_counts = child_keys[:n_keep], child_counts[:n_keep]
-            child_rank = child_rank[:n_keep]
-            done = r <= last
-            pts, child_of_point = pts[done], child_of_point[done]
-    n_children = child_keys.size
-    q = child_keys % 4
-    right, bottom = (q % 2) == 1, q >= 2
-    b = bounds[child_rank]
-    mx, my = mid_x[child_rank], mid_y[child_rank]
-    child = np.empty((n_children, 6), np.int64)
-    child[:, _X0] = np.where(right, mx, b[:, _X0])
-    child[:, _X1] = np.where(right, b[:, _X1], mx)
-    child[:, _Y0] = np.where(bottom, my, b[:, _Y0])
-    child[:, _Y1] = np.where(bottom, b[:, _Y1], my)
-    child[:, _COUNT] = child_counts
-    child[:, _ID] = next_id + np.arange(n_children)  # creation order
-    # New list: children by descending key (front), then the untouched nodes in order.
-    divided = np.zeros(n_nodes, bool)
-    divided[parents] = True
-    kept = np.flatnonzero(~divided)
-    new_nodes = np.concatenate([child[::-1], nodes[kept]])
-    pos = np.full(n_nodes, -1, np.int64)
-    pos[kept] = n_children + np.arange(kept.size)
-    new_point_node = pos[point_node]
-    new_point_node[pts] = (n_children - 1) - child_of_point
-    expandable_ids = child[child[:, _COUNT] > 1, _ID]
-    return new_nodes, new_point_node, expandable_ids, next_id + n_children
-
-
-def distribute_octtree(x: np.ndarray, y: np.ndarray, response: np.ndarray,
-                       grid: CellGrid, n: int) -> np.ndarray:
-    """ORB-SLAM2's ``DistributeOctTree``: indices of the kept points, in its output order.
-
-    The points (level coordinates, in ORB-SLAM2's candidate order) are split by a quadtree over
-    ``[MIN_BORDER, maxBorder)``: the root row holds ``round(w / h)`` nodes; while fewer than
-    ``n`` nodes exist, every node holding more than one point is divided into quadrants
-    (children pushed to the front of the node list, empty ones dropped); once dividing all of
-    them would overshoot ``n``, nodes are divided largest first and the division stops as soon
-    as there are ``n`` nodes (so up to ``n + 2``). Each node keeps its strongest point (the
-    first in order on a tie). The node list order, and so the output order, is ORB-SLAM2's.
-
-    Deviations (documented): ORB-SLAM2 sorts equal-sized nodes by their heap address, which is
-    not reproducible; here the later-created node goes first (what increasing addresses give).
-    A level more than twice as tall as wide gets one root node (ORB-SLAM2 divides by zero).
-
-    Each pass is vectorized over the points; the pass structure is ORB-SLAM2's.
-    """
-    count = int(x.shape[0])
-    if count == 0:
-        return np.zeros(0, np.int64)
-    min_x = min_y = MIN_BORDER
-    max_x, max_y = grid.max_border_x, grid.max_border_y
-    px = (x.astype(np.float32) - np.float32(min_x))
-    py = (y.astype(np.float32) - np.float32(min_y))
-    resp = np.asarray(response, np.float32)
-    width, height = max_x - min_x, max_y - min_y
-
-    n_ini = max(1, int(math.floor(float(np.float32(width) / np.float32(height)) + 0.5)))
-    h_x = np.float32(np.float32(width) / np.float32(n_ini))
-    point_node = np.minimum((px / h_x).astype(np.int64), n_ini - 1)
-    counts = np.bincount(point_node, minlength=n_ini)
-    alive = np.flatnonzero(counts > 0)  # empty root nodes are erased
-    # The node list, in list order: bounds, point count, creation id (heap-address proxy).
-    nodes = np.zeros((alive.size, 6), np.int64)
-    nodes[:, _X0] = [int(np.float32(h_x * np.float32(i))) for i in alive]
-    nodes[:, _X1] = [int(np.float32(h_x * np.float32(i + 1))) for i in alive]
-    nodes[:, _Y1] = height
-    nodes[:, _COUNT] = counts[alive]
-    nodes[:, _ID] = np.arange(alive.size)
-    remap = np.full(n_ini, -1, np.int64)
-    remap[alive] = np.arange(alive.size)
-    point_node = remap[point_node]
-    next_id = alive.size
-
-    finish = False
-    while not finish:
-        prev_size = nodes.shape[0]
-        parents = np.flatnonzero(nodes[:, _COUNT] > 1)
-        to_expand = np.zeros(0, np.int64)
-        if parents.size:
-            nodes, point_node, to_expand, next_id = _divide(nodes, point_node, px, py, parents,
-                                                            next_id)
-        size = nodes.shape[0]
-        if size >= n or size == prev_size:
-            finish = True
-        elif size + to_expand.size * 3 > n:
-            # Divide the largest nodes first until n nodes exist.
-            while not finish:
-                prev_size = nodes.shape[0]
-                if to_expand.size:
-                    # List positions of the expandable nodes (ids are unique).
-                    by_id = np.argsort(nodes[:, _ID])
-                    cand = by_id[np.searchsorted(nodes[:, _ID], to_expand, sorter=by_id)]
-                    # sort(pairs(size, pointer)), walked from the back: largest first.
-                    order = np.lexsort((nodes[cand, _ID], nodes[cand, _COUNT]))[::-1]
-                    nodes, point_node, to_expand, next_id = _divide(
-                        nodes, point_node, px, py, cand[order], next_id, stop_at=n)
-                size = nodes.shape[0]
-                if size >= n or size == prev_size:
-                    finish = True
-
-    # The strongest point of each node, the first in candidate order on a tie, in list order.
-    best = np.full(nodes.shape[0], -np.inf, np.float32)
-    np.maximum.at(best, point_node, resp)
-    strongest = np.flatnonzero(resp == best[point_node])
-    _, first = np.unique(point_node[strongest], return_index=True)
-    return strongest[first]
-
-
-# --------------------------------------------------------------------------------------------
-# Stages
-# --------------------------------------------------------------------------------------------
 
 
 def build_pyramid(src: np.ndarray, scale_factor: float, n_levels: int) -> list:
@@ -595,9 +227,10 @@ def orb(src: np.ndarray, n_features: int, scale_factor: float, n_levels: int,
         ini_th_fast: int, min_th_fast: int, *, out=None) -> tuple:
     """ORB-SLAM2's extractor: (Keypoints at level 0, uint8 [N, 32] descriptors).
 
-    Keypoints are listed level by level, each level in the quadtree's node order; ``out`` is
-    not supported (the count is data-dependent) and ignored.
+    Keypoints are listed level by level, each level in the quadtree's node order. ``out``
+    must be None (UnsupportedError otherwise: the count is data-dependent).
     """
+    refuse_out(out)
     pyramid = build_pyramid(src, scale_factor, n_levels)
     wanted = features_per_level(n_features, scale_factor, n_levels)
     sizes = keypoint_sizes(scale_factor, n_levels)
@@ -624,7 +257,7 @@ def orb_compute(src: np.ndarray, keypoints: Keypoints, scale_factor: float, n_le
     """uint8 [N, 32] descriptors of given keypoints (level-0 coordinates, octave, angle).
 
     Each keypoint is described on its octave's blurred level of the ORB-SLAM2 pyramid at
-    (x, y) / s_octave, in the input order.
+    (x, y) / s_octave, in the input order; into ``out`` (uint8 [N, 32]) when given.
     """
     kp = keypoints.to("host")
     n = len(kp)

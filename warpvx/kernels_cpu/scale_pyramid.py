@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..pyramid import resize_scales, scale_pyramid_sizes
+from .._pyramid_sizes import resize_scales, scale_pyramid_sizes
 
 
 def resize(src: np.ndarray, dsize=None, fx=0.0, fy=0.0, *, out=None) -> np.ndarray:

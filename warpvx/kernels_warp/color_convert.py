@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..color import code_spec, output_shape
+from .._color_codes import code_spec, output_shape
 from ._launch import array_key, as_view, as_words, launch_cached
 from ._sampling import ALPHA, byte_of, load_quad, pack_bytes, store_quad
 

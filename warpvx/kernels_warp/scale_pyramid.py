@@ -28,7 +28,7 @@ import functools
 import numpy as np
 import warp as wp
 
-from ..pyramid import resize_scales, scale_pyramid_sizes
+from .._pyramid_sizes import resize_scales, scale_pyramid_sizes
 from ._filtering import as_rows, fit_block
 from ._launch import array_key, run_direct, run_pyramid_into, run_recorded
 

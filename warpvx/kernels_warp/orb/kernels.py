@@ -1,0 +1,498 @@
+"""Kernels of the one-graph ORB extractor: every level in each launch (see :mod:`.plan`)."""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ..fast_corners import fast_score
+from .funcs import *  # noqa: F403
+
+# Forward-only kernels: no adjoint code to generate and compile.
+wp.set_module_options({"enable_backward": False})
+
+# --------------------------------------------------------------------------------------------
+# Kernels of the one-graph extractor (all levels per launch)
+# --------------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def score_pixels(pyr: wp.uint64, lt: wp.array2d(dtype=wp.int32), n_levels: int,
+                 row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int32),
+                 threshold: int, scores: wp.array(dtype=wp.uint8)):
+    """FAST score at ``threshold`` of each pixel a cell owns (>= 19 px inside), 0 elsewhere."""
+    i = wp.tid()
+    level = level_holding(i, lt, LT_PIX, n_levels)
+    w = lt[level, LT_W]
+    r = i - lt[level, LT_PIX]
+    y = r // w
+    x = r - y * w
+    s = int(0)
+    if row_of_y[lt[level, LT_ROW] + y] >= 0 and col_of_x[lt[level, LT_COL] + x] >= 0:
+        s = fast_score(level_image(pyr, lt, level), y, x, threshold)
+    scores[i] = wp.uint8(s)
+
+
+@wp.kernel
+def suppress_pixels(lt: wp.array2d(dtype=wp.int32), n_levels: int,
+                    row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int32),
+                    scores: wp.array(dtype=wp.uint8), ini_th: int, cells_at: int, region: int,
+                    counters: wp.array(dtype=wp.int32), survivors: wp.array(dtype=wp.int64)):
+    """OpenCV's strict 3x3 maximum within the cell: append the survivors (candidate keys) to
+    the region of stripe i % N_STRIPES, and count those >= ``ini_th`` per cell."""
+    i = wp.tid()
+    s = int(scores[i])
+    if s == 0:
+        return
+    level = level_holding(i, lt, LT_PIX, n_levels)
+    w = lt[level, LT_W]
+    r = i - lt[level, LT_PIX]
+    y = r // w
+    x = r - y * w
+    ro = lt[level, LT_ROW]
+    co = lt[level, LT_COL]
+    cr = row_of_y[ro + y]
+    cc = col_of_x[co + x]
+    # Owned pixels lie >= 19 px inside the level: the neighbours exist.
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            if dy != 0 or dx != 0:
+                if row_of_y[ro + y + dy] == cr and col_of_x[co + x + dx] == cc:
+                    if int(scores[i + dy * w + dx]) >= s:
+                        return
+    cell = cr * lt[level, LT_NCOLS] + cc
+    if s >= ini_th:
+        wp.atomic_add(counters, cells_at + lt[level, LT_CELL] + cell, 1)
+    stripe = i % N_STRIPES
+    slot = wp.atomic_add(counters, C_SURV_R + stripe, 1)
+    # Past the capacity the count still grows: pad_paths flags it, the frame takes extract_host.
+    if slot < region:
+        survivors[stripe * region + slot] = candidate_key(level, cell, y, x, s)
+
+
+@wp.kernel
+def select_candidates(survivors: wp.array(dtype=wp.int64), surv_region: int,
+                      lt: wp.array2d(dtype=wp.int32), ft: wp.array2d(dtype=wp.float32),
+                      roots: wp.array(dtype=wp.int32), ini_th: int, min_th: int, cells_at: int,
+                      cand_region: int, digits: int, root_bits: int,
+                      counters: wp.array(dtype=wp.int32), cand: wp.array(dtype=wp.int64),
+                      paths: wp.array(dtype=wp.int64), sort_keys: wp.array(dtype=wp.int64),
+                      order: wp.array(dtype=wp.int32)):
+    """Keep a survivor when its score reaches its cell's threshold; write its candidate key,
+    its quadtree path, the path's sort key (level | root | first ``digits`` quadrants) and its
+    slot (the sort's value) into the region of stripe j % N_STRIPES."""
+    j = wp.tid()
+    r = j // surv_region
+    if j - r * surv_region >= wp.min(counters[C_SURV_R + r], surv_region):
+        return
+    key = survivors[j]
+    level = key_field(key, KEY_LEVEL_SHIFT, 31)
+    cell = key_field(key, KEY_CELL_SHIFT, 0x3FFFF)
+    s = key_field(key, 0, 0xFF)
+    th = min_th
+    if counters[cells_at + lt[level, LT_CELL] + cell] > 0:
+        th = ini_th
+    if s < th:
+        return
+    stripe = j % N_STRIPES
+    slot = wp.atomic_add(counters, C_CAND_R + stripe, 1)
+    if slot < cand_region:
+        at = stripe * cand_region + slot
+        cand[at] = key
+        path = quadtree_path(level, key_field(key, KEY_X_SHIFT, 0xFFFF),
+                             key_field(key, KEY_Y_SHIFT, 0xFFFF), lt, ft, roots)
+        paths[at] = path
+        root = (path >> wp.int64(PATH_ROOT_SHIFT)) & wp.int64(511)
+        kept = (path & wp.int64(0xFFFFFFFF)) >> wp.int64(2 * (PATH_DEPTH - digits))
+        sort_keys[at] = ((((wp.int64(level) << wp.int64(root_bits)) | root)
+                          << wp.int64(2 * digits)) | kept)
+        order[at] = at
+
+
+@wp.kernel
+def pad_paths(counters: wp.array(dtype=wp.int32), surv_region: int, cand_region: int,
+              pad: wp.int64, sort_keys: wp.array(dtype=wp.int64)):
+    """Pad the candidate regions' unused slots (a fixed-size sort puts them last); thread 0
+    writes the candidate total and whether a region overflowed."""
+    i = wp.tid()
+    r = i // cand_region
+    if i - r * cand_region >= counters[C_CAND_R + r]:
+        sort_keys[i] = pad
+    if i == 0:
+        total = int(0)
+        over = int(0)
+        for k in range(STRIPES):
+            c = counters[C_CAND_R + k]
+            total += wp.min(c, cand_region)
+            if c > cand_region or counters[C_SURV_R + k] > surv_region:
+                over = 1
+        counters[C_CAND] = total
+        counters[C_OVER] = over
+
+
+@wp.kernel
+def pad_keys(counters: wp.array(dtype=wp.int32), which: int, pad: wp.int64,
+             keys: wp.array(dtype=wp.int64)):
+    """keys[i] = pad past the count (so a fixed-size sort puts them last)."""
+    i = wp.tid()
+    if i >= counters[which]:
+        keys[i] = pad
+
+
+@wp.kernel
+def gather_paths(order: wp.array(dtype=wp.int32), counters: wp.array(dtype=wp.int32),
+                 paths: wp.array(dtype=wp.int64), sorted_paths: wp.array(dtype=wp.int64)):
+    """The full paths in sorted order."""
+    i = wp.tid()
+    if i < counters[C_CAND]:
+        sorted_paths[i] = paths[order[i]]
+
+
+@wp.kernel
+def count_depths(paths: wp.array(dtype=wp.int64), counters: wp.array(dtype=wp.int32), n_cap: int,
+                 digits: int, singles_at: int, multis_at: int, lcp: wp.array(dtype=wp.int32)):
+    """lcp[i]: the digits sorted point i shares with point i - 1 (-1: another root). Point i
+    is alone from depth max(lcp[i], lcp[i+1]) + 1 on (one single-point node there); it starts
+    a node of several points at each depth in (lcp[i], lcp[i+1]]. Two points sharing all the
+    sorted ``digits`` (the plan's bound says they cannot) flag the frame for the host path."""
+    i = wp.tid()
+    n = wp.min(counters[C_CAND], n_cap)
+    if i >= n:
+        return
+    a = paths[i]
+    lo = int(-1)
+    if i > 0:
+        lo = shared_depth(paths[i - 1], a)
+    hi = int(-1)
+    if i + 1 < n:
+        hi = shared_depth(a, paths[i + 1])
+    if hi >= digits:
+        counters[C_OVER] = 1
+    lcp[i] = lo
+    level = int(a >> wp.int64(PATH_LEVEL_SHIFT))
+    row = (level * N_STRIPES + (i % N_STRIPES)) * N_DEPTHS
+    wp.atomic_add(counters, singles_at + row + wp.max(lo, hi) + 1, 1)
+    for g in range(lo + 1, hi + 1):
+        wp.atomic_add(counters, multis_at + row + g, 1)
+
+
+@wp.kernel
+def sum_depth_counts(counters: wp.array(dtype=wp.int32), singles_at: int, multis_at: int,
+                     totals: wp.array3d(dtype=wp.int32)):
+    """totals[level, 0 | 1, depth]: single- | multi-point nodes, summed over the stripes."""
+    level, which, g = wp.tid()
+    base = singles_at
+    if which == 1:
+        base = multis_at
+    total = int(0)
+    for s in range(STRIPES):
+        total += counters[base + (level * N_STRIPES + s) * N_DEPTHS + g]
+    totals[level, which, g] = total
+
+
+@wp.kernel
+def plan_divisions(lt: wp.array2d(dtype=wp.int32), totals: wp.array3d(dtype=wp.int32),
+                   ctl: wp.array2d(dtype=wp.int32)):
+    """DistributeOctTree's control flow from node counts (one thread per level).
+
+    With S_g, M_g the single- and multi-point nodes created at depth g (a node is created when
+    its parent has several points), A_g = S_g + M_g, pass k of the first loop leaves
+    N_k = A_k + sum_{g<k} S_g nodes; it stops at the first k with N_k >= n or no growth
+    (MODE_PASSES), or goes on to divide largest first when N_k + 3 M_k > n. Each round of that
+    second loop divides the multi-point nodes of one depth g, adding A_{g+1} - M_g nodes; the
+    last round is the one reaching n (MODE_PARTIAL) or adding nothing (MODE_FULL).
+    """
+    level = wp.tid()
+    n = lt[level, LT_WANT]
+    singles = depth_counts(totals, level, 0)
+    multis = depth_counts(totals, level, 1)
+    if singles[0] + multis[0] == 0:
+        ctl[level, CT_MODE] = MODE_EMPTY
+        ctl[level, CT_K] = 0
+        ctl[level, CT_GSTAR] = 0
+        ctl[level, CT_SIZE] = 0
+        return
+    n_prev = singles[0] + multis[0]
+    sum_singles = singles[0]
+    k = int(1)
+    second_loop = bool(False)
+    while k < N_DEPTHS - 1:
+        nk = singles[k] + multis[k] + sum_singles
+        if nk >= n or nk == n_prev:
+            break
+        if nk + 3 * multis[k] > n:
+            second_loop = True
+            break
+        sum_singles += singles[k]
+        n_prev = nk
+        k += 1
+    size = singles[k] + multis[k] + sum_singles
+    g = k
+    mode = MODE_PASSES
+    if second_loop:
+        mode = MODE_FULL
+        while g < N_DEPTHS - 2:
+            growth = singles[g + 1] + multis[g + 1] - multis[g]
+            if size + growth >= n:
+                mode = MODE_PARTIAL
+                break
+            if growth == 0:
+                break
+            size += growth
+            g += 1
+    ctl[level, CT_K] = k
+    ctl[level, CT_GSTAR] = g
+    ctl[level, CT_MODE] = mode
+    ctl[level, CT_SIZE] = size
+
+
+@wp.kernel
+def alloc_nodes(paths: wp.array(dtype=wp.int64), lcp: wp.array(dtype=wp.int32),
+                counters: wp.array(dtype=wp.int32), n_cap: int, lt: wp.array2d(dtype=wp.int32),
+                ctl: wp.array2d(dtype=wp.int32), groups_at: int,
+                node_base: wp.array(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
+                node_depth: wp.array(dtype=wp.int32), node_count: wp.array(dtype=wp.int32),
+                node_growth: wp.array(dtype=wp.int32), groups: wp.array3d(dtype=wp.int32)):
+    """The multi-point nodes the second loop orders (depths K..g*), from the point starting
+    them: consecutive entries of the level's pool, one per depth; their size and the nodes a
+    division adds (children - 1, the points inside sharing exactly ``depth`` digits). Each is
+    also listed in groups[level, depth] (the nodes rank_nodes compares)."""
+    s = wp.tid()
+    n = wp.min(counters[C_CAND], n_cap)
+    if s >= n:
+        return
+    level = int(paths[s] >> wp.int64(PATH_LEVEL_SHIFT))
+    mode = ctl[level, CT_MODE]
+    node_base[s] = -1
+    if mode != MODE_FULL and mode != MODE_PARTIAL:
+        return
+    k = ctl[level, CT_K]
+    hi = int(-1)
+    if s + 1 < n:
+        hi = lcp[s + 1]
+    g0 = wp.max(lcp[s] + 1, k)
+    g1 = wp.min(hi, ctl[level, CT_GSTAR])
+    if g0 > g1:
+        return
+    base = wp.atomic_add(counters, C_NODES + level, g1 - g0 + 1)
+    if base + g1 - g0 + 1 > lt[level, LT_NODE_CAP]:
+        return  # the host sees the count past the capacity
+    first = lt[level, LT_NODE] + base
+    node_base[s] = first
+    for g in range(g0, g1 + 1):
+        e = s + 1
+        children = int(0)
+        while e < n and lcp[e] >= g:
+            if lcp[e] == g:
+                children += 1
+            e += 1
+        v = first + g - g0
+        node_start[v] = s
+        node_depth[v] = g
+        node_count[v] = e - s
+        node_growth[v] = children
+        # A group holds at most the level's nodes: within its capacity.
+        slot = wp.atomic_add(counters, groups_at + level * N_DEPTHS + g, 1)
+        groups[level, g, slot] = v
+
+
+@wp.func
+def live_node_level(v: int, lt: wp.array2d(dtype=wp.int32), n_levels: int,
+                    counters: wp.array(dtype=wp.int32)) -> int:
+    """The level of node slot ``v``, or -1 when the slot holds no node: past the level's used
+    nodes, or the level overflowed its capacity (its frame is then redone on the host)."""
+    level = level_holding(v, lt, LT_NODE, n_levels)
+    used = counters[C_NODES + level]
+    if v - lt[level, LT_NODE] >= used or used > lt[level, LT_NODE_CAP]:
+        return -1
+    return level
+
+
+@wp.kernel
+def link_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array(dtype=wp.int32),
+               ctl: wp.array2d(dtype=wp.int32), lcp: wp.array(dtype=wp.int32),
+               node_base: wp.array(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
+               node_depth: wp.array(dtype=wp.int32), node_parent: wp.array(dtype=wp.int32)):
+    """Each ordered node's parent (a node of the previous round), -1 at depth K."""
+    v = wp.tid()
+    level = live_node_level(v, lt, n_levels, counters)
+    if level < 0:
+        return
+    g = node_depth[v]
+    k = ctl[level, CT_K]
+    if g == k:
+        node_parent[v] = -1
+        return
+    ps = run_start(lcp, node_start[v], g - 1)
+    node_parent[v] = node_index(node_base, lcp, ps, g - 1, k)
+
+
+@wp.kernel
+def rank_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array(dtype=wp.int32),
+               ctl: wp.array2d(dtype=wp.int32), paths: wp.array(dtype=wp.int64), groups_at: int,
+               groups: wp.array3d(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
+               node_depth: wp.array(dtype=wp.int32), node_count: wp.array(dtype=wp.int32),
+               node_growth: wp.array(dtype=wp.int32), node_parent: wp.array(dtype=wp.int32),
+               node_rank: wp.array(dtype=wp.int32), node_grown: wp.array(dtype=wp.int32)):
+    """A node's place in its round's division order (the nodes of its group divided before
+    it), and the nodes those divisions add; thread c of a node compares every
+    N_RANK_CHUNKS-th member of its group (both arrays zeroed first, sums by atomics)."""
+    v, c = wp.tid()
+    level = live_node_level(v, lt, n_levels, counters)
+    if level < 0:
+        return
+    g = node_depth[v]
+    k = ctl[level, CT_K]
+    n_ini = lt[level, LT_NINI]
+    members = counters[groups_at + level * N_DEPTHS + g]
+    rank = int(0)
+    grown = int(0)
+    for j in range(c, members, N_RANK_CHUNKS):
+        u = groups[level, g, j]
+        if u != v:
+            if node_before(u, v, k, n_ini, node_start, node_depth, node_count, node_parent,
+                           paths):
+                rank += 1
+                grown += node_growth[u]
+    if rank > 0:
+        wp.atomic_add(node_rank, v, rank)
+        wp.atomic_add(node_grown, v, grown)
+
+
+@wp.kernel
+def emit_finals(paths: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32),
+                lcp: wp.array(dtype=wp.int32), cand: wp.array(dtype=wp.int64),
+                counters: wp.array(dtype=wp.int32), n_cap: int, lt: wp.array2d(dtype=wp.int32),
+                ctl: wp.array2d(dtype=wp.int32), node_base: wp.array(dtype=wp.int32),
+                node_rank: wp.array(dtype=wp.int32), node_grown: wp.array(dtype=wp.int32),
+                place_bits: int, final_keys: wp.array(dtype=wp.int64),
+                final_values: wp.array(dtype=wp.int32)):
+    """For each node of the final list (from the point starting it): its strongest point and
+    its list position key.
+
+    A point alone from depth sd on ends in that single-point node when sd <= g*; otherwise it
+    lies in a multi-point node of depth g*, final unless the last round divided it (then its
+    child is). Segments, newest first: the children of the last round, then each round's and
+    pass's nodes back to the roots; inside a segment, a node created by the second loop goes
+    by its parent's division order (reversed) and quadrant (reversed), a node of the first
+    loop by ``flipped_prefix``.
+    """
+    s = wp.tid()
+    n = wp.min(counters[C_CAND], n_cap)
+    if s >= n:
+        return
+    path = paths[s]
+    level = int(path >> wp.int64(PATH_LEVEL_SHIFT))
+    mode = ctl[level, CT_MODE]
+    k = ctl[level, CT_K]
+    gstar = ctl[level, CT_GSTAR]
+    lo = lcp[s]
+    hi = int(-1)
+    if s + 1 < n:
+        hi = lcp[s + 1]
+    depth = wp.max(lo, hi) + 1
+    if depth > gstar:
+        p = run_start(lcp, s, gstar)
+        divided = int(0)
+        if mode == MODE_FULL:
+            divided = 1
+        if mode == MODE_PARTIAL:
+            node = node_index(node_base, lcp, p, gstar, k)
+            if node < 0:
+                return
+            # Divided when the list had fewer than n nodes before its turn.
+            if ctl[level, CT_SIZE] + node_grown[node] < lt[level, LT_WANT]:
+                divided = 1
+        if divided != 0:
+            depth = gstar + 1
+            if lo > gstar:
+                return
+        else:
+            depth = gstar
+            if p != s:
+                return
+    # The node's points: s and the following ones sharing ``depth`` digits.
+    best = order[s]
+    best_key = cand[best]
+    e = s + 1
+    while e < n and lcp[e] >= depth:
+        c = order[e]
+        ck = cand[c]
+        sc = key_field(ck, 0, 0xFF)
+        sb = key_field(best_key, 0, 0xFF)
+        if sc > sb or (sc == sb and (ck >> wp.int64(8)) < (best_key >> wp.int64(8))):
+            best = c
+            best_key = ck
+        e += 1
+    place = wp.int64(0)
+    if depth <= k:
+        place = flipped_prefix(path, depth, lt[level, LT_NINI])
+    else:
+        parent = node_index(node_base, lcp, run_start(lcp, s, depth - 1), depth - 1, k)
+        if parent < 0:
+            return
+        rank_max = (wp.int64(1) << wp.int64(place_bits - 2)) - wp.int64(1)
+        place = (((rank_max - wp.int64(node_rank[parent])) << wp.int64(2))
+                 | wp.int64(3 - quadrant(path, depth)))
+    slot = wp.atomic_add(counters, C_FINAL, 1)
+    if slot < final_keys.shape[0]:
+        final_keys[slot] = ((((wp.int64(level) << wp.int64(5)) | wp.int64(31 - depth))
+                             << wp.int64(place_bits)) | place)
+        final_values[slot] = best
+
+
+@wp.kernel
+def accumulate_moments(pyr: wp.uint64, lt: wp.array2d(dtype=wp.int32),
+                       counters: wp.array(dtype=wp.int32), final_values: wp.array(dtype=wp.int32),
+                       cand: wp.array(dtype=wp.int64), moments: wp.array2d(dtype=wp.int32)):
+    """IC_Angle's moments of keypoint i, one disc row v per thread: m10 += sum u I,
+    m01 += v sum I (integer sums: the order of the atomics does not matter)."""
+    i, r = wp.tid()
+    if i >= wp.min(counters[C_FINAL], moments.shape[0]):
+        return
+    key = cand[final_values[i]]
+    level = key_field(key, KEY_LEVEL_SHIFT, 31)
+    cx = key_field(key, KEY_X_SHIFT, 0xFFFF)
+    cy = key_field(key, KEY_Y_SHIFT, 0xFFFF)
+    img = level_image(pyr, lt, level)
+    v = r - HALF_PATCH
+    d = UMAX[wp.abs(v)]
+    row = int(0)
+    weighted = int(0)
+    for u in range(-d, d + 1):
+        val = read_reflect101(img, cy + v, cx + u)
+        row += val
+        weighted += u * val
+    wp.atomic_add(moments, i, 0, weighted)
+    wp.atomic_add(moments, i, 1, v * row)
+
+
+@wp.kernel
+def describe_levels(blurred: wp.uint64, lt: wp.array2d(dtype=wp.int32),
+                    ft: wp.array2d(dtype=wp.float32), counters: wp.array(dtype=wp.int32),
+                    final_values: wp.array(dtype=wp.int32), cand: wp.array(dtype=wp.int64),
+                    moments: wp.array2d(dtype=wp.int32), pattern: wp.array2d(dtype=wp.int32),
+                    kp_fields: wp.array(dtype=wp.float32), kp_octave: wp.array(dtype=wp.int32),
+                    desc: wp.array2d(dtype=wp.uint8)):
+    """Descriptor byte j of keypoint i on its blurred level; thread j = 0 also writes the
+    keypoint's level-0 fields. ``kp_fields`` holds x, y, response, size, angle as a (5, n)
+    block, n the keypoint count, so one contiguous copy takes them out."""
+    i, j = wp.tid()
+    n = wp.min(counters[C_FINAL], desc.shape[0])
+    if i >= n:
+        return
+    key = cand[final_values[i]]
+    level = key_field(key, KEY_LEVEL_SHIFT, 31)
+    x = key_field(key, KEY_X_SHIFT, 0xFFFF)
+    y = key_field(key, KEY_Y_SHIFT, 0xFFFF)
+    angle = fast_atan2(float(moments[i, 1]), float(moments[i, 0]))
+    desc[i, j] = wp.uint8(describe_byte(level_image(blurred, lt, level), y, x, angle, pattern, j))
+    if j == 0:
+        s = ft[level, FT_SCALE]
+        kp_fields[i] = float(x) * s
+        kp_fields[n + i] = float(y) * s
+        kp_fields[2 * n + i] = float(key_field(key, 0, 0xFF))
+        kp_fields[3 * n + i] = ft[level, FT_SIZE]
+        kp_fields[4 * n + i] = angle
+        kp_octave[i] = level
+
+
