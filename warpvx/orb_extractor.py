@@ -11,11 +11,11 @@ import functools
 
 import numpy as np
 
+from ._orb_spec import DESCRIPTOR_BYTES, MAX_SIDE, MIN_LEVEL_SIZE
 from .arrays import to_warp
 from .backend import resolve_backend
-from .check import check_float, check_image, check_int
+from .check import check_array, check_float, check_image, check_int
 from .errors import ShapeError, WarpvxTypeError, WarpvxValueError
-from ._orb_spec import MAX_SIDE, MIN_LEVEL_SIZE
 from .keypoints import Keypoints
 from .pyramid import scale_pyramid_sizes
 from .registry import BenchCase, dispatch
@@ -134,7 +134,8 @@ def orb(src, n_features: int = 2000, scale_factor: float = 1.2, n_levels: int = 
                     min_th_fast, stream=stream)
 
 
-def orb_compute(src, keypoints, scale_factor: float = 1.2, *, backend=None, stream=None):
+def orb_compute(src, keypoints, scale_factor: float = 1.2, *, out=None, backend=None,
+                stream=None):
     """Descriptors of given keypoints, as :func:`orb` computes them (cv2's ``ORB.compute``).
 
     Each keypoint is described on level ``octave`` of ORB-SLAM2's pyramid (as many levels as
@@ -150,13 +151,20 @@ def orb_compute(src, keypoints, scale_factor: float = 1.2, *, backend=None, stre
     keypoints : Keypoints or list of cv2.KeyPoint
         Level-0 coordinates, ``octave`` >= 0, ``angle`` in degrees.
     scale_factor : float > 1
+    out : uint8 [N, 32], optional
+        Writable, C-contiguous; receives the descriptors (N = the number of keypoints).
     backend, stream
         See :mod:`warpvx.backend`.
 
     Returns
     -------
     uint8 [N, 32]
-        In the keypoints' order.
+        In the keypoints' order (``out`` when given).
+
+    Raises
+    ------
+    ShapeError, DTypeError, WarpvxValueError
+        ``out`` of the wrong shape or dtype, not contiguous, or read-only.
     """
     be = resolve_backend(backend, like=src)
     src = _gray(src)
@@ -179,7 +187,12 @@ def orb_compute(src, keypoints, scale_factor: float = 1.2, *, backend=None, stre
     if lw < 1 or lh < 1:
         raise ShapeError(f"src: image of {w}x{h} (WxH) has no pyramid level {n_levels - 1} "
                          f"(keypoints: octave {n_levels - 1}) at scale_factor {scale_factor}")
-    return dispatch("orb_compute", be, src, keypoints, scale_factor, n_levels, stream=stream)
+    if out is not None:
+        check_array(out, "out", shape=(len(host), DESCRIPTOR_BYTES), dtypes=(np.uint8,))
+        if isinstance(out, np.ndarray) and not out.flags.writeable:
+            raise WarpvxValueError("out: expected a writable array, got a read-only one")
+    return dispatch("orb_compute", be, src, keypoints, scale_factor, n_levels, out=out,
+                    stream=stream)
 
 
 # --- benchmark cases -------------------------------------------------------------------------

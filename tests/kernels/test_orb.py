@@ -12,6 +12,7 @@ import pytest
 import warpvx
 from warpvx import DTypeError, Keypoints, ShapeError, UnsupportedError, WarpvxTypeError
 from warpvx import WarpvxValueError
+from warpvx import _orb_quadtree, _orb_spec
 from warpvx.kernels_cpu import orb as cpu_orb
 from warpvx.orb_extractor import orb_compute
 from tests.images import gray
@@ -265,9 +266,9 @@ def test_orb_compute_bad_input():
 
 
 def test_features_per_level_formula():
-    assert cpu_orb.features_per_level(2000, 1.2, 8) == SPEC_COUNTS
-    assert sum(cpu_orb.features_per_level(1000, 1.2, 8)) == 1000
-    assert cpu_orb.umax().tolist() == SPEC_UMAX
+    assert _orb_spec.features_per_level(2000, 1.2, 8) == SPEC_COUNTS
+    assert sum(_orb_spec.features_per_level(1000, 1.2, 8)) == 1000
+    assert _orb_spec.umax().tolist() == SPEC_UMAX
 
 
 def test_per_level_counts_on_textured_image(backend):
@@ -283,7 +284,7 @@ def test_cells_match_orbslam2_loop(name):
     """FAST once at 7 plus the per-cell rule equals ORB-SLAM2's loop (FAST at 20 per cell,
     again at 7 when it finds none), cell-local non-max suppression included."""
     for level in _pyramid_cv(gray(name), 4):
-        grid = cpu_orb.cell_grid(level.shape[1], level.shape[0])
+        grid = _orb_spec.cell_grid(level.shape[1], level.shape[0])
         x, y, s = cpu_orb.detect_cells(level, 7)
         keep = cpu_orb.select_cells(x, y, s, grid, 20, 7)
         rx, ry, rs = _cells_literal(level, 20, 7)
@@ -295,12 +296,12 @@ def test_cells_match_orbslam2_loop(name):
 @pytest.mark.parametrize("name", ["coffee", "camera"])
 def test_quadtree_matches_literal_distribute_octtree(name):
     for lv, level in enumerate(_pyramid_cv(gray(name), 8)[::3]):
-        grid = cpu_orb.cell_grid(level.shape[1], level.shape[0])
+        grid = _orb_spec.cell_grid(level.shape[1], level.shape[0])
         x, y, s = _cells_literal(level, 20, 7)
         for n in (SPEC_COUNTS[3 * lv], 7, 60, 5000):
             ref = _distribute_octtree_literal(x, y, s, 16, grid.max_border_x, 16,
                                               grid.max_border_y, n)
-            got = cpu_orb.distribute_octtree(x, y, s, grid, n)
+            got = _orb_quadtree.distribute_octtree(x, y, s, grid, n)
             np.testing.assert_array_equal(got, ref)
 
 
@@ -343,7 +344,7 @@ def test_spread_over_cells(backend):
     every such cell does (no cell left empty)."""
     img = gray("astronaut")
     h, w = img.shape
-    grid = cpu_orb.cell_grid(w, h)
+    grid = _orb_spec.cell_grid(w, h)
     det = cv2.FastFeatureDetector_create(7, True)
     textured = {(i, j) for i, (y0, y1) in enumerate(grid.row_spans)
                 for j, (x0, x1) in enumerate(grid.col_spans)
@@ -400,11 +401,21 @@ def test_orb_compute_matches_opencv(backend):
     assert _bit_agreement(desc, cv_desc) >= 0.95
 
 
-def test_cpu_and_warp_extractors_agree(warp_backend):
-    img = gray("coffee")
+FIELDS = ("x", "y", "response", "size", "angle", "octave")
+
+
+@pytest.mark.parametrize("name", ["coffee", "astronaut", "brick"])
+def test_cpu_and_warp_extractors_agree(warp_backend, name):
+    """The Warp extractor returns exactly the CPU one (every field, every descriptor byte, in
+    the same order); SPEC section 4's bars (90% of keypoints within 1 px, count within 10%,
+    95% of descriptor bits) hold as a consequence, asserted second."""
+    img = gray(name)
     kc, dc = warpvx.orb(img, backend="cpu")
     kw, dw = _host(*warpvx.orb(img, backend=warp_backend))
-    # For each CPU keypoint, a Warp keypoint of the same octave within 1 px.
+    for f in FIELDS:
+        np.testing.assert_array_equal(getattr(kw, f), getattr(kc, f), err_msg=f)
+    np.testing.assert_array_equal(dw, dc)
+    # SPEC section 4: for each CPU keypoint, a Warp keypoint of the same octave within 1 px.
     found = np.zeros(len(kc), bool)
     desc_same = []
     for o in range(8):
@@ -418,6 +429,138 @@ def test_cpu_and_warp_extractors_agree(warp_backend):
         desc_same.append(_bit_agreement(dc[ic[near]], dw[iw[j[near]]]))
     assert found.mean() >= 0.90 and abs(len(kw) - len(kc)) <= 0.1 * len(kc)
     assert min(desc_same) >= 0.95
+
+
+def _decode(keys):
+    """Candidate keys (kernels_warp.orb KEY_* layout) as (level, cell, y, x, score) arrays."""
+    from warpvx.kernels_warp.orb import funcs
+
+    keys = np.asarray(keys, np.int64)
+    return (keys >> int(funcs.KEY_LEVEL_SHIFT), (keys >> int(funcs.KEY_CELL_SHIFT)) & 0x3FFFF,
+            (keys >> int(funcs.KEY_Y_SHIFT)) & 0xFFFF, (keys >> int(funcs.KEY_X_SHIFT)) & 0xFFFF,
+            keys & 0xFF)
+
+
+@pytest.mark.parametrize("name", ["coffee", "rocket"])
+def test_warp_internals_match_orbslam2_transcription(warp_backend, name):
+    """The one-graph Warp extractor's intermediate buffers against the CPU transcription of
+    ORB-SLAM2, level by level: the pyramid, which cells pass iniThFAST (the per-cell FAST
+    threshold), the candidates after it, the quadtree's kept points in DistributeOctTree's
+    node order, and the IC_Angle orientations."""
+    wp = pytest.importorskip("warp")
+    from warpvx.kernels_warp.orb import funcs
+    from warpvx.kernels_warp.orb.plan import Plan
+
+    img = gray(name)
+    dev = "cpu" if warp_backend == "warp-cpu" else warp_backend
+    plan = Plan(dev, *img.shape, 2000, 1.2, 8, 20, 7)
+    plan.run(wp.array(img, dtype=wp.uint8, device=dev))
+    counters = plan.counters.numpy()
+    assert counters[funcs.C_OVER] == 0  # the device quadtree ran, not the host fallback
+    # Candidates: each stripe's region holds its count.
+    per_stripe = counters[funcs.C_CAND_R:funcs.C_CAND_R + funcs.STRIPES]
+    cand = plan.cand.numpy().reshape(funcs.STRIPES, plan.cand_region)
+    keys = np.concatenate([cand[r, :c] for r, c in enumerate(per_stripe)])
+    level_k, cell_k, y_k, x_k, s_k = _decode(keys)
+    # Kept points, in the final list's order.
+    n = int(counters[funcs.C_FINAL])
+    kept = plan.cand.numpy()[plan.final_values.numpy()[:n]]
+    level_f, _, y_f, x_f, s_f = _decode(kept)
+    angles = plan.kp_fields.numpy()[4 * n:5 * n]
+    assert np.all(np.diff(level_f) >= 0)  # level by level
+
+    levels = cpu_orb.build_pyramid(img, 1.2, 8)
+    wanted = _orb_spec.features_per_level(2000, 1.2, 8)
+    cell_strong = counters[plan.cells_at:plan.groups_at]
+    cell_at = 0
+    for lv, level in enumerate(levels):
+        np.testing.assert_array_equal(plan.levels[lv].numpy(), level)
+        grid = _orb_spec.cell_grid(level.shape[1], level.shape[0])
+        x, y, s = cpu_orb.detect_cells(level, 7)
+        cell = grid.row_of_y[y].astype(np.int64) * grid.n_cols + grid.col_of_x[x]
+        # Per-cell threshold: a cell counts points >= iniThFAST exactly where ORB-SLAM2's
+        # first FAST pass finds some.
+        n_cells = grid.n_rows * grid.n_cols
+        strong = np.bincount(cell[s >= 20], minlength=n_cells)
+        np.testing.assert_array_equal(cell_strong[cell_at:cell_at + n_cells], strong)
+        cell_at += n_cells
+        keep = cpu_orb.select_cells(x, y, s, grid, 20, 7)
+        x, y, s, cell = x[keep], y[keep], s[keep], cell[keep]
+        # Candidates: the same set (sorted in ORB-SLAM2's order: cell, y, x).
+        mine = level_k == lv
+        order = np.lexsort((x_k[mine], y_k[mine], cell_k[mine]))
+        np.testing.assert_array_equal(cell_k[mine][order], cell)
+        np.testing.assert_array_equal(y_k[mine][order], y)
+        np.testing.assert_array_equal(x_k[mine][order], x)
+        np.testing.assert_array_equal(s_k[mine][order], s)
+        # Quadtree: DistributeOctTree's kept points, in its node order.
+        chosen = _orb_quadtree.distribute_octtree(x, y, s, grid, wanted[lv])
+        here = level_f == lv
+        np.testing.assert_array_equal(x_f[here], x[chosen])
+        np.testing.assert_array_equal(y_f[here], y[chosen])
+        np.testing.assert_array_equal(s_f[here], s[chosen])
+        # Orientation: IC_Angle on the unblurred level.
+        np.testing.assert_array_equal(angles[here],
+                                      cpu_orb.compute_orientation(level, x[chosen], y[chosen]))
+
+
+def test_warp_overflow_takes_the_host_quadtree(warp_backend):
+    """A frame past a plan's candidate capacity is redone with the host quadtree: the same
+    result as the device path and the CPU extractor."""
+    wp = pytest.importorskip("warp")
+    from warpvx.kernels_warp.orb import funcs
+    from warpvx.kernels_warp.orb.plan import Plan
+
+    img = gray("coffee")
+    dev = "cpu" if warp_backend == "warp-cpu" else warp_backend
+    plan = Plan(dev, *img.shape, 2000, 1.2, 8, 20, 7, candidate_divisor=10 ** 6)
+    kw, dw = _host(*plan.run(wp.array(img, dtype=wp.uint8, device=dev)))
+    assert plan.counters.numpy()[funcs.C_OVER] == 1
+    kc, dc = warpvx.orb(img, backend="cpu")
+    for f in FIELDS:
+        np.testing.assert_array_equal(getattr(kw, f), getattr(kc, f), err_msg=f)
+    np.testing.assert_array_equal(dw, dc)
+
+
+def test_orb_out_is_refused(backend):
+    """orb's output size is data-dependent: both backends refuse out= rather than ignore it."""
+    if backend == "cpu":
+        impl, src = cpu_orb.orb, gray("camera")
+    else:
+        wp = pytest.importorskip("warp")
+        from warpvx.kernels_warp import orb as warp_orb
+
+        dev = "cpu" if backend == "warp-cpu" else backend
+        impl, src = warp_orb.orb, wp.array(gray("camera"), dtype=wp.uint8, device=dev)
+    with pytest.raises(UnsupportedError, match="out"):
+        impl(src, 500, 1.2, 8, 20, 7, out=np.zeros((500, 32), np.uint8))
+
+
+def test_orb_compute_out(backend):
+    """orb_compute writes into out= (the descriptors computed without it) and validates it."""
+    img = gray("chelsea")
+    kps, _ = _host(*warpvx.orb(img, 300, backend="cpu"))
+    want = orb_compute(img, kps, 1.2, backend=backend)
+    want = want if isinstance(want, np.ndarray) else want.numpy()
+    out = np.full((len(kps), 32), 7, np.uint8)
+    got = orb_compute(img, kps, 1.2, out=out, backend=backend)
+    assert got is out
+    np.testing.assert_array_equal(out, want)
+    if backend != "cpu":  # device in, device out: the kernels write into it
+        wp = pytest.importorskip("warp")
+        dev = "cpu" if backend == "warp-cpu" else backend
+        dev_out = wp.full((len(kps), 32), 7, dtype=wp.uint8, device=dev)
+        got = orb_compute(wp.array(img, dtype=wp.uint8, device=dev), kps, 1.2, out=dev_out)
+        assert got is dev_out
+        np.testing.assert_array_equal(dev_out.numpy(), want)
+    with pytest.raises(ShapeError, match="out"):
+        orb_compute(img, kps, 1.2, out=np.zeros((len(kps) + 1, 32), np.uint8), backend=backend)
+    with pytest.raises(DTypeError, match="out"):
+        orb_compute(img, kps, 1.2, out=np.zeros((len(kps), 32), np.int32), backend=backend)
+    frozen = np.zeros((len(kps), 32), np.uint8)
+    frozen.setflags(write=False)
+    with pytest.raises(WarpvxValueError, match="out"):
+        orb_compute(img, kps, 1.2, out=frozen, backend=backend)
 
 
 @pytest.mark.parametrize("name", ["astronaut", "coffee"])

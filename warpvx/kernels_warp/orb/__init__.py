@@ -70,8 +70,9 @@ def orb(src, n_features: int, scale_factor: float, n_levels: int, ini_th_fast: i
 
     Every stage, the quadtree included, runs on the device (on CUDA as one captured graph per
     size and parameter set, cached); the host syncs once to read the keypoint count. ``out``
-    is not supported (the count is data-dependent) and ignored.
+    must be None (UnsupportedError otherwise: the count is data-dependent).
     """
+    spec.refuse_out(out)
     device = src.device
     h, w = int(src.shape[0]), int(src.shape[1])
     key = (str(device), h, w, int(n_features), float(scale_factor), int(n_levels),
@@ -87,7 +88,8 @@ def orb(src, n_features: int, scale_factor: float, n_levels: int, ini_th_fast: i
 def orb_compute(src, keypoints: Keypoints, scale_factor: float, n_levels: int, *, out=None):
     """uint8 [N, 32] descriptors of given keypoints (level-0 coordinates, octave, angle).
 
-    The octaves are read on the host (to group the launches per level), one sync.
+    The octaves are read on the host (to group the launches per level), one sync. Written into
+    ``out`` (uint8 [N, 32] on ``src.device``) when given.
     """
     device = src.device
     kp = keypoints.to(str(device))

@@ -54,30 +54,41 @@ N_STRIPES = wp.constant(STRIPES)
 RANK_CHUNKS = 32
 N_RANK_CHUNKS = wp.constant(RANK_CHUNKS)
 
-# Per-level table (int32 [L, LT_FIELDS]) columns.
-LT_PIX = wp.constant(0)  # offset of the level in the flat pyramid
-LT_W = wp.constant(1)
-LT_H = wp.constant(2)
-LT_ROW = wp.constant(3)  # offset of its row_of_y in the flat table
-LT_COL = wp.constant(4)  # offset of its col_of_x
-LT_NCOLS = wp.constant(5)
-LT_CELL = wp.constant(6)  # offset of its cells in the per-cell counts
-LT_WANT = wp.constant(7)  # features wanted
-LT_NINI = wp.constant(8)  # root nodes
-LT_ROOT = wp.constant(9)  # offset of its root boundaries
-LT_QTH = wp.constant(10)  # quadtree height (maxBorderY - minBorderY)
-LT_NODE = wp.constant(11)  # offset of its node pool
-LT_NODE_CAP = wp.constant(12)
-LT_FIELDS = 13
-# Per-level float table (float32 [L, 3]): root width hX, scale s_l, keypoint size.
-FT_HX = wp.constant(0)
-FT_SCALE = wp.constant(1)
-FT_SIZE = wp.constant(2)
-# Per-level plan (int32 [L, 4]) written by plan_divisions.
-CT_K = wp.constant(0)  # pass at which the first loop stops
-CT_GSTAR = wp.constant(1)  # depth of the last division round (K when there is none)
-CT_MODE = wp.constant(2)
-CT_SIZE = wp.constant(3)  # list size before the last round
+
+
+@wp.struct
+class LevelInfo:
+    """One pyramid level of a plan: its place in the flat buffers, its cell grid and its
+    quadtree's constants (an array of these, one per level, is the plan's level table)."""
+
+    pix: int  # offset of the level in the flat pyramids (pixels)
+    width: int
+    height: int
+    row: int  # offset of its row_of_y in the flat table
+    col: int  # offset of its col_of_x
+    n_cols: int  # cell columns
+    cell: int  # offset of its cells in the per-cell counts
+    want: int  # features wanted (n_l)
+    n_ini: int  # root nodes
+    root: int  # offset of its root boundaries
+    qt_height: int  # quadtree height (maxBorderY - minBorderY)
+    node: int  # offset of its node pool
+    node_cap: int  # its node pool's size
+    hx: float  # root node width
+    scale: float  # s_l
+    kp_size: float  # ORB-SLAM2's keypoint size, int(31 s_l)
+
+
+@wp.struct
+class Division:
+    """DistributeOctTree's decisions for one level (written by ``plan_divisions``)."""
+
+    k: int  # pass at which the first loop stops
+    gstar: int  # depth of the last division round (k when there is none)
+    mode: int  # MODE_*
+    size: int  # list size before the last round
+
+
 MODE_EMPTY = wp.constant(0)  # no candidates
 MODE_PASSES = wp.constant(1)  # the first loop finished: nothing divided at depth K
 MODE_FULL = wp.constant(2)  # the last round divided all its nodes
@@ -172,18 +183,31 @@ def describe_byte(img: wp.array2d(dtype=wp.uint8), cy: int, cx: int, angle_deg: 
 
 
 @wp.func
-def level_image(base: wp.uint64, lt: wp.array2d(dtype=wp.int32), level: int):
-    """Level ``level`` of a flat pyramid buffer as a 2-D array (a view, no copy)."""
-    return wp.array(ptr=base + wp.uint64(lt[level, LT_PIX]),
-                    shape=(lt[level, LT_H], lt[level, LT_W]), dtype=wp.uint8)
+def level_image(base: wp.uint64, levels: wp.array(dtype=LevelInfo), level: int):
+    """Level ``level`` of a flat pyramid buffer as a 2-D array (a view, no copy).
+
+    A raw pointer because the 2-D device functions (``fast_score``, ``read_reflect101``,
+    ``describe_byte``) take a 2-D array and Warp cannot reshape part of a typed 1-D array in a
+    kernel. In bounds: the view spans [pix, pix + width * height) of a buffer the plan
+    allocated as the sum of all level sizes, and every read through it is a pixel of the view
+    (FAST on owned pixels, >= 19 px inside the level; the other reads reflect into it).
+    """
+    info = levels[level]
+    return wp.array(ptr=base + wp.uint64(info.pix), shape=(info.height, info.width),
+                    dtype=wp.uint8)
 
 
 @wp.func
-def level_holding(i: int, lt: wp.array2d(dtype=wp.int32), column: int, n_levels: int) -> int:
-    """The level whose range starts at or before ``i`` in level-table column ``column``
-    (``LT_PIX``: a flat pixel index; ``LT_NODE``: a quadtree node index)."""
+def level_holding(i: int, levels: wp.array(dtype=LevelInfo), n_levels: int, node: bool) -> int:
+    """The level whose range starts at or before ``i``: of flat pixels, or of quadtree node
+    slots when ``node``."""
     level = int(0)
-    while level + 1 < n_levels and i >= lt[level + 1, column]:
+    while level + 1 < n_levels:
+        start = levels[level + 1].pix
+        if node:
+            start = levels[level + 1].node
+        if i < start:
+            break
         level += 1
     return level
 
@@ -202,19 +226,19 @@ def key_field(key: wp.int64, shift: int, mask: int) -> int:
 
 
 @wp.func
-def quadtree_path(level: int, x: int, y: int, lt: wp.array2d(dtype=wp.int32),
-                  ft: wp.array2d(dtype=wp.float32), roots: wp.array(dtype=wp.int32)) -> wp.int64:
+def quadtree_path(level: int, x: int, y: int, levels: wp.array(dtype=LevelInfo),
+                  roots: wp.array(dtype=wp.int32)) -> wp.int64:
     """Path key of a candidate: its root column (``vpIniNodes[x / hX]``) and the quadrant it
     falls in at each of 16 successive ``DivideNode`` splits (float coordinates relative to the
     border, integer node bounds, split at ceil(half) as there)."""
+    info = levels[level]
     px = float(x - MIN_BORDER)
     py = float(y - MIN_BORDER)
-    n_ini = lt[level, LT_NINI]
-    root = wp.min(int(px / ft[level, FT_HX]), n_ini - 1)
-    x0 = roots[lt[level, LT_ROOT] + root]
-    x1 = roots[lt[level, LT_ROOT] + root + 1]
+    root = wp.min(int(px / info.hx), info.n_ini - 1)
+    x0 = roots[info.root + root]
+    x1 = roots[info.root + root + 1]
     y0 = int(0)
-    y1 = lt[level, LT_QTH]
+    y1 = info.qt_height
     digits = wp.int64(0)
     for _d in range(16):
         mx = x0 + ((x1 - x0 + 1) >> 1)

@@ -16,24 +16,25 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def score_pixels(pyr: wp.uint64, lt: wp.array2d(dtype=wp.int32), n_levels: int,
+def score_pixels(pyr: wp.uint64, levels: wp.array(dtype=LevelInfo), n_levels: int,
                  row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int32),
                  threshold: int, scores: wp.array(dtype=wp.uint8)):
     """FAST score at ``threshold`` of each pixel a cell owns (>= 19 px inside), 0 elsewhere."""
     i = wp.tid()
-    level = level_holding(i, lt, LT_PIX, n_levels)
-    w = lt[level, LT_W]
-    r = i - lt[level, LT_PIX]
+    level = level_holding(i, levels, n_levels, False)
+    info = levels[level]
+    w = info.width
+    r = i - info.pix
     y = r // w
     x = r - y * w
     s = int(0)
-    if row_of_y[lt[level, LT_ROW] + y] >= 0 and col_of_x[lt[level, LT_COL] + x] >= 0:
-        s = fast_score(level_image(pyr, lt, level), y, x, threshold)
+    if row_of_y[info.row + y] >= 0 and col_of_x[info.col + x] >= 0:
+        s = fast_score(level_image(pyr, levels, level), y, x, threshold)
     scores[i] = wp.uint8(s)
 
 
 @wp.kernel
-def suppress_pixels(lt: wp.array2d(dtype=wp.int32), n_levels: int,
+def suppress_pixels(levels: wp.array(dtype=LevelInfo), n_levels: int,
                     row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int32),
                     scores: wp.array(dtype=wp.uint8), ini_th: int, cells_at: int, region: int,
                     counters: wp.array(dtype=wp.int32), survivors: wp.array(dtype=wp.int64)):
@@ -43,13 +44,14 @@ def suppress_pixels(lt: wp.array2d(dtype=wp.int32), n_levels: int,
     s = int(scores[i])
     if s == 0:
         return
-    level = level_holding(i, lt, LT_PIX, n_levels)
-    w = lt[level, LT_W]
-    r = i - lt[level, LT_PIX]
+    level = level_holding(i, levels, n_levels, False)
+    info = levels[level]
+    w = info.width
+    r = i - info.pix
     y = r // w
     x = r - y * w
-    ro = lt[level, LT_ROW]
-    co = lt[level, LT_COL]
+    ro = info.row
+    co = info.col
     cr = row_of_y[ro + y]
     cc = col_of_x[co + x]
     # Owned pixels lie >= 19 px inside the level: the neighbours exist.
@@ -59,9 +61,9 @@ def suppress_pixels(lt: wp.array2d(dtype=wp.int32), n_levels: int,
                 if row_of_y[ro + y + dy] == cr and col_of_x[co + x + dx] == cc:
                     if int(scores[i + dy * w + dx]) >= s:
                         return
-    cell = cr * lt[level, LT_NCOLS] + cc
+    cell = cr * info.n_cols + cc
     if s >= ini_th:
-        wp.atomic_add(counters, cells_at + lt[level, LT_CELL] + cell, 1)
+        wp.atomic_add(counters, cells_at + info.cell + cell, 1)
     stripe = i % N_STRIPES
     slot = wp.atomic_add(counters, C_SURV_R + stripe, 1)
     # Past the capacity the count still grows: pad_paths flags it, the frame takes extract_host.
@@ -71,7 +73,7 @@ def suppress_pixels(lt: wp.array2d(dtype=wp.int32), n_levels: int,
 
 @wp.kernel
 def select_candidates(survivors: wp.array(dtype=wp.int64), surv_region: int,
-                      lt: wp.array2d(dtype=wp.int32), ft: wp.array2d(dtype=wp.float32),
+                      levels: wp.array(dtype=LevelInfo),
                       roots: wp.array(dtype=wp.int32), ini_th: int, min_th: int, cells_at: int,
                       cand_region: int, digits: int, root_bits: int,
                       counters: wp.array(dtype=wp.int32), cand: wp.array(dtype=wp.int64),
@@ -89,7 +91,7 @@ def select_candidates(survivors: wp.array(dtype=wp.int64), surv_region: int,
     cell = key_field(key, KEY_CELL_SHIFT, 0x3FFFF)
     s = key_field(key, 0, 0xFF)
     th = min_th
-    if counters[cells_at + lt[level, LT_CELL] + cell] > 0:
+    if counters[cells_at + levels[level].cell + cell] > 0:
         th = ini_th
     if s < th:
         return
@@ -99,7 +101,7 @@ def select_candidates(survivors: wp.array(dtype=wp.int64), surv_region: int,
         at = stripe * cand_region + slot
         cand[at] = key
         path = quadtree_path(level, key_field(key, KEY_X_SHIFT, 0xFFFF),
-                             key_field(key, KEY_Y_SHIFT, 0xFFFF), lt, ft, roots)
+                             key_field(key, KEY_Y_SHIFT, 0xFFFF), levels, roots)
         paths[at] = path
         root = (path >> wp.int64(PATH_ROOT_SHIFT)) & wp.int64(511)
         kept = (path & wp.int64(0xFFFFFFFF)) >> wp.int64(2 * (PATH_DEPTH - digits))
@@ -190,8 +192,8 @@ def sum_depth_counts(counters: wp.array(dtype=wp.int32), singles_at: int, multis
 
 
 @wp.kernel
-def plan_divisions(lt: wp.array2d(dtype=wp.int32), totals: wp.array3d(dtype=wp.int32),
-                   ctl: wp.array2d(dtype=wp.int32)):
+def plan_divisions(levels: wp.array(dtype=LevelInfo), totals: wp.array3d(dtype=wp.int32),
+                   divisions: wp.array(dtype=Division)):
     """DistributeOctTree's control flow from node counts (one thread per level).
 
     With S_g, M_g the single- and multi-point nodes created at depth g (a node is created when
@@ -202,14 +204,13 @@ def plan_divisions(lt: wp.array2d(dtype=wp.int32), totals: wp.array3d(dtype=wp.i
     last round is the one reaching n (MODE_PARTIAL) or adding nothing (MODE_FULL).
     """
     level = wp.tid()
-    n = lt[level, LT_WANT]
+    n = levels[level].want
     singles = depth_counts(totals, level, 0)
     multis = depth_counts(totals, level, 1)
     if singles[0] + multis[0] == 0:
-        ctl[level, CT_MODE] = MODE_EMPTY
-        ctl[level, CT_K] = 0
-        ctl[level, CT_GSTAR] = 0
-        ctl[level, CT_SIZE] = 0
+        empty = Division()
+        empty.mode = MODE_EMPTY
+        divisions[level] = empty
         return
     n_prev = singles[0] + multis[0]
     sum_singles = singles[0]
@@ -239,16 +240,18 @@ def plan_divisions(lt: wp.array2d(dtype=wp.int32), totals: wp.array3d(dtype=wp.i
                 break
             size += growth
             g += 1
-    ctl[level, CT_K] = k
-    ctl[level, CT_GSTAR] = g
-    ctl[level, CT_MODE] = mode
-    ctl[level, CT_SIZE] = size
+    d = Division()
+    d.k = k
+    d.gstar = g
+    d.mode = mode
+    d.size = size
+    divisions[level] = d
 
 
 @wp.kernel
 def alloc_nodes(paths: wp.array(dtype=wp.int64), lcp: wp.array(dtype=wp.int32),
-                counters: wp.array(dtype=wp.int32), n_cap: int, lt: wp.array2d(dtype=wp.int32),
-                ctl: wp.array2d(dtype=wp.int32), groups_at: int,
+                counters: wp.array(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
+                divisions: wp.array(dtype=Division), groups_at: int,
                 node_base: wp.array(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
                 node_depth: wp.array(dtype=wp.int32), node_count: wp.array(dtype=wp.int32),
                 node_growth: wp.array(dtype=wp.int32), groups: wp.array3d(dtype=wp.int32)):
@@ -261,22 +264,22 @@ def alloc_nodes(paths: wp.array(dtype=wp.int64), lcp: wp.array(dtype=wp.int32),
     if s >= n:
         return
     level = int(paths[s] >> wp.int64(PATH_LEVEL_SHIFT))
-    mode = ctl[level, CT_MODE]
+    mode = divisions[level].mode
     node_base[s] = -1
     if mode != MODE_FULL and mode != MODE_PARTIAL:
         return
-    k = ctl[level, CT_K]
+    k = divisions[level].k
     hi = int(-1)
     if s + 1 < n:
         hi = lcp[s + 1]
     g0 = wp.max(lcp[s] + 1, k)
-    g1 = wp.min(hi, ctl[level, CT_GSTAR])
+    g1 = wp.min(hi, divisions[level].gstar)
     if g0 > g1:
         return
     base = wp.atomic_add(counters, C_NODES + level, g1 - g0 + 1)
-    if base + g1 - g0 + 1 > lt[level, LT_NODE_CAP]:
+    if base + g1 - g0 + 1 > levels[level].node_cap:
         return  # the host sees the count past the capacity
-    first = lt[level, LT_NODE] + base
+    first = levels[level].node + base
     node_base[s] = first
     for g in range(g0, g1 + 1):
         e = s + 1
@@ -296,29 +299,29 @@ def alloc_nodes(paths: wp.array(dtype=wp.int64), lcp: wp.array(dtype=wp.int32),
 
 
 @wp.func
-def live_node_level(v: int, lt: wp.array2d(dtype=wp.int32), n_levels: int,
+def live_node_level(v: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
                     counters: wp.array(dtype=wp.int32)) -> int:
     """The level of node slot ``v``, or -1 when the slot holds no node: past the level's used
     nodes, or the level overflowed its capacity (its frame is then redone on the host)."""
-    level = level_holding(v, lt, LT_NODE, n_levels)
+    level = level_holding(v, levels, n_levels, True)
     used = counters[C_NODES + level]
-    if v - lt[level, LT_NODE] >= used or used > lt[level, LT_NODE_CAP]:
+    if v - levels[level].node >= used or used > levels[level].node_cap:
         return -1
     return level
 
 
 @wp.kernel
-def link_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array(dtype=wp.int32),
-               ctl: wp.array2d(dtype=wp.int32), lcp: wp.array(dtype=wp.int32),
+def link_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.array(dtype=wp.int32),
+               divisions: wp.array(dtype=Division), lcp: wp.array(dtype=wp.int32),
                node_base: wp.array(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
                node_depth: wp.array(dtype=wp.int32), node_parent: wp.array(dtype=wp.int32)):
     """Each ordered node's parent (a node of the previous round), -1 at depth K."""
     v = wp.tid()
-    level = live_node_level(v, lt, n_levels, counters)
+    level = live_node_level(v, levels, n_levels, counters)
     if level < 0:
         return
     g = node_depth[v]
-    k = ctl[level, CT_K]
+    k = divisions[level].k
     if g == k:
         node_parent[v] = -1
         return
@@ -327,8 +330,8 @@ def link_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array
 
 
 @wp.kernel
-def rank_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array(dtype=wp.int32),
-               ctl: wp.array2d(dtype=wp.int32), paths: wp.array(dtype=wp.int64), groups_at: int,
+def rank_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.array(dtype=wp.int32),
+               divisions: wp.array(dtype=Division), paths: wp.array(dtype=wp.int64), groups_at: int,
                groups: wp.array3d(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
                node_depth: wp.array(dtype=wp.int32), node_count: wp.array(dtype=wp.int32),
                node_growth: wp.array(dtype=wp.int32), node_parent: wp.array(dtype=wp.int32),
@@ -337,12 +340,12 @@ def rank_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array
     it), and the nodes those divisions add; thread c of a node compares every
     N_RANK_CHUNKS-th member of its group (both arrays zeroed first, sums by atomics)."""
     v, c = wp.tid()
-    level = live_node_level(v, lt, n_levels, counters)
+    level = live_node_level(v, levels, n_levels, counters)
     if level < 0:
         return
     g = node_depth[v]
-    k = ctl[level, CT_K]
-    n_ini = lt[level, LT_NINI]
+    k = divisions[level].k
+    n_ini = levels[level].n_ini
     members = counters[groups_at + level * N_DEPTHS + g]
     rank = int(0)
     grown = int(0)
@@ -361,8 +364,8 @@ def rank_nodes(lt: wp.array2d(dtype=wp.int32), n_levels: int, counters: wp.array
 @wp.kernel
 def emit_finals(paths: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32),
                 lcp: wp.array(dtype=wp.int32), cand: wp.array(dtype=wp.int64),
-                counters: wp.array(dtype=wp.int32), n_cap: int, lt: wp.array2d(dtype=wp.int32),
-                ctl: wp.array2d(dtype=wp.int32), node_base: wp.array(dtype=wp.int32),
+                counters: wp.array(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
+                divisions: wp.array(dtype=Division), node_base: wp.array(dtype=wp.int32),
                 node_rank: wp.array(dtype=wp.int32), node_grown: wp.array(dtype=wp.int32),
                 place_bits: int, final_keys: wp.array(dtype=wp.int64),
                 final_values: wp.array(dtype=wp.int32)):
@@ -382,9 +385,9 @@ def emit_finals(paths: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32)
         return
     path = paths[s]
     level = int(path >> wp.int64(PATH_LEVEL_SHIFT))
-    mode = ctl[level, CT_MODE]
-    k = ctl[level, CT_K]
-    gstar = ctl[level, CT_GSTAR]
+    mode = divisions[level].mode
+    k = divisions[level].k
+    gstar = divisions[level].gstar
     lo = lcp[s]
     hi = int(-1)
     if s + 1 < n:
@@ -400,7 +403,7 @@ def emit_finals(paths: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32)
             if node < 0:
                 return
             # Divided when the list had fewer than n nodes before its turn.
-            if ctl[level, CT_SIZE] + node_grown[node] < lt[level, LT_WANT]:
+            if divisions[level].size + node_grown[node] < levels[level].want:
                 divided = 1
         if divided != 0:
             depth = gstar + 1
@@ -425,7 +428,7 @@ def emit_finals(paths: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32)
         e += 1
     place = wp.int64(0)
     if depth <= k:
-        place = flipped_prefix(path, depth, lt[level, LT_NINI])
+        place = flipped_prefix(path, depth, levels[level].n_ini)
     else:
         parent = node_index(node_base, lcp, run_start(lcp, s, depth - 1), depth - 1, k)
         if parent < 0:
@@ -441,7 +444,7 @@ def emit_finals(paths: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32)
 
 
 @wp.kernel
-def accumulate_moments(pyr: wp.uint64, lt: wp.array2d(dtype=wp.int32),
+def accumulate_moments(pyr: wp.uint64, levels: wp.array(dtype=LevelInfo),
                        counters: wp.array(dtype=wp.int32), final_values: wp.array(dtype=wp.int32),
                        cand: wp.array(dtype=wp.int64), moments: wp.array2d(dtype=wp.int32)):
     """IC_Angle's moments of keypoint i, one disc row v per thread: m10 += sum u I,
@@ -453,7 +456,7 @@ def accumulate_moments(pyr: wp.uint64, lt: wp.array2d(dtype=wp.int32),
     level = key_field(key, KEY_LEVEL_SHIFT, 31)
     cx = key_field(key, KEY_X_SHIFT, 0xFFFF)
     cy = key_field(key, KEY_Y_SHIFT, 0xFFFF)
-    img = level_image(pyr, lt, level)
+    img = level_image(pyr, levels, level)
     v = r - HALF_PATCH
     d = UMAX[wp.abs(v)]
     row = int(0)
@@ -467,8 +470,8 @@ def accumulate_moments(pyr: wp.uint64, lt: wp.array2d(dtype=wp.int32),
 
 
 @wp.kernel
-def describe_levels(blurred: wp.uint64, lt: wp.array2d(dtype=wp.int32),
-                    ft: wp.array2d(dtype=wp.float32), counters: wp.array(dtype=wp.int32),
+def describe_levels(blurred: wp.uint64, levels: wp.array(dtype=LevelInfo),
+                    counters: wp.array(dtype=wp.int32),
                     final_values: wp.array(dtype=wp.int32), cand: wp.array(dtype=wp.int64),
                     moments: wp.array2d(dtype=wp.int32), pattern: wp.array2d(dtype=wp.int32),
                     kp_fields: wp.array(dtype=wp.float32), kp_octave: wp.array(dtype=wp.int32),
@@ -485,13 +488,13 @@ def describe_levels(blurred: wp.uint64, lt: wp.array2d(dtype=wp.int32),
     x = key_field(key, KEY_X_SHIFT, 0xFFFF)
     y = key_field(key, KEY_Y_SHIFT, 0xFFFF)
     angle = fast_atan2(float(moments[i, 1]), float(moments[i, 0]))
-    desc[i, j] = wp.uint8(describe_byte(level_image(blurred, lt, level), y, x, angle, pattern, j))
+    desc[i, j] = wp.uint8(describe_byte(level_image(blurred, levels, level), y, x, angle, pattern, j))
     if j == 0:
-        s = ft[level, FT_SCALE]
+        s = levels[level].scale
         kp_fields[i] = float(x) * s
         kp_fields[n + i] = float(y) * s
         kp_fields[2 * n + i] = float(key_field(key, 0, 0xFF))
-        kp_fields[3 * n + i] = ft[level, FT_SIZE]
+        kp_fields[3 * n + i] = levels[level].kp_size
         kp_fields[4 * n + i] = angle
         kp_octave[i] = level
 

@@ -60,9 +60,7 @@ class Plan:
         scales = spec.level_scales(scale_factor, n_levels)
         kp_sizes = spec.keypoint_sizes(scale_factor, n_levels)
 
-        lt = np.zeros((n_levels, LT_FIELDS), np.int32)
-        ft = np.zeros((n_levels, 3), np.float32)
-        rows, cols, roots = [], [], []
+        infos, rows, cols, roots = [], [], [], []
         pix = row = col = cell = root = node = final = 0
         for level, ((lw, lh), grid) in enumerate(zip(sizes, grids)):
             n_ini, hx, bounds, qt_height = spec.root_geometry(grid)
@@ -70,9 +68,14 @@ class Plan:
             # first pass; ordered nodes: a few rounds of at most n nodes.
             final_cap = max(wanted[level] + 2, 4 * n_ini)
             node_cap = 4 * final_cap + 64
-            lt[level] = (pix, lw, lh, row, col, grid.n_cols, cell, wanted[level], n_ini, root,
-                         qt_height, node, node_cap)
-            ft[level] = (hx, scales[level], kp_sizes[level])
+            info = LevelInfo()
+            info.pix, info.width, info.height, info.row, info.col = pix, lw, lh, row, col
+            info.n_cols, info.cell, info.want = grid.n_cols, cell, wanted[level]
+            info.n_ini, info.root, info.qt_height = n_ini, root, qt_height
+            info.node, info.node_cap = node, node_cap
+            info.hx, info.scale, info.kp_size = float(hx), float(scales[level]), \
+                float(kp_sizes[level])
+            infos.append(info)
             rows.append(grid.row_of_y)
             cols.append(grid.col_of_x)
             roots.append(np.array(bounds, np.int32))
@@ -85,14 +88,15 @@ class Plan:
             final += final_cap
         # Sort keys: the quadrant digits that separate any two pixels of a root node (a node's
         # pixel columns, its width + 1, halve, rounded up, per division), plus one.
-        spans = [max(max(b1 - b0 for b0, b1 in zip(r[:-1], r[1:])) + 1, int(lt[i, LT_QTH]))
-                 for i, r in enumerate(roots)]
+        spans = [max(max(b1 - b0 for b0, b1 in zip(r[:-1], r[1:])) + 1, info.qt_height)
+                 for info, r in zip(infos, roots)]
         self.digits = min(16, max(max(1, math.ceil(math.log2(v))) for v in spans) + 1)
-        self.root_bits = max(1, int(lt[:, LT_NINI].max() - 1).bit_length())
+        self.root_bits = max(1, (max(info.n_ini for info in infos) - 1).bit_length())
         level_bits = max(1, (n_levels - 1).bit_length())
         self.sort_bits = level_bits + self.root_bits + 2 * self.digits + 1  # top bit: padding
+        self.node_caps = np.array([info.node_cap for info in infos])
         self.place_bits = max(self.root_bits + 2 * self.digits,
-                              int(lt[:, LT_NODE_CAP].max()).bit_length() + 2)
+                              int(self.node_caps.max()).bit_length() + 2)
         self.final_bits = level_bits + 5 + self.place_bits + 1
         self.level_sizes = sizes
         self.wanted = wanted
@@ -106,7 +110,6 @@ class Plan:
         self.cand_cap = STRIPES * self.cand_region
         self.final_cap = final
         self.node_cap = node
-        self.node_caps = lt[:, LT_NODE_CAP].copy()
         self.nodes_at = int(C_NODES)
         self.singles_at = int(C_NODES) + n_levels
         self.multis_at = self.singles_at + n_levels * STRIPES * DEPTHS
@@ -115,19 +118,18 @@ class Plan:
         n_counters = self.groups_at + n_levels * DEPTHS
 
         dev = self.device
-        self.lt = wp.array(lt, dtype=wp.int32, device=dev)
-        self.ft = wp.array(ft, dtype=wp.float32, device=dev)
+        self.level_info = wp.array(infos, dtype=LevelInfo, device=dev)
         self.row_of_y = wp.array(np.concatenate(rows).astype(np.int32), dtype=wp.int32, device=dev)
         self.col_of_x = wp.array(np.concatenate(cols).astype(np.int32), dtype=wp.int32, device=dev)
         self.roots = wp.array(np.concatenate(roots), dtype=wp.int32, device=dev)
         self.pattern = _pattern_on(str(dev))
-        # Flat pyramids: level l at lt[l, LT_PIX]; per-level views for the resize and blur.
+        # Flat pyramids: level l at offset LevelInfo.pix; per-level views for the resize and blur.
         self.pyr = wp.empty(pix, dtype=wp.uint8, device=dev)
         self.blurred = wp.empty(pix, dtype=wp.uint8, device=dev)
-        self.levels = [_view(self.pyr, int(lt[i, LT_PIX]), (lh, lw), wp.uint8)
-                       for i, (lw, lh) in enumerate(sizes)]
-        self.blurred_levels = [_view(self.blurred, int(lt[i, LT_PIX]), (lh, lw), wp.uint8)
-                               for i, (lw, lh) in enumerate(sizes)]
+        self.levels = [_view(self.pyr, info.pix, (info.height, info.width), wp.uint8)
+                       for info in infos]
+        self.blurred_levels = [_view(self.blurred, info.pix, (info.height, info.width),
+                                     wp.uint8) for info in infos]
         self.scores = wp.empty(pix, dtype=wp.uint8, device=dev)
         self.counters = wp.zeros(n_counters, dtype=wp.int32, device=dev)
         cap = self.cand_cap
@@ -139,7 +141,7 @@ class Plan:
         self.sorted_paths = wp.empty(cap, dtype=wp.int64, device=dev)
         self.totals = wp.empty((n_levels, 2, DEPTHS), dtype=wp.int32, device=dev)
         self.lcp = wp.empty(cap, dtype=wp.int32, device=dev)
-        self.ctl = wp.zeros((n_levels, 4), dtype=wp.int32, device=dev)
+        self.divisions = wp.zeros(n_levels, dtype=Division, device=dev)
         self.node_base = wp.empty(cap, dtype=wp.int32, device=dev)
         nc = self.node_cap
         self.node_start = wp.empty(nc, dtype=wp.int32, device=dev)
@@ -149,7 +151,7 @@ class Plan:
         self.node_parent = wp.empty(nc, dtype=wp.int32, device=dev)
         self.node_rank = wp.zeros(nc, dtype=wp.int32, device=dev)
         self.node_grown = wp.zeros(nc, dtype=wp.int32, device=dev)
-        self.groups = wp.empty((n_levels, DEPTHS, int(lt[:, LT_NODE_CAP].max())), dtype=wp.int32,
+        self.groups = wp.empty((n_levels, DEPTHS, int(self.node_caps.max())), dtype=wp.int32,
                                device=dev)
         fc = self.final_cap
         self.final_keys = wp.empty(2 * fc, dtype=wp.int64, device=dev)
@@ -179,15 +181,15 @@ class Plan:
         _, _, n_levels, ini_th, min_th = self.params
         self.counters.zero_()
         wp.launch(score_pixels, dim=self.n_pixels,
-                  inputs=[wp.uint64(self.pyr.ptr), self.lt, n_levels, self.row_of_y,
+                  inputs=[wp.uint64(self.pyr.ptr), self.level_info, n_levels, self.row_of_y,
                           self.col_of_x, min(ini_th, min_th)],
                   outputs=[self.scores], device=dev)
         wp.launch(suppress_pixels, dim=self.n_pixels,
-                  inputs=[self.lt, n_levels, self.row_of_y, self.col_of_x, self.scores, ini_th,
+                  inputs=[self.level_info, n_levels, self.row_of_y, self.col_of_x, self.scores, ini_th,
                           self.cells_at, self.surv_region],
                   outputs=[self.counters, self.survivors], device=dev)
         wp.launch(select_candidates, dim=self.surv_cap,
-                  inputs=[self.survivors, self.surv_region, self.lt, self.ft, self.roots, ini_th,
+                  inputs=[self.survivors, self.surv_region, self.level_info, self.roots, ini_th,
                           min_th, self.cells_at, self.cand_region, self.digits, self.root_bits],
                   outputs=[self.counters, self.cand, self.paths, self.sort_keys, self.order],
                   device=dev)
@@ -220,21 +222,21 @@ class Plan:
         wp.launch(sum_depth_counts, dim=(n_levels, 2, DEPTHS),
                   inputs=[self.counters, self.singles_at, self.multis_at], outputs=[self.totals],
                   device=dev)
-        wp.launch(plan_divisions, dim=n_levels, inputs=[self.lt, self.totals],
-                  outputs=[self.ctl], device=dev)
+        wp.launch(plan_divisions, dim=n_levels, inputs=[self.level_info, self.totals],
+                  outputs=[self.divisions], device=dev)
         wp.launch(alloc_nodes, dim=cap,
-                  inputs=[self.sorted_paths, self.lcp, self.counters, cap, self.lt, self.ctl,
+                  inputs=[self.sorted_paths, self.lcp, self.counters, cap, self.level_info, self.divisions,
                           self.groups_at],
                   outputs=[self.node_base, self.node_start, self.node_depth, self.node_count,
                            self.node_growth, self.groups], device=dev)
         wp.launch(link_nodes, dim=self.node_cap,
-                  inputs=[self.lt, n_levels, self.counters, self.ctl, self.lcp, self.node_base,
+                  inputs=[self.level_info, n_levels, self.counters, self.divisions, self.lcp, self.node_base,
                           self.node_start, self.node_depth],
                   outputs=[self.node_parent], device=dev)
         self.node_rank.zero_()
         self.node_grown.zero_()
         wp.launch(rank_nodes, dim=(self.node_cap, RANK_CHUNKS),
-                  inputs=[self.lt, n_levels, self.counters, self.ctl, self.sorted_paths,
+                  inputs=[self.level_info, n_levels, self.counters, self.divisions, self.sorted_paths,
                           self.groups_at, self.groups, self.node_start, self.node_depth,
                           self.node_count, self.node_growth, self.node_parent],
                   outputs=[self.node_rank, self.node_grown], device=dev)
@@ -245,7 +247,7 @@ class Plan:
         cap = self.cand_cap
         wp.launch(emit_finals, dim=cap,
                   inputs=[self.sorted_paths, self.order, self.lcp, self.cand, self.counters, cap,
-                          self.lt, self.ctl, self.node_base, self.node_rank, self.node_grown,
+                          self.level_info, self.divisions, self.node_base, self.node_rank, self.node_grown,
                           self.place_bits],
                   outputs=[self.final_keys, self.final_values], device=dev)
         wp.launch(pad_keys, dim=self.final_cap,
@@ -258,11 +260,11 @@ class Plan:
         dev = self.device
         self.moments.zero_()
         wp.launch(accumulate_moments, dim=(self.final_cap, spec.PATCH_SIZE),
-                  inputs=[wp.uint64(self.pyr.ptr), self.lt, self.counters, self.final_values,
+                  inputs=[wp.uint64(self.pyr.ptr), self.level_info, self.counters, self.final_values,
                           self.cand],
                   outputs=[self.moments], device=dev)
         wp.launch(describe_levels, dim=(self.final_cap, spec.DESCRIPTOR_BYTES),
-                  inputs=[wp.uint64(self.blurred.ptr), self.lt, self.ft, self.counters,
+                  inputs=[wp.uint64(self.blurred.ptr), self.level_info, self.counters,
                           self.final_values, self.cand, self.moments, self.pattern],
                   outputs=[self.kp_fields, self.kp_octave, self.desc], device=dev)
 
