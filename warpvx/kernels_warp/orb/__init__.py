@@ -1,4 +1,4 @@
-"""ORB-SLAM2's ORB extractor on Warp, the quadtree included (see :mod:`warpvx.kernels_cpu.orb`).
+"""ORB-SLAM2's ORB extractor on Warp, the quadtree included (stages as :mod:`warpvx._orb_spec` defines them).
 
 :func:`orb` runs every stage on the device with fixed shapes, so on CUDA the whole extractor is
 one captured graph per image size and parameter set (a *plan*: buffers and graph cached, a pool
@@ -43,11 +43,11 @@ nodes of earlier passes, newest pass first. A round of the second loop divides t
 depth, ordered by (size, creation order) descending; its children again go in front in
 reverse. Every division is known from the node counts per depth, so each final node's place
 is a sort key, and the result equals the sequential algorithm (checked against
-:func:`warpvx.kernels_cpu.orb.distribute_octtree` on real and random point sets).
+:func:`warpvx._orb_quadtree.distribute_octtree` on real and random point sets).
 
 Capacities (candidates, nodes, final nodes) are sized for real images; when a frame exceeds
-one (e.g. pure noise), that frame takes :func:`extract_host`, the same stages with the quadtree
-on the host (``kernels_cpu.orb.distribute_octtree``), so results never depend on capacity.
+one (e.g. pure noise), that frame takes :func:`.host.extract_host`, the same stages with the quadtree
+on the host (``_orb_quadtree.distribute_octtree``), so results never depend on capacity.
 """
 
 from __future__ import annotations

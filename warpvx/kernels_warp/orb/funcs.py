@@ -29,7 +29,7 @@ MIN_BORDER = wp.constant(spec.MIN_BORDER)
 
 # Candidate keys, int64: level (5 bits) | cell (18) | y (16) | x (16) | score (8), so that
 # sorting the keys sorts the candidates in ORB-SLAM2's order (level, cell row, cell column,
-# y, x) and no key is negative. Images up to kernels_cpu.orb.MAX_SIDE px a side fit.
+# y, x) and no key is negative. Images up to _orb_spec.MAX_SIDE px a side fit.
 KEY_LEVEL_SHIFT = wp.constant(58)
 KEY_CELL_SHIFT = wp.constant(40)
 KEY_Y_SHIFT = wp.constant(24)

@@ -4,8 +4,15 @@ from __future__ import annotations
 
 import warp as wp
 
+from .._sampling import read_reflect101
 from ..fast_corners import fast_score
-from .funcs import *  # noqa: F403
+from .funcs import (C_CAND, C_CAND_R, C_FINAL, C_NODES, C_OVER, C_SURV_R, HALF_PATCH,
+                    KEY_CELL_SHIFT, KEY_LEVEL_SHIFT, KEY_X_SHIFT, KEY_Y_SHIFT, MODE_EMPTY,
+                    MODE_FULL, MODE_PARTIAL, MODE_PASSES, N_DEPTHS, N_RANK_CHUNKS, N_STRIPES,
+                    PATH_DEPTH, PATH_LEVEL_SHIFT, PATH_ROOT_SHIFT, STRIPES, UMAX, Division,
+                    LevelInfo, candidate_key, depth_counts, describe_byte, fast_atan2,
+                    flipped_prefix, key_field, level_holding, level_image, node_before, node_index,
+                    quadrant, quadtree_path, run_start, shared_depth)
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
@@ -488,7 +495,8 @@ def describe_levels(blurred: wp.uint64, levels: wp.array(dtype=LevelInfo),
     x = key_field(key, KEY_X_SHIFT, 0xFFFF)
     y = key_field(key, KEY_Y_SHIFT, 0xFFFF)
     angle = fast_atan2(float(moments[i, 1]), float(moments[i, 0]))
-    desc[i, j] = wp.uint8(describe_byte(level_image(blurred, levels, level), y, x, angle, pattern, j))
+    img = level_image(blurred, levels, level)
+    desc[i, j] = wp.uint8(describe_byte(img, y, x, angle, pattern, j))
     if j == 0:
         s = levels[level].scale
         kp_fields[i] = float(x) * s

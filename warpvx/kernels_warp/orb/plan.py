@@ -17,9 +17,11 @@ from ... import _orb_spec as spec
 from ..._pyramid_sizes import scale_pyramid_sizes
 from ...keypoints import Keypoints
 from ..scale_pyramid import scale_pyramid
-from .funcs import *  # noqa: F403
+from .funcs import (C_FINAL, C_NODES, C_OVER, DEPTHS, RANK_CHUNKS, STRIPES, Division, LevelInfo)
 from .host import _capacity, _pattern_on, blur_levels, extract_host
-from .kernels import *  # noqa: F403
+from .kernels import (accumulate_moments, alloc_nodes, count_depths, describe_levels, emit_finals,
+                      gather_paths, link_nodes, pad_keys, pad_paths, plan_divisions, rank_nodes,
+                      score_pixels, select_candidates, sum_depth_counts, suppress_pixels)
 
 # --------------------------------------------------------------------------------------------
 # The one-graph extractor: plans
@@ -185,8 +187,8 @@ class Plan:
                           self.col_of_x, min(ini_th, min_th)],
                   outputs=[self.scores], device=dev)
         wp.launch(suppress_pixels, dim=self.n_pixels,
-                  inputs=[self.level_info, n_levels, self.row_of_y, self.col_of_x, self.scores, ini_th,
-                          self.cells_at, self.surv_region],
+                  inputs=[self.level_info, n_levels, self.row_of_y, self.col_of_x, self.scores,
+                          ini_th, self.cells_at, self.surv_region],
                   outputs=[self.counters, self.survivors], device=dev)
         wp.launch(select_candidates, dim=self.surv_cap,
                   inputs=[self.survivors, self.surv_region, self.level_info, self.roots, ini_th,
@@ -225,20 +227,20 @@ class Plan:
         wp.launch(plan_divisions, dim=n_levels, inputs=[self.level_info, self.totals],
                   outputs=[self.divisions], device=dev)
         wp.launch(alloc_nodes, dim=cap,
-                  inputs=[self.sorted_paths, self.lcp, self.counters, cap, self.level_info, self.divisions,
-                          self.groups_at],
+                  inputs=[self.sorted_paths, self.lcp, self.counters, cap, self.level_info,
+                          self.divisions, self.groups_at],
                   outputs=[self.node_base, self.node_start, self.node_depth, self.node_count,
                            self.node_growth, self.groups], device=dev)
         wp.launch(link_nodes, dim=self.node_cap,
-                  inputs=[self.level_info, n_levels, self.counters, self.divisions, self.lcp, self.node_base,
-                          self.node_start, self.node_depth],
+                  inputs=[self.level_info, n_levels, self.counters, self.divisions, self.lcp,
+                          self.node_base, self.node_start, self.node_depth],
                   outputs=[self.node_parent], device=dev)
         self.node_rank.zero_()
         self.node_grown.zero_()
         wp.launch(rank_nodes, dim=(self.node_cap, RANK_CHUNKS),
-                  inputs=[self.level_info, n_levels, self.counters, self.divisions, self.sorted_paths,
-                          self.groups_at, self.groups, self.node_start, self.node_depth,
-                          self.node_count, self.node_growth, self.node_parent],
+                  inputs=[self.level_info, n_levels, self.counters, self.divisions,
+                          self.sorted_paths, self.groups_at, self.groups, self.node_start,
+                          self.node_depth, self.node_count, self.node_growth, self.node_parent],
                   outputs=[self.node_rank, self.node_grown], device=dev)
 
     def stage_finals(self):
@@ -247,8 +249,8 @@ class Plan:
         cap = self.cand_cap
         wp.launch(emit_finals, dim=cap,
                   inputs=[self.sorted_paths, self.order, self.lcp, self.cand, self.counters, cap,
-                          self.level_info, self.divisions, self.node_base, self.node_rank, self.node_grown,
-                          self.place_bits],
+                          self.level_info, self.divisions, self.node_base, self.node_rank,
+                          self.node_grown, self.place_bits],
                   outputs=[self.final_keys, self.final_values], device=dev)
         wp.launch(pad_keys, dim=self.final_cap,
                   inputs=[self.counters, int(C_FINAL), wp.int64((1 << self.final_bits) - 1)],
@@ -260,8 +262,8 @@ class Plan:
         dev = self.device
         self.moments.zero_()
         wp.launch(accumulate_moments, dim=(self.final_cap, spec.PATCH_SIZE),
-                  inputs=[wp.uint64(self.pyr.ptr), self.level_info, self.counters, self.final_values,
-                          self.cand],
+                  inputs=[wp.uint64(self.pyr.ptr), self.level_info, self.counters,
+                          self.final_values, self.cand],
                   outputs=[self.moments], device=dev)
         wp.launch(describe_levels, dim=(self.final_cap, spec.DESCRIPTOR_BYTES),
                   inputs=[wp.uint64(self.blurred.ptr), self.level_info, self.counters,
