@@ -105,11 +105,11 @@ def test_registry_knows_processing_elements():
 def test_dispatch_output_kind_follows_input(backend, invert):
     img = gray("camera")
     expected = 255 - img
-    be = resolve_backend(backend)
-    host = registry.dispatch(invert, be, img)
+    resolved = resolve_backend(backend)
+    host = registry.dispatch(invert, resolved, img)
     assert isinstance(host, np.ndarray) and np.array_equal(host, expected)
     out = np.empty_like(img)
-    res = registry.dispatch(invert, be, img, out=out)
+    res = registry.dispatch(invert, resolved, img, out=out)
     assert res is out and np.array_equal(out, expected)
 
 
@@ -117,9 +117,9 @@ def test_dispatch_device_array_stays_on_device(warp_backend, invert):
     import warp as wp
 
     img = gray("camera")
-    be = resolve_backend(warp_backend)
-    src = wp.array(img, dtype=wp.uint8, device=be.device)
-    res = registry.dispatch(invert, be, src)
+    resolved = resolve_backend(warp_backend)
+    src = wp.array(img, dtype=wp.uint8, device=resolved.device)
+    res = registry.dispatch(invert, resolved, src)
     assert isinstance(res, wp.array) and str(res.device) == str(src.device)
     assert np.array_equal(res.numpy(), 255 - img)
     # the CPU implementation fed a device array still returns a device array

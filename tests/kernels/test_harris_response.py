@@ -134,11 +134,11 @@ def test_parity_min_eigen(backend, name, block_size, ksize):
 
 def test_out_is_written_and_returned(backend):
     img = gray("brick")
-    be = resolve_backend(backend)
-    if be.kind == "cpu":
+    resolved = resolve_backend(backend)
+    if resolved.kind == "cpu":
         out = np.full(img.shape, -7, np.float32)
     else:
-        out = init_warp().full(img.shape, -7.0, dtype=init_warp().float32, device=be.device)
+        out = init_warp().full(img.shape, -7.0, dtype=init_warp().float32, device=resolved.device)
     r = warpvx.harris_response(_on_device(img, backend), 2, 3, 0.04, out=out, backend=backend)
     assert r is out
     _assert_close(out, cv2.cornerHarris(img, 2, 3, 0.04), backend)
