@@ -31,8 +31,17 @@ def smooth_maps(h: int, w: int, seed: int = 0):
     return mx.astype(np.float32), my.astype(np.float32)
 
 
-def assert_parity(out, ref, interpolation):
+# Backends measured bit-exact against cv2.remap where a test says so; CUDA is not measured
+# here, so it is held to assert_parity's bar there.
+MEASURED = ("cpu", "warp-cpu")
+
+
+def assert_parity(out, ref, interpolation, backend=None):
+    """Linear within 1 on 99.9% of pixels and never more; nearest equal on 99.9%; exactly
+    OpenCV's pixels on a ``MEASURED`` backend when one is named."""
     assert out.shape == ref.shape and out.dtype == ref.dtype
+    if backend in MEASURED:
+        np.testing.assert_array_equal(out, ref)
     diff = np.abs(out.astype(np.int16) - ref.astype(np.int16))
     if interpolation == "linear":
         assert (diff <= 1).mean() >= 0.999, f"within 1: {(diff <= 1).mean():.5f}"
@@ -49,7 +58,7 @@ def test_smoke(backend):
     mx, my = smooth_maps(100, 120)
     out = warpvx.remap(src, mx, my, backend=backend)
     assert out.shape == (100, 120) and out.dtype == np.uint8
-    np.testing.assert_array_equal(out, cv2.remap(src, mx, my, cv2.INTER_LINEAR))
+    assert_parity(out, cv2.remap(src, mx, my, cv2.INTER_LINEAR), "linear", backend)
 
 
 # --- shapes ---------------------------------------------------------------------------------
@@ -177,7 +186,7 @@ def test_far_coordinates(backend, border):
     for interp, code in INTERPOLATIONS.items():
         out = warpvx.remap(src, mx, my, interp, border, (4, 5, 6), backend=backend)
         ref = cv2.remap(src, mx, my, code, borderMode=BORDERS[border], borderValue=(4, 5, 6))
-        np.testing.assert_array_equal(out, ref)
+        assert_parity(out, ref, interp, backend)
 
 
 def test_huge_coordinates(backend):
@@ -194,7 +203,7 @@ def test_huge_coordinates(backend):
     for border in ("replicate", "reflect101"):
         for interp, code in INTERPOLATIONS.items():
             out = warpvx.remap(src, mx, my, interp, border, backend=backend)
-            np.testing.assert_array_equal(out, cv2.remap(src, rx, ry, code, borderMode=BORDERS[border]))
+            assert_parity(out, cv2.remap(src, rx, ry, code, borderMode=BORDERS[border]), interp, backend)
 
 
 # --- OpenCV parity on real photos -----------------------------------------------------------
