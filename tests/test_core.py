@@ -10,12 +10,18 @@ from warpvx.errors import BackendError, DTypeError, ShapeError, WarpvxTypeError,
 
 from .images import gray
 
-registry.register(
-    "_test_invert",
-    public="tests._dispatch_impls:invert_cpu",
-    cpu="tests._dispatch_impls:invert_cpu",
-    warp="tests._dispatch_impls:invert_warp",
-)
+
+@pytest.fixture
+def invert():
+    """``_test_invert`` in the (process-wide) registry for one test, removed after it."""
+    registry.register(
+        "_test_invert",
+        public="tests._dispatch_impls:invert_cpu",
+        cpu="tests._dispatch_impls:invert_cpu",
+        warp="tests._dispatch_impls:invert_warp",
+    )
+    yield "_test_invert"
+    del registry.REGISTRY["_test_invert"]
 
 
 def test_errors_subclass_builtins():
@@ -96,26 +102,31 @@ def test_registry_knows_processing_elements():
         registry.get_primitive("does_not_exist")
 
 
-def test_dispatch_output_kind_follows_input(backend):
+def test_dispatch_output_kind_follows_input(backend, invert):
     img = gray("camera")
     expected = 255 - img
-    be = resolve_backend(backend)
-    host = registry.dispatch("_test_invert", be, img)
+    resolved = resolve_backend(backend)
+    host = registry.dispatch(invert, resolved, img)
     assert isinstance(host, np.ndarray) and np.array_equal(host, expected)
     out = np.empty_like(img)
-    res = registry.dispatch("_test_invert", be, img, out=out)
+    res = registry.dispatch(invert, resolved, img, out=out)
     assert res is out and np.array_equal(out, expected)
 
 
-def test_dispatch_device_array_stays_on_device(warp_backend):
+def test_dispatch_device_array_stays_on_device(warp_backend, invert):
     import warp as wp
 
     img = gray("camera")
-    be = resolve_backend(warp_backend)
-    src = wp.array(img, dtype=wp.uint8, device=be.device)
-    res = registry.dispatch("_test_invert", be, src)
+    resolved = resolve_backend(warp_backend)
+    src = wp.array(img, dtype=wp.uint8, device=resolved.device)
+    res = registry.dispatch(invert, resolved, src)
     assert isinstance(res, wp.array) and str(res.device) == str(src.device)
     assert np.array_equal(res.numpy(), 255 - img)
     # the CPU implementation fed a device array still returns a device array
-    res_cpu = registry.dispatch("_test_invert", resolve_backend("cpu"), src)
+    res_cpu = registry.dispatch(invert, resolve_backend("cpu"), src)
     assert isinstance(res_cpu, wp.array) and np.array_equal(res_cpu.numpy(), 255 - img)
+
+
+def test_registry_holds_no_test_primitive():
+    """Runs after the dispatch tests: what their fixture registered did not outlive them."""
+    assert not [name for name in registry.REGISTRY if name.startswith("_test")]

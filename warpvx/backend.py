@@ -47,11 +47,6 @@ class Backend:
     def is_cuda(self) -> bool:
         return self.device is not None and self.device.startswith("cuda")
 
-    @property
-    def processing_element(self) -> str:
-        """``"gpu"`` for CUDA, ``"cpu"`` otherwise (the scheduler's view)."""
-        return "gpu" if self.is_cuda else "cpu"
-
 
 def init_warp():
     """Import and initialise Warp once (quietly); return the ``warp`` module."""

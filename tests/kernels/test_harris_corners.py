@@ -37,13 +37,27 @@ def _unmatched(a, b, tol=5.0):
     return float((d.min(axis=1) > tol).mean())
 
 
-def _assert_parity(got, ref):
+# Points a backend's list may hold that OpenCV's does not, plus the reverse (measured on this
+# file's cases): the CPU backend gives OpenCV's list exactly; Warp's float32 responses differ by
+# an ulp, which once (camera, block_size 2) breaks OpenCV's tie between border columns 0 and 1
+# (REFLECT_101 makes them equal) and drops one corner. CUDA is not measured here: SPEC's bar only.
+DIFFERING = {"cpu": 0, "warp-cpu": 1}
+
+
+def _assert_parity(got, ref, backend):
+    """SPEC's bar (each within 5 px, at most 10% unmatched either way), then the exactness this
+    backend reaches: OpenCV's list, in order, but for ``DIFFERING[backend]`` points."""
     got = _host(got)
     assert got.dtype == np.float32 and got.ndim == 2 and got.shape[1] == 2
     assert _unmatched(got, ref) <= 0.10, "extra corners"
     assert _unmatched(ref, got) <= 0.10, "missing corners"
-
-
+    if backend not in DIFFERING:
+        return
+    in_ref = (got[:, None, :] == ref[None, :, :]).all(-1).any(1)
+    in_got = (ref[:, None, :] == got[None, :, :]).all(-1).any(1)
+    differing = int((~in_ref).sum() + (~in_got).sum())
+    assert differing <= DIFFERING[backend], f"{backend}: {differing} corners differ from OpenCV's"
+    np.testing.assert_array_equal(got[in_ref], ref[in_got])  # the shared ones in OpenCV's order
 
 
 # --- smoke and shapes ------------------------------------------------------------------------
@@ -53,14 +67,14 @@ def test_smoke(backend):
     pts = warpvx.harris_corners(img, 1000, 0.01, 10, 3, backend=backend)
     assert isinstance(pts, np.ndarray) and pts.dtype == np.float32 and pts.shape[1] == 2
     assert 50 < len(pts) <= 1000
-    _assert_parity(pts, _cv_gftt(img, 1000, 0.01, 10))
+    _assert_parity(pts, _cv_gftt(img, 1000, 0.01, 10), backend)
 
 
 @pytest.mark.parametrize("shape", [(3, 3), (9, 14), (47, 33), (120, 161)])
 def test_shapes(backend, shape):
     img = np.ascontiguousarray(cv2.resize(gray("brick"), (shape[1], shape[0])))
     pts = _host(warpvx.harris_corners(img, 50, 0.01, 3, 3, backend=backend))
-    _assert_parity(pts, _cv_gftt(img, 50, 0.01, 3))
+    _assert_parity(pts, _cv_gftt(img, 50, 0.01, 3), backend)
     if len(pts):
         h, w = shape
         x, y = pts[:, 0], pts[:, 1]
@@ -118,7 +132,7 @@ def test_empty_image(backend):
 def test_parity_harris(backend, name):
     img = gray(name)
     got = warpvx.harris_corners(img, 1000, 0.01, 10, 3, 0.04, backend=backend)
-    _assert_parity(got, _cv_gftt(img, 1000, 0.01, 10))
+    _assert_parity(got, _cv_gftt(img, 1000, 0.01, 10), backend)
 
 
 @pytest.mark.parametrize("name", ["camera", "coffee"])
@@ -129,7 +143,7 @@ def test_parity_harris_settings(backend, name, max_corners, quality, min_distanc
     got = warpvx.harris_corners(img, max_corners, quality, min_distance, block_size,
                                 backend=backend)
     ref = _cv_gftt(img, max_corners, quality, min_distance, block_size)
-    _assert_parity(got, ref)
+    _assert_parity(got, ref, backend)
     if max_corners > 0:
         assert len(got) <= max_corners
 
@@ -138,7 +152,7 @@ def test_parity_harris_settings(backend, name, max_corners, quality, min_distanc
 def test_parity_min_eigen(backend, name):
     img = gray(name)
     got = warpvx.harris_corners(img, 500, 0.01, 8, 3, score="min_eigen", backend=backend)
-    _assert_parity(got, _cv_gftt(img, 500, 0.01, 8, harris=False))
+    _assert_parity(got, _cv_gftt(img, 500, 0.01, 8, harris=False), backend)
 
 
 def test_min_distance_respected(backend):
@@ -163,7 +177,7 @@ def test_device_array_in_device_array_out(warp_backend):
     pts = warpvx.harris_corners(src, 300, 0.01, 10, backend=warp_backend)
     assert isinstance(pts, wp.array) and str(pts.device) == str(src.device)
     assert pts.dtype == wp.float32 and pts.shape[1] == 2
-    _assert_parity(pts, _cv_gftt(gray("coffee"), 300, 0.01, 10))
+    _assert_parity(pts, _cv_gftt(gray("coffee"), 300, 0.01, 10), warp_backend)
 
 
 def test_deterministic_repeated_runs(warp_backend):
@@ -182,14 +196,14 @@ def test_cv_good_features_to_track(backend, harris):
     got = wcv.goodFeaturesToTrack(img, 400, 0.01, 10, None, None, 3, harris, 0.04,
                                   backend=backend)
     assert got.dtype == np.float32 and got.shape[1:] == (1, 2) == ref.shape[1:]
-    _assert_parity(got.reshape(-1, 2), ref.reshape(-1, 2))
+    _assert_parity(got.reshape(-1, 2), ref.reshape(-1, 2), backend)
 
 
 def test_cv_good_features_defaults_use_min_eigen(backend):
     img = gray("brick")
     got = wcv.goodFeaturesToTrack(img, 200, 0.02, 5, backend=backend)
     ref = cv2.goodFeaturesToTrack(img, 200, 0.02, 5)
-    _assert_parity(got.reshape(-1, 2), ref.reshape(-1, 2))
+    _assert_parity(got.reshape(-1, 2), ref.reshape(-1, 2), backend)
 
 
 def test_cv_good_features_none_and_mask(backend):

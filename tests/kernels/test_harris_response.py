@@ -16,6 +16,10 @@ from tests.parity import on_device as _on_device
 
 IMAGES = ["camera", "brick", "text", "coffee", "rocket"]
 TOL = 1e-3  # relative to the largest |response| (SPEC §4)
+# What each backend reaches (max over this file's images and shapes, measured): the CPU backend
+# runs OpenCV's own arithmetic, so it is exact; Warp's float32 sums, in another order, reach
+# 2.5e-6. CUDA (other FMA contraction) is not measured here, so it is held to SPEC's bar only.
+REACHED = {"cpu": 0.0, "warp-cpu": 4e-6}
 
 
 def _rel_err(got, ref):
@@ -23,6 +27,12 @@ def _rel_err(got, ref):
     return float(np.abs(got - ref).max() / max(np.abs(ref).max(), 1e-30))
 
 
+def _assert_close(got, ref, backend):
+    """SPEC's bar, then the tighter bound this backend is known to reach."""
+    err = _rel_err(got, ref)
+    assert err < TOL, f"relative error {err:.3g} over SPEC's {TOL}"
+    if backend in REACHED:
+        assert err <= REACHED[backend], f"{backend}: relative error {err:.3g}, reached {REACHED[backend]}"
 
 
 # --- smoke and shapes ------------------------------------------------------------------------
@@ -31,7 +41,7 @@ def test_smoke(backend):
     img = gray("camera")
     r = warpvx.harris_response(img, backend=backend)
     assert isinstance(r, np.ndarray) and r.dtype == np.float32 and r.shape == img.shape
-    assert _rel_err(r, cv2.cornerHarris(img, 2, 3, 0.04)) < TOL
+    _assert_close(r, cv2.cornerHarris(img, 2, 3, 0.04), backend)
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (2, 2), (3, 2), (1, 9), (5, 4), (33, 47), (101, 64)])
@@ -40,7 +50,7 @@ def test_shapes(backend, shape, block_size, ksize):
     img = np.random.default_rng(sum(shape)).integers(0, 256, shape, dtype=np.uint8)
     r = warpvx.harris_response(img, block_size, ksize, 0.04, backend=backend)
     assert r.shape == shape and r.dtype == np.float32
-    assert _rel_err(r, cv2.cornerHarris(img, block_size, ksize, 0.04)) < TOL
+    _assert_close(r, cv2.cornerHarris(img, block_size, ksize, 0.04), backend)
 
 
 # --- bad input -------------------------------------------------------------------------------
@@ -100,15 +110,15 @@ def test_parity_harris(backend, name, block_size, ksize):
     img = gray(name)
     ref = cv2.cornerHarris(img, block_size, ksize, 0.04)
     got = warpvx.harris_response(img, block_size, ksize, 0.04, backend=backend)
-    assert _rel_err(got, ref) < TOL
+    _assert_close(got, ref, backend)
 
 
 @pytest.mark.parametrize("name", ["camera", "coffee"])
 @pytest.mark.parametrize("k", [0.0, 0.06, 0.2])
 def test_parity_harris_k(backend, name, k):
     img = gray(name)
-    assert _rel_err(warpvx.harris_response(img, 3, 3, k, backend=backend),
-                    cv2.cornerHarris(img, 3, 3, k)) < TOL
+    _assert_close(warpvx.harris_response(img, 3, 3, k, backend=backend),
+                  cv2.cornerHarris(img, 3, 3, k), backend)
 
 
 @pytest.mark.parametrize("name", ["camera", "brick", "chelsea"])
@@ -117,28 +127,29 @@ def test_parity_min_eigen(backend, name, block_size, ksize):
     img = gray(name)
     ref = cv2.cornerMinEigenVal(img, block_size, ksize=ksize)
     got = warpvx.harris_response(img, block_size, ksize, score="min_eigen", backend=backend)
-    assert _rel_err(got, ref) < TOL
+    _assert_close(got, ref, backend)
 
 
 # --- kinds, out=, devices, determinism -------------------------------------------------------
 
 def test_out_is_written_and_returned(backend):
     img = gray("brick")
-    be = resolve_backend(backend)
-    if be.kind == "cpu":
+    resolved = resolve_backend(backend)
+    if resolved.kind == "cpu":
         out = np.full(img.shape, -7, np.float32)
     else:
-        out = init_warp().full(img.shape, -7.0, dtype=init_warp().float32, device=be.device)
+        out = init_warp().full(img.shape, -7.0, dtype=init_warp().float32, device=resolved.device)
     r = warpvx.harris_response(_on_device(img, backend), 2, 3, 0.04, out=out, backend=backend)
     assert r is out
-    assert _rel_err(out, cv2.cornerHarris(img, 2, 3, 0.04)) < TOL
+    _assert_close(out, cv2.cornerHarris(img, 2, 3, 0.04), backend)
 
 
 def test_numpy_out_with_warp_backend(warp_backend):
     img = gray("text")
     out = np.zeros(img.shape, np.float32)
     r = warpvx.harris_response(img, out=out, backend=warp_backend)
-    assert r is out and _rel_err(out, cv2.cornerHarris(img, 2, 3, 0.04)) < TOL
+    assert r is out
+    _assert_close(out, cv2.cornerHarris(img, 2, 3, 0.04), warp_backend)
 
 
 def test_device_array_in_device_array_out(warp_backend):
@@ -146,7 +157,7 @@ def test_device_array_in_device_array_out(warp_backend):
     src = _on_device(gray("camera"), warp_backend)
     r = warpvx.harris_response(src, backend=warp_backend)
     assert isinstance(r, wp.array) and str(r.device) == str(src.device) and r.dtype == wp.float32
-    assert _rel_err(r, cv2.cornerHarris(gray("camera"), 2, 3, 0.04)) < TOL
+    _assert_close(r, cv2.cornerHarris(gray("camera"), 2, 3, 0.04), warp_backend)
 
 
 def test_deterministic_repeated_runs(warp_backend):
@@ -162,9 +173,10 @@ def test_cv_corner_harris(backend):
     img = gray("camera")
     dst = np.zeros(img.shape, np.float32)
     r = wcv.cornerHarris(img, 2, 3, 0.04, dst, cv2.BORDER_DEFAULT, backend=backend)
-    assert r is dst and _rel_err(dst, cv2.cornerHarris(img, 2, 3, 0.04)) < TOL
+    assert r is dst
+    _assert_close(dst, cv2.cornerHarris(img, 2, 3, 0.04), backend)
     r2 = wcv.cornerHarris(img, 3, 5, 0.05, backend=backend)
-    assert _rel_err(r2, cv2.cornerHarris(img, 3, 5, 0.05)) < TOL
+    _assert_close(r2, cv2.cornerHarris(img, 3, 5, 0.05), backend)
     with pytest.raises(UnsupportedError, match="borderType"):
         wcv.cornerHarris(img, 2, 3, 0.04, borderType=cv2.BORDER_CONSTANT, backend=backend)
 
@@ -172,4 +184,4 @@ def test_cv_corner_harris(backend):
 def test_cv_corner_min_eigen_val(backend):
     img = gray("brick")
     r = wcv.cornerMinEigenVal(img, 3, ksize=3, backend=backend)
-    assert _rel_err(r, cv2.cornerMinEigenVal(img, 3, ksize=3)) < TOL
+    _assert_close(r, cv2.cornerMinEigenVal(img, 3, ksize=3), backend)

@@ -90,11 +90,20 @@ def test_device_round_trip(warp_backend):
     assert not d.is_host and d.device == str(wp.get_device(device))
     assert all(isinstance(getattr(d, f), wp.array) for f in FIELDS)
     assert d.octave.dtype == wp.int32 and d.x.dtype == wp.float32
-    assert d.to(device) is not None and _equal(d.to(device), k)
+    assert d.to(device) is d  # already there: no copy
     assert _equal(d.to("host"), k) and _equal(d.numpy(), k)
     assert np.array_equal(d.xy(), k.xy())
     assert _equal(d.take(np.array([1])), k.take(np.array([1])))
     assert [p.pt for p in d.to_cv()] == [p.pt for p in k.to_cv()]
+
+
+def test_opencv_detections_through_device(warp_backend):
+    """OpenCV's own keypoints on a real photo come back from the device field for field."""
+    ref = cv2.ORB_create(300).detect(gray("coffee"))
+    back = Keypoints.from_cv(ref).to(resolve_backend(warp_backend).device).to_cv()
+    assert len(back) == len(ref) > 100
+    assert [(p.pt, p.size, p.angle, p.response, p.octave) for p in back] == [
+        (p.pt, p.size, p.angle, p.response, p.octave) for p in ref]
 
 
 def test_empty_on_device(warp_backend):

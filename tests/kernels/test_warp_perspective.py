@@ -29,11 +29,20 @@ def homographies(w: int, h: int) -> dict:
     }
 
 
-def assert_parity(out, ref, interpolation, *, within1=0.999, equal=0.999):
+# Backends whose worst linear pixel was measured (1 level off OpenCV's for ordinary
+# homographies); CUDA's float arithmetic may round a sub-pixel weight differently: not measured.
+MEASURED = ("cpu", "warp-cpu")
+
+
+def assert_parity(out, ref, interpolation, *, within1=0.999, equal=0.999, max_diff=1, backend=None):
+    """SPEC's bar, tightened to what ordinary homographies reach; on a ``MEASURED`` backend also
+    no linear pixel off by more than ``max_diff`` (None where float32 rounding near the horizon
+    is amplified)."""
     assert out.shape == ref.shape and out.dtype == ref.dtype
     diff = np.abs(out.astype(np.int16) - ref.astype(np.int16))
     if interpolation == "linear":
         assert (diff <= 1).mean() >= within1, f"within 1: {(diff <= 1).mean():.5f}"
+        assert max_diff is None or backend not in MEASURED or diff.max() <= max_diff, f"max diff {diff.max()}"
     else:
         assert (diff == 0).mean() >= equal, f"equal: {(diff == 0).mean():.5f}"
 
@@ -64,7 +73,7 @@ def test_shapes(backend, src_hw, dsize, channels):
                                   borderValue=(33, 33, 33, 33))
         expected_shape = (dsize[1], dsize[0]) if channels == 1 else (dsize[1], dsize[0], channels)
         assert out.shape == expected_shape
-        assert_parity(out, ref, "linear", within1=1.0)
+        assert_parity(out, ref, "linear", within1=1.0, backend=backend)
 
 
 # --- bad input ------------------------------------------------------------------------------
@@ -137,7 +146,7 @@ def test_w_zero_takes_border_value(backend):
     np.testing.assert_array_equal(out[10], np.tile([1, 2, 3], (64, 1)))
     ref = cv2.warpPerspective(src, m_inv, (64, 32), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                               borderValue=(1, 2, 3))
-    assert_parity(out, ref, "linear", within1=0.99)
+    assert_parity(out, ref, "linear", within1=0.99, backend=backend)
 
 
 # --- OpenCV parity on real photos -----------------------------------------------------------
@@ -157,7 +166,7 @@ def test_parity(backend, name, interpolation, border):
                                           backend=backend)
             ref = cv2.warpPerspective(src, m, dsize, flags=flags, borderMode=BORDERS[border],
                                       borderValue=(9, 99, 199))
-            assert_parity(out, ref, interpolation)
+            assert_parity(out, ref, interpolation, backend=backend)
 
 
 def test_parity_gray(backend):
@@ -166,7 +175,7 @@ def test_parity_gray(backend):
     m = homographies(w, h)["keystone"]
     for interp, code in INTERPOLATIONS.items():
         out = warpvx.warp_perspective(src, m, (w, h), interp, backend=backend)
-        assert_parity(out, cv2.warpPerspective(src, m, (w, h), flags=code), interp)
+        assert_parity(out, cv2.warpPerspective(src, m, (w, h), flags=code), interp, backend=backend)
 
 
 def test_parity_strong_perspective_spec_bar(backend):
@@ -178,7 +187,24 @@ def test_parity_strong_perspective_spec_bar(backend):
     for border, bcode in BORDERS.items():
         out = warpvx.warp_perspective(src, m, (w + 13, h - 20), "linear", False, border, backend=backend)
         ref = cv2.warpPerspective(src, m, (w + 13, h - 20), flags=cv2.INTER_LINEAR, borderMode=bcode)
-        assert_parity(out, ref, "linear", within1=0.99)
+        assert_parity(out, ref, "linear", within1=0.99, max_diff=None)
+
+
+@pytest.mark.parametrize("name", ["chelsea", "motorcycle"])
+@pytest.mark.parametrize("border", list(BORDERS))
+def test_parity_mostly_border(backend, name, border):
+    """The photo shrunk to a third, rotated, in a larger output: most pixels come from the
+    border rule, each checked against OpenCV's."""
+    src = bgr(name)
+    h, w = src.shape[:2]
+    c, s = np.cos(0.3), np.sin(0.3)
+    m = np.array([[0.3 * c, -0.3 * s, w * 0.6], [0.3 * s, 0.3 * c, h * 0.5], [2e-4, -1e-4, 1.0]])
+    for interp, code in INTERPOLATIONS.items():
+        out = warpvx.warp_perspective(src, m, (w + 40, h + 30), interp, False, border, (3, 30, 240),
+                                      backend=backend)
+        ref = cv2.warpPerspective(src, m, (w + 40, h + 30), flags=code, borderMode=BORDERS[border],
+                                  borderValue=(3, 30, 240))
+        assert_parity(out, ref, interp, backend=backend)
 
 
 def test_inverse_map_equivalence(backend):
@@ -196,7 +222,9 @@ def test_matrix_inputs(backend):
     m = mild_homography(512, 512)
     ref = warpvx.warp_perspective(src, m, (512, 512), backend=backend)
     np.testing.assert_array_equal(warpvx.warp_perspective(src, m.tolist(), (512, 512), backend=backend), ref)
-    assert warpvx.warp_perspective(src, m.astype(np.float32), (512, 512), backend=backend).shape == (512, 512)
+    m32 = m.astype(np.float32)
+    assert_parity(warpvx.warp_perspective(src, m32, (512, 512), backend=backend),
+                  cv2.warpPerspective(src, m32, (512, 512)), "linear", backend=backend)
 
 
 # --- kinds in and out -----------------------------------------------------------------------
@@ -219,7 +247,7 @@ def test_warp_in_warp_out(warp_backend):
     out = wp.zeros((427, 640, 3), dtype=wp.uint8, device=dev)
     res = warpvx.warp_perspective(src, m_wp, (640, 427), out=out)
     assert res is out and str(res.device) == str(src.device)
-    assert_parity(out.numpy(), cv2.warpPerspective(src_host, m, (640, 427)), "linear")
+    assert_parity(out.numpy(), cv2.warpPerspective(src_host, m, (640, 427)), "linear", backend=warp_backend)
 
 
 def test_out_argument(backend):

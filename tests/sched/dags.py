@@ -26,8 +26,8 @@ TOPCUOGLU_ORDER = [1, 3, 4, 2, 5, 6, 9, 7, 8, 10]
 def topcuoglu_dag() -> nx.DiGraph:
     procs = ["P1", "P2", "P3"]
     dag = nx.DiGraph(processors=procs)
-    for t, w in TOPCUOGLU_COST.items():
-        dag.add_node(t, cost=dict(zip(procs, w)))
+    for t, costs in TOPCUOGLU_COST.items():
+        dag.add_node(t, cost=dict(zip(procs, costs)))
     for (u, v), c in TOPCUOGLU_COMM.items():
         dag.add_edge(u, v, comm=c)
     return dag

@@ -38,6 +38,6 @@ def test_without_gpu_each_task_on_its_fastest_processor():
     s = baseline(dag)
     validate_schedule(dag, s)
     assert overlap(s) == 0
-    for t, w in TOPCUOGLU_COST.items():
-        assert s[t].finish - s[t].start == min(w)
-    assert s.makespan >= sum(min(w) for w in TOPCUOGLU_COST.values())
+    for t, costs in TOPCUOGLU_COST.items():
+        assert s[t].finish - s[t].start == min(costs)
+    assert s.makespan >= sum(min(costs) for costs in TOPCUOGLU_COST.values())

@@ -226,23 +226,23 @@ def prepare(dag: nx.DiGraph) -> Problem:
     pindex = {p: k for k, p in enumerate(procs)}
     P = len(procs)
     memory = dag.graph.get("memory")
-    pb = Problem()
-    pb.procs = procs
-    pb.memory_model = memory is not None
+    problem = Problem()
+    problem.procs = procs
+    problem.memory_model = memory is not None
     if memory is not None:
         space_ids = {}
-        pb.space = [space_ids.setdefault(memory[p], len(space_ids)) for p in procs]
-        pb.n_spaces = len(space_ids)
+        problem.space = [space_ids.setdefault(memory[p], len(space_ids)) for p in procs]
+        problem.n_spaces = len(space_ids)
         kind_names = [memory[p] for p in procs]
     else:
-        pb.space = list(range(P))
-        pb.n_spaces = P
+        problem.space = list(range(P))
+        problem.n_spaces = P
         kind_names = [_name_kind(p) for p in procs]
     kind_ids = {}
-    pb.kind = [kind_ids.setdefault(k, len(kind_ids)) for k in kind_names]
-    pb.kinds = list(kind_ids)
-    pb.kind_size = [pb.kind.count(k) for k in range(len(pb.kinds))]
-    multi_kind = len(pb.kinds) > 1
+    problem.kind = [kind_ids.setdefault(k, len(kind_ids)) for k in kind_names]
+    problem.kinds = list(kind_ids)
+    problem.kind_size = [problem.kind.count(k) for k in range(len(problem.kinds))]
+    multi_kind = len(problem.kinds) > 1
 
     names = list(dag.nodes)
     index = {v: i for i, v in enumerate(names)}
@@ -272,7 +272,7 @@ def prepare(dag: nx.DiGraph) -> Problem:
         runs = tuple([k for k in range(P) if row[k] < inf])
         cost.append(row)
         can.append(runs)
-        own = {pb.kind[k] for k in runs}
+        own = {problem.kind[k] for k in runs}
         excl.append(next(iter(own)) if multi_kind and len(own) == 1 else -1)
     n = len(names)
     preds = [[] for _ in range(n)]
@@ -302,7 +302,6 @@ def prepare(dag: nx.DiGraph) -> Problem:
                 heapq.heappush(heap, j)
     if len(topo) != n:
         raise ScheduleError(f"dag: the graph has a cycle: {_cycle_text(dag)}")
-    pb.names, pb.cost, pb.can, pb.preds, pb.succs, pb.topo, pb.excl = (
-        names, cost, can, preds, succs, topo, excl,
-    )
-    return pb
+    problem.names, problem.cost, problem.can, problem.preds = names, cost, can, preds
+    problem.succs, problem.topo, problem.excl = succs, topo, excl
+    return problem

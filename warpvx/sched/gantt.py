@@ -90,10 +90,10 @@ def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title
     row = {p: i for i, p in enumerate(procs)}
     excl, proc_kind, kinds = {}, {}, []
     if dag is not None:
-        pb = prepare(dag)
-        excl = {v: pb.excl[i] for i, v in enumerate(pb.names)}
-        proc_kind = {p: pb.kind[k] for k, p in enumerate(pb.procs)}
-        kinds = pb.kinds
+        problem = prepare(dag)
+        excl = {v: problem.excl[i] for i, v in enumerate(problem.names)}
+        proc_kind = {p: problem.kind[k] for k, p in enumerate(problem.procs)}
+        kinds = problem.kinds
     span = schedule.makespan
     for s, f in _xo_intervals(schedule, excl):
         ax.axvspan(s, f, color=_XO_COLOR, alpha=0.35, lw=0, zorder=0)

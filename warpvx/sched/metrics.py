@@ -49,11 +49,11 @@ def makespan(schedule: Schedule) -> float:
     return schedule.makespan
 
 
-def _min_critical_path(pb: Problem) -> float:
-    longest = [0.0] * len(pb.names)
-    for v in reversed(pb.topo):
-        tail = max((longest[q] for q, _ in pb.succs[v]), default=0.0)
-        longest[v] = min(pb.cost[v][k] for k in pb.can[v]) + tail
+def _min_critical_path(problem: Problem) -> float:
+    longest = [0.0] * len(problem.names)
+    for v in reversed(problem.topo):
+        tail = max((longest[q] for q, _ in problem.succs[v]), default=0.0)
+        longest[v] = min(problem.cost[v][k] for k in problem.can[v]) + tail
     return max(longest)
 
 
@@ -76,13 +76,13 @@ def slr(dag: nx.DiGraph, schedule: Schedule) -> float:
     return schedule.makespan / cp if cp > 0 else math.nan
 
 
-def _serial_time(pb: Problem) -> float:
-    P = len(pb.procs)
-    whole = [sum(row[k] for row in pb.cost) for k in range(P)]
+def _serial_time(problem: Problem) -> float:
+    P = len(problem.procs)
+    whole = [sum(row[k] for row in problem.cost) for k in range(P)]
     finite = [t for t in whole if math.isfinite(t)]
     if finite:
         return min(finite)
-    return sum(min(row[k] for k in runs) for row, runs in zip(pb.cost, pb.can))
+    return sum(min(row[k] for k in runs) for row, runs in zip(problem.cost, problem.can))
 
 
 def serial_time(dag: nx.DiGraph) -> float:
@@ -133,9 +133,9 @@ def overlap(schedule: Schedule) -> float:
     return _sweep((t.start, t.finish, i) for i, t in enumerate(schedule.tasks.values()))
 
 
-def _exclusive_overlap(pb: Problem, schedule: Schedule) -> float:
-    index = {v: i for i, v in enumerate(pb.names)}
-    excl = pb.excl
+def _exclusive_overlap(problem: Problem, schedule: Schedule) -> float:
+    index = {v: i for i, v in enumerate(problem.names)}
+    excl = problem.excl
     return _sweep(
         (t.start, t.finish, excl[index[v]])
         for v, t in schedule.tasks.items()
@@ -152,13 +152,13 @@ def exclusive_overlap(dag: nx.DiGraph, schedule: Schedule) -> float:
     return _exclusive_overlap(prepare(dag), schedule)
 
 
-def _max_exclusive_overlap(pb: Problem) -> float:
-    nk = len(pb.kinds)
+def _max_exclusive_overlap(problem: Problem) -> float:
+    nk = len(problem.kinds)
     load = [0.0] * nk
-    for row, runs, e in zip(pb.cost, pb.can, pb.excl):
+    for row, runs, e in zip(problem.cost, problem.can, problem.excl):
         if e >= 0:
             load[e] += max(row[k] for k in runs)
-    size = pb.kind_size
+    size = problem.kind_size
     return sum(
         min(size[j] * load[i], size[i] * load[j]) for i in range(nk) for j in range(i + 1, nk)
     )
@@ -179,9 +179,9 @@ def max_exclusive_overlap(dag: nx.DiGraph) -> float:
 def xo_efficiency(dag: nx.DiGraph, schedule: Schedule) -> float:
     """XO(A) / max XO (thesis Table 5.1 "XO/Max_XO"); NaN when no exclusive overlap is possible."""
     _check(schedule)
-    pb = prepare(dag)
-    mx = _max_exclusive_overlap(pb)
-    return _exclusive_overlap(pb, schedule) / mx if mx > 0 else math.nan
+    problem = prepare(dag)
+    mx = _max_exclusive_overlap(problem)
+    return _exclusive_overlap(problem, schedule) / mx if mx > 0 else math.nan
 
 
 def idle_time(schedule: Schedule) -> IdleTime:
@@ -209,12 +209,12 @@ def metrics(dag: nx.DiGraph, schedule: Schedule) -> dict:
         (dict).
     """
     _check(schedule)
-    pb = prepare(dag)
+    problem = prepare(dag)
     span = schedule.makespan
-    cp = _min_critical_path(pb)
-    serial = _serial_time(pb)
-    xo = _exclusive_overlap(pb, schedule)
-    mx = _max_exclusive_overlap(pb)
+    cp = _min_critical_path(problem)
+    serial = _serial_time(problem)
+    xo = _exclusive_overlap(problem, schedule)
+    mx = _max_exclusive_overlap(problem)
     idle = idle_time(schedule)
     return {
         "makespan": span,

@@ -22,11 +22,11 @@ from .schedule import Schedule, ScheduledTask
 # --------------------------------------------------------------------------- ranking
 
 
-def _mean_costs(pb: Problem) -> list:
-    return [sum(row[k] for k in runs) / len(runs) for row, runs in zip(pb.cost, pb.can)]
+def _mean_costs(problem: Problem) -> list:
+    return [sum(row[k] for k in runs) / len(runs) for row, runs in zip(problem.cost, problem.can)]
 
 
-def _upward_rank(pb: Problem) -> list:
+def _upward_rank(problem: Problem) -> list:
     """rank(t) = mean_w(t) + max over successors q of (mean_c(t, q) + rank(q)) (thesis eq. 1).
 
     mean_w: mean cost over the processors that can run t. mean_c: without a memory model the
@@ -34,51 +34,51 @@ def _upward_rank(pb: Problem) -> list:
     times the share of processor pairs (p able to run t, q able to run the successor, p == q
     included) that lie in different memory spaces.
     """
-    w = _mean_costs(pb)
-    n = len(w)
+    mean_cost = _mean_costs(problem)
+    n = len(mean_cost)
     rank = [0.0] * n
-    succs = pb.succs
-    if not pb.memory_model:
-        for v in reversed(pb.topo):
+    succs = problem.succs
+    if not problem.memory_model:
+        for v in reversed(problem.topo):
             best = 0.0
             for q, c in succs[v]:
                 x = c + rank[q]
                 if x > best:
                     best = x
-            rank[v] = w[v] + best
+            rank[v] = mean_cost[v] + best
         return rank
     # Tasks fall into few patterns of runnable processors (CPU-only, GPU-only, both): the share
     # of cross-space pairs is computed once per pair of patterns.
-    space = pb.space
+    space = problem.space
     pattern_of, patterns = [], {}
-    for runs in pb.can:
+    for runs in problem.can:
         pattern_of.append(patterns.setdefault(runs, len(patterns)))
     counts = []
     for runs in patterns:
-        c = [0] * pb.n_spaces
+        c = [0] * problem.n_spaces
         for k in runs:
             c[space[k]] += 1
         counts.append((c, len(runs)))
     share = [
         [1.0 - sum(a * b for a, b in zip(ca, cb)) / (na * nb) for cb, nb in counts] for ca, na in counts
     ]
-    for v in reversed(pb.topo):
+    for v in reversed(problem.topo):
         best = 0.0
         sv = share[pattern_of[v]]
         for q, c in succs[v]:
             x = c * sv[pattern_of[q]] + rank[q]
             if x > best:
                 best = x
-        rank[v] = w[v] + best
+        rank[v] = mean_cost[v] + best
     return rank
 
 
-def _rank_order(pb: Problem, rank: list) -> list:
+def _rank_order(problem: Problem, rank: list) -> list:
     # Decreasing rank; ranks equal up to round-off (1e-9 of the largest) fall back to the
     # topological order, which keeps insertion order among independent tasks and keeps the
     # list a valid topological order when zero-cost tasks tie with their successors.
     pos = [0] * len(rank)
-    for i, v in enumerate(pb.topo):
+    for i, v in enumerate(problem.topo):
         pos[v] = i
     unit = 1e-9 * max(rank)
     if unit > 0:
@@ -86,9 +86,9 @@ def _rank_order(pb: Problem, rank: list) -> list:
     return sorted(range(len(rank)), key=lambda v: pos[v])
 
 
-def _heft_order(pb: Problem) -> list:
+def _heft_order(problem: Problem) -> list:
     """HEFT's priority list: tasks by decreasing upward rank (see :func:`_rank_order`)."""
-    return _rank_order(pb, _upward_rank(pb))
+    return _rank_order(problem, _upward_rank(problem))
 
 
 def upward_rank(dag: nx.DiGraph) -> dict:
@@ -108,15 +108,15 @@ def upward_rank(dag: nx.DiGraph) -> dict:
         ``comm`` times the share of (processor of the task, processor of the successor) pairs
         in different memory spaces.
     """
-    pb = prepare(dag)
-    rank = _upward_rank(pb)
-    return {pb.names[i]: r for i, r in enumerate(rank)}
+    problem = prepare(dag)
+    rank = _upward_rank(problem)
+    return {problem.names[i]: r for i, r in enumerate(rank)}
 
 
 # --------------------------------------------------------------------------- placement
 
 
-def _place_eft(pb: Problem, order: list):
+def _place_eft(problem: Problem, order: list):
     """Insertion-based earliest-finish-time placement of tasks in ``order`` (Topcuoglu §4.1).
 
     Each processor keeps its free intervals as two sorted lists (starts, ends; the last one is
@@ -124,8 +124,8 @@ def _place_eft(pb: Problem, order: list):
     holds it after its data-ready time, and goes to the processor where it finishes first
     (ties: the first in ``processors`` order).
     """
-    n = len(pb.names)
-    P = len(pb.procs)
+    n = len(problem.names)
+    P = len(problem.procs)
     inf = math.inf
     gap_s = [[0.0] for _ in range(P)]
     gap_e = [[inf] for _ in range(P)]
@@ -133,10 +133,10 @@ def _place_eft(pb: Problem, order: list):
     finish = [0.0] * n
     proc = [-1] * n
     pspace = [-1] * n  # memory space of each placed task's processor
-    space = pb.space
-    cost = pb.cost
-    preds = pb.preds
-    can = pb.can
+    space = problem.space
+    cost = problem.cost
+    preds = problem.preds
+    can = problem.can
     for v in order:
         pv = preds[v]
         row = cost[v]
@@ -154,20 +154,20 @@ def _place_eft(pb: Problem, order: list):
                     if t > ready:
                         ready = t
                 ready_of[sp] = ready
-            w = row[k]
+            duration = row[k]
             starts = gap_s[k]
             ends = gap_e[k]
-            g = bisect_left(ends, ready + w)
+            g = bisect_left(ends, ready + duration)
             while True:
                 s = starts[g]
                 if s <= ready:
                     st = ready
                     break
-                if s + w <= ends[g]:
+                if s + duration <= ends[g]:
                     st = s
                     break
                 g += 1
-            f = st + w
+            f = st + duration
             if f < best_f:
                 best_f, best_k, best_g, best_st = f, k, g, st
         k, g = best_k, best_g
@@ -185,8 +185,8 @@ def _place_eft(pb: Problem, order: list):
     return proc, start, finish
 
 
-def _to_schedule(pb: Problem, proc, start, finish, policy: str, order) -> Schedule:
-    names, procs = pb.names, pb.procs
+def _to_schedule(problem: Problem, proc, start, finish, policy: str, order) -> Schedule:
+    names, procs = problem.names, problem.procs
     tasks = {
         names[i]: ScheduledTask(names[i], procs[proc[i]], start[i], finish[i])
         for i in range(len(names))
@@ -220,9 +220,9 @@ def heft(dag: nx.DiGraph) -> Schedule:
     ----------
     Topcuoglu, Hariri, Wu, IEEE TPDS 13(3):260-274, 2002.
     """
-    pb = prepare(dag)
-    order = _heft_order(pb)
-    return _to_schedule(pb, *_place_eft(pb, order), "heft", order)
+    problem = prepare(dag)
+    order = _heft_order(problem)
+    return _to_schedule(problem, *_place_eft(problem, order), "heft", order)
 
 
 def xeft(dag: nx.DiGraph) -> Schedule:
@@ -237,9 +237,9 @@ def xeft(dag: nx.DiGraph) -> Schedule:
     Schedule
         ``policy="xeft"``, ``priority`` the reordered list.
     """
-    pb = prepare(dag)
-    order = _xeft_order(pb, _heft_order(pb))
-    return _to_schedule(pb, *_place_eft(pb, order), "xeft", order)
+    problem = prepare(dag)
+    order = _xeft_order(problem, _heft_order(problem))
+    return _to_schedule(problem, *_place_eft(problem, order), "xeft", order)
 
 
 def xeft_order(dag: nx.DiGraph) -> list:
@@ -262,34 +262,35 @@ def xeft_order(dag: nx.DiGraph) -> list:
     With two kinds (CPUs and one GPU) this is the thesis' algorithm: ``total_gpu <
     total_cpu / n_cores`` picks the GPU tasks, else the CPU tasks.
     """
-    pb = prepare(dag)
-    order = _xeft_order(pb, _heft_order(pb))
-    return [pb.names[i] for i in order]
+    problem = prepare(dag)
+    order = _xeft_order(problem, _heft_order(problem))
+    return [problem.names[i] for i in order]
 
 
-def _descendant_bits(pb: Problem) -> list:
-    """Reachability as Python-int bitsets: bit j of desc[i] set when i reaches j (i included)."""
-    desc = [0] * len(pb.names)
-    for v in reversed(pb.topo):
+def _descendant_bits(problem: Problem) -> list:
+    """Reachability as Python-int bitsets: bit j of ``descendants[i]`` is set when task i
+    reaches task j (i included)."""
+    descendants = [0] * len(problem.names)
+    for v in reversed(problem.topo):
         b = 1 << v
-        for q, _ in pb.succs[v]:
-            b |= desc[q]
-        desc[v] = b
-    return desc
+        for q, _ in problem.succs[v]:
+            b |= descendants[q]
+        descendants[v] = b
+    return descendants
 
 
-def _xeft_order(pb: Problem, rank_order: list) -> list:
-    excl = pb.excl
+def _xeft_order(problem: Problem, rank_order: list) -> list:
+    excl = problem.excl
     if all(e < 0 for e in excl):
         return list(rank_order)
     order = list(rank_order)
     n = len(order)
-    desc = _descendant_bits(pb)
-    w = _mean_costs(pb)
-    kind_size = pb.kind_size
+    descendants = _descendant_bits(problem)
+    mean_cost = _mean_costs(problem)
+    kind_size = problem.kind_size
     # Tie rule for the smallest load: the kind whose first processor comes first.
     kind_first = {}
-    for k, kd in enumerate(pb.kind):
+    for k, kd in enumerate(problem.kind):
         kind_first.setdefault(kd, k)
     i = 0
     while i < n:
@@ -298,28 +299,28 @@ def _xeft_order(pb: Problem, rank_order: list) -> list:
             i += 1
             continue
         cand = [a]
-        reach = desc[a]
+        reach = descendants[a]
         for b in [b for b in order[i + 1 :] if excl[b] >= 0]:
             if not (reach >> b) & 1:
                 cand.append(b)
-                reach |= desc[b]
-        cluster = _balance(cand, excl, w, kind_size, kind_first)
+                reach |= descendants[b]
+        cluster = _balance(cand, excl, mean_cost, kind_size, kind_first)
         if len(cluster) < 2:
             i += 1
             continue
-        order, end = _apply(order, cluster, desc)
+        order, end = _apply(order, cluster, descendants)
         i = end + 1
     return order
 
 
-def _balance(cand, excl, w, kind_size, kind_first) -> list:
+def _balance(cand, excl, mean_cost, kind_size, kind_first) -> list:
     """Rows 12-26 of Algorithm 1: the cluster chosen among the candidates (list order kept)."""
     by_kind = {}
     for c in cand:
         by_kind.setdefault(excl[c], []).append(c)
     if len(by_kind) < 2:
         return []
-    load = {kd: sum(w[c] for c in cs) / kind_size[kd] for kd, cs in by_kind.items()}
+    load = {kd: sum(mean_cost[c] for c in cs) / kind_size[kd] for kd, cs in by_kind.items()}
     base = min(load, key=lambda kd: (load[kd], kind_first[kd]))
     target = load[base]
     chosen = set(by_kind[base])
@@ -329,13 +330,13 @@ def _balance(cand, excl, w, kind_size, kind_first) -> list:
         m = kind_size[kd]
         t = 0.0
         for c in cs:
-            if abs(target - (t + w[c]) / m) < abs(target - t / m):
+            if abs(target - (t + mean_cost[c]) / m) < abs(target - t / m):
                 chosen.add(c)
-                t += w[c]
+                t += mean_cost[c]
     return [c for c in cand if c in chosen]
 
 
-def _apply(order, cluster, desc):
+def _apply(order, cluster, descendants):
     """APPLY(rank, cluster): make the cluster contiguous; return (new order, cluster end)."""
     members = set(cluster)
     bits = 0
@@ -347,7 +348,7 @@ def _apply(order, cluster, desc):
     for v in order[first : last + 1]:
         if v in members:
             inside.append(v)
-        elif desc[v] & bits:
+        elif descendants[v] & bits:
             before.append(v)  # an ancestor of a later member: the cluster moves down past it
         else:
             after.append(v)  # independent of the members after it: they move up past it
@@ -355,9 +356,10 @@ def _apply(order, cluster, desc):
     return new, first + len(before) + len(inside) - 1
 
 
-def _is_gpu(pb: Problem, k: int) -> bool:
-    name = pb.procs[k]
-    return name.lower().startswith(GPU) or (pb.memory_model and pb.kinds[pb.kind[k]] == DEVICE)
+def _is_gpu(problem: Problem, k: int) -> bool:
+    name = problem.procs[k]
+    return name.lower().startswith(GPU) or (
+        problem.memory_model and problem.kinds[problem.kind[k]] == DEVICE)
 
 
 def baseline(dag: nx.DiGraph) -> Schedule:
@@ -374,28 +376,28 @@ def baseline(dag: nx.DiGraph) -> Schedule:
     Schedule
         ``policy="baseline"``.
     """
-    pb = prepare(dag)
-    order = _heft_order(pb)
-    n = len(pb.names)
+    problem = prepare(dag)
+    order = _heft_order(problem)
+    n = len(problem.names)
     start = [0.0] * n
     finish = [0.0] * n
     proc = [-1] * n
-    space = pb.space
-    gpus = [k for k in range(len(pb.procs)) if _is_gpu(pb, k)]
+    space = problem.space
+    gpus = [k for k in range(len(problem.procs)) if _is_gpu(problem, k)]
     t = 0.0
     for v in order:
-        row = pb.cost[v]
+        row = problem.cost[v]
         on_gpu = [k for k in gpus if row[k] < math.inf]
-        pool = on_gpu or pb.can[v]
+        pool = on_gpu or problem.can[v]
         k = min(pool, key=lambda k: row[k])
         ready = t
-        for u, c in pb.preds[v]:
+        for u, c in problem.preds[v]:
             x = finish[u] if space[proc[u]] == space[k] else finish[u] + c
             if x > ready:
                 ready = x
         start[v], finish[v], proc[v] = ready, ready + row[k], k
         t = finish[v]
-    return _to_schedule(pb, proc, start, finish, "baseline", order)
+    return _to_schedule(problem, proc, start, finish, "baseline", order)
 
 
 def best(dag: nx.DiGraph) -> Schedule:
@@ -404,19 +406,19 @@ def best(dag: nx.DiGraph) -> Schedule:
     Never worse than HEFT by construction. The returned schedule has ``policy="best"`` and
     ``info["chosen"]`` set to ``"heft"`` or ``"xeft"``.
     """
-    pb = prepare(dag)
-    order_h = _heft_order(pb)
-    placed_h = _place_eft(pb, order_h)
-    order_x = _xeft_order(pb, order_h)
+    problem = prepare(dag)
+    order_h = _heft_order(problem)
+    placed_h = _place_eft(problem, order_h)
+    order_x = _xeft_order(problem, order_h)
     if order_x == order_h:
         chosen, order, placed = "heft", order_h, placed_h
     else:
-        placed_x = _place_eft(pb, order_x)
+        placed_x = _place_eft(problem, order_x)
         if max(placed_x[2]) < max(placed_h[2]):
             chosen, order, placed = "xeft", order_x, placed_x
         else:
             chosen, order, placed = "heft", order_h, placed_h
-    sched = _to_schedule(pb, *placed, "best", order)
+    sched = _to_schedule(problem, *placed, "best", order)
     sched.info["chosen"] = chosen
     return sched
 

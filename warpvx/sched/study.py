@@ -66,10 +66,10 @@ def _gain(old: float, new: float) -> float:
     return 1.0 - new / old if old > 0 else 0.0
 
 
-def _depth(pb) -> int:
-    level = [1] * len(pb.names)
-    for v in pb.topo:
-        for q, _ in pb.succs[v]:
+def _depth(problem) -> int:
+    level = [1] * len(problem.names)
+    for v in problem.topo:
+        for q, _ in problem.succs[v]:
             if level[v] + 1 > level[q]:
                 level[q] = level[v] + 1
     return max(level)
@@ -82,11 +82,11 @@ def evaluate_dag(job: dict) -> dict:
         cpu_range=job["cpu_range"], gpu_speedup=job["gpu_speedup"], comm_range=job["comm_range"],
         n_cpus=job["n_cpus"], seed=job["seed"],
     )
-    pb = prepare(dag)
-    order_h = _heft_order(pb)
-    order_x = _xeft_order(pb, order_h)
-    sh = _to_schedule(pb, *_place_eft(pb, order_h), "heft", order_h)
-    sx = _to_schedule(pb, *_place_eft(pb, order_x), "xeft", order_x)
+    problem = prepare(dag)
+    order_h = _heft_order(problem)
+    order_x = _xeft_order(problem, order_h)
+    sh = _to_schedule(problem, *_place_eft(problem, order_h), "heft", order_h)
+    sx = _to_schedule(problem, *_place_eft(problem, order_x), "xeft", order_x)
     sb = baseline(dag)
     for s in (sh, sx, sb):
         validate_schedule(dag, s)
@@ -94,15 +94,16 @@ def evaluate_dag(job: dict) -> dict:
     h, x, b = mh["makespan"], mx["makespan"], mb["makespan"]
     chosen = "xeft" if x < h else "heft"
     best_span = min(h, x)
-    n = len(pb.names)
+    n = len(problem.names)
     e = dag.number_of_edges()
+    excl = problem.excl
     return {
         "dag": job["dag"], "cls": job["cls"], "n_nodes": n, "n_edges": e,
-        "avg_degree": 2.0 * e / n, "depth": _depth(pb), "n_cpus": job["n_cpus"],
+        "avg_degree": 2.0 * e / n, "depth": _depth(problem), "n_cpus": job["n_cpus"],
         "p_single": job["p_single"], "p_cpu_only": job["p_cpu_only"],
         "cpu_range": "%g-%g" % job["cpu_range"], "gpu_speedup": "%g-%g" % job["gpu_speedup"],
-        "share_cpu_only": sum(1 for k in pb.excl if k >= 0 and pb.kinds[k] == "host") / n,
-        "share_gpu_only": sum(1 for k in pb.excl if k >= 0 and pb.kinds[k] == "device") / n,
+        "share_cpu_only": sum(1 for k in excl if k >= 0 and problem.kinds[k] == "host") / n,
+        "share_gpu_only": sum(1 for k in excl if k >= 0 and problem.kinds[k] == "device") / n,
         "baseline": b, "heft": h, "xeft": x, "best": best_span, "best_chosen": chosen,
         "gain_xeft_vs_heft": _gain(h, x), "ratio_xeft_heft": x / h if h > 0 else 1.0,
         "gain_heft_vs_baseline": _gain(b, h), "gain_xeft_vs_baseline": _gain(b, x),
@@ -457,10 +458,10 @@ def run_study(
         out_dir = os.fspath(out_dir)
         os.makedirs(out_dir, exist_ok=True)
         with open(os.path.join(out_dir, "per_dag.csv"), "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=FIELDS)
-            w.writeheader()
+            writer = csv.DictWriter(f, fieldnames=FIELDS)
+            writer.writeheader()
             for r in records:
-                w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+                writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
         with open(os.path.join(out_dir, "summary.json"), "w") as f:
             json.dump(_json_safe({"meta": meta, "summary": summary}), f, indent=2)
         with open(os.path.join(out_dir, "summary.md"), "w") as f:

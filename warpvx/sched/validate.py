@@ -39,11 +39,11 @@ def validate_schedule(dag: nx.DiGraph, schedule: Schedule) -> None:
     """
     if not isinstance(schedule, Schedule):
         raise WarpvxTypeError(f"schedule: expected a Schedule, got {type(schedule).__name__}")
-    pb = prepare(dag)
-    pindex = {p: k for k, p in enumerate(pb.procs)}
+    problem = prepare(dag)
+    pindex = {p: k for k, p in enumerate(problem.procs)}
     tasks = schedule.tasks
-    index = {v: i for i, v in enumerate(pb.names)}
-    missing = [v for v in pb.names if v not in tasks]
+    index = {v: i for i, v in enumerate(problem.names)}
+    missing = [v for v in problem.names if v not in tasks]
     if missing:
         raise ScheduleError(
             f"schedule: task {missing[0]!r} of the dag is not scheduled ({len(missing)} missing)"
@@ -53,7 +53,7 @@ def validate_schedule(dag: nx.DiGraph, schedule: Schedule) -> None:
         raise ScheduleError(f"schedule: task {extra[0]!r} is not in the dag")
     span = max((t.finish for t in tasks.values()), default=0.0)
     tol = 1e-9 * max(1.0, abs(span) if math.isfinite(span) else 1.0)
-    n = len(pb.names)
+    n = len(problem.names)
     proc = [0] * n
     start = [0.0] * n
     finish = [0.0] * n
@@ -64,9 +64,10 @@ def validate_schedule(dag: nx.DiGraph, schedule: Schedule) -> None:
         k = pindex.get(st.processor)
         if k is None:
             raise ScheduleError(
-                f"schedule: task {v!r} is on unknown processor {st.processor!r} (processors: {pb.procs})"
+                f"schedule: task {v!r} is on unknown processor {st.processor!r} "
+                f"(processors: {problem.procs})"
             )
-        c = pb.cost[i][k]
+        c = problem.cost[i][k]
         if not math.isfinite(c):
             raise ScheduleError(f"schedule: task {v!r} is on {st.processor!r}, which cannot run it")
         if not (math.isfinite(st.start) and math.isfinite(st.finish)):
@@ -79,21 +80,21 @@ def validate_schedule(dag: nx.DiGraph, schedule: Schedule) -> None:
                 f"({st.start}..{st.finish}), but its cost there is {c}"
             )
         proc[i], start[i], finish[i] = k, st.start, st.finish
-    for k, name in enumerate(pb.procs):
+    for k, name in enumerate(problem.procs):
         on = sorted((start[i], finish[i], i) for i in range(n) if proc[i] == k)
         for (s0, f0, i0), (s1, f1, i1) in zip(on, on[1:]):
             if s1 < f0 - tol:
                 raise ScheduleError(
-                    f"schedule: tasks {pb.names[i0]!r} ({s0}..{f0}) and {pb.names[i1]!r} "
+                    f"schedule: tasks {problem.names[i0]!r} ({s0}..{f0}) and {problem.names[i1]!r} "
                     f"({s1}..{f1}) overlap on {name!r}"
                 )
-    space = pb.space
+    space, names, procs = problem.space, problem.names, problem.procs
     for v in range(n):
-        for u, c in pb.preds[v]:
+        for u, c in problem.preds[v]:
             delay = 0.0 if space[proc[u]] == space[proc[v]] else c
             if start[v] < finish[u] + delay - tol:
                 raise ScheduleError(
-                    f"schedule: task {pb.names[v]!r} on {pb.procs[proc[v]]!r} starts at {start[v]}, "
-                    f"before its input from {pb.names[u]!r} on {pb.procs[proc[u]]!r} is ready at "
+                    f"schedule: task {names[v]!r} on {procs[proc[v]]!r} starts at {start[v]}, "
+                    f"before its input from {names[u]!r} on {procs[proc[u]]!r} is ready at "
                     f"{finish[u] + delay} (finish {finish[u]} + transfer {delay})"
                 )
