@@ -131,9 +131,6 @@ def test_remap_unsupported(backend):
         wcv.remap(src, mx, my, cv2.INTER_CUBIC, backend=backend)
     with pytest.raises(warpvx.UnsupportedError, match="borderMode"):
         wcv.remap(src, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP, backend=backend)
-    fixed1, fixed2 = cv2.convertMaps(mx, my, cv2.CV_16SC2)
-    with pytest.raises(warpvx.UnsupportedError, match="map1"):
-        wcv.remap(src, fixed1, fixed2, cv2.INTER_LINEAR, backend=backend)
     with pytest.raises(warpvx.UnsupportedError, match="map2"):
         wcv.remap(src, mx, None, cv2.INTER_LINEAR, backend=backend)
     with pytest.raises(warpvx.ShapeError, match="map2"):

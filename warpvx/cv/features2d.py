@@ -1,7 +1,7 @@
 """warpvx.cv.features2d: FAST, cornerHarris, cornerMinEigenVal, goodFeaturesToTrack (see warpvx.cv).
 
 Same names, arguments and return values as ``cv2``; every function (and the detector factory)
-also takes ``backend=`` as a keyword.
+also takes ``backend=`` as a keyword. Strided views are copied once (see :mod:`warpvx.cv`).
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from .. import features
 from ..arrays import as_input, is_warp_array
 from ..check import check_choice, check_image
 from ..errors import UnsupportedError, WarpvxTypeError
+from ._arrays import contiguous
 
 FAST_FEATURE_DETECTOR_TYPE_5_8 = 0
 FAST_FEATURE_DETECTOR_TYPE_7_12 = 1
@@ -51,7 +52,7 @@ def _check_border(border_type) -> None:
 
 def _to_gray(image, backend):
     """cv2's FastFeatureDetector converts a non-8UC1 image with COLOR_BGR2GRAY."""
-    arr = as_input(image, "image")
+    arr = as_input(contiguous(image), "image")
     if len(arr.shape) == 3 and arr.shape[2] in (3, 4):
         arr = check_image(arr, "image", dtypes=(np.uint8,), channels=(3, 4))
         code = "BGR2GRAY" if arr.shape[2] == 3 else "BGRA2GRAY"
@@ -130,15 +131,15 @@ def FastFeatureDetector_create(threshold=10, nonmaxSuppression=True,
 def cornerHarris(src, blockSize, ksize, k, dst=None, borderType=_REFLECT_101, *, backend=None):
     """cv2.cornerHarris for uint8 gray images (float32 map); BORDER_REFLECT_101 only."""
     _check_border(borderType)
-    return features.harris_response(src, blockSize, ksize, k, out=dst, backend=backend)
+    return features.harris_response(contiguous(src), blockSize, ksize, k, out=dst, backend=backend)
 
 
 def cornerMinEigenVal(src, blockSize, dst=None, ksize=3, borderType=_REFLECT_101, *,
                       backend=None):
     """cv2.cornerMinEigenVal for uint8 gray images (float32 map); BORDER_REFLECT_101 only."""
     _check_border(borderType)
-    return features.harris_response(src, blockSize, ksize, 0.0, score="min_eigen", out=dst,
-                                    backend=backend)
+    return features.harris_response(contiguous(src), blockSize, ksize, 0.0, score="min_eigen",
+                                    out=dst, backend=backend)
 
 
 def goodFeaturesToTrack(image, maxCorners, qualityLevel, minDistance, corners=None, mask=None,
@@ -151,7 +152,7 @@ def goodFeaturesToTrack(image, maxCorners, qualityLevel, minDistance, corners=No
         raise UnsupportedError("corners: an output array is not supported; use the return value")
     score = check_choice(bool(useHarrisDetector), "useHarrisDetector",
                          {True: "harris", False: "min_eigen"})
-    pts = features.harris_corners(image, maxCorners, qualityLevel, minDistance, blockSize, k,
+    pts = features.harris_corners(contiguous(image), maxCorners, qualityLevel, minDistance, blockSize, k,
                                   ksize=gradientSize, score=score, backend=backend)
     n = int(pts.shape[0])
     if n == 0:

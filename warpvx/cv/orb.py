@@ -1,7 +1,8 @@
 """warpvx.cv.orb: ORB_create and a Hamming BFMatcher (see warpvx.cv).
 
 Same names, arguments and return values as ``cv2``; the factories also take ``backend=`` as a
-keyword. The ORB detector extracts ORB-SLAM2's way (:func:`warpvx.orb`), not OpenCV's.
+keyword. Strided views are copied once (see :mod:`warpvx.cv`). The ORB detector extracts
+ORB-SLAM2's way (:func:`warpvx.orb`), not OpenCV's, but returns at most ``nfeatures`` as cv2.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from .. import matching, orb_extractor
 from ..check import check_float, check_int
 from ..errors import UnsupportedError, WarpvxTypeError
 from ..keypoints import Keypoints
+from ._arrays import contiguous
 from .features2d import _check_mask, _to_gray
 
 NORM_HAMMING = 6
@@ -31,11 +33,13 @@ class ORB:
 
     Differences from cv2's ORB, by design: keypoints come from ORB-SLAM2's extractor (FAST per
     30x30 cell at ``fastThreshold``, falling back to threshold 7 in a cell that has no corner,
-    then the quadtree spread, up to a few more than ``nfeatures``); keypoints are ranked by
-    FAST score whatever ``scoreType``; ``edgeThreshold`` only sets the border ``compute``
-    drops keypoints within (detection keeps ORB-SLAM2's 19 px). ``WTA_K`` other than 2,
-    ``firstLevel`` other than 0, ``patchSize`` other than 31 and masks raise
-    :class:`warpvx.UnsupportedError`.
+    then the quadtree spread); keypoints are ranked by FAST score whatever ``scoreType``. As
+    cv2, ``detect``/``detectAndCompute`` return at most ``nfeatures``: where ORB-SLAM2's
+    quadtree over-shoots (:func:`warpvx.orb` may return a few more), the strongest by
+    ``response`` are kept, in extraction order (ties keep the earlier one). ``edgeThreshold``
+    only sets the border ``compute`` drops keypoints within (detection keeps ORB-SLAM2's
+    19 px). ``WTA_K`` other than 2, ``firstLevel`` other than 0, ``patchSize`` other than 31
+    and masks raise :class:`warpvx.UnsupportedError`.
     """
 
     def __init__(self, nfeatures=500, scaleFactor=1.2, nlevels=8, edgeThreshold=31,
@@ -65,10 +69,10 @@ class ORB:
 
         As cv2: keypoints closer than ``edgeThreshold`` to the image border are dropped
         (``KeyPointsFilter::runByImageBorder``); the rest are described with their own
-        ``angle`` on pyramid level ``octave``.
+        ``angle`` on pyramid level ``octave``. ``keypoints`` None or empty gives ``((), None)``.
         """
         gray = _to_gray(image, self.backend)
-        kept = self._inside_border(gray, keypoints)
+        kept = self._inside_border(gray, () if keypoints is None else keypoints)
         if not kept:
             return (), None
         desc = orb_extractor.orb_compute(gray, Keypoints.from_cv(kept), self._scale,
@@ -170,10 +174,16 @@ class ORB:
     # --- helpers ---------------------------------------------------------------------------
 
     def _extract(self, image):
+        """Host keypoints and descriptors (NumPy uint8 [N, 32]), at most ``nfeatures``."""
         gray = _to_gray(image, self.backend)
         kps, desc = orb_extractor.orb(gray, self._nfeatures, self._scale, self._nlevels,
                                       self._fast, _MIN_TH_FAST, backend=self.backend)
-        return kps.to("host"), desc
+        kps = kps.to("host")
+        desc = desc if isinstance(desc, np.ndarray) else desc.numpy()
+        if len(kps) > self._nfeatures:
+            keep = np.sort(np.argsort(-kps.response, kind="stable")[:self._nfeatures])
+            kps, desc = kps.take(keep), desc[keep]
+        return kps, desc
 
     def _inside_border(self, gray, keypoints) -> list:
         kps = list(keypoints)
@@ -227,7 +237,8 @@ class BFMatcher:
         """Best match per query (tuple of cv2.DMatch in query order, as cv2); with crossCheck
         only the mutual best ones."""
         _check_mask(mask)
-        pairs, dist = matching.match_hamming(queryDescriptors, trainDescriptors, self.crossCheck,
+        pairs, dist = matching.match_hamming(contiguous(queryDescriptors),
+                                             contiguous(trainDescriptors), self.crossCheck,
                                              backend=self.backend)
         pairs = pairs if isinstance(pairs, np.ndarray) else pairs.numpy()
         dist = dist if isinstance(dist, np.ndarray) else dist.numpy()
@@ -238,7 +249,8 @@ class BFMatcher:
         _check_mask(mask)
         if self.crossCheck:
             raise UnsupportedError("crossCheck: knnMatch with crossCheck=True is not supported")
-        idx, dist = matching.knn_match_hamming(queryDescriptors, trainDescriptors, k,
+        idx, dist = matching.knn_match_hamming(contiguous(queryDescriptors),
+                                               contiguous(trainDescriptors), k,
                                                backend=self.backend)
         idx = idx if isinstance(idx, np.ndarray) else idx.numpy()
         dist = dist if isinstance(dist, np.ndarray) else dist.numpy()

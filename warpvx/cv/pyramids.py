@@ -5,7 +5,7 @@ uint8 images (gray, 3 or 4 channels); ``pyrDown``/``buildPyramid`` with ``BORDER
 (REFLECT_101); ``resize`` with ``INTER_LINEAR``; ``GaussianBlur`` with BORDER_CONSTANT,
 BORDER_REPLICATE, BORDER_REFLECT or BORDER_REFLECT_101 and odd sizes up to 31. All are
 bit-exact with OpenCV. Anything else raises :class:`warpvx.UnsupportedError` naming the
-argument. ``dst`` is written and returned when its shape and dtype fit (cv2 reallocates
+argument. Strided views are copied once (see :mod:`warpvx.cv`); ``dst`` is written and returned when its shape and dtype fit (cv2 reallocates
 otherwise, and so do these). Each function also takes ``backend=`` (see :mod:`warpvx.backend`).
 """
 
@@ -22,15 +22,8 @@ from ..filters import gaussian_blur as _gaussian_blur
 from ..pyramid import _max_gaussian_levels, resize_scales
 from ..pyramid import gaussian_pyramid as _gaussian_pyramid
 from ..pyramid import resize as _resize
-from .imgproc import (
-    BORDER_CONSTANT,
-    BORDER_DEFAULT,
-    BORDER_REFLECT_101,
-    BORDER_REPLICATE,
-    INTER_LINEAR,
-    _channels,
-    _fits,
-)
+from ._arrays import channels, contiguous, into_dst
+from .imgproc import BORDER_CONSTANT, BORDER_DEFAULT, BORDER_REFLECT_101, BORDER_REPLICATE, INTER_LINEAR
 
 # cv2's values for the constants imgproc does not define.
 BORDER_REFLECT = 2
@@ -53,8 +46,9 @@ def pyrDown(src, dst=None, dstsize=None, borderType=BORDER_DEFAULT, *, backend=N
     BORDER_DEFAULT / BORDER_REFLECT_101 (optionally | BORDER_ISOLATED).
     """
     _pyr_border(borderType)
+    src = contiguous(src)
     arr = as_input(src, "src")
-    ch = _channels(arr)
+    ch = channels(arr)
     if dstsize is None or _is_zero_size(dstsize):
         h, w = arr.shape[0], arr.shape[1]
         dw, dh = (w + 1) // 2, (h + 1) // 2
@@ -68,10 +62,14 @@ def pyrDown(src, dst=None, dstsize=None, borderType=BORDER_DEFAULT, *, backend=N
     expected = None if ch is None else ((dh, dw) if ch == 1 else (dh, dw, ch))
     if expected is not None and arr.shape[:2] == (1, 1) and (dh, dw) == (1, 1):
         # A 1x1 image cannot shrink: every tap mirrors onto the pixel itself.
-        return _copy_into(arr, dst if _fits(dst, expected) else None)
-    out = dst if _fits(dst, expected) else (None if expected is None else _empty_like(arr, expected))
-    levels = _gaussian_pyramid(src, 2, out=None if out is None else [src, out], backend=backend)
-    return levels[1]
+        return into_dst(dst, expected, lambda out: _copy_into(arr, out))
+
+    def run(out):
+        if out is None and expected is not None:
+            out = _empty_like(arr, expected)  # carries a dstsize other than the default
+        return _gaussian_pyramid(src, 2, out=None if out is None else [src, out], backend=backend)[1]
+
+    return into_dst(dst, expected, run)
 
 
 def buildPyramid(src, maxlevel, dst=None, borderType=BORDER_DEFAULT, *, backend=None):
@@ -84,6 +82,7 @@ def buildPyramid(src, maxlevel, dst=None, borderType=BORDER_DEFAULT, *, backend=
         raise WarpvxTypeError(f"maxlevel: expected an integer, got {type(maxlevel).__name__} {maxlevel!r}")
     if maxlevel < 0:
         raise WarpvxValueError(f"maxlevel: expected a value >= 0, got {maxlevel}")
+    src = contiguous(src)
     arr = as_input(src, "src")
     levels = int(maxlevel) + 1
     if arr.ndim >= 2 and arr.shape[0] > 0 and arr.shape[1] > 0:
@@ -106,8 +105,9 @@ def resize(src, dsize, dst=None, fx=0, fy=0, interpolation=INTER_LINEAR, *, back
         raise UnsupportedError(f"interpolation: only INTER_LINEAR (1) is supported, got {interpolation!r}")
     if dsize is not None and _is_zero_size(dsize):
         dsize = None
+    src = contiguous(src)
     arr = as_input(src, "src")
-    ch = _channels(arr)
+    ch = channels(arr)
     expected = None
     try:
         if ch is not None:
@@ -116,8 +116,7 @@ def resize(src, dsize, dst=None, fx=0, fy=0, interpolation=INTER_LINEAR, *, back
             expected = (dh, dw) if ch == 1 else (dh, dw, ch)
     except (TypeError, ValueError, ZeroDivisionError, OverflowError):
         pass  # the public function reports the bad dsize / fx / fy
-    out = dst if _fits(dst, expected) else None
-    return _resize(src, dsize, fx, fy, out=out, backend=backend)
+    return into_dst(dst, expected, lambda out: _resize(src, dsize, fx, fy, out=out, backend=backend))
 
 
 def GaussianBlur(src, ksize, sigmaX, dst=None, sigmaY=0, borderType=BORDER_DEFAULT, *, backend=None):
@@ -144,11 +143,12 @@ def GaussianBlur(src, ksize, sigmaX, dst=None, sigmaY=0, borderType=BORDER_DEFAU
         kh = int(np.rint(sy * 6 + 1)) | 1
     if kw <= 0 or kh <= 0:
         raise WarpvxValueError(f"ksize: expected positive odd sizes or a sigma > 0 to derive them, got {ksize!r}")
+    src = contiguous(src)
     arr = as_input(src, "src")
-    ch = _channels(arr)
+    ch = channels(arr)
     expected = None if ch is None else (tuple(arr.shape[:2]) if ch == 1 else tuple(arr.shape))
-    out = dst if _fits(dst, expected) else None
-    return _gaussian_blur(src, (kw, kh), (sx, sy), border, out=out, backend=backend)
+    return into_dst(dst, expected, lambda out: _gaussian_blur(src, (kw, kh), (sx, sy), border, out=out,
+                                                              backend=backend))
 
 
 # --- helpers --------------------------------------------------------------------------------

@@ -1,5 +1,6 @@
 """warpvx.cv.video: OpenCV's sparse optical flow (``calcOpticalFlowPyrLK``,
-``buildOpticalFlowPyramid``) with cv2's names, arguments and return shapes (see warpvx.cv)."""
+``buildOpticalFlowPyramid``) with cv2's names, arguments and return shapes (see warpvx.cv;
+strided views are copied once)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 from ..arrays import as_input, is_warp_array
 from ..errors import UnsupportedError, WarpvxTypeError, WarpvxValueError
 from ..flow import build_optical_flow_pyramid, optical_flow_pyr_lk
+from ._arrays import contiguous
 
 TERM_CRITERIA_COUNT = 1
 TERM_CRITERIA_MAX_ITER = 1
@@ -51,6 +53,7 @@ def calcOpticalFlowPyrLK(
     """
     flags = _check_flags(flags)
     max_iters, eps = _criteria(criteria)
+    prevPts = contiguous(prevPts)
     pts_in = as_input(prevPts, "prevPts")
     shape = tuple(pts_in.shape)
     if len(shape) >= 1 and shape[0] == 0:
@@ -59,7 +62,7 @@ def calcOpticalFlowPyrLK(
     if flags & OPTFLOW_USE_INITIAL_FLOW:
         if nextPts is None:
             raise WarpvxValueError("nextPts: OPTFLOW_USE_INITIAL_FLOW needs the initial guesses, got None")
-        guess = nextPts
+        guess = contiguous(nextPts)
     tracked, st, er = optical_flow_pyr_lk(
         _levels(prevImg),
         _levels(nextImg),
@@ -109,7 +112,7 @@ def buildOpticalFlowPyramid(
         raise UnsupportedError(f"pyrBorder: only BORDER_REFLECT_101 (4) is supported, got {pyrBorder!r}")
     if derivBorder != _BORDER_CONSTANT:
         raise UnsupportedError(f"derivBorder: only BORDER_CONSTANT (0) is supported, got {derivBorder!r}")
-    levels = build_optical_flow_pyramid(img, winSize, maxLevel, backend=backend)
+    levels = build_optical_flow_pyramid(contiguous(img), winSize, maxLevel, backend=backend)
     return len(levels) - 1, tuple(levels)
 
 
@@ -145,9 +148,9 @@ def _criteria(criteria):
 def _levels(x):
     """An image, or the image levels of a pyramid (derivative levels, int16 HxWx2, dropped)."""
     if isinstance(x, (list, tuple)):
-        levels = [as_input(v, "pyramid level") for v in x]
+        levels = [contiguous(as_input(v, "pyramid level")) for v in x]
         return [v for v in levels if not (len(v.shape) == 3 and v.shape[2] == 2)]
-    return x
+    return contiguous(x)
 
 
 def _fill(dst, value):
