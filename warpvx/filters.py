@@ -2,20 +2,14 @@
 
 from __future__ import annotations
 
-import numbers
-
 import numpy as np
 
 from .backend import resolve_backend
-from .check import check_array, check_choice, check_float, check_image, check_int
+from .check import check_array, check_float, check_image, check_int
 from .errors import UnsupportedError, WarpvxTypeError
+from .modes import FILTER_BORDERS, mode_code
 from .registry import dispatch
 
-#: Border names (and cv2's integer codes) accepted by :func:`gaussian_blur`.
-BORDERS = {
-    "constant": 0, "replicate": 1, "reflect": 2, "reflect101": 4, "reflect_101": 4,
-    0: 0, 1: 1, 2: 2, 4: 4,
-}
 MAX_KSIZE = 31
 
 
@@ -66,18 +60,10 @@ def gaussian_blur(src, ksize, sigma, border="reflect101", *, out=None, backend=N
     sx, sy = _sigma(sigma)
     if sy == 0:
         sy = sx
-    code = border_code(border)
+    code = mode_code(border, "border", FILTER_BORDERS)
     if out is not None:
         check_array(out, "out", shape=tuple(src.shape), dtypes=(np.uint8,))
     return dispatch("gaussian_blur", be, src, (kx, ky), (sx, sy), code, out=out, stream=stream)
-
-
-def border_code(border) -> int:
-    """cv2's integer code of a border given by name or code (see :data:`BORDERS`)."""
-    if isinstance(border, bool) or not isinstance(border, (str, numbers.Integral)):
-        names = ", ".join(repr(k) for k in BORDERS if isinstance(k, str))
-        raise UnsupportedError(f"border: expected one of {names} or its cv2 integer, got {border!r}")
-    return check_choice(border.lower() if isinstance(border, str) else int(border), "border", BORDERS)
 
 
 def _ksize(ksize) -> tuple[int, int]:

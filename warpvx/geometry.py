@@ -14,12 +14,11 @@ import numbers
 import numpy as np
 
 from .backend import resolve_backend
-from .check import check_array, check_choice, check_float, check_image, check_matrix, check_size
-from .errors import ShapeError, UnsupportedError, WarpvxTypeError
+from .check import check_array, check_float, check_image, check_matrix, check_size
+from .errors import ShapeError, WarpvxTypeError
+from .modes import SAMPLER_BORDERS, SAMPLER_INTERPOLATIONS, mode_code
 from .registry import dispatch
 
-INTERPOLATIONS = {"nearest": 0, "linear": 1, 0: 0, 1: 1}
-BORDERS = {"constant": 0, "replicate": 1, "reflect101": 4, "reflect_101": 4, 0: 0, 1: 1, 4: 4}
 
 
 def remap(src, map_x, map_y, interpolation="linear", border="constant", border_value=0, *, out=None,
@@ -72,8 +71,8 @@ def remap(src, map_x, map_y, interpolation="linear", border="constant", border_v
     map_y = check_array(map_y, "map_y", shape=tuple(map_x.shape), dtypes=(np.float32,))
     if map_x.shape[0] == 0 or map_x.shape[1] == 0:
         raise _empty("map_x", map_x.shape)
-    interp = _mode(interpolation, "interpolation", INTERPOLATIONS)
-    bmode = _mode(border, "border", BORDERS)
+    interp = mode_code(interpolation, "interpolation", SAMPLER_INTERPOLATIONS)
+    bmode = mode_code(border, "border", SAMPLER_BORDERS)
     channels = 1 if src.ndim == 2 else src.shape[2]
     bval = _border_value(border_value)
     h, w = map_x.shape
@@ -132,8 +131,8 @@ def warp_perspective(src, M, dsize, interpolation="linear", inverse_map=False, b
     w, h = check_size(dsize, "dsize")
     if not isinstance(inverse_map, (bool, np.bool_)):
         raise WarpvxTypeError(f"inverse_map: expected a bool, got {type(inverse_map).__name__}")
-    interp = _mode(interpolation, "interpolation", INTERPOLATIONS)
-    bmode = _mode(border, "border", BORDERS)
+    interp = mode_code(interpolation, "interpolation", SAMPLER_INTERPOLATIONS)
+    bmode = mode_code(border, "border", SAMPLER_BORDERS)
     channels = 1 if src.ndim == 2 else src.shape[2]
     bval = _border_value(border_value)
     _check_out(out, (h, w) if channels == 1 else (h, w, channels))
@@ -163,19 +162,6 @@ def _dst_to_src(m: np.ndarray, inverse_map: bool) -> tuple:
             _coeffs.clear()
         _coeffs[key] = coeffs
     return coeffs
-
-
-def _mode(value, name, table):
-    """A mode given by name or cv2 integer, as the kernels' integer."""
-    t = type(value)
-    if t is str or t is int:  # the common spellings, looked up directly
-        mode = table.get(value.lower() if t is str else value)
-        if mode is not None:
-            return mode
-    if isinstance(value, bool) or not isinstance(value, (str, numbers.Integral)):
-        names = ", ".join(repr(k) for k in table if isinstance(k, str))
-        raise UnsupportedError(f"{name}: expected one of {names} or its cv2 integer, got {value!r}")
-    return check_choice(value.lower() if isinstance(value, str) else int(value), name, table)
 
 
 def _empty(name, shape):
