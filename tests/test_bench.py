@@ -77,9 +77,9 @@ def test_bad_size_is_an_error(tmp_path, capsys):
     assert "--sizes" in capsys.readouterr().err
 
 
-def test_time_call_batches():
+def test_time_per_call_s_batches():
     calls = []
-    per_call, batch = bench.time_call(lambda: calls.append(1), settings=bench.Settings.quick())
+    per_call, batch = bench.time_per_call_s(lambda: calls.append(1), settings=bench.Settings.quick())
     assert per_call > 0 and batch >= 1
     # warm-up + sizing call + repeat batches
     assert len(calls) == 1 + 1 + 3 * batch

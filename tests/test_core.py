@@ -102,6 +102,46 @@ def test_registry_knows_processing_elements():
         registry.get_primitive("does_not_exist")
 
 
+def test_registry_outputs_are_what_the_function_returns_and_the_graph_ports():
+    """A primitive's registered ``outputs`` name each value its public function returns (on a
+    real photo), and a graph node of it has exactly those output ports."""
+    img = gray("camera")
+    kps, desc = warpvx.orb(img, n_features=300, backend="cpu")
+    moved = np.ascontiguousarray(np.roll(img, (1, 2), axis=(0, 1)))
+    pts = np.stack([kps.x, kps.y], axis=1).astype(np.float32)
+    calls = {
+        "orb": ((img,), {"n_features": 300}),
+        "optical_flow_pyr_lk": ((img, moved, pts), {}),
+        "match_hamming": ((desc, desc[::-1].copy()), {}),
+        "knn_match_hamming": ((desc, desc[::-1].copy()), {"k": 2}),
+        "color_convert": ((np.dstack([img] * 3),), {"code": "BGR2GRAY"}),
+    }
+    for name, (args, kwargs) in calls.items():
+        prim = registry.get_primitive(name)
+        result = prim.function()(*args, **kwargs, backend="cpu")
+        if len(prim.outputs) == 1:
+            assert not isinstance(result, tuple), f"{name} returns several values"
+        else:
+            assert isinstance(result, tuple) and len(result) == len(prim.outputs), name
+        g = warpvx.Graph(f"ports_{name}")
+        data = [g.input(f"in{i}", value=a) for i, a in enumerate(args)]
+        out = g.add(name, *data, **kwargs)
+        node = (out[0] if isinstance(out, tuple) else out).producer
+        assert tuple(node.outputs) == prim.outputs, name
+
+
+def test_sized_by_inputs_primitives_take_out():
+    """The graph preallocates ``out=`` only for primitives registered as sized by their inputs:
+    each of those must take ``out``, and the data-dependent ones must not be marked."""
+    import inspect
+
+    sized = {n for n, p in registry.REGISTRY.items() if p.sized_by_inputs}
+    for name in sized:
+        assert "out" in inspect.signature(registry.get_primitive(name).function()).parameters, name
+    assert not sized & {"fast_corners", "harris_corners", "orb", "orb_compute", "match_hamming",
+                        "knn_match_hamming", "optical_flow_pyr_lk"}
+
+
 def test_dispatch_output_kind_follows_input(backend, invert):
     img = gray("camera")
     expected = 255 - img

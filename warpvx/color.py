@@ -23,11 +23,10 @@ import numbers
 import numpy as np
 
 from ._color_codes import _SPECS, ColorCode, code_spec, output_shape  # noqa: F401
-from .arrays import to_warp
 from .backend import resolve_backend
 from .check import check_array, check_image
 from .errors import ShapeError, UnsupportedError
-from .registry import BenchCase, dispatch
+from .registry import dispatch
 
 
 #: Accepted names (without the ``COLOR_`` prefix) and their cv2 integer codes.
@@ -117,83 +116,3 @@ def color_convert(src, code, *, out=None, backend=None, stream=None):
     if out is not None:
         check_array(out, "out", shape=output_shape(c, tuple(src.shape)), dtypes=(np.uint8,))
     return dispatch("color_convert", be, src, c, out=out, stream=stream)
-
-
-# --- benchmark cases ------------------------------------------------------------------------
-
-
-def bgr_to_nv12(image_bgr: np.ndarray) -> np.ndarray:
-    """An NV12 plane ((H*3/2) x W) of a BGR image cropped to even size (OpenCV's encoder)."""
-    import cv2
-
-    h, w = image_bgr.shape[0] & ~1, image_bgr.shape[1] & ~1
-    i420 = cv2.cvtColor(np.ascontiguousarray(image_bgr[:h, :w]), cv2.COLOR_BGR2YUV_I420)
-    flat = i420.ravel()  # Y plane, then the U and V planes of (H/2)*(W/2) bytes each
-    q = (h // 2) * (w // 2)
-    u = flat[h * w:h * w + q].reshape(h // 2, w // 2)
-    v = flat[h * w + q:].reshape(h // 2, w // 2)
-    uv = np.stack([u, v], axis=-1).reshape(h // 2, w)
-    return np.ascontiguousarray(np.vstack([i420[:h], uv]))
-
-
-def bench_cases_color_convert(image_bgr: np.ndarray) -> list[BenchCase]:
-    """BGR2GRAY, BGR2RGB and NV12->BGR on a real photo (NV12 made from it)."""
-    import cv2
-
-    nv12 = bgr_to_nv12(image_bgr)
-    cases = []
-    for label, src_host, code in (
-        ("BGR2GRAY", image_bgr, cv2.COLOR_BGR2GRAY),
-        ("BGR2RGB", image_bgr, cv2.COLOR_BGR2RGB),
-        ("YUV2BGR_NV12", nv12, cv2.COLOR_YUV2BGR_NV12),
-    ):
-        cases.append(_color_case(label, src_host, code))
-    return cases
-
-
-def _color_case(label, src_host, code) -> BenchCase:
-    import cv2
-
-    out_shape = output_shape(code, src_host.shape)
-    h, w = out_shape[0], out_shape[1]
-
-    def prepare(backend_name):
-        be = resolve_backend(backend_name)
-        src = src_host if be.kind == "cpu" else to_warp(src_host, be.device)
-        host_out = np.empty(out_shape, np.uint8)
-        out = host_out if be.kind == "cpu" else to_warp(host_out, be.device)
-        return lambda: color_convert(src, code, out=out, backend=be)
-
-    def opencv():
-        dst = np.empty(out_shape, np.uint8)
-        return lambda: cv2.cvtColor(src_host, code, dst=dst)
-
-    def cvcuda_peer():
-        import cvcuda
-        import torch
-
-        t = torch.from_numpy(src_host).cuda()
-        t = t[None] if t.ndim == 3 else t[None, :, :, None]
-        src = cvcuda.as_tensor(t.contiguous(), "NHWC")
-        c = 1 if len(out_shape) == 2 else out_shape[2]
-        dst = cvcuda.as_tensor(torch.empty((1, h, w, c), dtype=torch.uint8, device="cuda"), "NHWC")
-        cv_code = getattr(cvcuda.ColorConversion, label)
-        return lambda: cvcuda.cvtcolor_into(dst, src, cv_code)
-
-    def kornia_peer():
-        import kornia
-        import torch
-
-        if label == "YUV2BGR_NV12":
-            y = torch.from_numpy(src_host[:h]).cuda().float().div(255)[None, None]
-            uv = torch.from_numpy(src_host[h:].reshape(h // 2, w // 2, 2)).cuda().float()
-            uv = uv.permute(2, 0, 1)[None].div(255).sub(0.5).contiguous()
-            return lambda: kornia.color.yuv420_to_rgb(y, uv).flip(1)
-        img = torch.from_numpy(src_host).cuda().permute(2, 0, 1)[None].float().div(255).contiguous()
-        if label == "BGR2GRAY":
-            return lambda: kornia.color.bgr_to_grayscale(img)
-        return lambda: kornia.color.bgr_to_rgb(img)
-
-    nbytes = src_host.nbytes + int(np.prod(out_shape))
-    peers = {"cvcuda": cvcuda_peer, "kornia": kornia_peer}
-    return BenchCase("color_convert", label, (w, h), prepare, opencv, peers, nbytes)

@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arrays import is_warp_array, to_warp
 from .backend import resolve_backend
 from .check import check_array, check_choice, check_float, check_image, check_int
 from .errors import WarpvxTypeError
 from .keypoints import Keypoints
-from .registry import BenchCase, dispatch
+from .registry import dispatch
 
 KSIZES = (1, 3, 5, 7)
 SCORES = ("harris", "min_eigen")
@@ -194,95 +193,8 @@ def harris_corners(src, max_corners: int = 1000, quality_level: float = 0.01,
                     block_size, k, ksize=ksize, score=score, stream=stream)
 
 
-# --- benchmark cases -------------------------------------------------------------------------
-
-def _bench_gray(image_bgr: np.ndarray) -> np.ndarray:
-    import cv2
-
-    return np.ascontiguousarray(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY))
-
-
-def _on_backend(gray: np.ndarray, backend_name: str):
-    be = resolve_backend(backend_name)
-    return gray if be.kind == "cpu" else to_warp(gray, be.device)
-
-
-def bench_cases_fast_corners(image_bgr: np.ndarray) -> list[BenchCase]:
-    """FAST-9/16 at threshold 20 with NMS; OpenCV's FastFeatureDetector beside it."""
-    gray = _bench_gray(image_bgr)
-    h, w = gray.shape
-
-    def prepare(backend_name):
-        src = _on_backend(gray, backend_name)
-        return lambda: fast_corners(src, 20, True, backend=backend_name)
-
-    def opencv():
-        import cv2
-
-        det = cv2.FastFeatureDetector_create(20, True)
-        return lambda: det.detect(gray)
-
-    return [BenchCase("fast_corners", "threshold 20, nonmax", (w, h), prepare, opencv,
-                      bytes_moved=h * w)]
-
-
-def bench_cases_harris_response(image_bgr: np.ndarray) -> list[BenchCase]:
-    """Harris response, block 2, Sobel 3; OpenCV's cornerHarris (and Kornia) beside it."""
-    gray = _bench_gray(image_bgr)
-    h, w = gray.shape
-
-    def prepare(backend_name):
-        src = _on_backend(gray, backend_name)
-        if is_warp_array(src):
-            from .backend import init_warp
-
-            out = init_warp().empty((h, w), dtype=init_warp().float32, device=src.device)
-        else:
-            out = np.empty((h, w), np.float32)
-        return lambda: harris_response(src, 2, 3, 0.04, out=out, backend=backend_name)
-
-    def opencv():
-        import cv2
-
-        dst = np.empty((h, w), np.float32)
-        return lambda: cv2.cornerHarris(gray, 2, 3, 0.04, dst=dst)
-
-    def kornia_peer():
-        import kornia  # noqa: F401 - ImportError skips the peer
-        import torch
-
-        if not torch.cuda.is_available():
-            raise ImportError("kornia peer needs CUDA")
-        t = torch.from_numpy(gray).cuda().float().div_(255.0)[None, None]
-        return lambda: kornia.feature.harris_response(t, k=0.04, grads_mode="sobel")
-
-    return [BenchCase("harris_response", "block 2, ksize 3", (w, h), prepare, opencv,
-                      peers={"kornia": kornia_peer}, bytes_moved=h * w * 5)]
-
-
-def bench_cases_harris_corners(image_bgr: np.ndarray) -> list[BenchCase]:
-    """goodFeaturesToTrack (Harris, 1000 corners, quality 0.01, distance 10, block 3)."""
-    gray = _bench_gray(image_bgr)
-    h, w = gray.shape
-
-    def prepare(backend_name):
-        src = _on_backend(gray, backend_name)
-        return lambda: harris_corners(src, 1000, 0.01, 10, 3, 0.04, backend=backend_name)
-
-    def opencv():
-        import cv2
-
-        return lambda: cv2.goodFeaturesToTrack(gray, 1000, 0.01, 10, blockSize=3,
-                                               useHarrisDetector=True, k=0.04)
-
-    return [BenchCase("harris_corners", "max 1000, Harris", (w, h), prepare, opencv)]
-
-
 __all__ = [
     "fast_corners",
     "harris_response",
     "harris_corners",
-    "bench_cases_fast_corners",
-    "bench_cases_harris_response",
-    "bench_cases_harris_corners",
 ]

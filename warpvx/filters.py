@@ -2,21 +2,14 @@
 
 from __future__ import annotations
 
-import numbers
-
 import numpy as np
 
-from .arrays import to_warp
 from .backend import resolve_backend
-from .check import check_array, check_choice, check_float, check_image, check_int
+from .check import check_array, check_float, check_image, check_int
 from .errors import UnsupportedError, WarpvxTypeError
-from .registry import BenchCase, dispatch
+from .modes import FILTER_BORDERS, mode_code
+from .registry import dispatch
 
-#: Border names (and cv2's integer codes) accepted by :func:`gaussian_blur`.
-BORDERS = {
-    "constant": 0, "replicate": 1, "reflect": 2, "reflect101": 4, "reflect_101": 4,
-    0: 0, 1: 1, 2: 2, 4: 4,
-}
 MAX_KSIZE = 31
 
 
@@ -67,18 +60,10 @@ def gaussian_blur(src, ksize, sigma, border="reflect101", *, out=None, backend=N
     sx, sy = _sigma(sigma)
     if sy == 0:
         sy = sx
-    code = border_code(border)
+    code = mode_code(border, "border", FILTER_BORDERS)
     if out is not None:
         check_array(out, "out", shape=tuple(src.shape), dtypes=(np.uint8,))
     return dispatch("gaussian_blur", be, src, (kx, ky), (sx, sy), code, out=out, stream=stream)
-
-
-def border_code(border) -> int:
-    """cv2's integer code of a border given by name or code (see :data:`BORDERS`)."""
-    if isinstance(border, bool) or not isinstance(border, (str, numbers.Integral)):
-        names = ", ".join(repr(k) for k in BORDERS if isinstance(k, str))
-        raise UnsupportedError(f"border: expected one of {names} or its cv2 integer, got {border!r}")
-    return check_choice(border.lower() if isinstance(border, str) else int(border), "border", BORDERS)
 
 
 def _ksize(ksize) -> tuple[int, int]:
@@ -114,75 +99,3 @@ def _as_hw(src):
     if src.ndim == 3 and src.shape[2] == 1:
         return src.reshape((src.shape[0], src.shape[1]))
     return src
-
-
-# --- benchmark cases ------------------------------------------------------------------------
-
-
-def bench_cases_gaussian_blur(image_bgr: np.ndarray) -> list[BenchCase]:
-    """5x5 sigma 1 (gray, BGR) and ORB's 7x7 sigma 2 (gray) blurs of ``image_bgr``'s size."""
-    import cv2
-
-    gray = np.ascontiguousarray(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY))
-    h, w = gray.shape
-    cases = []
-    for label, img, k, s in (
-        ("5x5 s1 gray", gray, 5, 1.0),
-        ("7x7 s2 gray (ORB)", gray, 7, 2.0),
-        ("5x5 s1 BGR", np.ascontiguousarray(image_bgr), 5, 1.0),
-    ):
-        cases.append(BenchCase(
-            primitive="gaussian_blur",
-            label=label,
-            size=(w, h),
-            prepare=_prepare_blur(img, k, s),
-            opencv=_opencv_blur(img, k, s),
-            peers={"cvcuda": _cvcuda_blur(img, k, s), "kornia": _kornia_blur(img, k, s)},
-            bytes_moved=2 * img.nbytes,
-        ))
-    return cases
-
-
-def _prepare_blur(img, k, s):
-    def prepare(backend):
-        if backend == "cpu":
-            src = img
-            out = np.empty_like(img)
-        else:
-            dev = resolve_backend(backend).device
-            src = to_warp(img, dev)
-            out = to_warp(np.empty_like(img), dev)
-        return lambda: gaussian_blur(src, k, s, out=out, backend=backend)
-    return prepare
-
-
-def _opencv_blur(img, k, s):
-    def prepare():
-        import cv2
-
-        dst = np.empty_like(img)
-        return lambda: cv2.GaussianBlur(img, (k, k), s, dst=dst, borderType=cv2.BORDER_REFLECT_101)
-    return prepare
-
-
-def _cvcuda_blur(img, k, s):
-    def prepare():
-        import cvcuda
-        import torch
-
-        t = torch.from_numpy(img.reshape(1, img.shape[0], img.shape[1], -1)).cuda()
-        src = cvcuda.as_tensor(t, "NHWC")
-        dst = cvcuda.as_tensor(torch.empty_like(t), "NHWC")
-        return lambda: cvcuda.gaussian_into(dst, src, (k, k), (s, s), cvcuda.Border.REFLECT101)
-    return prepare
-
-
-def _kornia_blur(img, k, s):
-    def prepare():
-        import kornia
-        import torch
-
-        t = torch.from_numpy(img.reshape(img.shape[0], img.shape[1], -1)).cuda()
-        x = t.permute(2, 0, 1)[None].float()
-        return lambda: kornia.filters.gaussian_blur2d(x, (k, k), (s, s), border_type="reflect")
-    return prepare

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arrays import to_warp
 from .backend import resolve_backend
 from .check import check_array, check_float, check_image, check_int, check_size
 from .errors import ShapeError, WarpvxValueError
-from .registry import BenchCase, dispatch
+from .registry import dispatch
 
 MAX_ITERS_LIMIT = 100  # OpenCV clamps the iteration count to [0, 100] ...
 EPS_LIMIT = 10.0  # ... and the step threshold to [0, 10]
@@ -178,63 +177,6 @@ def build_optical_flow_pyramid(img, win_size=(21, 21), max_level=3, *, backend=N
     return _pyramid(img, levels, be, stream)
 
 
-def bench_cases_optical_flow_pyr_lk(image_bgr: np.ndarray) -> list[BenchCase]:
-    """1000 Shi-Tomasi corners tracked between the gray photo and a slightly rotated and
-    shifted copy (0.4 degrees, (1.7, -1.2) px), 21x21 window, ``max_level=3``.
-
-    Two rows: both frames as images (each call builds both pyramids, as OpenCV does), and a
-    video loop's step (the previous frame's pyramid is kept, the new frame's is built in
-    the call). OpenCV's ``calcOpticalFlowPyrLK`` on the same data beside both.
-    """
-    import cv2
-
-    gray = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
-    h, w = gray.shape
-    m = cv2.getRotationMatrix2D((w / 2.0, h / 2.0), 0.4, 1.0)
-    m[:, 2] += (1.7, -1.2)
-    moved = cv2.warpAffine(gray, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
-    pts = cv2.goodFeaturesToTrack(gray, 1000, 0.01, 5).reshape(-1, 2).astype(np.float32)
-    win, max_level = (21, 21), 3
-    label = f"{len(pts)} pts, 21x21, max_level 3"
-
-    def on_device(backend_name):
-        be = resolve_backend(backend_name)
-        if be.kind == "cpu":
-            return be, gray, moved, pts
-        return be, to_warp(gray, be.device), to_warp(moved, be.device), to_warp(pts, be.device)
-
-    def prepare_images(backend_name):
-        be, a, b, p = on_device(backend_name)
-        n = p.shape[0]
-        out = _alloc_out(be, n)
-        return lambda: optical_flow_pyr_lk(a, b, p, None, win, max_level, out=out, backend=be)
-
-    def prepare_video(backend_name):
-        be, a, b, p = on_device(backend_name)
-        prev_pyr = build_optical_flow_pyramid(a, win, max_level, backend=be)
-        out = _alloc_out(be, p.shape[0])
-
-        def step():
-            next_pyr = build_optical_flow_pyramid(b, win, max_level, backend=be)
-            return optical_flow_pyr_lk(prev_pyr, next_pyr, p, None, win, max_level, out=out, backend=be)
-
-        return step
-
-    def opencv():
-        p = pts.reshape(-1, 1, 2)
-        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
-        return lambda: cv2.calcOpticalFlowPyrLK(
-            gray, moved, p, None, winSize=win, maxLevel=max_level, criteria=criteria
-        )
-
-    return [
-        BenchCase("optical_flow_pyr_lk", label, (w, h), prepare_images, opencv=opencv),
-        BenchCase(
-            "optical_flow_pyr_lk", label + ", video loop (one new pyramid)", (w, h), prepare_video, opencv=opencv
-        ),
-    ]
-
-
 # ---------------------------------------------------------------------------------------------
 # helpers
 
@@ -320,18 +262,6 @@ def _check_out(out, n):
         check_array(pts, "out[0] (next_pts)", shape=(n, 2), dtypes=(np.float32,)),
         check_array(status, "out[1] (status)", shape=(n,), dtypes=(np.uint8,)),
         check_array(err, "out[2] (err)", shape=(n,), dtypes=(np.float32,)),
-    )
-
-
-def _alloc_out(be, n):
-    if be.kind == "cpu":
-        return np.empty((n, 2), np.float32), np.empty(n, np.uint8), np.empty(n, np.float32)
-    import warp as wp
-
-    return (
-        wp.empty((n, 2), dtype=wp.float32, device=be.device),
-        wp.empty(n, dtype=wp.uint8, device=be.device),
-        wp.empty(n, dtype=wp.float32, device=be.device),
     )
 
 

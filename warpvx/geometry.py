@@ -13,14 +13,12 @@ import numbers
 
 import numpy as np
 
-from .arrays import to_warp
 from .backend import resolve_backend
-from .check import check_array, check_choice, check_float, check_image, check_matrix, check_size
-from .errors import ShapeError, UnsupportedError, WarpvxTypeError
-from .registry import BenchCase, dispatch
+from .check import check_array, check_float, check_image, check_matrix, check_size
+from .errors import ShapeError, WarpvxTypeError
+from .modes import SAMPLER_BORDERS, SAMPLER_INTERPOLATIONS, mode_code
+from .registry import dispatch
 
-INTERPOLATIONS = {"nearest": 0, "linear": 1, 0: 0, 1: 1}
-BORDERS = {"constant": 0, "replicate": 1, "reflect101": 4, "reflect_101": 4, 0: 0, 1: 1, 4: 4}
 
 
 def remap(src, map_x, map_y, interpolation="linear", border="constant", border_value=0, *, out=None,
@@ -73,8 +71,8 @@ def remap(src, map_x, map_y, interpolation="linear", border="constant", border_v
     map_y = check_array(map_y, "map_y", shape=tuple(map_x.shape), dtypes=(np.float32,))
     if map_x.shape[0] == 0 or map_x.shape[1] == 0:
         raise _empty("map_x", map_x.shape)
-    interp = _mode(interpolation, "interpolation", INTERPOLATIONS)
-    bmode = _mode(border, "border", BORDERS)
+    interp = mode_code(interpolation, "interpolation", SAMPLER_INTERPOLATIONS)
+    bmode = mode_code(border, "border", SAMPLER_BORDERS)
     channels = 1 if src.ndim == 2 else src.shape[2]
     bval = _border_value(border_value)
     h, w = map_x.shape
@@ -133,8 +131,8 @@ def warp_perspective(src, M, dsize, interpolation="linear", inverse_map=False, b
     w, h = check_size(dsize, "dsize")
     if not isinstance(inverse_map, (bool, np.bool_)):
         raise WarpvxTypeError(f"inverse_map: expected a bool, got {type(inverse_map).__name__}")
-    interp = _mode(interpolation, "interpolation", INTERPOLATIONS)
-    bmode = _mode(border, "border", BORDERS)
+    interp = mode_code(interpolation, "interpolation", SAMPLER_INTERPOLATIONS)
+    bmode = mode_code(border, "border", SAMPLER_BORDERS)
     channels = 1 if src.ndim == 2 else src.shape[2]
     bval = _border_value(border_value)
     _check_out(out, (h, w) if channels == 1 else (h, w, channels))
@@ -164,19 +162,6 @@ def _dst_to_src(m: np.ndarray, inverse_map: bool) -> tuple:
             _coeffs.clear()
         _coeffs[key] = coeffs
     return coeffs
-
-
-def _mode(value, name, table):
-    """A mode given by name or cv2 integer, as the kernels' integer."""
-    t = type(value)
-    if t is str or t is int:  # the common spellings, looked up directly
-        mode = table.get(value.lower() if t is str else value)
-        if mode is not None:
-            return mode
-    if isinstance(value, bool) or not isinstance(value, (str, numbers.Integral)):
-        names = ", ".join(repr(k) for k in table if isinstance(k, str))
-        raise UnsupportedError(f"{name}: expected one of {names} or its cv2 integer, got {value!r}")
-    return check_choice(value.lower() if isinstance(value, str) else int(value), name, table)
 
 
 def _empty(name, shape):
@@ -226,121 +211,3 @@ def _saturated_border_value(value) -> tuple:
 def _check_out(out, shape):
     if out is not None:
         check_array(out, "out", shape=shape, dtypes=(np.uint8,))
-
-
-# --- benchmark cases ------------------------------------------------------------------------
-
-
-def undistort_maps(width: int, height: int):
-    """float32 (map_x, map_y) undistorting a plausible wide-angle camera (for benchmarks/tests):
-    focal 0.8*width, centre slightly off, k1 = -0.28, k2 = 0.08, small tangential terms."""
-    import cv2
-
-    k = np.array([[0.8 * width, 0, width / 2 + 3.5], [0, 0.8 * width, height / 2 - 2.25], [0, 0, 1]])
-    dist = np.array([-0.28, 0.08, 1e-3, -5e-4, 0.0])
-    return cv2.initUndistortRectifyMap(k, dist, None, k, (width, height), cv2.CV_32FC1)
-
-
-def mild_homography(width: int, height: int) -> np.ndarray:
-    """A mild src->dst homography (small rotation, scale, shear and perspective)."""
-    a = np.deg2rad(3.0)
-    return np.array([
-        [1.02 * np.cos(a), -np.sin(a), 0.03 * width],
-        [np.sin(a), 0.98 * np.cos(a), -0.02 * height],
-        [2e-5, -3e-5, 1.0],
-    ])
-
-
-def _place(x, be):
-    return x if be.kind == "cpu" else to_warp(x, be.device)
-
-
-def bench_cases_remap(image_bgr: np.ndarray) -> list[BenchCase]:
-    """Bilinear remap of a BGR photo through lens-undistortion maps, constant border."""
-    import cv2
-
-    h, w = image_bgr.shape[:2]
-    map_x, map_y = undistort_maps(w, h)
-
-    def prepare(backend_name):
-        be = resolve_backend(backend_name)
-        src, mx, my = (_place(a, be) for a in (image_bgr, map_x, map_y))
-        out = _place(np.empty_like(image_bgr), be)
-        return lambda: remap(src, mx, my, "linear", "constant", 0, out=out, backend=be)
-
-    def opencv():
-        dst = np.empty_like(image_bgr)
-        return lambda: cv2.remap(image_bgr, map_x, map_y, cv2.INTER_LINEAR, dst=dst,
-                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-
-    def cvcuda_peer():
-        import cvcuda
-        import torch
-
-        src = cvcuda.as_tensor(torch.from_numpy(image_bgr).cuda()[None], "NHWC")
-        grid = torch.from_numpy(np.stack([map_x, map_y], -1)).cuda()[None].contiguous()
-        mp = cvcuda.as_tensor(grid, "NHWC")
-        dst = cvcuda.as_tensor(torch.empty((1, h, w, 3), dtype=torch.uint8, device="cuda"), "NHWC")
-        zero = np.zeros(4, np.float32)
-        return lambda: cvcuda.remap_into(dst, src, mp, src_interp=cvcuda.Interp.LINEAR,
-                                         map_interp=cvcuda.Interp.NEAREST,
-                                         map_type=cvcuda.Remap.ABSOLUTE, align_corners=False,
-                                         border=cvcuda.Border.CONSTANT, border_value=zero)
-
-    def kornia_peer():
-        import kornia
-        import torch
-
-        img = torch.from_numpy(image_bgr).cuda().permute(2, 0, 1)[None].float().contiguous()
-        mx = torch.from_numpy(map_x).cuda()[None]
-        my = torch.from_numpy(map_y).cuda()[None]
-        return lambda: kornia.geometry.transform.remap(img, mx, my, mode="bilinear",
-                                                       padding_mode="zeros", align_corners=True)
-
-    nbytes = image_bgr.nbytes * 2 + map_x.nbytes + map_y.nbytes
-    return [BenchCase("remap", "undistort linear", (w, h), prepare, opencv,
-                      {"cvcuda": cvcuda_peer, "kornia": kornia_peer}, nbytes)]
-
-
-def bench_cases_warp_perspective(image_bgr: np.ndarray) -> list[BenchCase]:
-    """Bilinear perspective warp of a BGR photo through a mild homography, same size."""
-    import cv2
-
-    h, w = image_bgr.shape[:2]
-    m = mild_homography(w, h)
-
-    def prepare(backend_name):
-        be = resolve_backend(backend_name)
-        src = _place(image_bgr, be)
-        out = _place(np.empty_like(image_bgr), be)
-        return lambda: warp_perspective(src, m, (w, h), "linear", out=out, backend=be)
-
-    def opencv():
-        dst = np.empty_like(image_bgr)
-        return lambda: cv2.warpPerspective(image_bgr, m, (w, h), dst=dst, flags=cv2.INTER_LINEAR)
-
-    def cvcuda_peer():
-        import cvcuda
-        import torch
-
-        src = cvcuda.as_tensor(torch.from_numpy(image_bgr).cuda()[None], "NHWC")
-        dst = cvcuda.as_tensor(torch.empty((1, h, w, 3), dtype=torch.uint8, device="cuda"), "NHWC")
-        xform = m.astype(np.float32)
-        zero = np.zeros(4, np.float32)
-        flags = int(cvcuda.Interp.LINEAR)
-        return lambda: cvcuda.warp_perspective_into(dst, src, xform, flags,
-                                                    border_mode=cvcuda.Border.CONSTANT,
-                                                    border_value=zero)
-
-    def kornia_peer():
-        import kornia
-        import torch
-
-        img = torch.from_numpy(image_bgr).cuda().permute(2, 0, 1)[None].float().contiguous()
-        mt = torch.from_numpy(m).float().cuda()[None]
-        return lambda: kornia.geometry.transform.warp_perspective(img, mt, (h, w), mode="bilinear",
-                                                                  padding_mode="zeros",
-                                                                  align_corners=True)
-
-    return [BenchCase("warp_perspective", "mild homography linear", (w, h), prepare, opencv,
-                      {"cvcuda": cvcuda_peer, "kornia": kornia_peer}, image_bgr.nbytes * 2)]

@@ -11,11 +11,10 @@ import numbers
 
 import numpy as np
 
-from .arrays import to_warp
 from .backend import resolve_backend
 from .check import check_array, check_float, check_int
 from .errors import ShapeError, UnsupportedError, WarpvxTypeError
-from .registry import BenchCase, dispatch
+from .registry import dispatch
 
 def _descriptors(desc1, desc2) -> tuple:
     desc1 = check_array(desc1, "desc1", dtypes=(np.uint8,), ndim=2)
@@ -118,47 +117,4 @@ def knn_match_hamming(desc1, desc2, k: int = 2, *, backend=None, stream=None) ->
     return dispatch("knn_match_hamming", be, desc1, desc2, k, stream=stream)
 
 
-# --- benchmark cases -------------------------------------------------------------------------
-
-def _bench_descriptors(image_bgr: np.ndarray, n: int = 2000) -> tuple:
-    """ORB descriptors of the photo and of a rotated (10 deg), scaled (0.9) copy of it."""
-    import cv2
-
-    gray = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
-    h, w = gray.shape
-    m = cv2.getRotationMatrix2D((w / 2, h / 2), 10, 0.9)
-    other = cv2.warpAffine(gray, m, (w, h), flags=cv2.INTER_LINEAR)
-    orb = cv2.ORB_create(n)
-    _, d1 = orb.detectAndCompute(gray, None)
-    _, d2 = orb.detectAndCompute(other, None)
-    return np.ascontiguousarray(d1), np.ascontiguousarray(d2)
-
-
-def bench_cases_match_hamming(image_bgr: np.ndarray) -> list[BenchCase]:
-    """2000 x 2000 real ORB descriptors; cv2.BFMatcher(NORM_HAMMING) beside it."""
-    d1, d2 = _bench_descriptors(image_bgr)
-    h, w = image_bgr.shape[:2]
-
-    def on(backend_name, a):
-        be = resolve_backend(backend_name)
-        return a if be.kind == "cpu" else to_warp(a, be.device)
-
-    def cases(cross_check):
-        def prepare(backend_name):
-            q, t = on(backend_name, d1), on(backend_name, d2)
-            return lambda: match_hamming(q, t, cross_check, backend=backend_name)
-
-        def opencv():
-            import cv2
-
-            bf = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=cross_check)
-            return lambda: bf.match(d1, d2)
-
-        label = f"{d1.shape[0]}x{d2.shape[0]}" + (" cross check" if cross_check else "")
-        return BenchCase("match_hamming", label, (w, h), prepare, opencv,
-                         bytes_moved=(d1.size + d2.size))
-
-    return [cases(False), cases(True)]
-
-
-__all__ = ["match_hamming", "knn_match_hamming", "bench_cases_match_hamming"]
+__all__ = ["match_hamming", "knn_match_hamming"]

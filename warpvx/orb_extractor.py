@@ -12,13 +12,12 @@ import functools
 import numpy as np
 
 from ._orb_spec import DESCRIPTOR_BYTES, MAX_SIDE, MIN_LEVEL_SIZE
-from .arrays import to_warp
 from .backend import resolve_backend
 from .check import check_array, check_float, check_image, check_int
 from .errors import ShapeError, WarpvxTypeError, WarpvxValueError
 from .keypoints import Keypoints
 from .pyramid import scale_pyramid_sizes
-from .registry import BenchCase, dispatch
+from .registry import dispatch
 
 # Level sizes of a (width, height, levels, scale) (validation runs on every call).
 _level_sizes = functools.lru_cache(maxsize=256)(scale_pyramid_sizes)
@@ -195,33 +194,4 @@ def orb_compute(src, keypoints, scale_factor: float = 1.2, *, out=None, backend=
                     stream=stream)
 
 
-# --- benchmark cases -------------------------------------------------------------------------
-
-def bench_cases_orb(image_bgr: np.ndarray) -> list[BenchCase]:
-    """ORB-SLAM2 extraction, 2000 features at 1.2 over 8 levels (fewer on an image too small
-    for 8); ``cv2.ORB_create(2000, 1.2, levels).detectAndCompute`` beside it. The harness runs
-    it at 1920x1080 and at KITTI's 1241x376."""
-    import cv2
-
-    gray = np.ascontiguousarray(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY))
-    h, w = gray.shape
-    levels = 8
-    while levels > 1 and min(scale_pyramid_sizes(w, h, levels, 1.2)[-1]) < MIN_LEVEL_SIZE:
-        levels -= 1
-    if min(h, w) < MIN_LEVEL_SIZE:
-        return []
-
-    def prepare(backend_name):
-        be = resolve_backend(backend_name)
-        src = gray if be.kind == "cpu" else to_warp(gray, be.device)
-        return lambda: orb(src, 2000, 1.2, levels, 20, 7, backend=backend_name)
-
-    def opencv():
-        det = cv2.ORB_create(2000, 1.2, levels)
-        return lambda: det.detectAndCompute(gray, None)
-
-    return [BenchCase("orb", f"2000 features, {levels} levels", (w, h), prepare, opencv,
-                      bytes_moved=h * w)]
-
-
-__all__ = ["orb", "orb_compute", "bench_cases_orb"]
+__all__ = ["orb", "orb_compute"]

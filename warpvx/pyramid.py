@@ -7,11 +7,10 @@ from __future__ import annotations
 import numpy as np
 
 from ._pyramid_sizes import gaussian_pyramid_sizes, resize_scales, scale_pyramid_sizes  # noqa: F401
-from .arrays import to_warp
 from .backend import resolve_backend
 from .check import check_array, check_float, check_image, check_int, check_size
 from .errors import ShapeError, WarpvxTypeError, WarpvxValueError
-from .registry import BenchCase, dispatch
+from .registry import dispatch
 
 MAX_LEVELS = 64
 
@@ -227,127 +226,3 @@ def _check_pyramid_out(out, original, src, levels, sizes, *, flexible):
                         dtypes=(np.uint8,))
             got.append(sizes[lvl])
     return got
-
-
-# --- benchmark cases ------------------------------------------------------------------------
-
-
-def bench_cases_gaussian_pyramid(image_bgr: np.ndarray) -> list[BenchCase]:
-    """A 4-level gray pyramid (LK's) and one BGR pyrDown at ``image_bgr``'s size."""
-    import cv2
-
-    gray = np.ascontiguousarray(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY))
-    cases = []
-    for label, img, levels in (("4 levels gray (LK)", gray, 4),
-                               ("pyrDown BGR", np.ascontiguousarray(image_bgr), 2)):
-        h, w = img.shape[:2]
-        sizes = gaussian_pyramid_sizes(w, h, levels)
-        cases.append(BenchCase(
-            primitive="gaussian_pyramid",
-            label=label,
-            size=(w, h),
-            prepare=_prepare_pyramid(gaussian_pyramid, img, sizes, (levels,)),
-            opencv=_opencv_pyramid(img, sizes, "pyrdown"),
-            peers={"kornia": _kornia_pyramid(img, sizes, "pyrdown")},
-            bytes_moved=_pyramid_bytes(img, sizes),
-        ))
-    return cases
-
-
-def bench_cases_scale_pyramid(image_bgr: np.ndarray) -> list[BenchCase]:
-    """ORB-SLAM2's 8-level, 1.2 gray pyramid at ``image_bgr``'s size."""
-    import cv2
-
-    gray = np.ascontiguousarray(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY))
-    h, w = gray.shape
-    sizes = scale_pyramid_sizes(w, h, 8, 1.2)
-    return [BenchCase(
-        primitive="scale_pyramid",
-        label="8 levels x1.2 gray (ORB)",
-        size=(w, h),
-        prepare=_prepare_pyramid(scale_pyramid, gray, sizes, (8, 1.2)),
-        opencv=_opencv_pyramid(gray, sizes, "resize"),
-        peers={"cvcuda": _cvcuda_resize_pyramid(gray, sizes),
-               "kornia": _kornia_pyramid(gray, sizes, "resize")},
-        bytes_moved=_pyramid_bytes(gray, sizes),
-    )]
-
-
-def _level_shape(img, size):
-    return (size[1], size[0]) + tuple(img.shape[2:])
-
-
-def _pyramid_bytes(img, sizes) -> int:
-    per_pixel = img.nbytes // (img.shape[0] * img.shape[1])
-    areas = [w * h for w, h in sizes]
-    return per_pixel * sum(areas[i - 1] + areas[i] for i in range(1, len(areas)))
-
-
-def _prepare_pyramid(fn, img, sizes, args):
-    def prepare(backend):
-        if backend == "cpu":
-            src = img
-            out = [src] + [np.empty(_level_shape(img, s), np.uint8) for s in sizes[1:]]
-        else:
-            dev = resolve_backend(backend).device
-            src = to_warp(img, dev)
-            out = [src] + [to_warp(np.empty(_level_shape(img, s), np.uint8), dev) for s in sizes[1:]]
-        return lambda: fn(src, *args, out=out, backend=backend)
-    return prepare
-
-
-def _opencv_pyramid(img, sizes, kind):
-    def prepare():
-        import cv2
-
-        bufs = [np.empty(_level_shape(img, s), np.uint8) for s in sizes[1:]]
-
-        def run():
-            prev = img
-            for s, dst in zip(sizes[1:], bufs):
-                if kind == "pyrdown":
-                    prev = cv2.pyrDown(prev, dst=dst, dstsize=s)
-                else:
-                    prev = cv2.resize(prev, s, dst=dst, interpolation=cv2.INTER_LINEAR)
-            return prev
-        return run
-    return prepare
-
-
-def _cvcuda_resize_pyramid(img, sizes):
-    def prepare():
-        import cvcuda
-        import torch
-
-        t = torch.from_numpy(img.reshape(1, img.shape[0], img.shape[1], -1)).cuda()
-        levels = [cvcuda.as_tensor(t, "NHWC")]
-        for w, h in sizes[1:]:
-            levels.append(cvcuda.as_tensor(torch.empty((1, h, w, t.shape[3]), dtype=torch.uint8,
-                                                       device="cuda"), "NHWC"))
-
-        def run():
-            for i in range(1, len(levels)):
-                cvcuda.resize_into(levels[i], levels[i - 1], cvcuda.Interp.LINEAR)
-        return run
-    return prepare
-
-
-def _kornia_pyramid(img, sizes, kind):
-    def prepare():
-        import kornia
-        import torch
-
-        t = torch.from_numpy(img.reshape(img.shape[0], img.shape[1], -1)).cuda()
-        x = t.permute(2, 0, 1)[None].float()
-
-        def run():
-            prev = x
-            for w, h in sizes[1:]:
-                if kind == "pyrdown":
-                    prev = kornia.geometry.transform.pyrdown(prev, border_type="reflect")
-                else:
-                    prev = kornia.geometry.transform.resize(prev, (h, w), interpolation="bilinear",
-                                                            antialias=False)
-            return prev
-        return run
-    return prepare

@@ -1,9 +1,11 @@
-"""The one registry of primitives: implementations, processing elements, benchmark cases.
+"""The one registry of primitives: implementations, output ports, size rule, benchmark cases.
 
 Each primitive names its public function and its implementations as ``"module:function"``
 strings, imported lazily so ``import warpvx`` stays light (no Warp import, no JIT) and the
 CPU path works without touching Warp. The scheduler reads :attr:`Primitive.processing_elements`
-and :attr:`Primitive.exclusive`; the benchmark harness reads :attr:`Primitive.bench`.
+and :attr:`Primitive.exclusive`; the graph reads :attr:`Primitive.outputs` (its nodes' output
+ports) and :attr:`Primitive.sized_by_inputs` (whether it may preallocate ``out=``); the
+benchmark harness reads :attr:`Primitive.bench` (``warpvx.bench.cases.<name>:cases``).
 
 Public functions validate their arguments once, then call :func:`dispatch`, which converts the
 inputs to what the chosen implementation takes (NumPy for ``"cpu"``, ``wp.array`` on the
@@ -44,14 +46,23 @@ class Primitive:
         ``{"cpu": "module:function", "warp": "module:function"}``; a missing key means no
         implementation of that kind (an *exclusive* primitive, thesis §5.1).
     bench : str or None
-        ``"module:function"`` returning benchmark cases for an input image (see
-        :class:`BenchCase`).
+        ``"module:function"`` returning benchmark cases for a BGR photo (a list of
+        :class:`warpvx.bench.cases.BenchCase`).
+    outputs : tuple of str
+        Names of what the public function returns, in order: one name (default ``"out"``)
+        for a single value, several for a tuple. A graph node's output ports.
+    sized_by_inputs : bool
+        True when the public function takes ``out=`` and returns one array whose shape and
+        dtype follow from its inputs' shapes and its constant arguments, never from pixel
+        values: a graph may then allocate that array once and reuse it frame after frame.
     """
 
     name: str
     public: str
     impls: dict = field(default_factory=dict)
     bench: str | None = None
+    outputs: tuple = ("out",)
+    sized_by_inputs: bool = False
     _loaded: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def implementation(self, kind: str) -> Callable:
@@ -85,49 +96,20 @@ class Primitive:
         return len(self.processing_elements) == 1
 
 
-@dataclass
-class BenchCase:
-    """One benchmark row: a primitive call at one size, with OpenCV (and peers) beside it.
-
-    Attributes
-    ----------
-    primitive : str
-        Registry name.
-    label : str
-        What is run, e.g. ``"BGR2GRAY"``.
-    size : (int, int)
-        (width, height) of the input.
-    prepare : callable(backend_name) -> callable() -> object
-        Allocates inputs (and ``out=`` buffers) on the backend's device once and returns a
-        zero-argument function doing one call; the harness warms it up and times it.
-    opencv : callable() -> callable() -> object, optional
-        The same for the OpenCV reference on host data.
-    peers : dict of name -> callable() -> callable() or None
-        Other libraries (CV-CUDA, Kornia); each prepare may raise ImportError to be skipped.
-    bytes_moved : int, optional
-        Bytes read plus written by one call, for the memory-bandwidth floor.
-    """
-
-    primitive: str
-    label: str
-    size: tuple
-    prepare: Callable
-    opencv: Callable | None = None
-    peers: dict = field(default_factory=dict)
-    bytes_moved: int | None = None
-
-
 REGISTRY: dict[str, Primitive] = {}
 
 
-def register(name, *, public, cpu=None, warp=None, bench=None) -> Primitive:
-    """Register (or replace) a primitive; implementations are ``"module:function"`` strings."""
+def register(name, *, public, cpu=None, warp=None, bench=None, outputs=("out",),
+             sized_by_inputs=False) -> Primitive:
+    """Register (or replace) a primitive; implementations are ``"module:function"`` strings.
+    See :class:`Primitive` for the other attributes."""
     impls = {}
     if cpu:
         impls["cpu"] = cpu
     if warp:
         impls["warp"] = warp
-    prim = Primitive(name=name, public=public, impls=impls, bench=bench)
+    prim = Primitive(name=name, public=public, impls=impls, bench=bench, outputs=tuple(outputs),
+                     sized_by_inputs=sized_by_inputs)
     REGISTRY[name] = prim
     return prim
 
@@ -141,38 +123,40 @@ def get_primitive(name: str) -> Primitive:
         ) from None
 
 
-def _std(name, public_module, bench=True):
+def _std(name, public_module, **attrs):
     register(
         name,
         public=f"warpvx.{public_module}:{name}",
         cpu=f"warpvx.kernels_cpu.{name}:{name}",
         warp=f"warpvx.kernels_warp.{name}:{name}",
-        bench=f"warpvx.{public_module}:bench_cases_{name}" if bench else None,
+        bench=f"warpvx.bench.cases.{name}:cases",
+        **attrs,
     )
 
 
 # The built-in primitives: public module (by domain, as kornia), kernel modules by name.
-_std("color_convert", "color")
-_std("remap", "geometry")
-_std("warp_perspective", "geometry")
+_std("color_convert", "color", sized_by_inputs=True)
+_std("remap", "geometry", sized_by_inputs=True)
+_std("warp_perspective", "geometry", sized_by_inputs=True)
 _std("gaussian_pyramid", "pyramid")
 _std("scale_pyramid", "pyramid")
-_std("gaussian_blur", "filters")
+_std("gaussian_blur", "filters", sized_by_inputs=True)
 _std("fast_corners", "features")
-_std("harris_response", "features")
+_std("harris_response", "features", sized_by_inputs=True)
 _std("harris_corners", "features")
-_std("optical_flow_pyr_lk", "flow")
-_std("orb", "orb_extractor")
-_std("match_hamming", "matching")
+_std("optical_flow_pyr_lk", "flow", outputs=("next_pts", "status", "err"))
+_std("orb", "orb_extractor", outputs=("keypoints", "descriptors"))
+_std("match_hamming", "matching", outputs=("pairs", "distances"))
 # Primitives with no bench case of their own: resize shares the scale pyramid's kernel modules;
 # orb_compute and knn_match_hamming are timed through orb and match_hamming.
-register("resize", public="warpvx.pyramid:resize",
+register("resize", public="warpvx.pyramid:resize", sized_by_inputs=True,
          cpu="warpvx.kernels_cpu.scale_pyramid:resize", warp="warpvx.kernels_warp.scale_pyramid:resize")
 register("orb_compute", public="warpvx.orb_extractor:orb_compute",
          cpu="warpvx.kernels_cpu.orb:orb_compute", warp="warpvx.kernels_warp.orb:orb_compute")
 register("knn_match_hamming", public="warpvx.matching:knn_match_hamming",
          cpu="warpvx.kernels_cpu.match_hamming:knn_match_hamming",
-         warp="warpvx.kernels_warp.match_hamming:knn_match_hamming")
+         warp="warpvx.kernels_warp.match_hamming:knn_match_hamming",
+         outputs=("indices", "distances"))
 
 
 def dispatch(name: str, backend: Backend, *args, out=None, stream=None, template=None, **kwargs):

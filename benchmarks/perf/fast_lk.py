@@ -1,8 +1,8 @@
 """FAST corners and pyramidal LK on a Warp device: before / after / OpenCV in one run.
 
-The cases are the registry's own bench cases (``features.bench_cases_fast_corners``,
-``warpvx.flow.bench_cases_optical_flow_pyr_lk``) on the benchmark photo at each size, timed
-through the public functions with :func:`warpvx.bench.time_call` (warm-up and JIT excluded,
+The cases are the registry's own bench cases (``warpvx.bench.cases.fast_corners``,
+``warpvx.bench.cases.optical_flow_pyr_lk``) on the benchmark photo at each size, timed
+through the public functions with :func:`warpvx.bench.time_per_call_s` (warm-up and JIT excluded,
 batches between two device synchronisations, median). OpenCV runs on all cores beside them.
 
 ``--before DIR``: DIR holds ``old_fast_corners.py`` and ``old_optical_flow_pyr_lk.py``,
@@ -25,8 +25,9 @@ import sys
 import numpy as np
 
 import warpvx
-from warpvx import features, flow
-from warpvx.bench import Settings, load_photo, photo_at, time_call
+from warpvx import flow
+from warpvx.bench import Settings, load_photo, photo_at, time_per_call_s
+from warpvx.bench.cases import fast_corners, optical_flow_pyr_lk
 from warpvx.registry import REGISTRY
 
 PRIMS = {"fast_corners": "old_fast_corners", "optical_flow_pyr_lk": "old_optical_flow_pyr_lk"}
@@ -104,18 +105,17 @@ def main(argv=None) -> None:
     for size in args.sizes.split(","):
         w, h = (int(v) for v in size.split("x"))
         img = photo_at(photo, (w, h))
-        cases = (features.bench_cases_fast_corners(img)
-                 + flow.bench_cases_optical_flow_pyr_lk(img))
+        cases = fast_corners.cases(img) + optical_flow_pyr_lk.cases(img)
         for case in cases:
             cv_fn = case.opencv()
-            t_cv, _ = time_call(cv_fn, settings=settings)
+            t_cv, _ = time_per_call_s(cv_fn, settings=settings)
             times, results = {}, {}
             for which in (("before", "after") if variant.old else ("after",)):
                 variant.use(which)
                 fn = case.prepare(device)
                 results[which] = _host(fn())
-                times[which], _ = time_call(fn, sync, settings=settings,
-                                            min_calls=settings.gpu_min_calls)
+                times[which], _ = time_per_call_s(fn, sync, settings=settings,
+                                                  min_calls=settings.gpu_min_calls)
                 sync()
             variant.use("after")
             tb = times.get("before")

@@ -1,8 +1,7 @@
 """Per-stage profile of the feature primitives on a Warp device, against OpenCV on all cores.
 
-Cases are the registry's own bench cases (``warpvx.features``/``flow``/``matching``
-``bench_cases_*``: FAST, Harris response, goodFeaturesToTrack, pyramidal LK, Hamming
-matching) on the benchmark photo. For every case and variant the script prints:
+Cases are the registry's own bench cases (``warpvx.bench.cases.<primitive>``: FAST, Harris
+response, goodFeaturesToTrack, pyramidal LK, Hamming matching) on the benchmark photo. For every case and variant the script prints:
 
 - the per-call time through the public function (median of batches between two device
   synchronisations, warm-up and JIT excluded), OpenCV's time on all cores beside it and the
@@ -35,7 +34,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from warpvx.bench import Settings, time_call, time_graph
+from warpvx.bench import Settings, time_graph, time_per_call_s
 
 PRIMS = ("fast_corners", "harris_response", "harris_corners", "optical_flow_pyr_lk",
          "match_hamming")
@@ -126,8 +125,8 @@ TIMING = Settings(repeat=5, warmup=3, min_batch_s=0.02, max_calls=2000, gpu_min_
 
 def per_call(fn, sync, *, min_calls=20, repeat=5):
     """Median per-call seconds over ``repeat`` batches between two syncs
-    (:func:`warpvx.bench.time_call`)."""
-    return time_call(fn, sync, settings=replace(TIMING, repeat=repeat), min_calls=min_calls)[0]
+    (:func:`warpvx.bench.time_per_call_s`)."""
+    return time_per_call_s(fn, sync, settings=replace(TIMING, repeat=repeat), min_calls=min_calls)[0]
 
 
 def kernel_profile(wp, fn, device):

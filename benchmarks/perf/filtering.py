@@ -28,7 +28,7 @@ import numpy as np
 import warp as wp
 
 import warpvx
-from warpvx.bench import Settings, copy_bandwidth, load_photo, photo_at, time_call, time_graph
+from warpvx.bench import Settings, copy_bandwidth, load_photo, photo_at, time_graph, time_per_call_s
 from warpvx.kernels_warp import _filtering, _launch, scale_pyramid as ksp
 from warpvx.kernels_warp.gaussian_blur import gaussian_blur as k_blur
 from warpvx.kernels_warp.gaussian_pyramid import gaussian_pyramid as k_pyramid
@@ -216,7 +216,7 @@ def _on_device(fn):
 def _graph(fn, settings):
     """Per-call seconds replayed from a CUDA graph (plain batches on the CPU device)."""
     if DEVICE == "cpu":
-        return time_call(fn, _sync, settings=settings)[0]
+        return time_per_call_s(fn, _sync, settings=settings)[0]
     return time_graph(fn, DEVICE, settings=settings)
 
 
@@ -228,9 +228,10 @@ def run_main(sizes, settings, bandwidth, rows):
         cases = make_cases(photo_at(load_photo(), size))
         for label in MAIN_CASES:
             case = cases[label]
-            t_api = time_call(case.api, _sync, settings=settings, min_calls=settings.gpu_min_calls)[0]
-            t_kernel = time_call(_on_device(case.kernel), _sync, settings=settings,
-                                 min_calls=settings.gpu_min_calls)[0]
+            t_api = time_per_call_s(case.api, _sync, settings=settings,
+                                    min_calls=settings.gpu_min_calls)[0]
+            t_kernel = time_per_call_s(_on_device(case.kernel), _sync, settings=settings,
+                                       min_calls=settings.gpu_min_calls)[0]
             t_graph = _graph(case.api, settings)
             exact = case.check()
             floor = case.nbytes / bandwidth

@@ -36,7 +36,7 @@ import warp as wp  # noqa: E402
 wp.config.quiet = True
 
 import warpvx  # noqa: E402
-from warpvx.bench import Settings, time_call, time_graph  # noqa: E402
+from warpvx.bench import Settings, time_graph, time_per_call_s  # noqa: E402
 from warpvx import _orb_spec as ref  # noqa: E402
 from warpvx.kernels_warp import orb as kw  # noqa: E402
 
@@ -60,9 +60,9 @@ def photo(name: str, size: tuple) -> np.ndarray:
 
 def median_ms(fn, device, repeat: int, inner: int = 1) -> float:
     """Median over ``repeat`` batches of ``inner`` calls (device synced around each batch),
-    after one warm-up call, in ms (:func:`warpvx.bench.time_call`)."""
-    return 1e3 * time_call(fn, lambda: wp.synchronize_device(device),
-                           settings=Settings(repeat=repeat, warmup=1), calls=inner)[0]
+    after one warm-up call, in ms (:func:`warpvx.bench.time_per_call_s`)."""
+    return 1e3 * time_per_call_s(fn, lambda: wp.synchronize_device(device),
+                                 settings=Settings(repeat=repeat, warmup=1), calls=inner)[0]
 
 
 def host_result(kps, desc):
@@ -215,7 +215,7 @@ def before_stages(src, repeat):
         fn()
     settings = Settings(repeat=repeat, warmup=0)
     sync = lambda: wp.synchronize_device(device)  # noqa: E731
-    return [(name, 1e3 * time_call(fn, sync, settings=settings, calls=1)[0]) for name, fn in stages]
+    return [(name, 1e3 * time_per_call_s(fn, sync, settings=settings, calls=1)[0]) for name, fn in stages]
 
 
 def after_stages(plan, src, repeat):

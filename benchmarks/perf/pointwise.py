@@ -31,11 +31,11 @@ import sys
 def _timer(fn, sync, calls, repeat, *, warmup=0, issue_only=False):
     """Median seconds per call over ``repeat`` batches of ``calls`` calls, each between two
     ``sync()`` (``issue_only``: the clock stops before the closing one), after ``warmup``
-    calls: :func:`warpvx.bench.time_call` with a fixed batch."""
-    from warpvx.bench import Settings, time_call
+    calls: :func:`warpvx.bench.time_per_call_s` with a fixed batch."""
+    from warpvx.bench import Settings, time_per_call_s
 
-    return time_call(fn, sync, settings=Settings(repeat=repeat, warmup=warmup), calls=calls,
-                     issue_only=issue_only)[0]
+    return time_per_call_s(fn, sync, settings=Settings(repeat=repeat, warmup=warmup), calls=calls,
+                           issue_only=issue_only)[0]
 
 
 def _graph_timer(fn, device, per_graph=20, replays=20, repeat=7):
@@ -48,8 +48,15 @@ def _graph_timer(fn, device, per_graph=20, replays=20, repeat=7):
 
 
 def _cases(lib, image):
-    return (lib.color.bench_cases_color_convert(image) + lib.geometry.bench_cases_remap(image)
-            + lib.geometry.bench_cases_warp_perspective(image))
+    """``lib``'s bench cases: ``<lib>.bench.cases.<primitive>``, or in a copy older than that
+    package, the ``bench_cases_*`` functions of its public modules."""
+    if hasattr(lib.color, "bench_cases_color_convert"):
+        return (lib.color.bench_cases_color_convert(image) + lib.geometry.bench_cases_remap(image)
+                + lib.geometry.bench_cases_warp_perspective(image))
+    import importlib
+
+    return [case for name in ("color_convert", "remap", "warp_perspective")
+            for case in importlib.import_module(f"{lib.__name__}.bench.cases.{name}").cases(image)]
 
 
 def main(argv=None) -> int:

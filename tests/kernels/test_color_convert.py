@@ -9,7 +9,8 @@ import pytest
 import warpvx
 from tests.images import bgr, gray
 from tests.parity import assert_images_match, assert_bench_cases_match_opencv
-from warpvx.color import CODES, bgr_to_nv12, code_spec
+from warpvx.bench.inputs import bgr_to_nv12
+from warpvx.color import CODES, code_spec
 
 PHOTOS = ["chelsea", "rocket", "motorcycle"]  # 451x300, 640x427, 741x500
 
@@ -210,6 +211,6 @@ def _device(backend_name: str) -> str:
 
 
 def test_bench_cases(backend):
-    from warpvx.color import bench_cases_color_convert
+    from warpvx.bench.cases.color_convert import cases
 
-    assert_bench_cases_match_opencv(bench_cases_color_convert(bgr("chelsea")), backend, n_cases=3)
+    assert_bench_cases_match_opencv(cases(bgr("chelsea")), backend, n_cases=3)

@@ -12,7 +12,7 @@ import warpvx
 from tests.images import bgr, gray
 from tests.kernels.test_cv_imgproc import assert_close
 from warpvx import cv as wcv
-from warpvx.geometry import mild_homography, undistort_maps
+from warpvx.bench.inputs import mild_homography, undistort_maps
 
 _MODULES = (wcv.imgproc, wcv.pyramids, wcv.features2d, wcv.orb, wcv.video)
 

@@ -10,7 +10,7 @@ import pytest
 import warpvx
 from tests.images import bgr, gray
 from warpvx import cv as wcv
-from warpvx.geometry import mild_homography, undistort_maps
+from warpvx.bench.inputs import mild_homography, undistort_maps
 
 
 def assert_close(out, ref):
@@ -43,7 +43,7 @@ def test_all_lists_the_subset():
 @pytest.mark.parametrize("code", ["COLOR_BGR2GRAY", "COLOR_RGB2GRAY", "COLOR_BGR2RGB", "COLOR_BGR2BGRA",
                                   "COLOR_GRAY2BGR", "COLOR_YUV2BGR_NV12", "COLOR_YUV2RGB_NV12"])
 def test_cvtcolor_like_cv2(backend, code):
-    from warpvx.color import bgr_to_nv12
+    from warpvx.bench.inputs import bgr_to_nv12
 
     src = {"COLOR_GRAY2BGR": gray("chelsea")}.get(code, bgr("chelsea"))
     if "NV12" in code:

@@ -10,7 +10,7 @@ import pytest
 import warpvx
 from tests.images import bgr, gray
 from tests.parity import assert_bench_cases_match_opencv
-from warpvx.geometry import undistort_maps
+from warpvx.bench.inputs import undistort_maps
 
 PHOTOS = ["chelsea", "rocket", "motorcycle"]
 INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "nearest": cv2.INTER_NEAREST}
@@ -311,6 +311,6 @@ def test_out_argument(backend):
 
 
 def test_bench_cases(backend):
-    from warpvx.geometry import bench_cases_remap
+    from warpvx.bench.cases.remap import cases
 
-    assert_bench_cases_match_opencv(bench_cases_remap(bgr("chelsea")), backend, n_cases=1)
+    assert_bench_cases_match_opencv(cases(bgr("chelsea")), backend, n_cases=1)

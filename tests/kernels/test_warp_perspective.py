@@ -10,7 +10,7 @@ import pytest
 import warpvx
 from tests.images import bgr, gray
 from tests.parity import assert_bench_cases_match_opencv
-from warpvx.geometry import mild_homography
+from warpvx.bench.inputs import mild_homography
 
 PHOTOS = ["chelsea", "rocket", "motorcycle"]
 INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "nearest": cv2.INTER_NEAREST}
@@ -262,6 +262,6 @@ def test_out_argument(backend):
 
 
 def test_bench_cases(backend):
-    from warpvx.geometry import bench_cases_warp_perspective
+    from warpvx.bench.cases.warp_perspective import cases
 
-    assert_bench_cases_match_opencv(bench_cases_warp_perspective(bgr("chelsea")), backend, n_cases=1)
+    assert_bench_cases_match_opencv(cases(bgr("chelsea")), backend, n_cases=1)

@@ -13,7 +13,7 @@ Usage::
 
 Nodes take data objects where the primitive takes arrays and plain values for the other
 arguments; they return the node's output data object (a tuple for several, see
-:data:`~warpvx.graph.nodes.OUTPUTS`). Two keywords belong to the graph, not the primitive:
+:attr:`~warpvx.registry.Primitive.outputs`). Two keywords belong to the graph, not the primitive:
 ``name=`` (the node's name) and ``target=`` (``"cpu"``/``"gpu"`` pinning, also
 ``data.node.target = ...``).
 """

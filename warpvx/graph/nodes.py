@@ -1,10 +1,11 @@
 """Graph nodes: registered primitives and user callables, their ports and their callables.
 
 A node's *input ports* are named after the parameters of the function it calls (``src``,
-``prev_pts``, ...), its *output ports* after what the function returns (:data:`OUTPUTS`; one
-output named ``out`` by default). A node runs the public function of its primitive with
-``backend="cpu"`` on a CPU worker and with the GPU role's backend on the GPU, so arguments are
-validated by the primitive's own checks and each implementation gets what it takes.
+``prev_pts``, ...), its *output ports* after what the function returns (the registry's
+:attr:`~warpvx.registry.Primitive.outputs`; one output named ``out`` by default). A node runs
+the public function of its primitive with ``backend="cpu"`` on a CPU worker and with the GPU
+role's backend on the GPU, so arguments are validated by the primitive's own checks and each
+implementation gets what it takes.
 """
 
 from __future__ import annotations
@@ -18,13 +19,6 @@ import numpy as np
 from ..errors import GraphError, WarpvxError
 from ..registry import REGISTRY, get_primitive
 from .data import Data, DelayRef
-
-#: Output ports of primitives that return several values (all others return one, ``out``).
-OUTPUTS = {
-    "optical_flow_pyr_lk": ("next_pts", "status", "err"),
-    "orb": ("keypoints", "descriptors"),
-    "match_hamming": ("pairs", "distances"),
-}
 
 #: Arguments the runtime owns: a node may not set them.
 RESERVED = ("backend", "stream", "out")
@@ -152,7 +146,7 @@ class PrimitiveNode(Node):
             if _is_data(value):
                 self.inputs[pname] = value
                 self.input_ports.append(pname)
-        self.output_ports = OUTPUTS.get(primitive, ("out",))
+        self.output_ports = self.primitive.outputs
 
     @property
     def implementations(self) -> frozenset:
@@ -210,11 +204,10 @@ class PrimitiveNode(Node):
 
     def out_factory(self, backend):
         """A maker of this node's output buffer on ``backend``'s device, for the executor's
-        buffer pools; None unless the primitive takes ``out=`` and returns one array whose
-        shape follows from its inputs' (verification's sample fixes shape and dtype)."""
-        if backend is None or backend.kind != "warp" or len(self.output_ports) != 1:
-            return None
-        if "out" not in self.signature.parameters:
+        buffer pools; None unless the registry says the primitive's one output array is sized
+        by its inputs (:attr:`~warpvx.registry.Primitive.sized_by_inputs`; verification's
+        sample then fixes shape and dtype)."""
+        if backend is None or backend.kind != "warp" or not self.primitive.sized_by_inputs:
             return None
         sample = self.outputs[self.output_ports[0]].sample
         if not isinstance(sample, np.ndarray) or sample.ndim == 0 or sample.dtype.kind not in "uif":
@@ -308,4 +301,4 @@ def port_of(message: str, ports) -> str | None:
     return head if head in ports else None
 
 
-__all__ = ["Node", "PrimitiveNode", "UserNode", "OUTPUTS", "TARGETS", "port_of"]
+__all__ = ["Node", "PrimitiveNode", "UserNode", "TARGETS", "port_of"]

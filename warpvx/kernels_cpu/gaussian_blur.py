@@ -5,11 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-_BORDERS = {
-    "constant": cv2.BORDER_CONSTANT, "replicate": cv2.BORDER_REPLICATE,
-    "reflect": cv2.BORDER_REFLECT, "reflect101": cv2.BORDER_REFLECT_101,
-    "reflect_101": cv2.BORDER_REFLECT_101, 0: 0, 1: 1, 2: 2, 4: 4,
-}
+from ..modes import FILTER_BORDERS, mode_code
 
 
 def _pair(v):
@@ -20,6 +16,6 @@ def gaussian_blur(src: np.ndarray, ksize, sigma, border, *, out=None) -> np.ndar
     """Blur a uint8 image; arguments as :func:`warpvx.kernels_warp.gaussian_blur.gaussian_blur`."""
     kx, ky = _pair(ksize)
     sx, sy = _pair(sigma)
-    code = _BORDERS[border.lower() if isinstance(border, str) else int(border)]
+    code = mode_code(border, "border", FILTER_BORDERS)
     return cv2.GaussianBlur(src, (int(kx), int(ky)), float(sx), dst=out, sigmaY=float(sy),
                             borderType=code)

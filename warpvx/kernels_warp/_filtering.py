@@ -27,8 +27,8 @@ ways, the same integers:
 
 Images are addressed as 2-D ``rows x (width * channels)`` uint8 arrays (a colour image is
 viewed that way); neighbouring threads read neighbouring bytes (coalesced). Borders use
-OpenCV's integer codes (``BORDER_CONSTANT`` reads 0, ``BORDER_REPLICATE``,
-``BORDER_REFLECT``, ``BORDER_REFLECT_101``), resolved by :func:`filter_index` only where a
+OpenCV's integer codes (:mod:`warpvx.modes`: ``BORDER_CONSTANT`` reads 0,
+``BORDER_REPLICATE``, ``BORDER_REFLECT``, ``BORDER_REFLECT_101``), resolved by :func:`filter_index` only where a
 footprint leaves the image (once per thread and tap column, once per row): no input can read
 out of bounds.
 
@@ -46,13 +46,14 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .. import modes
 from ._launch import array_key, run_direct, run_recorded, workspace
 from ._sampling import BORDER_CONSTANT, BORDER_REFLECT_101, BORDER_REPLICATE, border_index
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
 
-BORDER_REFLECT = wp.constant(2)
+BORDER_REFLECT = wp.constant(modes.BORDER_REFLECT)
 
 #: Largest kernel radius (ksize up to 2 * 15 + 1 = 31); the two-pass kernels' unrolled tap
 #: loops are written for it.
@@ -73,12 +74,6 @@ PIXELS_PER_THREAD = {(1, 1): 4, (1, 3): 2, (1, 4): 2, (2, 1): 1, (2, 3): 1, (2, 
 #: Threads a launch should keep (enough warps per SM to hide memory latency): smaller images
 #: get smaller blocks per thread (:func:`fit_block`).
 MIN_THREADS = 32768
-
-BORDER_CODES = {
-    "constant": 0, "replicate": 1, "reflect": 2, "reflect101": 4, "reflect_101": 4,
-    0: 0, 1: 1, 2: 2, 4: 4,
-}
-
 
 @wp.func
 def filter_index(p: int, n: int, border: int) -> int:
@@ -465,7 +460,6 @@ def launch_filter(src, taps: FilterTaps, out, edge_x: int = NO_EDGE, *, cache: b
 
 
 __all__ = [
-    "BORDER_CODES",
     "BORDER_CONSTANT",
     "BORDER_REFLECT",
     "BORDER_REFLECT_101",

@@ -28,12 +28,14 @@ from __future__ import annotations
 
 import warp as wp
 
-# OpenCV's integer values, so cv2 constants pass straight through.
-INTER_NEAREST = wp.constant(0)
-INTER_LINEAR = wp.constant(1)
-BORDER_CONSTANT = wp.constant(0)
-BORDER_REPLICATE = wp.constant(1)
-BORDER_REFLECT_101 = wp.constant(4)
+from .. import modes
+
+# OpenCV's integer values (warpvx.modes), so cv2 constants pass straight through.
+INTER_NEAREST = wp.constant(modes.INTER_NEAREST)
+INTER_LINEAR = wp.constant(modes.INTER_LINEAR)
+BORDER_CONSTANT = wp.constant(modes.BORDER_CONSTANT)
+BORDER_REPLICATE = wp.constant(modes.BORDER_REPLICATE)
+BORDER_REFLECT_101 = wp.constant(modes.BORDER_REFLECT_101)
 
 # Coordinates are clamped to +-1e9 before the int conversion (an out-of-range float->int
 # conversion differs between CPU and GPU).

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from ._filtering import BORDER_CODES, blur_taps, launch_filter
+from ..modes import FILTER_BORDERS, mode_code
+from ._filtering import blur_taps, launch_filter
 
 
 def _pair(v):
@@ -41,7 +42,7 @@ def gaussian_blur(src, ksize, sigma, border, *, out=None):
     sx, sy = _pair(sigma)
     if sy <= 0:
         sy = sx
-    code = BORDER_CODES[border.lower() if isinstance(border, str) else int(border)]
+    code = mode_code(border, "border", FILTER_BORDERS)
     taps = blur_taps(int(kx), int(ky), float(sx), float(sy), code)
     if out is None:
         return launch_filter(src, taps, wp.empty(src.shape, dtype=wp.uint8, device=src.device))
