@@ -180,8 +180,8 @@ class Recorded:
     keeps a call right when a kernel gains, loses or reorders parameters (a missing or unknown
     name raises ``TypeError`` at recording).
 
-    A ``@wp.struct`` parameter is always re-packed when passed, so a caller that assigned its
-    fields passes it again to apply them.
+    A ``@wp.struct`` parameter is treated as a value, like an array: to change it, pass a new
+    instance (assigning the fields of the recorded one is not a supported way to update it).
     """
 
     def __init__(self, kernel, dim, device, *, block_dim=None, **params):
@@ -189,8 +189,6 @@ class Recorded:
         if set(params) != set(names):
             raise TypeError(f"{kernel.key}: expected parameters {names}, got {sorted(params)}")
         self.index = {name: i for i, name in enumerate(names)}
-        # Struct parameters: re-packed whenever passed (their fields may have changed).
-        self.structs = frozenset(a.label for a in kernel.adj.args if wp.types.type_is_struct(a.type))
         self.args = params
         inputs = [params[name] for name in names]
         if block_dim is None:
@@ -204,7 +202,7 @@ class Recorded:
         """Re-pack the named parameters whose value changed."""
         for name, value in params.items():
             old = self.args[name]
-            if value is old and name not in self.structs:
+            if value is old:
                 continue
             if type(value) in (int, float) and type(old) is type(value) and value == old:
                 continue

@@ -262,11 +262,9 @@ class _MatchWorkspace:
         self.backward = None  # cross check: train rows against the query rows
         self.total = wp.zeros(1, dtype=wp.int32, device=device)
         self.readback = HostReadback(1, wp.int32, device)
-        self.rule = MatchRule()
-        self.rule.t_query = self.forward.out.best_idx  # unread without cross_check
-        self.rule_values = (0, 0, 0.0)  # (cross_check, use_ratio, ratio) in self.rule
+        self.rule_values = None  # (cross_check, ratio) of the recorded rule
         self.compact = Recorded(compact_matches, [1], device, block_dim=COMPACT_BLOCK,
-                                nearest=self.forward.out, rule=self.rule,
+                                nearest=self.forward.out, rule=MatchRule(),
                                 pairs=wp.empty((nq, 2), dtype=wp.int32, device=device),
                                 dist=wp.empty(nq, dtype=wp.int32, device=device),
                                 total=self.total)
@@ -283,20 +281,22 @@ class _MatchWorkspace:
         if cross_check:
             if self.backward is None:
                 self.backward = _Nearest(self.train.words, self.query.words)
-                self.rule.t_query = self.backward.out.best_idx
-                self.compact.set(rule=self.rule)
             self.backward.run()
         return forward
 
     def set_rule(self, cross_check: bool, ratio) -> None:
-        """Make ``compact`` keep the pairs ``cross_check`` and ``ratio`` keep."""
-        values = (int(cross_check), int(ratio is not None), 0.0 if ratio is None else float(ratio))
+        """Make ``compact`` keep the pairs ``cross_check`` and ``ratio`` keep (a new
+        :class:`MatchRule` when they change)."""
+        values = (bool(cross_check), ratio)
         if values != self.rule_values:
-            self.rule.cross_check = values[0]
-            self.rule.use_ratio = values[1]
-            self.rule.ratio = values[2]
+            rule = MatchRule()
+            rule.cross_check = int(values[0])
+            rule.use_ratio = int(ratio is not None)
+            rule.ratio = 0.0 if ratio is None else float(ratio)
+            # Each train row's best query row; unread without cross_check.
+            rule.t_query = (self.backward if cross_check else self.forward).out.best_idx
             self.rule_values = values
-            self.compact.set(rule=self.rule)
+            self.compact.set(rule=rule)
 
 
 def _workspace(desc1, desc2) -> _MatchWorkspace:
