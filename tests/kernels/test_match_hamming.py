@@ -141,6 +141,19 @@ def test_knn_equals_knn_match(backend, real_descriptors):
     np.testing.assert_array_equal(dist, [[m.distance for m in r] for r in ref])
 
 
+def test_rules_switch_between_calls_of_one_size(backend, real_descriptors):
+    """Calls of one size share recorded launches: each must apply its own cross check and
+    ratio (the sequence goes back and forth between them)."""
+    d1, d2 = real_descriptors
+    q, t = on_device(d1, backend), on_device(d2, backend)
+    for cross_check, ratio in [(False, None), (True, None), (False, 0.7), (True, 0.8),
+                               (True, 0.8), (False, None), (True, 0.7)]:
+        pairs, dist = warpvx.match_hamming(q, t, cross_check, ratio, backend=backend)
+        want_pairs, want_dist = warpvx.match_hamming(d1, d2, cross_check, ratio, backend="cpu")
+        np.testing.assert_array_equal(_np(pairs), want_pairs)
+        np.testing.assert_array_equal(_np(dist), want_dist)
+
+
 def _sentinel_out(shape, backend):
     """An (indices, distances) pair on the backend, filled with a value no result holds."""
     return tuple(on_device(np.full(shape, -7, np.int32), backend) for _ in range(2))

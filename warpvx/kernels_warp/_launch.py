@@ -177,8 +177,8 @@ class Recorded:
     parameter of the kernel named; ``launch(name=value, ...)`` re-packs the named parameters
     that changed (another object, or another scalar value) and replays it on the current
     stream: a few microseconds instead of the tens of ``wp.launch``. Naming the parameters
-    keeps a call right when a kernel gains, loses or reorders parameters (a missing or unknown
-    name raises ``TypeError`` at recording).
+    keeps a call right when a kernel gains, loses or reorders parameters: a missing or unknown
+    name raises ``TypeError`` at recording, an unknown one ``KeyError`` at a launch.
 
     A ``@wp.struct`` parameter is treated as a value, like an array: to change it, pass a new
     instance (assigning the fields of the recorded one is not a supported way to update it).
