@@ -11,9 +11,10 @@ import numbers
 
 import numpy as np
 
+from .arrays import is_warp_array
 from .backend import resolve_backend
 from .check import check_array, check_float, check_int
-from .errors import ShapeError, UnsupportedError, WarpvxTypeError
+from .errors import ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
 from .registry import dispatch
 
 def _descriptors(desc1, desc2) -> tuple:
@@ -85,7 +86,7 @@ def match_hamming(desc1, desc2, cross_check: bool = False, ratio=None, *, backen
     return dispatch("match_hamming", be, desc1, desc2, bool(cross_check), ratio, stream=stream)
 
 
-def knn_match_hamming(desc1, desc2, k: int = 2, *, backend=None, stream=None) -> tuple:
+def knn_match_hamming(desc1, desc2, k: int = 2, *, out=None, backend=None, stream=None) -> tuple:
     """The ``k`` nearest train rows of each query row by Hamming distance (k = 1 or 2).
 
     Parameters
@@ -94,6 +95,9 @@ def knn_match_hamming(desc1, desc2, k: int = 2, *, backend=None, stream=None) ->
         Query and train descriptors.
     k : int, 1 or 2
         Neighbours per query; capped at N2 (as ``cv2.BFMatcher.knnMatch``).
+    out : (array, array), optional
+        Writable int32 [N1, min(k, N2)] (indices, distances) to write the result into, NumPy or
+        device arrays; returned.
     backend, stream
         See :mod:`warpvx.backend`.
 
@@ -107,6 +111,8 @@ def knn_match_hamming(desc1, desc2, k: int = 2, *, backend=None, stream=None) ->
     ------
     UnsupportedError
         ``k`` > 2.
+    WarpvxTypeError, ShapeError, DTypeError, WarpvxValueError
+        ``out`` not a pair of arrays, or one of another shape or dtype, or read-only.
     """
     be = resolve_backend(backend, like=desc1)
     desc1, desc2 = _descriptors(desc1, desc2)
@@ -114,7 +120,23 @@ def knn_match_hamming(desc1, desc2, k: int = 2, *, backend=None, stream=None) ->
     if k > 2:
         raise UnsupportedError(f"k: only k = 1 or 2 is supported, got {k}")
     k = min(k, int(desc2.shape[0]))
-    return dispatch("knn_match_hamming", be, desc1, desc2, k, stream=stream)
+    if out is not None:
+        out = _check_out(out, (int(desc1.shape[0]), k))
+    return dispatch("knn_match_hamming", be, desc1, desc2, k, out=out, stream=stream)
+
+
+def _check_out(out, shape: tuple) -> tuple:
+    """``out`` as a tuple (indices, distances) of writable int32 arrays of ``shape``."""
+    if not isinstance(out, (tuple, list)) or len(out) != 2:
+        raise WarpvxTypeError(f"out: expected a pair (indices, distances) of arrays, got "
+                              f"{type(out).__name__}")
+    for a, name in zip(out, ("out[0] (indices)", "out[1] (distances)")):
+        if not (isinstance(a, np.ndarray) or is_warp_array(a)):
+            raise WarpvxTypeError(f"{name}: expected a NumPy or Warp array, got {type(a).__name__}")
+        check_array(a, name, shape=shape, dtypes=(np.int32,))
+        if isinstance(a, np.ndarray) and not a.flags.writeable:
+            raise WarpvxValueError(f"{name}: expected a writable array, got a read-only one")
+    return tuple(out)
 
 
 __all__ = ["match_hamming", "knn_match_hamming"]

@@ -184,6 +184,24 @@ def test_cpu_and_warp_identical(warp_backend):
             assert np.array_equal(getattr(a, f), getattr(b, f)), f
 
 
+def test_recorded_launches_follow_each_call(warp_backend):
+    """Calls of one size replay recorded launches: each must take its own image (a new
+    array, or the same array rewritten in place) and threshold, and size its own result."""
+    wp = init_warp()
+    a, b = gray("camera"), gray("coffee")
+    h, w = min(a.shape[0], b.shape[0]), min(a.shape[1], b.shape[1])
+    a, b = np.ascontiguousarray(a[:h, :w]), np.ascontiguousarray(b[:h, :w])
+    buf = _on_device(a, warp_backend)
+    for img, threshold, nonmax in [(a, 10, True), (a, 30, True), (b, 10, True), (b, 10, False),
+                                   (a, 25, False), (a, 10, True)]:
+        wp.copy(buf, _on_device(img, warp_backend))  # same array, new content
+        for src in (buf, _on_device(img, warp_backend)):
+            got = warpvx.fast_corners(src, threshold, nonmax, backend=warp_backend)
+            want = warpvx.fast_corners(img, threshold, nonmax, backend="cpu")
+            for f in warpvx.keypoints.FIELDS:
+                assert np.array_equal(getattr(got, f).numpy(), getattr(want, f)), f
+
+
 # --- warpvx.cv drop-in -----------------------------------------------------------------------
 
 @pytest.mark.parametrize("nonmax", [True, False])

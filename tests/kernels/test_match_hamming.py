@@ -10,6 +10,7 @@ import warpvx
 from warpvx import DTypeError, ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
 from warpvx.matching import knn_match_hamming
 from tests.images import gray
+from tests.parity import on_device
 from warpvx.arrays import to_numpy as _np
 
 
@@ -138,6 +139,109 @@ def test_knn_equals_knn_match(backend, real_descriptors):
     ref = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(d1, d2, k=2)
     np.testing.assert_array_equal(idx, [[m.trainIdx for m in r] for r in ref])
     np.testing.assert_array_equal(dist, [[m.distance for m in r] for r in ref])
+
+
+def test_rules_switch_between_calls_of_one_size(backend, real_descriptors):
+    """Calls of one size share recorded launches: each must apply its own cross check and
+    ratio (the sequence goes back and forth between them)."""
+    d1, d2 = real_descriptors
+    q, t = on_device(d1, backend), on_device(d2, backend)
+    for cross_check, ratio in [(False, None), (True, None), (False, 0.7), (True, 0.8),
+                               (True, 0.8), (False, None), (True, 0.7)]:
+        pairs, dist = warpvx.match_hamming(q, t, cross_check, ratio, backend=backend)
+        want_pairs, want_dist = warpvx.match_hamming(d1, d2, cross_check, ratio, backend="cpu")
+        np.testing.assert_array_equal(_np(pairs), want_pairs)
+        np.testing.assert_array_equal(_np(dist), want_dist)
+
+
+def _sentinel_out(shape, backend):
+    """An (indices, distances) pair on the backend, filled with a value no result holds."""
+    return tuple(on_device(np.full(shape, -7, np.int32), backend) for _ in range(2))
+
+
+@pytest.mark.parametrize("k", [1, 2])
+def test_knn_out_receives_the_result(backend, real_descriptors, k):
+    d1, d2 = real_descriptors
+    want_idx, want_dist = knn_match_hamming(d1, d2, k, backend=backend)
+    q, t = on_device(d1, backend), on_device(d2, backend)
+    out = _sentinel_out((len(d1), k), backend)
+    idx, dist = knn_match_hamming(q, t, k, out=out, backend=backend)
+    assert idx is out[0] and dist is out[1]
+    np.testing.assert_array_equal(_np(out[0]), want_idx)
+    np.testing.assert_array_equal(_np(out[1]), want_dist)
+
+
+def test_knn_out_reused_across_calls(backend, real_descriptors):
+    """The same buffers, another query set: the second result replaces the first."""
+    d1, d2 = real_descriptors
+    out = _sentinel_out((200, 2), backend)
+    t = on_device(d2, backend)
+    for rows in (slice(0, 200), slice(200, 400)):
+        knn_match_hamming(on_device(np.ascontiguousarray(d1[rows]), backend), t, out=out,
+                          backend=backend)
+        want_idx, want_dist = knn_match_hamming(d1[rows], d2, backend=backend)
+        np.testing.assert_array_equal(_np(out[0]), want_idx)
+        np.testing.assert_array_equal(_np(out[1]), want_dist)
+
+
+def test_knn_host_out_on_warp_backend(warp_backend, real_descriptors):
+    """NumPy buffers for a Warp backend: the result is copied into them."""
+    d1, d2 = real_descriptors
+    out = _sentinel_out((len(d1), 2), "cpu")
+    idx, dist = knn_match_hamming(d1, d2, out=out, backend=warp_backend)
+    assert idx is out[0] and dist is out[1]
+    want_idx, want_dist = knn_match_hamming(d1, d2, backend="cpu")
+    np.testing.assert_array_equal(out[0], want_idx)
+    np.testing.assert_array_equal(out[1], want_dist)
+
+
+def test_knn_out_capped_k_and_empty_query(backend):
+    rng = np.random.default_rng(3)
+    d1 = rng.integers(0, 256, (5, 32), dtype=np.uint8)
+    d2 = rng.integers(0, 256, (1, 32), dtype=np.uint8)
+    out = _sentinel_out((5, 1), backend)  # k = 2 capped at N2 = 1
+    knn_match_hamming(on_device(d1, backend), on_device(d2, backend), 2, out=out,
+                      backend=backend)
+    want = knn_match_hamming(d1, d2, 2, backend="cpu")
+    np.testing.assert_array_equal(_np(out[0]), want[0])
+    np.testing.assert_array_equal(_np(out[1]), want[1])
+    empty = _sentinel_out((0, 2), backend)
+    idx, dist = knn_match_hamming(on_device(d1[:0], backend), on_device(d1, backend), out=empty,
+                                  backend=backend)
+    assert idx is empty[0] and dist is empty[1]
+
+
+def _read_only(shape):
+    a = np.zeros(shape, np.int32)
+    a.flags.writeable = False
+    return a
+
+
+@pytest.mark.parametrize("out, err, name", [
+    (np.zeros((4, 2), np.int32), WarpvxTypeError, "out"),
+    ((np.zeros((4, 2), np.int32),), WarpvxTypeError, "out"),
+    ((np.zeros((4, 2), np.int32), [[0, 0]] * 4), WarpvxTypeError, "out\\[1\\]"),
+    ((np.zeros((4, 1), np.int32), np.zeros((4, 2), np.int32)), ShapeError, "out\\[0\\]"),
+    ((np.zeros((4, 2), np.int32), np.zeros((3, 2), np.int32)), ShapeError, "out\\[1\\]"),
+    ((np.zeros((4, 2), np.int64), np.zeros((4, 2), np.int32)), DTypeError, "out\\[0\\]"),
+    ((np.zeros((4, 2), np.int32), _read_only((4, 2))), WarpvxValueError, "out\\[1\\]"),
+    ((np.zeros((2, 4), np.int32).T, np.zeros((4, 2), np.int32)), WarpvxValueError, "out\\[0\\]"),
+])
+def test_knn_bad_out(backend, out, err, name):
+    d = np.zeros((4, 32), np.uint8)
+    with pytest.raises(err, match=name):
+        knn_match_hamming(d, d, 2, out=out, backend=backend)
+
+
+def test_match_hamming_kernels_refuse_out(backend):
+    """M depends on the data: the implementations refuse out= rather than ignore it."""
+    from warpvx.registry import get_primitive
+
+    d = on_device(np.zeros((4, 32), np.uint8), backend)
+    impl = get_primitive("match_hamming").implementation("cpu" if backend == "cpu" else "warp")
+    out = (on_device(np.zeros((4, 2), np.int32), backend), on_device(np.zeros(4, np.int32), backend))
+    with pytest.raises(UnsupportedError, match="out"):
+        impl(d, d, False, None, out=out)
 
 
 def test_device_in_device_out(warp_backend, real_descriptors):

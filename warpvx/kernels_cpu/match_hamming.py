@@ -15,26 +15,37 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..errors import UnsupportedError
+
+
 def nearest(desc1: np.ndarray, desc2: np.ndarray, k: int) -> tuple:
     """(dist, idx) int32 [N1, k]: the k nearest rows of desc2 for each row of desc1."""
     return cv2.batchDistance(desc1, desc2, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=k)
 
 
 def knn_match_hamming(desc1: np.ndarray, desc2: np.ndarray, k: int, *, out=None) -> tuple:
-    """(int32 [N1, k] train indices, int32 [N1, k] distances), nearest first, k <= N2."""
+    """(int32 [N1, k] train indices, int32 [N1, k] distances), nearest first, k <= N2;
+    written into ``out`` = (indices, distances) when given."""
     nq = desc1.shape[0]
     if nq == 0 or k == 0:
-        return np.zeros((nq, k), np.int32), np.zeros((nq, k), np.int32)
+        return out if out is not None else (np.zeros((nq, k), np.int32), np.zeros((nq, k), np.int32))
     dist, idx = nearest(desc1, desc2, k)
-    return np.ascontiguousarray(idx, np.int32), np.ascontiguousarray(dist, np.int32)
+    if out is None:
+        return np.ascontiguousarray(idx, np.int32), np.ascontiguousarray(dist, np.int32)
+    np.copyto(out[0], idx)
+    np.copyto(out[1], dist)
+    return out
 
 
 def match_hamming(desc1: np.ndarray, desc2: np.ndarray, cross_check: bool, ratio, *,
                   out=None) -> tuple:
     """Matches of desc1 (query) rows in desc2 (train): (int32 [M, 2] pairs, int32 [M] distances).
 
-    Pairs are listed by increasing query index; ``out`` is ignored (M is data-dependent).
+    Pairs are listed by increasing query index. ``out`` is refused: M depends on the data.
     """
+    if out is not None:
+        raise UnsupportedError("out: match_hamming returns a data-dependent number of pairs; "
+                               "it takes no out=")
     nq, nt = desc1.shape[0], desc2.shape[0]
     if nq == 0 or nt == 0:
         return np.zeros((0, 2), np.int32), np.zeros(0, np.int32)

@@ -169,32 +169,45 @@ def drop_workspace(kind: str, key: tuple, device) -> None:
         _WORKSPACES.pop((kind, key, str(device), stream, threading.get_ident()), None)
 
 
-def record(kernel, dim, inputs, device, block_dim=None):
-    """A recorded launch (``wp.Launch``): replay with ``.launch()`` on the current stream
-    after ``.set_param_at_index(i, value)`` for the arguments that change (a few
-    microseconds instead of tens for ``wp.launch``); ``block_dim`` makes it a tiled launch."""
-    if block_dim is None:
-        return wp.launch(kernel, dim=dim, inputs=inputs, device=device, record_cmd=True)
-    return wp.launch_tiled(kernel, dim=dim, inputs=inputs, device=device, block_dim=block_dim,
-                           record_cmd=True)
-
-
 class Recorded:
-    """A recorded launch (:func:`record`) that re-packs an argument only when it changes
-    (another object, or another scalar value): replaying costs a few microseconds."""
+    """A recorded launch of ``kernel`` whose parameters are given, and updated, by name.
 
-    def __init__(self, kernel, dim, inputs, device, block_dim=None):
-        self.cmd = record(kernel, dim, inputs, device, block_dim)
-        self.args = list(inputs)
+    ``Recorded(kernel, dim, device, name=value, ...)`` records ``wp.launch(kernel, dim,
+    inputs=[...], record_cmd=True)`` (``wp.launch_tiled`` with ``block_dim``) with every
+    parameter of the kernel named; ``launch(name=value, ...)`` re-packs the named parameters
+    that changed (another object, or another scalar value) and replays it on the current
+    stream: a few microseconds instead of the tens of ``wp.launch``. Naming the parameters
+    keeps a call right when a kernel gains, loses or reorders parameters: a missing or unknown
+    name raises ``TypeError`` at recording, an unknown one ``KeyError`` at a launch.
+
+    A ``@wp.struct`` parameter is treated as a value, like an array: to change it, pass a new
+    instance (assigning the fields of the recorded one is not a supported way to update it).
+    """
+
+    def __init__(self, kernel, dim, device, *, block_dim=None, **params):
+        names = [a.label for a in kernel.adj.args]
+        if set(params) != set(names):
+            raise TypeError(f"{kernel.key}: expected parameters {names}, got {sorted(params)}")
+        self.index = {name: i for i, name in enumerate(names)}
+        self.args = params
+        inputs = [params[name] for name in names]
+        if block_dim is None:
+            self.cmd = wp.launch(kernel, dim=dim, inputs=inputs, device=device, record_cmd=True)
+        else:
+            self.cmd = wp.launch_tiled(kernel, dim=dim, inputs=inputs, device=device,
+                                       block_dim=block_dim, record_cmd=True)
         self.block_dim = block_dim
 
-    def set(self, index: int, value) -> None:
-        old = self.args[index]
-        if value is old or (type(value) in (int, float) and type(old) is type(value)
-                            and value == old):
-            return
-        self.cmd.set_param_at_index(index, value)
-        self.args[index] = value
+    def set(self, **params) -> None:
+        """Re-pack the named parameters whose value changed."""
+        for name, value in params.items():
+            old = self.args[name]
+            if value is old:
+                continue
+            if type(value) in (int, float) and type(old) is type(value) and value == old:
+                continue
+            self.cmd.set_param_at_index(self.index[name], value)
+            self.args[name] = value
 
     def set_dim(self, dim) -> None:
         """New launch size (grid size for a tiled launch)."""
@@ -203,10 +216,10 @@ class Recorded:
             dims.append(self.cmd.block_dim)
         self.cmd.set_dim(dims)
 
-    def launch(self, changes=()) -> None:
-        """Launch on the current stream after ``set(i, v)`` for each ``(i, v)`` of ``changes``."""
-        for index, value in changes:
-            self.set(index, value)
+    def launch(self, **params) -> None:
+        """Launch on the current stream after :meth:`set` of ``params``."""
+        if params:
+            self.set(**params)
         self.cmd.launch()
 
 

@@ -105,9 +105,12 @@ def fma32(a: float, b: float, c: float) -> float:
     ...
 
 
-# Raw reads at offsets the caller has resolved in bounds. Array indexing (``a[i]``) adds a
-# run-time stride multiply and a negative-index wrap to every read, and a bilinear sample makes
-# 4 reads per channel. On CUDA the reads go through the read-only data cache.
+# Raw loads, for what Warp's typed array reads cannot do: on CUDA, go through the read-only
+# data cache (``__ldg``, ``ld.global.nc``; a typed read is a plain global load), for the
+# gather reads of sampling (4 taps x C channels per output pixel) and remap's map reads; and
+# read a 1-, 3- or 4-channel image at one flat byte offset per tap shared by its channels
+# (:class:`SourceImage`). They check no bounds: each call site says why its offset lies
+# inside the array.
 _LOAD = """
 #if defined(__CUDA_ARCH__)
 return __ldg(reinterpret_cast<const {t}*>(ptr) + offset);
@@ -217,13 +220,44 @@ def store_pixel(dst: wp.array2d(dtype=wp.uint8), channels: int, y: int, x: int, 
 
 @wp.struct
 class SourceImage:
-    """A C-contiguous uint8 image (HxW or HxWxC), read at flat byte offsets from ``ptr``:
-    channel ``c`` of pixel (x, y) is byte ``(y * width + x) * C + c``. The samplers compute
-    the offset of a tap once for all its channels and read with :func:`load_byte`."""
+    """A C-contiguous uint8 image (HxW or HxWxC) of ``width`` x ``height`` pixels at address
+    ``ptr``: channel ``c`` of pixel (x, y) is byte ``(y * width + x) * C + c``. The samplers
+    compute the offset of a tap once for all its channels and read with :func:`load_byte`;
+    :func:`source_image` makes one that matches its array."""
 
     ptr: wp.uint64
     width: int
     height: int
+
+
+@wp.struct
+class Sampling:
+    """How a sampler reads: ``interpolation`` (INTER_*), ``border`` (BORDER_*) and
+    ``border_value``, the value of a border pixel per channel (saturated to [0, 255])."""
+
+    interpolation: int
+    border: int
+    border_value: wp.vec4
+
+
+def source_image(src) -> SourceImage:
+    """The :class:`SourceImage` of a C-contiguous uint8 ``wp.array`` image (its address:
+    keeps nothing alive)."""
+    img = SourceImage()
+    img.ptr = src.ptr
+    img.height = src.shape[0]
+    img.width = src.shape[1]
+    return img
+
+
+def sampling(interpolation: int, border: int, border_value) -> Sampling:
+    """The :class:`Sampling` of OpenCV's ``interpolation`` and ``border`` codes and a
+    4-channel ``border_value``."""
+    how = Sampling()
+    how.interpolation = int(interpolation)
+    how.border = int(border)
+    how.border_value = wp.vec4(*border_value)
+    return how
 
 
 @wp.func
@@ -235,8 +269,8 @@ def border_pixel(bval: wp.vec4) -> wp.uint32:
 
 def make_samplers(channels: int):
     """``(sample_nearest, sample_linear)`` for :class:`SourceImage` s of ``channels`` channels
-    (1, 3 or 4), each ``f(img, sx, sy, border, bval: vec4) -> pixel word`` (a gray image:
-    byte 0; bytes past ``channels`` are 0).
+    (1, 3 or 4), each ``f(img, sx, sy, how: Sampling) -> pixel word`` (a gray image: byte 0;
+    bytes past ``channels`` are 0).
 
     The channel count is a compile-time constant of the returned functions (one pair per
     count, made once at import), so their channel loops unroll. Bilinear sampling takes a
@@ -249,14 +283,17 @@ def make_samplers(channels: int):
 
     @wp.func
     def offset(img: SourceImage, x: int, y: int) -> int:
-        # A border tap (-1) reads pixel 0; its value is replaced by the border value.
+        """Byte offset of resolved tap (x, y), each in [-1, size) (:func:`border_index`): a
+        border tap (-1) reads pixel 0, whose value the border value replaces, so the offset
+        of every tap is that of a pixel inside the image."""
         return (wp.max(y, 0) * img.width + wp.max(x, 0)) * wp.static(channels)
 
     @wp.func
     def blend(img: SourceImage, o00: int, o01: int, o10: int, o11: int, in00: bool, in01: bool,
               in10: bool, in11: bool, ax: float, ay: float, bval: wp.vec4) -> wp.vec4i:
         """Each channel of the bilinear blend of the taps at offsets ``o00..o11`` (a tap not
-        ``in`` the image takes the border value)."""
+        ``in`` the image takes the border value). Each offset is that of a pixel inside the
+        image and ``k`` < C, so every byte read lies inside it."""
         c = wp.vec4i(0, 0, 0, 0)
         for k in range(wp.static(channels)):
             b = bval[k]
@@ -268,32 +305,35 @@ def make_samplers(channels: int):
         return c
 
     @wp.func
-    def sample_nearest(img: SourceImage, sx: float, sy: float, border: int, bval: wp.vec4) -> wp.uint32:
+    def sample_nearest(img: SourceImage, sx: float, sy: float, how: Sampling) -> wp.uint32:
         finite = is_finite_point(sx, sy)
-        t = nearest_tap(wp.where(finite, sx, 0.0), wp.where(finite, sy, 0.0), img.width, img.height, border)
-        o = offset(img, t[0], t[1])
+        t = nearest_tap(wp.where(finite, sx, 0.0), wp.where(finite, sy, 0.0), img.width,
+                        img.height, how.border)
+        o = offset(img, t[0], t[1])  # a pixel inside the image: its C bytes are in bounds
         c = wp.vec4i(0, 0, 0, 0)
         for k in range(wp.static(channels)):
             c[k] = load_byte(img.ptr, o + k)
         inside = finite and t[0] >= 0 and t[1] >= 0
-        return wp.where(inside, pack_bytes(c[0], c[1], c[2], c[3]), border_pixel(bval))
+        return wp.where(inside, pack_bytes(c[0], c[1], c[2], c[3]), border_pixel(how.border_value))
 
     @wp.func
-    def sample_linear(img: SourceImage, sx: float, sy: float, border: int, bval: wp.vec4) -> wp.uint32:
+    def sample_linear(img: SourceImage, sx: float, sy: float, how: Sampling) -> wp.uint32:
         finite = is_finite_point(sx, sy)
         ix, ax = split_coord(wp.where(finite, sx, 0.0))
         iy, ay = split_coord(wp.where(finite, sy, 0.0))
-        # Unsigned compares: a negative index is out too.
+        bval = how.border_value
+        # Unsigned compares: a negative index is out too. Inside: 0 <= ix < W - 1 and
+        # 0 <= iy < H - 1, so all four taps are pixels of the image.
         if wp.uint32(ix) < wp.uint32(img.width - 1) and wp.uint32(iy) < wp.uint32(img.height - 1):
             o = (iy * img.width + ix) * wp.static(channels)
             below = img.width * wp.static(channels)
             c = blend(img, o, o + wp.static(channels), o + below, o + below + wp.static(channels),
                       True, True, True, True, ax, ay, bval)
         else:
-            x0 = border_index(ix, img.width, border)
-            x1 = border_index(ix + 1, img.width, border)
-            y0 = border_index(iy, img.height, border)
-            y1 = border_index(iy + 1, img.height, border)
+            x0 = border_index(ix, img.width, how.border)
+            x1 = border_index(ix + 1, img.width, how.border)
+            y0 = border_index(iy, img.height, how.border)
+            y1 = border_index(iy + 1, img.height, how.border)
             c = blend(img, offset(img, x0, y0), offset(img, x1, y0), offset(img, x0, y1), offset(img, x1, y1),
                       x0 >= 0 and y0 >= 0, x1 >= 0 and y0 >= 0, x0 >= 0 and y1 >= 0, x1 >= 0 and y1 >= 0,
                       ax, ay, bval)

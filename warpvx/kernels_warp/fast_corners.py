@@ -1,29 +1,23 @@
 """FAST-9/16 corners on Warp: score map, 3x3 non-maximum suppression, compaction, sort.
 
 Per call (NMS): ``score_fast_map`` (uint8 score map; also resets the corner counter),
-``collect_maxima`` (strict 3x3 maxima compacted with an atomic counter as sort keys), one
-host sync for the count, ``rank_keys`` (up to :data:`RANK_MAX` keys: each key's sorted position
-by counting the smaller ones; more keys take a radix sort) and ``decode_keypoints``.
-Scratch buffers and recorded launches are reused between calls of one image size on one
-device, stream and thread (:func:`workspace`).
+``collect_maxima`` (strict 3x3 maxima compacted with an atomic counter as sort keys, a
+:class:`CornerKeys`), one host sync for the count, ``rank_keys`` (up to :data:`RANK_MAX` keys:
+each key's sorted position by counting the smaller ones; more keys take a radix sort) and
+``decode_keypoints``. Scratch buffers and recorded launches are reused between calls of one
+image size on one device, stream and thread (:func:`workspace`).
 
-Stable building blocks (the ORB extractor uses them too):
+``fast_score(img, y, x, threshold) -> int`` is the stable building block the ORB extractor
+uses too: OpenCV's FAST-9/16 score (``cornerScore<16>`` in
+``modules/features2d/src/fast_score.cpp``) of pixel (y, x) when it is a corner at
+``threshold``, else 0. A pixel is a corner when 9 contiguous pixels of the 16-pixel Bresenham
+circle of radius 3 are all darker than ``v - threshold`` or all brighter than
+``v + threshold`` (strict). The score is the largest threshold at which it stays a corner:
+OpenCV's value, ``>= threshold`` for every corner (it can be 0 only when ``threshold == 0``).
+The caller guarantees ``3 <= y < H - 3`` and ``3 <= x < W - 3``.
 
-``fast_score(img, y, x, threshold) -> int``
-    OpenCV's FAST-9/16 score (``cornerScore<16>`` in ``modules/features2d/src/fast_score.cpp``)
-    of pixel (y, x) when it is a corner at ``threshold``, else 0. A pixel is a corner when 9
-    contiguous pixels of the 16-pixel Bresenham circle of radius 3 are all darker than
-    ``v - threshold`` or all brighter than ``v + threshold`` (strict). The score is the largest
-    threshold at which it stays a corner, minus nothing: OpenCV's value, ``>= threshold`` for every
-    corner (it can be 0 only when ``threshold == 0``). The caller guarantees
-    ``3 <= y < H - 3`` and ``3 <= x < W - 3``.
-``compute_fast_scores(img, threshold, border, scores)``
-    Kernel over the whole image: ``scores[y, x] = fast_score(...)`` inside, 0 within
-    ``max(border, 3)`` px of the edge (those pixels are skipped, as OpenCV skips 3 px).
-``is_local_max_3x3(scores, y, x) -> bool``
-    OpenCV's non-maximum rule (``FAST_t`` in ``fast.cpp``): the score is strictly greater than
-    each of its 8 neighbours (neighbours outside the map count as 0). Ties suppress both
-    pixels, and a score of 0 is never a maximum.
+The non-maximum rule is OpenCV's (``FAST_t`` in ``fast.cpp``): a score strictly greater than
+each of its 8 neighbours; ties suppress both pixels, and a score of 0 is never a maximum.
 """
 
 from __future__ import annotations
@@ -45,6 +39,13 @@ CIRCLE_DY = wp.constant(vec16i(3, 3, 2, 1, 0, -1, -2, -3, -3, -3, -2, -1, 0, 1, 
 
 # Keypoint size OpenCV's FAST gives (diameter of a radius-3 circle, rounded).
 FAST_KEYPOINT_SIZE = 7.0
+
+RANK_CHUNK = wp.constant(64)
+RANK_MAX = 8192
+"""With NMS, up to this many corners are sorted by counting (``rank_keys``, n^2 / 64
+threads); more go through a radix sort."""
+RANK_MAX_CPU = 0  # Warp's CPU device runs one thread at a time: always the radix sort
+
 
 
 @wp.func
@@ -140,91 +141,70 @@ def fast_score(img: wp.array2d(dtype=wp.uint8), y: int, x: int, threshold: int) 
 
 
 @wp.func
-def score_at(scores: wp.array2d(dtype=wp.int32), y: int, x: int) -> int:
-    """scores[y, x], 0 outside the map."""
-    if y < 0 or x < 0 or y >= scores.shape[0] or x >= scores.shape[1]:
-        return 0
-    return scores[y, x]
+def inside_fast_border(h: int, w: int, y: int, x: int) -> bool:
+    """Whether (y, x) lies 3 px inside an h x w image (the circle fits)."""
+    return y >= 3 and x >= 3 and y < h - 3 and x < w - 3
+
+
+@wp.struct
+class CornerKeys:
+    """Corners compacted as unique sort keys: ``keys[:count[0]]`` (the upper half of ``keys``
+    is the radix sort's scratch). A key is ``(255 - score) << (x_bits + y_bits) | y << x_bits
+    | x``, so ascending keys are descending scores, then y, then x."""
+
+    keys: wp.array(dtype=wp.int64)
+    count: wp.array(dtype=wp.int32)
+    x_bits: int
+    y_bits: int
 
 
 @wp.func
-def is_local_max_3x3(scores: wp.array2d(dtype=wp.int32), y: int, x: int) -> bool:
-    """OpenCV's FAST non-maximum rule: strictly greater than all 8 neighbours (outside = 0)."""
-    s = scores[y, x]
-    if s <= 0:
-        return False
-    for dy in range(-1, 2):
-        for dx in range(-1, 2):
-            if dy != 0 or dx != 0:
-                if score_at(scores, y + dy, x + dx) >= s:
-                    return False
-    return True
+def corner_count(corners: CornerKeys) -> int:
+    """The number of keys stored (the counter, capped at the capacity)."""
+    return wp.min(corners.count[0], corners.keys.shape[0] // 2)
 
 
 @wp.func
-def inside_fast_border(h: int, w: int, y: int, x: int, border: int) -> bool:
-    b = wp.max(border, 3)
-    return y >= b and x >= b and y < h - b and x < w - b
-
-
-@wp.func
-def sort_key(score: int, y: int, x: int, x_bits: int, y_bits: int) -> wp.int64:
-    """Ascending order of the key = descending score, then y, then x (unique per pixel)."""
-    return (
-        (wp.int64(255 - score) << wp.int64(x_bits + y_bits))
-        | (wp.int64(y) << wp.int64(x_bits))
-        | wp.int64(x)
-    )
-
-
-@wp.kernel
-def compute_fast_scores(
-    img: wp.array2d(dtype=wp.uint8),
-    threshold: int,
-    border: int,
-    scores: wp.array2d(dtype=wp.int32),
-):
-    y, x = wp.tid()
-    s = int(0)
-    if inside_fast_border(img.shape[0], img.shape[1], y, x, border):
-        s = fast_score(img, y, x, threshold)
-    scores[y, x] = s
+def push_corner(corners: CornerKeys, score: int, y: int, x: int):
+    """Append the key of a corner (an atomic slot)."""
+    slot = wp.atomic_add(corners.count, 0, 1)
+    # The capacity is a proven bound; the guard only keeps a bug from writing out of bounds.
+    if slot < corners.keys.shape[0] // 2:
+        corners.keys[slot] = (
+            (wp.int64(255 - score) << wp.int64(corners.x_bits + corners.y_bits))
+            | (wp.int64(y) << wp.int64(corners.x_bits))
+            | wp.int64(x)
+        )
 
 
 @wp.kernel
 def score_fast_map(
     img: wp.array2d(dtype=wp.uint8),
     threshold: int,
-    count: wp.array(dtype=wp.int32),
-    rank: wp.array(dtype=wp.int32),
     scores: wp.array2d(dtype=wp.uint8),
+    corners: CornerKeys,
+    rank: wp.array(dtype=wp.int32),
 ):
     """``scores[y, x] = fast_score`` (at most 254, so uint8) 3 px inside, else 0.
 
-    It also resets ``count`` (thread (0, 0)) and ``rank`` (one entry per thread) for the
-    kernels after it on the same stream (saves memset launches).
+    It also resets the corner counter (thread (0, 0)) and ``rank`` (one entry per thread) for
+    the kernels after it on the same stream (saves memset launches).
     """
     y, x = wp.tid()
     if y == 0 and x == 0:
-        count[0] = 0
+        corners.count[0] = 0
     idx = y * img.shape[1] + x
     if idx < rank.shape[0]:
         rank[idx] = 0
     s = int(0)
-    if inside_fast_border(img.shape[0], img.shape[1], y, x, 3):
+    if inside_fast_border(img.shape[0], img.shape[1], y, x):
         s = fast_score(img, y, x, threshold)
     scores[y, x] = wp.uint8(s)
 
 
 @wp.kernel
-def collect_maxima(
-    scores: wp.array2d(dtype=wp.uint8),
-    x_bits: int,
-    y_bits: int,
-    count: wp.array(dtype=wp.int32),
-    keys: wp.array(dtype=wp.int64),
-):
-    """Strict 3x3 maxima of the uint8 map as sort keys (OpenCV's rule, as is_local_max_3x3)."""
+def collect_maxima(scores: wp.array2d(dtype=wp.uint8), corners: CornerKeys):
+    """Strict 3x3 maxima of the uint8 map as sort keys (OpenCV's non-maximum rule)."""
     y, x = wp.tid()
     s = scores[y, x]
     if s == wp.uint8(0):
@@ -235,82 +215,62 @@ def collect_maxima(
             if dy != 0 or dx != 0:
                 if scores[y + dy, x + dx] >= s:
                     return
-    slot = wp.atomic_add(count, 0, 1)
-    # The capacity is a proven bound; the guard only keeps a bug from writing out of bounds.
-    if slot < keys.shape[0] // 2:
-        keys[slot] = sort_key(int(s), y, x, x_bits, y_bits)
+    push_corner(corners, int(s), y, x)
 
 
 @wp.kernel
-def collect_all_corners(
-    img: wp.array2d(dtype=wp.uint8),
-    threshold: int,
-    x_bits: int,
-    y_bits: int,
-    count: wp.array(dtype=wp.int32),
-    keys: wp.array(dtype=wp.int64),
-):
+def collect_all_corners(img: wp.array2d(dtype=wp.uint8), threshold: int, corners: CornerKeys):
+    """Every corner 3 px inside as a sort key (no suppression)."""
     y, x = wp.tid()
-    if inside_fast_border(img.shape[0], img.shape[1], y, x, 3):
+    if inside_fast_border(img.shape[0], img.shape[1], y, x):
         s = fast_corner_score(img, y, x, threshold)
         if s >= 0:
-            slot = wp.atomic_add(count, 0, 1)
-            if slot < keys.shape[0] // 2:
-                keys[slot] = sort_key(s, y, x, x_bits, y_bits)
+            push_corner(corners, s, y, x)
 
 
 @wp.kernel
-def rank_keys(keys: wp.array(dtype=wp.int64), n: int, rank: wp.array(dtype=wp.int32)):
-    """``rank[i] += `` how many keys of chunk ``c`` of ``keys[:n]`` are smaller than key
-    ``i``. Threads (c, i): a warp's threads read the same key at a time (one broadcast load)."""
+def rank_keys(corners: CornerKeys, rank: wp.array(dtype=wp.int32)):
+    """``rank[i] += `` how many keys of chunk ``c`` are smaller than key ``i``. Threads
+    (c, i): a warp's threads read the same key at a time (one broadcast load)."""
     c, i = wp.tid()
+    n = corner_count(corners)
     j0 = c * RANK_CHUNK
     if i >= n or j0 >= n:
         return
-    key = keys[i]
+    key = corners.keys[i]
     r = int(0)
     for j in range(j0, wp.min(j0 + RANK_CHUNK, n)):
-        r += wp.where(keys[j] < key, 1, 0)
+        r += wp.where(corners.keys[j] < key, 1, 0)
     if r > 0:
         wp.atomic_add(rank, i, r)
 
 
 @wp.kernel
 def decode_keypoints(
-    keys: wp.array(dtype=wp.int64),
-    n: int,
+    corners: CornerKeys,
     ranked: int,
     rank: wp.array(dtype=wp.int32),
-    x_bits: int,
-    y_bits: int,
     fields: wp.array2d(dtype=wp.float32),
     octave: wp.array(dtype=wp.int32),
 ):
-    """Keypoint ``r`` from key ``i`` of ``keys[:n]``: ``r = i`` when the keys are sorted
-    (``ranked`` 0), else ``rank[i]``, the number of smaller keys (keys are unique).
-    ``fields`` rows: x, y, response, size, angle."""
+    """Keypoint ``r`` from key ``i``: ``r = i`` when the keys are sorted (``ranked`` 0), else
+    ``rank[i]``, the number of smaller keys (keys are unique). ``fields`` rows: x, y,
+    response, size, angle."""
     i = wp.tid()
-    if i >= n:
+    if i >= corner_count(corners):
         return
-    key = keys[i]
+    key = corners.keys[i]
     r = i
     if ranked != 0:
         r = rank[i]
-    x_mask = (wp.int64(1) << wp.int64(x_bits)) - wp.int64(1)
-    y_mask = (wp.int64(1) << wp.int64(y_bits)) - wp.int64(1)
-    fields[0, r] = float(int(key & x_mask))
-    fields[1, r] = float(int((key >> wp.int64(x_bits)) & y_mask))
-    fields[2, r] = float(255 - int(key >> wp.int64(x_bits + y_bits)))
+    x_bits = wp.int64(corners.x_bits)
+    y_bits = wp.int64(corners.y_bits)
+    fields[0, r] = float(int(key & ((wp.int64(1) << x_bits) - wp.int64(1))))
+    fields[1, r] = float(int((key >> x_bits) & ((wp.int64(1) << y_bits) - wp.int64(1))))
+    fields[2, r] = float(255 - int(key >> (x_bits + y_bits)))
     fields[3, r] = FAST_KEYPOINT_SIZE
     fields[4, r] = -1.0
     octave[r] = 0
-
-
-RANK_CHUNK = wp.constant(64)
-RANK_MAX = 8192
-"""With NMS, up to this many corners are sorted by counting (``rank_keys``, n^2 / 64
-threads); more go through a radix sort."""
-RANK_MAX_CPU = 0  # Warp's CPU device runs one thread at a time: always the radix sort
 
 
 def _bits(n: int) -> int:
@@ -331,28 +291,30 @@ def max_fast_corners(height: int, width: int, nonmax: bool) -> int:
 
 
 class _FastWorkspace:
-    """Scratch of one image size: score map, counter, key/value storage for the sort."""
+    """Scratch of one image size: score map, corner keys, rank, and the recorded launches."""
 
-    def __init__(self, src, nonmax: bool, capacity: int, x_bits: int, y_bits: int):
+    def __init__(self, src, nonmax: bool, capacity: int):
         device = src.device
         h, w = src.shape
-        self.count = wp.zeros(1, dtype=wp.int32, device=device)
+        self.corners = CornerKeys()
         # radix_sort_pairs wants 2x storage (the upper half is its scratch).
-        self.keys = wp.empty(2 * capacity, dtype=wp.int64, device=device)
+        self.corners.keys = wp.empty(2 * capacity, dtype=wp.int64, device=device)
+        self.corners.count = wp.zeros(1, dtype=wp.int32, device=device)
+        self.corners.x_bits, self.corners.y_bits = _bits(w), _bits(h)
         self.values = wp.empty(2 * capacity, dtype=wp.int32, device=device)
         self.readback = HostReadback(1, wp.int32, device)
         # rank[i]: the sorted position of keys[i] when counted (zeroed by score_fast_map).
         self.rank = wp.zeros(capacity if nonmax else 1, dtype=wp.int32, device=device)
-        self.rank_cmd = None
         if nonmax:
             self.scores = wp.empty((h, w), dtype=wp.uint8, device=device)
-            self.score = Recorded(score_fast_map, (h, w),
-                                  [src, 0, self.count, self.rank, self.scores], device)
-            self.collect = Recorded(collect_maxima, (h, w),
-                                    [self.scores, x_bits, y_bits, self.count, self.keys], device)
+            self.score = Recorded(score_fast_map, (h, w), device, img=src, threshold=0,
+                                  scores=self.scores, corners=self.corners, rank=self.rank)
+            self.collect = Recorded(collect_maxima, (h, w), device, scores=self.scores,
+                                    corners=self.corners)
         else:
-            self.collect = Recorded(collect_all_corners, (h, w),
-                                    [src, 0, x_bits, y_bits, self.count, self.keys], device)
+            self.collect = Recorded(collect_all_corners, (h, w), device, img=src, threshold=0,
+                                    corners=self.corners)
+        self.rank_cmd = None  # recorded on first use, sized by the corner count
         self.decode = None
 
 
@@ -364,23 +326,22 @@ def fast_corners(src, threshold: int, nonmax: bool, *, out=None) -> Keypoints:
     """
     device = src.device
     h, w = src.shape
-    x_bits, y_bits = _bits(w), _bits(h)
     capacity = max_fast_corners(h, w, nonmax)
     if capacity == 0:
         return Keypoints.empty().to(str(device))
     ws = workspace("fast", (h, w, bool(nonmax)), device,
-                   lambda: _FastWorkspace(src, nonmax, capacity, x_bits, y_bits))
+                   lambda: _FastWorkspace(src, nonmax, capacity))
     if nonmax:
-        ws.score.launch([(0, src), (1, int(threshold))])
+        ws.score.launch(img=src, threshold=int(threshold))
         ws.collect.launch()
     else:
-        ws.count.zero_()
-        ws.collect.launch([(0, src), (1, int(threshold))])
-    n = min(int(ws.readback.read(ws.count)[0]), capacity)  # the host sync: the result's length
-    return _sorted_keypoints(ws, n, x_bits, y_bits, device, nonmax)
+        ws.corners.count.zero_()
+        ws.collect.launch(img=src, threshold=int(threshold))
+    n = min(int(ws.readback.read(ws.corners.count)[0]), capacity)  # the host sync: the length
+    return _sorted_keypoints(ws, n, device, nonmax)
 
 
-def _sorted_keypoints(ws, n: int, x_bits: int, y_bits: int, device, nonmax: bool) -> Keypoints:
+def _sorted_keypoints(ws, n: int, device, nonmax: bool) -> Keypoints:
     if n == 0:
         return Keypoints(*[wp.empty(0, dtype=wp.float32, device=device) for _ in range(5)],
                          wp.empty(0, dtype=wp.int32, device=device))
@@ -392,27 +353,26 @@ def _sorted_keypoints(ws, n: int, x_bits: int, y_bits: int, device, nonmax: bool
     size = max(256, 1 << (n - 1).bit_length())  # launch size: rarely changes between calls
     ranked = nonmax and n <= (RANK_MAX_CPU if device.is_cpu else RANK_MAX)
     if ranked:
-        chunks = -(-size // RANK_CHUNK)
+        dim = (-(-size // RANK_CHUNK), size)
         if ws.rank_cmd is None:
-            ws.rank_cmd = Recorded(rank_keys, (chunks, size), [ws.keys, n, ws.rank], device)
+            ws.rank_cmd = Recorded(rank_keys, dim, device, corners=ws.corners, rank=ws.rank)
             ws.rank_size = size
         elif size != ws.rank_size:
-            ws.rank_cmd.set_dim((chunks, size))
+            ws.rank_cmd.set_dim(dim)
             ws.rank_size = size
-        ws.rank_cmd.launch([(1, n)])
+        ws.rank_cmd.launch()
     else:
-        wp.utils.radix_sort_pairs(ws.keys, ws.values, n, 0, x_bits + y_bits + 8)
+        c = ws.corners
+        wp.utils.radix_sort_pairs(c.keys, ws.values, n, 0, c.x_bits + c.y_bits + 8)
     if ws.decode is None:
-        ws.decode = Recorded(decode_keypoints, size,
-                             [ws.keys, n, int(ranked), ws.rank, x_bits, y_bits, fields, octave],
-                             device)
+        ws.decode = Recorded(decode_keypoints, size, device, corners=ws.corners,
+                             ranked=int(ranked), rank=ws.rank, fields=fields, octave=octave)
         ws.decode_size = size
     elif size != ws.decode_size:
         ws.decode.set_dim(size)
         ws.decode_size = size
-    ws.decode.launch([(1, n), (2, int(ranked)), (6, fields), (7, octave)])
+    ws.decode.launch(ranked=int(ranked), fields=fields, octave=octave)
     return kps
 
 
-__all__ = ["fast_score", "fast_corner_score", "compute_fast_scores", "is_local_max_3x3",
-           "fast_corners", "max_fast_corners"]
+__all__ = ["fast_score", "fast_corners", "max_fast_corners"]

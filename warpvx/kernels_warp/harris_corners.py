@@ -28,7 +28,7 @@ Host syncs: two; the candidate count (to size the sort), and the accepted count 
 the number of candidates still undecided after the batch (a further batch runs when it is not
 zero, which the batch size, learnt from the previous call, makes rare). Scratch buffers
 (response, keys, rank map) and recorded launches are reused between calls of one image size
-(:func:`.fast_corners.workspace`); the rank map is kept at -1 between calls by clearing only
+(:func:`._launch.workspace`); the rank map is kept at -1 between calls by clearing only
 the entries a call set.
 """
 
@@ -113,16 +113,63 @@ def finish_max(
         r += lanes
 
 
+@wp.struct
+class CandidateKeys:
+    """Candidates compacted as unique sort keys: ``keys[:count[0]]`` (the upper half of
+    ``keys`` is the radix sort's scratch). A key is the value's order (descending) above the
+    raster index (descending) in its low ``raster_bits`` bits."""
+
+    keys: wp.array(dtype=wp.int64)
+    count: wp.array(dtype=wp.int32)
+    raster_bits: int
+
+
+@wp.struct
+class Candidates:
+    """The sorted candidates: candidate ``i`` (its rank) lies at ``(x[i], y[i])`` and has
+    decision ``state[i]``; ``rank[y, x]`` is ``i`` on its pixel and -1 elsewhere. There are
+    ``count[0]`` of them, capped at ``len(x)`` (the counter of :class:`CandidateKeys`)."""
+
+    x: wp.array(dtype=wp.int32)
+    y: wp.array(dtype=wp.int32)
+    state: wp.array(dtype=wp.int32)
+    count: wp.array(dtype=wp.int32)
+    rank: wp.array2d(dtype=wp.int32)
+
+
+@wp.struct
+class Spacing:
+    """The min-distance rule: candidates conflict when closer than ``sqrt(min_dist_sq)``
+    (``radius`` = its ceiling) and in neighbouring grid cells of ``cell`` px."""
+
+    radius: int
+    cell: int
+    min_dist_sq: wp.float64
+
+
+@wp.struct
+class Conflicts:
+    """Each candidate's better-ranked conflicts: ``lists[i, :count[i]]``; a ``count[i]`` above
+    the list's room means the list overflowed and the window is walked instead."""
+
+    lists: wp.array2d(dtype=wp.int32)
+    count: wp.array(dtype=wp.int32)
+
+
+@wp.func
+def candidate_count(cands: Candidates) -> int:
+    return wp.min(cands.count[0], cands.x.shape[0])
+
+
 @wp.kernel
 def collect_candidates(
     response: wp.array2d(dtype=wp.float32),
     response_bits: wp.array2d(dtype=wp.int32),
     max_value: wp.array(dtype=wp.float32),
     quality_level: float,
-    raster_bits: int,
-    count: wp.array(dtype=wp.int32),
-    keys: wp.array(dtype=wp.int64),
+    keys: CandidateKeys,
 ):
+    """Pixels 1 px inside whose thresholded value is a 3x3 maximum, as sort keys."""
     y, x = wp.tid()
     h = response.shape[0]
     w = response.shape[1]
@@ -136,84 +183,63 @@ def collect_candidates(
         for j in range(-1, 2):
             if thresholded(response[y + i, x + j], thresh) > v:
                 return
-    slot = wp.atomic_add(count, 0, 1)
-    if slot < keys.shape[0] // 2:
+    slot = wp.atomic_add(keys.count, 0, 1)
+    if slot < keys.keys.shape[0] // 2:
         order = wp.int64(0xFFFFFFFF) - float_order_key(v, response_bits[y, x])
-        mask = (wp.int64(1) << wp.int64(raster_bits)) - wp.int64(1)
+        mask = (wp.int64(1) << wp.int64(keys.raster_bits)) - wp.int64(1)
         raster = wp.int64(y * w + x)
-        keys[slot] = (order << wp.int64(raster_bits)) | (mask - raster)
-
-
-@wp.func
-def candidate_count(count: wp.array(dtype=wp.int32), capacity: int) -> int:
-    return wp.min(count[0], capacity)
+        keys.keys[slot] = (order << wp.int64(keys.raster_bits)) | (mask - raster)
 
 
 @wp.kernel
-def rank_candidates(
-    keys: wp.array(dtype=wp.int64),
-    count: wp.array(dtype=wp.int32),
-    raster_bits: int,
-    initial_state: int,
-    cand_x: wp.array(dtype=wp.int32),
-    cand_y: wp.array(dtype=wp.int32),
-    rank: wp.array2d(dtype=wp.int32),
-    state: wp.array(dtype=wp.int32),
-    n_conflicts: wp.array(dtype=wp.int32),
-):
+def rank_candidates(keys: CandidateKeys, initial_state: int, cands: Candidates,
+                    conflicts: Conflicts):
+    """Candidate ``i`` from sorted key ``i``: its position, its rank on the map, its initial
+    state; its conflict count zeroed."""
     i = wp.tid()
-    if i >= candidate_count(count, cand_x.shape[0]):
+    if i >= candidate_count(cands):
         return
-    if i < n_conflicts.shape[0]:
-        n_conflicts[i] = 0
-    width = rank.shape[1]
-    mask = (wp.int64(1) << wp.int64(raster_bits)) - wp.int64(1)
-    raster = int(mask - (keys[i] & mask))
+    if i < conflicts.count.shape[0]:
+        conflicts.count[i] = 0
+    width = cands.rank.shape[1]
+    mask = (wp.int64(1) << wp.int64(keys.raster_bits)) - wp.int64(1)
+    raster = int(mask - (keys.keys[i] & mask))
     y = raster // width
     x = raster - y * width
-    cand_x[i] = x
-    cand_y[i] = y
-    rank[y, x] = i
-    state[i] = initial_state
+    cands.x[i] = x
+    cands.y[i] = y
+    cands.rank[y, x] = i
+    cands.state[i] = initial_state
 
 
 @wp.func
-def conflicts_in_row(
-    i: int,
-    yy: int,
-    cand_x: wp.array(dtype=wp.int32),
-    cand_y: wp.array(dtype=wp.int32),
-    rank: wp.array2d(dtype=wp.int32),
-    radius: int,
-    cell: int,
-    min_dist_sq: wp.float64,
-    state: wp.array(dtype=wp.int32),
-    conflicts: wp.array2d(dtype=wp.int32),
-    n_conflicts: wp.array(dtype=wp.int32),
-    record_list: bool,
-) -> wp.vec2i:
+def conflicts_in_row(i: int, yy: int, cands: Candidates, spacing: Spacing,
+                     conflicts: Conflicts, record_list: bool) -> wp.vec2i:
     """The better-ranked candidates in row ``yy`` conflicting with candidate ``i`` (within
-    ``min_distance``, in the neighbouring grid cells). With ``record_list`` they are appended
-    to ``conflicts[i]`` (counted in ``n_conflicts[i]``, kept while there is room); else their
-    states are read: returns (any accepted, any undecided), stopping at the first accepted."""
-    x = cand_x[i]
-    y = cand_y[i]
-    w = rank.shape[1]
+    the min distance, in the neighbouring grid cells). With ``record_list`` they are appended
+    to ``conflicts.lists[i]`` (counted in ``conflicts.count[i]``, kept while there is room);
+    else their states are read: returns (any accepted, any undecided), stopping at the first
+    accepted."""
+    x = cands.x[i]
+    y = cands.y[i]
+    w = cands.rank.shape[1]
+    cell = spacing.cell
+    radius = spacing.radius
     cx = x // cell
     accepted = int(0)
     undecided = int(0)
     if wp.abs(yy // cell - y // cell) <= 1:
         for xx in range(wp.max(x - radius, 0), wp.min(x + radius, w - 1) + 1):
-            j = rank[yy, xx]
+            j = cands.rank[yy, xx]
             if j >= 0 and j < i and wp.abs(xx // cell - cx) <= 1:
                 d2 = wp.float64((xx - x) * (xx - x) + (yy - y) * (yy - y))
-                if d2 < min_dist_sq:
+                if d2 < spacing.min_dist_sq:
                     if record_list:
-                        slot = wp.atomic_add(n_conflicts, i, 1)
-                        if slot < conflicts.shape[1]:
-                            conflicts[i, slot] = j
+                        slot = wp.atomic_add(conflicts.count, i, 1)
+                        if slot < conflicts.lists.shape[1]:
+                            conflicts.lists[i, slot] = j
                     else:
-                        s = state[j]
+                        s = cands.state[j]
                         if s == ACCEPTED:
                             return wp.vec2i(1, undecided)
                         if s == UNDECIDED:
@@ -222,89 +248,61 @@ def conflicts_in_row(
 
 
 @wp.kernel
-def find_conflicts(
-    cand_x: wp.array(dtype=wp.int32),
-    cand_y: wp.array(dtype=wp.int32),
-    rank: wp.array2d(dtype=wp.int32),
-    count: wp.array(dtype=wp.int32),
-    radius: int,
-    cell: int,
-    min_dist_sq: wp.float64,
-    state: wp.array(dtype=wp.int32),
-    conflicts: wp.array2d(dtype=wp.int32),
-    n_conflicts: wp.array(dtype=wp.int32),
-    undecided: wp.array(dtype=wp.int32),
-):
+def find_conflicts(cands: Candidates, spacing: Spacing, conflicts: Conflicts,
+                   undecided: wp.array(dtype=wp.int32)):
     """List each candidate's better-ranked conflicts once, a thread per (candidate, window
-    row); ``n_conflicts`` above the list's room means later rounds walk the window again."""
+    row)."""
     i, row = wp.tid()
     if i == 0 and row == 0:
         undecided[0] = 1  # round 1 decides (a candidate without conflicts is accepted there)
-    if i >= candidate_count(count, cand_x.shape[0]) or i >= n_conflicts.shape[0]:
+    if i >= candidate_count(cands) or i >= conflicts.count.shape[0]:
         return
-    yy = cand_y[i] - radius + row
-    if yy >= 0 and yy < rank.shape[0]:
-        conflicts_in_row(i, yy, cand_x, cand_y, rank, radius, cell, min_dist_sq, state,
-                         conflicts, n_conflicts, True)
+    yy = cands.y[i] - spacing.radius + row
+    if yy >= 0 and yy < cands.rank.shape[0]:
+        conflicts_in_row(i, yy, cands, spacing, conflicts, True)
 
 
 @wp.kernel
-def select_candidates(
-    cand_x: wp.array(dtype=wp.int32),
-    cand_y: wp.array(dtype=wp.int32),
-    rank: wp.array2d(dtype=wp.int32),
-    count: wp.array(dtype=wp.int32),
-    radius: int,
-    cell: int,
-    min_dist_sq: wp.float64,
-    round_index: int,
-    conflicts: wp.array2d(dtype=wp.int32),
-    n_conflicts: wp.array(dtype=wp.int32),
-    state: wp.array(dtype=wp.int32),
-    undecided: wp.array(dtype=wp.int32),
-):
-    """One round (``round_index`` >= 1); ``undecided[round_index]`` counts the candidates it
-    left undecided."""
+def select_candidates(cands: Candidates, spacing: Spacing, conflicts: Conflicts,
+                      round_index: int, undecided: wp.array(dtype=wp.int32)):
+    """One round (``round_index`` >= 1) deciding candidates' states; ``undecided[round_index]``
+    counts the candidates it left undecided."""
     i = wp.tid()
-    if i >= candidate_count(count, cand_x.shape[0]):
+    if i >= candidate_count(cands):
         return
     if undecided[round_index - 1] == 0:
         return  # the previous round decided everything
-    if state[i] != UNDECIDED:
+    if cands.state[i] != UNDECIDED:
         return
     accepted = int(0)
     blocked = int(0)
-    listed = n_conflicts[i]
-    if listed <= conflicts.shape[1]:
+    listed = conflicts.count[i]
+    if listed <= conflicts.lists.shape[1]:
         for c in range(listed):
-            s = state[conflicts[i, c]]
+            s = cands.state[conflicts.lists[i, c]]
             if s == ACCEPTED:
                 accepted = 1
                 break
             if s == UNDECIDED:
                 blocked = 1
     else:
-        y = cand_y[i]
-        for yy in range(wp.max(y - radius, 0), wp.min(y + radius, rank.shape[0] - 1) + 1):
+        y = cands.y[i]
+        for yy in range(wp.max(y - spacing.radius, 0), wp.min(y + spacing.radius, cands.rank.shape[0] - 1) + 1):
             if accepted == 0:
-                r = conflicts_in_row(i, yy, cand_x, cand_y, rank, radius, cell, min_dist_sq,
-                                     state, conflicts, n_conflicts, False)
+                r = conflicts_in_row(i, yy, cands, spacing, conflicts, False)
                 accepted = r[0]
                 blocked = wp.max(blocked, r[1])
     if accepted != 0:
-        state[i] = REJECTED
+        cands.state[i] = REJECTED
     elif blocked != 0:
         wp.atomic_add(undecided, round_index, 1)
     else:
-        state[i] = ACCEPTED
+        cands.state[i] = ACCEPTED
 
 
 @wp.kernel
 def write_selected(
-    cand_x: wp.array(dtype=wp.int32),
-    cand_y: wp.array(dtype=wp.int32),
-    state: wp.array(dtype=wp.int32),
-    count: wp.array(dtype=wp.int32),
+    cands: Candidates,
     undecided: wp.array(dtype=wp.int32),
     last_round: int,
     points: wp.array2d(dtype=wp.float32),
@@ -315,7 +313,7 @@ def write_selected(
     that had work)."""
     _blk, lane = wp.tid()
     lanes = wp.block_dim()
-    n = candidate_count(count, cand_x.shape[0])
+    n = candidate_count(cands)
     limit = points.shape[0]
     base = int(0)
     start = int(0)
@@ -325,14 +323,14 @@ def write_selected(
         i = start + lane
         f = int(0)
         if i < n:
-            if state[i] == ACCEPTED:
+            if cands.state[i] == ACCEPTED:
                 f = 1
         t = wp.tile(f)
         rank_incl = wp.untile(wp.tile_scan_inclusive(t))
         s = base + rank_incl - f
         if f == 1 and s < limit:
-            points[s, 0] = float(cand_x[i])
-            points[s, 1] = float(cand_y[i])
+            points[s, 0] = float(cands.x[i])
+            points[s, 1] = float(cands.y[i])
         base += wp.tile_extract(wp.tile_sum(t), 0)
         start += lanes
     if lane == 0:
@@ -346,16 +344,11 @@ def write_selected(
 
 
 @wp.kernel
-def clear_ranks(
-    cand_x: wp.array(dtype=wp.int32),
-    cand_y: wp.array(dtype=wp.int32),
-    count: wp.array(dtype=wp.int32),
-    rank: wp.array2d(dtype=wp.int32),
-):
+def clear_ranks(cands: Candidates):
     """Put the rank map back to -1 where this call wrote it."""
     i = wp.tid()
-    if i < candidate_count(count, cand_x.shape[0]):
-        rank[cand_y[i], cand_x[i]] = -1
+    if i < candidate_count(cands):
+        cands.rank[cands.y[i], cands.x[i]] = -1
 
 
 def _bucket(n: int) -> int:
@@ -367,52 +360,49 @@ class _CornersWorkspace:
     """Scratch of one image size, with recorded launches of the fixed-size kernels."""
 
     def __init__(self, h: int, w: int, device):
-        self.h, self.w = h, w
+        self.device = device
         capacity = (h - 2) * (w - 2)
         self.capacity = capacity
-        self.raster_bits = max(1, int(h * w - 1).bit_length())
         self.response = wp.empty((h, w), dtype=wp.float32, device=device)
-        # The float map seen as its bit patterns, to build exact sort keys.
-        self.response_bits = self.response.view(wp.int32)
         self.row_max = wp.empty(h, dtype=wp.float32, device=device)
         self.max_value = wp.empty(1, dtype=wp.float32, device=device)
-        self.count = wp.zeros(1, dtype=wp.int32, device=device)
         self.undecided = wp.zeros(MAX_ROUNDS, dtype=wp.int32, device=device)
         self.result = wp.zeros(3, dtype=wp.int32, device=device)
-        self.keys = wp.empty(2 * capacity, dtype=wp.int64, device=device)
+        self.keys = CandidateKeys()
+        self.keys.keys = wp.empty(2 * capacity, dtype=wp.int64, device=device)
+        self.keys.count = wp.zeros(1, dtype=wp.int32, device=device)
+        self.keys.raster_bits = max(1, int(h * w - 1).bit_length())
         self.values = wp.empty(2 * capacity, dtype=wp.int32, device=device)
-        self.cand_x = wp.empty(capacity, dtype=wp.int32, device=device)
-        self.cand_y = wp.empty(capacity, dtype=wp.int32, device=device)
-        self.state = wp.empty(capacity, dtype=wp.int32, device=device)
-        self.rank = wp.full((h, w), -1, dtype=wp.int32, device=device)
+        self.cands = Candidates()
+        self.cands.x = wp.empty(capacity, dtype=wp.int32, device=device)
+        self.cands.y = wp.empty(capacity, dtype=wp.int32, device=device)
+        self.cands.state = wp.empty(capacity, dtype=wp.int32, device=device)
+        self.cands.count = self.keys.count
+        self.cands.rank = wp.full((h, w), -1, dtype=wp.int32, device=device)
+        self.conflicts = Conflicts()  # sized by resize()
         self.count_back = HostReadback(1, wp.int32, device)
         self.result_back = HostReadback(3, wp.int32, device)
         self.batch = FIRST_BATCH
-        self.row_max_cmd = Recorded(reduce_row_max, [h], [self.response, self.row_max], device,
-                                  block_dim=BLOCK)
-        self.finish_cmd = Recorded(finish_max, [1],
-                                 [self.row_max, self.max_value, self.count, self.undecided],
-                                 device, block_dim=BLOCK)
-        self.collect_cmd = Recorded(collect_candidates, (h, w),
-                                  [self.response, self.response_bits, self.max_value, 0.0,
-                                   self.raster_bits, self.count, self.keys], device)
+        self.row_max_cmd = Recorded(reduce_row_max, [h], device, block_dim=BLOCK,
+                                    response=self.response, row_max=self.row_max)
+        self.finish_cmd = Recorded(finish_max, [1], device, block_dim=BLOCK, row_max=self.row_max,
+                                   max_value=self.max_value, count=self.keys.count,
+                                   undecided=self.undecided)
+        self.collect_cmd = Recorded(collect_candidates, (h, w), device, response=self.response,
+                                    # The float map seen as its bit patterns, for exact keys.
+                                    response_bits=self.response.view(wp.int32),
+                                    max_value=self.max_value, quality_level=0.0, keys=self.keys)
         self.bucket = 256
-        self.rank_cmd = Recorded(rank_candidates, self.bucket,
-                               [self.keys, self.count, self.raster_bits, 0, self.cand_x,
-                                self.cand_y, self.rank, self.state, self.state], device)
-        self.clear_cmd = Recorded(clear_ranks, self.bucket,
-                                [self.cand_x, self.cand_y, self.count, self.rank], device)
-        self.select_cmd = Recorded(write_selected, [1],
-                                 [self.cand_x, self.cand_y, self.state, self.count,
-                                  self.undecided, 0, wp.empty((0, 2), dtype=wp.float32,
-                                                              device=device), self.result],
-                                 device, block_dim=BLOCK)
-        self.round_cmds: list = [None]  # recorded per round index (>= 1) on first use
-        self.round_params = None
+        self.rank_cmd = Recorded(rank_candidates, self.bucket, device, keys=self.keys,
+                                 initial_state=0, cands=self.cands, conflicts=self.conflicts)
+        self.clear_cmd = Recorded(clear_ranks, self.bucket, device, cands=self.cands)
+        self.select_cmd = Recorded(write_selected, [1], device, block_dim=BLOCK, cands=self.cands,
+                                   undecided=self.undecided, last_round=0,
+                                   points=wp.empty((0, 2), dtype=wp.float32, device=device),
+                                   result=self.result)
+        self.spacing = None
         self.find_cmd = None
-        self.conflicts = None  # [rows, MAX_CONFLICTS] better-ranked conflicts per candidate
-        self.n_conflicts = None
-        self.device = device
+        self.round_cmds: list = [None]  # recorded per round index (>= 1) on first use
 
     def resize(self, n: int):
         """Launch the per-candidate kernels over ``_bucket(n)`` threads."""
@@ -423,40 +413,38 @@ class _CornersWorkspace:
                 if cmd is not None:
                     cmd.set_dim(b)
             if self.find_cmd is not None:
-                self.find_cmd.set_dim((b, self.window_rows))
-        if self.conflicts is None or self.conflicts.shape[0] < b:
-            # Sized by the launch bucket; the recorded launches are updated at their next use.
-            self.conflicts = wp.empty((b, MAX_CONFLICTS), dtype=wp.int32, device=self.device)
-            self.n_conflicts = wp.empty(b, dtype=wp.int32, device=self.device)
+                self.find_cmd.set_dim((b, 2 * self.spacing.radius + 1))
+        if self.conflicts.count is None or self.conflicts.count.shape[0] < b:
+            # Sized by the launch bucket; the recorded launches take it at their next use.
+            self.conflicts = Conflicts()
+            self.conflicts.lists = wp.empty((b, MAX_CONFLICTS), dtype=wp.int32, device=self.device)
+            self.conflicts.count = wp.empty(b, dtype=wp.int32, device=self.device)
 
-    def set_params(self, params: tuple):
-        """Record round 0 (:data:`find_conflicts`) for ``params`` = (radius, cell,
-        min_dist_sq); the rounds are recorded again on first use."""
-        if params == self.round_params:
+    def set_spacing(self, radius: int, cell: int, min_dist_sq: float):
+        """Record :data:`find_conflicts` for a min-distance rule; the rounds are recorded again
+        on first use."""
+        values = (radius, cell, min_dist_sq)
+        if self.spacing is not None and values == (self.spacing.radius, self.spacing.cell,
+                                                   self.spacing.min_dist_sq):
             return
-        self.round_params = params
+        self.spacing = Spacing()
+        self.spacing.radius, self.spacing.cell, self.spacing.min_dist_sq = values
         self.round_cmds = [None]
-        radius, cell, min_dist_sq = params
-        self.window_rows = 2 * radius + 1
-        self.find_cmd = Recorded(
-            find_conflicts, (self.bucket, self.window_rows),
-            [self.cand_x, self.cand_y, self.rank, self.count, radius, cell,
-             wp.float64(min_dist_sq), self.state, self.conflicts, self.n_conflicts,
-             self.undecided], self.device)
+        self.find_cmd = Recorded(find_conflicts, (self.bucket, 2 * radius + 1), self.device,
+                                 cands=self.cands, spacing=self.spacing,
+                                 conflicts=self.conflicts, undecided=self.undecided)
 
     def find(self):
-        self.find_cmd.launch([(8, self.conflicts), (9, self.n_conflicts)])
+        self.find_cmd.launch(conflicts=self.conflicts)
 
     def run_round(self, r: int):
         """Launch round ``r`` >= 1 (recorded on first use)."""
         while len(self.round_cmds) <= r:
-            radius, cell, min_dist_sq = self.round_params
             self.round_cmds.append(Recorded(
-                select_candidates, self.bucket,
-                [self.cand_x, self.cand_y, self.rank, self.count, radius, cell,
-                 wp.float64(min_dist_sq), len(self.round_cmds), self.conflicts,
-                 self.n_conflicts, self.state, self.undecided], self.device))
-        self.round_cmds[r].launch([(8, self.conflicts), (9, self.n_conflicts)])
+                select_candidates, self.bucket, self.device, cands=self.cands,
+                spacing=self.spacing, conflicts=self.conflicts,
+                round_index=len(self.round_cmds), undecided=self.undecided))
+        self.round_cmds[r].launch(conflicts=self.conflicts)
 
 
 def harris_corners(src, max_corners: int, quality_level: float, min_distance: float,
@@ -482,31 +470,31 @@ def _select(ws, src, max_corners, quality_level, min_distance, block_size, k, ks
     corner_response(src, block_size, ksize, k, score, ws.response)
     ws.row_max_cmd.launch()
     ws.finish_cmd.launch()
-    ws.collect_cmd.launch([(3, float(quality_level))])
-    n = min(int(ws.count_back.read(ws.count)[0]), ws.capacity)  # host sync: sizes the sort
+    ws.collect_cmd.launch(quality_level=float(quality_level))
+    n = min(int(ws.count_back.read(ws.keys.count)[0]), ws.capacity)  # host sync: sizes the sort
     if n == 0:
         return wp.empty((0, 2), dtype=wp.float32, device=device)
-    wp.utils.radix_sort_pairs(ws.keys, ws.values, n, 0, 32 + ws.raster_bits)
+    wp.utils.radix_sort_pairs(ws.keys.keys, ws.values, n, 0, 32 + ws.keys.raster_bits)
     ws.resize(n)
     suppress = min_distance >= 1
     # Initial state UNDECIDED, or ACCEPTED without suppression; the conflict counts zeroed.
-    ws.rank_cmd.launch([(3, 0 if suppress else 1), (8, ws.n_conflicts)])
+    ws.rank_cmd.launch(initial_state=UNDECIDED if suppress else ACCEPTED,
+                       conflicts=ws.conflicts)
 
     limit = n if max_corners <= 0 else min(int(max_corners), n)
     points = wp.empty((limit, 2), dtype=wp.float32, device=device)
     select = ws.select_cmd
-    select.set(6, points)
-    select.set(5, 0)
+    select.set(points=points, last_round=0)
     if suppress:
-        ws.set_params((int(math.ceil(min_distance)), int(round(min_distance)),  # cvRound: half
-                       float(min_distance) ** 2))                              # to even
+        ws.set_spacing(int(math.ceil(min_distance)), int(round(min_distance)),  # cvRound: half
+                       float(min_distance) ** 2)                                # to even
         ws.find()
         first = 1
         while True:
             last = min(first + ws.batch, MAX_ROUNDS) - 1
             for r in range(first, last + 1):
                 ws.run_round(r)
-            select.launch([(5, last)])
+            select.launch(last_round=last)
             accepted, still, used = (int(v) for v in ws.result_back.read(ws.result))  # host sync
             if still == 0:
                 ws.batch = min(max(used + 1, 2), 32)

@@ -41,6 +41,18 @@ SCORE_MIN_EIGEN = wp.constant(1)
 SCORES = {"harris": 0, "min_eigen": 1}
 
 
+@wp.struct
+class ResponseParams:
+    """What turns gradients into a response: the ``block_size`` x ``block_size`` box of the
+    structure tensor, the derivatives' ``scale`` (:func:`derivative_scale`), Harris ``k``, and
+    ``score`` (:data:`SCORE_HARRIS` or :data:`SCORE_MIN_EIGEN`)."""
+
+    block_size: int
+    scale: float
+    k: float
+    score: int
+
+
 @wp.func
 def reflect101(p: int, n: int) -> int:
     """OpenCV's BORDER_REFLECT_101 index (gfedcb|abcdefgh|gfedcba), always in [0, n)."""
@@ -89,15 +101,16 @@ def sobel_gradient(img: wp.array2d(dtype=wp.uint8), y: int, x: int, ksize: int) 
 
 
 @wp.func
-def corner_score(cov: wp.vec3, k: float, score: int) -> float:
+def corner_score(cov: wp.vec3, params: ResponseParams) -> float:
+    """Harris ``a*c - b*b - k*(a+c)^2`` or the minimum eigenvalue of the tensor (a, b, c)."""
     a = cov[0]
     b = cov[1]
     c = cov[2]
-    if score == SCORE_MIN_EIGEN:
+    if params.score == SCORE_MIN_EIGEN:
         ha = a * 0.5
         hc = c * 0.5
         return (ha + hc) - wp.sqrt((ha - hc) * (ha - hc) + b * b)
-    return a * c - b * b - k * (a + c) * (a + c)
+    return a * c - b * b - params.k * (a + c) * (a + c)
 
 
 @wp.kernel
@@ -117,21 +130,20 @@ def compute_gradient_products(
 @wp.kernel
 def compute_corner_response(
     products: wp.array2d(dtype=wp.vec3),
-    block_size: int,
-    k: float,
-    score: int,
+    params: ResponseParams,
     response: wp.array2d(dtype=wp.float32),
 ):
     y, x = wp.tid()
     h = products.shape[0]
     w = products.shape[1]
+    block_size = params.block_size
     lo = -(block_size // 2)
     cov = wp.vec3()
     for i in range(lo, lo + block_size):
         row = reflect101(y + i, h)
         for j in range(lo, lo + block_size):
             cov += products[row, reflect101(x + j, w)]
-    response[y, x] = corner_score(cov, k, score)
+    response[y, x] = corner_score(cov, params)
 
 
 @wp.func
@@ -204,10 +216,7 @@ def cov_from_patch5(img: wp.array2d(dtype=wp.uint8), top: int, left: int, block_
 @wp.kernel
 def compute_response_sobel3(
     img: wp.array2d(dtype=wp.uint8),
-    block_size: int,
-    scale: float,
-    k: float,
-    score: int,
+    params: ResponseParams,
     response: wp.array2d(dtype=wp.float32),
 ):
     """Sobel 3 gradients, their products summed over the block, and the score, per pixel.
@@ -218,12 +227,14 @@ def compute_response_sobel3(
     y, x = wp.tid()
     h = img.shape[0]
     w = img.shape[1]
+    block_size = params.block_size
+    scale = params.scale
     lo = -(block_size // 2)
     y0 = y + lo
     x0 = x + lo
     if block_size <= 3 and y0 >= 1 and x0 >= 1 and y0 + 4 < h and x0 + 4 < w:
         response[y, x] = corner_score(cov_from_patch5(img, y0 - 1, x0 - 1, block_size, scale),
-                                      k, score)
+                                      params)
         return
     interior = y0 >= 1 and x0 >= 1 and y0 + block_size < h and x0 + block_size < w
     cov = wp.vec3()
@@ -239,7 +250,7 @@ def compute_response_sobel3(
             dx = float(g[0]) * scale
             dy = float(g[1]) * scale
             cov += wp.vec3(dx * dx, dx * dy, dy * dy)
-    response[y, x] = corner_score(cov, k, score)
+    response[y, x] = corner_score(cov, params)
 
 
 FUSED_MAX_BLOCK = 5
@@ -251,25 +262,33 @@ def derivative_scale(ksize: int, block_size: int) -> float:
     return 1.0 / (float(1 << (ksize - 1)) * block_size * 255.0)
 
 
+def response_params(block_size: int, ksize: int, k: float, score: str) -> ResponseParams:
+    """The :class:`ResponseParams` of a call (``score``: a key of :data:`SCORES`)."""
+    params = ResponseParams()
+    params.block_size = int(block_size)
+    params.scale = derivative_scale(ksize, block_size)
+    params.k = float(k)
+    params.score = SCORES[score]
+    return params
+
+
 def corner_response(src, block_size: int, ksize: int, k: float, score: str, response) -> None:
-    """Launch both kernels on ``src.device``, writing the float32 map into ``response``."""
+    """Launch the kernels on ``src.device``, writing the float32 map into ``response``."""
     device = src.device
     h, w = src.shape
     if ksize == 3 and block_size <= FUSED_MAX_BLOCK:
         # A recorded launch per (size, parameters); only the two arrays change between calls.
         cmd = workspace(
             "harris_response", (h, w, int(block_size), float(k), score), device,
-            lambda: Recorded(compute_response_sobel3, (h, w),
-                             [src, int(block_size), derivative_scale(3, block_size), float(k),
-                              SCORES[score], response], device))
-        cmd.launch([(0, src), (5, response)])
+            lambda: Recorded(compute_response_sobel3, (h, w), device, img=src,
+                             params=response_params(block_size, 3, k, score), response=response))
+        cmd.launch(img=src, response=response)
         return
+    params = response_params(block_size, ksize, k, score)
     products = wp.empty((h, w), dtype=wp.vec3, device=device)
-    wp.launch(compute_gradient_products, dim=(h, w),
-              inputs=[src, int(ksize), derivative_scale(ksize, block_size)],
+    wp.launch(compute_gradient_products, dim=(h, w), inputs=[src, int(ksize), params.scale],
               outputs=[products], device=device)
-    wp.launch(compute_corner_response, dim=(h, w),
-              inputs=[products, int(block_size), float(k), SCORES[score]],
+    wp.launch(compute_corner_response, dim=(h, w), inputs=[products, params],
               outputs=[response], device=device)
 
 

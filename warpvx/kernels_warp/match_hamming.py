@@ -15,13 +15,14 @@
 
 Host sync: one, to read the number of matches (the result's length). Scratch buffers and
 recorded launches are reused between calls of the same sizes
-(:func:`.fast_corners.workspace`).
+(:func:`._launch.workspace`).
 """
 
 from __future__ import annotations
 
 import warp as wp
 
+from ..errors import UnsupportedError
 from ._launch import HostReadback, Recorded, workspace
 
 # Forward-only kernels: no adjoint code to generate and compile.
@@ -37,6 +38,29 @@ COMPACT_BLOCK = 1024  # lanes of compact_matches
 
 vec16u = wp.types.vector(length=MAX_WORDS, dtype=wp.uint32)
 vec2l = wp.types.vector(length=2, dtype=wp.int64)
+
+
+@wp.struct
+class Nearest:
+    """Best and second-best train row of each query row (-1 and :data:`NO_MATCH` where there
+    is none): int32 [N1] each."""
+
+    best_idx: wp.array(dtype=wp.int32)
+    best_dist: wp.array(dtype=wp.int32)
+    second_idx: wp.array(dtype=wp.int32)
+    second_dist: wp.array(dtype=wp.int32)
+
+
+@wp.struct
+class MatchRule:
+    """Which pairs ``compact_matches`` keeps: mutual best matches only (``cross_check`` 1,
+    ``t_query[t]`` the best query row of train row t), and/or Lowe's ratio test
+    (``use_ratio`` 1: distance < ``ratio`` x second-best distance, in double as cv2)."""
+
+    cross_check: int
+    use_ratio: int
+    ratio: wp.float64
+    t_query: wp.array(dtype=wp.int32)
 
 
 @wp.func
@@ -55,23 +79,37 @@ def push_top2(top: vec2l, key: wp.int64) -> vec2l:
 
 
 @wp.func
-def write_top2(q: int, top: vec2l, best_idx: wp.array(dtype=wp.int32),
-               best_dist: wp.array(dtype=wp.int32), second_idx: wp.array(dtype=wp.int32),
-               second_dist: wp.array(dtype=wp.int32)):
-    best_idx[q] = -1
-    best_dist[q] = NO_MATCH
-    second_idx[q] = -1
-    second_dist[q] = NO_MATCH
+def write_top2(q: int, top: vec2l, nearest: Nearest):
+    """Query row ``q``'s entries of ``nearest`` from its two smallest keys."""
+    nearest.best_idx[q] = -1
+    nearest.best_dist[q] = NO_MATCH
+    nearest.second_idx[q] = -1
+    nearest.second_dist[q] = NO_MATCH
     if top[0] != NONE_KEY:
-        best_idx[q] = int(top[0] & wp.int64(0xFFFFFFFF))
-        best_dist[q] = int(top[0] >> wp.int64(32))
+        nearest.best_idx[q] = int(top[0] & wp.int64(0xFFFFFFFF))
+        nearest.best_dist[q] = int(top[0] >> wp.int64(32))
     if top[1] != NONE_KEY:
-        second_idx[q] = int(top[1] & wp.int64(0xFFFFFFFF))
-        second_dist[q] = int(top[1] >> wp.int64(32))
+        nearest.second_idx[q] = int(top[1] & wp.int64(0xFFFFFFFF))
+        nearest.second_dist[q] = int(top[1] >> wp.int64(32))
+
+
+@wp.func
+def kept_pair(q: int, nearest: Nearest, rule: MatchRule) -> int:
+    """The train row matched to query ``q``, or -1 when the pair is dropped."""
+    t = nearest.best_idx[q]
+    if rule.cross_check != 0 and t >= 0:
+        if rule.t_query[t] != q:
+            t = -1
+    # No second row (a single train row): the ratio test cannot reject.
+    if t >= 0 and rule.use_ratio != 0 and nearest.second_dist[q] != NO_MATCH:
+        if not (wp.float64(nearest.best_dist[q]) < rule.ratio * wp.float64(nearest.second_dist[q])):
+            t = -1
+    return t
 
 
 @wp.kernel
 def pack_words(desc: wp.array2d(dtype=wp.uint8), words: wp.array2d(dtype=wp.uint32)):
+    """``words[i, w]``: bytes 4w..4w+3 of descriptor row i, little-endian, zero padded."""
     i, w = wp.tid()
     v = wp.uint32(0)
     for k in range(4):
@@ -105,21 +143,18 @@ def find_nearest_sliced(query: wp.array2d(dtype=wp.uint32), train: wp.array2d(dt
 
 
 @wp.kernel
-def merge_slices(partial: wp.array3d(dtype=wp.int64), best_idx: wp.array(dtype=wp.int32),
-                 best_dist: wp.array(dtype=wp.int32), second_idx: wp.array(dtype=wp.int32),
-                 second_dist: wp.array(dtype=wp.int32)):
+def merge_slices(partial: wp.array3d(dtype=wp.int64), nearest: Nearest):
     q = wp.tid()
     top = vec2l(NONE_KEY, NONE_KEY)
     for s in range(partial.shape[0]):
         top = push_top2(top, partial[s, q, 0])
         top = push_top2(top, partial[s, q, 1])
-    write_top2(q, top, best_idx, best_dist, second_idx, second_dist)
+    write_top2(q, top, nearest)
 
 
 @wp.kernel
 def find_nearest(query: wp.array2d(dtype=wp.uint32), train: wp.array2d(dtype=wp.uint32),
-                 best_idx: wp.array(dtype=wp.int32), best_dist: wp.array(dtype=wp.int32),
-                 second_idx: wp.array(dtype=wp.int32), second_dist: wp.array(dtype=wp.int32)):
+                 nearest: Nearest):
     """Rows wider than MAX_WORDS words: a thread per query row over all train rows."""
     q = wp.tid()
     top = vec2l(NONE_KEY, NONE_KEY)
@@ -128,46 +163,23 @@ def find_nearest(query: wp.array2d(dtype=wp.uint32), train: wp.array2d(dtype=wp.
         for w in range(query.shape[1]):
             d += int(wp.bit_count(query[q, w] ^ train[t, w]))
         top = push_top2(top, pair_key(d, t))
-    write_top2(q, top, best_idx, best_dist, second_idx, second_dist)
-
-
-# --- selection -------------------------------------------------------------------------------
-
-
-@wp.func
-def kept_pair(q: int, best_idx: wp.array(dtype=wp.int32), best_dist: wp.array(dtype=wp.int32),
-              second_dist: wp.array(dtype=wp.int32), t_query: wp.array(dtype=wp.int32),
-              cross_check: int, use_ratio: int, ratio: wp.float64) -> int:
-    """The train row matched to query ``q``, or -1 when the pair is dropped."""
-    t = best_idx[q]
-    if cross_check != 0 and t >= 0:
-        if t_query[t] != q:
-            t = -1
-    # No second row (a single train row): the ratio test cannot reject.
-    if t >= 0 and use_ratio != 0 and second_dist[q] != NO_MATCH:
-        if not (wp.float64(best_dist[q]) < ratio * wp.float64(second_dist[q])):
-            t = -1
-    return t
+    write_top2(q, top, nearest)
 
 
 @wp.kernel
-def compact_matches(best_idx: wp.array(dtype=wp.int32), best_dist: wp.array(dtype=wp.int32),
-                    second_dist: wp.array(dtype=wp.int32), t_query: wp.array(dtype=wp.int32),
-                    cross_check: int, use_ratio: int, ratio: wp.float64,
-                    pairs: wp.array2d(dtype=wp.int32), dist: wp.array(dtype=wp.int32),
-                    total: wp.array(dtype=wp.int32)):
+def compact_matches(nearest: Nearest, rule: MatchRule, pairs: wp.array2d(dtype=wp.int32),
+                    dist: wp.array(dtype=wp.int32), total: wp.array(dtype=wp.int32)):
     """Kept pairs in query order (one block: a scan of the keep flags per chunk)."""
     _blk, lane = wp.tid()
     lanes = wp.block_dim()
-    nq = best_idx.shape[0]
+    nq = nearest.best_idx.shape[0]
     base = int(0)
     start = int(0)
     while start < nq:
         q = start + lane
         t = int(-1)
         if q < nq:
-            t = kept_pair(q, best_idx, best_dist, second_dist, t_query, cross_check, use_ratio,
-                          ratio)
+            t = kept_pair(q, nearest, rule)
         keep = int(0)
         if t >= 0:
             keep = 1
@@ -176,7 +188,7 @@ def compact_matches(best_idx: wp.array(dtype=wp.int32), best_dist: wp.array(dtyp
         if keep == 1:
             pairs[m, 0] = q
             pairs[m, 1] = t
-            dist[m] = best_dist[q]
+            dist[m] = nearest.best_dist[q]
         base += wp.tile_extract(wp.tile_sum(flags), 0)
         start += lanes
     if lane == 0:
@@ -184,15 +196,14 @@ def compact_matches(best_idx: wp.array(dtype=wp.int32), best_dist: wp.array(dtyp
 
 
 @wp.kernel
-def write_knn(best_idx: wp.array(dtype=wp.int32), best_dist: wp.array(dtype=wp.int32),
-              second_idx: wp.array(dtype=wp.int32), second_dist: wp.array(dtype=wp.int32),
-              idx: wp.array2d(dtype=wp.int32), dist: wp.array2d(dtype=wp.int32)):
+def write_knn(nearest: Nearest, idx: wp.array2d(dtype=wp.int32), dist: wp.array2d(dtype=wp.int32)):
+    """``idx[q]``, ``dist[q]``: the best (and, for k = 2 columns, second-best) of query q."""
     q = wp.tid()
-    idx[q, 0] = best_idx[q]
-    dist[q, 0] = best_dist[q]
+    idx[q, 0] = nearest.best_idx[q]
+    dist[q, 0] = nearest.best_dist[q]
     if idx.shape[1] > 1:
-        idx[q, 1] = second_idx[q]
-        dist[q, 1] = second_dist[q]
+        idx[q, 1] = nearest.second_idx[q]
+        dist[q, 1] = nearest.second_dist[q]
 
 
 # --- host side -------------------------------------------------------------------------------
@@ -204,10 +215,10 @@ class _Words:
     def __init__(self, desc):
         n, width = desc.shape
         self.words = wp.empty((n, (width + 3) // 4), dtype=wp.uint32, device=desc.device)
-        self.cmd = Recorded(pack_words, self.words.shape, [desc, self.words], desc.device)
+        self.cmd = Recorded(pack_words, self.words.shape, desc.device, desc=desc, words=self.words)
 
     def pack(self, desc):
-        self.cmd.launch([(0, desc)])
+        self.cmd.launch(desc=desc)
         return self.words
 
 
@@ -218,22 +229,24 @@ class _Nearest:
         device = query_words.device
         nq, words = query_words.shape
         nt = train_words.shape[0]
-        self.out = [wp.empty(nq, dtype=wp.int32, device=device) for _ in range(4)]
+        self.out = Nearest()
+        self.out.best_idx, self.out.best_dist, self.out.second_idx, self.out.second_dist = (
+            wp.empty(nq, dtype=wp.int32, device=device) for _ in range(4))
         if words <= MAX_WORDS:
             slices = max(1, min(-(-nt // MIN_SLICE_ROWS), -(-TARGET_THREADS // nq)))
             rows = -(-nt // slices)
             slices = -(-nt // rows)
             partial = wp.empty((slices, nq, 2), dtype=wp.int64, device=device)
             self.cmds = [
-                Recorded(find_nearest_sliced, (slices, nq),
-                         [query_words, train_words, rows, partial], device),
-                Recorded(merge_slices, nq, [partial, *self.out], device),
+                Recorded(find_nearest_sliced, (slices, nq), device, query=query_words,
+                         train=train_words, slice_rows=rows, partial=partial),
+                Recorded(merge_slices, nq, device, partial=partial, nearest=self.out),
             ]
         else:
-            self.cmds = [Recorded(find_nearest, nq, [query_words, train_words, *self.out],
-                                  device)]
+            self.cmds = [Recorded(find_nearest, nq, device, query=query_words, train=train_words,
+                                  nearest=self.out)]
 
-    def run(self):
+    def run(self) -> Nearest:
         for cmd in self.cmds:
             cmd.launch()
         return self.out
@@ -242,47 +255,71 @@ class _Nearest:
 class _MatchWorkspace:
     def __init__(self, desc1, desc2):
         device = desc1.device
+        nq = desc1.shape[0]
         self.query = _Words(desc1)
         self.train = _Words(desc2)
         self.forward = _Nearest(self.query.words, self.train.words)
         self.backward = None  # cross check: train rows against the query rows
         self.total = wp.zeros(1, dtype=wp.int32, device=device)
         self.readback = HostReadback(1, wp.int32, device)
-        b = self.forward.out
-        nq = desc1.shape[0]
-        self.compact = Recorded(compact_matches, [1],
-                                [b[0], b[1], b[3], b[0], 0, 0, wp.float64(0.0),
-                                 wp.empty((nq, 2), dtype=wp.int32, device=device),
-                                 wp.empty(nq, dtype=wp.int32, device=device), self.total],
-                                device, block_dim=COMPACT_BLOCK)
-        self.ratio = 0.0  # the ratio recorded in compact
+        self.rule_values = None  # (cross_check, ratio) of the recorded rule
+        self.compact = Recorded(compact_matches, [1], device, block_dim=COMPACT_BLOCK,
+                                nearest=self.forward.out, rule=MatchRule(),
+                                pairs=wp.empty((nq, 2), dtype=wp.int32, device=device),
+                                dist=wp.empty(nq, dtype=wp.int32, device=device),
+                                total=self.total)
+        self.knn = Recorded(write_knn, nq, device, nearest=self.forward.out,
+                            idx=wp.empty((nq, 2), dtype=wp.int32, device=device),
+                            dist=wp.empty((nq, 2), dtype=wp.int32, device=device))
 
-    def nearest(self, desc1, desc2, cross_check: bool):
-        """Forward (best, best distance, second, second distance) and, with ``cross_check``,
-        the best query row of each train row."""
+    def nearest(self, desc1, desc2, cross_check: bool) -> Nearest:
+        """The forward best/second-best rows; with ``cross_check``, the backward ones too
+        (each train row's best query row), which the match rule then reads."""
         self.query.pack(desc1)
         self.train.pack(desc2)
         forward = self.forward.run()
-        if not cross_check:
-            return forward, forward[0]
-        if self.backward is None:
-            self.backward = _Nearest(self.train.words, self.query.words)
-        return forward, self.backward.run()[0]
+        if cross_check:
+            if self.backward is None:
+                self.backward = _Nearest(self.train.words, self.query.words)
+            self.backward.run()
+        return forward
+
+    def set_rule(self, cross_check: bool, ratio) -> None:
+        """Make ``compact`` keep the pairs ``cross_check`` and ``ratio`` keep (a new
+        :class:`MatchRule` when they change)."""
+        values = (bool(cross_check), ratio)
+        if values != self.rule_values:
+            rule = MatchRule()
+            rule.cross_check = int(values[0])
+            rule.use_ratio = int(ratio is not None)
+            rule.ratio = 0.0 if ratio is None else float(ratio)
+            # Each train row's best query row; unread without cross_check.
+            rule.t_query = (self.backward if cross_check else self.forward).out.best_idx
+            self.rule_values = values
+            self.compact.set(rule=rule)
+
+
+def _workspace(desc1, desc2) -> _MatchWorkspace:
+    return workspace("match_hamming", (desc1.shape[0], desc2.shape[0], desc1.shape[1]),
+                     desc1.device, lambda: _MatchWorkspace(desc1, desc2))
 
 
 def knn_match_hamming(desc1, desc2, k: int, *, out=None) -> tuple:
     """(int32 [N1, k] train indices, int32 [N1, k] distances), nearest first, k in {1, 2},
-    k <= N2 (the best and second best). No host sync; ``out`` is ignored."""
+    k <= N2 (the best and second best); written into ``out`` = (indices, distances) on
+    ``desc1.device`` when given. No host sync."""
     device = desc1.device
     nq = desc1.shape[0]
-    idx = wp.empty((nq, k), dtype=wp.int32, device=device)
-    dist = wp.empty((nq, k), dtype=wp.int32, device=device)
+    if out is None:
+        idx = wp.empty((nq, k), dtype=wp.int32, device=device)
+        dist = wp.empty((nq, k), dtype=wp.int32, device=device)
+    else:
+        idx, dist = out
     if nq == 0 or k == 0:
         return idx, dist
-    ws = workspace("match_hamming", (nq, desc2.shape[0], desc1.shape[1]), device,
-                   lambda: _MatchWorkspace(desc1, desc2))
-    nearest, _ = ws.nearest(desc1, desc2, False)
-    wp.launch(write_knn, dim=nq, inputs=nearest, outputs=[idx, dist], device=device)
+    ws = _workspace(desc1, desc2)
+    ws.nearest(desc1, desc2, False)
+    ws.knn.launch(idx=idx, dist=dist)
     return idx, dist
 
 
@@ -290,22 +327,22 @@ def match_hamming(desc1, desc2, cross_check: bool, ratio, *, out=None) -> tuple:
     """(int32 [M, 2] (query, train) pairs, int32 [M] distances) on ``desc1.device``.
 
     Pairs are listed by increasing query index. One host sync reads M (the arrays are views
-    of the first M rows of [N1]-row allocations); ``out`` is ignored.
+    of the first M rows of [N1]-row allocations). ``out`` is refused: M depends on the data.
     """
+    if out is not None:
+        raise UnsupportedError("out: match_hamming returns a data-dependent number of pairs; "
+                               "it takes no out=")
     device = desc1.device
     nq, nt = desc1.shape[0], desc2.shape[0]
     if nq == 0 or nt == 0:
         return (wp.zeros((0, 2), dtype=wp.int32, device=device),
                 wp.zeros(0, dtype=wp.int32, device=device))
-    ws = workspace("match_hamming", (nq, nt, desc1.shape[1]), device,
-                   lambda: _MatchWorkspace(desc1, desc2))
-    _, t_query = ws.nearest(desc1, desc2, bool(cross_check))  # t_query: unread without it
+    ws = _workspace(desc1, desc2)
+    ws.nearest(desc1, desc2, bool(cross_check))
+    ws.set_rule(cross_check, ratio)
     pairs = wp.empty((nq, 2), dtype=wp.int32, device=device)
     dist = wp.empty(nq, dtype=wp.int32, device=device)
-    rule = (int(bool(cross_check)), int(ratio is not None), 0.0 if ratio is None else float(ratio))
-    ws.compact.launch([(3, t_query), (4, rule[0]), (5, rule[1]), (7, pairs), (8, dist)]
-                      + ([(6, wp.float64(rule[2]))] if rule[2] != ws.ratio else []))
-    ws.ratio = rule[2]
+    ws.compact.launch(pairs=pairs, dist=dist)
     m = int(ws.readback.read(ws.total)[0])  # the one host sync: the number of matches
     return pairs[:m], dist[:m]
 

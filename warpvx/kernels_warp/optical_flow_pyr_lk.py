@@ -27,7 +27,7 @@ patch (value, Ix, Iy) is one int64 per sample, read with one load per iteration;
 lie with their derivative margins inside the level read pixels directly (the reflecting reads
 serve the edges only). Scratch (pyramid levels of image inputs, coarse-level results, window patches)
 and the per-level launches are recorded once per problem size and replayed
-(:func:`.fast_corners.workspace`); no host sync.
+(:func:`._launch.workspace`); no host sync.
 """
 
 from __future__ import annotations
@@ -430,14 +430,13 @@ class _TrackWorkspace:
             params.use_initial_flow = 1 if use_initial else 0
             # Placeholders for the per-call arrays (set before each launch).
             img = wp.empty(sizes[level], dtype=wp.uint8, device=device)
-            target = None if level == 0 else self.tmp[level % 2]
             pts = wp.empty((n, 2), dtype=wp.float32, device=device)
+            target = pts if level == 0 else self.tmp[level % 2]
             self.cmds.append((level, Recorded(
-                track_points_level, [n], [img, img, pts, guess, params, self.patch,
-                                          target if target is not None else pts,
-                                          wp.empty(n, dtype=wp.uint8, device=device),
-                                          wp.empty(n, dtype=wp.float32, device=device)],
-                device, block_dim=block_dim)))
+                track_points_level, [n], device, block_dim=block_dim, prev_img=img,
+                next_img=img, prev_pts=pts, guess_pts=guess, params=params, patch=self.patch,
+                tracked_pts=target, status=wp.empty(n, dtype=wp.uint8, device=device),
+                err=wp.empty(n, dtype=wp.float32, device=device))))
             guess = target
 
 
@@ -504,10 +503,11 @@ def optical_flow_pyr_lk(
     if use_initial:
         wp.copy(ws.guess, next_pts)
     for level, cmd in ws.cmds:
-        changes = [(0, prev_pyr[level]), (1, next_pyr[level]), (2, prev_pts)]
         if level == 0:
-            changes += [(6, res), (7, status), (8, err)]
-        cmd.launch(changes)
+            cmd.launch(prev_img=prev_pyr[0], next_img=next_pyr[0], prev_pts=prev_pts,
+                       tracked_pts=res, status=status, err=err)
+        else:
+            cmd.launch(prev_img=prev_pyr[level], next_img=next_pyr[level], prev_pts=prev_pts)
     return res, status, err
 
 

@@ -12,7 +12,8 @@ from __future__ import annotations
 import warp as wp
 
 from ._launch import array_key, as_view, as_words, launch_cached, view
-from ._sampling import INTER_NEAREST, SAMPLERS, SourceImage, load_float, store_pixel, store_quad
+from ._sampling import (INTER_NEAREST, SAMPLERS, Sampling, SourceImage, load_float, sampling,
+                        source_image, store_pixel, store_quad)
 
 # Inference only: no adjoint kernels (halves JIT time). No implicit FMA contraction: the
 # sampling code fuses explicitly where OpenCV does, so CPU and CUDA builds agree bit for bit.
@@ -21,7 +22,12 @@ wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 def make_kernels(channels: int):
     """``(per-pixel kernel, quad kernel)`` remapping images of ``channels`` channels (a
-    compile-time constant: one pair per count, made once at import)."""
+    compile-time constant: one pair per count, made once at import).
+
+    The maps are read raw (:func:`load_float`, through the read-only cache) at
+    ``y * width + x``: the launch covers the output, which has the maps' shape (the public
+    function checks), and the maps are C-contiguous, so every index lies inside them.
+    """
     sample_nearest, sample_linear = SAMPLERS[channels]
 
     @wp.kernel
@@ -29,20 +35,18 @@ def make_kernels(channels: int):
         src: SourceImage,
         map_x: wp.array2d(dtype=wp.float32),
         map_y: wp.array2d(dtype=wp.float32),
-        interpolation: int,
-        border: int,
-        bval: wp.vec4,
+        how: Sampling,
         dst: wp.array2d(dtype=wp.uint8),
     ):
         """One output pixel per thread; ``dst`` is the output as rows of width * C bytes."""
         y, x = wp.tid()
-        i = y * map_x.shape[1] + x  # the maps are C-contiguous
+        i = y * map_x.shape[1] + x
         sx = load_float(map_x.ptr, i)
         sy = load_float(map_y.ptr, i)
-        if interpolation == INTER_NEAREST:
-            p = sample_nearest(src, sx, sy, border, bval)
+        if how.interpolation == INTER_NEAREST:
+            p = sample_nearest(src, sx, sy, how)
         else:
-            p = sample_linear(src, sx, sy, border, bval)
+            p = sample_linear(src, sx, sy, how)
         store_pixel(dst, wp.static(channels), y, x, p)
 
     @wp.kernel
@@ -50,33 +54,31 @@ def make_kernels(channels: int):
         src: SourceImage,
         map_x: wp.array2d(dtype=wp.float32),
         map_y: wp.array2d(dtype=wp.float32),
-        interpolation: int,
-        border: int,
-        bval: wp.vec4,
+        how: Sampling,
         dst: wp.array2d(dtype=wp.uint32),
     ):
-        """Output pixels 4q..4q+3 of row y per thread; ``dst`` is the output as rows of
-        words. The interpolation branch is taken once per thread, so each branch is
-        straight-line code whose reads the compiler can issue together."""
+        """Output pixels 4q..4q+3 of row y per thread (the width is a multiple of 4); ``dst``
+        is the output as rows of words. The interpolation branch is taken once per thread, so
+        each branch is straight-line code whose reads the compiler can issue together."""
         y, q = wp.tid()
-        i = y * map_x.shape[1] + 4 * q  # the maps are C-contiguous
+        i = y * map_x.shape[1] + 4 * q
         mx = map_x.ptr
         my = map_y.ptr
         sx = wp.vec4(load_float(mx, i), load_float(mx, i + 1), load_float(mx, i + 2), load_float(mx, i + 3))
         sy = wp.vec4(load_float(my, i), load_float(my, i + 1), load_float(my, i + 2), load_float(my, i + 3))
-        if interpolation == INTER_NEAREST:
+        if how.interpolation == INTER_NEAREST:
             p = wp.vec4ui(
-                sample_nearest(src, sx[0], sy[0], border, bval),
-                sample_nearest(src, sx[1], sy[1], border, bval),
-                sample_nearest(src, sx[2], sy[2], border, bval),
-                sample_nearest(src, sx[3], sy[3], border, bval),
+                sample_nearest(src, sx[0], sy[0], how),
+                sample_nearest(src, sx[1], sy[1], how),
+                sample_nearest(src, sx[2], sy[2], how),
+                sample_nearest(src, sx[3], sy[3], how),
             )
         else:
             p = wp.vec4ui(
-                sample_linear(src, sx[0], sy[0], border, bval),
-                sample_linear(src, sx[1], sy[1], border, bval),
-                sample_linear(src, sx[2], sy[2], border, bval),
-                sample_linear(src, sx[3], sy[3], border, bval),
+                sample_linear(src, sx[0], sy[0], how),
+                sample_linear(src, sx[1], sy[1], how),
+                sample_linear(src, sx[2], sy[2], how),
+                sample_linear(src, sx[3], sy[3], how),
             )
         store_quad(dst, wp.static(channels), y, q, p)
 
@@ -89,16 +91,6 @@ KERNELS = {(c, quads): k for c in (1, 3, 4) for quads, k in zip((False, True), m
 
 #: Quad kernels on (tests and benchmarks turn them off to exercise the per-pixel kernels).
 USE_QUADS = True
-
-
-def source_image(src) -> SourceImage:
-    """The :class:`SourceImage` of a C-contiguous uint8 image (its address: keeps nothing
-    alive)."""
-    img = SourceImage()
-    img.ptr = src.ptr
-    img.height = src.shape[0]
-    img.width = src.shape[1]
-    return img
 
 
 def channels_of(a) -> int:
@@ -148,8 +140,8 @@ def remap(src, map_x, map_y, interpolation, border, border_value, *, out=None):
     kernel = KERNELS[channels_of(src), quads]
 
     def args():
-        return ([source_image(src), as_view(map_x), as_view(map_y), interpolation, border,
-                 wp.vec4(*border_value)], [dst()])
+        return ([source_image(src), as_view(map_x), as_view(map_y),
+                 sampling(interpolation, border, border_value)], [dst()])
 
     key = (array_key(src), array_key(map_x), array_key(map_y), interpolation, border,
            tuple(border_value), array_key(out))

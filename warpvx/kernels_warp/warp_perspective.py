@@ -14,8 +14,9 @@ from __future__ import annotations
 import warp as wp
 
 from ._launch import array_key, launch_cached
-from ._sampling import INTER_NEAREST, SAMPLERS, SourceImage, fma32, store_pixel, store_quad
-from .remap import channels_of, output_plan, source_image
+from ._sampling import (INTER_NEAREST, SAMPLERS, Sampling, SourceImage, fma32, sampling,
+                        source_image, store_pixel, store_quad)
+from .remap import channels_of, output_plan
 
 # Inference only: no adjoint kernels (halves JIT time). No implicit FMA contraction: the
 # sampling code fuses explicitly where OpenCV does, so CPU and CUDA builds agree bit for bit.
@@ -37,39 +38,35 @@ def make_kernels(channels: int):
     sample_nearest, sample_linear = SAMPLERS[channels]
 
     @wp.func
-    def warp_linear(src: SourceImage, m: wp.mat33, x: float, y: float, border: int, bval: wp.vec4) -> wp.uint32:
+    def warp_linear(src: SourceImage, m: wp.mat33, x: float, y: float, how: Sampling) -> wp.uint32:
         p = project(m, x, y)
-        return sample_linear(src, p[0], p[1], border, bval)
+        return sample_linear(src, p[0], p[1], how)
 
     @wp.func
-    def warp_nearest(src: SourceImage, m: wp.mat33, x: float, y: float, border: int, bval: wp.vec4) -> wp.uint32:
+    def warp_nearest(src: SourceImage, m: wp.mat33, x: float, y: float, how: Sampling) -> wp.uint32:
         p = project(m, x, y)
-        return sample_nearest(src, p[0], p[1], border, bval)
+        return sample_nearest(src, p[0], p[1], how)
 
     @wp.kernel
     def warp_perspective_pixels(
         src: SourceImage,
         m: wp.mat33,
-        interpolation: int,
-        border: int,
-        bval: wp.vec4,
+        how: Sampling,
         dst: wp.array2d(dtype=wp.uint8),
     ):
         """One output pixel per thread; ``dst`` is the output as rows of width * C bytes."""
         y, x = wp.tid()
-        if interpolation == INTER_NEAREST:
-            p = warp_nearest(src, m, float(x), float(y), border, bval)
+        if how.interpolation == INTER_NEAREST:
+            p = warp_nearest(src, m, float(x), float(y), how)
         else:
-            p = warp_linear(src, m, float(x), float(y), border, bval)
+            p = warp_linear(src, m, float(x), float(y), how)
         store_pixel(dst, wp.static(channels), y, x, p)
 
     @wp.kernel
     def warp_perspective_quads(
         src: SourceImage,
         m: wp.mat33,
-        interpolation: int,
-        border: int,
-        bval: wp.vec4,
+        how: Sampling,
         dst: wp.array2d(dtype=wp.uint32),
     ):
         """Output pixels 4q..4q+3 of row y per thread; ``dst`` is the output as rows of
@@ -78,19 +75,19 @@ def make_kernels(channels: int):
         # One int->float conversion per thread (quarter rate on GPUs); x + k is exact.
         xf = float(4 * q)
         yf = float(y)
-        if interpolation == INTER_NEAREST:
+        if how.interpolation == INTER_NEAREST:
             p = wp.vec4ui(
-                warp_nearest(src, m, xf, yf, border, bval),
-                warp_nearest(src, m, xf + 1.0, yf, border, bval),
-                warp_nearest(src, m, xf + 2.0, yf, border, bval),
-                warp_nearest(src, m, xf + 3.0, yf, border, bval),
+                warp_nearest(src, m, xf, yf, how),
+                warp_nearest(src, m, xf + 1.0, yf, how),
+                warp_nearest(src, m, xf + 2.0, yf, how),
+                warp_nearest(src, m, xf + 3.0, yf, how),
             )
         else:
             p = wp.vec4ui(
-                warp_linear(src, m, xf, yf, border, bval),
-                warp_linear(src, m, xf + 1.0, yf, border, bval),
-                warp_linear(src, m, xf + 2.0, yf, border, bval),
-                warp_linear(src, m, xf + 3.0, yf, border, bval),
+                warp_linear(src, m, xf, yf, how),
+                warp_linear(src, m, xf + 1.0, yf, how),
+                warp_linear(src, m, xf + 2.0, yf, how),
+                warp_linear(src, m, xf + 3.0, yf, how),
             )
         store_quad(dst, wp.static(channels), y, q, p)
 
@@ -133,7 +130,7 @@ def warp_perspective(src, m_inv, dsize, interpolation, border, border_value, *, 
 
     def args():
         m = wp.mat33(*[float(v) for v in m_inv])
-        return [source_image(src), m, interpolation, border, wp.vec4(*border_value)], [dst()]
+        return [source_image(src), m, sampling(interpolation, border, border_value)], [dst()]
 
     key = (array_key(src), m_inv, interpolation, border, tuple(border_value), array_key(out))
     launch_cached(kernel, dim, args, None, src.device, key)
