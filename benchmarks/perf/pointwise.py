@@ -12,7 +12,6 @@ all bilinear BGR, out= buffers on the device) it prints, per call:
   synchronisation (host overhead and kernel together, as a user sees them);
 - ``host``: the same 100 calls without the synchronisation (the host side alone);
 - ``graph``: the calls captured in a CUDA graph and replayed (the kernel alone);
-- ``pixel``: the graph time with the 4-pixels-per-thread kernels turned off;
 - ``floor``: bytes read and written over the measured device-to-device copy bandwidth;
 - ``cvcuda``: CV-CUDA's call, 100 back to back then one synchronisation, when it imports.
 
@@ -75,8 +74,6 @@ def main(argv=None) -> int:
     import warpvx.geometry
     from warpvx.backend import init_warp, resolve_backend
     from warpvx.bench import Settings, copy_bandwidth, load_photo, photo_at
-    from warpvx.kernels_warp import color_convert as k_color
-    from warpvx.kernels_warp import remap as k_remap
 
     wp = init_warp()
     device = resolve_backend(args.backend).device
@@ -108,12 +105,6 @@ def main(argv=None) -> int:
             row[f"{tag} graph"] = _graph_timer(fn, device) if graphs else float("nan")
             if tag == "new":
                 new_cases[case.label] = (case, fn)
-                if graphs:
-                    k_color.USE_QUADS = k_remap.USE_QUADS = False
-                    try:
-                        row["new pixel"] = _graph_timer(fn, device)
-                    finally:
-                        k_color.USE_QUADS = k_remap.USE_QUADS = True
             print(f"{case.label} {tag}: done", flush=True)
 
     # Peers last, so that nothing they leave running (threads, streams) touches our timings.
@@ -127,7 +118,7 @@ def main(argv=None) -> int:
         except Exception as exc:  # noqa: BLE001 - a missing peer is reported, not fatal
             print(f"cvcuda {label}: {exc!r}", flush=True)
 
-    cols = ["floor", "new call", "new host", "new graph", "new pixel", "cvcuda", "old call", "old host",
+    cols = ["floor", "new call", "new host", "new graph", "cvcuda", "old call", "old host",
             "old graph"]
     cols = [c for c in cols if any(c in r for r in rows.values())]
     print(f"\n{'per call, us':<22}" + "".join(f"{c:>11}" for c in cols) + "   graph/floor")

@@ -234,9 +234,6 @@ def copy_words(src: wp.array2d(dtype=wp.uint32), dst: wp.array2d(dtype=wp.uint32
 
 # --- dispatch -------------------------------------------------------------------------------
 
-#: Quad kernels on (tests and benchmarks turn them off to exercise the per-pixel kernels).
-USE_QUADS = True
-
 _QUAD_KERNELS = {"gray": convert_quads_to_gray, "reorder": reorder_quads, "expand": expand_gray_quads,
                  "nv": convert_nv_quads, "luma": copy_words}
 _PIXEL_KERNELS = {"gray": convert_color_to_gray, "reorder": reorder_channels, "expand": expand_gray,
@@ -252,7 +249,7 @@ def color_convert(src, code: int, *, out=None):
         out = wp.empty(shape, dtype=wp.uint8, device=src.device)
     h, w = shape[0], shape[1]
     kind = spec.kind
-    quads = USE_QUADS and w % 4 == 0 and src.ptr % 4 == 0 and out.ptr % 4 == 0
+    quads = w % 4 == 0 and src.ptr % 4 == 0 and out.ptr % 4 == 0
     kernel = (_QUAD_KERNELS if quads else _PIXEL_KERNELS)[kind]
     # NV quads cover two rows (the rows that share a chroma row).
     dim = ((h // 2 if kind == "nv" else h), w // 4) if quads else (h, w)

@@ -89,10 +89,6 @@ def make_kernels(channels: int):
 KERNELS = {(c, quads): k for c in (1, 3, 4) for quads, k in zip((False, True), make_kernels(c))}
 
 
-#: Quad kernels on (tests and benchmarks turn them off to exercise the per-pixel kernels).
-USE_QUADS = True
-
-
 def channels_of(a) -> int:
     """Channels of an HxW (1) or HxWxC image."""
     return 1 if a.ndim == 2 else a.shape[2]
@@ -102,7 +98,7 @@ def output_plan(out):
     """``(quads, launch dim, make output view)`` of an output image: quads when its rows can
     be written as words, 4 pixels per thread; else one pixel per thread, rows of bytes."""
     h, w = out.shape[0], out.shape[1]
-    if USE_QUADS and w % 4 == 0 and out.ptr % 4 == 0:
+    if w % 4 == 0 and out.ptr % 4 == 0:
         return True, (h, w // 4), lambda: as_words(out)
     row = w * channels_of(out)
     return False, (h, w), lambda: view(out, wp.uint8, (h, row), (row, 1))
