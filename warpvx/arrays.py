@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .backend import _is_warp_array, init_warp
-from .errors import WarpvxTypeError
+from .errors import DTypeError, WarpvxTypeError
 
 
 def is_warp_array(x) -> bool:
@@ -28,35 +28,76 @@ def as_input(x, name: str):
     """Normalise an input to a NumPy array or a ``wp.array`` (no copy where possible).
 
     Foreign GPU arrays become ``wp.array`` views through DLPack or the CUDA array interface.
-    Raises a warpvx type error naming ``name`` for anything else (lists, scalars, None).
+    Raises a warpvx error naming ``name`` for anything else (lists, scalars, None), for an
+    ``np.matrix`` (its operators are not elementwise: pass ``np.asarray(x)``), for a
+    ``wp.array`` of vectors or matrices (pass one of scalars, the components as the last
+    axis), and when the object's own ``__array__`` / ``__dlpack__`` conversion fails.
     """
+    if type(x) is np.ndarray:
+        return x
+    if isinstance(x, np.matrix):
+        raise WarpvxTypeError(f"{name}: expected a NumPy array, got an np.matrix (pass np.asarray(...))")
     if isinstance(x, np.ndarray):
         return x
     if _is_warp_array(x):
-        return x
-    if hasattr(x, "__cuda_array_interface__") or hasattr(x, "__dlpack__"):
-        wp = init_warp()
-        if hasattr(x, "__dlpack__"):
-            try:
-                return wp.from_dlpack(x)
-            except Exception:  # noqa: BLE001 - fall through to the interface
-                if not hasattr(x, "__cuda_array_interface__"):
-                    raise
-        iface = x.__cuda_array_interface__
-        dtype = np.dtype(iface["typestr"])
-        return wp.array(
-            ptr=iface["data"][0],
-            dtype=wp.dtype_from_numpy(dtype),
-            shape=tuple(iface["shape"]),
-            strides=iface.get("strides"),
-            device=wp.get_cuda_device(),
-        )
-    if hasattr(x, "__array_interface__") or hasattr(x, "__array__"):
-        return np.asarray(x)
+        return _scalar_warp_array(x, name)
+    try:
+        if hasattr(x, "__cuda_array_interface__") or hasattr(x, "__dlpack__"):
+            return _scalar_warp_array(_from_gpu_array(x), name)
+        if hasattr(x, "__array_interface__") or hasattr(x, "__array__"):
+            return np.asarray(x)
+    except (WarpvxTypeError, DTypeError):
+        raise
+    except Exception as e:  # noqa: BLE001 - any failure of the object's own conversion
+        raise WarpvxTypeError(
+            f"{name}: could not convert the {type(x).__name__} to an array "
+            f"({type(e).__name__}: {e})") from e
     raise WarpvxTypeError(
         f"{name}: expected a NumPy array, a wp.array or a GPU array (DLPack / "
         f"__cuda_array_interface__), got {type(x).__name__}"
     )
+
+
+def _from_gpu_array(x):
+    """A ``wp.array`` view of a foreign array, through DLPack or the CUDA array interface."""
+    wp = init_warp()
+    if hasattr(x, "__dlpack__"):
+        try:
+            return wp.from_dlpack(x)
+        except Exception:  # noqa: BLE001 - fall through to the interface
+            if not hasattr(x, "__cuda_array_interface__"):
+                raise
+    iface = x.__cuda_array_interface__
+    dtype = np.dtype(iface["typestr"])
+    return wp.array(
+        ptr=iface["data"][0],
+        dtype=wp.dtype_from_numpy(dtype),
+        shape=tuple(iface["shape"]),
+        strides=iface.get("strides"),
+        device=wp.get_cuda_device(),
+    )
+
+
+def _scalar_warp_array(x, name: str):
+    """``x`` itself when its elements are scalars; a vector/matrix dtype raises."""
+    if getattr(x.dtype, "_wp_scalar_type_", None) is not None:  # wp.vec3, wp.mat33, ...
+        raise DTypeError(
+            f"{name}: expected a wp.array of scalars, got one of {x.dtype.__name__} "
+            f"(view it as scalars with the components as the last axis)")
+    return x
+
+
+def byte_range(x) -> tuple:
+    """``(device, first byte, end byte)`` of a C-contiguous NumPy or Warp array (NumPy
+    arrays live on ``"cpu"``), for overlap tests."""
+    if isinstance(x, np.ndarray):
+        start = x.__array_interface__["data"][0]
+        return "cpu", start, start + x.nbytes
+    return str(x.device), x.ptr, x.ptr + x.size * _itemsize(x)
+
+
+def _itemsize(x) -> int:
+    return numpy_dtype(x).itemsize
 
 
 _numpy_dtypes: dict = {}  # Warp scalar type -> NumPy dtype

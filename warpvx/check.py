@@ -2,6 +2,11 @@
 
 Each function raises a :mod:`warpvx.errors` error whose message reads
 ``"<name>: expected <what>, got <actual>"``.
+
+Output sizes are bounded (:func:`check_output_size`): at most :data:`MAX_OUTPUT_SIDE` pixels
+a side and :data:`MAX_OUTPUT_PIXELS` pixels in all, so that a typo in ``dsize`` or ``fx``
+is refused before anything is allocated, the kernels' 32-bit byte offsets (4 channels at
+most) cannot overflow and pixel coordinates stay exact in float32.
 """
 
 from __future__ import annotations
@@ -13,7 +18,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .arrays import as_input, is_contiguous, numpy_dtype
+from .arrays import as_input, byte_range, is_contiguous, numpy_dtype
 from .errors import DTypeError, ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
 
 
@@ -91,12 +96,24 @@ def check_array(x, name: str, *, shape=None, dtypes=None, ndim=None, finite=Fals
     return arr
 
 
+#: Largest output side, in pixels (x < 2^24 keeps float32 pixel coordinates exact).
+MAX_OUTPUT_SIDE = 1 << 20
+#: Largest output, in pixels: 2^28 pixels of 4 bytes keep byte offsets below 2^31 (1 GiB).
+MAX_OUTPUT_PIXELS = 1 << 28
+#: ``max |m @ inv(m) - I|`` above which a matrix counts as singular (float64 arithmetic).
+INVERSE_TOLERANCE = 1e-6
+
+
 def check_matrix(m, name: str = "M", shape=(3, 3), *, invertible=False) -> np.ndarray:
     """A small host matrix as float64; finite, and invertible when asked.
 
+    Invertibility is judged by what the inverse does, not by the condition number (a pure
+    translation by 1e6 px is well invertible): ``inv(m)`` must exist, be finite, and
+    ``max |m @ inv(m) - I| <= INVERSE_TOLERANCE``.
+
     The result is read-only: validated NumPy matrices are remembered (a few dozen), since a
     warp is often called frame after frame with the same matrix and the invertibility test
-    (an SVD) costs tens of microseconds.
+    costs microseconds.
     """
     if isinstance(m, (list, tuple)):
         m = np.asarray(m)
@@ -116,9 +133,7 @@ def check_matrix(m, name: str = "M", shape=(3, 3), *, invertible=False) -> np.nd
     if not np.all(np.isfinite(host)):
         raise WarpvxValueError(f"{name}: matrix contains NaN or inf")
     if invertible:
-        cond = np.linalg.cond(host)
-        if not np.isfinite(cond) or cond > 1e12:
-            raise WarpvxValueError(f"{name}: matrix is singular (condition number {cond:.3g})")
+        _check_invertible(host, name)
     host.setflags(write=False)
     if key is not None:
         with _matrices_lock:
@@ -130,6 +145,19 @@ def check_matrix(m, name: str = "M", shape=(3, 3), *, invertible=False) -> np.nd
 
 _matrices: OrderedDict = OrderedDict()
 _matrices_lock = threading.Lock()
+
+
+def _check_invertible(m: np.ndarray, name: str) -> None:
+    try:
+        with np.errstate(all="ignore"):
+            inv = np.linalg.inv(m)
+            residual = float(np.abs(m @ inv - np.eye(m.shape[0])).max())
+    except np.linalg.LinAlgError:
+        residual = math.inf
+    if not residual <= INVERSE_TOLERANCE:  # also NaN: a non-finite inverse
+        raise WarpvxValueError(
+            f"{name}: matrix is singular (max |M @ inv(M) - I| = {residual:.3g}, expected <= "
+            f"{INVERSE_TOLERANCE:g})")
 
 
 def check_int(v, name: str, *, min_value=None, max_value=None) -> int:
@@ -153,14 +181,63 @@ def check_float(v, name: str, *, min_value=None, max_value=None, strict_min=Fals
 
 
 def check_size(dsize, name: str = "dsize") -> tuple[int, int]:
-    """A (width, height) pair of positive integers, OpenCV order."""
+    """A (width, height) pair of positive integers, OpenCV order, within the output bounds
+    (:func:`check_output_size`)."""
     try:
         w, h = dsize
     except (TypeError, ValueError):
         raise WarpvxTypeError(f"{name}: expected (width, height), got {dsize!r}") from None
-    w = check_int(w, f"{name}[0] (width)", min_value=1)
-    h = check_int(h, f"{name}[1] (height)", min_value=1)
+    w = check_int(w, f"{name}[0] (width)", min_value=1, max_value=MAX_OUTPUT_SIDE)
+    h = check_int(h, f"{name}[1] (height)", min_value=1, max_value=MAX_OUTPUT_SIDE)
+    check_output_size(w, h, name)
     return w, h
+
+
+def check_output_size(width: int, height: int, name: str) -> None:
+    """Refuse an output of ``width`` x ``height`` pixels over :data:`MAX_OUTPUT_SIDE` a side
+    or :data:`MAX_OUTPUT_PIXELS` in all (``name``: the argument that set the size)."""
+    if width > MAX_OUTPUT_SIDE or height > MAX_OUTPUT_SIDE or width * height > MAX_OUTPUT_PIXELS:
+        raise WarpvxValueError(
+            f"{name}: expected an output of at most {MAX_OUTPUT_SIDE} pixels a side and "
+            f"{MAX_OUTPUT_PIXELS} in all, got {width}x{height} (WxH)")
+
+
+def check_out(out, shape, *, inputs=(), in_place=False, dtypes=(np.uint8,)):
+    """Validate an ``out=`` array: shape, dtype, C-contiguity, writable, and no memory shared
+    with the ``inputs`` (``(name, array)`` pairs), which a kernel would read after writing.
+
+    ``in_place``: ``out`` may be exactly an input (same address and shape), for kernels that
+    support it; a partial overlap (a shifted view) is refused all the same.
+    """
+    out = check_array(out, "out", shape=shape, dtypes=dtypes)
+    check_writable(out)
+    for name, a in inputs:
+        if not _overlap(out, a):
+            continue
+        if in_place and tuple(out.shape) == tuple(a.shape) and byte_range(out) == byte_range(a):
+            continue
+        what = "is" if byte_range(out) == byte_range(a) else "overlaps"
+        raise WarpvxValueError(
+            f"out: expected memory apart from {name}, got an array that {what} {name} "
+            f"(pass a separate array{'' if not in_place else ' or ' + name + ' itself'})")
+    return out
+
+
+def check_writable(out, name: str = "out") -> None:
+    """Refuse a read-only NumPy output (or a list/tuple holding one)."""
+    if isinstance(out, (list, tuple)):
+        for i, o in enumerate(out):
+            check_writable(o, f"{name}[{i}]")
+    elif isinstance(out, np.ndarray) and not out.flags.writeable:
+        raise WarpvxValueError(f"{name}: expected a writable array, got a read-only one")
+
+
+def _overlap(a, b) -> bool:
+    """Whether two validated (C-contiguous) arrays share memory."""
+    if isinstance(a, np.ndarray) and isinstance(b, np.ndarray):
+        return np.may_share_memory(a, b)  # bounds only: exact for contiguous arrays
+    ra, rb = byte_range(a), byte_range(b)
+    return ra[0] == rb[0] and ra[1] < rb[2] and rb[1] < ra[2]
 
 
 def check_choice(v, name: str, choices):

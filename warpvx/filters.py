@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .backend import resolve_backend
-from .check import check_array, check_float, check_image, check_int
+from .check import check_float, check_image, check_int, check_out
 from .errors import UnsupportedError, WarpvxTypeError
 from .modes import FILTER_BORDERS, mode_code
 from .registry import dispatch
@@ -28,13 +28,16 @@ def gaussian_blur(src, ksize, sigma, border="reflect101", *, out=None, backend=N
     sigma : float or (float, float)
         Standard deviation, or (sigma_x, sigma_y); each >= 0. 0 derives sigma from the size
         (``0.3 * ((ksize - 1) * 0.5 - 1) + 0.8``); a sigma_y of 0 means sigma_x (OpenCV's
-        rules).
+        rules). A sigma below 0.01 gives the identity kernel at every size, as OpenCV (the
+        tails are below 2^-9 of the centre) and is taken as 0.01, so that no arithmetic on
+        it underflows (a sigma of 1e-300 squares to 0).
     border : {"reflect101", "replicate", "reflect", "constant"} or int
         Pixels beyond the image: ``gfedcb|abcdefgh|gfedcba`` (default, ``BORDER_DEFAULT``),
         ``aaaaaa|abcdefgh|hhhhhhh``, ``fedcba|abcdefgh|hgfedcb``, or zeros; cv2's
         ``BORDER_*`` integers are accepted too.
     out : array, optional
-        uint8 output of ``src``'s shape; may be ``src`` itself (in place).
+        uint8 writable output of ``src``'s shape; may be ``src`` itself (in place), but not
+        a view overlapping ``src`` elsewhere (refused: rows would be read after written).
     backend, stream
         See :mod:`warpvx.backend`.
 
@@ -62,7 +65,7 @@ def gaussian_blur(src, ksize, sigma, border="reflect101", *, out=None, backend=N
         sy = sx
     code = mode_code(border, "border", FILTER_BORDERS)
     if out is not None:
-        check_array(out, "out", shape=tuple(src.shape), dtypes=(np.uint8,))
+        check_out(out, tuple(src.shape), inputs=(("src", src),), in_place=True)
     return dispatch("gaussian_blur", be, src, (kx, ky), (sx, sy), code, out=out, stream=stream)
 
 
@@ -84,14 +87,22 @@ def _ksize(ksize) -> tuple[int, int]:
     return out[0], out[1]
 
 
+#: Positive sigmas below this give the identity kernel (tails below 2^-9) and are raised to it.
+MIN_SIGMA = 0.01
+
+
 def _sigma(sigma) -> tuple[float, float]:
     if isinstance(sigma, (tuple, list)):
         if len(sigma) != 2:
             raise WarpvxTypeError(f"sigma: expected a number or (sigma_x, sigma_y), got {sigma!r}")
-        return (check_float(sigma[0], "sigma[0]", min_value=0.0),
-                check_float(sigma[1], "sigma[1]", min_value=0.0))
-    s = check_float(sigma, "sigma", min_value=0.0)
+        return (_one_sigma(sigma[0], "sigma[0]"), _one_sigma(sigma[1], "sigma[1]"))
+    s = _one_sigma(sigma, "sigma")
     return s, s
+
+
+def _one_sigma(v, name: str) -> float:
+    s = check_float(v, name, min_value=0.0)
+    return s if s == 0.0 else max(s, MIN_SIGMA)
 
 
 def _as_hw(src):

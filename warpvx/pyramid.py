@@ -8,7 +8,8 @@ import numpy as np
 
 from ._pyramid_sizes import gaussian_pyramid_sizes, resize_scales, scale_pyramid_sizes  # noqa: F401
 from .backend import resolve_backend
-from .check import check_array, check_float, check_image, check_int, check_size
+from .check import (MAX_OUTPUT_SIDE, check_array, check_float, check_image, check_int,
+                    check_output_size, check_size)
 from .errors import ShapeError, WarpvxTypeError, WarpvxValueError
 from .registry import dispatch
 
@@ -140,7 +141,8 @@ def resize(src, dsize=None, fx=0.0, fy=0.0, *, out=None, backend=None, stream=No
     src : array
         uint8 HxW, HxWx1 (treated as HxW) or HxWxC (C = 3, 4), C-contiguous.
     dsize : (int, int) or None
-        Output (width, height). None or (0, 0): ``(round(w * fx), round(h * fy))``.
+        Output (width, height). None or (0, 0): ``(round(w * fx), round(h * fy))``. At
+        most 2^20 a side and 2^28 pixels (:func:`warpvx.check.check_output_size`).
     fx, fy : float
         Scale factors, used (and required > 0) when ``dsize`` is None or (0, 0).
     out : array, optional
@@ -163,13 +165,14 @@ def resize(src, dsize=None, fx=0.0, fy=0.0, *, out=None, backend=None, stream=No
     src = _as_hw(check_image(src, "src", dtypes=(np.uint8,), channels=(1, 3, 4)))
     h, w = src.shape[0], src.shape[1]
     if dsize is None or (isinstance(dsize, (tuple, list)) and tuple(dsize) == (0, 0)):
-        fx = check_float(fx, "fx", min_value=0.0, strict_min=True)
-        fy = check_float(fy, "fy", min_value=0.0, strict_min=True)
+        fx = check_float(fx, "fx", min_value=0.0, strict_min=True, max_value=MAX_OUTPUT_SIDE)
+        fy = check_float(fy, "fy", min_value=0.0, strict_min=True, max_value=MAX_OUTPUT_SIDE)
         dsize = None
     else:
         dsize = check_size(dsize, "dsize")
         fx = fy = 0.0
     (dw, dh), _ = resize_scales((w, h), dsize, fx, fy)
+    check_output_size(dw, dh, "fx, fy")  # dsize itself was checked above
     if dw < 1 or dh < 1:
         raise WarpvxValueError(
             f"fx, fy: a {w}x{h} (WxH) image scaled by ({fx}, {fy}) is empty ({dw}x{dh})")

@@ -24,6 +24,7 @@ import numpy as np
 
 from .arrays import _convert, is_warp_array, like_input
 from .backend import Backend, init_warp
+from .check import check_writable
 from .errors import BackendError, WarpvxValueError
 
 
@@ -189,6 +190,8 @@ def dispatch(name: str, backend: Backend, *args, out=None, stream=None, template
             if type(result) is _wp.array or not any(_is_array(a) for a in args):
                 return result
             return like_input(result, next(a for a in args if _is_array(a)))
+    if out is not None:
+        check_writable(out)  # before the kernel runs (a NumPy out is written last)
     if template is None:
         template = next((a for a in args if isinstance(a, np.ndarray) or is_warp_array(a)), None)
     host = backend.kind == "cpu"
