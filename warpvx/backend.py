@@ -9,12 +9,19 @@ Names accepted everywhere a ``backend=`` argument is taken:
                  present, else ``"cpu"``. A ``wp.array`` input with ``backend=None`` runs on
                  its own device.
 
-Warp is initialised lazily, on the first Warp backend request, never at import time.
+Warp is imported and initialised lazily, on the first Warp backend request, never at import
+time; resolving ``None`` on a machine without the CUDA driver picks ``"cpu"`` without importing
+Warp at all (:func:`cuda_driver_present`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import importlib.util
 import os
+import sys
+import tempfile
 import threading
 from dataclasses import dataclass
 
@@ -49,25 +56,87 @@ class Backend:
 
 
 def init_warp():
-    """Import and initialise Warp once (quietly); return the ``warp`` module."""
+    """Import and initialise Warp once (quietly); return the ``warp`` module.
+
+    Warp's greeting is silenced, and so is the native "Could not find or load the NVIDIA CUDA
+    driver" line when :func:`cuda_driver_present` already knows there is no driver (a CPU-only
+    machine, where no GPU is expected). ``WARPVX_VERBOSE=1`` keeps Warp's own output.
+    """
     global _warp_ready
     import warp as wp
 
     if not _warp_ready:
         with _lock:
             if not _warp_ready:
-                if os.environ.get("WARPVX_VERBOSE") is None:
+                quiet = os.environ.get("WARPVX_VERBOSE") is None
+                if quiet:
                     # Warp >= 1.19 greets at LOG_INFO; keep library users' output clean.
                     wp.config.quiet = True
                     if hasattr(wp, "LOG_WARNING"):
                         wp.config.log_level = wp.LOG_WARNING
-                wp.init()
+                filtered = quiet and not cuda_driver_present()  # no GPU expected
+                with _stderr_without(_NO_DRIVER_LINE) if filtered else contextlib.nullcontext():
+                    wp.init()
                 _warp_ready = True
     return wp
 
 
+# What Warp's native library prints (to fd 2, not through Python) when libcuda cannot be loaded.
+_NO_DRIVER_LINE = b"Could not find or load the NVIDIA CUDA driver"
+_driver_present: bool | None = None
+
+
+def cuda_driver_present() -> bool:
+    """True when the NVIDIA CUDA driver library loads, probed as Warp does (``libcuda.so`` or
+    ``libcuda.so.1`` on Linux, ``nvcuda.dll`` on Windows) without importing Warp.
+
+    A few milliseconds once, then cached. False means no CUDA device can exist; True only that
+    one may (Warp counts the devices).
+    """
+    global _driver_present
+    if _driver_present is None:
+        names = {"win32": ("nvcuda.dll",), "linux": ("libcuda.so", "libcuda.so.1")}
+        _driver_present = any(_loads(n) for n in names.get(sys.platform, ()))
+    return _driver_present
+
+
+def _loads(library: str) -> bool:
+    try:
+        ctypes.CDLL(library)
+    except OSError:
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def _stderr_without(line: bytes):
+    """Send file descriptor 2 to a temporary file for the block, then replay what was written
+    there except the lines containing ``line`` (native code writes to fd 2, bypassing
+    ``sys.stderr``; a file, unlike a pipe, never blocks a writer)."""
+    try:
+        saved = os.dup(2)
+    except OSError:  # no stderr at all (e.g. pythonw): nothing to filter
+        yield
+        return
+    sys.stderr.flush()
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            kept = [ln for ln in tmp.read().splitlines(keepends=True) if line not in ln]
+            if kept:
+                os.write(2, b"".join(kept))
+
+
 def cuda_available() -> bool:
-    """True when Warp sees at least one CUDA device."""
+    """True when Warp sees at least one CUDA device (Warp is not imported without a driver)."""
+    if not cuda_driver_present():
+        return False
     try:
         wp = init_warp()
     except ImportError:  # warp-lang is a dependency, but a CPU-only user may lack it
@@ -77,14 +146,11 @@ def cuda_available() -> bool:
 
 def available_backends() -> list[str]:
     """Backends that can run on this machine, e.g. ``["cpu", "warp-cpu", "cuda:0"]``."""
-    names = ["cpu"]
-    try:
-        wp = init_warp()
-    except ImportError:
-        return names
-    names.append("warp-cpu")
-    names += [f"cuda:{i}" for i in range(wp.get_cuda_device_count())]
-    return names
+    if importlib.util.find_spec("warp") is None:
+        return ["cpu"]
+    if not cuda_available():
+        return ["cpu", "warp-cpu"]
+    return ["cpu", "warp-cpu"] + [f"cuda:{i}" for i in range(init_warp().get_cuda_device_count())]
 
 
 def set_backend(backend: str | None) -> None:

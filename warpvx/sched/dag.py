@@ -12,6 +12,9 @@ A task graph is a :class:`networkx.DiGraph`:
   different memory spaces; without ``memory`` it is paid between any two different processors
   (the model of Topcuoglu et al. 2002).
 
+All costs and transfers of one DAG must sum to at most :data:`MAX_TOTAL_TIME` (1e300): every
+rank, start and finish time, makespan and metric (overlaps included) is then a finite float.
+
 *Kind* of a processor: its memory space when ``memory`` is given, else its name without trailing
 digits (``"cpu3"`` -> ``"cpu"``, ``"gpu"`` -> ``"gpu"``). A task is *exclusive* (thesis §5.1)
 when every processor that can run it is of one kind while the system has more than one kind:
@@ -25,7 +28,7 @@ import heapq
 import math
 import numbers
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 
 import networkx as nx
 
@@ -35,6 +38,11 @@ from ..errors import ScheduleError, WarpvxTypeError
 HOST = "host"
 DEVICE = "device"
 GPU = "gpu"
+
+#: Largest sum of every task's largest cost and every edge's transfer that a DAG may have. No
+#: schedule is longer than that sum, and the overlap metrics are at most (tasks - 1) / 2 times
+#: it, so the headroom up to the largest float (1.8e308) keeps every result finite.
+MAX_TOTAL_TIME = 1e300
 
 
 def cpu_gpu_dag(tasks: Mapping, edges=(), n_cpus: int = 1) -> nx.DiGraph:
@@ -60,8 +68,11 @@ def cpu_gpu_dag(tasks: Mapping, edges=(), n_cpus: int = 1) -> nx.DiGraph:
     Raises
     ------
     ScheduleError
-        A task with neither implementation, a negative/NaN time, an edge to an unknown task, a
-        cycle.
+        A task that is not a ``(cpu_time, gpu_time)`` pair or has neither implementation, a
+        negative/NaN/inf time, an edge that is not ``(u, v)`` or ``(u, v, transfer)``, an edge
+        to an unknown task, a cycle, times summing over :data:`MAX_TOTAL_TIME`.
+    WarpvxTypeError
+        ``tasks`` is not a dict, ``edges`` neither a dict nor an iterable.
     """
     n_cpus = check_int(n_cpus, "n_cpus", min_value=1)
     cpus = [f"cpu{i}" for i in range(n_cpus)]
@@ -88,21 +99,45 @@ def cpu_gpu_dag(tasks: Mapping, edges=(), n_cpus: int = 1) -> nx.DiGraph:
         if gpu_t is not None:
             cost[GPU] = _time(gpu_t, f"tasks[{name!r}] gpu_time")
         dag.add_node(name, cost=cost)
-    items = edges.items() if isinstance(edges, Mapping) else edges
-    for item in items:
-        if isinstance(edges, Mapping):
-            (u, v), transfer = item
-        elif len(item) == 2:
-            (u, v), transfer = item, 0.0
-        else:
-            u, v, transfer = item
+    total = sum(max(cost.values()) for _, cost in dag.nodes(data="cost"))
+    for u, v, transfer in _edge_triples(edges):
         for end in (u, v):
             if end not in dag:
                 raise ScheduleError(f"edges: edge ({u!r}, {v!r}) names unknown task {end!r}")
-        dag.add_edge(u, v, comm=_time(transfer, f"edges[({u!r}, {v!r})] transfer"))
+        comm = _time(transfer, f"edges[({u!r}, {v!r})] transfer")
+        total += comm
+        dag.add_edge(u, v, comm=comm)
+    _check_total(total, "tasks and edges")
     if not nx.is_directed_acyclic_graph(dag):
         raise ScheduleError(f"edges: the graph has a cycle: {_cycle_text(dag)}")
     return dag
+
+
+def _edge_triples(edges):
+    """``edges`` of :func:`cpu_gpu_dag` as ``(u, v, transfer)`` triples, shapes checked."""
+    if isinstance(edges, Mapping):
+        for key, transfer in edges.items():
+            if not (isinstance(key, tuple) and len(key) == 2):
+                raise ScheduleError(f"edges: key {key!r}; expected a (u, v) pair of task names")
+            yield (*key, transfer)
+        return
+    if isinstance(edges, (str, bytes)) or not isinstance(edges, Iterable):
+        raise WarpvxTypeError(
+            f"edges: expected a dict {{(u, v): transfer}} or an iterable of (u, v[, transfer]), "
+            f"got {type(edges).__name__}"
+        )
+    for i, item in enumerate(edges):
+        if isinstance(item, (str, bytes)) or not (isinstance(item, Sequence) and len(item) in (2, 3)):
+            raise ScheduleError(f"edges[{i}]: expected (u, v) or (u, v, transfer), got {item!r}")
+        yield (*item, 0.0) if len(item) == 2 else tuple(item)
+
+
+def _check_total(total: float, name: str) -> None:
+    if not total <= MAX_TOTAL_TIME:
+        raise ScheduleError(
+            f"{name}: the costs and transfers sum to {total:.3g}, over the limit "
+            f"{MAX_TOTAL_TIME:.0e} that keeps schedules and metrics finite; use a larger time unit"
+        )
 
 
 def processor_kinds(dag: nx.DiGraph) -> dict:
@@ -218,7 +253,8 @@ def prepare(dag: nx.DiGraph) -> Problem:
     ScheduleError
         Empty graph, missing/bad ``processors`` or ``memory``, a task without a ``cost`` dict,
         a cost for an unknown processor, a negative/NaN/inf cost or ``comm``, a task no
-        processor can run, a cycle. The message names the task, edge or attribute.
+        processor can run, a cycle, costs and transfers summing over :data:`MAX_TOTAL_TIME`.
+        The message names the task, edge or attribute.
     """
     procs = _processors(dag)
     if dag.number_of_nodes() == 0:
@@ -248,6 +284,7 @@ def prepare(dag: nx.DiGraph) -> Problem:
     index = {v: i for i, v in enumerate(names)}
     inf = math.inf
     cost, can, excl = [], [], []
+    total = 0.0  # every task's largest cost plus every comm: a bound of any makespan
     fast = (float, int)  # exact types skip the slower numbers.Real ABC check
     for v, c in dag.nodes(data="cost"):
         if type(c) is not dict and not isinstance(c, Mapping):
@@ -270,6 +307,7 @@ def prepare(dag: nx.DiGraph) -> Problem:
                 raise ScheduleError(f"dag: task {v!r}: cost on {p!r} is {t}; expected a finite time >= 0")
             row[k] = t
         runs = tuple([k for k in range(P) if row[k] < inf])
+        total += max([row[k] for k in runs])
         cost.append(row)
         can.append(runs)
         own = {problem.kind[k] for k in runs}
@@ -286,6 +324,7 @@ def prepare(dag: nx.DiGraph) -> Problem:
         if iu == iv:
             raise ScheduleError(f"dag: the graph has a cycle: self-loop on task {u!r}")
         c = float(c)
+        total += c
         preds[iv].append((iu, c))
         succs[iu].append((iv, c))
     # Kahn's algorithm with a heap: the topological order that keeps node insertion order
@@ -302,6 +341,7 @@ def prepare(dag: nx.DiGraph) -> Problem:
                 heapq.heappush(heap, j)
     if len(topo) != n:
         raise ScheduleError(f"dag: the graph has a cycle: {_cycle_text(dag)}")
+    _check_total(total, "dag")
     problem.names, problem.cost, problem.can, problem.preds = names, cost, can, preds
     problem.succs, problem.topo, problem.excl = succs, topo, excl
     return problem
