@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import GraphError, NodeExecutionError
 from ..registry import REGISTRY
-from ..sched.executor import DEVICE, HOST, ExecTask, InputRef, Program
+from ..runtime import DEVICE, HOST, ExecTask, InputRef, Program
 from .data import INPUT, VIRTUAL, Data, Delay, DelayRef, nbytes
 from .nodes import PrimitiveNode, UserNode
 from .verify import check_input, verify as _verify
@@ -481,7 +481,7 @@ class Graph:
         """Fold measured frames into the plan's calibration history (and the cache), for
         ``schedule(..., costs="history")``.
 
-        ``runs``: the :class:`~warpvx.sched.executor.FrameResult` of frames run with ``plan``
+        ``runs``: the :class:`~warpvx.runtime.FrameResult` of frames run with ``plan``
         (default: the plan's ``last_run``; :meth:`process` keeps only its latest frame there,
         so collect them to learn from many). Each node's cost on the processing element it
         ran on becomes the median of its measured intervals without their transfers, over

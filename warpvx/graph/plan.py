@@ -66,9 +66,9 @@ class Plan:
         return {t: s.processor for t, s in self.schedule.tasks.items()}
 
     def executor(self):
-        """The plan's :class:`~warpvx.sched.executor.Executor` (created on first use)."""
+        """The plan's :class:`~warpvx.runtime.Executor` (created on first use)."""
         if self._executor is None:
-            from ..sched.executor import Executor
+            from ..runtime import Executor
 
             self._executor = Executor(self.schedule, self.graph._program(),
                                       gpu_device=self.graph._backend_device(self.gpu),
