@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from ..errors import WarpvxValueError
 from .graph import Graph
 
 
@@ -139,7 +140,7 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
 
     chain = chain or ("mixed" if mixed else "cpu")
     if chain not in CHAINS:
-        raise ValueError(f"chain: expected one of {CHAINS}, got {chain!r}")
+        raise WarpvxValueError(f"chain: expected one of {CHAINS}, got {chain!r}")
     g = _chain(n_nodes, chain)
     x = np.arange(4, dtype=np.float32)
     saved = _executor.SPIN_SECONDS
