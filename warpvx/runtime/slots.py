@@ -5,6 +5,10 @@ frames)."""
 from __future__ import annotations
 
 import threading
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .transfers import Transfers
 
 #: Where a slot's value lives: host memory (NumPy) or the GPU role's device (``wp.array``).
 HOST = "host"
