@@ -62,7 +62,7 @@ import warpvx
 from warpvx.backend import init_warp
 from warpvx.graph import default_n_cpus
 from warpvx.graph.diagnostics import executor_overhead, soak
-from warpvx.sched import executor
+from warpvx.runtime import executor
 
 POLICIES = ("baseline", "heft", "xeft", "best")
 ROOT = Path(__file__).resolve().parent

@@ -63,6 +63,16 @@ class Keypoints:
                    size=col(size, default_size, "size"), angle=col(angle, -1, "angle"),
                    octave=col(octave, 0, "octave"))
 
+    def __warpvx_flatten__(self) -> tuple:
+        """``(arrays, aux)``: the six field arrays in :data:`FIELDS` order, no aux (the
+        runtime's flatten protocol, :func:`warpvx.runtime.tree_map`)."""
+        return tuple(getattr(self, f) for f in FIELDS), None
+
+    @classmethod
+    def __warpvx_unflatten__(cls, aux, arrays) -> "Keypoints":
+        """Keypoints from :meth:`__warpvx_flatten__`'s arrays (possibly moved or copied)."""
+        return cls(*arrays)
+
     def __len__(self) -> int:
         return int(self.x.shape[0])
 

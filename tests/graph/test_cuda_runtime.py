@@ -122,7 +122,7 @@ def test_device_inputs_and_device_outputs_on_cuda(big_frames):
 def test_staged_uploads_are_right_while_buffers_rotate():
     import warp as wp
 
-    from warpvx.sched.executor import Transfers
+    from warpvx.runtime import Transfers
 
     io = Transfers("cuda:0")
     stream = wp.Stream("cuda:0")
@@ -141,7 +141,7 @@ def test_small_copies_round_trip_through_the_native_path():
     import warp as wp
 
     from warpvx.keypoints import Keypoints
-    from warpvx.sched.executor import Transfers
+    from warpvx.runtime import Transfers
 
     io = Transfers("cuda:0")
     smalls = [np.arange(10, dtype=np.float32).reshape(5, 2), np.arange(7, dtype=np.uint8),

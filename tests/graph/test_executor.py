@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from warpvx.errors import NodeExecutionError, ScheduleError
-from warpvx.sched.executor import (
+from warpvx.runtime import (
     DEVICE,
     HOST,
     Executor,
@@ -205,7 +205,7 @@ def test_zero_cost_ties_run_in_dependency_order():
 def test_flag_is_a_one_shot_event_for_many_waiters():
     import threading
 
-    from warpvx.sched.executor import Flag
+    from warpvx.runtime import Flag
 
     f = Flag()
     assert not f.is_set() and f.wait(0.001) is False

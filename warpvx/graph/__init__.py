@@ -7,6 +7,9 @@
   writable from other threads while graphs run (``data.read()``, ``data.write(v)``,
   ``with data.lock:``).
 - :class:`Plan`: a schedule with its DAG, metrics and measured timelines (``plan.gantt``).
+- :mod:`.graph` builds and verifies, :mod:`.costs` is the cost model (calibrate, task DAG,
+  schedule, learn), :mod:`.run` runs frames through :mod:`warpvx.runtime`, :mod:`.bind` binds
+  each node to its implementation once after verification.
 - :mod:`.calibration`: measured node and transfer costs, cached per machine.
 - :mod:`.diagnostics`: executor overhead and soak measurements.
 """

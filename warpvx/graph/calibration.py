@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..sched.executor import Transfers
+from ..runtime import Transfers
 from .data import describe
 
 CACHE_ENV = "WARPVX_CACHE_DIR"
@@ -242,7 +242,7 @@ def measure_transfer(gpu_backend, *, sizes=None, repeats: int = 5) -> TransferMo
     """Time uploads and downloads of a few sizes on the GPU role's device and fit the model.
 
     Uploads run as the executor's GPU thread runs them (on a stream of its own made current,
-    through :class:`~warpvx.sched.executor.Transfers`), downloads as a CPU worker's do.
+    through :class:`~warpvx.runtime.Transfers`), downloads as a CPU worker's do.
     """
     from ..backend import init_warp
 
@@ -337,7 +337,7 @@ def measure_dispatch(gpu_backend, transfer: TransferModel | None = None, *, n_no
         bytes; ``start``: from a frame's submission to its first task's start. Without a
         GPU role the GPU entries are 0.
     """
-    from ..sched.executor import HOST, Executor, ExecTask, InputRef, Program
+    from ..runtime import HOST, Executor, ExecTask, InputRef, Program
     from ..sched.schedule import Schedule, ScheduledTask
 
     device = gpu_backend.device if gpu_backend is not None else None

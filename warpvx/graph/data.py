@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import GraphError
 from ..keypoints import FIELDS, Keypoints
-from ..sched.executor import HOST, Ring, Transfers, tree_map
+from ..runtime import HOST, Ring, Transfers, tree_map
 
 INPUT = "input"
 VIRTUAL = "virtual"

@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from ..errors import WarpvxValueError
 from .graph import Graph
 
 
@@ -121,7 +122,7 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
       on CUDA, an event, an upload (CPU -> GPU) or a download (GPU -> CPU).
 
     ``gpu`` is the GPU role's backend (default: CUDA when present); ``spin`` the executor's
-    (:data:`warpvx.sched.executor.SPIN_SECONDS` by default).
+    (:data:`warpvx.runtime.executor.SPIN_SECONDS` by default).
 
     Returns
     -------
@@ -135,11 +136,11 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
         ``"gpu"``: the GPU thread's time in a task (``gpu_task``; the first one, with the
         upload, left out) and between two tasks (``gpu_gap``).
     """
-    from ..sched import executor as _executor
+    from ..runtime import executor as _executor
 
     chain = chain or ("mixed" if mixed else "cpu")
     if chain not in CHAINS:
-        raise ValueError(f"chain: expected one of {CHAINS}, got {chain!r}")
+        raise WarpvxValueError(f"chain: expected one of {CHAINS}, got {chain!r}")
     g = _chain(n_nodes, chain)
     x = np.arange(4, dtype=np.float32)
     saved = _executor.SPIN_SECONDS

@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
+from ..errors import GraphError
 from ..sched.schedule import Schedule, ScheduledTask
 
 #: Frames of the last run whose measured timelines a plan keeps.
@@ -66,16 +67,23 @@ class Plan:
         return {t: s.processor for t, s in self.schedule.tasks.items()}
 
     def executor(self):
-        """The plan's :class:`~warpvx.sched.executor.Executor` (created on first use)."""
+        """The plan's :class:`~warpvx.runtime.Executor` (created on first use)."""
         if self._executor is None:
-            from ..sched.executor import Executor
+            from ..runtime import Executor
+            from .run import gpu_device, program
 
-            self._executor = Executor(self.schedule, self.graph._program(),
-                                      gpu_device=self.graph._backend_device(self.gpu),
-                                      name=self.graph.name)
+            graph = self.graph
+            self._executor = Executor(self.schedule, program(graph, self.gpu),
+                                      gpu_device=gpu_device(self.gpu), name=graph.name)
         return self._executor
 
+    def abort(self):
+        """Cancel the frames in flight, if the executor has started (the plan stays usable)."""
+        if self._executor is not None:
+            self._executor.abort()
+
     def close(self):
+        """Stop the executor's threads (a later run starts a fresh executor)."""
         if self._executor is not None:
             self._executor.close()
             self._executor = None
@@ -94,7 +102,7 @@ class Plan:
         ``"<node>#<frame>"`` — pipelined runs show frames overlapping.
         """
         if not self.last_run:
-            raise ValueError("plan: nothing measured yet; run g.process() or g.stream() first")
+            raise GraphError("plan: nothing measured yet; run g.process() or g.stream() first")
         runs = list(self.last_run)[-max(1, frames):]
         if len(runs) == 1:
             r = runs[0]

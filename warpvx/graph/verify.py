@@ -20,7 +20,7 @@ import networkx as nx
 import numpy as np
 
 from ..errors import GraphError, WarpvxError
-from ..sched.executor import Transfers
+from ..runtime import Transfers
 from .data import INPUT, DelayRef, describe, synth, zeros_like
 from .nodes import port_of
 

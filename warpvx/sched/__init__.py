@@ -1,8 +1,10 @@
-"""DAG scheduling: baseline, HEFT, XEFT and best-of policies, metrics, generator, executor.
+"""DAG scheduling: baseline, HEFT, XEFT and best-of policies, metrics, generator.
 
 Task graphs are :class:`networkx.DiGraph` objects (model in :mod:`warpvx.sched.dag`); policies
 are plain functions ``policy(dag) -> Schedule``. The Gantt chart and the synthetic study live in
 :mod:`warpvx.sched.gantt` and :mod:`warpvx.sched.study` (matplotlib is imported only there).
+This package is pure algorithms (networkx in, :class:`Schedule` out) and never imports Warp;
+running a schedule for real is :mod:`warpvx.runtime`.
 """
 
 from .dag import cpu_gpu_dag, exclusive_kind, processor_kinds

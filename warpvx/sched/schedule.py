@@ -49,8 +49,5 @@ class Schedule:
         on = [t for t in self.tasks.values() if t.processor == processor]
         return [t.task for t in sorted(on, key=lambda t: (t.start, t.finish))]
 
-    def processor_of(self, task) -> str:
-        return self.tasks[task].processor
-
     def __getitem__(self, task) -> ScheduledTask:
         return self.tasks[task]

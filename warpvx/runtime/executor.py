@@ -66,645 +66,25 @@ import functools
 import queue
 import threading
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping
 
 import networkx as nx
 
 from ..errors import NodeExecutionError, ScheduleError, WarpvxValueError
-from ..keypoints import FIELDS, Keypoints
-from .schedule import Schedule, ScheduledTask
-
-#: Seconds between cancellation checks of a blocked wait.
-WAIT_SLICE = 0.02
+from ..sched.schedule import Schedule
+from .native_copy import record_event, synchronize_event, warp
+from .program import ExecTask, InputRef, Program, data_graph
+from .slots import DEVICE, HOST, Slot
+from .timeline import WAIT_SLICE, Cancelled, EventPool, Frame, FrameResult, event_clock, frame_result
+from .transfers import Transfers
 
 #: Default of :class:`Executor`'s ``spin``: seconds a thread polls for a value (yielding the
 #: GIL between polls) before it blocks on it. Blocking costs a thread wake-up per hand-off.
 SPIN_SECONDS = 0.0
 
-HOST = "host"
-DEVICE = "device"
-
 #: A GPU task's uploads of this many bytes or more get a timing event of their own (the
 #: task's transfer time); a smaller copy is not worth an event.
 TIMED_COPY_MIN_BYTES = 1 << 16
-
-
-class _Cancelled(Exception):
-    """Internal: the frame a wait belongs to was cancelled."""
-
-
-# --------------------------------------------------------------------------- program
-
-
-@dataclass(frozen=True)
-class InputRef:
-    """A task input: value ``key`` of this frame (``offset=0``) or of ``-offset`` frames ago."""
-
-    key: str
-    offset: int = 0
-
-
-@dataclass
-class ExecTask:
-    """One task: inputs, outputs and its callables.
-
-    ``cpu(*host_values)`` and ``gpu(*device_values)`` return one value per output (a tuple
-    when there are several); ``None`` marks a missing implementation. ``gpu_out``, when
-    given, makes a fresh output buffer for the GPU callable, which then takes it as
-    ``gpu(*device_values, out=buffer)`` (buffers are pooled across frames).
-    """
-
-    name: str
-    inputs: tuple
-    outputs: tuple
-    cpu: Callable | None = None
-    gpu: Callable | None = None
-    gpu_out: Callable | None = None
-
-
-@dataclass
-class Program:
-    """What the executor runs each frame.
-
-    Attributes
-    ----------
-    tasks : dict
-        name -> :class:`ExecTask`.
-    inputs : tuple of str
-        Keys fed by :meth:`Executor.submit`.
-    outputs : dict
-        output name -> key, returned by :meth:`Executor.wait`.
-    rings : dict
-        key -> :class:`Ring` for every key read with a negative offset.
-    """
-
-    tasks: dict
-    inputs: tuple
-    outputs: dict
-    rings: dict = field(default_factory=dict)
-
-
-# --------------------------------------------------------------------------- values
-
-
-class Flag:
-    """A one-shot ``threading.Event`` (``set``, ``is_set``, ``wait(timeout)``) made of one
-    lock: cheaper to create, set and wait on than an Event (a Condition per wait), and the
-    executor makes one per value per frame and waits on them on every cross-thread edge."""
-
-    __slots__ = ("_lock", "_set")
-
-    def __init__(self):
-        self._lock = threading.Lock()
-        self._lock.acquire()
-        self._set = False
-
-    def set(self):
-        if not self._set:
-            self._set = True
-            try:
-                self._lock.release()
-            except RuntimeError:  # released by a concurrent set()
-                pass
-
-    def is_set(self) -> bool:
-        return self._set
-
-    def wait(self, timeout: float | None = None) -> bool:
-        if self._set:
-            return True
-        if self._lock.acquire(timeout=-1 if timeout is None else timeout):
-            try:
-                self._lock.release()  # let the other waiters through
-            except RuntimeError:
-                pass
-            return True
-        return self._set
-
-
-class Slot:
-    """One value of one frame, where its producer left it, with cached copies elsewhere.
-
-    ``where`` is ``"host"`` (NumPy data) or ``"device"`` (``wp.array`` data on the GPU role's
-    device). ``done`` is set once the value may be read (after the CUDA ``event``, if any).
-    """
-
-    __slots__ = ("value", "where", "event", "external", "done", "_host", "_device", "_lock")
-
-    def __init__(self):
-        self.value = None
-        self.where = HOST
-        self.event = None
-        self.external = False  # a device value made outside the executor's stream
-        self.done = Flag()
-        self._host = None
-        self._device = None
-        self._lock = threading.Lock()
-
-    @classmethod
-    def ready(cls, value, where=HOST) -> "Slot":
-        s = cls()
-        s.set(value, where)
-        return s
-
-    def set(self, value, where, event=None):
-        self.value, self.where, self.event = value, where, event
-        self.done.set()
-
-    def host(self, io: "Transfers", *, ready: bool = False):
-        """The value as host data, downloaded once (thread-safe).
-
-        ``ready``: the caller already waited for the producer's event on the host, so the
-        copy need not wait for it again.
-        """
-        if self.where == HOST:
-            return self.value
-        with self._lock:
-            if self._host is None:
-                self._host = (io.download(self.value, None if ready else self.event),)
-            return self._host[0]
-
-    def device(self, io: "Transfers", into=None):
-        """The value on the GPU role's device, uploaded once (call from the GPU thread).
-
-        ``into(shape, dtype)``: a device buffer to upload an array leaf into, or None for a
-        fresh one (see :meth:`Transfers.upload`).
-        """
-        if self.where == DEVICE:
-            return self.value
-        with self._lock:
-            if self._device is None:
-                self._device = (io.upload(self.value, into),)
-            return self._device[0]
-
-    def get(self, where, io):
-        return self.host(io) if where == HOST else self.device(io)
-
-
-class Ring:
-    """Slots of one key for past frames (a delay's storage), indexed by absolute frame number.
-
-    A frame's slot is reserved when the frame is submitted and filled when its producer runs.
-    Frames before the first one, and frames whose slot was dropped (a cancelled frame), read
-    the latest earlier slot that was filled, else the initial value. ``lock`` guards every
-    access; the graph layer shares it with user threads (thesis §4.2).
-    """
-
-    def __init__(self, slots: int, initial, lock=None):
-        self.slots = int(slots)
-        self.lock = lock if lock is not None else threading.RLock()
-        self._initial = Slot.ready(initial)
-        self._by_frame: dict[int, Slot] = {}
-        self.last_aged = -1
-
-    def reserve(self, frame: int, slot: Slot):
-        with self.lock:
-            self._by_frame[frame] = slot
-
-    def get(self, frame: int) -> Slot:
-        with self.lock:
-            slot = self._by_frame.get(frame)
-            if slot is not None:
-                return slot
-            earlier = [f for f, s in self._by_frame.items() if f < frame and s.done.is_set()]
-            return self._by_frame[max(earlier)] if earlier else self._initial
-
-    def put(self, frame: int, value, where=HOST):
-        """Replace frame ``frame``'s value (a user write through the communication wrapper)."""
-        with self.lock:
-            self._by_frame[frame] = Slot.ready(value, where)
-
-    @property
-    def initial(self):
-        """The value frames before the first one read."""
-        return self._initial.value
-
-    def set_initial(self, value):
-        with self.lock:
-            self._initial = Slot.ready(value)
-
-    def reset(self):
-        """Forget every frame: reads return the initial value again."""
-        with self.lock:
-            self._by_frame.clear()
-            self.last_aged = -1
-
-    def age(self, frame: int):
-        """Frame ``frame`` completed: it becomes the newest value; forget what no frame needs."""
-        with self.lock:
-            self.last_aged = max(self.last_aged, frame)
-            keep_from = self.last_aged - self.slots
-            for f in [f for f in self._by_frame if f < keep_from]:
-                del self._by_frame[f]
-
-    def discard_pending(self, frame: int):
-        """Drop frame ``frame``'s slot if its producer never ran (the frame was cancelled)."""
-        with self.lock:
-            slot = self._by_frame.get(frame)
-            if slot is not None and not slot.done.is_set():
-                del self._by_frame[frame]
-
-
-# --------------------------------------------------------------------------- transfers
-
-
-_WP = None
-
-
-def _wp():
-    """The initialised ``warp`` module (cached: an import statement per copy costs ~1 us)."""
-    global _WP
-    if _WP is None:
-        from ..backend import init_warp
-
-        _WP = init_warp()
-    return _WP
-
-
-def _is_warp(x) -> bool:
-    mod = type(x).__module__
-    return mod.startswith("warp") and hasattr(x, "device") and hasattr(x, "ptr")
-
-
-def tree_map(fn, obj):
-    """Apply ``fn`` to every array leaf (NumPy or Warp) of tuples, lists, dicts and Keypoints."""
-    import numpy as np
-
-    if isinstance(obj, np.ndarray) or _is_warp(obj):
-        return fn(obj)
-    if isinstance(obj, tuple):
-        return tuple(tree_map(fn, o) for o in obj)
-    if isinstance(obj, list):
-        return [tree_map(fn, o) for o in obj]
-    if isinstance(obj, dict):
-        return {k: tree_map(fn, v) for k, v in obj.items()}
-    if isinstance(obj, Keypoints):
-        return Keypoints(**{f: tree_map(fn, getattr(obj, f)) for f in FIELDS})
-    return obj
-
-
-def _native():
-    """Warp's native copy and sync entry points, or None when this Warp lacks them.
-
-    The executor's small copies use them directly: through ``wp.copy``, ``wp.empty(device=
-    "cpu")`` and ``array.numpy()`` a 16-byte download costs tens of microseconds of Python,
-    paid on every edge between a GPU task and a CPU task. Only contiguous arrays of scalar
-    dtypes take this path, with the same calls ``wp.copy`` makes.
-    """
-    global _NATIVE
-    if _NATIVE is False:
-        try:
-            from warp._src import context as ctx
-
-            core = ctx.runtime.core
-            _NATIVE = (core.wp_memcpy_h2d, core.wp_memcpy_d2h, core.wp_cuda_stream_synchronize,
-                       core.wp_cuda_event_record, core.wp_cuda_event_synchronize)
-        except (ImportError, AttributeError):
-            _NATIVE = None
-    return _NATIVE
-
-
-def _record(stream, event):
-    """``stream.record_event(event)`` (a timing event) without Warp's Python checks."""
-    native = _native()
-    if native is None:
-        stream.record_event(event)
-    else:
-        native[3](event.cuda_event, stream.cuda_stream, True)
-
-
-def _sync_event(event):
-    """``wp.synchronize_event(event)`` without Warp's capture checks (never capturing here)."""
-    native = _native()
-    if native is None or not native[4](event.cuda_event):
-        _wp().synchronize_event(event)  # the checked path, which also reports errors
-
-
-_NATIVE = False
-_NP_DTYPES: dict = {}
-
-
-def _numpy_dtype(wp, dtype):
-    """The NumPy dtype of a scalar Warp dtype, None for vectors, matrices and structs."""
-    try:
-        return _NP_DTYPES[dtype]
-    except KeyError:
-        pass
-    try:
-        np_dtype = wp.dtype_to_numpy(dtype)  # scalar types only; TypeError for the others
-    except (TypeError, KeyError):
-        np_dtype = None
-    _NP_DTYPES[dtype] = np_dtype
-    return np_dtype
-
-
-class _Staging:
-    """A pinned host buffer for uploads of one shape and dtype, and the event of its last copy."""
-
-    __slots__ = ("buffer", "view", "event")
-
-    def __init__(self, buffer, event):
-        self.buffer = buffer
-        self.view = buffer.numpy()  # aliases the pinned memory
-        self.event = event
-
-
-class Transfers:
-    """Host <-> device copies for one thread.
-
-    On CUDA each thread that downloads owns a ``wp.Stream``: a download makes that stream wait
-    for the producer's event, copies, and synchronises only that stream, so it never touches
-    the device's current stream (which belongs to the GPU thread) and never waits for
-    unrelated kernels. Uploads run on the device's current stream (the GPU thread's), so
-    the device buffer is filled in that stream's order. An upload of
-    :attr:`PINNED_MIN_BYTES` or more goes through a pinned staging buffer (one per shape and
-    dtype, a few in rotation, reused once their copy has completed): the host copies into it
-    and the device copy is asynchronous. From pageable memory, a large copy would wait for
-    every kernel queued before it on the stream, stalling the GPU thread. A smaller upload
-    copies from pageable memory: the driver stages it at once.
-
-    Uploads take the device buffer from ``into`` when given (the executor's per-edge pools:
-    allocating a ``wp.array`` costs ~10 us of Python, more than a small copy); downloads make
-    fresh NumPy arrays. With :attr:`PINNED_DOWNLOADS`, a download up to
-    :attr:`PINNED_DOWNLOAD_MAX` bytes lands in a reusable pinned buffer of this thread and is
-    then copied out.
-    """
-
-    #: Uploads from this size on use pinned staging buffers.
-    PINNED_MIN_BYTES = 1 << 16
-    #: Staging buffers per shape and dtype before an upload waits for the oldest one.
-    STAGING_DEPTH = 4
-    #: Downloads through a reusable pinned buffer plus a host copy instead of straight into
-    #: a fresh pageable array (measured: see benchmarks/results/graph/overhead.md).
-    PINNED_DOWNLOADS = False
-    PINNED_DOWNLOAD_MAX = 1 << 16
-
-    def __init__(self, device: str | None):
-        self.device = device
-        self.cuda = bool(device) and device.startswith("cuda")
-        self._stream = None
-        self._dev = None
-        self._staging: dict = {}
-        self._landing: dict = {}  # (shape, dtype) -> pinned download buffer (NumPy view)
-        self.moved = 0  # bytes copied so far, both ways
-
-    @property
-    def stream(self):
-        if self._stream is None and self.cuda:
-            self._stream = _wp().Stream(self.device)
-        return self._stream
-
-    def download(self, value, event=None):
-        """``value`` with every device array copied to host NumPy (fresh arrays, never views
-        of device-role memory: a pooled buffer may be overwritten by a later frame)."""
-        wp = _wp() if self.cuda else None
-
-        def leaf(a):
-            if not _is_warp(a):
-                return a
-            if not a.device.is_cuda:
-                # Warp's CPU device shares host memory: copy, so the value outlives the buffer.
-                out = a.numpy().copy()
-            elif not a.is_contiguous:
-                # A strided view needs a gather kernel on the device's current stream (the GPU
-                # thread's); wait for the producer, then let Warp copy synchronously.
-                if event is not None:
-                    wp.synchronize_event(event)
-                out = a.numpy()
-            else:
-                s = self.stream
-                if event is not None:
-                    s.wait_event(event)
-                out = self._download_native(wp, a, s)
-                if out is None:
-                    host = wp.empty(a.shape, dtype=a.dtype, device="cpu")
-                    wp.copy(host, a, stream=s)
-                    wp.synchronize_stream(s)
-                    out = host.numpy()
-            self.moved += out.nbytes
-            return out
-
-        return tree_map(leaf, value)
-
-    def upload(self, value, into=None):
-        """``value`` with every host array copied to the device (on its current stream).
-
-        ``into(shape, dtype)``, when given, returns the contiguous device buffer an array leaf
-        is copied into (or None: a fresh one); the caller owns its reuse.
-        """
-        import numpy as np
-
-        wp = _wp()
-        dev = self._dev
-        if dev is None:
-            dev = self._dev = wp.get_device(self.device)
-
-        def leaf(a):
-            if _is_warp(a):
-                if a.device == dev:
-                    return a
-                a = a.numpy()
-            if not isinstance(a, np.ndarray):
-                return a
-            dtype = wp.dtype_from_numpy(a.dtype)
-            self.moved += a.nbytes
-            if dev.is_cpu:
-                # Warp's CPU device shares host memory: alias, do not copy (host values are
-                # never written after their producer finished).
-                return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev, copy=False)
-            dst = into(a.shape, dtype) if into is not None else None
-            if dst is None:
-                dst = wp.empty(a.shape, dtype=dtype, device=dev)
-            if a.nbytes < self.PINNED_MIN_BYTES:
-                self._upload_small(wp, dev, np.ascontiguousarray(a), dst)
-            else:
-                self._upload_staged(wp, dev, a, dst)
-            return dst
-
-        return tree_map(leaf, value)
-
-    def _download_native(self, wp, a, stream):
-        """Contiguous scalar-dtype device array -> new NumPy array, copied on ``stream``
-        (None: not this path)."""
-        native = _native()
-        np_dtype = _numpy_dtype(wp, a.dtype)
-        if native is None or np_dtype is None:
-            return None
-        d2h, sync = native[1], native[2]
-        import numpy as np
-
-        pinned = self.PINNED_DOWNLOADS
-        if pinned:
-            key = (a.shape, np_dtype)
-            land = self._landing.get(key)
-            if land is None:
-                n = int(np.prod(a.shape)) * np.dtype(np_dtype).itemsize
-                if n > self.PINNED_DOWNLOAD_MAX:
-                    pinned = False
-                else:
-                    land = self._landing[key] = wp.empty(a.shape, dtype=a.dtype, device="cpu",
-                                                         pinned=True).numpy()
-        out = land if pinned else np.empty(a.shape, dtype=np_dtype)
-        if out.nbytes:
-            if not d2h(a.device.context, out.ctypes.data, a.ptr, out.nbytes, stream.cuda_stream):
-                raise RuntimeError(f"download of {out.nbytes} bytes failed")
-            # The stream is this thread's alone: synchronising it waits for this copy only.
-            if not sync(stream.cuda_stream):
-                raise RuntimeError("download: stream synchronisation failed")
-        return out.copy() if pinned else out
-
-    @staticmethod
-    def _upload_small(wp, dev, a, dst):
-        """A small contiguous host array -> ``dst`` on the current stream (pageable: the
-        driver stages it at once)."""
-        native = _native()  # dtype is a scalar type: wp.dtype_from_numpy made it
-        if native is None:
-            wp.copy(dst, wp.array(a, dtype=dst.dtype, device="cpu", copy=False))
-            return
-        if a.nbytes and not native[0](dev.context, dst.ptr, a.ctypes.data, a.nbytes,
-                                      dev.stream.cuda_stream):
-            raise RuntimeError(f"upload of {a.nbytes} bytes failed")
-
-    def _upload_staged(self, wp, dev, a, dst):
-        import numpy as np
-
-        stream = dev.stream
-        key = (a.shape, a.dtype.str)
-        ring = self._staging.setdefault(key, [])
-        stage = None
-        for s in ring:
-            if s.event is None or s.event.is_complete:
-                stage = s
-                break
-        if stage is None:
-            if len(ring) < self.STAGING_DEPTH:
-                stage = _Staging(wp.empty(a.shape, dtype=dst.dtype, device="cpu", pinned=True), None)
-                ring.append(stage)
-            else:  # all in flight: wait for the oldest (the first recorded)
-                stage = ring.pop(0)
-                wp.synchronize_event(stage.event)
-                ring.append(stage)
-        np.copyto(stage.view, a)
-        native = _native()
-        if native is None:
-            wp.copy(dst, stage.buffer, stream=stream)
-        elif a.nbytes and not native[0](dev.context, dst.ptr, stage.buffer.ptr, a.nbytes,
-                                        stream.cuda_stream):
-            raise RuntimeError(f"upload of {a.nbytes} bytes failed")
-        if stage.event is None:
-            stage.event = wp.Event(dev)
-        stream.record_event(stage.event)
-
-
-class EventPool:
-    """Reusable CUDA timing events of one device (creating events per task costs more than
-    recording them). :meth:`get` hands out a free one; :meth:`put` takes back events whose
-    frame is over."""
-
-    MAX_FREE = 4096
-
-    def __init__(self, device: str):
-        self.device = device
-        self._free: list = []
-        self._lock = threading.Lock()
-
-    def get(self):
-        with self._lock:
-            if self._free:
-                return self._free.pop()
-        return _wp().Event(self.device, enable_timing=True)
-
-    def put(self, events):
-        with self._lock:
-            room = self.MAX_FREE - len(self._free)
-            if room > 0:
-                self._free.extend(events[:room])
-
-    def __len__(self):
-        return len(self._free)
-
-
-# --------------------------------------------------------------------------- frames
-
-
-class Frame:
-    """A frame in flight: its slots, cancel flag, completion and timeline."""
-
-    def __init__(self, index: int, slots: dict, n_procs: int):
-        self.index = index
-        self.slots = slots
-        self.cancel = threading.Event()
-        self.finished = threading.Event()
-        self.error = None  # (task, processor, exception)
-        self.cancelled_by = None
-        # task -> (processor, start, end, after_transfers or None): host seconds, or CUDA
-        # events for GPU tasks on CUDA.
-        self.trace = {}
-        self.host_trace = {}  # GPU task -> (start, end) host seconds of its call
-        self.copied = {}  # task -> bytes it moved between host and device
-        self.t0 = time.perf_counter()
-        self.gpu_last_event = None
-        self.events = []  # pooled CUDA events this frame recorded
-        self.leases = []  # (task, buffer) output buffers taken from the pools
-        self.uploads = []  # (key, buffer) upload buffers taken from the pools
-        self._remaining = n_procs
-        self._lock = threading.Lock()
-        if n_procs == 0:
-            self.finished.set()
-
-    def processor_done(self):
-        with self._lock:
-            self._remaining -= 1
-            if self._remaining == 0:
-                self.finished.set()
-
-    def wait_slot(self, slot: Slot, closing: threading.Event, spin: float = 0.0):
-        done = slot.done
-        if done.is_set():
-            return
-        if spin > 0:
-            deadline = time.perf_counter() + spin
-            while time.perf_counter() < deadline:
-                time.sleep(0)  # lets the producer have the GIL
-                if done.is_set():
-                    return
-        while not done.wait(WAIT_SLICE):
-            if self.cancel.is_set() or closing.is_set():
-                raise _Cancelled()
-
-
-@dataclass
-class FrameResult:
-    """What :meth:`Executor.wait` returns: outputs, the measured timeline and the makespan.
-
-    ``timeline`` maps task -> :class:`ScheduledTask` with times in ms from the frame's
-    submission (``t0``, host ``perf_counter`` seconds); ``makespan`` is the latest finish.
-    ``transfers``: task -> ms of its interval spent on host <-> device copies (uploads of a
-    GPU task, downloads of a CPU task); ``copied``: task -> bytes it copied; ``host``: GPU
-    task -> (start, finish) ms of the GPU thread's call (enqueue plus host syncs inside it),
-    on the same axis as ``timeline``.
-    """
-
-    index: int
-    outputs: dict
-    timeline: dict
-    t0: float
-    transfers: dict = field(default_factory=dict)
-    copied: dict = field(default_factory=dict)
-    host: dict = field(default_factory=dict)
-
-    def compute_ms(self, task) -> float:
-        """The task's measured time without its transfers (ms)."""
-        t = self.timeline[task]
-        return max(0.0, t.finish - t.start - self.transfers.get(task, 0.0))
-
-    @property
-    def makespan(self) -> float:
-        return max((t.finish for t in self.timeline.values()), default=0.0)
-
-
-# --------------------------------------------------------------------------- executor
 
 
 def _is_gpu_processor(name: str) -> bool:
@@ -753,6 +133,11 @@ class Executor:
         unknown = [t for t in schedule.tasks if t not in program.tasks]
         if unknown:
             raise ScheduleError(f"schedule: places unknown task {unknown[0]!r}")
+        self._data = data_graph(program)
+        try:
+            self._topo = {n: i for i, n in enumerate(nx.topological_sort(self._data))}
+        except nx.NetworkXUnfeasible:
+            raise ScheduleError("program: its data dependencies have a cycle") from None
         self.queues = {p: [program.tasks[t] for t in self._order(p)] for p in self.processors}
         self._check()
         # The GPU thread first: it hands frames out in this order, and the threads woken
@@ -785,16 +170,6 @@ class Executor:
 
     def _order(self, proc: str) -> list:
         """Tasks on ``proc`` by start time; ties (zero-cost tasks) in dependency order."""
-        if not hasattr(self, "_topo"):
-            producer = {k: t.name for t in self.program.tasks.values() for k in t.outputs}
-            g = nx.DiGraph()
-            g.add_nodes_from(self.program.tasks)
-            g.add_edges_from((producer[r.key], t.name) for t in self.program.tasks.values()
-                             for r in t.inputs if r.offset == 0 and r.key in producer)
-            try:
-                self._topo = {n: i for i, n in enumerate(nx.topological_sort(g))}
-            except nx.NetworkXUnfeasible:
-                raise ScheduleError("program: its data dependencies have a cycle") from None
         on = [st for st in self.schedule.tasks.values() if st.processor == proc]
         on.sort(key=lambda st: (st.start, st.finish, self._topo.get(st.task, 0)))
         return [st.task for st in on]
@@ -820,13 +195,7 @@ class Executor:
         if any(_is_gpu_processor(p) and self.queues[p] for p in self.processors) and not self.gpu_device:
             raise ScheduleError("schedule: tasks are placed on the GPU but no gpu_device was given")
         # Data edges plus each processor's order must be acyclic, or some wait never returns.
-        producer = {k: t.name for t in self.program.tasks.values() for k in t.outputs}
-        g = nx.DiGraph()
-        g.add_nodes_from(self.program.tasks)
-        for t in self.program.tasks.values():
-            for ref in t.inputs:
-                if ref.offset == 0 and ref.key in producer:
-                    g.add_edge(producer[ref.key], t.name)
+        g = self._data.copy()
         for p in self.processors:
             names = [t.name for t in self.queues[p]]
             g.add_edges_from(zip(names, names[1:]))
@@ -847,7 +216,7 @@ class Executor:
         if self._threads:
             return
         if self.cuda:
-            wp = _wp()
+            wp = warp()
             self._stream = wp.Stream(self.gpu_device)
             self.reanchor()
         for p in self._active:
@@ -866,7 +235,7 @@ class Executor:
         if max_age is not None and self._anchor is not None and \
                 time.perf_counter() - self._anchor[0] < max_age:
             return
-        wp = _wp()
+        wp = warp()
         wp.synchronize_stream(self._stream)
         ev = wp.Event(self.gpu_device, enable_timing=True)
         t_before = time.perf_counter()
@@ -901,7 +270,7 @@ class Executor:
         """Run ``frame`` and the frames queued behind it in one device/stream scope (entering
         and leaving the scope per frame costs host time on the critical thread). Returns True
         when the stop sentinel came."""
-        wp = _wp()
+        wp = warp()
         scope = (wp.ScopedStream(self._stream, sync_enter=False) if self.cuda
                  # sync_enter=False: the stream's order is ours; the user's stream is not a producer.
                  else contextlib.nullcontext())
@@ -954,7 +323,7 @@ class Executor:
                     for s in remote:
                         ev = s.event
                         if ev is not None:
-                            _sync_event(ev)
+                            synchronize_event(ev)
                 t0 = time.perf_counter()
                 t_mid = None
                 if remote:
@@ -968,7 +337,7 @@ class Executor:
                 result = task.cpu(*values)
                 t1 = time.perf_counter()
                 self._publish(frame, task, result, HOST)
-            except _Cancelled:
+            except Cancelled:
                 return
             except BaseException as exc:  # noqa: BLE001 - reported to the caller
                 self._fail(frame, task.name, proc, exc)
@@ -997,7 +366,7 @@ class Executor:
                     if prev_end is None:
                         ev0 = pool.get()
                         frame.events.append(ev0)
-                        _record(stream, ev0)
+                        record_event(stream, ev0)
                     else:
                         ev0 = prev_end
                 before = io.moved
@@ -1013,7 +382,7 @@ class Executor:
                     elif moved >= TIMED_COPY_MIN_BYTES:
                         mid = pool.get()
                         frame.events.append(mid)
-                        _record(stream, mid)
+                        record_event(stream, mid)
                 if task.name in self._out_pools:
                     result = task.gpu(*values, out=self._lease(frame, task))
                 else:
@@ -1021,7 +390,7 @@ class Executor:
                 if cuda:
                     ev1 = pool.get()
                     frame.events.append(ev1)
-                    _record(stream, ev1)
+                    record_event(stream, ev1)
                     h1 = time.perf_counter()
                     frame.gpu_last_event = ev1
                     self._publish(frame, task, result, DEVICE, ev1)
@@ -1032,7 +401,7 @@ class Executor:
                     self._publish(frame, task, result, DEVICE)
                     frame.trace[task.name] = (proc, h0, h1, mid)
                 frame.host_trace[task.name] = (h0, h1)
-            except _Cancelled:
+            except Cancelled:
                 return
             except BaseException as exc:  # noqa: BLE001 - reported to the caller
                 self._fail(frame, task.name, proc, exc)
@@ -1066,18 +435,9 @@ class Executor:
                     del pool[i]
                     break
         if buf is None:
-            buf = _wp().empty(shape, dtype=dtype, device=self.gpu_device)
+            buf = warp().empty(shape, dtype=dtype, device=self.gpu_device)
         frame.uploads.append((key, buf))
         return buf
-
-    def _graph(self):
-        """(task DAG of this frame's data edges, key -> producing task)."""
-        producer = {k: t.name for t in self.program.tasks.values() for k in t.outputs}
-        g = nx.DiGraph()
-        g.add_nodes_from(self.program.tasks)
-        g.add_edges_from((producer[r.key], t.name) for t in self.program.tasks.values()
-                         for r in t.inputs if r.offset == 0 and r.key in producer)
-        return g
 
     def _reuse_rule(self, g, tasks, keys) -> str:
         """When a buffer that ``tasks`` may see (and ``keys`` may hold) can be reused after
@@ -1099,7 +459,7 @@ class Executor:
         """task -> when its pooled output buffer may be reused (:meth:`_reuse_rule`)."""
         if not self._out_pools:
             return {}
-        g = self._graph()
+        g = self._data
         return {name: self._reuse_rule(g, [name], ()) for name in self._out_pools}
 
     def _upload_rules(self) -> dict:
@@ -1113,7 +473,7 @@ class Executor:
                 readers.setdefault(r.key, set()).add(name)
         if not readers:
             return {}
-        g = self._graph()
+        g = self._data
         return {key: self._reuse_rule(g, tasks, [key]) for key, tasks in readers.items()}
 
     def _release(self, frame: Frame, host: bool):
@@ -1169,7 +529,7 @@ class Executor:
             if where == DEVICE and self.cuda:
                 # The caller's device data may still be in flight on any stream: an event on
                 # the legacy default stream completes after all work queued so far.
-                wp = _wp()
+                wp = warp()
                 slot.event = self._events.get()
                 events.append(slot.event)
                 wp.get_device(self.gpu_device).null_stream.record_event(slot.event)
@@ -1220,13 +580,14 @@ class Executor:
                     f"{frame.cancelled_by} failed"
                 )
             if self.cuda and frame.gpu_last_event is not None:
-                _wp().synchronize_event(frame.gpu_last_event)
+                warp().synchronize_event(frame.gpu_last_event)
             io = self._io()
             outputs = {}
             for name, key in self.program.outputs.items():
                 slot = frame.slots[key]
                 outputs[name] = slot.host(io) if host else slot.value
-            result = self._result(frame, outputs)
+            result = frame_result(frame, outputs,
+                                  event_clock(self._anchor) if self.cuda else None)
             self._recycle(frame)
             self._release(frame, host)
             for ring in self.program.rings.values():
@@ -1246,42 +607,12 @@ class Executor:
         for slot in frame.slots.values():
             if slot.event is not None and id(slot.event) in mine:
                 if slot.external:  # the caller's copy, which no task of the frame may have awaited
-                    _wp().synchronize_event(slot.event)
+                    warp().synchronize_event(slot.event)
                 slot.event = None
                 slot.external = False
         self._events.put(frame.events)
         frame.events = []
         frame.gpu_last_event = None
-
-    def _result(self, frame: Frame, outputs: dict) -> FrameResult:
-        """Outputs plus the frame's measured timeline (ms from submission)."""
-        timeline, transfers, host = {}, {}, {}
-        t0 = frame.t0
-        to_host = self._event_clock() if self.cuda else None
-        for task, (proc, a, b, mid) in frame.trace.items():
-            if to_host is not None and _is_gpu_processor(proc):
-                a, b = to_host(a), to_host(b)
-                mid = None if mid is None else to_host(mid)
-            timeline[task] = ScheduledTask(task, proc, (a - t0) * 1e3, (b - t0) * 1e3)
-            if mid is not None:
-                transfers[task] = (mid - a) * 1e3
-        for task, (a, b) in frame.host_trace.items():
-            host[task] = ((a - t0) * 1e3, (b - t0) * 1e3)
-        return FrameResult(frame.index, outputs, timeline, t0, transfers, dict(frame.copied), host)
-
-    def _event_clock(self):
-        """event -> host seconds, through the anchor; each event read once."""
-        wp = _wp()
-        base, anchor = self._anchor
-        seen = {}
-
-        def convert(ev):
-            t = seen.get(id(ev))
-            if t is None:
-                t = seen[id(ev)] = base + wp.get_event_elapsed_time(anchor, ev, synchronize=False) / 1e3
-            return t
-
-        return convert
 
     def abort(self):
         """Cancel every frame in flight and wait until the processors have dropped them."""
@@ -1325,19 +656,4 @@ def run_schedule(schedule: Schedule, program: Program, inputs: Mapping, *, gpu_d
     finally:
         ex.close()
 
-__all__ = [
-    "EventPool",
-    "Executor",
-    "ExecTask",
-    "Flag",
-    "FrameResult",
-    "InputRef",
-    "Program",
-    "Ring",
-    "Slot",
-    "Transfers",
-    "SPIN_SECONDS",
-    "WAIT_SLICE",
-    "run_schedule",
-    "tree_map",
-]
+__all__ = ["Executor", "SPIN_SECONDS", "run_schedule"]

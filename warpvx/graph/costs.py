@@ -1,0 +1,198 @@
+"""The graph's cost model: calibration, the task DAG the schedulers read, scheduling into a
+:class:`~warpvx.graph.plan.Plan`, and learning costs back from running frames.
+
+:class:`CostModel` is a part of :class:`~warpvx.graph.Graph` (a mixin: it uses the graph's
+nodes, verification and run lock); see :mod:`warpvx.graph.calibration` for the measurements.
+"""
+
+from __future__ import annotations
+
+import os
+import weakref
+
+from ..errors import GraphError
+from .data import INPUT, Data, nbytes
+
+
+def default_n_cpus() -> int:
+    """CPU workers by default: the cores minus one for the GPU host thread, 1 to 4."""
+    return max(1, min(4, (os.cpu_count() or 2) - 1))
+
+
+def gpu_backend(gpu):
+    """``"cuda"``, ``"cuda:N"``, ``"warp-cpu"``, None (CUDA if present, else warp-cpu) or
+    False (no GPU role) -> :class:`~warpvx.backend.Backend` or None."""
+    from ..backend import cuda_available, resolve_backend
+
+    if gpu is False:
+        return None
+    if gpu is None:
+        gpu = "cuda" if cuda_available() else "warp-cpu"
+    be = resolve_backend(gpu)
+    if be.kind != "warp":
+        raise GraphError(f"gpu: expected 'cuda', 'cuda:N', 'warp-cpu', None or False, got {gpu!r}")
+    return be
+
+
+class CostModel:
+    """Calibrate, model, schedule and learn: the cost half of :class:`~warpvx.graph.Graph`."""
+
+    def calibrate(self, inputs: dict | None = None, *, gpu=None, recalibrate: bool = False,
+                  warmup: int = 2, repeats: int = 5):
+        """Measure node and transfer costs on this machine (cached; see
+        :mod:`warpvx.graph.calibration`). ``inputs`` re-verifies on real data first."""
+        from .calibration import calibrate as _calibrate
+
+        be = gpu_backend(gpu)
+        with self._run_lock:
+            if inputs is not None or not self.verified:
+                self.verify(inputs)
+            cal = _calibrate(self, be, recalibrate=recalibrate, warmup=warmup, repeats=repeats)
+            self._calibrations[cal.gpu] = cal
+        return cal
+
+    def to_task_dag(self, n_cpus: int | None = None, *, gpu=None, calibration=None,
+                    costs: str = "calibrated"):
+        """The scheduler's task DAG of one frame (times in ms).
+
+        Node costs come from calibration (run now if needed), narrowed by pins, plus the
+        executor's dispatch cost per task on that kind of processor; each edge's ``comm`` is
+        the transfer model's time for the bytes of its data plus the executor's hand-off
+        between a CPU worker and the GPU thread (the scheduler charges ``comm`` only between
+        them). A GPU node reading a graph input also pays that input's upload (frames arrive
+        in host memory).
+
+        ``costs="history"`` uses what running frames measured (:meth:`learn`) where known:
+        those intervals already hold the executor's work inside a task, so only its cost
+        between tasks is added. The executor makes a task's copies on the task's own
+        processor (the GPU thread uploads, a CPU worker downloads), so history costs charge
+        copies to the consumer, not to the edge: a node's measured copies where it ran, or,
+        elsewhere, the transfer model's time for the inputs whose producers ran on the
+        other side, scaled by what copies took in running frames
+        (``calibration.transfer_scale``); an edge keeps only the hand-off.
+        """
+        from ..sched import cpu_gpu_dag
+
+        if costs not in ("calibrated", "history"):
+            raise GraphError(f"costs: expected 'calibrated' or 'history', got {costs!r}")
+        n_cpus = default_n_cpus() if n_cpus is None else n_cpus
+        be = gpu_backend(gpu)
+        cal = calibration or self._calibrations.get(be.name if be else None)
+        if cal is None or not self.verified:
+            cal = self.calibrate(gpu=be.name if be else False)
+        d = cal.dispatch or {}
+        history = costs == "history"
+        scale = cal.transfer_scale if history else 1.0
+        tasks, edges = {}, {}
+        for node in self.nodes.values():
+            pes = node.processing_elements
+            known = cal.history.get(node.name, {}) if history else {}
+
+            def copies(pe):
+                """Copies ``node`` makes on ``pe`` (graph inputs on the GPU; in history mode
+                also inputs whose producers last ran on the other side)."""
+                ms = 0.0
+                for ref in node.inputs.values():
+                    if not isinstance(ref, Data):
+                        continue
+                    if ref.kind == INPUT:
+                        if pe == "gpu":
+                            ms += scale * cal.transfer.upload(nbytes(ref.sample))
+                    elif history and ref.producer is not None:
+                        where = cal.placement.get(ref.producer.name)
+                        if where is not None and where != pe:
+                            n = nbytes(ref.sample)
+                            ms += scale * (cal.transfer.upload(n) if pe == "gpu" else cal.transfer.download(n))
+                return ms
+
+            def cost(pe):
+                if pe not in pes or (pe == "gpu" and be is None):
+                    return None
+                if pe in known:
+                    return known[pe] + known.get(f"{pe}_copies", 0.0) + d.get(f"{pe}_gap", 0.0)
+                return cal.nodes[node.name][pe] + d.get(f"{pe}_node", 0.0) + copies(pe)
+
+            cpu_t, gpu_t = cost("cpu"), cost("gpu")
+            if cpu_t is None and gpu_t is None:
+                raise GraphError(f"node {node.name!r} ({node.kind}), port 'target': no processing "
+                                 f"element of this plan can run it (pinned to {node.target!r}, "
+                                 f"gpu={be.name if be else None})")
+            tasks[node.name] = (cpu_t, gpu_t)
+            for ref in node.inputs.values():
+                if isinstance(ref, Data) and ref.producer is not None:
+                    key = (ref.producer.name, node.name)
+                    if key not in edges:
+                        edges[key] = d.get("handoff", 0.0)
+                    if not history:
+                        edges[key] += cal.transfer.time(nbytes(ref.sample))
+        return cpu_gpu_dag(tasks, edges, n_cpus)
+
+    def schedule(self, policy="best", *, n_cpus: int | None = None, gpu=None,
+                 recalibrate: bool = False, costs: str = "calibrated"):
+        """Calibrate (cached), schedule with ``policy`` and make the result the current plan.
+
+        Parameters
+        ----------
+        policy : str or callable
+            ``"baseline"``, ``"heft"``, ``"xeft"``, ``"best"`` or ``policy(dag) -> Schedule``.
+        n_cpus : int, optional
+            CPU workers (default :func:`default_n_cpus`).
+        gpu : str, None or False
+            The GPU role: ``"cuda"``/``"cuda:N"``, ``"warp-cpu"`` (Warp's CPU device, for
+            tests), None (CUDA if present, else warp-cpu) or False (CPU workers only).
+        costs : str
+            ``"calibrated"`` (nodes timed alone) or ``"history"`` (what running frames
+            measured, after :meth:`learn`; calibrated costs where none was measured).
+
+        Returns
+        -------
+        Plan
+        """
+        from .. import sched
+        from .plan import Plan
+
+        n_cpus = default_n_cpus() if n_cpus is None else n_cpus
+        be = gpu_backend(gpu)
+        with self._run_lock:
+            if not self.verified:
+                self.verify()
+            cal = self._calibrations.get(be.name if be else None)
+            if cal is None or recalibrate:
+                cal = self.calibrate(gpu=be.name if be else False, recalibrate=recalibrate)
+            dag = self.to_task_dag(n_cpus, gpu=be.name if be else False, calibration=cal,
+                                   costs=costs)
+            sch = sched.schedule(dag, policy)
+            sched.validate_schedule(dag, sch)
+            plan = Plan(weakref.ref(self), sch, dag, sched.metrics(dag, sch),
+                        policy if isinstance(policy, str) else getattr(policy, "__name__", "custom"),
+                        n_cpus, be.name if be else None, cal, costs=costs)
+            self._invalidate_plan()
+            self._plan = plan
+            self._plan_box[0] = plan
+        return plan
+
+    def learn(self, plan=None, *, runs=None, skip: int = 1) -> dict:
+        """Fold measured frames into the plan's calibration history (and the cache), for
+        ``schedule(..., costs="history")``.
+
+        ``runs``: the :class:`~warpvx.runtime.FrameResult` of frames run with ``plan``
+        (default: the plan's ``last_run``; :meth:`process` keeps only its latest frame there,
+        so collect them to learn from many). Each node's cost on the processing element it
+        ran on becomes the median of its measured intervals without their transfers, over
+        the frames after the first ``skip``. Returns node -> ``{pe: ms}`` learnt.
+        """
+        from .calibration import learn as _learn
+
+        plan = plan or self._plan
+        runs = list(plan.last_run) if runs is None and plan is not None else runs
+        if plan is None or not runs:
+            raise GraphError("learn: nothing measured yet; run g.process() or g.stream() first")
+        return _learn(plan.calibration, runs, plan.placement, skip=skip)
+
+    @property
+    def plan(self):
+        """The current :class:`Plan` (None until :meth:`schedule` or the first run)."""
+        return self._plan
+
+
+__all__ = ["CostModel", "default_n_cpus", "gpu_backend"]

@@ -1,0 +1,163 @@
+"""The runtime's host <-> device copies and event calls: Warp's native entry points, with
+Warp's public API as the fallback.
+
+Through ``wp.copy``, ``wp.empty(device="cpu")`` and ``array.numpy()`` a 16-byte download costs
+tens of microseconds of Python, paid on every edge between a GPU task and a CPU task. The fast
+path calls the same native functions ``wp.copy`` ends in (``wp_memcpy_h2d``/``d2h``/``h2h``,
+``wp_cuda_event_record``, ...), found in ``warp._src.context.runtime.core``: Warp's private
+API. This module is the only place that touches it; when a Warp release moves or renames
+those functions, :func:`native_entry_points` returns None and every call here takes the public
+path, which gives the same bytes (``tests/graph/test_native_copy.py``).
+
+Only contiguous arrays of scalar dtypes take the fast path; vectors, matrices, structs and
+strided views always go through the public API.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+_WP = None
+_NATIVE: object = False  # False: not looked up yet; None: not available
+_NP_DTYPES: dict = {}
+
+
+def warp():
+    """The initialised ``warp`` module (cached: an import statement per copy costs ~1 us)."""
+    global _WP
+    if _WP is None:
+        from ..backend import init_warp
+
+        _WP = init_warp()
+    return _WP
+
+
+def is_warp_array(x) -> bool:
+    """True for a ``wp.array`` (checked by module name, so NumPy-only callers never import Warp)."""
+    return type(x).__module__.startswith("warp") and hasattr(x, "device") and hasattr(x, "ptr")
+
+
+def native_entry_points():
+    """Warp's native copy, sync and event functions (a namespace), or None when this Warp
+    lacks them."""
+    global _NATIVE
+    if _NATIVE is False:
+        try:
+            warp()
+            from warp._src import context as ctx
+
+            core = ctx.runtime.core
+            _NATIVE = SimpleNamespace(
+                h2d=core.wp_memcpy_h2d, d2h=core.wp_memcpy_d2h, h2h=core.wp_memcpy_h2h,
+                stream_sync=core.wp_cuda_stream_synchronize,
+                event_record=core.wp_cuda_event_record,
+                event_sync=core.wp_cuda_event_synchronize)
+        except (ImportError, AttributeError):
+            _NATIVE = None
+    return _NATIVE
+
+
+def numpy_dtype(dtype):
+    """The NumPy dtype of a scalar Warp dtype, None for vectors, matrices and structs."""
+    try:
+        return _NP_DTYPES[dtype]
+    except KeyError:
+        pass
+    try:
+        np_dtype = warp().dtype_to_numpy(dtype)  # scalar types only; TypeError for the others
+    except (TypeError, KeyError):
+        np_dtype = None
+    _NP_DTYPES[dtype] = np_dtype
+    return np_dtype
+
+
+def _fast(native: bool, a):
+    """The native entry points when ``native`` and ``a`` can take them, else None."""
+    if not native or not a.is_contiguous or numpy_dtype(a.dtype) is None:
+        return None
+    return native_entry_points()
+
+
+def to_host(a, stream=None, *, native: bool = True) -> np.ndarray:
+    """A new NumPy array with the contents of ``wp.array`` ``a`` (never a view of it).
+
+    On CUDA the copy runs on ``stream`` (a ``wp.Stream`` of the calling thread), which is then
+    synchronised: it waits for this copy and what the caller queued on that stream only.
+    ``native=False`` takes Warp's public API (the fallback, for tests).
+    """
+    fast = _fast(native, a)
+    if not a.device.is_cuda:
+        if fast is None:
+            return a.numpy().copy()
+        out = np.empty(a.shape, dtype=numpy_dtype(a.dtype))
+        if out.nbytes and not fast.h2h(out.ctypes.data, a.ptr, out.nbytes):
+            raise RuntimeError(f"host copy of {out.nbytes} bytes failed")
+        return out
+    if fast is None:
+        wp = warp()
+        host = wp.empty(a.shape, dtype=a.dtype, device="cpu")
+        wp.copy(host, a, stream=stream)
+        wp.synchronize_stream(stream)
+        return host.numpy()
+    out = np.empty(a.shape, dtype=numpy_dtype(a.dtype))
+    if out.nbytes:
+        if not fast.d2h(a.device.context, out.ctypes.data, a.ptr, out.nbytes, stream.cuda_stream):
+            raise RuntimeError(f"download of {out.nbytes} bytes failed")
+        if not fast.stream_sync(stream.cuda_stream):
+            raise RuntimeError("download: stream synchronisation failed")
+    return out
+
+
+def to_device(dst, src, stream=None, *, native: bool = True):
+    """Copy host data ``src`` into the contiguous ``wp.array`` ``dst`` (same size and dtype).
+
+    ``src``: a contiguous NumPy array (pageable: the driver stages it before returning) or a
+    ``wp.array`` in pinned host memory (asynchronous). On CUDA the copy is queued on
+    ``stream`` (a ``wp.Stream``; the device's current one when None); on Warp's CPU device it
+    is done on return. ``native=False`` takes Warp's public API (the fallback, for tests).
+    """
+    fast = _fast(native, dst)
+    if fast is None:
+        wp = warp()
+        if isinstance(src, np.ndarray):
+            src = wp.array(src, dtype=dst.dtype, device="cpu", copy=False)
+        if dst.device.is_cuda:
+            wp.copy(dst, src, stream=stream if stream is not None else dst.device.stream)
+        else:
+            wp.copy(dst, src)
+        return
+    ptr = src.ctypes.data if isinstance(src, np.ndarray) else src.ptr
+    n = src.nbytes if isinstance(src, np.ndarray) else src.capacity
+    if not n:
+        return
+    dev = dst.device
+    if dev.is_cuda:
+        s = stream if stream is not None else dev.stream
+        ok = fast.h2d(dev.context, dst.ptr, ptr, n, s.cuda_stream)
+    else:
+        ok = fast.h2h(dst.ptr, ptr, n)
+    if not ok:
+        raise RuntimeError(f"upload of {n} bytes failed")
+
+
+def record_event(stream, event):
+    """``stream.record_event(event)`` (a timing event) without Warp's Python checks."""
+    fast = native_entry_points()
+    if fast is None:
+        stream.record_event(event)
+    else:
+        fast.event_record(event.cuda_event, stream.cuda_stream, True)
+
+
+def synchronize_event(event):
+    """``wp.synchronize_event(event)`` without Warp's capture checks (the runtime never
+    captures while it waits)."""
+    fast = native_entry_points()
+    if fast is None or not fast.event_sync(event.cuda_event):
+        warp().synchronize_event(event)  # the checked path, which also reports errors
+
+
+__all__ = ["warp", "is_warp_array", "native_entry_points", "numpy_dtype", "to_host", "to_device",
+           "record_event", "synchronize_event"]

@@ -1,0 +1,176 @@
+"""Values of frames in flight: :class:`Slot` (one value of one frame, where its producer left
+it), :class:`Flag` (its one-shot ready signal) and :class:`Ring` (a delay's slots of past
+frames)."""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .transfers import Transfers
+
+#: Where a slot's value lives: host memory (NumPy) or the GPU role's device (``wp.array``).
+HOST = "host"
+DEVICE = "device"
+
+
+class Flag:
+    """A one-shot ``threading.Event`` (``set``, ``is_set``, ``wait(timeout)``) made of one
+    lock: cheaper to create, set and wait on than an Event (a Condition per wait), and the
+    executor makes one per value per frame and waits on them on every cross-thread edge."""
+
+    __slots__ = ("_lock", "_set")
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._lock.acquire()
+        self._set = False
+
+    def set(self):
+        if not self._set:
+            self._set = True
+            try:
+                self._lock.release()
+            except RuntimeError:  # released by a concurrent set()
+                pass
+
+    def is_set(self) -> bool:
+        return self._set
+
+    def wait(self, timeout: float | None = None) -> bool:
+        if self._set:
+            return True
+        if self._lock.acquire(timeout=-1 if timeout is None else timeout):
+            try:
+                self._lock.release()  # let the other waiters through
+            except RuntimeError:
+                pass
+            return True
+        return self._set
+
+
+class Slot:
+    """One value of one frame, where its producer left it, with cached copies elsewhere.
+
+    ``where`` is ``"host"`` (NumPy data) or ``"device"`` (``wp.array`` data on the GPU role's
+    device). ``done`` is set once the value may be read (after the CUDA ``event``, if any).
+    """
+
+    __slots__ = ("value", "where", "event", "external", "done", "_host", "_device", "_lock")
+
+    def __init__(self):
+        self.value = None
+        self.where = HOST
+        self.event = None
+        self.external = False  # a device value made outside the executor's stream
+        self.done = Flag()
+        self._host = None
+        self._device = None
+        self._lock = threading.Lock()
+
+    @classmethod
+    def ready(cls, value, where=HOST) -> "Slot":
+        s = cls()
+        s.set(value, where)
+        return s
+
+    def set(self, value, where, event=None):
+        self.value, self.where, self.event = value, where, event
+        self.done.set()
+
+    def host(self, io: "Transfers", *, ready: bool = False):
+        """The value as host data, downloaded once (thread-safe).
+
+        ``ready``: the caller already waited for the producer's event on the host, so the
+        copy need not wait for it again.
+        """
+        if self.where == HOST:
+            return self.value
+        with self._lock:
+            if self._host is None:
+                self._host = (io.download(self.value, None if ready else self.event),)
+            return self._host[0]
+
+    def device(self, io: "Transfers", into=None):
+        """The value on the GPU role's device, uploaded once (call from the GPU thread).
+
+        ``into(shape, dtype)``: a device buffer to upload an array leaf into, or None for a
+        fresh one (see :meth:`Transfers.upload`).
+        """
+        if self.where == DEVICE:
+            return self.value
+        with self._lock:
+            if self._device is None:
+                self._device = (io.upload(self.value, into),)
+            return self._device[0]
+
+    def get(self, where, io):
+        return self.host(io) if where == HOST else self.device(io)
+
+
+class Ring:
+    """Slots of one key for past frames (a delay's storage), indexed by absolute frame number.
+
+    A frame's slot is reserved when the frame is submitted and filled when its producer runs.
+    Frames before the first one, and frames whose slot was dropped (a cancelled frame), read
+    the latest earlier slot that was filled, else the initial value. ``lock`` guards every
+    access; the graph layer shares it with user threads (thesis §4.2).
+    """
+
+    def __init__(self, slots: int, initial, lock=None):
+        self.slots = int(slots)
+        self.lock = lock if lock is not None else threading.RLock()
+        self._initial = Slot.ready(initial)
+        self._by_frame: dict[int, Slot] = {}
+        self.last_aged = -1
+
+    def reserve(self, frame: int, slot: Slot):
+        with self.lock:
+            self._by_frame[frame] = slot
+
+    def get(self, frame: int) -> Slot:
+        with self.lock:
+            slot = self._by_frame.get(frame)
+            if slot is not None:
+                return slot
+            earlier = [f for f, s in self._by_frame.items() if f < frame and s.done.is_set()]
+            return self._by_frame[max(earlier)] if earlier else self._initial
+
+    def put(self, frame: int, value, where=HOST):
+        """Replace frame ``frame``'s value (a user write through the communication wrapper)."""
+        with self.lock:
+            self._by_frame[frame] = Slot.ready(value, where)
+
+    @property
+    def initial(self):
+        """The value frames before the first one read."""
+        return self._initial.value
+
+    def set_initial(self, value):
+        with self.lock:
+            self._initial = Slot.ready(value)
+
+    def reset(self):
+        """Forget every frame: reads return the initial value again."""
+        with self.lock:
+            self._by_frame.clear()
+            self.last_aged = -1
+
+    def age(self, frame: int):
+        """Frame ``frame`` completed: it becomes the newest value; forget what no frame needs."""
+        with self.lock:
+            self.last_aged = max(self.last_aged, frame)
+            keep_from = self.last_aged - self.slots
+            for f in [f for f in self._by_frame if f < keep_from]:
+                del self._by_frame[f]
+
+    def discard_pending(self, frame: int):
+        """Drop frame ``frame``'s slot if its producer never ran (the frame was cancelled)."""
+        with self.lock:
+            slot = self._by_frame.get(frame)
+            if slot is not None and not slot.done.is_set():
+                del self._by_frame[frame]
+
+
+__all__ = ["HOST", "DEVICE", "Flag", "Slot", "Ring"]
