@@ -674,7 +674,7 @@ def run(args) -> int:
     if args.metrics:
         from .stabilize_metrics import evaluate
 
-        report = {"input": args.input, "frames": len(keep_in), "config": {
+        report = {"source": args.input, "frames": len(keep_in), "config": {
             k: v for k, v in dataclasses.asdict(config).items() if k not in ("camera_matrix", "dist_coeffs")},
             "backend": "model" if args.model else args.backend}
         report.update(evaluate(keep_in, keep_out, warps))
