@@ -1,5 +1,6 @@
-"""The ``warpvx`` command: ``warpvx bench`` (CPU vs Warp vs OpenCV timings) and
-``warpvx sched-study`` (the scheduling study, :mod:`warpvx.sched.study`).
+"""The ``warpvx`` command: ``warpvx bench`` (CPU vs Warp vs OpenCV timings),
+``warpvx sched-study`` (the scheduling study, :mod:`warpvx.sched.study`) and
+``warpvx stabilize`` (the video stabilizer, :mod:`warpvx.apps.stabilize`).
 
 Also run as ``python -m warpvx``.
 """
@@ -33,6 +34,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="HEFT/XEFT scheduling study (arguments go to warpvx.sched.study; see its --help)",
         add_help=False,
     )
+    from .apps.stabilize import add_arguments as add_stabilize_arguments
+
+    add_stabilize_arguments(sub.add_parser(
+        "stabilize",
+        help="stabilize a shaky video (thesis §3.2) with the warpvx graph",
+        description="Stabilize a video file or image folder IN into OUT; see apps/stabilize.py.",
+    ))
     return parser
 
 
@@ -54,6 +62,10 @@ def main(argv=None) -> int:
         from .bench import main_from_args
 
         return main_from_args(args)
+    if args.command == "stabilize":
+        from .apps.stabilize import run_cli
+
+        return run_cli(args, "warpvx stabilize")
     parser.print_help()
     return 0 if not argv else 2
 

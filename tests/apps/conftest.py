@@ -1,0 +1,47 @@
+"""Fixtures of the app tests: a private calibration cache, short real clips."""
+
+from __future__ import annotations
+
+import os
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.images import bgr
+
+CLIP = os.path.join(os.path.dirname(__file__), "..", "..", "warpvx", "data", "bikes_shaky.mp4")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _session_cache(tmp_path_factory):
+    """Graphs calibrate into a private cache (never the user's ~/.cache)."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("WARPVX_CACHE_DIR", str(tmp_path_factory.mktemp("calibration")))
+    yield
+    mp.undo()
+
+
+@pytest.fixture(scope="session")
+def bikes():
+    """The first 16 frames of the bundled hand-held clip, halved to 320x136 (BGR uint8)."""
+    cap = cv2.VideoCapture(CLIP)
+    frames = []
+    while len(frames) < 16:
+        ok, f = cap.read()
+        assert ok, "the bundled clip is shorter than 16 frames"
+        frames.append(cv2.resize(f, (320, 136), interpolation=cv2.INTER_AREA))
+    return frames
+
+
+@pytest.fixture(scope="session")
+def astronaut():
+    """A real static scene: scikit-image's astronaut (BGR uint8 512x512)."""
+    return bgr("astronaut")
+
+
+def static_frames(image, n, size=(160, 120)):
+    """``n`` identical frames: the centre ``size`` crop of ``image`` (a static camera)."""
+    w, h = size
+    y, x = (image.shape[0] - h) // 2, (image.shape[1] - w) // 2
+    return [np.ascontiguousarray(image[y:y + h, x:x + w]) for _ in range(n)]

@@ -1,0 +1,168 @@
+"""The video stabilizer (warpvx.apps.stabilize): graph, model, command line."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.apps.conftest import CLIP, static_frames
+from warpvx import cli
+from warpvx.apps import stabilize as st
+from warpvx.apps import stabilize_metrics as sm
+from warpvx.errors import WarpvxError
+
+ROOT = os.path.join(os.path.dirname(__file__), "..", "..")
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"window": 0}, "window"), ({"crop": 0.5}, "crop"), ({"crop": -0.1}, "crop"),
+    ({"mode": "future"}, "mode"), ({"motion": "affine"}, "motion"),
+    ({"camera_matrix": np.eye(3)}, "dist_coeffs"),
+])
+def test_config_bad_input_names_the_field(kwargs, field):
+    with pytest.raises(WarpvxError, match=field):
+        st.StabilizerConfig(**kwargs)
+
+
+def test_weights_follow_the_thesis_form():
+    r = 3
+    centred = st.StabilizerConfig(window=2 * r + 1, mode="centered").weights()
+    np.testing.assert_allclose(centred, np.exp(-0.5 * (np.arange(-r, r + 1) / (0.7 * r)) ** 2))
+    causal = st.StabilizerConfig(window=7, mode="causal").weights()
+    assert len(causal) == 7 and causal[-1] == 1.0 and np.all(np.diff(causal) > 0)
+
+
+def test_truncation_keeps_the_output_inside_the_frame():
+    size = (160, 120)
+    shift = np.array([[1, 0, 30.0], [0, 1, -25.0], [0, 0, 1]])  # beyond a 10% crop margin
+    M = st.truncate_transform(shift, size=size, crop=0.1)
+    ones = cv2.warpPerspective(np.ones((120, 160), np.uint8), M, size)
+    assert ones[1:-1, 1:-1].min() == 1  # no uncovered pixel
+    small = np.array([[1, 0, 3.0], [0, 1, 2.0], [0, 0, 1]])  # within the margin: kept as is
+    np.testing.assert_allclose(st.truncate_transform(small, size=size, crop=0.1),
+                               st._crop_matrix(size, 0.1) @ small)
+
+
+@pytest.mark.parametrize("mode", ["centered", "causal"])
+def test_one_output_per_input_in_order(bikes, mode):
+    frames = bikes[:10]
+    out = list(st.stabilize(frames, st.StabilizerConfig(window=5, mode=mode), backend="cpu"))
+    assert [o.index for o in out] == list(range(len(frames)))
+    for o, f in zip(out, frames):  # frame k shows input frame k, warped by its reported warp
+        want = cv2.warpPerspective(f, o.warp, (320, 136), flags=cv2.INTER_LINEAR)
+        assert np.mean(np.abs(want.astype(int) - o.image)) < 2.0
+
+
+def test_causal_mode_does_not_look_ahead(bikes):
+    cfg = st.StabilizerConfig(window=5, mode="causal")
+    short = list(st.stabilize_model(bikes[:8], cfg))
+    longer = list(st.stabilize_model(bikes[:12], cfg))
+    for a, b in zip(short, longer):
+        np.testing.assert_array_equal(a.image, b.image)
+
+
+def test_static_clip_stays_still(astronaut):
+    frames = static_frames(astronaut, 8)
+    out = [o.image for o in st.stabilize(frames, st.StabilizerConfig(window=5), backend="cpu")]
+    assert sm.mad(out, 10) == pytest.approx(0.0, abs=1e-3)
+    assert sm.itf(out) == sm.PSNR_MAX
+
+
+@pytest.mark.parametrize("motion", ["translation", "similarity", "homography"])
+def test_known_translation_shake_is_removed(astronaut, motion):
+    frames, ref, _ = sm.shaky_clip(astronaut, 24, (160, 120), shift=5.0, angle=0.0, zoom=0.0, seed=4)
+    cfg = st.StabilizerConfig(window=15, motion=motion, crop=0.1)
+    out = [o.image for o in st.stabilize(frames, cfg, backend="cpu")]
+    applied, residual = sm.shake_rms(frames, ref), sm.shake_rms(out, ref)
+    assert applied > 3.0
+    assert residual < 0.3 * applied
+
+
+def test_model_and_graph_backends_agree(bikes):
+    """Multi-level verification (thesis §2): MAD and ITF within 5% across the OpenCV model and
+    the graph on cpu and on Warp."""
+    cfg = st.StabilizerConfig(window=7, motion="similarity")
+    runs = {"model": [o.image for o in st.stabilize_model(bikes, cfg)]}
+    for backend in ("cpu", "warp-cpu"):
+        runs[backend] = [o.image for o in st.stabilize(bikes, cfg, backend=backend)]
+    scores = {k: (sm.mad(v, 10), sm.mad(v, 100), sm.itf(v)) for k, v in runs.items()}
+    ref = np.array(scores["model"])
+    for name in ("cpu", "warp-cpu"):
+        np.testing.assert_allclose(scores[name], ref, rtol=0.05, err_msg=name)
+    assert scores["model"][1] < sm.mad(bikes, 100)  # and it stabilizes
+
+
+def test_undistortion_runs_remap_first(bikes):
+    K = np.array([[300.0, 0, 160], [0, 300, 68], [0, 0, 1]])
+    cfg = st.StabilizerConfig(window=3, camera_matrix=K, dist_coeffs=np.array([-0.2, 0.05, 0, 0]))
+    g = st.build_graph((320, 136), cfg)
+    assert g.node("undistort").kind == "remap"
+    a = [o.image for o in st.stabilize(bikes[:4], cfg, backend="cpu")]
+    b = [o.image for o in st.stabilize_model(bikes[:4], cfg)]
+    assert np.mean(np.abs(a[-1].astype(int) - b[-1])) < 2.0
+
+
+def _write_video(path, frames, fps=25):
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, frames[0].shape[1::-1]) \
+        if frames else cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (64, 48))
+    for f in frames:
+        w.write(f)
+    w.release()
+
+
+def test_cli_end_to_end(tmp_path, bikes, capsys):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, f in enumerate(bikes[:8]):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), f)
+    out, plot, metrics = tmp_path / "out.avi", tmp_path / "traj.png", tmp_path / "m.json"
+    pytest.importorskip("matplotlib")
+    rc = cli.main(["stabilize", str(folder), str(out), "--window", "5", "--compare", "--quiet",
+                   "--plot", str(plot), "--metrics", str(metrics)])
+    assert rc == 0
+    cap = cv2.VideoCapture(str(out))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 8
+    assert int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) == 2 * 320
+    assert plot.stat().st_size > 0
+    import json
+
+    report = json.loads(metrics.read_text())
+    assert report["frames"] == 8 and report["output"]["mad10"] >= 0
+
+
+def test_script_runs(tmp_path):
+    out = tmp_path / "out.mp4"
+    env = dict(os.environ, PYTHONPATH=os.path.abspath(ROOT))
+    res = subprocess.run([sys.executable, os.path.join(ROOT, "apps", "stabilize.py"), CLIP, str(out),
+                          "--max-frames", "6", "--window", "3", "--quiet"],
+                         capture_output=True, text=True, timeout=120, env=env)
+    assert res.returncode == 0, res.stderr
+    assert int(cv2.VideoCapture(str(out)).get(cv2.CAP_PROP_FRAME_COUNT)) == 6
+
+
+@pytest.mark.parametrize("case", ["missing", "unreadable", "empty", "window", "crop"])
+def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, case):
+    src, extra = CLIP, []
+    if case == "missing":
+        src = str(tmp_path / "nope.mp4")
+    elif case == "unreadable":
+        src = tmp_path / "junk.mp4"
+        src.write_bytes(b"not a video at all")
+    elif case == "empty":
+        src = tmp_path / "empty.mp4"
+        _write_video(src, [])
+    elif case == "window":
+        extra = ["--window", "0"]
+    else:
+        extra = ["--crop", "0.5"]
+    rc = cli.main(["stabilize", str(src), str(tmp_path / "o.mp4"), "--quiet"] + extra)
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert {"missing": "input", "unreadable": "input", "empty": "input", "window": "window",
+            "crop": "crop"}[case] in err

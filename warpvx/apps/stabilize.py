@@ -1,0 +1,712 @@
+"""Video stabilizer: thesis §3.2 (Fig. 3.2, Listing 3.2), NVIDIA VisionWorks' ``video_stabilizer``.
+
+The algorithm, as a warpvx :class:`~warpvx.Graph` (:func:`build_graph`) and as plain OpenCV
+calls (the imperative "model", :func:`stabilize_model`, thesis §2's multi-level verification)::
+
+    frame -> [undistort: remap] -> gray -> Gaussian pyramid ---------------------.
+                                     \\-> detect (Harris or FAST)                  |
+    pyramid[-1], points[-1] (delays) -> pyramidal LK -> estimate_motion (H: k-1 -> k)
+    tracked + detections -> refresh_points -> points (delayed to the next frame)
+    H, trajectory[-1] -> accumulate -> trajectory T_k (frame 0 -> frame k)
+    T over a window of N frames (a delay) -> smooth -> truncate (crop) -> warp_perspective
+
+Conventions: images are BGR uint8 HxWx3; points float32 [N, 2] (x, y), pixel centres at
+integers; matrices float64 3x3 mapping column vectors (x, y, 1). ``H_k`` maps frame k-1 to frame
+k, ``T_k = H_k ... H_1`` maps frame 0 to frame k. The stabilizing warp of frame j is
+``S_j = (sum_i w_i T_i T_j^-1) / sum_i w_i`` (the smoothed path over the actual one, averaged
+element-wise as VisionWorks' matrix smoother does), then scaled about the centre by
+``1 / (1 - 2 crop)`` and, if it would uncover the border, pulled towards the identity.
+
+Smoothing windows (``window`` N frames, ``r = N // 2``, Gaussian weights of sigma 0.7 r):
+
+* ``centered`` -- the thesis / VisionWorks form: weights over frames j-r .. j+r, frame j is
+  warped when frame j+r arrives, so the output lags r frames; the last r frames are flushed
+  with the window shrinking at the end (the weights of missing frames are dropped).
+* ``causal`` -- no look-ahead, what a live camera needs: one-sided weights over frames
+  k-N+1 .. k, frame k is warped at once (a smoothed path that trails the camera a little).
+
+Either way the output has one frame per input frame, in order (frame k shows input frame k).
+
+Conditional re-detection in a data-flow graph: the detector runs every frame (as VisionWorks'
+``nvxHarrisTrack`` does) and the user node ``refresh_points`` keeps the LK-tracked points,
+topping them up with fresh detections away from them only when fewer than ``min_tracked``
+survived.
+
+The motion model lives in ONE user node, ``estimate_motion`` (:func:`estimate_motion`):
+homography by RANSAC (``cv2.findHomography``, the thesis), similarity
+(``cv2.estimateAffinePartial2D``) or translation (median displacement).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import os
+from collections import deque
+
+import numpy as np
+
+from ..errors import WarpvxError, WarpvxValueError
+
+MOTIONS = ("homography", "similarity", "translation")
+MODES = ("causal", "centered")
+DETECTORS = ("harris", "fast")
+BACKENDS = ("cpu", "warp-cpu", "cuda")
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
+
+# Fewest matched points that determine each motion model.
+_MIN_POINTS = {"homography": 4, "similarity": 2, "translation": 1}
+_NAN3 = np.full((3, 3), np.nan)
+# An off-image point, the point set when nothing is tracked: LK reports it lost (status 0);
+# empty point sets are avoided because Warp reports empty arrays as non-contiguous.
+_NO_POINTS = np.full((1, 2), -1e4, np.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class StabilizerConfig:
+    """Parameters of the stabilizer (checked on construction; a warpvx error names the field).
+
+    Attributes
+    ----------
+    window : int
+        Smoothing window N >= 1 in frames (centred: r = N // 2 on each side).
+    mode : str
+        ``"centered"`` (thesis, lags r frames) or ``"causal"`` (no look-ahead).
+    crop : float
+        Fraction R in [0, 0.5) cut from each side: the output is scaled about the centre by
+        1 / (1 - 2R). 0 disables the border clamp (black borders may show).
+    motion : str
+        ``"homography"`` (RANSAC, thesis), ``"similarity"`` or ``"translation"``.
+    detector : str
+        ``"harris"`` (goodFeaturesToTrack-style) or ``"fast"``.
+    max_corners, quality_level, min_distance : int, float, float
+        Harris detection (also the cap and spacing of the merged point set).
+    fast_threshold : int
+        FAST threshold (gray levels).
+    min_tracked : int
+        Re-detect when fewer tracked points survive.
+    levels, lk_win : int
+        Pyramid levels (LK uses levels - 1 as its highest) and LK window side (px).
+    ransac_threshold : float
+        RANSAC reprojection threshold (px).
+    camera_matrix, dist_coeffs : array, optional
+        3x3 intrinsics and OpenCV distortion coefficients: undistort every frame first.
+    """
+
+    window: int = 15
+    mode: str = "centered"
+    crop: float = 0.1
+    motion: str = "homography"
+    detector: str = "harris"
+    max_corners: int = 400
+    quality_level: float = 0.001
+    min_distance: float = 8.0
+    fast_threshold: int = 20
+    min_tracked: int = 150
+    levels: int = 3
+    lk_win: int = 21
+    ransac_threshold: float = 3.0
+    camera_matrix: object = None
+    dist_coeffs: object = None
+
+    def __post_init__(self):
+        from ..check import check_choice, check_float, check_int
+
+        check_int(self.window, "window", min_value=1)
+        check_choice(self.mode, "mode", MODES)
+        crop = check_float(self.crop, "crop", min_value=0.0)
+        if crop >= 0.5:
+            raise WarpvxValueError(f"crop: expected a value in [0, 0.5), got {crop}")
+        check_choice(self.motion, "motion", MOTIONS)
+        check_choice(self.detector, "detector", DETECTORS)
+        check_int(self.max_corners, "max_corners", min_value=1)
+        check_int(self.min_tracked, "min_tracked", min_value=0)
+        check_int(self.levels, "levels", min_value=1)
+        check_int(self.lk_win, "lk_win", min_value=3)
+        if (self.camera_matrix is None) != (self.dist_coeffs is None):
+            raise WarpvxValueError("camera_matrix, dist_coeffs: give both or neither")
+
+    @property
+    def lag(self) -> int:
+        """Frames of output latency: r in centred mode, 0 in causal mode."""
+        return self.window // 2 if self.mode == "centered" else 0
+
+    def weights(self) -> np.ndarray:
+        """Smoothing weights, float64, oldest frame first (2r + 1 centred, N causal)."""
+        r = self.window // 2
+        offsets = np.arange(-r, r + 1) if self.mode == "centered" else np.arange(1 - self.window, 1)
+        if r == 0:
+            return np.ones(len(offsets))
+        return np.exp(-0.5 * (offsets / (0.7 * r)) ** 2)
+
+
+# --------------------------------------------------------------------------- node functions
+# Pure functions shared by the graph's user nodes and the imperative model.
+
+
+def estimate_motion(prev_pts, next_pts, status, *, model="homography", threshold=3.0):
+    """The inter-frame motion from matched points: float64 3x3 mapping ``prev_pts`` to ``next_pts``.
+
+    ``prev_pts``, ``next_pts``: float32 [N, 2]; ``status``: uint8 [N] (1 = tracked). Models:
+    homography by RANSAC (reprojection threshold ``threshold`` px), similarity (RANSAC) or
+    translation (median displacement). Identity when too few points or no model is found.
+    """
+    ok = np.asarray(status).reshape(-1).astype(bool)
+    p = np.asarray(prev_pts, np.float32).reshape(-1, 2)[ok]
+    q = np.asarray(next_pts, np.float32).reshape(-1, 2)[ok]
+    finite = np.isfinite(p).all(1) & np.isfinite(q).all(1)
+    p, q = p[finite], q[finite]
+    if len(p) < _MIN_POINTS[model]:
+        return np.eye(3)
+    import cv2
+
+    if model == "homography":
+        # Swap for the primitive when it lands: warpvx.find_homography(p, q,
+        # ransac_reproj_threshold=threshold, backend="cpu")
+        H, _ = cv2.findHomography(p, q, cv2.RANSAC, threshold, maxIters=2000, confidence=0.995)
+    elif model == "similarity":
+        A, _ = cv2.estimateAffinePartial2D(p, q, method=cv2.RANSAC, ransacReprojThreshold=threshold)
+        H = None if A is None else np.vstack([A, [0.0, 0.0, 1.0]])
+    else:
+        H = np.eye(3)
+        H[:2, 2] = np.median(q - p, axis=0)
+    if H is None or not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-9:
+        return np.eye(3)
+    return np.asarray(H, np.float64) / H[2, 2]
+
+
+def _as_points(detections, max_corners):
+    """Detections as float32 [M, 2], strongest first: Harris points already are; FAST
+    :class:`~warpvx.Keypoints` are sorted by response."""
+    if hasattr(detections, "response"):
+        order = np.argsort(-np.asarray(detections.response), kind="stable")[:max_corners]
+        return np.stack([np.asarray(detections.x)[order], np.asarray(detections.y)[order]], 1)
+    return np.asarray(detections, np.float32).reshape(-1, 2)[:max_corners]
+
+
+def refresh_points(next_pts, status, detections, *, min_tracked=150, max_corners=400,
+                   min_distance=8.0):
+    """The points to track into the next frame, float32 [M, 2] (M <= ``max_corners``).
+
+    Keeps the points LK tracked (``status`` 1); when fewer than ``min_tracked`` survived, adds
+    the strongest ``detections`` (float32 [K, 2] or Keypoints) lying at least
+    ``min_distance`` px from every kept point (tracked points have priority, as in
+    VisionWorks' Harris tracker). With no point at all, one off-image point that LK loses.
+    """
+    ok = np.asarray(status).reshape(-1).astype(bool)
+    tracked = np.asarray(next_pts, np.float32).reshape(-1, 2)[ok]
+    tracked = tracked[np.isfinite(tracked).all(1)]
+    if len(tracked) >= min_tracked:
+        return np.ascontiguousarray(tracked[:max_corners])
+    fresh = _as_points(detections, max_corners)
+    if len(tracked) and len(fresh):
+        d2 = ((fresh[:, None, :] - tracked[None, :, :]) ** 2).sum(-1).min(1)
+        fresh = fresh[d2 >= min_distance ** 2]
+    merged = np.concatenate([tracked, fresh])[:max_corners]
+    return np.ascontiguousarray(merged, np.float32) if len(merged) else _NO_POINTS.copy()
+
+
+def accumulate(motion, prev_trajectory, live):
+    """``T_k = H_k T_{k-1}`` (float64 3x3); the identity on the first frame (``T_{k-1}`` NaN);
+    NaN for the padding frames that flush the centred window (``live`` [1] uint8 0)."""
+    if not np.asarray(live).reshape(-1)[0]:
+        return _NAN3.copy()
+    prev = np.asarray(prev_trajectory, np.float64)
+    if not np.isfinite(prev).all():
+        return np.eye(3)
+    T = np.asarray(motion, np.float64) @ prev
+    return T / T[2, 2]
+
+
+def smooth_transform(*trajectory, weights, lag):
+    """The stabilizing warp of frame j (float64 3x3, frame j -> smoothed frame j).
+
+    ``trajectory``: the window's T matrices, oldest first (``len(weights)`` of them; NaN for
+    frames outside the video); frame j is ``lag`` frames before the newest.
+    ``S_j = sum_i w_i T_i T_j^-1 / sum_i w_i`` over the frames present; identity when frame
+    j itself is absent (the centred window before frame r).
+    """
+    Tj = trajectory[len(trajectory) - 1 - lag]
+    if not np.isfinite(Tj).all():
+        return np.eye(3)
+    inv = np.linalg.inv(Tj)
+    acc, total = np.zeros((3, 3)), 0.0
+    for T, w in zip(trajectory, weights):
+        if np.isfinite(T).all():
+            M = T @ inv
+            acc += w * (M / M[2, 2])
+            total += w
+    return acc / total
+
+
+def _crop_matrix(size, crop):
+    """Scale by 1 / (1 - 2 crop) about the image centre (float64 3x3); ``size`` (w, h)."""
+    w, h = size
+    s = 1.0 / (1.0 - 2.0 * crop)
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    return np.array([[s, 0, cx * (1 - s)], [0, s, cy * (1 - s)], [0, 0, 1.0]])
+
+
+def _covers(M, size):
+    """Whether the output of warping by ``M`` takes every pixel from inside the input."""
+    w, h = size
+    corners = np.array([[0, 0, 1], [w - 1, 0, 1], [w - 1, h - 1, 1], [0, h - 1, 1]], float).T
+    src = np.linalg.solve(M, corners)
+    src = src[:2] / src[2]
+    eps = 1e-6
+    return bool((src[0] >= -eps).all() and (src[0] <= w - 1 + eps).all()
+                and (src[1] >= -eps).all() and (src[1] <= h - 1 + eps).all())
+
+
+def truncate_transform(transform, *, size, crop):
+    """The warp applied to the frame: crop scaling after ``transform`` (float64 3x3).
+
+    With ``crop`` > 0 the transform is pulled towards the identity (the least blend, found by
+    bisection) until the cropped output takes no pixel from outside the frame, as
+    VisionWorks' ``truncateStabTransform``; ``size`` is (w, h).
+    """
+    C = _crop_matrix(size, crop)
+    S = np.asarray(transform, np.float64)
+    if crop == 0 or _covers(C @ S, size):
+        return C @ S
+    lo, hi = 0.0, 1.0  # blend towards the identity: lo fails, hi (the identity) covers
+    for _ in range(12):
+        mid = 0.5 * (lo + hi)
+        if _covers(C @ ((1 - mid) * S + mid * np.eye(3)), size):
+            hi = mid
+        else:
+            lo = mid
+    return C @ ((1 - hi) * S + hi * np.eye(3))
+
+
+def undistort_maps(config, size):
+    """float32 HxW remap maps undoing the lens distortion (``cv2.initUndistortRectifyMap``)."""
+    import cv2
+
+    K = np.asarray(config.camera_matrix, np.float64).reshape(3, 3)
+    D = np.asarray(config.dist_coeffs, np.float64).reshape(-1)
+    return cv2.initUndistortRectifyMap(K, D, None, K, tuple(size), cv2.CV_32FC1)
+
+
+# --------------------------------------------------------------------------- the graph
+
+
+def build_graph(size, config: StabilizerConfig = StabilizerConfig(), *, backend="cpu"):
+    """The stabilizer graph for frames of ``size`` (w, h), BGR uint8.
+
+    Inputs: ``frame`` (uint8 HxWx3) and ``live`` (uint8 [1]: 1 for video frames, 0 for the
+    padding frames that flush the centred window). Outputs: ``stabilized`` (uint8 HxWx3,
+    frame k - lag), ``warp`` (its float64 3x3 warp, input -> output), ``transform`` (the
+    stabilizing warp before crop), ``trajectory`` (T_k) and ``motion`` (H_k).
+
+    ``backend``: ``"cpu"`` runs every node on CPU workers; ``"warp-cpu"``/``"cuda"`` pins the
+    primitive nodes to the Warp device (user nodes stay on the CPU). Schedule with
+    :func:`schedule`.
+    """
+    from ..check import check_choice, check_size
+    from ..graph import Graph
+
+    w, h = check_size(size, "size")
+    check_choice(backend, "backend", BACKENDS)
+    pin = None if backend == "cpu" else "gpu"
+    c = config
+    g = Graph("stabilize")
+    frame = g.input("frame", shape=(h, w, 3), dtype=np.uint8)
+    live = g.input("live", shape=(1,), dtype=np.uint8)
+    if c.camera_matrix is not None:
+        mx, my = undistort_maps(c, (w, h))
+        frame = g.remap(frame, mx, my, name="undistort", target=pin)
+    gray = g.color_convert(frame, code="BGR2GRAY", name="gray", target=pin)
+    pyr = g.gaussian_pyramid(gray, levels=c.levels, name="pyramid", target=pin)
+    if c.detector == "harris":
+        detections = g.harris_corners(gray, max_corners=c.max_corners, quality_level=c.quality_level,
+                                      min_distance=c.min_distance, name="detect", target=pin)
+    else:
+        detections = g.fast_corners(gray, threshold=c.fast_threshold, name="detect", target=pin)
+    points = g.virtual("points")
+    prev_points = g.delay(points, init=_NO_POINTS)[-1]
+    next_pts, status, _ = g.optical_flow_pyr_lk(
+        g.delay(pyr)[-1], pyr, prev_points, win_size=(c.lk_win, c.lk_win),
+        max_level=c.levels - 1, name="track", target=pin)
+    motion = g.user(functools.partial(estimate_motion, model=c.motion, threshold=c.ransac_threshold),
+                    [prev_points, next_pts, status], name="estimate_motion")
+    g.user(functools.partial(refresh_points, min_tracked=c.min_tracked, max_corners=c.max_corners,
+                             min_distance=c.min_distance),
+           [next_pts, status, detections], [points], name="refresh_points")
+    weights = c.weights()
+    trajectory = g.virtual("trajectory")
+    history = g.delay(trajectory, max(1, len(weights) - 1), init=_NAN3)
+    g.user(accumulate, [motion, history[-1], live], [trajectory], name="accumulate")
+    window = [history[-m] for m in range(len(weights) - 1, 0, -1)] + [trajectory]
+    transform = g.user(functools.partial(smooth_transform, weights=weights, lag=c.lag), window,
+                       name="smooth")
+    warp = g.user(functools.partial(truncate_transform, size=(w, h), crop=c.crop), [transform],
+                  name="truncate")
+    src = g.delay(frame, c.lag)[-c.lag] if c.lag else frame
+    out = g.warp_perspective(src, warp, dsize=(w, h), name="warp", target=pin)
+    g.output("stabilized", out)
+    g.output("warp", warp)
+    g.output("transform", transform)
+    g.output("trajectory", trajectory)
+    g.output("motion", motion)
+    return g
+
+
+def schedule(graph, backend="cpu"):
+    """Place ``graph`` with the scheduler (policy ``best``): CPU workers only for ``"cpu"``,
+    CPU workers plus the Warp device otherwise. Returns the plan."""
+    return graph.schedule("best", gpu=False if backend == "cpu" else backend)
+
+
+# --------------------------------------------------------------------------- running
+
+
+@dataclasses.dataclass
+class StabilizedFrame:
+    """One output frame: ``index`` k (it shows input frame k), ``image`` (uint8 HxWx3),
+    ``warp`` (float64 3x3, input -> output), ``transform`` (the smoothing warp before the crop)
+    and ``trajectory`` (T_k, frame 0 -> frame k)."""
+
+    index: int
+    image: np.ndarray
+    warp: np.ndarray
+    transform: np.ndarray
+    trajectory: np.ndarray
+
+
+_LIVE, _PAD = np.ones(1, np.uint8), np.zeros(1, np.uint8)
+
+
+def _check_frame(frame, size=None):
+    from ..check import check_image
+
+    check_image(frame, "frame", dtypes=(np.uint8,), channels=(3,))
+    if size is not None and frame.shape[1::-1] != tuple(size):
+        raise WarpvxValueError(f"frame: expected every frame of size {size[0]}x{size[1]}, got "
+                               f"{frame.shape[1]}x{frame.shape[0]}")
+
+
+def _drive(frames, config, run):
+    """Feed ``frames`` (then ``lag`` padding frames) to ``run(feed) -> iterator of output
+    dicts`` and yield :class:`StabilizedFrame` in input order."""
+    frames = iter(frames)
+    first = next(frames, None)
+    if first is None:
+        raise WarpvxValueError("frames: the video has no frames")
+    _check_frame(first)
+    size = first.shape[1::-1]
+    lag = config.lag
+    trajectories = []
+
+    def feed():
+        last = first
+        for f in _chain_first(first, frames):
+            _check_frame(f, size)
+            last = f
+            yield {"frame": f, "live": _LIVE}
+        for _ in range(lag):
+            yield {"frame": last, "live": _PAD}
+
+    for k, out in enumerate(run(feed(), size)):
+        if out["trajectory"] is not None and np.isfinite(out["trajectory"]).all():
+            trajectories.append(out["trajectory"])
+        j = k - lag
+        if j >= 0:
+            yield StabilizedFrame(j, out["stabilized"], out["warp"], out["transform"], trajectories[j])
+
+
+def _chain_first(first, rest):
+    yield first
+    yield from rest
+
+
+def stabilize(frames, config: StabilizerConfig = StabilizerConfig(), *, backend="cpu",
+              depth: int = 2):
+    """Stabilize a video with the warpvx graph; a generator of :class:`StabilizedFrame`.
+
+    ``frames``: an iterable of BGR uint8 HxWx3 frames of one size. ``backend``: ``"cpu"``,
+    ``"warp-cpu"`` or ``"cuda"`` (see :func:`build_graph`); ``depth`` frames in flight.
+    """
+    from ..check import check_choice
+
+    check_choice(backend, "backend", BACKENDS)
+
+    def run(feed, size):
+        g = build_graph(size, config, backend=backend)
+        schedule(g, backend)
+        with g:
+            yield from g.stream(feed, depth=depth)
+
+    return _drive(frames, config, run)
+
+
+def stabilize_model(frames, config: StabilizerConfig = StabilizerConfig()):
+    """The same algorithm as plain OpenCV calls (the imperative "model" of thesis §2 and
+    §3.2.1); a generator of :class:`StabilizedFrame`, as :func:`stabilize`."""
+    import cv2
+
+    c = config
+    weights = c.weights()
+
+    def run(feed, size):
+        maps = undistort_maps(c, size) if c.camera_matrix is not None else None
+        window = deque([_NAN3] * len(weights), maxlen=len(weights))
+        sources = deque(maxlen=c.lag + 1)
+        prev_gray, points = None, _NO_POINTS
+        lk = dict(winSize=(c.lk_win, c.lk_win), maxLevel=c.levels - 1,
+                  criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01),
+                  minEigThreshold=1e-4)
+        fast = cv2.FastFeatureDetector_create(c.fast_threshold, True) if c.detector == "fast" else None
+        for item in feed:
+            frame = item["frame"]
+            if maps is not None:
+                frame = cv2.remap(frame, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+            gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+            if fast is None:
+                det = cv2.goodFeaturesToTrack(gray, c.max_corners, c.quality_level, c.min_distance,
+                                              blockSize=3, useHarrisDetector=True, k=0.04)
+                det = np.zeros((0, 2), np.float32) if det is None else det.reshape(-1, 2)
+            else:
+                kps = sorted(fast.detect(gray), key=lambda kp: -kp.response)[:c.max_corners]
+                det = np.float32([kp.pt for kp in kps]).reshape(-1, 2)
+            if prev_gray is None:
+                nxt, status = points, np.zeros(len(points), np.uint8)
+            else:
+                nxt, status, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, points, None, **lk)
+            motion = estimate_motion(points, nxt, status, model=c.motion, threshold=c.ransac_threshold)
+            points = refresh_points(nxt, status, det, min_tracked=c.min_tracked,
+                                    max_corners=c.max_corners, min_distance=c.min_distance)
+            prev_gray = gray
+            T = accumulate(motion, window[-1], item["live"])
+            window.append(T)
+            sources.append(frame)
+            transform = smooth_transform(*window, weights=weights, lag=c.lag)
+            warp = truncate_transform(transform, size=size, crop=c.crop)
+            out = cv2.warpPerspective(sources[0], warp, tuple(size), flags=cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_CONSTANT)
+            yield {"stabilized": out, "warp": warp, "transform": transform, "trajectory": T}
+
+    return _drive(frames, config, run)
+
+
+# --------------------------------------------------------------------------- video I/O
+
+
+class VideoSource:
+    """Frames of a video file (anything OpenCV opens) or of an image folder (sorted names).
+
+    Raises a warpvx error naming ``path`` when it is missing, unreadable or holds no frame.
+    Attributes: ``size`` (w, h), ``fps``, ``count`` (frames to expect, or None), ``first``.
+    """
+
+    def __init__(self, path, max_frames=None):
+        import cv2
+
+        self.path = os.fspath(path)
+        self.max_frames = max_frames
+        self.fps = 25.0
+        self._cap = None
+        if os.path.isdir(self.path):
+            self._files = sorted(os.path.join(self.path, f) for f in os.listdir(self.path)
+                                 if f.lower().endswith(IMAGE_EXTENSIONS))
+            if not self._files:
+                raise WarpvxValueError(f"input: no images ({', '.join(IMAGE_EXTENSIONS)}) in folder {self.path!r}")
+            self.count = len(self._files)
+        elif os.path.isfile(self.path):
+            self._files = None
+            self._cap = cv2.VideoCapture(self.path)
+            if not self._cap.isOpened():
+                raise WarpvxValueError(f"input: OpenCV cannot open {self.path!r} as a video")
+            self.fps = self._cap.get(cv2.CAP_PROP_FPS) or 25.0
+            n = int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT))
+            self.count = n if n > 0 else None
+        else:
+            raise WarpvxValueError(f"input: no such file or folder {self.path!r}")
+        self._it = self._read()
+        self.first = next(self._it, None)
+        if self.first is None:
+            raise WarpvxValueError(f"input: {self.path!r} holds no readable frame")
+        self.size = self.first.shape[1::-1]
+        if max_frames is not None and (self.count is None or self.count > max_frames):
+            self.count = max_frames
+
+    def _read(self):
+        import cv2
+
+        n = 0
+        while self.max_frames is None or n < self.max_frames:
+            if self._files is not None:
+                if n >= len(self._files):
+                    return
+                frame = cv2.imread(self._files[n], cv2.IMREAD_COLOR)
+                if frame is None:
+                    raise WarpvxValueError(f"input: cannot read image {self._files[n]!r}")
+            else:
+                ok, frame = self._cap.read()
+                if not ok:
+                    return
+            n += 1
+            yield frame
+
+    def __iter__(self):
+        if self.first is not None:
+            yield self.first
+            self.first = None
+        yield from self._it
+
+
+def open_writer(path, size, fps):
+    """A ``cv2.VideoWriter`` for ``path``: MJPG for ``.avi``, mp4v otherwise (the codecs the
+    headless OpenCV wheels write)."""
+    import cv2
+
+    fourcc = "MJPG" if str(path).lower().endswith(".avi") else "mp4v"
+    writer = cv2.VideoWriter(os.fspath(path), cv2.VideoWriter_fourcc(*fourcc), fps, tuple(size))
+    if not writer.isOpened():
+        raise WarpvxValueError(f"output: OpenCV cannot write a {fourcc} video to {os.fspath(path)!r}")
+    return writer
+
+
+def trajectory_params(T):
+    """(x, y, angle in degrees) of a 3x3 motion: translation and rotation of its affine part."""
+    return float(T[0, 2]), float(T[1, 2]), math.degrees(math.atan2(T[1, 0], T[0, 0]))
+
+
+def save_plot(path, before, after):
+    """Plot the trajectory (x, y, angle over frames) before and after smoothing as a PNG.
+
+    ``before``, ``after``: lists of 3x3 matrices (T_k and the smoothed path S_k T_k).
+    """
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise WarpvxValueError("plot: matplotlib is not installed (pip install 'warpvx[plot]')") from None
+    a = np.array([trajectory_params(T) for T in before])
+    b = np.array([trajectory_params(T) for T in after])
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    for i, label in enumerate(("x (px)", "y (px)", "angle (deg)")):
+        axes[i].plot(a[:, i], label="input")
+        axes[i].plot(b[:, i], label="stabilized")
+        axes[i].set_ylabel(label)
+    axes[0].legend()
+    axes[-1].set_xlabel("frame")
+    fig.suptitle("camera trajectory (frame 0 -> frame k)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def add_arguments(parser):
+    """The stabilizer's command-line options (shared by ``warpvx stabilize`` and
+    ``apps/stabilize.py``)."""
+    d = StabilizerConfig()
+    parser.add_argument("input", help="video file (anything OpenCV opens) or image folder")
+    parser.add_argument("output", help="stabilized video (.mp4: mp4v, .avi: MJPG)")
+    parser.add_argument("--backend", choices=BACKENDS, default="cpu")
+    parser.add_argument("--window", type=int, default=d.window, help="smoothing window N in frames")
+    parser.add_argument("--mode", choices=MODES, default=d.mode,
+                        help="centered: lags N//2 frames (thesis); causal: no look-ahead")
+    parser.add_argument("--crop", type=float, default=d.crop, help="fraction cut from each side, [0, 0.5)")
+    parser.add_argument("--motion", choices=MOTIONS, default=d.motion)
+    parser.add_argument("--detector", choices=DETECTORS, default=d.detector)
+    parser.add_argument("--max-frames", type=int, default=None)
+    parser.add_argument("--model", action="store_true", help="run the imperative OpenCV model instead of the graph")
+    parser.add_argument("--compare", action="store_true", help="write input and output side by side")
+    parser.add_argument("--plot", metavar="PNG", help="save the trajectory before/after smoothing")
+    parser.add_argument("--metrics", metavar="JSON", help="write the quality metrics (keeps the frames in memory)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args) -> int:
+    """Run the stabilizer for parsed ``args`` (see :func:`add_arguments`); returns 0.
+
+    Raises a warpvx error on bad input (the callers print it as one line, exit status 2).
+    """
+    import json
+
+    from tqdm import tqdm
+
+    config = StabilizerConfig(window=args.window, mode=args.mode, crop=args.crop,
+                              motion=args.motion, detector=args.detector)
+    if args.max_frames is not None and args.max_frames < 1:
+        raise WarpvxValueError(f"max_frames: expected an int >= 1, got {args.max_frames}")
+    if args.plot:  # fail before the work, not after it
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise WarpvxValueError("plot: matplotlib is not installed (pip install 'warpvx[plot]')") from None
+    source = VideoSource(args.input, args.max_frames)
+    w, h = source.size
+    writer = open_writer(args.output, (2 * w if args.compare else w, h), source.fps)
+    keep_in, keep_out = [], []
+    before, after, warps = [], [], []
+    inputs = deque()
+
+    def tee():
+        for f in source:
+            inputs.append(f)
+            yield f
+
+    frames = stabilize_model(tee(), config) if args.model else stabilize(tee(), config, backend=args.backend)
+    try:
+        with tqdm(total=source.count, unit="frame", disable=args.quiet, desc="stabilize") as bar:
+            for sf in frames:
+                src = inputs.popleft()
+                writer.write(np.hstack([src, sf.image]) if args.compare else sf.image)
+                before.append(sf.trajectory)
+                after.append(sf.transform @ sf.trajectory)
+                warps.append(sf.warp)
+                if args.metrics:
+                    keep_in.append(src)
+                    keep_out.append(sf.image)
+                bar.update()
+    finally:
+        writer.release()
+    if args.plot:
+        save_plot(args.plot, before, after)
+    if args.metrics:
+        from .stabilize_metrics import evaluate
+
+        report = {"source": args.input, "frames": len(keep_in), "config": {
+            k: v for k, v in dataclasses.asdict(config).items() if k not in ("camera_matrix", "dist_coeffs")},
+            "backend": "model" if args.model else args.backend}
+        report.update(evaluate(keep_in, keep_out, warps))
+        with open(args.metrics, "w") as f:
+            json.dump(report, f, indent=2)
+    return 0
+
+
+def main(argv=None, prog="stabilize") -> int:
+    """Parse ``argv`` and run; bad input prints one line to stderr and returns 2."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    return run_cli(args, prog)
+
+
+def run_cli(args, prog="stabilize") -> int:
+    """:func:`run` with warpvx errors reported as one line on stderr (exit status 2)."""
+    import sys
+
+    try:
+        return run(args)
+    except WarpvxError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+__all__ = [
+    "StabilizerConfig", "StabilizedFrame", "build_graph", "schedule", "stabilize", "stabilize_model",
+    "estimate_motion", "refresh_points", "accumulate", "smooth_transform", "truncate_transform",
+    "undistort_maps", "VideoSource", "open_writer", "save_plot", "add_arguments", "run", "main",
+    "MOTIONS", "MODES", "DETECTORS", "BACKENDS",
+]
