@@ -164,6 +164,7 @@ _std("harris_corners", "features")
 _std("optical_flow_pyr_lk", "flow")
 _std("orb", "orb_extractor")
 _std("match_hamming", "matching")
+_std("find_homography", "homography")
 # Primitives with no bench case of their own: resize shares the scale pyramid's kernel modules;
 # orb_compute and knn_match_hamming are timed through orb and match_hamming.
 register("resize", public="warpvx.pyramid:resize",
