@@ -10,7 +10,6 @@ from ..arrays import to_numpy
 from ..homography import find_homography
 from ._arrays import contiguous
 
-RANSAC = 8
 _DEFAULT_THRESHOLD = 3.0  # what cv2 uses for a threshold <= 0
 
 
@@ -23,7 +22,7 @@ def findHomography(srcPoints, dstPoints, method=0, ransacReprojThreshold=3.0, ma
     array are cv2's own. Points as cv2 takes them: [N, 2] or [N, 1, 2] float32/float64
     (integer points are converted to float32).
     """
-    if method != RANSAC or mask is not None:
+    if method != _cv2.RANSAC or mask is not None:
         return _cv2.findHomography(srcPoints, dstPoints, method, ransacReprojThreshold, mask,
                                    maxIters, confidence)
     src, dst = (_float_points(p) for p in (srcPoints, dstPoints))
@@ -46,4 +45,4 @@ def _float_points(p):
     return p
 
 
-__all__ = ["findHomography", "RANSAC"]
+__all__ = ["findHomography"]
