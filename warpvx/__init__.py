@@ -43,6 +43,7 @@ _LAZY = {
     "orb_compute": "warpvx.orb_extractor",
     "match_hamming": "warpvx.matching",
     "knn_match_hamming": "warpvx.matching",
+    "find_homography": "warpvx.homography",
     "Graph": "warpvx.graph",
     "Delay": "warpvx.graph",
     "cv": "warpvx.cv",

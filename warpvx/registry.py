@@ -148,6 +148,7 @@ _std("harris_corners", "features")
 _std("optical_flow_pyr_lk", "flow", outputs=("next_pts", "status", "err"))
 _std("orb", "orb_extractor", outputs=("keypoints", "descriptors"))
 _std("match_hamming", "matching", outputs=("pairs", "distances"))
+_std("find_homography", "homography", outputs=("H", "mask"))
 # Primitives with no bench case of their own: resize shares the scale pyramid's kernel modules;
 # orb_compute and knn_match_hamming are timed through orb and match_hamming.
 register("resize", public="warpvx.pyramid:resize", sized_by_inputs=True,

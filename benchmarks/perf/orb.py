@@ -272,7 +272,7 @@ def pipelined(src, device, n_plans: int, frames: int) -> float:
     """Frames/s with ``n_plans`` plans on their own streams, round robin: copy in, the graph,
     the count read back (asynchronously; the output copies, sized by it, left out)."""
     h, w = src.shape
-    plans = [kw.Plan(device, h, w, N_FEATURES, SCALE, LEVELS, INI_TH, MIN_TH)
+    plans = [kw.OrbPlan(device, h, w, N_FEATURES, SCALE, LEVELS, INI_TH, MIN_TH)
              for _ in range(n_plans)]
     streams = [wp.Stream(device) for _ in range(n_plans)]
     for p in plans:
@@ -334,7 +334,7 @@ def run_size(device, size, repeat, profile=False):
         kw.orb_host_quadtree(src, N_FEATURES, SCALE, LEVELS, INI_TH, MIN_TH)
     with SyncCounter() as c_after:
         call()
-    plan = kw.Plan(device, h, w, N_FEATURES, SCALE, LEVELS, INI_TH, MIN_TH)
+    plan = kw.OrbPlan(device, h, w, N_FEATURES, SCALE, LEVELS, INI_TH, MIN_TH)
     plan.run(src)
     plan.run(src)
     t_graph = None

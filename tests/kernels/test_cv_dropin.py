@@ -20,7 +20,7 @@ _MODULES = (wcv.imgproc, wcv.pyramids, wcv.features2d, wcv.orb, wcv.video)
 # --- names: warpvx's where accelerated, cv2's otherwise -------------------------------------
 
 
-@pytest.mark.parametrize("name", ["imread", "imwrite", "findHomography", "initUndistortRectifyMap",
+@pytest.mark.parametrize("name", ["imread", "imwrite", "initUndistortRectifyMap",
                                   "convertMaps", "KeyPoint", "DMatch", "error", "COLOR_BGR2HSV",
                                   "CV_16SC2", "RANSAC", "data", "__version__"])
 def test_unaccelerated_names_fall_through_to_cv2(name):

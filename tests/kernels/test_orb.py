@@ -449,11 +449,11 @@ def test_warp_internals_match_orbslam2_transcription(warp_backend, name):
     node order, and the IC_Angle orientations."""
     wp = pytest.importorskip("warp")
     from warpvx.kernels_warp.orb import funcs
-    from warpvx.kernels_warp.orb.plan import Plan
+    from warpvx.kernels_warp.orb.plan import OrbPlan
 
     img = gray(name)
     dev = "cpu" if warp_backend == "warp-cpu" else warp_backend
-    plan = Plan(dev, *img.shape, 2000, 1.2, 8, 20, 7)
+    plan = OrbPlan(dev, *img.shape, 2000, 1.2, 8, 20, 7)
     plan.run(wp.array(img, dtype=wp.uint8, device=dev))
     counters = plan.counters.numpy()
     assert counters[funcs.C_OVER] == 0  # the device quadtree ran, not the host fallback
@@ -509,11 +509,11 @@ def test_warp_overflow_takes_the_host_quadtree(warp_backend):
     result as the device path and the CPU extractor."""
     wp = pytest.importorskip("warp")
     from warpvx.kernels_warp.orb import funcs
-    from warpvx.kernels_warp.orb.plan import Plan
+    from warpvx.kernels_warp.orb.plan import OrbPlan
 
     img = gray("coffee")
     dev = "cpu" if warp_backend == "warp-cpu" else warp_backend
-    plan = Plan(dev, *img.shape, 2000, 1.2, 8, 20, 7, candidate_divisor=10 ** 6)
+    plan = OrbPlan(dev, *img.shape, 2000, 1.2, 8, 20, 7, candidate_divisor=10 ** 6)
     kw, dw = _host(*plan.run(wp.array(img, dtype=wp.uint8, device=dev)))
     assert plan.counters.numpy()[funcs.C_OVER] == 1
     kc, dc = warpvx.orb(img, backend="cpu")

@@ -2,11 +2,12 @@
 
 Same names, argument order, constants and return types as ``cv2`` for the accelerated subset:
 imgproc (colour, geometric transforms), pyramids (pyrDown, resize, GaussianBlur), features2d
-(FAST, Harris, goodFeaturesToTrack), orb (ORB, BFMatcher), video (pyramidal LK). Every
+(FAST, Harris, goodFeaturesToTrack), orb (ORB, BFMatcher), video (pyramidal LK), calib3d
+(findHomography with RANSAC). Every
 accelerated function also takes ``backend=`` as a keyword; inside the subset a code or flag it
 does not cover raises a clear :class:`warpvx.UnsupportedError`.
 
-Every other name falls through to ``cv2`` itself (``cv.imread``, ``cv.findHomography``,
+Every other name falls through to ``cv2`` itself (``cv.imread``, ``cv.getPerspectiveTransform``,
 ``cv.KeyPoint``, ``cv.error``, ``cv.COLOR_BGR2HSV``...), so a working OpenCV script keeps
 working: ``getattr`` and ``dir()`` see both, warpvx's names first (``from warpvx.cv import *``
 imports only warpvx's own).
@@ -25,6 +26,7 @@ from .pyramids import *  # noqa: F401,F403
 from .features2d import *  # noqa: F401,F403
 from .video import *  # noqa: F401,F403
 from .orb import *  # noqa: F401,F403
+from .calib3d import *  # noqa: F401,F403
 
 
 def __getattr__(name):

@@ -61,7 +61,7 @@ from .funcs import C_CAND, C_FINAL
 from .host import (_pattern_on, blur_levels, build_pyramid, compute_descriptors,
                    compute_orientation, describe_keypoints, detect_and_select, distribute,
                    orb_host_quadtree, scale_back)
-from .plan import Plan, acquire, release
+from .plan import OrbPlan, acquire, release
 
 
 def orb(src, n_features: int, scale_factor: float, n_levels: int, ini_th_fast: int,
@@ -77,7 +77,7 @@ def orb(src, n_features: int, scale_factor: float, n_levels: int, ini_th_fast: i
     h, w = int(src.shape[0]), int(src.shape[1])
     key = (str(device), h, w, int(n_features), float(scale_factor), int(n_levels),
            int(ini_th_fast), int(min_th_fast))
-    plan = acquire(key, lambda: Plan(device, h, w, int(n_features), float(scale_factor),
+    plan = acquire(key, lambda: OrbPlan(device, h, w, int(n_features), float(scale_factor),
                                       int(n_levels), int(ini_th_fast), int(min_th_fast)))
     try:
         return plan.run(src)
@@ -113,6 +113,6 @@ def orb_compute(src, keypoints: Keypoints, scale_factor: float, n_levels: int, *
 
 
 
-__all__ = ["orb", "orb_compute", "orb_host_quadtree", "Plan", "build_pyramid", "detect_and_select",
+__all__ = ["orb", "orb_compute", "orb_host_quadtree", "OrbPlan", "build_pyramid", "detect_and_select",
            "distribute", "compute_orientation", "blur_levels", "compute_descriptors", "scale_back",
            "C_CAND", "C_FINAL"]

@@ -1,6 +1,6 @@
 """The ORB extractor with the quadtree on the host: per-level launches, one host sync.
 
-What a frame takes when it overflows its plan's capacities (:meth:`.plan.Plan.run`), and the
+What a frame takes when it overflows its plan's capacities (:meth:`.plan.OrbPlan.run`), and the
 "before" reference of ``benchmarks/perf/orb.py``; same result as the one-graph path.
 """
 

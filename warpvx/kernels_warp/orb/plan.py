@@ -1,6 +1,6 @@
 """Plans of the one-graph ORB extractor: buffers, the launch sequence, CUDA-graph capture.
 
-A :class:`Plan` holds everything one (device, image size, parameters) needs; the pool
+A :class:`OrbPlan` holds everything one (device, image size, parameters) needs; the pool
 (:func:`acquire`, :func:`release`) hands each call a plan no other call is using.
 """
 
@@ -39,7 +39,7 @@ def _view(buf, offset: int, shape: tuple, dtype):
                     device=buf.device)
 
 
-class Plan:
+class OrbPlan:
     """Buffers, tables and (on CUDA) the captured graph of one (device, size, parameters).
 
     Capacities: non-maximum-suppression survivors, the pyramid's pixel count over

@@ -1,0 +1,649 @@
+"""RANSAC homography on Warp: every hypothesis drawn and scored in parallel, then refined.
+
+1. ``load_points``: the [N, 2] float32/float64 point arrays as float64 ``vec2d`` (one
+   overload per input dtype, declared up front);
+2. ``sample_hypotheses``: one thread per hypothesis draws 4 distinct points with Warp's
+   counter-based generator (``wp.rand_init(seed, hypothesis)``), rejects degenerate samples
+   (a collinear triple, or the 4 triangles not oriented alike in both images: OpenCV's
+   ``checkSubset``; up to :data:`SAMPLE_TRIES` draws) and solves the 4-point DLT in
+   normalised coordinates (8x8 Gaussian elimination with partial pivoting, ``H[2,2] = 1``);
+   a hypothesis that finds no valid sample is the zero matrix;
+3. ``score_hypotheses`` (hypothesis x point slice) counts inliers (squared reprojection
+   error ``<= threshold^2``) and sums their errors; ``total_scores`` adds the slices in order;
+4. ``select_in_groups`` and ``select_best``: the most inliers win, then the smaller error
+   sum, then the lower hypothesis index (a fixed-order reduction: deterministic);
+5. refinement on the inliers of the winner (its mask kept fixed, as OpenCV's): Hartley
+   normalisation (``accumulate_moments``, ``normalise_inliers``), the normalised DLT over all
+   inliers (``accumulate_system`` then ``solve_dlt``), then :data:`LM_ITERS`
+   Levenberg-Marquardt steps on the reprojection error (``accumulate_system`` with the
+   Jacobian, then ``step_lm``). The dst normalisation is isotropic, so the normalised
+   residuals are the pixel residuals times one constant: the same minimum;
+6. ``write_homography`` (denormalised, ``H[2,2] = 1``; zeros when no hypothesis was valid)
+   and ``mark_inliers`` (the output mask, recomputed with the final H).
+
+Every sum runs over fixed slices in a fixed order (no atomics), so a seed gives the same
+result on every run. No host sync. Scratch buffers and recorded launches are reused between
+calls of the same (N, hypothesis count, point dtype) (:func:`._launch.workspace`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import warp as wp
+
+from ._launch import Recorded, workspace
+
+# Forward-only kernels; no implicit FMA contraction, so CPU and CUDA builds round alike.
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
+
+SAMPLE_TRIES = 16  # draws per hypothesis before it is declared degenerate
+LM_ITERS = 10  # Levenberg-Marquardt iterations (OpenCV's refinement runs at most 10)
+TARGET_THREADS = 65536  # (hypothesis, slice) threads to aim for when scoring
+MIN_SLICE_POINTS = 32  # points per scoring slice at least
+REFIT_SLICE = 64  # points per slice of the refinement sums
+SELECT_GROUP = 64  # hypotheses per thread of the first selection pass
+
+# |det| of a triangle of normalised points (mean distance sqrt(2) from the centroid) under
+# which three sample points count as collinear.
+MIN_AREA = wp.constant(wp.float64(1.0e-5))
+# Pivot magnitude under which an 8x8 system counts as singular.
+MIN_PIVOT = wp.constant(wp.float64(1.0e-12))
+LAMBDA0 = wp.constant(wp.float64(1.0e-3))
+
+mat88d = wp.types.matrix(shape=(8, 8), dtype=wp.float64)
+vec8d = wp.types.vector(length=8, dtype=wp.float64)
+vec7d = wp.types.vector(length=7, dtype=wp.float64)
+
+
+@wp.struct
+class Refinement:
+    """The refinement's state (one element): normalised homographies ``x_d = H x_s`` between
+    ``(p - c_s) * s_s`` and ``(q - c_d) * s_d``, and the Levenberg-Marquardt bookkeeping."""
+
+    found: int  # 1 when RANSAC found a model
+    norm_src: wp.vec3d  # (c_x, c_y, s)
+    norm_dst: wp.vec3d
+    h: wp.mat33d  # the accepted estimate
+    trial: wp.mat33d  # the estimate the next accumulate_system evaluates
+    cost: wp.float64  # sum of squared normalised residuals at h
+    lam: wp.float64
+    jtj: mat88d  # normal matrix and gradient at h
+    jtr: vec8d
+
+
+# --- small linear algebra --------------------------------------------------------------------
+
+
+@wp.func
+def solve8(a: mat88d, b: vec8d):
+    """(x, ok): the solution of a x = b by Gaussian elimination with partial pivoting; ok is
+    False when a pivot falls under MIN_PIVOT (or is NaN)."""
+    for k in range(8):
+        p = k
+        best = wp.abs(a[k, k])
+        for i in range(k + 1, 8):
+            if wp.abs(a[i, k]) > best:
+                best = wp.abs(a[i, k])
+                p = i
+        if not (best > MIN_PIVOT):
+            return b, False
+        if p != k:
+            for j in range(8):
+                t = a[k, j]
+                a[k, j] = a[p, j]
+                a[p, j] = t
+            t = b[k]
+            b[k] = b[p]
+            b[p] = t
+        for i in range(k + 1, 8):
+            f = a[i, k] / a[k, k]
+            for j in range(k, 8):
+                a[i, j] = a[i, j] - f * a[k, j]
+            b[i] = b[i] - f * b[k]
+    x = vec8d()
+    for kk in range(8):
+        k = 7 - kk
+        s = b[k]
+        for j in range(k + 1, 8):
+            s = s - a[k, j] * x[j]
+        x[k] = s / a[k, k]
+    return x, True
+
+
+@wp.func
+def to_matrix(h: vec8d) -> wp.mat33d:
+    """The 8 unknowns (row-major, H[2,2] = 1) as a 3x3 matrix."""
+    return wp.mat33d(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], wp.float64(1.0))
+
+
+@wp.func
+def to_vector(m: wp.mat33d) -> vec8d:
+    return vec8d(m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2], m[2, 0], m[2, 1])
+
+
+@wp.func
+def dlt_rows(p: wp.vec2d, q: wp.vec2d):
+    """The two DLT equations a . h = b of a correspondence p -> q with H[2,2] = 1."""
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    a1 = vec8d(p[0], p[1], one, zero, zero, zero, -q[0] * p[0], -q[0] * p[1])
+    a2 = vec8d(zero, zero, zero, p[0], p[1], one, -q[1] * p[0], -q[1] * p[1])
+    return a1, a2
+
+
+@wp.func
+def normalise(p: wp.vec2d, t: wp.vec3d) -> wp.vec2d:
+    return wp.vec2d((p[0] - t[0]) * t[2], (p[1] - t[1]) * t[2])
+
+
+@wp.func
+def normaliser(t: wp.vec3d) -> wp.mat33d:
+    """The matrix of :func:`normalise`."""
+    zero = wp.float64(0.0)
+    return wp.mat33d(t[2], zero, -t[0] * t[2], zero, t[2], -t[1] * t[2], zero, zero, wp.float64(1.0))
+
+
+@wp.func
+def denormaliser(t: wp.vec3d) -> wp.mat33d:
+    """The inverse of :func:`normaliser`."""
+    zero = wp.float64(0.0)
+    r = wp.float64(1.0) / t[2]
+    return wp.mat33d(r, zero, t[0], zero, r, t[1], zero, zero, wp.float64(1.0))
+
+
+@wp.func
+def reprojection_error2(h: wp.mat33d, p: wp.vec2d, q: wp.vec2d) -> wp.float64:
+    """|q - H(p)|^2; NaN or inf where H sends p to infinity or a point is not finite (never
+    an inlier: every test is written ``err <= t``)."""
+    w = wp.float64(1.0) / (h[2, 0] * p[0] + h[2, 1] * p[1] + h[2, 2])
+    dx = (h[0, 0] * p[0] + h[0, 1] * p[1] + h[0, 2]) * w - q[0]
+    dy = (h[1, 0] * p[0] + h[1, 1] * p[1] + h[1, 2]) * w - q[1]
+    return dx * dx + dy * dy
+
+
+@wp.func
+def triangle_det(a: wp.vec2d, b: wp.vec2d, c: wp.vec2d) -> wp.float64:
+    return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+
+
+@wp.func
+def sample_normaliser(p0: wp.vec2d, p1: wp.vec2d, p2: wp.vec2d, p3: wp.vec2d) -> wp.vec3d:
+    """(c_x, c_y, s): centroid of the 4 points and the scale bringing their mean distance
+    from it to sqrt(2) (Hartley); s = 0 when the points coincide."""
+    c = (p0 + p1 + p2 + p3) * wp.float64(0.25)
+    d = wp.length(p0 - c) + wp.length(p1 - c) + wp.length(p2 - c) + wp.length(p3 - c)
+    s = wp.float64(0.0)
+    if d > wp.float64(0.0):
+        s = wp.float64(4.0 * 1.4142135623730951) / d
+    return wp.vec3d(c[0], c[1], s)
+
+
+@wp.func
+def fit_sample(s0: wp.vec2d, s1: wp.vec2d, s2: wp.vec2d, s3: wp.vec2d,
+               d0: wp.vec2d, d1: wp.vec2d, d2: wp.vec2d, d3: wp.vec2d) -> wp.mat33d:
+    """The homography through 4 correspondences, H[2,2] = 1, or zeros for a degenerate
+    sample (coincident or collinear points, triangles oriented unlike in the two images,
+    a singular system, a non-finite result)."""
+    zero = wp.mat33d()
+    ts = sample_normaliser(s0, s1, s2, s3)
+    td = sample_normaliser(d0, d1, d2, d3)
+    if not (ts[2] > wp.float64(0.0) and td[2] > wp.float64(0.0)):
+        return zero
+    a0 = normalise(s0, ts)
+    a1 = normalise(s1, ts)
+    a2 = normalise(s2, ts)
+    a3 = normalise(s3, ts)
+    b0 = normalise(d0, td)
+    b1 = normalise(d1, td)
+    b2 = normalise(d2, td)
+    b3 = normalise(d3, td)
+    # OpenCV's checkSubset: the triangles (0,1,2), (1,2,3), (0,2,3), (0,1,3) keep their
+    # orientation in both images, or all flip; here also none may be (nearly) collinear.
+    da = wp.vec4d(triangle_det(a0, a1, a2), triangle_det(a1, a2, a3),
+                  triangle_det(a0, a2, a3), triangle_det(a0, a1, a3))
+    db = wp.vec4d(triangle_det(b0, b1, b2), triangle_det(b1, b2, b3),
+                  triangle_det(b0, b2, b3), triangle_det(b0, b1, b3))
+    negative = int(0)
+    for t in range(4):
+        if not (wp.abs(da[t]) > MIN_AREA and wp.abs(db[t]) > MIN_AREA):
+            return zero
+        if da[t] * db[t] < wp.float64(0.0):
+            negative += 1
+    if negative != 0 and negative != 4:
+        return zero
+    a = mat88d()
+    rhs = vec8d()
+    for k in range(4):
+        p = a0
+        q = b0
+        if k == 1:
+            p = a1
+            q = b1
+        elif k == 2:
+            p = a2
+            q = b2
+        elif k == 3:
+            p = a3
+            q = b3
+        r1, r2 = dlt_rows(p, q)
+        for j in range(8):
+            a[2 * k, j] = r1[j]
+            a[2 * k + 1, j] = r2[j]
+        rhs[2 * k] = q[0]
+        rhs[2 * k + 1] = q[1]
+    h, ok = solve8(a, rhs)
+    if not ok:
+        return zero
+    m = denormaliser(td) * to_matrix(h) * normaliser(ts)
+    if not (wp.abs(m[2, 2]) > wp.float64(0.0)):
+        return zero
+    m = m / m[2, 2]
+    for i in range(3):
+        for j in range(3):
+            if not wp.isfinite(m[i, j]):
+                return zero
+    return m
+
+
+@wp.func
+def better(count: int, cost: wp.float64, index: int, best_count: int, best_cost: wp.float64,
+           best_index: int) -> bool:
+    """More inliers, then a smaller error sum, then a lower index."""
+    if count != best_count:
+        return count > best_count
+    if cost != best_cost:
+        return cost < best_cost
+    return index < best_index
+
+
+@wp.func
+def slice_range(s: int, size: int, n: int):
+    return s * size, wp.min(s * size + size, n)
+
+
+# --- kernels ---------------------------------------------------------------------------------
+
+
+@wp.kernel
+def load_points(src: wp.array2d(dtype=Any), dst: wp.array2d(dtype=Any),
+                src_pts: wp.array(dtype=wp.vec2d), dst_pts: wp.array(dtype=wp.vec2d)):
+    i = wp.tid()
+    src_pts[i] = wp.vec2d(wp.float64(src[i, 0]), wp.float64(src[i, 1]))
+    dst_pts[i] = wp.vec2d(wp.float64(dst[i, 0]), wp.float64(dst[i, 1]))
+
+
+for _dtype in (wp.float32, wp.float64):
+    wp.overload(load_points, {"src": wp.array2d(dtype=_dtype), "dst": wp.array2d(dtype=_dtype)})
+
+
+@wp.kernel
+def sample_hypotheses(src_pts: wp.array(dtype=wp.vec2d), dst_pts: wp.array(dtype=wp.vec2d),
+                      seed: int, hypotheses: wp.array(dtype=wp.mat33d)):
+    """hypotheses[h]: the homography of a random valid 4-point sample, or zeros."""
+    h = wp.tid()
+    n = src_pts.shape[0]
+    rng = wp.rand_init(seed, h)
+    model = wp.mat33d()
+    for _try in range(SAMPLE_TRIES):
+        i0 = wp.randi(rng, 0, n)
+        i1 = wp.randi(rng, 0, n - 1)
+        i1 += int(i1 >= i0)  # distinct without rejection: skip the taken index
+        lo = wp.min(i0, i1)
+        hi = wp.max(i0, i1)
+        i2 = wp.randi(rng, 0, n - 2)
+        i2 += int(i2 >= lo)
+        i2 += int(i2 >= hi)
+        i3 = wp.randi(rng, 0, n)
+        while i3 == i0 or i3 == i1 or i3 == i2:  # n >= 4: at most 3 of n values taken
+            i3 = wp.randi(rng, 0, n)
+        model = fit_sample(src_pts[i0], src_pts[i1], src_pts[i2], src_pts[i3],
+                           dst_pts[i0], dst_pts[i1], dst_pts[i2], dst_pts[i3])
+        if model[2, 2] != wp.float64(0.0):
+            break
+    hypotheses[h] = model
+
+
+@wp.kernel
+def score_hypotheses(hypotheses: wp.array(dtype=wp.mat33d), src_pts: wp.array(dtype=wp.vec2d),
+                     dst_pts: wp.array(dtype=wp.vec2d), slice_size: int, threshold2: wp.float64,
+                     counts: wp.array2d(dtype=wp.int32), costs: wp.array2d(dtype=wp.float64)):
+    """counts/costs[h, s]: inliers of hypothesis h among the points of slice s, and the sum
+    of their squared errors."""
+    h, s = wp.tid()
+    model = hypotheses[h]
+    count = int(0)
+    cost = wp.float64(0.0)
+    if model[2, 2] != wp.float64(0.0):
+        i0, i1 = slice_range(s, slice_size, src_pts.shape[0])
+        for i in range(i0, i1):
+            e = reprojection_error2(model, src_pts[i], dst_pts[i])
+            if e <= threshold2:
+                count += 1
+                cost += e
+    counts[h, s] = count
+    costs[h, s] = cost
+
+
+@wp.kernel
+def total_scores(counts: wp.array2d(dtype=wp.int32), costs: wp.array2d(dtype=wp.float64),
+                 count: wp.array(dtype=wp.int32), cost: wp.array(dtype=wp.float64)):
+    h = wp.tid()
+    n = int(0)
+    c = wp.float64(0.0)
+    for s in range(counts.shape[1]):
+        n += counts[h, s]
+        c += costs[h, s]
+    count[h] = n
+    cost[h] = c
+
+
+@wp.kernel
+def select_in_groups(count: wp.array(dtype=wp.int32), cost: wp.array(dtype=wp.float64),
+                     group_size: int, group_best: wp.array(dtype=wp.int32)):
+    g = wp.tid()
+    h0, h1 = slice_range(g, group_size, count.shape[0])
+    best = h0
+    for h in range(h0 + 1, h1):
+        if better(count[h], cost[h], h, count[best], cost[best], best):
+            best = h
+    group_best[g] = best
+
+
+@wp.kernel
+def select_best(count: wp.array(dtype=wp.int32), cost: wp.array(dtype=wp.float64),
+                group_best: wp.array(dtype=wp.int32), hypotheses: wp.array(dtype=wp.mat33d),
+                state: wp.array(dtype=Refinement)):
+    """state[0].h: the winning hypothesis (pixel coordinates), found = 0 when none is valid."""
+    best = group_best[0]
+    for g in range(1, group_best.shape[0]):
+        h = group_best[g]
+        if better(count[h], cost[h], h, count[best], cost[best], best):
+            best = h
+    st = Refinement()
+    st.h = hypotheses[best]
+    st.found = int(count[best] > 0)
+    state[0] = st
+
+
+@wp.kernel
+def mark_inliers(src_pts: wp.array(dtype=wp.vec2d), dst_pts: wp.array(dtype=wp.vec2d),
+                 state: wp.array(dtype=Refinement), threshold2: wp.float64,
+                 mask: wp.array(dtype=wp.uint8)):
+    """mask[i] = 1 where point i is an inlier of state[0].h (pixel coordinates)."""
+    i = wp.tid()
+    st = state[0]
+    inlier = st.found != 0 and reprojection_error2(st.h, src_pts[i], dst_pts[i]) <= threshold2
+    mask[i] = wp.uint8(int(inlier))
+
+
+@wp.kernel
+def accumulate_moments(src_pts: wp.array(dtype=wp.vec2d), dst_pts: wp.array(dtype=wp.vec2d),
+                       mask: wp.array(dtype=wp.uint8), partial: wp.array(dtype=vec7d)):
+    """partial[s]: over the inliers of slice s: (n, sum x_s, sum y_s, sum x_d, sum y_d,
+    sum |p_s|^2, sum |p_d|^2)."""
+    s = wp.tid()
+    acc = vec7d()
+    i0, i1 = slice_range(s, REFIT_SLICE, src_pts.shape[0])
+    for i in range(i0, i1):
+        if mask[i] != wp.uint8(0):
+            p = src_pts[i]
+            q = dst_pts[i]
+            acc += vec7d(wp.float64(1.0), p[0], p[1], q[0], q[1], wp.dot(p, p), wp.dot(q, q))
+    partial[s] = acc
+
+
+@wp.func
+def moments_normaliser(n: wp.float64, sx: wp.float64, sy: wp.float64, s2: wp.float64) -> wp.vec3d:
+    """(c_x, c_y, s) with s = sqrt(2) / RMS distance from the centroid (1 if it is 0)."""
+    cx = sx / n
+    cy = sy / n
+    var = s2 / n - cx * cx - cy * cy
+    s = wp.float64(1.0)
+    if var > wp.float64(0.0):
+        s = wp.float64(1.4142135623730951) / wp.sqrt(var)
+    return wp.vec3d(cx, cy, s)
+
+
+@wp.kernel
+def normalise_inliers(partial: wp.array(dtype=vec7d), state: wp.array(dtype=Refinement)):
+    """state[0].norm_src/norm_dst from the inliers' moments; state[0].h into their frame."""
+    acc = vec7d()
+    for s in range(partial.shape[0]):
+        acc += partial[s]
+    st = state[0]
+    if st.found != 0:
+        st.norm_src = moments_normaliser(acc[0], acc[1], acc[2], acc[5])
+        st.norm_dst = moments_normaliser(acc[0], acc[3], acc[4], acc[6])
+        m = normaliser(st.norm_dst) * st.h * denormaliser(st.norm_src)
+        st.h = m / m[2, 2]
+        st.trial = st.h
+    state[0] = st
+
+
+@wp.kernel
+def accumulate_system(src_pts: wp.array(dtype=wp.vec2d), dst_pts: wp.array(dtype=wp.vec2d),
+                      mask: wp.array(dtype=wp.uint8), state: wp.array(dtype=Refinement),
+                      jacobian: int, partial_a: wp.array(dtype=mat88d),
+                      partial_b: wp.array(dtype=vec8d), partial_cost: wp.array(dtype=wp.float64)):
+    """Over the inliers of slice s, in the normalised frame: with ``jacobian = 0`` the DLT
+    normal equations (sum a a^T, sum a b); with 1 the Gauss-Newton ones at state[0].trial
+    (sum J^T J, sum J^T r) and the sum of squared residuals."""
+    s = wp.tid()
+    st = state[0]
+    a_acc = mat88d()
+    b_acc = vec8d()
+    cost = wp.float64(0.0)
+    m = st.trial
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    i0, i1 = slice_range(s, REFIT_SLICE, src_pts.shape[0])
+    for i in range(i0, i1):
+        if mask[i] != wp.uint8(0):
+            p = normalise(src_pts[i], st.norm_src)
+            q = normalise(dst_pts[i], st.norm_dst)
+            if jacobian == 0:
+                r1, r2 = dlt_rows(p, q)
+                a_acc += wp.outer(r1, r1) + wp.outer(r2, r2)
+                b_acc += r1 * q[0] + r2 * q[1]
+            else:
+                w = one / (m[2, 0] * p[0] + m[2, 1] * p[1] + one)
+                x = (m[0, 0] * p[0] + m[0, 1] * p[1] + m[0, 2]) * w
+                y = (m[1, 0] * p[0] + m[1, 1] * p[1] + m[1, 2]) * w
+                px = p[0] * w
+                py = p[1] * w
+                j1 = vec8d(px, py, w, zero, zero, zero, -x * px, -x * py)
+                j2 = vec8d(zero, zero, zero, px, py, w, -y * px, -y * py)
+                e1 = x - q[0]
+                e2 = y - q[1]
+                a_acc += wp.outer(j1, j1) + wp.outer(j2, j2)
+                b_acc += j1 * e1 + j2 * e2
+                cost += e1 * e1 + e2 * e2
+    partial_a[s] = a_acc
+    partial_b[s] = b_acc
+    partial_cost[s] = cost
+
+
+@wp.func
+def sum_system(partial_a: wp.array(dtype=mat88d), partial_b: wp.array(dtype=vec8d),
+               partial_cost: wp.array(dtype=wp.float64)):
+    a = mat88d()
+    b = vec8d()
+    c = wp.float64(0.0)
+    for s in range(partial_a.shape[0]):
+        a += partial_a[s]
+        b += partial_b[s]
+        c += partial_cost[s]
+    return a, b, c
+
+
+@wp.kernel
+def solve_dlt(partial_a: wp.array(dtype=mat88d), partial_b: wp.array(dtype=vec8d),
+              partial_cost: wp.array(dtype=wp.float64), state: wp.array(dtype=Refinement)):
+    """state[0].h: the DLT over all inliers (kept at the RANSAC winner when singular); the
+    Levenberg-Marquardt state reset so its first step evaluates it."""
+    a, b, _c = sum_system(partial_a, partial_b, partial_cost)
+    st = state[0]
+    if st.found != 0:
+        h, ok = solve8(a, b)
+        if ok:
+            st.h = to_matrix(h)
+        st.trial = st.h
+        st.cost = wp.float64(wp.inf)
+        st.lam = LAMBDA0
+    state[0] = st
+
+
+@wp.kernel
+def step_lm(partial_a: wp.array(dtype=mat88d), partial_b: wp.array(dtype=vec8d),
+            partial_cost: wp.array(dtype=wp.float64), state: wp.array(dtype=Refinement)):
+    """Accept state[0].trial when it lowered the cost (and relax the damping), else raise
+    the damping; then the next trial solves (J^T J + lam diag(J^T J)) d = -J^T r at h."""
+    jtj, jtr, cost = sum_system(partial_a, partial_b, partial_cost)
+    st = state[0]
+    if st.found != 0:
+        if cost < st.cost:
+            st.h = st.trial
+            st.cost = cost
+            st.jtj = jtj
+            st.jtr = jtr
+            st.lam = st.lam * wp.float64(0.1)
+        else:
+            st.lam = st.lam * wp.float64(10.0)
+        a = st.jtj
+        for k in range(8):
+            a[k, k] = a[k, k] * (wp.float64(1.0) + st.lam)
+        d, ok = solve8(a, -st.jtr)
+        st.trial = st.h
+        if ok:
+            st.trial = to_matrix(to_vector(st.h) + d)
+    state[0] = st
+
+
+@wp.kernel
+def write_homography(state: wp.array(dtype=Refinement), out: wp.array2d(dtype=wp.float64)):
+    """out: H in pixel coordinates with H[2,2] = 1, or zeros when there is no model (none
+    found, or a refinement that ran away to non-finite values); state[0].h := out, so
+    mark_inliers then tests the final H."""
+    st = state[0]
+    m = wp.mat33d()
+    if st.found != 0:
+        m = denormaliser(st.norm_dst) * st.h * normaliser(st.norm_src)
+        m = m / m[2, 2]
+        for i in range(3):
+            for j in range(3):
+                if not wp.isfinite(m[i, j]):
+                    st.found = 0
+        if st.found == 0:
+            m = wp.mat33d()
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = m[i, j]
+    st.h = m
+    state[0] = st
+
+
+# --- host side -------------------------------------------------------------------------------
+
+
+def _slices(n: int, size: int) -> int:
+    return -(-n // size)
+
+
+class _Workspace:
+    """Buffers and recorded launches for one (N, hypothesis count, point dtype, device)."""
+
+    def __init__(self, src, dst, n_hyp: int, threshold2: float, seed: int, device):
+        n = src.shape[0]
+        score_slices = max(1, min(_slices(n, MIN_SLICE_POINTS), _slices(TARGET_THREADS, n_hyp)))
+        slice_size = _slices(n, score_slices)
+        score_slices = _slices(n, slice_size)
+        groups = _slices(n_hyp, SELECT_GROUP)
+        refit_slices = _slices(n, REFIT_SLICE)
+
+        def empty(shape, dtype):
+            return wp.empty(shape, dtype=dtype, device=device)
+
+        self.src_pts, self.dst_pts = empty(n, wp.vec2d), empty(n, wp.vec2d)
+        hyps = empty(n_hyp, wp.mat33d)
+        counts, costs = empty((n_hyp, score_slices), wp.int32), empty((n_hyp, score_slices), wp.float64)
+        count, cost = empty(n_hyp, wp.int32), empty(n_hyp, wp.float64)
+        group_best = empty(groups, wp.int32)
+        self.state = wp.zeros(1, dtype=Refinement, device=device)
+        self.ransac_mask = empty(n, wp.uint8)
+        moments = empty(refit_slices, vec7d)
+        sums = [empty(refit_slices, mat88d), empty(refit_slices, vec8d), empty(refit_slices, wp.float64)]
+        pts, thr2 = [self.src_pts, self.dst_pts], wp.float64(threshold2)
+        # Placeholders for the per-call arrays (set before each launch).
+        h_out, mask_out = empty((3, 3), wp.float64), empty(n, wp.uint8)
+
+        def rec(kernel, dim, inputs):
+            # the kernel's parameters in order, named for Recorded
+            names = [a.label for a in kernel.adj.args]
+            return Recorded(kernel, dim, device, **dict(zip(names, inputs)))
+
+        self.load = rec(load_points, n, [src, dst, *pts])
+        self.sample = rec(sample_hypotheses, n_hyp, [*pts, int(seed), hyps])
+        self.threshold2 = threshold2
+        self.seed = int(seed)
+        self.thresholded = [  # launches that take the squared threshold
+            rec(score_hypotheses, (n_hyp, score_slices), [hyps, *pts, slice_size, thr2, counts, costs]),
+            rec(mark_inliers, n, [*pts, self.state, thr2, self.ransac_mask]),
+            rec(mark_inliers, n, [*pts, self.state, thr2, mask_out]),
+        ]
+        self.ransac = [
+            self.sample,
+            self.thresholded[0],
+            rec(total_scores, n_hyp, [counts, costs, count, cost]),
+            rec(select_in_groups, groups, [count, cost, SELECT_GROUP, group_best]),
+            rec(select_best, 1, [count, cost, group_best, hyps, self.state]),
+            self.thresholded[1],
+            rec(accumulate_moments, refit_slices, [*pts, self.ransac_mask, moments]),
+            rec(normalise_inliers, 1, [moments, self.state]),
+        ]
+        system = [*pts, self.ransac_mask, self.state]
+        self.refine = [rec(accumulate_system, refit_slices, [*system, 0, *sums]),
+                       rec(solve_dlt, 1, [*sums, self.state])]
+        for _ in range(LM_ITERS):
+            self.refine += [rec(accumulate_system, refit_slices, [*system, 1, *sums]),
+                            rec(step_lm, 1, [*sums, self.state])]
+        self.write = rec(write_homography, 1, [self.state, h_out])
+        self.final_mask = self.thresholded[2]
+
+    def run(self, src, dst, threshold2: float, seed: int, h_out, mask_out):
+        self.load.launch(src=src, dst=dst)
+        self.sample.set(seed=int(seed))
+        if threshold2 != self.threshold2:
+            for cmd in self.thresholded:
+                cmd.set(threshold2=wp.float64(threshold2))
+            self.threshold2 = threshold2
+        for cmd in self.ransac + self.refine:
+            cmd.launch()
+        self.write.launch(out=h_out)
+        self.final_mask.launch(mask=mask_out)
+
+
+def find_homography(src, dst, ransac_reproj_threshold: float, max_iters: int, confidence: float,
+                    seed: int, *, out=None) -> tuple:
+    """RANSAC homography on Warp arrays; see :func:`warpvx.find_homography`.
+
+    ``src``, ``dst``: float32 or float64 [N, 2] on one device, N >= 4. ``max_iters``
+    hypotheses are all drawn and scored (``confidence`` only shortens OpenCV's sequential
+    loop, so it is not used here). ``out``: optional (float64 [3, 3], uint8 [N]) on the same
+    device. Returns (H, mask); H is zeros and mask all 0 when there is no model. No host sync.
+    """
+    device = src.device
+    n = src.shape[0]
+    if out is None:
+        h_out = wp.empty((3, 3), dtype=wp.float64, device=device)
+        mask_out = wp.empty(n, dtype=wp.uint8, device=device)
+    else:
+        h_out, mask_out = out
+    threshold2 = float(ransac_reproj_threshold) ** 2
+    ws = workspace("find_homography", (n, int(max_iters), src.dtype, dst.dtype), device,
+                   lambda: _Workspace(src, dst, int(max_iters), threshold2, seed, device))
+    ws.run(src, dst, threshold2, seed, h_out, mask_out)
+    return h_out, mask_out
+
+
+__all__ = ["find_homography", "LM_ITERS", "SAMPLE_TRIES"]
