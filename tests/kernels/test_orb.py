@@ -403,6 +403,33 @@ def test_orb_compute_matches_opencv(backend):
 
 FIELDS = ("x", "y", "response", "size", "angle", "octave")
 
+# CUDA contracts fastAtan2's a*b+c into fused multiply-adds, so an angle may differ from the
+# CPU transcription in its last bit or two; Warp's CPU device reproduces it exactly.
+ANGLE_ULPS = {"warp-cpu": 0}
+
+
+def assert_angles(actual, desired, backend):
+    """Orientation angles: bit-exact on warp-cpu, within 2 float32 ulps on CUDA."""
+    ulps = ANGLE_ULPS.get(backend, 2)
+    if ulps == 0:
+        np.testing.assert_array_equal(actual, desired)
+    else:
+        np.testing.assert_array_max_ulp(actual, desired, maxulp=ulps)
+
+
+def assert_same_extraction(kw, dw, kc, dc, backend):
+    """Warp (kw, dw) against CPU (kc, dc): every keypoint field exact except the angle (see
+    :func:`assert_angles`); descriptors exact wherever the angles agree bit for bit, and 99%+
+    of bits where a last-bit angle difference moved a rotated test point across a pixel."""
+    for f in FIELDS:
+        if f != "angle":
+            np.testing.assert_array_equal(getattr(kw, f), getattr(kc, f), err_msg=f)
+    assert_angles(kw.angle, kc.angle, backend)
+    same = kw.angle == kc.angle
+    np.testing.assert_array_equal(dw[same], dc[same])
+    if not same.all():
+        assert _bit_agreement(dw[~same], dc[~same]) >= 0.99
+
 
 @pytest.mark.parametrize("name", ["coffee", "astronaut", "brick"])
 def test_cpu_and_warp_extractors_agree(warp_backend, name):
@@ -412,9 +439,7 @@ def test_cpu_and_warp_extractors_agree(warp_backend, name):
     img = gray(name)
     kc, dc = warpvx.orb(img, backend="cpu")
     kw, dw = _host(*warpvx.orb(img, backend=warp_backend))
-    for f in FIELDS:
-        np.testing.assert_array_equal(getattr(kw, f), getattr(kc, f), err_msg=f)
-    np.testing.assert_array_equal(dw, dc)
+    assert_same_extraction(kw, dw, kc, dc, warp_backend)
     # SPEC section 4: for each CPU keypoint, a Warp keypoint of the same octave within 1 px.
     found = np.zeros(len(kc), bool)
     desc_same = []
@@ -500,8 +525,8 @@ def test_warp_internals_match_orbslam2_transcription(warp_backend, name):
         np.testing.assert_array_equal(y_f[here], y[chosen])
         np.testing.assert_array_equal(s_f[here], s[chosen])
         # Orientation: IC_Angle on the unblurred level.
-        np.testing.assert_array_equal(angles[here],
-                                      cpu_orb.compute_orientation(level, x[chosen], y[chosen]))
+        assert_angles(angles[here], cpu_orb.compute_orientation(level, x[chosen], y[chosen]),
+                      warp_backend)
 
 
 def test_warp_overflow_takes_the_host_quadtree(warp_backend):
@@ -517,9 +542,7 @@ def test_warp_overflow_takes_the_host_quadtree(warp_backend):
     kw, dw = _host(*plan.run(wp.array(img, dtype=wp.uint8, device=dev)))
     assert plan.counters.numpy()[funcs.C_OVER] == 1
     kc, dc = warpvx.orb(img, backend="cpu")
-    for f in FIELDS:
-        np.testing.assert_array_equal(getattr(kw, f), getattr(kc, f), err_msg=f)
-    np.testing.assert_array_equal(dw, dc)
+    assert_same_extraction(kw, dw, kc, dc, warp_backend)
 
 
 def test_orb_out_is_refused(backend):
