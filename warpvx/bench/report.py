@@ -229,8 +229,11 @@ def plot_figure(report: Report):
         ax.set_title(f"input {sz}", fontsize=9)
         ax.set_xlabel("time per call (us, log scale; shorter is faster)", fontsize=8)
         ax.grid(axis="x", which="both", alpha=0.3)
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, loc="outside lower center", ncols=min(3, len(impls)))
+    try:
+        fig.legend(*axes[0, 0].get_legend_handles_labels(), fontsize=7,
+                   loc="outside lower center", ncols=min(3, len(impls)))
+    except ValueError:  # matplotlib < 3.7 has no "outside" locations
+        axes[0, 0].legend(fontsize=7, loc="lower right")
     gpus = ", ".join(g["name"] for g in report.machine.get("gpus", [])) or "no GPU"
     photo = report.photo
     source = f"\ninput: {photo['name']} photo ({photo['size']}) resized to each size" if photo else ""
