@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from warpvx import bench, cli
+from warpvx.backend import cuda_available
+from warpvx.errors import BackendError
 from warpvx.registry import REGISTRY, register
 
 
@@ -66,15 +68,128 @@ def test_missing_bench_module_is_skipped_with_a_note(tmp_path, capsys):
     assert "bench_probe_missing: skipped" in out
 
 
+def _usage_error(argv, capsys) -> str:
+    """Run ``warpvx ARGV``, expect exit status 2; return stderr, checked to be one line."""
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    return err
+
+
 def test_unknown_primitive_is_an_error(tmp_path, capsys):
-    rc = cli.main(["bench", "--primitives", "no_such_thing", "--out", str(tmp_path)])
-    assert rc == 2
-    assert "no_such_thing" in capsys.readouterr().err
+    err = _usage_error(["bench", "--primitives", "no_such_thing", "--out", str(tmp_path)], capsys)
+    assert "--primitives" in err and "no_such_thing" in err and "gaussian_blur" in err
 
 
 def test_bad_size_is_an_error(tmp_path, capsys):
-    assert cli.main(["bench", "--sizes", "big", "--out", str(tmp_path)]) == 2
-    assert "--sizes" in capsys.readouterr().err
+    assert "--sizes" in _usage_error(["bench", "--sizes", "big", "--out", str(tmp_path)], capsys)
+
+
+@pytest.mark.parametrize("names", [["gpu"], ["cpu,gpu"], ["cpu", "CUDA"], ["cuda:x"]])
+def test_unknown_backend_is_an_error(names, capsys):
+    """A typo is refused before anything runs, naming the argument and the valid names."""
+    err = _usage_error(["bench", "--backends", *names], capsys)
+    assert "--backends" in err and "valid: cpu, warp-cpu, cuda, cuda:N" in err
+
+
+def test_unknown_backend_in_run_is_a_backend_error():
+    with pytest.raises(BackendError, match="backends.*'gpu'"):
+        bench.run(backends=["gpu"], progress=False)
+
+
+def test_bad_repeat_is_an_error(capsys):
+    assert "--repeat" in _usage_error(["bench", "--repeat", "0"], capsys)
+
+
+def _quick(tmp_path, *extra):
+    return ["bench", "--quick", "--primitives", "color_convert", "--sizes", "32x24", "--out",
+            str(tmp_path), "--no-progress", "--no-plot", *extra]
+
+
+@pytest.mark.skipif(cuda_available(), reason="needs a machine without CUDA")
+def test_unavailable_backend_is_a_note(tmp_path, capsys):
+    assert cli.main(_quick(tmp_path, "--backends", "cpu", "cuda")) == 0
+    out = capsys.readouterr().out
+    assert "note: 'cuda' is not available on this machine" in out
+    data = json.loads(next(tmp_path.glob("bench-*.json")).read_text())
+    assert data["backends"] == ["cpu"]
+
+
+@pytest.mark.skipif(cuda_available(), reason="needs a machine without CUDA")
+def test_no_warp_backend_is_said(tmp_path, capsys):
+    """On a CPU-only machine the default backends run no Warp kernel: the output says so."""
+    assert cli.main(_quick(tmp_path)) == 0
+    assert "note: no Warp backend ran" in capsys.readouterr().out
+    assert cli.main(_quick(tmp_path, "--backends", "cpu", "warp-cpu")) == 0
+    assert "no Warp backend ran" not in capsys.readouterr().out
+
+
+def test_table_says_what_rows_are(tmp_path, capsys):
+    """The table's legend names every implementation in it and the ratio's direction; the
+    JSON records the same legend and the input photo."""
+    assert cli.main(_quick(tmp_path, "--backends", "cpu", "warp-cpu")) == 0
+    out = capsys.readouterr().out
+    data = json.loads(next(tmp_path.glob("bench-*.json")).read_text())
+    impls = {r["impl"] for r in data["results"]}
+    assert impls == {"opencv", "cpu", "warp-cpu"} == set(data["impls"])
+    legend = {line.split(" = ", 1)[0].strip(): line.split(" = ", 1)[1]
+              for line in out.splitlines() if " = " in line}
+    assert "NumPy/OpenCV implementation" in legend["cpu"] and "not Warp" in legend["cpu"]
+    assert "Warp kernels on Warp's CPU device" in legend["warp-cpu"]
+    assert "reference" in legend["opencv"]
+    assert "OpenCV time / this time; > 1 is faster" in legend["vs OpenCV"]
+    photo = bench.load_photo()
+    assert data["photo"]["name"] == "astronaut" and data["photo"]["source"]
+    assert data["photo"]["size"] == f"{photo.shape[1]}x{photo.shape[0]}"
+
+
+def _synthetic_report():
+    """Two sizes, cases whose labels share their first 50 characters, three implementations."""
+    results = []
+    long_case = "1000 pts, 21x21, max_level 3"
+    for size in ("1920x1080", "1241x376"):
+        for prim, case in [("optical_flow_pyr_lk", long_case),
+                           ("optical_flow_pyr_lk", long_case + ", video loop (one new pyramid)"),
+                           ("gaussian_blur", "5x5 s1 gray")]:
+            for k, impl in enumerate(["opencv", "cpu", "cuda:0"]):
+                results.append(bench.Result(prim, case, size, impl, per_call_s=1e-4 * (k + 1)))
+    machine = {"cpu_model": "Test CPU", "cpu_cores": 2,
+               "gpus": [{"device": "cuda:0", "name": "Test GPU", "memory_gib": 1.0}]}
+    return bench.Report(machine=machine, settings={}, sizes=["1920x1080", "1241x376"],
+                        backends=["cpu", "cuda"], results=results,
+                        photo={"name": "astronaut", "source": "test", "size": "512x512"})
+
+
+def test_plot_layout():
+    """Title clear of the first panel, a time label on every panel, case labels whole, unique
+    and inside the figure."""
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    report = _synthetic_report()
+    fig = bench.plot_figure(report)
+    try:
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        page = fig.bbox
+        first = fig.axes[0]
+        title = fig._suptitle.get_window_extent(renderer)
+        assert title.y0 >= first.get_tightbbox(renderer).y1 - 1
+        for ax in fig.axes:
+            assert "time per call" in ax.get_xlabel()
+            labels = ax.get_yticklabels()
+            texts = [t.get_text() for t in labels]
+            assert len(set(texts)) == len(texts) == 3
+            assert {f"{r.primitive}: {r.case}" for r in report.results} == set(texts)
+            for t in labels:
+                box = t.get_window_extent(renderer)
+                assert box.x0 >= page.x0 and box.x1 <= page.x1
+        legend = fig.legends[0]
+        assert [t.get_text() for t in legend.get_texts()][2] == "warpvx cuda:0 (Warp, GPU)"
+    finally:
+        plt.close(fig)
 
 
 def test_time_per_call_s_batches():

@@ -148,6 +148,18 @@ def test_sorted_by_score_then_y_then_x(backend):
     assert np.array_equal(order, np.arange(len(kps)))
 
 
+def test_kernels_refuse_out(backend):
+    """The keypoint count depends on the data: an out= reaching the implementation through the
+    registry's dispatch is refused rather than ignored."""
+    from warpvx.backend import resolve_backend
+    from warpvx.registry import dispatch
+
+    src = _on_device(gray("brick"), backend)
+    out = _on_device(np.zeros(16, np.float32), backend)
+    with pytest.raises(UnsupportedError, match="out"):
+        dispatch("fast_corners", resolve_backend(backend), src, 20, True, out=out)
+
+
 # --- backends: kinds, devices, determinism ---------------------------------------------------
 
 def test_device_array_in_device_keypoints_out(warp_backend):

@@ -15,8 +15,11 @@ requested backend, on OpenCV (all cores) and on the peers that import (CV-CUDA, 
   memory-bandwidth floor ``bytes_moved / bandwidth``, the bandwidth being a device-to-device
   copy measured in the same run.
 
-Results are printed as a table, written as JSON (with machine information) and, when
-matplotlib is installed, drawn as a bar chart (log time per case and implementation).
+Results are printed as a table with a legend (what each implementation is, which way the
+ratio reads), written as JSON (with machine information and the input photo) and, when
+matplotlib is installed, drawn as a bar chart (log time per case and implementation). Without
+``--out`` they go to a new ``./warpvx-results/bench-<YYYYmmdd-HHMMSS>/``; committed results
+(``benchmarks/results/...``) are only written when named.
 
 Layout: :mod:`~warpvx.bench.timing` (how a call is timed), :mod:`~warpvx.bench.inputs` (the
 photo and inputs made from it), :mod:`~warpvx.bench.report` (results, table, JSON, chart),
@@ -28,8 +31,9 @@ named by the registry's ``bench=`` entries).
 from __future__ import annotations
 
 from .harness import DEFAULT_SIZES, add_arguments, collect_cases, main, main_from_args, run
-from .inputs import load_photo, photo_at
-from .report import Report, Result, format_table, machine_info, write_json, write_plot
+from .inputs import load_photo, load_photo_with_source, photo_at
+from .report import (Report, Result, describe_impl, format_table, machine_info, plot_figure,
+                     write_json, write_plot)
 from .timing import Settings, copy_bandwidth, time_graph, time_per_call_s
 
 __all__ = [
@@ -40,12 +44,15 @@ __all__ = [
     "add_arguments",
     "collect_cases",
     "copy_bandwidth",
+    "describe_impl",
     "format_table",
     "load_photo",
+    "load_photo_with_source",
     "machine_info",
     "main",
     "main_from_args",
     "photo_at",
+    "plot_figure",
     "run",
     "time_graph",
     "time_per_call_s",

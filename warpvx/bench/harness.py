@@ -6,18 +6,19 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import os
+import re
 import sys
 from dataclasses import asdict
 from pathlib import Path
 
-from .inputs import load_photo, photo_at
-from .report import Report, Result, format_table, machine_info, write_json, write_plot
+from .inputs import load_photo_with_source, photo_at
+from .report import Report, Result, describe_impl, format_table, machine_info, write_json, write_plot
 from .timing import (Settings, copy_bandwidth, device_of, sync_for, sync_peers, time_graph,
                      time_per_call_s)
 
 DEFAULT_SIZES = ((1920, 1080), (1241, 376))
-DEFAULT_OUT = Path("benchmarks") / "results"
 PEERS = ("cvcuda", "kornia")
+BACKEND_NAMES = ("cpu", "warp-cpu", "cuda", "cuda:N")
 
 
 # --- the run --------------------------------------------------------------------------------
@@ -53,10 +54,16 @@ def collect_cases(primitives, sizes, photo, notes):
 
 def run(*, primitives=None, sizes=DEFAULT_SIZES, backends=None, settings: Settings | None = None,
         graph=False, peers=True, progress=True) -> Report:
-    """Time every case; see :mod:`warpvx.bench`. Returns the :class:`Report`."""
+    """Time every case; see :mod:`warpvx.bench`. Returns the :class:`Report`.
+
+    ``backends`` are warpvx backend names (:data:`BACKEND_NAMES`; an unknown one raises
+    :class:`~warpvx.errors.BackendError`); one this machine lacks is skipped with a note, and
+    so is the absence of any Warp backend (``cpu`` alone compares OpenCV with the
+    NumPy/OpenCV implementation)."""
     import cv2
 
-    from ..backend import available_backends, cuda_available
+    from ..backend import cuda_available, resolve_backend
+    from ..errors import BackendError
     from ..registry import REGISTRY
 
     settings = settings or Settings()
@@ -65,16 +72,27 @@ def run(*, primitives=None, sizes=DEFAULT_SIZES, backends=None, settings: Settin
         primitives = [n for n, p in REGISTRY.items() if p.bench is not None]
     if backends is None:
         backends = ["cpu"] + (["cuda"] if cuda_available() else [])
+    unknown = [b for b in backends if not is_backend_name(b)]
+    if unknown:
+        raise BackendError(f"backends: unknown {', '.join(map(repr, unknown))}; "
+                           f"valid: {', '.join(BACKEND_NAMES)}")
     notes: list[str] = []
     usable = []
-    available = available_backends()
     for b in backends:
-        if b in available or (b == "cuda" and any(a.startswith("cuda") for a in available)):
+        try:
+            resolve_backend(b)
             usable.append(b)
-        else:
-            notes.append(f"backend {b!r} is not available here; skipped")
+        except (BackendError, ImportError) as exc:
+            notes.append(f"{b!r} is not available on this machine ({exc}); skipped")
+    if all(b == "cpu" for b in usable):
+        notes.append("no Warp backend ran: 'cpu' is warpvx's NumPy/OpenCV implementation, so "
+                     "this run compares OpenCV with (mostly) OpenCV; add --backends cpu warp-cpu "
+                     "to time the Warp kernels on the CPU (single-threaded, slow), or run where "
+                     "CUDA is present")
+    photo, photo_info = load_photo_with_source()
     report = Report(machine=machine_info(), settings=asdict(settings),
-                    sizes=[f"{w}x{h}" for w, h in sizes], backends=usable, notes=notes)
+                    sizes=[f"{w}x{h}" for w, h in sizes], backends=usable, notes=notes,
+                    photo=photo_info)
     cuda_backends = [b for b in usable if b.startswith("cuda")]
     warp_backends = [b for b in usable if b != "cpu"]
     if graph and warp_backends:
@@ -85,7 +103,6 @@ def run(*, primitives=None, sizes=DEFAULT_SIZES, backends=None, settings: Settin
     elif graph:
         notes.append("--graph: no Warp backend (cuda, warp-cpu), graph timings skipped")
 
-    photo = load_photo()
     cases = collect_cases(primitives, sizes, photo, notes)
     peer_names = [p for p in PEERS if peers and cuda_backends]
     tasks = [(size, case, impl) for size, case in cases
@@ -145,6 +162,8 @@ def run(*, primitives=None, sizes=DEFAULT_SIZES, backends=None, settings: Settin
                 if r.per_call_s:
                     r.speedup_vs_opencv = ref.per_call_s / r.per_call_s
     bar.close()
+    report.impls = {impl: describe_impl(impl, report.machine)
+                    for impl in dict.fromkeys(r.impl for r in report.results)}
     for extra in ("torch", "cvcuda", "kornia"):
         mod = sys.modules.get(extra)
         if mod is not None:
@@ -176,89 +195,103 @@ def _progress(total, enabled):
 # --- command line ---------------------------------------------------------------------------
 
 
-def _split_list(values):
-    out = []
-    for v in values or []:
-        out += [p for p in v.split(",") if p.strip()]
-    return [p.strip() for p in out]
+def is_backend_name(name: str) -> bool:
+    """Whether ``name`` is a backend name warpvx knows (:data:`BACKEND_NAMES`), available here
+    or not."""
+    return name in ("cpu", "warp-cpu", "cuda") or re.fullmatch(r"cuda:\d+", name) is not None
+
+
+def parse_backend(text: str) -> str:
+    """``type=`` for one ``--backends`` name."""
+    if not is_backend_name(text):
+        raise argparse.ArgumentTypeError(f"unknown backend {text!r}; valid: {', '.join(BACKEND_NAMES)}")
+    return text
 
 
 def parse_size(text: str) -> tuple[int, int]:
+    """``type=`` for one ``--sizes`` entry, ``WIDTHxHEIGHT``."""
     try:
         w, h = text.lower().split("x")
         w, h = int(w), int(h)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--sizes: expected WIDTHxHEIGHT, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
     if w < 1 or h < 1:
-        raise argparse.ArgumentTypeError(f"--sizes: expected positive sizes, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected positive sizes, got {text!r}")
     return w, h
 
 
+def parse_primitive(text: str) -> str:
+    """``type=`` for one ``--primitives`` name: a registered primitive."""
+    from ..registry import REGISTRY
+
+    if text not in REGISTRY:
+        raise argparse.ArgumentTypeError(f"unknown primitive {text!r}; registered: {', '.join(sorted(REGISTRY))}")
+    return text
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Add ``warpvx bench``'s options to ``parser``."""
-    parser.add_argument("--sizes", nargs="+", metavar="WxH",
-                        help="image sizes (default: 1920x1080 1241x376); comma or space separated")
-    parser.add_argument("--primitives", nargs="+", metavar="NAME",
+    """Add ``warpvx bench``'s options to ``parser``. The list options take space- or
+    comma-separated values (parsed to lists of lists, flattened by :func:`main_from_args`)."""
+    from ..cli import comma_list, positive_int
+
+    parser.add_argument("--sizes", nargs="+", metavar="WxH", type=comma_list(parse_size),
+                        help="image sizes (default: 1920x1080 1241x376)")
+    parser.add_argument("--primitives", nargs="+", metavar="NAME", type=comma_list(parse_primitive),
                         help="registered primitives to time (default: all with bench cases)")
-    parser.add_argument("--backends", nargs="+", metavar="NAME",
-                        help="warpvx backends: cpu, warp-cpu (slow), cuda, cuda:N "
+    parser.add_argument("--backends", nargs="+", metavar="NAME", type=comma_list(parse_backend),
+                        help="warpvx backends: cpu (the NumPy/OpenCV implementation), warp-cpu "
+                             "(Warp kernels on the CPU; slow), cuda, cuda:N (Warp kernels on a GPU) "
                              "(default: cpu, plus cuda when present)")
-    parser.add_argument("--repeat", type=int, default=None, help="timed batches per measurement (median)")
+    parser.add_argument("--repeat", type=positive_int, default=None,
+                        help="timed batches per measurement, median taken (default: 7, 3 with --quick)")
     parser.add_argument("--quick", action="store_true",
                         help="fewer, shorter batches (a smoke run; timings are noisier)")
     parser.add_argument("--graph", action="store_true",
                         help="also time cases inside a captured graph (CUDA; Warp's CPU graphs for "
                              "warp-cpu) against the memory-bandwidth floor")
     parser.add_argument("--no-peers", action="store_true", help="skip CV-CUDA and Kornia")
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT,
-                        help="directory for the JSON and PNG (default: benchmarks/results/)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="directory for the JSON and PNG, e.g. benchmarks/results/NAME to record "
+                             "a run (default: a new ./warpvx-results/bench-<YYYYmmdd-HHMMSS>/)")
     parser.add_argument("--no-plot", action="store_true", help="do not draw the PNG chart")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
 
-def main_from_args(args) -> int:
-    """Run ``warpvx bench`` from parsed arguments; prints the table and the output paths."""
-    from ..registry import REGISTRY
+def _flat(lists):
+    return [v for part in lists or [] for v in part] or None
 
-    try:
-        sizes = [parse_size(s) for s in _split_list(args.sizes)] or list(DEFAULT_SIZES)
-    except argparse.ArgumentTypeError as exc:
-        print(f"warpvx bench: {exc}", file=sys.stderr)
-        return 2
-    primitives = _split_list(args.primitives) or None
-    if primitives:
-        unknown = [p for p in primitives if p not in REGISTRY]
-        if unknown:
-            print(f"warpvx bench: unknown primitive(s) {unknown}; registered: {sorted(REGISTRY)}",
-                  file=sys.stderr)
-            return 2
-    backends = _split_list(args.backends) or None
-    if args.repeat is not None and args.repeat < 1:
-        print("warpvx bench: --repeat must be >= 1", file=sys.stderr)
-        return 2
+
+def main_from_args(args) -> int:
+    """Run ``warpvx bench`` from parsed arguments; prints the table, notes and output paths."""
+    from ..cli import fresh_results_dir
+
     settings = Settings.quick(args.repeat) if args.quick else Settings(repeat=args.repeat or 7)
-    report = run(primitives=primitives, sizes=sizes, backends=backends, settings=settings,
-                 graph=args.graph, peers=not args.no_peers, progress=not args.no_progress)
+    report = run(primitives=_flat(args.primitives), sizes=_flat(args.sizes) or DEFAULT_SIZES,
+                 backends=_flat(args.backends), settings=settings, graph=args.graph,
+                 peers=not args.no_peers, progress=not args.no_progress)
+    print(format_table(report))
     for note in report.notes:
         print(f"note: {note}")
     for r in report.results:
         if r.note:
             print(f"note: {r.primitive} {r.case} {r.size} {r.impl}: {r.note}")
-    print(format_table(report))
     if report.copy_bandwidth_gbps:
         for dev, bw in report.copy_bandwidth_gbps.items():
             print(f"device-to-device copy bandwidth on {dev}: {bw:.0f} GB/s (read + write)")
+    out = Path(args.out) if args.out is not None else fresh_results_dir("bench")
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    json_path = write_json(report, Path(args.out) / f"bench-{stamp}.json")
+    json_path = write_json(report, out / f"bench-{stamp}.json")
     print(f"wrote {json_path}")
     if not args.no_plot:
-        png = write_plot(report, Path(args.out) / f"bench-{stamp}.png")
+        png = write_plot(report, out / f"bench-{stamp}.png")
         print(f"wrote {png}" if png else "matplotlib not installed: no plot")
     return 0
 
 
 def main(argv=None) -> int:
     """``python -m warpvx.bench`` (same as ``warpvx bench``)."""
-    parser = add_arguments(argparse.ArgumentParser(prog="warpvx bench", description=__doc__.split("\n\n")[0]))
+    from ..cli import ArgumentParser
+
+    parser = add_arguments(ArgumentParser(prog="warpvx bench", description=__doc__.split("\n\n")[0]))
     return main_from_args(parser.parse_args(argv))

@@ -10,18 +10,26 @@ import numpy as np
 
 def load_photo() -> np.ndarray:
     """The benchmark photo, BGR uint8: scikit-image's astronaut, else the bundled copy."""
+    return load_photo_with_source()[0]
+
+
+def load_photo_with_source() -> tuple[np.ndarray, dict]:
+    """The benchmark photo (BGR uint8, HxWx3) and where it came from: ``{"name", "source",
+    "size"}``, size as ``"WxH"`` before any resizing (recorded in ``warpvx bench``'s JSON)."""
     import cv2
 
     try:
         from skimage import data
 
-        return np.ascontiguousarray(cv2.cvtColor(data.astronaut(), cv2.COLOR_RGB2BGR))
+        img = np.ascontiguousarray(cv2.cvtColor(data.astronaut(), cv2.COLOR_RGB2BGR))
+        source = "skimage.data.astronaut()"
     except ImportError:
         path = Path(__file__).resolve().parent.parent / "data" / "astronaut_448.png"
         img = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if img is None:
             raise FileNotFoundError(f"bundled benchmark image missing: {path}") from None
-        return img
+        source = "warpvx/data/astronaut_448.png (bundled; scikit-image not installed)"
+    return img, {"name": "astronaut", "source": source, "size": f"{img.shape[1]}x{img.shape[0]}"}
 
 
 def photo_at(photo: np.ndarray, size) -> np.ndarray:

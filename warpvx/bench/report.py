@@ -35,7 +35,9 @@ class Result:
 @dataclass
 class Report:
     """A whole run: machine information, settings, sizes, backends, the measured copy
-    bandwidth per device (GB/s), the :class:`Result` rows and notes on what was skipped."""
+    bandwidth per device (GB/s), the :class:`Result` rows, notes on what was skipped, the
+    input photo (:func:`~warpvx.bench.inputs.load_photo_with_source`) and what each
+    implementation name stands for (:func:`describe_impl`)."""
 
     machine: dict
     settings: dict
@@ -44,6 +46,8 @@ class Report:
     copy_bandwidth_gbps: dict = field(default_factory=dict)
     results: list = field(default_factory=list)
     notes: list = field(default_factory=list)
+    photo: dict = field(default_factory=dict)
+    impls: dict = field(default_factory=dict)
 
 
 # --- machine information --------------------------------------------------------------------
@@ -87,6 +91,34 @@ def _cpu_model() -> str:
         pass
     return platform.processor() or platform.machine()
 
+# --- what the rows are ----------------------------------------------------------------------
+
+# impl -> (short name for the chart's legend, what the table's legend says)
+_ROLES = {
+    "opencv": ("OpenCV", "OpenCV (cv2) on all cores: the reference"),
+    "cpu": ("warpvx cpu (NumPy/OpenCV)",
+            "warpvx backend 'cpu': the NumPy/OpenCV implementation (warpvx.kernels_cpu, "
+            "which calls OpenCV where it can), not Warp"),
+    "warp-cpu": ("warpvx warp-cpu (Warp, CPU)",
+                 "warpvx backend 'warp-cpu': the Warp kernels on Warp's CPU device "
+                 "(single-threaded)"),
+    "cvcuda": ("CV-CUDA", "CV-CUDA on the GPU (peer library)"),
+    "kornia": ("Kornia", "Kornia on PyTorch CUDA (peer library)"),
+}
+
+
+def describe_impl(impl: str, machine: dict, *, short: bool = False) -> str:
+    """What an implementation name in the results stands for (``short``: a few words, for
+    the chart's legend). ``cuda:N`` names the GPU from ``machine["gpus"]``."""
+    if impl in _ROLES:
+        return _ROLES[impl][0 if short else 1]
+    if impl.startswith("cuda"):
+        gpu = next((g["name"] for g in machine.get("gpus", []) if g["device"] == impl), "GPU")
+        return (f"warpvx {impl} (Warp, GPU)" if short
+                else f"warpvx backend '{impl}': the Warp kernels on {gpu}")
+    return impl
+
+
 # --- output ---------------------------------------------------------------------------------
 
 
@@ -101,21 +133,33 @@ def _fmt_time(s):
 
 
 def format_table(report: Report) -> str:
-    """The results as a fixed-width text table."""
-    head = ["primitive", "case", "size", "impl", "per call", "vs OpenCV", "graph", "floor", "graph/floor"]
+    """The results as a fixed-width text table, then a legend: what each implementation is
+    and which way the ratios read. The graph columns appear only when a run has them."""
+    graph = any(r.graph_per_call_s or r.floor_s for r in report.results)
+    head = ["primitive", "case", "size", "impl", "per call", "vs OpenCV"]
+    head += ["graph", "floor", "graph/floor"] if graph else []
     rows = []
     for r in report.results:
-        rows.append([
+        row = [
             r.primitive, r.case, r.size, r.impl,
             _fmt_time(r.per_call_s) if r.note is None or r.per_call_s else (r.note[:40]),
             "-" if r.speedup_vs_opencv is None else f"{r.speedup_vs_opencv:.2f}x",
-            _fmt_time(r.graph_per_call_s), _fmt_time(r.floor_s),
-            "-" if r.graph_over_floor is None else f"{r.graph_over_floor:.2f}",
-        ])
+        ]
+        if graph:
+            row += [_fmt_time(r.graph_per_call_s), _fmt_time(r.floor_s),
+                    "-" if r.graph_over_floor is None else f"{r.graph_over_floor:.2f}"]
+        rows.append(row)
     widths = [max(len(h), *(len(row[i]) for row in rows)) if rows else len(h) for i, h in enumerate(head)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths)),
              "  ".join("-" * w for w in widths)]
     lines += ["  ".join(c.ljust(w) for c, w in zip(row, widths)) for row in rows]
+    lines.append("")
+    name_w = max(map(len, report.impls), default=0)
+    lines += [f"{impl.ljust(name_w)} = {text}" for impl, text in report.impls.items()]
+    lines.append("vs OpenCV = speed-up = OpenCV time / this time; > 1 is faster than OpenCV")
+    if graph:
+        lines.append("graph = per call replayed from a captured graph; floor = bytes moved / "
+                     "measured copy bandwidth; graph/floor: 1 is the memory-bandwidth limit")
     return "\n".join(lines)
 
 
@@ -126,13 +170,26 @@ def write_json(report: Report, path: Path) -> Path:
     return path
 
 
-def _short(text, n=48):
-    return text if len(text) <= n else text[: n - 3] + "..."
-
-
 def write_plot(report: Report, path: Path) -> Path | None:
+    """Draw :func:`plot_figure` into ``path`` (PNG); None without matplotlib or timings."""
+    fig = plot_figure(report)
+    if fig is None:
+        return None
+    import matplotlib.pyplot as plt
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_figure(report: Report):
     """Horizontal grouped bars of log time per call: one panel per size, one group per case,
-    one bar per implementation. None without matplotlib or timings."""
+    one bar per implementation (a matplotlib Figure; None without matplotlib or timings).
+
+    Constrained layout keeps the title clear of the first panel and the case labels (in full:
+    two cases of one primitive may differ only at the end) inside the figure; every panel
+    carries its time axis label; the legend sits below the panels."""
     try:
         import matplotlib
 
@@ -151,7 +208,7 @@ def write_plot(report: Report, path: Path) -> Path | None:
     per_size = {sz: list(dict.fromkeys((r.primitive, r.case) for r in timed if r.size == sz)) for sz in sizes}
     bar_h = 0.8 / len(impls)
     heights = [max(2.0, 0.22 * len(per_size[sz]) * max(2, len(impls))) for sz in sizes]
-    fig, axes = plt.subplots(len(sizes), 1, figsize=(10, sum(heights) + 1.0),
+    fig, axes = plt.subplots(len(sizes), 1, figsize=(11, sum(heights) + 1.5), layout="constrained",
                              gridspec_kw={"height_ratios": heights}, squeeze=False)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for ax, sz in zip(axes[:, 0], sizes):
@@ -163,21 +220,29 @@ def write_plot(report: Report, path: Path) -> Path | None:
                 if v:
                     ys.append(j + (i - (len(impls) - 1) / 2) * bar_h)
                     xs.append(v * 1e6)
-            ax.barh(ys, xs, height=bar_h, label=impl, color=colors[i % len(colors)])
+            ax.barh(ys, xs, height=bar_h, label=_legend_label(impl, report.machine),
+                    color=colors[i % len(colors)])
         ax.set_xscale("log")
         ax.set_yticks(range(len(cases)))
-        ax.set_yticklabels([_short(f"{prim}: {case}") for prim, case in cases], fontsize=7)
+        ax.set_yticklabels([f"{prim}: {case}" for prim, case in cases], fontsize=7)
         ax.invert_yaxis()
-        ax.set_title(sz, fontsize=9)
+        ax.set_title(f"input {sz}", fontsize=9)
+        ax.set_xlabel("time per call (us, log scale; shorter is faster)", fontsize=8)
         ax.grid(axis="x", which="both", alpha=0.3)
-    axes[-1, 0].set_xlabel("time per call (us, log scale; shorter is faster)")
-    axes[0, 0].legend(fontsize=7, loc="lower right")
+    try:
+        fig.legend(*axes[0, 0].get_legend_handles_labels(), fontsize=7,
+                   loc="outside lower center", ncols=min(3, len(impls)))
+    except ValueError:  # matplotlib < 3.7 has no "outside" locations
+        axes[0, 0].legend(fontsize=7, loc="lower right")
     gpus = ", ".join(g["name"] for g in report.machine.get("gpus", [])) or "no GPU"
+    photo = report.photo
+    source = f"\ninput: {photo['name']} photo ({photo['size']}) resized to each size" if photo else ""
     fig.suptitle(f"warpvx bench: {report.machine.get('cpu_model', '?')} "
-                 f"({report.machine.get('cpu_cores')} cores), {gpus}", fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+                 f"({report.machine.get('cpu_cores')} cores), {gpus}{source}", fontsize=9)
+    return fig
 
+
+def _legend_label(impl: str, machine: dict) -> str:
+    if impl.endswith(" graph"):
+        return f"{describe_impl(impl[:-len(' graph')], machine, short=True)} in a captured graph"
+    return describe_impl(impl, machine, short=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..errors import UnsupportedError
 from ..keypoints import Keypoints
 
 # The FAST-9/16 circle in OpenCV's order, (dx, dy).
@@ -39,7 +40,12 @@ def fast_corners(src: np.ndarray, threshold: int, nonmax: bool, *, out=None) -> 
     OpenCV finds the corners; their scores are recomputed here in NumPy (equal to OpenCV's
     with NMS, and reported too without NMS, where cv2 leaves the response 0), which avoids a
     Python loop over ``cv2.KeyPoint`` objects.
+
+    ``out`` is refused: the keypoint count depends on the data.
     """
+    if out is not None:
+        raise UnsupportedError("out: fast_corners returns a data-dependent number of keypoints; "
+                               "it takes no out=")
     detector = cv2.FastFeatureDetector_create(int(threshold), bool(nonmax),
                                               cv2.FAST_FEATURE_DETECTOR_TYPE_9_16)
     found = detector.detect(src)

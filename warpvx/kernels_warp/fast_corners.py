@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..errors import UnsupportedError
 from ..keypoints import Keypoints
 from ._launch import HostReadback, Recorded, workspace
 
@@ -323,7 +324,12 @@ def fast_corners(src, threshold: int, nonmax: bool, *, out=None) -> Keypoints:
 
     Everything runs on ``src.device``; the one host sync reads the corner count (the result's
     length). ``response`` is the OpenCV score also without NMS (cv2 leaves it 0 then).
+
+    ``out`` is refused: the keypoint count depends on the data.
     """
+    if out is not None:
+        raise UnsupportedError("out: fast_corners returns a data-dependent number of keypoints; "
+                               "it takes no out=")
     device = src.device
     h, w = src.shape
     capacity = max_fast_corners(h, w, nonmax)

@@ -15,8 +15,9 @@ thesis Fig. 5.4 / 5.5: HEFT's XO efficiency against HEFT's idle time, a circle w
 and a cross where it loses, sized by the gain), ``gain_vs_heft_metrics.png``,
 ``ratio_hist.png`` (XEFT/HEFT makespan ratios) and ``heft_vs_baseline_hist.png``.
 
-Command line: ``warpvx sched-study --n-dags 4000 --out benchmarks/results/sched_study`` or
-``python -m warpvx.sched.study ...``.
+Command line: ``warpvx sched-study --n-dags 4000`` (writes a new
+``./warpvx-results/sched-study-<YYYYmmdd-HHMMSS>/``; ``--out benchmarks/results/sched_study``
+replaces the recorded study) or ``python -m warpvx.sched.study ...``.
 """
 
 from __future__ import annotations
@@ -46,8 +47,6 @@ P_CPU_ONLY = (0.2, 0.5, 0.8)
 CPU_RANGES = ((10.0, 90.0), (10.0, 50.0), (50.0, 90.0))
 GPU_SPEEDUPS = ((1.0, 4.0), (4.0, 9.0), (0.5, 2.0))
 COMM_RANGE = (0.0, 10.0)
-
-DEFAULT_OUT = os.path.join("benchmarks", "results", "sched_study")
 
 FIELDS = [
     "dag", "cls", "n_nodes", "n_edges", "avg_degree", "depth", "n_cpus", "p_single",
@@ -381,7 +380,7 @@ def run_study(
     classes=CLASSES,
     n_cpus_range=(2, 5),
     seed: int = 0,
-    out_dir=DEFAULT_OUT,
+    out_dir=None,
     *,
     workers=None,
     comm_range=COMM_RANGE,
@@ -401,8 +400,8 @@ def run_study(
         CPU worker count range (inclusive), beside one GPU.
     seed : int
         Makes the whole study reproducible.
-    out_dir : str or path
-        Created if missing; ``None`` writes nothing.
+    out_dir : str or path, optional
+        Created if missing; ``None`` (the default) writes nothing.
     workers : int, optional
         Worker processes (default: the CPU count, at most 8); 1 runs in this process.
     comm_range : (float, float)
@@ -471,45 +470,42 @@ def run_study(
     return {"meta": meta, "summary": summary, "records": records}
 
 
-def _pair(text: str, name: str, cast=int):
-    parts = text.replace(",", "-").split("-")
-    try:
-        vals = [cast(p) for p in parts if p != ""]
-    except ValueError:
-        raise WarpvxValueError(f"{name}: expected LOW-HIGH, got {text!r}") from None
-    if len(vals) == 1:
-        vals = vals * 2
-    if len(vals) != 2:
-        raise WarpvxValueError(f"{name}: expected LOW-HIGH, got {text!r}")
-    return tuple(vals)
-
-
 def main(argv=None) -> int:
-    """Command line: ``warpvx sched-study [--n-dags N] [--sizes 20-250] ...``."""
-    ap = argparse.ArgumentParser(
+    """Command line: ``warpvx sched-study [--n-dags N] [--sizes 20-250] ...``; bad arguments
+    exit with status 2 and a one-line message."""
+    from ..cli import ArgumentParser, comma_list, fresh_results_dir, positive_int, value_range
+
+    ap = ArgumentParser(
         prog="warpvx sched-study",
         description="Schedule thousands of random CPU/GPU DAGs with baseline, HEFT, XEFT and best; "
         "write per-DAG CSV, summary (markdown + JSON) and plots (thesis Fig. 5.4-5.5).",
     )
-    ap.add_argument("--n-dags", type=int, default=4000, help="number of DAGs (default 4000)")
-    ap.add_argument("--sizes", default="20-250", help="task count range, LOW-HIGH (default 20-250)")
-    ap.add_argument("--classes", default="tree,linear", help="comma-separated: tree, linear")
-    ap.add_argument("--cpus", default="2-5", help="CPU worker range beside the GPU (default 2-5)")
-    ap.add_argument("--comm", default="0-10", help="per-edge transfer time range (default 0-10)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
-    ap.add_argument("--workers", type=int, default=None, help="processes (default: CPU count)")
+    ap.add_argument("--n-dags", type=positive_int, default=4000, help="number of DAGs")
+    ap.add_argument("--sizes", type=value_range(int, 2), default=(20, 250), metavar="LOW-HIGH",
+                    help="task count range (default: 20-250)")
+    ap.add_argument("--classes", type=comma_list(choices=CLASSES), default=list(CLASSES),
+                    metavar="NAMES", help=f"comma-separated DAG classes from {', '.join(CLASSES)} "
+                    f"(default: {','.join(CLASSES)})")
+    ap.add_argument("--cpus", type=value_range(int, 1), default=(2, 5), metavar="LOW-HIGH",
+                    help="CPU worker range beside the GPU (default: 2-5)")
+    ap.add_argument("--comm", type=value_range(float, 0.0), default=COMM_RANGE, metavar="LOW-HIGH",
+                    help="per-edge transfer time range (default: 0-10)")
+    ap.add_argument("--seed", type=int, default=0, help="random seed")
+    ap.add_argument("--out", default=None,
+                    help="output folder, e.g. benchmarks/results/sched_study to replace the recorded "
+                         "study (default: a new ./warpvx-results/sched-study-<YYYYmmdd-HHMMSS>/)")
+    ap.add_argument("--workers", type=positive_int, default=None,
+                    help="processes (default: the CPU count, at most 8)")
     ap.add_argument("--no-plots", action="store_true", help="skip the PNGs")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
-    classes = tuple(c.strip() for c in args.classes.split(",") if c.strip())
+    out = args.out if args.out is not None else fresh_results_dir("sched-study")
     result = run_study(
-        args.n_dags, _pair(args.sizes, "--sizes"), classes,
-        _pair(args.cpus, "--cpus"), args.seed, args.out, workers=args.workers,
-        comm_range=_pair(args.comm, "--comm", float), plots=not args.no_plots, progress=not args.quiet,
+        args.n_dags, args.sizes, args.classes, args.cpus, args.seed, out, workers=args.workers,
+        comm_range=args.comm, plots=not args.no_plots, progress=not args.quiet,
     )
     print(summary_markdown(result["summary"], result["meta"]))
-    print(f"results in {args.out}")
+    print(f"results in {out}")
     return 0
 
 
