@@ -4,20 +4,32 @@
 :class:`Runner` is a part of :class:`~warpvx.graph.Graph` (a mixin: it uses the graph's
 nodes, inputs, outputs, delays, plan and run lock). :func:`program` and :func:`gpu_device`
 are what a :class:`~warpvx.graph.plan.Plan` builds its executor from.
+
+One run at a time: :class:`RunLock` serialises ``process``, ``stream``, ``verify``,
+``calibrate``, ``schedule``, ``reset`` and ``close``, and refuses, with a
+:class:`~warpvx.errors.GraphError`, what would otherwise wait forever: a user node calling
+its own graph (the call would wait for the frame that runs it), and a call made while a
+``stream()`` generator is live (it holds the lock between frames, until it is exhausted,
+closed or garbage-collected): from the stream's own thread at once, from another thread
+after :attr:`Runner.stream_wait` seconds.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import threading
+import time
+import weakref
 from collections import deque
 
 import numpy as np
 
 from ..errors import GraphError, NodeExecutionError
-from ..runtime import DEVICE, HOST, ExecTask, InputRef, Program
+from ..runtime import DEVICE, HOST, WAIT_SLICE, ExecTask, InputRef, Program
 from .bind import bind
 from .data import DelayRef
-from .verify import check_input
+from .nodes import running_node
+from .verify import check_input, check_input_names, contiguous
 
 
 def gpu_device(gpu_name: str | None) -> str | None:
@@ -53,8 +65,61 @@ def program(graph, gpu_name: str | None) -> Program:
                    {d.data.name: d for d in graph.delays})
 
 
+class RunLock:
+    """A graph's run lock: re-entrant, refusing the calls that would wait forever.
+
+    ``with lock:`` raises :class:`~warpvx.errors.GraphError` when this thread is running a
+    user node of the graph, when this thread's own ``stream()`` generator is suspended at a
+    frame, or when another thread's live stream still holds the lock after the graph's
+    ``stream_wait`` seconds. ``stream`` describes the live stream generator (None: none).
+    """
+
+    def __init__(self, graph):
+        self._graph = weakref.ref(graph)
+        self._lock = threading.RLock()
+        self.stream = None
+        self.stream_thread = None
+        self.suspended = False  # the live stream waits for its consumer at a yield
+
+    def refuse(self, what: str = "a call that runs the graph"):
+        """Raise GraphError if ``what`` must not run now on this thread: it is inside one of
+        the graph's user nodes, or the graph's stream is suspended here."""
+        graph = self._graph()
+        node = running_node(graph)
+        if node is not None:
+            raise GraphError(f"graph {graph.name!r}: {what} from inside its own node {node!r} "
+                             f"would wait forever for the frame that runs the node (use another "
+                             f"graph, or make the value an output)")
+        if self.stream is not None and self.suspended and self.stream_thread == threading.get_ident():
+            raise GraphError(f"graph {graph.name!r}: {what} while {self.stream} is live in this "
+                             f"thread; exhaust it or call its close() first")
+
+    def __enter__(self):
+        self.refuse()
+        waited_from = None
+        while not self._lock.acquire(timeout=WAIT_SLICE):
+            if self.stream is None:
+                waited_from = None  # a process() of another thread: bounded by its frame
+                continue
+            now = time.monotonic()
+            waited_from = waited_from or now
+            graph = self._graph()
+            if now - waited_from > graph.stream_wait:
+                raise GraphError(f"graph {graph.name!r}: waited {graph.stream_wait:g} s for "
+                                 f"{self.stream} to end; exhaust it or close() it, or run this "
+                                 f"thread's frames on another graph")
+        return self
+
+    def __exit__(self, *exc):
+        self._lock.release()
+
+
 class Runner:
     """Frames in, outputs out: the running half of :class:`~warpvx.graph.Graph`."""
+
+    #: Seconds a call from another thread waits for a live ``stream()`` generator to end
+    #: before it raises :class:`~warpvx.errors.GraphError` (see :class:`RunLock`).
+    stream_wait = 10.0
 
     def _ensure_plan(self, inputs):
         if not self.verified:
@@ -67,13 +132,8 @@ class Runner:
         if inputs is None:
             inputs = {}
         elif not isinstance(inputs, dict):
-            if len(self.inputs) != 1:
-                raise GraphError(f"inputs: expected a dict name -> value for inputs "
-                                 f"{sorted(self.inputs)}, got {type(inputs).__name__}")
-            inputs = {next(iter(self.inputs)): inputs}
-        unknown = [k for k in inputs if k not in self.inputs]
-        if unknown:
-            raise GraphError(f"inputs: unknown input(s) {unknown}; the graph has {sorted(self.inputs)}")
+            inputs = self._as_dict(inputs)
+        check_input_names(self, inputs)
         out, all_host = {}, True
         for name, data in self.inputs.items():
             if name in inputs:
@@ -84,6 +144,7 @@ class Runner:
                         raise GraphError(f"input {name!r}: missing (no value given and none written)")
                     value = data._value
             check_input(data, value)
+            value = contiguous(value)
             where = HOST
             if not isinstance(value, np.ndarray) and hasattr(value, "device") and hasattr(value, "ptr"):
                 all_host = False
@@ -95,6 +156,13 @@ class Runner:
             out[name] = (value, where)
         return out, all_host
 
+    def _as_dict(self, inputs) -> dict:
+        """A frame's inputs as a dict: a bare value is the one input of a one-input graph."""
+        if len(self.inputs) != 1:
+            raise GraphError(f"inputs: expected a dict name -> value for inputs "
+                             f"{sorted(self.inputs)}, got {type(inputs).__name__}")
+        return {next(iter(self.inputs)): inputs}
+
     def _publish(self, result):
         for name, value in result.outputs.items():
             self.outputs[name]._store(value)
@@ -105,18 +173,21 @@ class Runner:
         ``inputs`` maps input names to arrays (a bare array for a one-input graph); missing
         inputs use their written value. Verifies, calibrates and schedules (policy ``best``)
         first when needed. Outputs are host data when the inputs were, else left where they
-        were produced (``host`` forces either).
+        were produced (``host`` forces either). A non-contiguous input array (a strided view)
+        is copied once to a contiguous one, as the nodes take contiguous arrays.
 
         Raises
         ------
         GraphError
-            A missing input or one of the wrong shape or dtype; verification errors.
+            A missing or unknown input, one of the wrong shape or dtype; verification errors;
+            a call from inside one of the graph's own user nodes; a call while a ``stream()``
+            generator of the graph is live (see :class:`RunLock`).
         NodeExecutionError
             A node raised (its exception is ``__cause__``).
         """
         with self._run_lock:
             if inputs is not None and not self.verified:
-                self.verify(inputs if isinstance(inputs, dict) else {next(iter(self.inputs)): inputs})
+                self.verify(inputs if isinstance(inputs, dict) else self._as_dict(inputs))
             plan = self._ensure_plan(None)
             ex = plan.executor()
             feed, all_host = self._frame_inputs(inputs, ex.gpu_device and _device_name(ex.gpu_device))
@@ -135,36 +206,83 @@ class Runner:
     def stream(self, frames, *, depth: int = 2, host: bool | None = None):
         """Run many frames pipelined; a generator of output dicts, in frame order.
 
-        Up to ``depth`` frames are in flight: frame *i+1*'s early nodes run while frame
-        *i*'s late ones finish. Delays age in frame order. If a node fails, the frames before
-        it are still yielded, then :class:`~warpvx.errors.NodeExecutionError` is raised and
-        the frames after it are cancelled. Closing the generator early cancels what is in
-        flight.
+        ``frames`` is an iterable of frames, each what :meth:`process` takes. Up to ``depth``
+        frames are in flight: frame *i+1*'s early nodes run while frame *i*'s late ones
+        finish. Delays age in frame order. If a node fails, the frames before it are still
+        yielded, then :class:`~warpvx.errors.NodeExecutionError` is raised and the frames
+        after it are cancelled. If ``frames`` itself raises (or a frame is refused: a wrong
+        shape, a missing input), the frames submitted before it are still yielded, then that
+        exception is raised. Closing the generator early cancels what is in flight.
+
+        While the generator is live (started, not exhausted, closed or garbage-collected) it
+        holds the graph: this thread's calls that run or change the graph raise
+        :class:`~warpvx.errors.GraphError` at once, other threads' wait at most
+        :attr:`stream_wait` seconds, then raise it (see :class:`RunLock`).
+
+        Raises
+        ------
+        GraphError
+            ``frames`` is not iterable, ``depth`` is not an int >= 1 (both at the call).
         """
         if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or depth < 1:
             raise GraphError(f"depth: expected an int >= 1, got {depth!r}")
+        try:
+            if isinstance(frames, dict):  # one frame's inputs: iterating gives their names
+                raise TypeError
+            frames = iter(frames)
+        except TypeError:
+            raise GraphError(f"frames: expected an iterable of frames (input dicts or arrays), "
+                             f"got {type(frames).__name__}; use process() for one frame") from None
+        return self._stream(frames, int(depth), host)
+
+    def _stream(self, frames, depth, host):
         with self._run_lock:
+            lock = self._run_lock
             pending = deque()
-            plan = ex = None
+            plan = ex = error = None
+            lock.stream = f"the stream() generator of graph {self.name!r} " \
+                          f"(started in thread {threading.current_thread().name!r})"
+            lock.stream_thread = threading.get_ident()
             try:
-                for item in frames:
-                    if plan is None:
-                        if not self.verified:
-                            self.verify(item if isinstance(item, dict) or item is None
-                                        else {next(iter(self.inputs)): item})
-                        plan = self._ensure_plan(None)
-                        ex = plan.executor()
-                        ex.reanchor()
-                        plan.last_run.clear()
-                    feed, all_host = self._frame_inputs(item, ex.gpu_device and _device_name(ex.gpu_device))
-                    pending.append((ex.submit(self._next_frame(), feed), all_host))
+                while True:
+                    try:
+                        item = next(frames)
+                        if plan is None:
+                            if not self.verified:
+                                self.verify(item if isinstance(item, dict) or item is None
+                                            else self._as_dict(item))
+                            plan = self._ensure_plan(None)
+                            ex = plan.executor()
+                            ex.reanchor()
+                            plan.last_run.clear()
+                        feed, all_host = self._frame_inputs(
+                            item, ex.gpu_device and _device_name(ex.gpu_device))
+                        pending.append((ex.submit(self._next_frame(), feed), all_host))
+                    except StopIteration:
+                        break
+                    except Exception as exc:  # noqa: BLE001 - raised after the frames submitted
+                        error = exc
+                        break
                     if len(pending) >= depth:
-                        yield self._finish(plan, ex, *pending.popleft(), host)
+                        yield from self._hand_over(self._finish(plan, ex, *pending.popleft(), host))
                 while pending:
-                    yield self._finish(plan, ex, *pending.popleft(), host)
+                    yield from self._hand_over(self._finish(plan, ex, *pending.popleft(), host))
+                if error is not None:
+                    raise error
             finally:
+                lock.stream = lock.stream_thread = None
+                lock.suspended = False
                 if ex is not None and pending:
                     ex.abort()
+
+    def _hand_over(self, outputs):
+        """Yield ``outputs``, marking the live stream as suspended until its consumer asks
+        for the next frame."""
+        self._run_lock.suspended = True
+        try:
+            yield outputs
+        finally:
+            self._run_lock.suspended = False
 
     def _finish(self, plan, ex, frame, all_host, host):
         try:
@@ -211,4 +329,4 @@ def _device_name(device):
     return str(init_warp().get_device(device))
 
 
-__all__ = ["Runner", "program", "gpu_device"]
+__all__ = ["Runner", "RunLock", "program", "gpu_device"]
