@@ -293,6 +293,9 @@ class Graph(CostModel, Runner):
 
     def _changed(self):
         self._order = None
+        # A calibration covers the nodes it measured: a changed graph calibrates again (from
+        # the cache for the nodes it already had).
+        self._calibrations.clear()
         self._invalidate_plan()
 
     def _invalidate_plan(self):

@@ -69,17 +69,22 @@ class RunLock:
     """A graph's run lock: re-entrant, refusing the calls that would wait forever.
 
     ``with lock:`` raises :class:`~warpvx.errors.GraphError` when this thread is running a
-    user node of the graph, when this thread's own ``stream()`` generator is suspended at a
-    frame, or when another thread's live stream still holds the lock after the graph's
-    ``stream_wait`` seconds. ``stream`` describes the live stream generator (None: none).
+    user node of the graph, when this thread's ``stream()`` generator is suspended at a frame,
+    or when another thread's live stream has not ended after the graph's ``stream_wait``
+    seconds; a ``process()`` of another thread is waited for (its frame bounds it).
+
+    A live stream holds a token (``stream``, the text naming it), not the lock itself: it
+    takes the lock while it runs and lets it go while suspended at a yield, so a generator
+    resumed, closed or garbage-collected on another thread than the one that started it
+    frees the graph all the same.
     """
 
     def __init__(self, graph):
         self._graph = weakref.ref(graph)
         self._lock = threading.RLock()
-        self.stream = None
-        self.stream_thread = None
-        self.suspended = False  # the live stream waits for its consumer at a yield
+        self.stream = None   # the live stream's name, or None
+        self.owner = None    # the thread that last ran the live stream
+        self.running = False  # the live stream holds the lock (not suspended at a yield)
 
     def refuse(self, what: str = "a call that runs the graph"):
         """Raise GraphError if ``what`` must not run now on this thread: it is inside one of
@@ -90,16 +95,23 @@ class RunLock:
             raise GraphError(f"graph {graph.name!r}: {what} from inside its own node {node!r} "
                              f"would wait forever for the frame that runs the node (use another "
                              f"graph, or make the value an output)")
-        if self.stream is not None and self.suspended and self.stream_thread == threading.get_ident():
+        if self.stream is not None and not self.running and self.owner == threading.get_ident():
             raise GraphError(f"graph {graph.name!r}: {what} while {self.stream} is live in this "
                              f"thread; exhaust it or call its close() first")
 
+    def _free_for(self, me) -> bool:
+        return self.stream is None or (self.running and self.owner == me)
+
     def __enter__(self):
         self.refuse()
-        waited_from = None
-        while not self._lock.acquire(timeout=WAIT_SLICE):
-            if self.stream is None:
-                waited_from = None  # a process() of another thread: bounded by its frame
+        me, waited_from = threading.get_ident(), None
+        while True:
+            if self._free_for(me):
+                waited_from = None
+                if self._lock.acquire(timeout=WAIT_SLICE):
+                    if self._free_for(me):
+                        return self
+                    self._lock.release()  # a stream started meanwhile
                 continue
             now = time.monotonic()
             waited_from = waited_from or now
@@ -108,10 +120,33 @@ class RunLock:
                 raise GraphError(f"graph {graph.name!r}: waited {graph.stream_wait:g} s for "
                                  f"{self.stream} to end; exhaust it or close() it, or run this "
                                  f"thread's frames on another graph")
-        return self
+            time.sleep(WAIT_SLICE)
 
     def __exit__(self, *exc):
         self._lock.release()
+
+    def start_stream(self, name: str):
+        """Take the lock and the stream token (the generator's first step)."""
+        self.__enter__()
+        self.stream, self.owner, self.running = name, threading.get_ident(), True
+
+    def suspend(self):
+        """The stream yields a frame: let the lock go, keep the token."""
+        self.running = False
+        self._lock.release()
+
+    def resume(self):
+        """The stream's consumer asks for the next frame (on whatever thread)."""
+        self._lock.acquire()
+        self.owner, self.running = threading.get_ident(), True
+
+    def end_stream(self):
+        """The stream is exhausted, failed, closed or collected: give the token (and the lock,
+        if it holds it) back."""
+        held, self.running = self.running, False
+        self.stream = self.owner = None
+        if held:
+            self._lock.release()
 
 
 class Runner:
@@ -236,53 +271,52 @@ class Runner:
         return self._stream(frames, int(depth), host)
 
     def _stream(self, frames, depth, host):
-        with self._run_lock:
-            lock = self._run_lock
-            pending = deque()
-            plan = ex = error = None
-            lock.stream = f"the stream() generator of graph {self.name!r} " \
-                          f"(started in thread {threading.current_thread().name!r})"
-            lock.stream_thread = threading.get_ident()
-            try:
-                while True:
-                    try:
-                        item = next(frames)
-                        if plan is None:
-                            if not self.verified:
-                                self.verify(item if isinstance(item, dict) or item is None
-                                            else self._as_dict(item))
-                            plan = self._ensure_plan(None)
-                            ex = plan.executor()
-                            ex.reanchor()
-                            plan.last_run.clear()
-                        feed, all_host = self._frame_inputs(
-                            item, ex.gpu_device and _device_name(ex.gpu_device))
-                        pending.append((ex.submit(self._next_frame(), feed), all_host))
-                    except StopIteration:
-                        break
-                    except Exception as exc:  # noqa: BLE001 - raised after the frames submitted
-                        error = exc
-                        break
-                    if len(pending) >= depth:
-                        yield from self._hand_over(self._finish(plan, ex, *pending.popleft(), host))
-                while pending:
+        lock = self._run_lock
+        lock.start_stream(f"the stream() generator of graph {self.name!r} (started in thread "
+                          f"{threading.current_thread().name!r})")
+        pending = deque()
+        plan = ex = error = None
+        try:
+            while True:
+                try:
+                    item = next(frames)
+                    if plan is None:
+                        if not self.verified:
+                            self.verify(item if isinstance(item, dict) or item is None
+                                        else self._as_dict(item))
+                        plan = self._ensure_plan(None)
+                        ex = plan.executor()
+                        ex.reanchor()
+                        plan.last_run.clear()
+                    feed, all_host = self._frame_inputs(
+                        item, ex.gpu_device and _device_name(ex.gpu_device))
+                    pending.append((ex.submit(self._next_frame(), feed), all_host))
+                except StopIteration:
+                    break
+                except Exception as exc:  # noqa: BLE001 - raised after the frames submitted
+                    error = exc
+                    break
+                if len(pending) >= depth:
                     yield from self._hand_over(self._finish(plan, ex, *pending.popleft(), host))
-                if error is not None:
-                    raise error
-            finally:
-                lock.stream = lock.stream_thread = None
-                lock.suspended = False
+            while pending:
+                yield from self._hand_over(self._finish(plan, ex, *pending.popleft(), host))
+            if error is not None:
+                raise error
+        finally:
+            try:
                 if ex is not None and pending:
                     ex.abort()
+            finally:
+                lock.end_stream()
 
     def _hand_over(self, outputs):
-        """Yield ``outputs``, marking the live stream as suspended until its consumer asks
-        for the next frame."""
-        self._run_lock.suspended = True
-        try:
-            yield outputs
-        finally:
-            self._run_lock.suspended = False
+        """Yield ``outputs`` with the graph's lock let go (the stream keeps its token); take
+        it again when the consumer asks for the next frame. Closed or thrown into at the
+        yield, the stream ends without it."""
+        lock = self._run_lock
+        lock.suspend()
+        yield outputs
+        lock.resume()
 
     def _finish(self, plan, ex, frame, all_host, host):
         try:
