@@ -115,9 +115,11 @@ def numpy_dtype(x) -> np.dtype:
 
 
 def is_contiguous(x) -> bool:
+    """True for a C-contiguous NumPy or Warp array. An empty array counts as contiguous
+    (NumPy says so; Warp reports empty arrays as non-contiguous)."""
     if isinstance(x, np.ndarray):
         return x.flags.c_contiguous
-    return bool(x.is_contiguous)
+    return x.size == 0 or bool(x.is_contiguous)
 
 
 def to_numpy(x) -> np.ndarray:

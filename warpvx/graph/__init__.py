@@ -15,6 +15,7 @@
 """
 
 from .data import Data, Delay, DelayRef
+from .costs import NoCudaWarning
 from .graph import Graph, default_n_cpus
 from .nodes import Node, PrimitiveNode, UserNode
 from .plan import Plan
@@ -28,5 +29,6 @@ __all__ = [
     "PrimitiveNode",
     "UserNode",
     "Plan",
+    "NoCudaWarning",
     "default_n_cpus",
 ]

@@ -8,6 +8,7 @@ nodes, verification and run lock); see :mod:`warpvx.graph.calibration` for the m
 from __future__ import annotations
 
 import os
+import warnings
 import weakref
 
 from ..errors import GraphError
@@ -17,6 +18,26 @@ from .data import INPUT, Data, nbytes
 def default_n_cpus() -> int:
     """CPU workers by default: the cores minus one for the GPU host thread, 1 to 4."""
     return max(1, min(4, (os.cpu_count() or 2) - 1))
+
+
+class NoCudaWarning(UserWarning):
+    """The GPU role fell back to Warp's CPU device (no CUDA): "gpu" nodes run on the CPU."""
+
+
+_warned_no_cuda = False
+
+
+def warn_no_cuda(graph_name: str, on_gpu: list):
+    """Warn once per process that nodes ``on_gpu`` placed on the GPU role run on Warp's CPU
+    device because this machine has no CUDA (the user asked for no GPU role explicitly)."""
+    global _warned_no_cuda
+    if _warned_no_cuda:
+        return
+    _warned_no_cuda = True
+    warnings.warn(f"graph {graph_name!r}: no CUDA device, so the GPU role runs on Warp's CPU "
+                  f"device: node(s) {sorted(on_gpu)} placed on 'gpu' run on the CPU (charts "
+                  f"label it 'gpu (warp-cpu)'). Pass gpu='warp-cpu' to choose this (no warning) "
+                  f"or gpu=False for CPU workers only.", NoCudaWarning, stacklevel=3)
 
 
 def gpu_backend(gpu):
@@ -139,7 +160,8 @@ class CostModel:
             CPU workers (default :func:`default_n_cpus`).
         gpu : str, None or False
             The GPU role: ``"cuda"``/``"cuda:N"``, ``"warp-cpu"`` (Warp's CPU device, for
-            tests), None (CUDA if present, else warp-cpu) or False (CPU workers only).
+            tests), None (CUDA if present, else warp-cpu: then, once per process, a
+            :class:`NoCudaWarning` if nodes are placed on it) or False (CPU workers only).
         costs : str
             ``"calibrated"`` (nodes timed alone) or ``"history"`` (what running frames
             measured, after :meth:`learn`; calibrated costs where none was measured).
@@ -169,6 +191,10 @@ class CostModel:
             self._invalidate_plan()
             self._plan = plan
             self._plan_box[0] = plan
+        if gpu is None and be is not None and be.device == "cpu":
+            on_gpu = [n for n, p in plan.placement.items() if p == "gpu"]
+            if on_gpu:
+                warn_no_cuda(self.name, on_gpu)
         return plan
 
     def learn(self, plan=None, *, runs=None, skip: int = 1) -> dict:
@@ -195,4 +221,4 @@ class CostModel:
         return self._plan
 
 
-__all__ = ["CostModel", "default_n_cpus", "gpu_backend"]
+__all__ = ["CostModel", "NoCudaWarning", "default_n_cpus", "gpu_backend", "warn_no_cuda"]

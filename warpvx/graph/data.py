@@ -134,7 +134,7 @@ class Delay(Ring):
     """
 
     def __init__(self, graph, data: Data, slots: int, init=None):
-        super().__init__(slots, None, lock=data.lock)
+        super().__init__(slots, init, lock=data.lock)
         self._graph = weakref.ref(graph)
         self.data = data
         self.init = init
@@ -143,37 +143,68 @@ class Delay(Ring):
         self.sample_previous = None
         self._local = threading.local()
 
+    def _index(self, index, low: int, high: int) -> int:
+        """``index`` as an int in ``[low, high]``, else GraphError naming it."""
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)):
+            raise GraphError(f"delay {self.data.name!r}, index: expected an int in "
+                             f"[{low}, {high}], got {type(index).__name__} {index!r}")
+        if not low <= index <= high:
+            raise GraphError(f"delay {self.data.name!r}, index: {index} is outside [{low}, {high}]")
+        return int(index)
+
     def __getitem__(self, index):
-        if not isinstance(index, (int, np.integer)) or isinstance(index, bool):
-            raise GraphError(f"delay {self.data.name!r}: index must be an int, got {index!r}")
-        index = int(index)
-        if index == 0:
-            return self.data
-        if not -self.slots <= index < 0:
-            raise GraphError(f"delay {self.data.name!r}: index {index} is outside [-{self.slots}, 0]")
-        return DelayRef(self, index)
+        index = self._index(index, -self.slots, 0)
+        return self.data if index == 0 else DelayRef(self, index)
 
     # ------------------------------------------------------------ communication wrapper
 
     def read(self, index: int = 0):
-        """Host value of slot ``index`` as of the last completed frame (0: newest, -j older)."""
-        if not -self.slots <= index <= 0:
-            raise GraphError(f"delay {self.data.name!r}: index {index} is outside [-{self.slots}, 0]")
+        """Host value of slot ``index`` as of the last completed frame (0: newest, -j older).
+
+        Before frame *j* has run, slot ``-j`` (and 0, before any frame) holds the initial
+        value: what ``delay[-j]`` reads in the next frame, as an OpenVX delay's slots hold
+        their initial contents until aged.
+
+        Raises
+        ------
+        GraphError
+            ``index`` not an int in ``[-slots, 0]``; no value yet (before verification, with
+            no ``init`` given nor value written).
+        """
+        index = self._index(index, -self.slots, 0)
+        graph = self._graph()
         with self.lock:
             slot = self.get(self.last_aged + index)
+            if slot is self._initial and slot.value is None and not (graph and graph.verified):
+                raise GraphError(f"delay {self.data.name!r}, index: slot {index} has no value "
+                                 f"yet; verify or run the graph first, or give "
+                                 f"g.delay(..., init=)")
         if not slot.done.is_set():
             raise GraphError(f"delay {self.data.name!r}: slot {index} is not computed yet")
         io = getattr(self._local, "io", None)
         if io is None:
-            graph = self._graph()
             io = self._local.io = Transfers(graph._gpu_device() if graph is not None else None)
         return slot.host(io)
 
     def write(self, value, index: int = -1):
-        """Replace slot ``index`` (``-slots <= index <= -1``) as seen by the next frame."""
-        if not -self.slots <= index <= -1:
-            raise GraphError(f"delay {self.data.name!r}: writable indices are -{self.slots}..-1, "
-                             f"got {index}")
+        """Replace slot ``index`` (``-slots <= index <= -1``) as seen by the next frame.
+
+        ``value`` is host data of the delayed data's type: what verification found it to be
+        (else ``init``). See :func:`mismatch` for what must agree.
+
+        Raises
+        ------
+        GraphError
+            ``index`` not an int in ``[-slots, -1]``; ``value`` of another type, dtype or
+            shape than the data's.
+        """
+        index = self._index(index, -self.slots, -1)
+        expected = self.data.sample if self.data.sample is not None else self.init
+        if expected is not None:
+            why = mismatch(expected, value)
+            if why is not None:
+                raise GraphError(f"delay {self.data.name!r}, value: {why} (the data is "
+                                 f"{describe(expected)})")
         with self.lock:
             self.put(self.last_aged + 1 + index, value, HOST)
 
@@ -199,6 +230,39 @@ def describe(value) -> str:
     if isinstance(value, (int, float, bool, np.generic)):
         return type(value).__name__
     return type(value).__name__
+
+
+def mismatch(expected, value) -> str | None:
+    """Why ``value`` cannot stand for data whose value was ``expected``, or None if it can.
+
+    Arrays: a NumPy array of the same dtype and dimensions and the same size on every axis
+    but the first (a point set's length changes from frame to frame, so the first axis is
+    free). Keypoints: Keypoints. Lists and tuples: the same kind and length, item by item.
+    Numbers: a number. Any other object: the same type.
+    """
+    if isinstance(expected, np.ndarray):
+        if not isinstance(value, np.ndarray):
+            return f"expected a NumPy array, got {type(value).__name__}"
+        if value.dtype != expected.dtype:
+            return f"expected dtype {expected.dtype}, got {value.dtype}"
+        if value.ndim != expected.ndim or value.shape[1:] != expected.shape[1:]:
+            want = "x".join(["N", *map(str, expected.shape[1:])]) if expected.ndim else "()"
+            return f"expected shape {want}, got {value.shape}"
+        return None
+    if isinstance(expected, (list, tuple)):
+        if type(value) is not type(expected) or len(value) != len(expected):
+            return f"expected a {type(expected).__name__} of {len(expected)}, got {describe(value)}"
+        for i, (e, v) in enumerate(zip(expected, value)):
+            why = mismatch(e, v)
+            if why is not None:
+                return f"item {i}: {why}"
+        return None
+    if isinstance(expected, (int, float, np.number)) and not isinstance(expected, (bool, np.bool_)):
+        ok = isinstance(value, (int, float, np.number)) and not isinstance(value, (bool, np.bool_))
+        return None if ok else f"expected a number, got {type(value).__name__}"
+    if not isinstance(value, type(expected)):
+        return f"expected {type(expected).__name__}, got {type(value).__name__}"
+    return None
 
 
 def nbytes(value) -> int:
@@ -258,4 +322,5 @@ def synth(shape, dtype, seed: int = 0) -> np.ndarray:
     return rng.random(shape).astype(dtype)
 
 
-__all__ = ["Data", "Delay", "DelayRef", "describe", "nbytes", "zeros_like", "synth", "FIELDS"]
+__all__ = ["Data", "Delay", "DelayRef", "describe", "mismatch", "nbytes", "zeros_like", "synth",
+           "FIELDS"]

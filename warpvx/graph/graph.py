@@ -21,7 +21,6 @@ arguments; they return the node's output data object (a tuple for several, see
 from __future__ import annotations
 
 import functools
-import threading
 import weakref
 
 import numpy as np
@@ -31,7 +30,7 @@ from ..registry import REGISTRY
 from .costs import CostModel, default_n_cpus
 from .data import INPUT, VIRTUAL, Data, Delay, DelayRef
 from .nodes import PrimitiveNode, UserNode
-from .run import Runner
+from .run import Runner, RunLock
 from .verify import verify as _verify
 
 
@@ -61,7 +60,7 @@ class Graph(CostModel, Runner):
         self._plan = None
         self._calibrations: dict = {}
         self._frame = 0
-        self._run_lock = threading.RLock()
+        self._run_lock = RunLock(self)
         # The executor's threads must not keep the graph alive; when the graph goes, its
         # plan's threads stop (data objects and delays hold the graph weakly).
         self._plan_box = [None]
@@ -82,6 +81,7 @@ class Graph(CostModel, Runner):
         value : array, optional
             Default value (used when a frame omits the input) and verification sample.
         """
+        self._check_building(f"input {name!r}")
         self._check_new_name(name, "input")
         if value is not None and hasattr(value, "shape"):
             shape = tuple(value.shape) if shape is None else shape
@@ -95,6 +95,7 @@ class Graph(CostModel, Runner):
 
     def output(self, name: str, data) -> Data:
         """Name ``data`` as a graph output: :meth:`process` returns it under ``name``."""
+        self._check_building(f"output {name!r}")
         data = self._own(data, f"output {name!r}")
         if isinstance(data, DelayRef):
             raise GraphError(f"output {name!r}: a delay slot cannot be an output; output the data")
@@ -107,6 +108,7 @@ class Graph(CostModel, Runner):
 
     def virtual(self, name: str | None = None) -> Data:
         """A virtual data object with no producer yet: give it as a user node's output."""
+        self._check_building("virtual")
         name = name or f"v{len(self.data)}"
         self._check_new_name(name, "data")
         data = Data(self, name, VIRTUAL)
@@ -120,6 +122,7 @@ class Graph(CostModel, Runner):
         Data objects (and delay slots) may be given for any named parameter; everything else
         is a constant argument. Unknown primitives and arguments raise GraphError now.
         """
+        self._check_building(f"node {name or primitive!r}")
         for a in list(args) + list(kwargs.values()):
             if isinstance(a, (Data, DelayRef)):
                 self._own(a, f"node {name or primitive!r}")
@@ -156,6 +159,7 @@ class Graph(CostModel, Runner):
             ``wp.ScopedDevice`` with the executor's stream current. Without it the node is
             CPU-only (exclusive); with only it, GPU-only.
         """
+        self._check_building(f"node {name or 'user'!r}")
         name = self._node_name(name, "user")
         ports = self._user_ports(fn if fn is not None else warp_fn, inputs, name)
         for port, ref in ports.items():
@@ -189,6 +193,7 @@ class Graph(CostModel, Runner):
 
         See :class:`~warpvx.graph.data.Delay` for the initial values.
         """
+        self._check_building("delay")
         data = self._own(data, "delay")
         if isinstance(data, DelayRef):
             raise GraphError("delay: give the data object, not a delay slot")
@@ -209,6 +214,16 @@ class Graph(CostModel, Runner):
             raise GraphError(f"node {name!r}: no such node in graph {self.name!r}") from None
 
     # ------------------------------------------------------------------ helpers
+
+    def _check_building(self, where):
+        """Refuse to change the graph from inside one of its nodes or while a ``stream()``
+        generator is live: the new plan would lose the frames in flight."""
+        lock = self._run_lock
+        lock.refuse(f"{where}: changing the graph")
+        if lock.stream is not None:
+            raise GraphError(f"{where}: cannot change graph {self.name!r} while {lock.stream} is "
+                             f"live (its frames in flight would be lost); exhaust it or close() "
+                             f"it first")
 
     def _check_new_name(self, name, what):
         if not isinstance(name, str) or not name:
@@ -278,6 +293,9 @@ class Graph(CostModel, Runner):
 
     def _changed(self):
         self._order = None
+        # A calibration covers the nodes it measured: a changed graph calibrates again (from
+        # the cache for the nodes it already had).
+        self._calibrations.clear()
         self._invalidate_plan()
 
     def _invalidate_plan(self):

@@ -10,8 +10,10 @@ implementation gets what it takes.
 
 from __future__ import annotations
 
+import functools
 import inspect
 import re
+import threading
 import weakref
 
 import numpy as np
@@ -28,6 +30,35 @@ TARGETS = ("cpu", "gpu")
 
 def _is_data(x) -> bool:
     return isinstance(x, (Data, DelayRef))
+
+
+# The user nodes this thread is running, innermost last, as (graph weakref, node name): a
+# node calling its own graph's process() would wait for the frame that runs it (forever).
+_running = threading.local()
+
+
+def running_node(graph) -> str | None:
+    """The name of the user node of ``graph`` this thread is running, or None."""
+    for ref, name in reversed(getattr(_running, "nodes", ())):
+        if ref() is graph:
+            return name
+    return None
+
+
+def _marked(node, fn):
+    """``fn`` recording on the thread, while it runs, that ``node`` is running."""
+    where = (node._graph, node.name)
+
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        stack = _running.__dict__.setdefault("nodes", [])
+        stack.append(where)
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            stack.pop()
+
+    return run
 
 
 class Node:
@@ -74,6 +105,7 @@ class Node:
             raise GraphError(f"node {self.name!r} ({self.kind}), port 'target': pinned to "
                              f"{value!r} but it has only {sorted(self.implementations)} "
                              f"implementation(s)")
+        self.graph._check_building(f"node {self.name!r}, port 'target'")
         self._target = value
         self.graph._invalidate_plan()
 
@@ -264,7 +296,8 @@ class UserNode(Node):
         return frozenset(pes)
 
     def callable(self, pe: str, backend):
-        return self.fn if pe == "cpu" else self.warp_fn
+        fn = self.fn if pe == "cpu" else self.warp_fn
+        return None if fn is None else _marked(self, fn)
 
     def cache_key(self) -> str:
         parts = []
@@ -301,4 +334,4 @@ def port_of(message: str, ports) -> str | None:
     return head if head in ports else None
 
 
-__all__ = ["Node", "PrimitiveNode", "UserNode", "TARGETS", "port_of"]
+__all__ = ["Node", "PrimitiveNode", "UserNode", "TARGETS", "port_of", "running_node"]

@@ -61,6 +61,16 @@ class Plan:
         """Predicted time of one frame (ms)."""
         return self.schedule.makespan
 
+    def processor_label(self, processor: str) -> str:
+        """How charts and summaries name ``processor``: the GPU role on Warp's CPU device is
+        ``"gpu (warp-cpu)"``, as it is no GPU."""
+        if processor == "gpu" and self.gpu == "warp-cpu":
+            return "gpu (warp-cpu)"
+        return processor
+
+    def _label_rows(self, ax):
+        ax.set_yticklabels([self.processor_label(t.get_text()) for t in ax.get_yticklabels()])
+
     @property
     def placement(self) -> dict:
         """node -> processor."""
@@ -120,7 +130,8 @@ class Plan:
                         policy=f"{self.policy} (measured, {len(runs)} frames)")
 
     def gantt(self, path=None, *, frames: int = 1, title: str | None = None):
-        """Predicted (top) and measured (bottom) Gantt charts in one figure.
+        """Predicted (top) and measured (bottom) Gantt charts in one figure (the GPU row
+        reads ``gpu (warp-cpu)`` when the GPU role is Warp's CPU device).
 
         Parameters
         ----------
@@ -161,9 +172,11 @@ class Plan:
                 ax1.set_xlim(0, hi)
             ax0.set_xlabel("time (ms)")
             ax1.set_xlabel("time (ms)")
+            self._label_rows(ax1)
         else:
             ax1.set_axis_off()
             ax1.set_title("measured: not run yet")
+        self._label_rows(ax0)
         if path is not None:
             fig.savefig(path, dpi=110)
             plt.close(fig)
@@ -183,7 +196,8 @@ class Plan:
         return dag.subgraph(names).copy() if names <= set(dag.nodes) else None
 
     def summary(self) -> dict:
-        """Predicted and measured makespans (ms), placement and metrics, JSON-friendly."""
+        """Predicted and measured makespans (ms), placement and metrics, JSON-friendly;
+        ``processors`` labels each processor as charts do (:meth:`processor_label`)."""
         import statistics
 
         meas = self.measured_makespans()
@@ -192,6 +206,7 @@ class Plan:
             "chosen": self.schedule.info.get("chosen", self.policy),
             "n_cpus": self.n_cpus,
             "gpu": self.gpu,
+            "processors": [self.processor_label(p) for p in self.schedule.processors],
             "predicted_makespan_ms": self.schedule.makespan,
             "measured_makespan_ms": statistics.median(meas) if meas else None,
             "placement": self.placement,

@@ -4,20 +4,32 @@
 :class:`Runner` is a part of :class:`~warpvx.graph.Graph` (a mixin: it uses the graph's
 nodes, inputs, outputs, delays, plan and run lock). :func:`program` and :func:`gpu_device`
 are what a :class:`~warpvx.graph.plan.Plan` builds its executor from.
+
+One run at a time: :class:`RunLock` serialises ``process``, ``stream``, ``verify``,
+``calibrate``, ``schedule``, ``reset`` and ``close``, and refuses, with a
+:class:`~warpvx.errors.GraphError`, what would otherwise wait forever: a user node calling
+its own graph (the call would wait for the frame that runs it), and a call made while a
+``stream()`` generator is live (it holds the lock between frames, until it is exhausted,
+closed or garbage-collected): from the stream's own thread at once, from another thread
+after :attr:`Runner.stream_wait` seconds.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import threading
+import time
+import weakref
 from collections import deque
 
 import numpy as np
 
 from ..errors import GraphError, NodeExecutionError
-from ..runtime import DEVICE, HOST, ExecTask, InputRef, Program
+from ..runtime import DEVICE, HOST, WAIT_SLICE, ExecTask, InputRef, Program
 from .bind import bind
 from .data import DelayRef
-from .verify import check_input
+from .nodes import running_node
+from .verify import check_input, check_input_names, contiguous
 
 
 def gpu_device(gpu_name: str | None) -> str | None:
@@ -53,8 +65,96 @@ def program(graph, gpu_name: str | None) -> Program:
                    {d.data.name: d for d in graph.delays})
 
 
+class RunLock:
+    """A graph's run lock: re-entrant, refusing the calls that would wait forever.
+
+    ``with lock:`` raises :class:`~warpvx.errors.GraphError` when this thread is running a
+    user node of the graph, when this thread's ``stream()`` generator is suspended at a frame,
+    or when another thread's live stream has not ended after the graph's ``stream_wait``
+    seconds; a ``process()`` of another thread is waited for (its frame bounds it).
+
+    A live stream holds a token (``stream``, the text naming it), not the lock itself: it
+    takes the lock while it runs and lets it go while suspended at a yield, so a generator
+    resumed, closed or garbage-collected on another thread than the one that started it
+    frees the graph all the same.
+    """
+
+    def __init__(self, graph):
+        self._graph = weakref.ref(graph)
+        self._lock = threading.RLock()
+        self.stream = None   # the live stream's name, or None
+        self.owner = None    # the thread that last ran the live stream
+        self.running = False  # the live stream holds the lock (not suspended at a yield)
+
+    def refuse(self, what: str = "a call that runs the graph"):
+        """Raise GraphError if ``what`` must not run now on this thread: it is inside one of
+        the graph's user nodes, or the graph's stream is suspended here."""
+        graph = self._graph()
+        node = running_node(graph)
+        if node is not None:
+            raise GraphError(f"graph {graph.name!r}: {what} from inside its own node {node!r} "
+                             f"would wait forever for the frame that runs the node (use another "
+                             f"graph, or make the value an output)")
+        if self.stream is not None and not self.running and self.owner == threading.get_ident():
+            raise GraphError(f"graph {graph.name!r}: {what} while {self.stream} is live in this "
+                             f"thread; exhaust it or call its close() first")
+
+    def _free_for(self, me) -> bool:
+        return self.stream is None or (self.running and self.owner == me)
+
+    def __enter__(self):
+        self.refuse()
+        me, waited_from = threading.get_ident(), None
+        while True:
+            if self._free_for(me):
+                waited_from = None
+                if self._lock.acquire(timeout=WAIT_SLICE):
+                    if self._free_for(me):
+                        return self
+                    self._lock.release()  # a stream started meanwhile
+                continue
+            now = time.monotonic()
+            waited_from = waited_from or now
+            graph = self._graph()
+            if now - waited_from > graph.stream_wait:
+                raise GraphError(f"graph {graph.name!r}: waited {graph.stream_wait:g} s for "
+                                 f"{self.stream} to end; exhaust it or close() it, or run this "
+                                 f"thread's frames on another graph")
+            time.sleep(WAIT_SLICE)
+
+    def __exit__(self, *exc):
+        self._lock.release()
+
+    def start_stream(self, name: str):
+        """Take the lock and the stream token (the generator's first step)."""
+        self.__enter__()
+        self.stream, self.owner, self.running = name, threading.get_ident(), True
+
+    def suspend(self):
+        """The stream yields a frame: let the lock go, keep the token."""
+        self.running = False
+        self._lock.release()
+
+    def resume(self):
+        """The stream's consumer asks for the next frame (on whatever thread)."""
+        self._lock.acquire()
+        self.owner, self.running = threading.get_ident(), True
+
+    def end_stream(self):
+        """The stream is exhausted, failed, closed or collected: give the token (and the lock,
+        if it holds it) back."""
+        held, self.running = self.running, False
+        self.stream = self.owner = None
+        if held:
+            self._lock.release()
+
+
 class Runner:
     """Frames in, outputs out: the running half of :class:`~warpvx.graph.Graph`."""
+
+    #: Seconds a call from another thread waits for a live ``stream()`` generator to end
+    #: before it raises :class:`~warpvx.errors.GraphError` (see :class:`RunLock`).
+    stream_wait = 10.0
 
     def _ensure_plan(self, inputs):
         if not self.verified:
@@ -67,13 +167,8 @@ class Runner:
         if inputs is None:
             inputs = {}
         elif not isinstance(inputs, dict):
-            if len(self.inputs) != 1:
-                raise GraphError(f"inputs: expected a dict name -> value for inputs "
-                                 f"{sorted(self.inputs)}, got {type(inputs).__name__}")
-            inputs = {next(iter(self.inputs)): inputs}
-        unknown = [k for k in inputs if k not in self.inputs]
-        if unknown:
-            raise GraphError(f"inputs: unknown input(s) {unknown}; the graph has {sorted(self.inputs)}")
+            inputs = self._as_dict(inputs)
+        check_input_names(self, inputs)
         out, all_host = {}, True
         for name, data in self.inputs.items():
             if name in inputs:
@@ -84,6 +179,7 @@ class Runner:
                         raise GraphError(f"input {name!r}: missing (no value given and none written)")
                     value = data._value
             check_input(data, value)
+            value = contiguous(value)
             where = HOST
             if not isinstance(value, np.ndarray) and hasattr(value, "device") and hasattr(value, "ptr"):
                 all_host = False
@@ -95,6 +191,13 @@ class Runner:
             out[name] = (value, where)
         return out, all_host
 
+    def _as_dict(self, inputs) -> dict:
+        """A frame's inputs as a dict: a bare value is the one input of a one-input graph."""
+        if len(self.inputs) != 1:
+            raise GraphError(f"inputs: expected a dict name -> value for inputs "
+                             f"{sorted(self.inputs)}, got {type(inputs).__name__}")
+        return {next(iter(self.inputs)): inputs}
+
     def _publish(self, result):
         for name, value in result.outputs.items():
             self.outputs[name]._store(value)
@@ -105,18 +208,21 @@ class Runner:
         ``inputs`` maps input names to arrays (a bare array for a one-input graph); missing
         inputs use their written value. Verifies, calibrates and schedules (policy ``best``)
         first when needed. Outputs are host data when the inputs were, else left where they
-        were produced (``host`` forces either).
+        were produced (``host`` forces either). A non-contiguous input array (a strided view)
+        is copied once to a contiguous one, as the nodes take contiguous arrays.
 
         Raises
         ------
         GraphError
-            A missing input or one of the wrong shape or dtype; verification errors.
+            A missing or unknown input, one of the wrong shape or dtype; verification errors;
+            a call from inside one of the graph's own user nodes; a call while a ``stream()``
+            generator of the graph is live (see :class:`RunLock`).
         NodeExecutionError
             A node raised (its exception is ``__cause__``).
         """
         with self._run_lock:
             if inputs is not None and not self.verified:
-                self.verify(inputs if isinstance(inputs, dict) else {next(iter(self.inputs)): inputs})
+                self.verify(inputs if isinstance(inputs, dict) else self._as_dict(inputs))
             plan = self._ensure_plan(None)
             ex = plan.executor()
             feed, all_host = self._frame_inputs(inputs, ex.gpu_device and _device_name(ex.gpu_device))
@@ -135,36 +241,82 @@ class Runner:
     def stream(self, frames, *, depth: int = 2, host: bool | None = None):
         """Run many frames pipelined; a generator of output dicts, in frame order.
 
-        Up to ``depth`` frames are in flight: frame *i+1*'s early nodes run while frame
-        *i*'s late ones finish. Delays age in frame order. If a node fails, the frames before
-        it are still yielded, then :class:`~warpvx.errors.NodeExecutionError` is raised and
-        the frames after it are cancelled. Closing the generator early cancels what is in
-        flight.
+        ``frames`` is an iterable of frames, each what :meth:`process` takes. Up to ``depth``
+        frames are in flight: frame *i+1*'s early nodes run while frame *i*'s late ones
+        finish. Delays age in frame order. If a node fails, the frames before it are still
+        yielded, then :class:`~warpvx.errors.NodeExecutionError` is raised and the frames
+        after it are cancelled. If ``frames`` itself raises (or a frame is refused: a wrong
+        shape, a missing input), the frames submitted before it are still yielded, then that
+        exception is raised. Closing the generator early cancels what is in flight.
+
+        While the generator is live (started, not exhausted, closed or garbage-collected) it
+        holds the graph: this thread's calls that run or change the graph raise
+        :class:`~warpvx.errors.GraphError` at once, other threads' wait at most
+        :attr:`stream_wait` seconds, then raise it (see :class:`RunLock`).
+
+        Raises
+        ------
+        GraphError
+            ``frames`` is not iterable, ``depth`` is not an int >= 1 (both at the call).
         """
         if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or depth < 1:
             raise GraphError(f"depth: expected an int >= 1, got {depth!r}")
-        with self._run_lock:
-            pending = deque()
-            plan = ex = None
-            try:
-                for item in frames:
+        try:
+            if isinstance(frames, dict):  # one frame's inputs: iterating gives their names
+                raise TypeError
+            frames = iter(frames)
+        except TypeError:
+            raise GraphError(f"frames: expected an iterable of frames (input dicts or arrays), "
+                             f"got {type(frames).__name__}; use process() for one frame") from None
+        return self._stream(frames, int(depth), host)
+
+    def _stream(self, frames, depth, host):
+        lock = self._run_lock
+        lock.start_stream(f"the stream() generator of graph {self.name!r} (started in thread "
+                          f"{threading.current_thread().name!r})")
+        pending = deque()
+        plan = ex = error = None
+        try:
+            while True:
+                try:
+                    item = next(frames)
                     if plan is None:
                         if not self.verified:
                             self.verify(item if isinstance(item, dict) or item is None
-                                        else {next(iter(self.inputs)): item})
+                                        else self._as_dict(item))
                         plan = self._ensure_plan(None)
                         ex = plan.executor()
                         ex.reanchor()
                         plan.last_run.clear()
-                    feed, all_host = self._frame_inputs(item, ex.gpu_device and _device_name(ex.gpu_device))
+                    feed, all_host = self._frame_inputs(
+                        item, ex.gpu_device and _device_name(ex.gpu_device))
                     pending.append((ex.submit(self._next_frame(), feed), all_host))
-                    if len(pending) >= depth:
-                        yield self._finish(plan, ex, *pending.popleft(), host)
-                while pending:
-                    yield self._finish(plan, ex, *pending.popleft(), host)
-            finally:
+                except StopIteration:
+                    break
+                except Exception as exc:  # noqa: BLE001 - raised after the frames submitted
+                    error = exc
+                    break
+                if len(pending) >= depth:
+                    yield from self._hand_over(self._finish(plan, ex, *pending.popleft(), host))
+            while pending:
+                yield from self._hand_over(self._finish(plan, ex, *pending.popleft(), host))
+            if error is not None:
+                raise error
+        finally:
+            try:
                 if ex is not None and pending:
                     ex.abort()
+            finally:
+                lock.end_stream()
+
+    def _hand_over(self, outputs):
+        """Yield ``outputs`` with the graph's lock let go (the stream keeps its token); take
+        it again when the consumer asks for the next frame. Closed or thrown into at the
+        yield, the stream ends without it."""
+        lock = self._run_lock
+        lock.suspend()
+        yield outputs
+        lock.resume()
 
     def _finish(self, plan, ex, frame, all_host, host):
         try:
@@ -211,4 +363,4 @@ def _device_name(device):
     return str(init_warp().get_device(device))
 
 
-__all__ = ["Runner", "program", "gpu_device"]
+__all__ = ["Runner", "RunLock", "program", "gpu_device"]

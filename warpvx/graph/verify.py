@@ -87,6 +87,26 @@ def input_sample(data, given=None):
     if hasattr(value, "numpy") and not isinstance(value, np.ndarray):
         value = value.numpy()
     check_input(data, value)
+    return contiguous(value)
+
+
+def check_input_names(graph, inputs: dict):
+    """Every key of a frame's ``inputs`` names an input of ``graph`` (a misspelling raises
+    GraphError naming it and listing the graph's inputs)."""
+    unknown = [k for k in inputs if k not in graph.inputs]
+    if unknown:
+        raise GraphError(f"inputs: unknown input(s) {unknown}; the graph has {sorted(graph.inputs)}")
+
+
+def contiguous(value):
+    """A C-contiguous array of ``value``: itself, or (a strided view) one copy of it, on its
+    own device; other values unchanged. Nodes take contiguous arrays."""
+    from ..arrays import is_contiguous, is_warp_array
+
+    if isinstance(value, np.ndarray):
+        return np.ascontiguousarray(value)
+    if is_warp_array(value) and not is_contiguous(value):
+        return value.contiguous()
     return value
 
 
@@ -125,6 +145,8 @@ def dry_run(graph, order, given=None):
     of converging at once on a still image).
     """
     frames = _given_frames(given)
+    for frame in frames:
+        check_input_names(graph, frame)
     for name, data in graph.inputs.items():
         data.sample = input_sample(data, frames[0].get(name))
     for node in graph.nodes.values():
@@ -224,4 +246,5 @@ def verify(graph, inputs: dict | None = None) -> list:
     return order
 
 
-__all__ = ["verify", "check_structure", "dependency_graph", "dry_run", "check_input"]
+__all__ = ["verify", "check_structure", "dependency_graph", "dry_run", "check_input",
+           "check_input_names", "contiguous"]
