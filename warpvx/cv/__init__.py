@@ -21,6 +21,8 @@ maps (CV_16SC2 with an optional interpolation table, from ``cv2.convertMaps``).
 
 import cv2 as _cv2
 
+from ._fallback import CvFallbackWarning  # noqa: F401
+
 from .imgproc import *  # noqa: F401,F403
 from .pyramids import *  # noqa: F401,F403
 from .features2d import *  # noqa: F401,F403

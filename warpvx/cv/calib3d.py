@@ -9,10 +9,12 @@ import numpy as np
 from ..arrays import to_numpy
 from ..homography import find_homography
 from ._arrays import contiguous
+from ._fallback import function
 
 _DEFAULT_THRESHOLD = 3.0  # what cv2 uses for a threshold <= 0
 
 
+@function
 def findHomography(srcPoints, dstPoints, method=0, ransacReprojThreshold=3.0, mask=None,
                    maxIters=2000, confidence=0.995, *, backend=None):
     """``cv2.findHomography``: returns (H float64 3x3 or None, mask uint8 [N, 1]).

@@ -26,6 +26,7 @@ from ..errors import UnsupportedError
 from ..geometry import remap as _remap
 from ..geometry import warp_perspective as _warp_perspective
 from ._arrays import channels, contiguous, into_dst
+from ._fallback import function
 
 INTER_NEAREST = 0
 INTER_LINEAR = 1
@@ -46,6 +47,7 @@ _INTER_TAB_SIZE = 1 << _INTER_BITS
 _BORDERS = (BORDER_CONSTANT, BORDER_REPLICATE, BORDER_REFLECT_101)
 
 
+@function
 def cvtColor(src, code, dst=None, dstCn=0, *, backend=None):
     """``cv2.cvtColor`` for uint8 images (codes of :data:`warpvx.color.CODES`).
 
@@ -63,6 +65,7 @@ def cvtColor(src, code, dst=None, dstCn=0, *, backend=None):
     return into_dst(dst, expected, lambda out: _color_convert(src, c, out=out, backend=backend))
 
 
+@function
 def remap(src, map1, map2, interpolation, dst=None, borderMode=BORDER_CONSTANT, borderValue=0, *,
           backend=None):
     """``cv2.remap``. Maps as cv2 takes them: float32 ``map1``/``map2`` HxW (x and y);
@@ -89,6 +92,7 @@ def remap(src, map1, map2, interpolation, dst=None, borderMode=BORDER_CONSTANT, 
                                                       out=out, backend=backend))
 
 
+@function
 def warpPerspective(src, M, dsize, dst=None, flags=INTER_LINEAR, borderMode=BORDER_CONSTANT,
                     borderValue=0, *, backend=None):
     """``cv2.warpPerspective``: ``flags`` is INTER_NEAREST or INTER_LINEAR, optionally with

@@ -11,10 +11,11 @@ import numpy as np
 
 from .. import matching, orb_extractor
 from ..check import check_float, check_int
-from ..errors import UnsupportedError, WarpvxTypeError
+from ..errors import ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
 from ..keypoints import Keypoints
 from ._arrays import contiguous
-from .features2d import _check_mask, _to_gray
+from ._fallback import method
+from .features2d import _to_gray, keep_in_mask
 
 NORM_HAMMING = 6
 NORM_HAMMING2 = 7
@@ -38,8 +39,10 @@ class ORB:
     quadtree over-shoots (:func:`warpvx.orb` may return a few more), the strongest by
     ``response`` are kept, in extraction order (ties keep the earlier one). ``edgeThreshold``
     only sets the border ``compute`` drops keypoints within (detection keeps ORB-SLAM2's
-    19 px). ``WTA_K`` other than 2, ``firstLevel`` other than 0, ``patchSize`` other than 31
-    and masks raise :class:`warpvx.UnsupportedError`.
+    19 px). A ``mask`` keeps the keypoints where it is nonzero (after the ``nfeatures`` cut,
+    so fewer may come back; cv2 masks each pyramid level before it). ``WTA_K`` other than 2,
+    ``firstLevel`` other than 0, ``patchSize`` other than 31 and ``cv2.UMat`` images run on
+    cv2's ORB with the same parameters (:class:`warpvx.cv.CvFallbackWarning`, once).
     """
 
     def __init__(self, nfeatures=500, scaleFactor=1.2, nlevels=8, edgeThreshold=31,
@@ -58,12 +61,12 @@ class ORB:
 
     # --- Feature2D -------------------------------------------------------------------------
 
+    @method
     def detect(self, image, mask=None):
         """Keypoints (tuple of cv2.KeyPoint); a colour image is converted BGR2GRAY as cv2."""
-        _check_mask(mask)
-        kps, _ = self._extract(image)
-        return tuple(kps.to_cv())
+        return self.detectAndCompute(image, mask)[0]
 
+    @method
     def compute(self, image, keypoints, descriptors=None):
         """(keypoints kept, uint8 [N, 32] or None when none): descriptors of given keypoints.
 
@@ -71,6 +74,7 @@ class ORB:
         (``KeyPointsFilter::runByImageBorder``); the rest are described with their own
         ``angle`` on pyramid level ``octave``. ``keypoints`` None or empty gives ``((), None)``.
         """
+        self._check_accelerated()
         gray = _to_gray(image, self.backend)
         kept = self._inside_border(gray, () if keypoints is None else keypoints)
         if not kept:
@@ -79,15 +83,38 @@ class ORB:
                                          backend=self.backend)
         return tuple(kept), self._host(desc, descriptors)
 
+    @method
     def detectAndCompute(self, image, mask, descriptors=None, useProvidedKeypoints=False):
-        """(tuple of cv2.KeyPoint, uint8 [N, 32] or None when none)."""
-        _check_mask(mask)
+        """(tuple of cv2.KeyPoint, uint8 [N, 32] or None when none). An image too small for
+        every pyramid level runs on cv2's ORB (which finds what it can, often nothing)."""
         if useProvidedKeypoints:
             raise UnsupportedError("useProvidedKeypoints: use compute(image, keypoints) instead")
-        kps, desc = self._extract(image)
-        if len(kps) == 0:
+        self._check_accelerated()
+        gray = _to_gray(image, self.backend)
+        try:
+            kps, desc = self._extract(gray)
+        except ShapeError as e:
+            raise UnsupportedError(f"image: {e}") from e
+        cv_kps = kps.to_cv()
+        if mask is not None:
+            kept = keep_in_mask(cv_kps, mask, gray.shape)
+            inside = set(map(id, kept))
+            desc = desc[[i for i, k in enumerate(cv_kps) if id(k) in inside]]
+            cv_kps = kept
+        if len(cv_kps) == 0:
             return (), None
-        return tuple(kps.to_cv()), self._host(desc, descriptors)
+        return tuple(cv_kps), self._host(desc, descriptors)
+
+    def write(self, fs, name=None):
+        """cv2's Algorithm.write (FileStorage), through an equivalent cv2.ORB."""
+        twin = self._cv2_twin()
+        return twin.write(fs) if name is None else twin.write(fs, name)
+
+    def read(self, node):
+        """cv2's Algorithm.read: the parameters from a FileNode written by ``write``."""
+        twin = self._cv2_twin()
+        twin.read(node)
+        self._set_all(twin)
 
     def descriptorSize(self):
         return 32
@@ -131,18 +158,13 @@ class ORB:
         return self._edge
 
     def setFirstLevel(self, firstLevel):
-        if check_int(firstLevel, "firstLevel") != 0:
-            raise UnsupportedError(f"firstLevel: only 0 is supported, got {firstLevel}")
-        self._first = 0
+        self._first = check_int(firstLevel, "firstLevel", min_value=0)
 
     def getFirstLevel(self):
         return self._first
 
     def setWTA_K(self, wta_k):
-        if check_int(wta_k, "WTA_K") != 2:
-            raise UnsupportedError(f"WTA_K: only 2 (pairwise BRIEF tests) is supported, got "
-                                   f"{wta_k}")
-        self._wta_k = 2
+        self._wta_k = check_int(wta_k, "WTA_K", min_value=2, max_value=4)
 
     def getWTA_K(self):
         return self._wta_k
@@ -157,10 +179,7 @@ class ORB:
         return self._score_type
 
     def setPatchSize(self, patchSize):
-        if check_int(patchSize, "patchSize") != 31:
-            raise UnsupportedError(f"patchSize: only 31 (the pattern's patch) is supported, got "
-                                   f"{patchSize}")
-        self._patch = 31
+        self._patch = check_int(patchSize, "patchSize", min_value=2)
 
     def getPatchSize(self):
         return self._patch
@@ -173,9 +192,31 @@ class ORB:
 
     # --- helpers ---------------------------------------------------------------------------
 
-    def _extract(self, image):
-        """Host keypoints and descriptors (NumPy uint8 [N, 32]), at most ``nfeatures``."""
-        gray = _to_gray(image, self.backend)
+    _PARAMS = ("MaxFeatures", "ScaleFactor", "NLevels", "EdgeThreshold", "FirstLevel", "WTA_K",
+               "ScoreType", "PatchSize", "FastThreshold")
+
+    def _cv2_twin(self):
+        """A cv2.ORB with these parameters (what calls warpvx does not accelerate run on)."""
+        import cv2
+
+        twin = cv2.ORB_create()
+        for p in self._PARAMS:
+            getattr(twin, "set" + p)(getattr(self, "get" + p)())
+        return twin
+
+    def _set_all(self, other):
+        for p in self._PARAMS:
+            getattr(self, "set" + p)(getattr(other, "get" + p)())
+
+    def _check_accelerated(self):
+        for name, value, accelerated in (("WTA_K", self._wta_k, 2), ("firstLevel", self._first, 0),
+                                         ("patchSize", self._patch, 31)):
+            if value != accelerated:
+                raise UnsupportedError(f"{name}: only {accelerated} is accelerated, got {value}")
+
+    def _extract(self, gray):
+        """Host keypoints and descriptors (NumPy uint8 [N, 32]) of a gray image, at most
+        ``nfeatures``."""
         kps, desc = orb_extractor.orb(gray, self._nfeatures, self._scale, self._nlevels,
                                       self._fast, _MIN_TH_FAST, backend=self.backend)
         kps = kps.to("host")
@@ -217,54 +258,106 @@ def ORB_create(nfeatures=500, scaleFactor=1.2, nlevels=8, edgeThreshold=31, firs
                patchSize, fastThreshold, backend=backend)
 
 
-def _dmatch(q, t, d):
+def _dmatch(q, t, img, d):
     import cv2
 
-    return cv2.DMatch(int(q), int(t), 0, float(d))
+    return cv2.DMatch(int(q), int(t), int(img), float(d))
 
 
 class BFMatcher:
-    """cv2.BFMatcher for NORM_HAMMING over :func:`warpvx.match_hamming` (brute force)."""
+    """cv2.BFMatcher for NORM_HAMMING over :func:`warpvx.match_hamming` (brute force).
+
+    Train descriptors are given to ``match``/``knnMatch`` or added with ``add`` (then matches
+    carry ``imgIdx``, as cv2). Other norms, masks, ``k`` above 2, ``knnMatch`` with
+    ``crossCheck`` and ``cv2.UMat`` descriptors run on cv2's BFMatcher (with the same train
+    set; :class:`warpvx.cv.CvFallbackWarning`, once).
+    """
 
     def __init__(self, normType=NORM_HAMMING, crossCheck=False, *, backend=None):
-        if isinstance(normType, bool) or normType != NORM_HAMMING:
-            raise UnsupportedError(f"normType: only NORM_HAMMING ({NORM_HAMMING}) is supported, "
-                                   f"got {normType!r}")
+        if isinstance(normType, bool) or not isinstance(normType, (int, np.integer)):
+            raise WarpvxTypeError(f"normType: expected an integer, got {normType!r}")
+        self.normType = int(normType)
         self.crossCheck = bool(crossCheck)
         self.backend = backend
+        self._train = []
 
-    def match(self, queryDescriptors, trainDescriptors, mask=None):
+    @method
+    def match(self, queryDescriptors, trainDescriptors=None, mask=None):
         """Best match per query (tuple of cv2.DMatch in query order, as cv2); with crossCheck
         only the mutual best ones."""
-        _check_mask(mask)
-        pairs, dist = matching.match_hamming(contiguous(queryDescriptors),
-                                             contiguous(trainDescriptors), self.crossCheck,
+        train, images = self._train_set(trainDescriptors, mask)
+        pairs, dist = matching.match_hamming(contiguous(queryDescriptors), train, self.crossCheck,
                                              backend=self.backend)
         pairs = pairs if isinstance(pairs, np.ndarray) else pairs.numpy()
         dist = dist if isinstance(dist, np.ndarray) else dist.numpy()
-        return tuple(_dmatch(q, t, d) for (q, t), d in zip(pairs, dist))
+        return tuple(_dmatch(q, *images(t), d) for (q, t), d in zip(pairs, dist))
 
-    def knnMatch(self, queryDescriptors, trainDescriptors, k=2, mask=None, compactResult=False):
+    @method
+    def knnMatch(self, queryDescriptors, trainDescriptors=None, k=2, mask=None,
+                 compactResult=False):
         """The k (1 or 2) nearest per query, nearest first: a tuple of tuples of cv2.DMatch."""
-        _check_mask(mask)
         if self.crossCheck:
-            raise UnsupportedError("crossCheck: knnMatch with crossCheck=True is not supported")
-        idx, dist = matching.knn_match_hamming(contiguous(queryDescriptors),
-                                               contiguous(trainDescriptors), k,
+            raise UnsupportedError("crossCheck: knnMatch with crossCheck=True is not accelerated")
+        train, images = self._train_set(trainDescriptors, mask)
+        idx, dist = matching.knn_match_hamming(contiguous(queryDescriptors), train, k,
                                                backend=self.backend)
         idx = idx if isinstance(idx, np.ndarray) else idx.numpy()
         dist = dist if isinstance(dist, np.ndarray) else dist.numpy()
-        return tuple(tuple(_dmatch(q, t, d) for t, d in zip(idx[q], dist[q]))
+        return tuple(tuple(_dmatch(q, *images(t), d) for t, d in zip(idx[q], dist[q]))
                      for q in range(idx.shape[0]))
+
+    def add(self, descriptors):
+        """Append train descriptor sets (a list of uint8 [N, 32]), as cv2's ``add``."""
+        if not isinstance(descriptors, (list, tuple)):
+            raise WarpvxTypeError(f"descriptors: expected a list of arrays, got "
+                                  f"{type(descriptors).__name__}")
+        self._train.extend(descriptors)
+
+    def getTrainDescriptors(self):
+        return tuple(self._train)
+
+    def clear(self):
+        self._train = []
+
+    def train(self):
+        """Nothing to build for brute force (as cv2)."""
+
+    def empty(self):
+        return len(self._train) == 0
+
+    def isMaskSupported(self):
+        return True
 
     def getDefaultName(self):
         return "DescriptorMatcher.BFMatcher"
 
-    def empty(self):
-        return False
+    def _cv2_twin(self):
+        import cv2
 
-    def isMaskSupported(self):
-        return False
+        twin = cv2.BFMatcher(self.normType, self.crossCheck)
+        if self._train:
+            twin.add(list(self._train))
+        return twin
+
+    def _train_set(self, train, mask):
+        """(train descriptors, index -> (trainIdx, imgIdx)) for a match call."""
+        if self.normType != NORM_HAMMING:
+            raise UnsupportedError(f"normType: only NORM_HAMMING ({NORM_HAMMING}) is "
+                                   f"accelerated, got {self.normType}")
+        if mask is not None and (not isinstance(mask, (list, tuple)) or len(mask)):
+            raise UnsupportedError("mask: match masks are not accelerated")
+        if train is not None:
+            return contiguous(train), lambda t: (t, 0)
+        if not self._train:
+            raise WarpvxValueError("trainDescriptors: none given and none added")
+        sets = [np.asarray(contiguous(d)) for d in self._train]
+        starts = np.cumsum([0] + [len(d) for d in sets])
+
+        def images(t):
+            img = int(np.searchsorted(starts, t, side="right")) - 1
+            return t - starts[img], img
+
+        return np.concatenate(sets), images
 
 
 def BFMatcher_create(normType=NORM_HAMMING, crossCheck=False, *, backend=None):

@@ -24,6 +24,7 @@ from ..pyramid import gaussian_pyramid as _gaussian_pyramid
 from ..pyramid import resize as _resize
 from ._arrays import channels, contiguous, into_dst
 from .imgproc import BORDER_CONSTANT, BORDER_DEFAULT, BORDER_REFLECT_101, BORDER_REPLICATE, INTER_LINEAR
+from ._fallback import function
 
 # cv2's values for the constants imgproc does not define.
 BORDER_REFLECT = 2
@@ -38,6 +39,7 @@ INTER_NEAREST_EXACT = 6
 _BLUR_BORDERS = (BORDER_CONSTANT, BORDER_REPLICATE, BORDER_REFLECT, BORDER_REFLECT_101)
 
 
+@function
 def pyrDown(src, dst=None, dstsize=None, borderType=BORDER_DEFAULT, *, backend=None):
     """``cv2.pyrDown``: blur with [1 4 6 4 1]^2 / 256 and drop every second row and column.
 
@@ -72,6 +74,7 @@ def pyrDown(src, dst=None, dstsize=None, borderType=BORDER_DEFAULT, *, backend=N
     return into_dst(dst, expected, run)
 
 
+@function
 def buildPyramid(src, maxlevel, dst=None, borderType=BORDER_DEFAULT, *, backend=None):
     """``cv::buildPyramid``: ``[src, pyrDown(src), ...]``, ``maxlevel + 1`` images (a list).
 
@@ -95,6 +98,7 @@ def buildPyramid(src, maxlevel, dst=None, borderType=BORDER_DEFAULT, *, backend=
     return pyramid
 
 
+@function
 def resize(src, dsize, dst=None, fx=0, fy=0, interpolation=INTER_LINEAR, *, backend=None):
     """``cv2.resize`` with ``interpolation=INTER_LINEAR`` (bit-exact).
 
@@ -119,6 +123,7 @@ def resize(src, dsize, dst=None, fx=0, fy=0, interpolation=INTER_LINEAR, *, back
     return into_dst(dst, expected, lambda out: _resize(src, dsize, fx, fy, out=out, backend=backend))
 
 
+@function
 def GaussianBlur(src, ksize, sigmaX, dst=None, sigmaY=0, borderType=BORDER_DEFAULT, *, backend=None):
     """``cv2.GaussianBlur`` on uint8 (bit-exact).
 

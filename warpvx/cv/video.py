@@ -12,6 +12,7 @@ from ..arrays import as_input, is_warp_array
 from ..errors import UnsupportedError, WarpvxTypeError, WarpvxValueError
 from ..flow import build_optical_flow_pyramid, optical_flow_pyr_lk
 from ._arrays import contiguous
+from ._fallback import function
 
 TERM_CRITERIA_COUNT = 1
 TERM_CRITERIA_MAX_ITER = 1
@@ -25,6 +26,7 @@ _DEFAULT_ITERS = 30  # what OpenCV uses when the criteria lack COUNT ...
 _DEFAULT_EPS = 0.01  # ... or EPS
 
 
+@function
 def calcOpticalFlowPyrLK(
     prevImg,
     nextImg,
@@ -82,6 +84,7 @@ def calcOpticalFlowPyrLK(
     return _fill(nextPts, tracked), _fill(status, st), _fill(err, er)
 
 
+@function
 def buildOpticalFlowPyramid(
     img,
     winSize,
