@@ -199,10 +199,8 @@ class ORB:
         """A cv2.ORB with these parameters (what calls warpvx does not accelerate run on)."""
         import cv2
 
-        twin = cv2.ORB_create()
-        for p in self._PARAMS:
-            getattr(twin, "set" + p)(getattr(self, "get" + p)())
-        return twin
+        # ORB_create, as the caller would have: it takes scaleFactor as a C float.
+        return cv2.ORB_create(*(getattr(self, "get" + p)() for p in self._PARAMS))
 
     def _set_all(self, other):
         for p in self._PARAMS:
