@@ -4,8 +4,10 @@ Same names, argument order, constants and return types as ``cv2`` for the accele
 imgproc (colour, geometric transforms), pyramids (pyrDown, resize, GaussianBlur), features2d
 (FAST, Harris, goodFeaturesToTrack), orb (ORB, BFMatcher), video (pyramidal LK), calib3d
 (findHomography with RANSAC). Every
-accelerated function also takes ``backend=`` as a keyword; inside the subset a code or flag it
-does not cover raises a clear :class:`warpvx.UnsupportedError`.
+accelerated function also takes ``backend=`` as a keyword. A call with a code, flag, dtype or
+``cv2.UMat`` the subset does not cover runs on cv2 itself, with one
+:class:`CvFallbackWarning` per function and argument (see :mod:`warpvx.cv._fallback`); input
+cv2 rejects too raises warpvx's error naming the argument.
 
 Every other name falls through to ``cv2`` itself (``cv.imread``, ``cv.getPerspectiveTransform``,
 ``cv.KeyPoint``, ``cv.error``, ``cv.COLOR_BGR2HSV``...), so a working OpenCV script keeps

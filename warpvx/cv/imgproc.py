@@ -2,8 +2,8 @@
 
 Same argument order, defaults, constants and results as ``cv2`` for the supported subset:
 uint8 images; float32 maps or cv2's fixed-point ones (CV_16SC2); INTER_NEAREST /
-INTER_LINEAR; BORDER_CONSTANT / BORDER_REPLICATE / BORDER_REFLECT_101. Anything else raises
-:class:`warpvx.UnsupportedError` naming the argument. Strided views are copied once (see
+INTER_LINEAR; BORDER_CONSTANT / BORDER_REPLICATE / BORDER_REFLECT_101. Anything else runs on
+cv2, with a one-time :class:`warpvx.cv.CvFallbackWarning` naming the argument. Strided views are copied once (see
 :mod:`warpvx.cv`); ``dst`` is written and returned when its shape and dtype fit (cv2
 reallocates otherwise, and so do these). Each function also takes ``backend=`` (see
 :mod:`warpvx.backend`).

@@ -4,8 +4,8 @@ Same argument order, defaults, constants and results as ``cv2`` for the supporte
 uint8 images (gray, 3 or 4 channels); ``pyrDown``/``buildPyramid`` with ``BORDER_DEFAULT``
 (REFLECT_101); ``resize`` with ``INTER_LINEAR``; ``GaussianBlur`` with BORDER_CONSTANT,
 BORDER_REPLICATE, BORDER_REFLECT or BORDER_REFLECT_101 and odd sizes up to 31. All are
-bit-exact with OpenCV. Anything else raises :class:`warpvx.UnsupportedError` naming the
-argument. Strided views are copied once (see :mod:`warpvx.cv`); ``dst`` is written and returned when its shape and dtype fit (cv2 reallocates
+bit-exact with OpenCV. Anything else runs on cv2 (one :class:`warpvx.cv.CvFallbackWarning` naming
+the argument). Strided views are copied once (see :mod:`warpvx.cv`); ``dst`` is written and returned when its shape and dtype fit (cv2 reallocates
 otherwise, and so do these). Each function also takes ``backend=`` (see :mod:`warpvx.backend`).
 """
 

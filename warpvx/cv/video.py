@@ -49,7 +49,7 @@ def calcOpticalFlowPyrLK(
     0); (None, None, None) for no points, as cv2. ``prevImg``/``nextImg`` may be images or
     pyramids from :func:`buildOpticalFlowPyramid` (derivative levels, if any, are skipped).
     ``flags``: 0 or ``OPTFLOW_USE_INITIAL_FLOW`` (then ``nextPts`` holds the initial
-    guesses); ``OPTFLOW_LK_GET_MIN_EIGENVALS`` raises :class:`warpvx.UnsupportedError`.
+    guesses); ``OPTFLOW_LK_GET_MIN_EIGENVALS`` runs on cv2 (see :mod:`warpvx.cv`).
     Arrays given as ``nextPts``/``status``/``err`` of the right shape are filled as cv2
     fills them. See :func:`warpvx.optical_flow_pyr_lk`.
     """
