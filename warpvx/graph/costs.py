@@ -223,13 +223,20 @@ class CostModel:
         """A :class:`~warpvx.graph.model.ContentionModel` learnt from frames run with ``plan``
         (default: the current plan and its ``last_run``): host contention, copies and
         hand-offs, to predict this plan's later frames and other plans' (out of sample)."""
+        from .calibration import measure_contention
         from .model import fit, graph_reads
 
         plan = plan or self._plan
         runs = list(plan.last_run) if runs is None and plan is not None else runs
         if plan is None or not runs:
             raise GraphError("fit_model: nothing measured yet; run g.process() first")
-        return fit(plan.calibration, graph_reads(self), runs, plan.placement, policy=plan.policy)
+        cal = plan.calibration
+        if plan.n_cpus not in cal.contention:
+            with self._run_lock:
+                cal.contention[plan.n_cpus] = measure_contention(
+                    self, cal, gpu_backend(plan.gpu or False), plan.n_cpus)
+        return fit(cal, graph_reads(self), runs, plan.placement, policy=plan.policy,
+                   probe=cal.contention[plan.n_cpus])
 
     def learn(self, plan=None, *, runs=None, skip: int = 1) -> dict:
         """Fold measured frames into the plan's calibration history (and the cache), for

@@ -284,7 +284,13 @@ def _ready_parts(run, task, reads, placement, hosts):
     return cls, ready
 
 
-def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "") -> ContentionModel:
+#: Weight of a contention probe (:func:`~warpvx.graph.calibration.measure_contention`)
+#: measurement in the fit, in training samples.
+PROBE_WEIGHT = 8
+
+
+def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
+        probe: dict | None = None) -> ContentionModel:
     """Learn a :class:`ContentionModel` from frames run with one plan.
 
     Parameters
@@ -297,6 +303,12 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "") ->
         The training frames (one at a time, not pipelined).
     placement : dict
         node -> processor of the plan that ran.
+    probe : dict, optional
+        :func:`~warpvx.graph.calibration.measure_contention`'s ``kind -> (node, alone,
+        loaded, busy)``: a node timed alone and with ``busy`` other host threads busy, so
+        the slowdown per busy thread is known even when the training placement keeps the
+        other threads idle. It enters the fit as :data:`PROBE_WEIGHT` pairs of samples
+        under a name of its own (its in-frame correction stays apart).
     """
     runs = [r for r in runs if r.timeline]
     if not runs:
@@ -316,6 +328,9 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "") ->
                 samples[pe].append((task, a, f - s, busy_overlap((s, f), others)))
             cls, ready = _ready_parts(run, task, reads, placement, hosts)
             waits[cls].append(max(0.0, s - ready))
+    for pe, (node, alone_ms, loaded, busy) in (probe or {}).items():
+        samples[pe] += [(f"{node} (probe)", alone_ms, alone_ms, 0.0),
+                        (f"{node} (probe)", alone_ms, loaded, float(busy))] * PROBE_WEIGHT
     slow = {pe: fit_slowdown(s) for pe, s in samples.items()}
     d = calibration.dispatch or {}
     fallback = {"start": d.get("start", 0.0), "cpu_same": d.get("cpu_gap", 0.0),

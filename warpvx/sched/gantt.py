@@ -112,7 +112,7 @@ def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title
             y, t.finish - t.start, left=t.start, height=0.6, color=color, edgecolor="black",
             linewidth=0.6, hatch="///" if hatched else None, zorder=2,
         )
-        if span > 0 and (t.finish - t.start) > 0.025 * span:
+        if span > 0 and _fits(ax, str(v), t.finish - t.start, span):
             ax.text(
                 (t.start + t.finish) / 2, y, str(v), ha="center", va="center", fontsize=7,
                 zorder=3, clip_on=True,
@@ -123,11 +123,11 @@ def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title
     numbered = sorted(narrow, key=lambda ty: (ty[1], ty[0].start))
     for i, (t, y) in enumerate(numbered, 1):
         # Staggered above the bar so neighbouring slivers' numbers do not collide.
-        ax.text((t.start + t.finish) / 2, y - 0.32 - 0.17 * (i % 3), str(i), ha="center",
+        ax.text((t.start + t.finish) / 2, y - 0.31 - 0.13 * (i % 3), str(i), ha="center",
                 va="bottom", fontsize=6, zorder=3, clip_on=True)
     ax.set_yticks(range(len(procs)))
     ax.set_yticklabels(procs)
-    ax.set_ylim(len(procs) - 0.5, -0.5)
+    ax.set_ylim(len(procs) - 0.5, -0.85)  # room above the top row for sliver numbers
     ax.set_xlim(0, span * 1.02 if span > 0 else 1)
     label = f"time ({unit})" if unit else "time"
     if numbered:
@@ -148,6 +148,13 @@ def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title
         ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7,
                   frameon=False)
     return ax
+
+
+def _fits(ax, text: str, width: float, span: float, fontsize: float = 7) -> bool:
+    """Whether ``text`` fits inside a bar ``width`` long on an axis about ``span`` wide."""
+    dpi = ax.figure.dpi
+    bar_px = ax.bbox.width * width / (span * 1.02)
+    return bar_px > (0.62 * fontsize * len(text) + 6) * dpi / 72
 
 
 def _figsize(schedule):
