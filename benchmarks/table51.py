@@ -180,6 +180,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     args.measure = {int(c) for c in args.measure_cpus.split(",") if c}
     os.makedirs(args.out, exist_ok=True)
+    command = "python benchmarks/table51.py " + " ".join(sys.argv[1:] if argv is None else argv)
     if args.authors:
         if not args.authors_csv:
             ap.error("--authors needs --authors-csv (their orb_graph.csv)")
@@ -192,7 +193,7 @@ def main(argv=None) -> int:
     with open(os.path.join(args.out, f"{stem}.json"), "w") as f:
         json.dump({"argv": sys.argv[1:], "rows": rows}, f, indent=1)
     with open(os.path.join(args.out, f"{stem}.md"), "w") as f:
-        f.write(md)
+        f.write(f"Command: `{command}`\n\n{md}")
     print(md)
     return 0
 
