@@ -25,6 +25,14 @@ def test_executor_overhead_reports_per_node_time(mixed):
     assert r["n_nodes"] == 20 and r["mixed"] is mixed
     for key in ("frame_us", "per_node_us", "per_node_us_stream"):
         assert math.isfinite(r[key]) and r[key] >= 0
+    # Values, not only finiteness: a frame of 20 nodes costs something per node, the overhead
+    # (frame time less the bare calls) fits inside the frame, and a frame of 20 identity nodes
+    # on 4 floats takes well under a second on any machine.
+    assert 0 < r["per_node_us"] * r["n_nodes"] <= r["frame_us"] < 1e6
+    assert 0 < r["per_node_us_stream"] * r["n_nodes"] < 1e6
+    if mixed:
+        assert set(r["breakdown"]) == {"gpu_task", "cpu_task", "cpu_to_gpu", "gpu_to_cpu"}
+        assert all(0 <= v < r["frame_us"] for v in r["breakdown"].values())
     print(f"\nexecutor overhead ({'mixed' if mixed else 'cpu'}): {r['per_node_us']:.1f} us/node")
 
 
