@@ -59,17 +59,28 @@ def test_stage_graph_shape_of_table51():
 def test_dl_node_time_is_what_was_asked():
     import warp as wp
 
+    from warpvx.graph.orb_graph import dl_iterations
+
     asked_ms = 25.0
-    fn = dl_workload(asked_ms)
     src = wp.zeros(4, dtype=wp.uint8, device="cpu")
-    fn(src)  # calibrates on this device
-    times = []
-    for _ in range(5):
-        t0 = time.perf_counter()
-        out = fn(src)
-        wp.synchronize_device("cpu")
-        times.append((time.perf_counter() - t0) * 1e3)
-    assert abs(np.median(times) - asked_ms) <= 0.1 * asked_ms
+    # This 2-core host is shared with other work: a burst of load can skew one calibration or
+    # one measurement, so up to three fresh calibrate-then-measure attempts; a wrong
+    # calibration (or a sleep instead of work) misses all three.
+    medians = []
+    for _ in range(3):
+        dl_iterations.cache_clear()
+        fn = dl_workload(asked_ms)
+        fn(src)  # calibrates on this device
+        times = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            out = fn(src)
+            wp.synchronize_device("cpu")
+            times.append((time.perf_counter() - t0) * 1e3)
+        medians.append(float(np.median(times)))
+        if abs(medians[-1] - asked_ms) <= 0.1 * asked_ms:
+            break
+    assert abs(medians[-1] - asked_ms) <= 0.1 * asked_ms, medians
     assert out.shape == (256,) and np.all(np.isfinite(out.numpy())) and out.numpy().any()
 
 
