@@ -169,6 +169,18 @@ def test_cli_end_to_end(tmp_path, bikes, capsys):
     assert report["frames"] == 8 and report["output"]["mad10"] >= 0
 
 
+def test_demo_writes_into_a_new_folder(tmp_path):
+    folder = tmp_path / "demo"
+    assert cli.main(["stabilize", "--demo", str(folder), "--max-frames", "6", "--window", "3",
+                     "--quiet"]) == 0
+    cap = cv2.VideoCapture(str(folder / "stabilized.mp4"))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 6
+    assert int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) == 2 * 640  # input | output
+    import json
+
+    assert json.loads((folder / "metrics.json").read_text())["frames"] == 6
+
+
 def test_script_runs(tmp_path):
     out = tmp_path / "out.mp4"
     env = dict(os.environ, PYTHONPATH=os.path.abspath(ROOT))
@@ -179,7 +191,7 @@ def test_script_runs(tmp_path):
     assert int(cv2.VideoCapture(str(out)).get(cv2.CAP_PROP_FRAME_COUNT)) == 6
 
 
-@pytest.mark.parametrize("case", ["missing", "unreadable", "empty", "window", "crop"])
+@pytest.mark.parametrize("case", ["missing", "unreadable", "empty", "window", "crop", "no output"])
 def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, case):
     src, extra = CLIP, []
     if case == "missing":
@@ -192,11 +204,14 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, case):
         _write_video(src, [])
     elif case == "window":
         extra = ["--window", "0"]
+    elif case == "no output":
+        extra = None
     else:
         extra = ["--crop", "0.5"]
-    rc = cli.main(["stabilize", str(src), str(tmp_path / "o.mp4"), "--quiet"] + extra)
+    argv = [str(src), "--quiet"] if extra is None else [str(src), str(tmp_path / "o.mp4"), "--quiet"] + extra
+    rc = cli.main(["stabilize"] + argv)
     err = capsys.readouterr().err.strip()
     assert rc == 2
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert {"missing": "input", "unreadable": "input", "empty": "input", "window": "window",
-            "crop": "crop"}[case] in err
+            "crop": "crop", "no output": "output"}[case] in err

@@ -673,8 +673,13 @@ def add_arguments(parser):
     """The stabilizer's command-line options (shared by ``warpvx stabilize`` and
     ``apps/stabilize.py``)."""
     d = StabilizerConfig()
-    parser.add_argument("input", help="video file (anything OpenCV opens) or image folder")
-    parser.add_argument("output", help="stabilized video (.mp4: mp4v, .avi: MJPG)")
+    parser.add_argument("input", nargs="?", help="video file (anything OpenCV opens) or image folder")
+    parser.add_argument("output", nargs="?", help="stabilized video (.mp4: mp4v, .avi: MJPG)")
+    parser.add_argument("--demo", action="store_true",
+                        help="stabilize the bundled real shaky clip into a folder (the one positional "
+                             "argument, default a new ./warpvx-results/stabilize-<date>-<time>/): "
+                             "stabilized.mp4 (input | output side by side), metrics.json and "
+                             "trajectory.png (with matplotlib)")
     parser.add_argument("--backend", choices=BACKENDS, default="cpu")
     parser.add_argument("--window", type=int, default=d.window, help="smoothing window N in frames")
     parser.add_argument("--mode", choices=MODES, default=d.mode,
@@ -701,6 +706,10 @@ def run(args) -> int:
 
     config = StabilizerConfig(window=args.window, mode=args.mode, crop=args.crop,
                               motion=args.motion, detector=args.detector)
+    if getattr(args, "demo", False):
+        args = _demo_args(args)
+    elif args.input is None or args.output is None:
+        raise WarpvxValueError("input, output: give both (or --demo for the bundled clip)")
     if args.max_frames is not None and args.max_frames < 1:
         raise WarpvxValueError(f"max_frames: expected an int >= 1, got {args.max_frames}")
     if args.plot:  # fail before the work, not after it
@@ -749,6 +758,41 @@ def run(args) -> int:
     return 0
 
 
+def demo_clip() -> str:
+    """Path of the bundled real hand-held clip (46 frames, 640x272; data/LICENSE-bikes.md)."""
+    from importlib.resources import files
+
+    return str(files("warpvx") / "data" / "bikes_shaky.mp4")
+
+
+def _demo_args(args):
+    """``args`` for ``--demo``: the bundled clip into a folder (created; the one positional
+    argument, else a fresh ``./warpvx-results/stabilize-<date>-<time>/``)."""
+    import copy
+    import importlib.util
+    from pathlib import Path
+
+    if args.output is not None:
+        raise WarpvxValueError(f"output: --demo takes one folder, got {args.input!r} and {args.output!r}")
+    if args.input is None:
+        from ..cli import fresh_results_dir
+
+        folder = fresh_results_dir("stabilize")
+    else:
+        folder = Path(args.input)
+        if folder.exists() and not folder.is_dir():
+            raise WarpvxValueError(f"output: --demo writes into a folder; {str(folder)!r} is a file")
+        folder.mkdir(parents=True, exist_ok=True)
+    args = copy.copy(args)
+    args.input, args.output, args.compare = demo_clip(), str(folder / "stabilized.mp4"), True
+    args.metrics = args.metrics or str(folder / "metrics.json")
+    if args.plot is None and importlib.util.find_spec("matplotlib") is not None:
+        args.plot = str(folder / "trajectory.png")
+    if not args.quiet:
+        print(f"stabilize --demo: {args.input} -> {folder}/")
+    return args
+
+
 def main(argv=None, prog="stabilize") -> int:
     """Parse ``argv`` and run; bad input prints one line to stderr and returns 2."""
     import argparse
@@ -773,6 +817,6 @@ def run_cli(args, prog="stabilize") -> int:
 __all__ = [
     "StabilizerConfig", "StabilizedFrame", "build_graph", "schedule", "stabilize", "stabilize_model",
     "estimate_motion", "as_motion", "park_lost", "refresh_points", "accumulate", "smooth_transform", "truncate_transform",
-    "undistort_maps", "VideoSource", "open_writer", "save_plot", "add_arguments", "run", "main",
+    "undistort_maps", "demo_clip", "VideoSource", "open_writer", "save_plot", "add_arguments", "run", "main",
     "MOTIONS", "MODES", "DETECTORS", "BACKENDS",
 ]
