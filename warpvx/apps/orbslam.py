@@ -92,7 +92,7 @@ class TrackerConfig:
     check_orientation: bool = True
     histo_length: int = 30
     min_matches: int = 30
-    ransac_threshold: float = 1.0
+    ransac_threshold: float = 0.5
     min_parallax: float = 1.0
     pnp_threshold: float = 2.0
     keyframe_interval: int = 10
@@ -490,10 +490,12 @@ class TrackedFrame:
 
 
 def track_frames(frames, camera: Camera, config: TrackerConfig = TrackerConfig(), *,
-                 backend="cpu", depth: int = 2):
+                 backend="cpu", depth: int = 2, on_finish=None):
     """Run the front-end graph over ``frames`` (an iterable of input dicts: ``image`` and, for
     stereo, ``right``; gray uint8); a generator of :class:`TrackedFrame` in order. ``depth``
-    frames in flight (>= 2 overlaps extraction of frame t+1 with tracking of frame t)."""
+    frames in flight (>= 2 overlaps extraction of frame t+1 with tracking of frame t).
+    ``on_finish(plan)``, if given, is called with the scheduler's plan after the last frame
+    (for its placement, predicted vs measured makespans and Gantt charts)."""
     frames = iter(frames)
     first = [f for _, f in zip(range(2), frames)]
     if not first:
@@ -501,7 +503,7 @@ def track_frames(frames, camera: Camera, config: TrackerConfig = TrackerConfig()
     g = build_graph(camera, config, backend=backend)
     # Verify on two real frames so calibration times matching and tracking on real motion.
     g.verify(first if len(first) == 2 else first[0])
-    schedule(g, backend)
+    plan = schedule(g, backend)
 
     def feed():
         yield from first
@@ -514,6 +516,8 @@ def track_frames(frames, camera: Camera, config: TrackerConfig = TrackerConfig()
             stats = dict(zip(STATS, out["stats"].tolist()))
             yield TrackedFrame(k, out["pose"], stats, 1e3 * (now - t))
             t = now
+        if on_finish is not None:
+            on_finish(plan)
 
 
 # --------------------------------------------------------------------------- the OpenCV baseline
