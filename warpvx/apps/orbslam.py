@@ -523,6 +523,26 @@ def track_frames(frames, camera: Camera, config: TrackerConfig = TrackerConfig()
 # --------------------------------------------------------------------------- the OpenCV baseline
 
 
+def baseline_step(cur, prev, matcher, K) -> np.ndarray:
+    """One step of the OpenCV baseline: T_cur_prev (4x4, unit translation; identity when it
+    fails) from ``(keypoints, descriptors)`` of ``detectAndCompute`` for both frames."""
+    import cv2
+
+    (kp, des), (kp0, des0) = cur, prev
+    if des is None or des0 is None:
+        return np.eye(4)
+    m = matcher.match(des, des0)
+    if len(m) < 8:
+        return np.eye(4)
+    p2 = np.float64([kp[x.queryIdx].pt for x in m])
+    p1 = np.float64([kp0[x.trainIdx].pt for x in m])
+    E, mask = cv2.findEssentialMat(p1, p2, K, cv2.RANSAC, 0.999, 1.0)
+    if E is None or E.shape != (3, 3):
+        return np.eye(4)
+    _, R, t, _ = cv2.recoverPose(E, p1, p2, K, mask=mask)
+    return _rt(R, t)
+
+
 def opencv_baseline(images, K):
     """The monocular front end a user writes with OpenCV alone (the issue's baseline):
     ``cv2.ORB_create(2000, 1.2, 8)``, ``BFMatcher(NORM_HAMMING, crossCheck=True)``,
@@ -534,20 +554,10 @@ def opencv_baseline(images, K):
     bf = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
     poses, prev = [np.eye(4)], None
     for img in images:
-        kp, des = orb.detectAndCompute(img, None)
+        cur = orb.detectAndCompute(img, None)
         if prev is not None:
-            T = np.eye(4)
-            if des is not None and prev[1] is not None:
-                m = bf.match(des, prev[1])
-                if len(m) >= 8:
-                    p2 = np.float64([kp[x.queryIdx].pt for x in m])
-                    p1 = np.float64([prev[0][x.trainIdx].pt for x in m])
-                    E, mask = cv2.findEssentialMat(p1, p2, K, cv2.RANSAC, 0.999, 1.0)
-                    if E is not None and E.shape == (3, 3):
-                        _, R, t, _ = cv2.recoverPose(E, p1, p2, K, mask=mask)
-                        T = _rt(R, t)
-            poses.append(poses[-1] @ _inv(T))
-        prev = (kp, des)
+            poses.append(poses[-1] @ _inv(baseline_step(cur, prev, bf, K)))
+        prev = cur
     return np.asarray(poses[:len(images)])
 
 
@@ -873,6 +883,6 @@ def run_cli(args, prog="orbslam") -> int:
 __all__ = [
     "TrackerConfig", "Camera", "TrackState", "FrameRecord", "TrackedFrame", "three_maxima",
     "rotation_consistent", "filter_matches", "stereo_depth", "track", "build_graph", "schedule",
-    "track_frames", "opencv_baseline", "parse_intrinsics", "Sequence", "open_source",
+    "track_frames", "opencv_baseline", "baseline_step", "parse_intrinsics", "Sequence", "open_source",
     "add_arguments", "run", "main", "run_cli", "BACKENDS", "STATS",
 ]
