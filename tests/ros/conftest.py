@@ -178,11 +178,13 @@ def node_process(roscore):
 
     yield start
     for proc in procs:
-        stop(proc)
+        print(f"--- output of {proc.args[2:]}:\n{stop(proc)[-3000:]}")  # shown when a test fails
 
 
 def stop(proc, timeout=WAIT):
     """SIGINT a node process and collect its output in ``proc.output`` (killed if it hangs)."""
+    if getattr(proc, "output", None) is not None:
+        return proc.output
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
     try:

@@ -147,7 +147,8 @@ class GraphClient:
     inputs : dict
         Graph input name -> :class:`Topic` (:func:`image_input`, :func:`camera_info_input`).
         The first is the camera: each of its messages is a frame. The others hold their latest
-        message (camera info); frames are rejected until each has one.
+        message (camera info); frames are rejected until each has one. A name that is not an
+        input of the graph goes to ``post`` only.
     outputs : dict
         Name -> :class:`Topic` (:func:`image_output`, :func:`matrix_output`): a graph output
         or a key that ``post`` returns.
@@ -271,15 +272,16 @@ class GraphClient:
         item = first
         while item is not None and item is not FrameQueue.CLOSED:
             header, frame = item
+            graph_frame = {k: v for k, v in frame.items() if k in self.graph.inputs}
             try:
-                for name, value in frame.items():
+                for name, value in graph_frame.items():
                     check_input(self.graph.inputs[name], value)
             except WarpvxError as exc:
                 self._reject(f"{self._camera.topic}: frame rejected: {exc} (did the image size "
                              f"change mid-stream?)")
             else:
                 self._in_flight.append((header, frame))
-                yield frame
+                yield graph_frame
             item = self._queue.get(0)
 
     def _run(self):

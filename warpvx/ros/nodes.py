@@ -19,7 +19,7 @@ output pixels). Parameters: ``~backend`` (cpu | warp-cpu | cuda), ``~window``, `
 for the first one) and publishes ``~pose`` (geometry_msgs/PoseStamped, camera in the first
 camera's frame ``~world_frame``), ``~path`` (nav_msgs/Path, every pose so far) and
 ``~keypoints`` (std_msgs/UInt32). Parameters: ``~backend``, ``~n_features``, ``~world_frame``
-and the client's. Tracking is :class:`~warpvx.ros.track.MonoTracker` (monocular, unit steps).
+and the client's but ``~depth`` (one frame in flight: tracking is sequential). Tracking is :class:`~warpvx.ros.track.MonoTracker` (monocular, unit steps).
 
 Both publish ``~dropped`` (std_msgs/UInt64, frames skipped at the processing rate so far) and
 log a frame summary at shutdown.
@@ -46,7 +46,7 @@ _CLIENT = {"queue_size": 2, "depth": 2, "watchdog": 5.0, "publish_queue": 10}
 
 
 def _client_args(p):
-    return {k: p[k] for k in _CLIENT}
+    return {k: p[k] for k in _CLIENT if k in p}
 
 
 def stabilize_client(params: dict) -> GraphClient:
@@ -92,10 +92,11 @@ def orbslam_client(params: dict) -> GraphClient:
          "path": Topic("~path", ("nav_msgs", "Path"), lambda path, header: path_message(path, world)),
          "count": Topic("~keypoints", ("std_msgs", "UInt32"),
                         lambda n, header: _msg("std_msgs", "UInt32")(n))},
-        post=post, depth=1, **_client_args(params))  # depth 1: tracking is sequential anyway
+        post=post, depth=1, **_client_args(params))  # one frame in flight: tracking is sequential
 
 
-ORBSLAM_PARAMS = {"backend": "cpu", "n_features": 2000, "world_frame": "world", **_CLIENT}
+ORBSLAM_PARAMS = {"backend": "cpu", "n_features": 2000, "world_frame": "world",
+                  **{k: v for k, v in _CLIENT.items() if k != "depth"}}
 
 _NODES = {"ros-stabilize": ("warpvx_stabilize", STABILIZE_PARAMS, stabilize_client),
           "ros-orbslam": ("warpvx_orbslam", ORBSLAM_PARAMS, orbslam_client)}
