@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.subprocess_python import REPO
+from tests.isolated import ROOT as REPO
 
 CLIP = REPO / "warpvx" / "data" / "bikes_shaky.mp4"
 CASTLE = REPO.parent.parent / "shared" / "data" / "real" / "castle_simu"

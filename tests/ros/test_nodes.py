@@ -68,7 +68,7 @@ def test_ros_orbslam_equals_the_offline_front_end(rospy, castle, node_process):
 
 
 def test_node_help_and_bad_arguments(roscore):
-    from tests.subprocess_python import run_python
+    from tests.isolated import run_python
 
     code = "import sys; from warpvx.cli import main; sys.exit(main(sys.argv[1:]))"
     for node in ("ros-stabilize", "ros-orbslam"):
