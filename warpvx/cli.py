@@ -149,6 +149,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="ORB-SLAM2 front end (thesis ch. 4): trajectory of a camera sequence",
         description="Track a KITTI/TUM folder, image folder or video; see apps/orbslam_frontend.py.",
     ))
+    for command in ("ros-stabilize", "ros-orbslam"):
+        sub.add_parser(command, add_help=False,
+                       help="ROS 1 node (arguments: ROS remappings and _param:=value; see "
+                            f"warpvx {command} --help and warpvx.ros.nodes)")
     return parser
 
 
@@ -176,6 +180,11 @@ def _run(argv) -> int:
             return 2
         status = study_main(argv[1:])
         return int(status or 0)
+    if argv and argv[0] in ("ros-stabilize", "ros-orbslam"):
+        # ROS remappings (image:=/camera/image) are not argparse options: the node parses them.
+        from .ros.nodes import main as node_main
+
+        return node_main(argv[0], argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command == "bench":
