@@ -142,6 +142,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="stabilize a shaky video (thesis §3.2) with the warpvx graph",
         description="Stabilize a video file or image folder IN into OUT; see apps/stabilize.py.",
     ))
+    from .apps.orbslam import add_arguments as add_orbslam_arguments
+
+    add_orbslam_arguments(sub.add_parser(
+        "orbslam",
+        help="ORB-SLAM2 front end (thesis ch. 4): trajectory of a camera sequence",
+        description="Track a KITTI/TUM folder, image folder or video; see apps/orbslam_frontend.py.",
+    ))
+    for command in ("ros-stabilize", "ros-orbslam"):
+        sub.add_parser(command, add_help=False,
+                       help="ROS 1 node (arguments: ROS remappings and _param:=value; see "
+                            f"warpvx {command} --help and warpvx.ros.nodes)")
     return parser
 
 
@@ -169,6 +180,11 @@ def _run(argv) -> int:
             return 2
         status = study_main(argv[1:])
         return int(status or 0)
+    if argv and argv[0] in ("ros-stabilize", "ros-orbslam"):
+        # ROS remappings (image:=/camera/image) are not argparse options: the node parses them.
+        from .ros.nodes import main as node_main
+
+        return node_main(argv[0], argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command == "bench":
@@ -179,6 +195,10 @@ def _run(argv) -> int:
         from .apps.stabilize import run_cli
 
         return run_cli(args, "warpvx stabilize")
+    if args.command == "orbslam":
+        from .apps.orbslam import run_cli as run_orbslam
+
+        return run_orbslam(args, "warpvx orbslam")
     parser.print_help()
     return 0 if not argv else 2
 

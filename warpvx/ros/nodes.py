@@ -1,0 +1,126 @@
+"""The runnable nodes: ``warpvx ros-stabilize`` and ``warpvx ros-orbslam``.
+
+Both are client-model nodes (:class:`~warpvx.ros.client.GraphClient`) taking ROS remapping
+arguments (``image:=/camera/image_raw``, ``__name:=stab``) and private parameters
+(``_window:=31`` on the command line, or ``rosparam``/launch files)::
+
+    warpvx ros-stabilize image:=/camera/image_raw _window:=15 _mode:=causal
+    warpvx ros-orbslam image:=/camera/image_raw camera_info:=/camera/camera_info
+
+``ros-stabilize`` subscribes ``image`` (sensor_msgs/Image: bgr8, rgb8 or mono8) and publishes
+``~image`` (the stabilized frame, bgr8, stamped with the input frame it shows) and ``~warp``
+(std_msgs/Float64MultiArray 3x3: the smoothed motion correction applied to that frame, input ->
+output pixels). Parameters: ``~backend`` (cpu | warp-cpu | cuda), ``~window``, ``~mode``
+(``causal`` by default: a live camera has no look-ahead; ``centered`` lags window // 2 frames),
+``~crop``, ``~motion``, ``~detector``, and the client's ``~queue_size``, ``~depth``, ``~watchdog``,
+``~publish_queue`` (:class:`~warpvx.ros.client.GraphClient`).
+
+``ros-orbslam`` subscribes ``image`` and ``camera_info`` (sensor_msgs/CameraInfo; frames wait
+for the first one) and publishes ``~pose`` (geometry_msgs/PoseStamped, camera in the first
+camera's frame ``~world_frame``), ``~path`` (nav_msgs/Path, every pose so far) and
+``~keypoints`` (std_msgs/UInt32). Parameters: ``~backend``, ``~n_features``, ``~world_frame``
+and the client's but ``~depth`` (one frame in flight: tracking is sequential). Tracking is :class:`~warpvx.ros.track.MonoTracker` (monocular, unit steps).
+
+Both publish ``~dropped`` (std_msgs/UInt64, frames skipped at the processing rate so far) and
+log a frame summary at shutdown.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from ._env import import_rospy, msg as _msg
+from .client import GraphClient, Topic, camera_info_input, image_input, image_output, matrix_output
+
+NODES = ("ros-stabilize", "ros-orbslam")
+
+
+def _params(rospy, defaults: dict) -> dict:
+    """Private parameters ``~name`` over ``defaults`` (their types kept)."""
+    return {name: type(value)(rospy.get_param(f"~{name}", value)) for name, value in defaults.items()}
+
+
+_CLIENT = {"queue_size": 2, "depth": 2, "watchdog": 5.0, "publish_queue": 10}
+
+
+def _client_args(p):
+    return {k: p[k] for k in _CLIENT if k in p}
+
+
+def stabilize_client(params: dict) -> GraphClient:
+    """The ``ros-stabilize`` client for parameters ``params`` (keys as the ``~`` parameters)."""
+    from ..apps.stabilize import StabilizerConfig, build_graph, schedule
+
+    config = StabilizerConfig(window=params["window"], mode=params["mode"], crop=params["crop"],
+                              motion=params["motion"], detector=params["detector"])
+    backend = params["backend"]
+
+    def make(first):
+        graph = build_graph(first["frame"].shape[1::-1], config, backend=backend)
+        schedule(graph, backend)
+        return graph
+
+    return GraphClient(make, {"frame": image_input("image", "bgr8")},
+                       {"stabilized": image_output("~image", "bgr8"), "warp": matrix_output("~warp")},
+                       constants={"live": np.ones(1, np.uint8)}, lag=config.lag, **_client_args(params))
+
+
+STABILIZE_PARAMS = {"backend": "cpu", "window": 15, "mode": "causal", "crop": 0.1,
+                    "motion": "homography", "detector": "harris", **_CLIENT}
+
+
+def orbslam_client(params: dict) -> GraphClient:
+    """The ``ros-orbslam`` client for parameters ``params`` (keys as the ``~`` parameters)."""
+    from .track import MonoTracker, orb_graph, path_message, pose_message
+
+    backend = params["backend"]
+    tracker = MonoTracker(backend=backend)
+    world = params["world_frame"]
+    poses = []
+
+    def post(outputs, inputs, header):
+        pose = tracker.update(outputs["keypoints"], outputs["descriptors"], inputs["K"])
+        poses.append(pose_message(pose, header, world))
+        return {"pose": poses[-1], "path": poses, "count": len(outputs["keypoints"])}
+
+    return GraphClient(
+        lambda first: orb_graph(first["image"].shape, params["n_features"], backend),
+        {"image": image_input("image", "mono8"), "K": camera_info_input("camera_info")},
+        {"pose": Topic("~pose", ("geometry_msgs", "PoseStamped"), lambda pose, header: pose),
+         "path": Topic("~path", ("nav_msgs", "Path"), lambda path, header: path_message(path, world)),
+         "count": Topic("~keypoints", ("std_msgs", "UInt32"),
+                        lambda n, header: _msg("std_msgs", "UInt32")(n))},
+        post=post, depth=1, **_client_args(params))  # one frame in flight: tracking is sequential
+
+
+ORBSLAM_PARAMS = {"backend": "cpu", "n_features": 2000, "world_frame": "world",
+                  **{k: v for k, v in _CLIENT.items() if k != "depth"}}
+
+_NODES = {"ros-stabilize": ("warpvx_stabilize", STABILIZE_PARAMS, stabilize_client),
+          "ros-orbslam": ("warpvx_orbslam", ORBSLAM_PARAMS, orbslam_client)}
+
+
+def main(command: str, argv) -> int:
+    """Run node ``command`` (one of :data:`NODES`) until ROS shuts down (Ctrl-C, rosnode
+    kill); ``argv`` holds ROS remappings and ``_param:=value`` settings."""
+    name, defaults, make = _NODES[command]
+    if {"-h", "--help"} & set(argv):
+        doc = __doc__.split("\n\n", 1)[1]
+        params = ", ".join(f"~{k} ({v!r})" for k, v in defaults.items())
+        print(f"usage: warpvx {command} [ROS remappings] [_param:=value ...]\n\n{doc}\n"
+              f"Parameters and defaults: {params}")
+        return 0
+    rospy = import_rospy()
+    rospy.init_node(name, argv=[f"warpvx-{command}", *argv])
+    extra = rospy.myargv([f"warpvx-{command}", *argv])[1:]
+    if extra:
+        print(f"warpvx {command}: error: unexpected arguments {extra} (ROS remappings look like "
+              f"name:=/topic, parameters _name:=value)", file=sys.stderr)
+        return 2
+    client = make(_params(rospy, defaults))
+    rospy.on_shutdown(client.close)
+    rospy.loginfo(f"warpvx {command}: running on {rospy.resolve_name('image')}")
+    rospy.spin()
+    return 0
