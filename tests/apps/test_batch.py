@@ -92,9 +92,7 @@ def sm_itf(path):
 
 def options(*argv):
     """The stabilizer's options for ``argv`` as its command line parses them."""
-    parser = argparse.ArgumentParser()
-    st.add_arguments(parser)
-    return batch.app_options(parser.parse_args(["IN", *argv]))
+    return batch.parse_options(st.add_arguments, ["IN", *argv])
 
 
 def check_matches_alone(rows, alone, names):

@@ -379,6 +379,14 @@ def app_options(args, *, paths="input") -> dict:
     return {k: v for k, v in vars(args).items() if k not in BATCH_KEYS and k not in (paths, "command")}
 
 
+def parse_options(add_arguments, argv, *, paths="input") -> dict:
+    """An application's options as its command line parses ``argv`` (the positional paths
+    included), for :func:`run_items`: ``add_arguments(parser)`` is the app's own."""
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    return app_options(parser.parse_args(list(argv)), paths=paths)
+
+
 def run_batch(args, app, *, paths="input") -> int:
     """Run the batch the parsed command line ``args`` asks for (see :func:`add_batch_arguments`):
     print the summary table and write ``OUT/batch_summary.csv``. Returns 0 when every
@@ -397,5 +405,6 @@ def run_batch(args, app, *, paths="input") -> int:
 __all__ = [
     "SUMMARY_FIELDS", "MARKER", "BATCH_KEYS", "register_app", "get_app", "run_stabilize",
     "run_orbslam", "expand_inputs", "output_names", "read_complete", "run_item", "run_items",
-    "format_summary", "write_summary", "add_batch_arguments", "single_run", "app_options", "run_batch",
+    "format_summary", "write_summary", "add_batch_arguments", "single_run", "app_options", "parse_options",
+    "run_batch",
 ]
