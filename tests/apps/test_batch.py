@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import shutil
 import sys
 
 import cv2
@@ -166,7 +167,12 @@ def test_resume_skips_complete_outputs_only(clips, tmp_path):
     opts = options("--window", "3", "--max-frames", "4")
     first = batch.run_items("stabilize", good[:3] + bad[:1], out, opts, progress=False)
     assert [r["status"] for r in first] == ["done", "done", "done", "failed"]
-    os.remove(os.path.join(out, "bikes1", batch.MARKER))  # as if interrupted before completion
+    # bikes1 as a worker that died left it; bikes2 a folder of the user's, never overwritten
+    shutil.rmtree(os.path.join(out, "bikes1"))
+    os.mkdir(os.path.join(out, ".bikes1.partial-dead"))
+    shutil.rmtree(os.path.join(out, "bikes2"))
+    os.mkdir(os.path.join(out, "bikes2"))
+    open(os.path.join(out, "bikes2", "mine.txt"), "w").close()
     calls = []
 
     def counting(source, out_dir, options):
@@ -175,8 +181,10 @@ def test_resume_skips_complete_outputs_only(clips, tmp_path):
 
     second = batch.run_items(counting, good[:3] + bad[:1], out, opts, resume=True, progress=False)
     assert calls == [good[1], bad[0]]
-    assert [r["status"] for r in second] == ["skipped", "done", "skipped", "failed"]
-    assert second[0]["frames"] == first[0]["frames"] and second[2]["seconds"] == first[2]["seconds"]
+    assert [r["status"] for r in second] == ["skipped", "done", "failed", "failed"]
+    assert second[0]["frames"] == first[0]["frames"] and second[0]["seconds"] == first[0]["seconds"]
+    assert "no batch output" in second[2]["error"] and os.listdir(os.path.join(out, "bikes2")) == ["mine.txt"]
+    assert sorted(os.listdir(out)) == ["bikes0", "bikes1", "bikes2"]  # the dead partial is gone
 
 
 def test_ray_missing_is_a_clear_error(monkeypatch, clips, tmp_path):
@@ -264,3 +272,34 @@ def test_ray_worker_count_fits_the_cluster():
                                    ({"CPU": 8}, (0, 0, 10), "cpus_per_input")]:
         with pytest.raises(WarpvxError, match=field):
             worker_count(resources, *args)
+
+
+def test_orbslam_adapter_contract(monkeypatch, clips, tmp_path):
+    """The orbslam adapter imports warpvx.apps.orbslam when called and needs its
+    run_source(source, out_dir, options) -> dict; missing either, the input fails alone."""
+    import types
+
+    import warpvx.apps
+
+    src = clips[0][0]
+    monkeypatch.delattr(warpvx.apps, "orbslam", raising=False)  # whether or not it exists here
+    monkeypatch.setitem(sys.modules, "warpvx.apps.orbslam", None)
+    [row] = batch.run_items("orbslam", [src], str(tmp_path / "a"), {}, progress=False)
+    assert row["status"] == "failed" and "warpvx.apps.orbslam is not available" in row["error"]
+    fake = types.ModuleType("warpvx.apps.orbslam")
+    monkeypatch.setitem(sys.modules, "warpvx.apps.orbslam", fake)
+    monkeypatch.setattr(warpvx.apps, "orbslam", fake, raising=False)
+    [row] = batch.run_items("orbslam", [src], str(tmp_path / "b"), {}, progress=False)
+    assert row["status"] == "failed" and "run_source" in row["error"]
+    seen = []
+
+    def run_source(source, out_dir, options):
+        seen.append((source, os.path.basename(out_dir).startswith(".bikes0.partial-"), options))
+        open(os.path.join(out_dir, "trajectory.txt"), "w").close()
+        return {"frames": 10, "ate": 0.25}
+
+    fake.run_source = run_source
+    [row] = batch.run_items("orbslam", [src], str(tmp_path / "c"), {"n_features": 500}, progress=False)
+    assert seen == [(src, True, {"n_features": 500})]
+    assert (row["status"], row["frames"], row["ate"]) == ("done", 10, 0.25)
+    assert sorted(os.listdir(tmp_path / "c" / "bikes0")) == [batch.MARKER, "trajectory.txt"]

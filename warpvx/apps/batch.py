@@ -200,10 +200,15 @@ def run_item(app, source, out_root, name, options) -> dict:
     """Run one input of the batch into ``out_root/name``; returns its summary row.
 
     The app writes into a fresh ``out_root/.name.partial-XXXX`` folder, renamed to
-    ``out_root/name`` (replacing an older one) with the ``_COMPLETE`` marker once it returns.
-    An exception of the app is this input's failure, recorded in the row (status ``failed``).
+    ``out_root/name`` with the ``_COMPLETE`` marker once it returns (replacing an older
+    complete output; a folder of that name without the marker is left alone, and the input
+    fails). An exception of the app is this input's failure, recorded in the row (status
+    ``failed``).
     """
     final = os.path.join(out_root, name)
+    if os.path.lexists(final) and read_complete(final) is None:
+        return summary_row(source, None, "failed", error=f"output: {final!r} exists and is no batch output "
+                                                        f"(no {MARKER} marker); move it away")
     for stale in glob.glob(os.path.join(glob.escape(out_root), f".{glob.escape(name)}.partial-*")):
         shutil.rmtree(stale, ignore_errors=True)  # left by a worker that died on this input
     tmp = os.path.join(out_root, f".{name}.partial-{uuid.uuid4().hex[:12]}")
