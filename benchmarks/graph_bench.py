@@ -9,38 +9,32 @@ CPU-only user node combines the two homographies, and a GPU-only user node (a Wa
 "detector" standing in for the thesis' deep-learning node) runs on camera L's gray image.
 OpenCV runs single-threaded (``--cv-threads 1``): each CPU worker is one core, as calibrated.
 
-Steps:
+With ``two-cameras-cv`` (``--graphs``) each camera also runs a bilateral filter and Canny
+edges, and one node combines them: OpenCV user nodes, CPU only (21 nodes).
 
-1. verify on two real consecutive frames (so LK is calibrated on real motion) and calibrate
-   (node costs, transfer model, executor dispatch costs; cached per machine);
-2. the GIL switch interval (``sys.setswitchinterval``): a few values are tried on the heft
-   plan and the fastest is kept for the run (``--switch-interval S`` fixes it);
-3. for each policy (baseline, heft, xeft, best), with costs calibrated node by node:
-   schedule, run ``--frames`` frames one at a time (predicted vs measured makespan: the
-   target is within 20%) and then pipelined (throughput), learn each node's cost in the
-   running frames (StarPU-style history);
-4. the same with the history costs (``costs="history"``);
-5. the executor's per-node overhead with trivial nodes (target < 50 us: chains all on one
-   CPU worker, all on the GPU role, and alternating CPU and GPU) and, with
-   ``--soak N``, N frames pipelined with host RSS and GPU memory at start and end.
+Steps, per graph and camera size (default 1280x720 and 1920x1080):
 
-Writes ``gantt_<policy>.png`` (predicted above measured, history costs),
-``gantt_<policy>_calibrated.png`` (calibrated costs), ``gantt_<policy>_pipelined.png``
-(3 frames in flight), ``graph_bench.json`` and ``graph_bench.md`` (tables, per-node costs:
-calibrated alone vs measured in the running frames).
+1. verify on two real consecutive frames and calibrate (cached per machine); once, the GIL
+   switch interval and executor spin are chosen (``--switch-interval``, ``--spin`` fix them);
+2. baseline, heft and xeft (calibrated costs) each run ``--frames`` frames one at a time,
+   then pipelined (``--depth`` in flight, FPS);
+3. the contention model (:mod:`warpvx.graph.model`) is fitted on the first ``--fit-frames``
+   frames of ``--train`` (baseline), and ``best`` is the schedule it predicts fastest of the
+   baseline, HEFT and XEFT candidates; it runs too;
+4. per policy: predicted in sample (its own model on its own first frames) and out of sample
+   (the training model on the later frames), errors, and whether best is within 5% of the
+   fastest measured; Gantt charts of the prediction over a measured frame
+   (``gantt_<graph>_<size>_<policy>.png``) and of 3 pipelined frames (``..._pipelined.png``);
+5. the executor's per-node overhead with trivial nodes (CPU-only, GPU-only, alternating
+   chains) and, with ``--soak N``, N frames pipelined with memory at start and end.
+
+Writes ``graph_bench.json`` and ``graph_bench.md`` (its first line is the command).
 
 Usage::
 
-    python benchmarks/graph_bench.py                 # GPU machine: CUDA, 1280x720 cameras
+    PYTHONPATH=. python benchmarks/graph_bench.py --gpu cuda --out $OUT/graph   # GPU machine
     python benchmarks/graph_bench.py --quick         # anywhere: warp-cpu, 160x120, few frames
-    python benchmarks/graph_bench.py --soak 10000
     python benchmarks/graph_bench.py --overhead-only # the overhead section alone: overhead.md
-
-    python benchmarks/graph_bench.py --replay benchmarks/results/graph/graph_bench.json
-
-Options: --out DIR, --frames N, --n-cpus N, --gpu cuda|cuda:N|warp-cpu, --size WxH,
---depth K, --soak N, --soak-seconds S, --cv-threads N, --switch-interval S, --spin S,
---recalibrate, --replay JSON, --overhead-only, --overhead-nodes N, --overhead-frames N.
 """
 
 from __future__ import annotations
@@ -125,9 +119,27 @@ def fuse(h_left, h_right):
 # --------------------------------------------------------------------------- graph and frames
 
 
-def build_graph(size, *, max_corners=500, levels=4) -> warpvx.Graph:
+def denoise(gray):
+    """Edge-preserving smoothing (OpenCV bilateral filter, CPU only)."""
+    return cv2.bilateralFilter(gray, 7, 40.0, 5.0)
+
+
+def edges(gray):
+    """Canny edge map (CPU only)."""
+    return cv2.Canny(gray, 60, 140)
+
+
+def edge_density(e_left, e_right):
+    """Share of edge pixels in each camera (CPU only)."""
+    return np.array([np.count_nonzero(e_left), np.count_nonzero(e_right)]) / e_left.size
+
+
+def build_graph(size, *, max_corners=500, levels=4, cpu_heavy=False) -> warpvx.Graph:
+    """The two-camera graph (16 nodes); ``cpu_heavy`` adds per camera a bilateral filter and
+    Canny edges and one node combining them (OpenCV user nodes, CPU only: 21 nodes)."""
     w, h = size
-    g = warpvx.Graph("two-cameras")
+    g = warpvx.Graph("two-cameras-cv" if cpu_heavy else "two-cameras")
+    cv_edges = []
     homs = []
     for cam in ("L", "R"):
         frame = g.input(f"frame{cam}", shape=(h, w, 3), dtype=np.uint8)
@@ -146,11 +158,16 @@ def build_graph(size, *, max_corners=500, levels=4) -> warpvx.Graph:
         homs.append(H)
         g.output(f"keypoints{cam}", kps)
         g.output(f"H{cam}", H)
+        if cpu_heavy:
+            smooth = g.user(denoise, [gray], "smooth", name=f"denoise{cam}")
+            cv_edges.append(g.user(edges, [smooth], "edges", name=f"edges{cam}"))
         if cam == "L":
             det = g.user(None, [gray], "score", warp_fn=detector_warp, name="detectorL")
             g.output("scoreL", det)
     motion = g.user(fuse, homs, "motion", name="fuse")
     g.output("motion", motion)
+    if cpu_heavy:
+        g.output("edge_density", g.user(edge_density, cv_edges, "density", name="edgeDensity"))
     return g
 
 
@@ -244,103 +261,93 @@ def device_edges(plan) -> dict:
     return dict(kinds)
 
 
-def run_policy(g, policy, frames, args, out_dir, *, costs, learn=False, charts=True,
-               rounds: int = 1):
-    """Schedule and run one policy. With ``costs="history"``, up to ``rounds`` rounds of
-    schedule, run, learn, until the placement stops changing: costs measured under one
-    placement mispredict another (other threads compete for the GIL and the cores), so the
-    model is refined on the placement it predicts, as StarPU's history models are."""
-    placements = []
-    for _ in range(max(1, rounds)):
-        plan = g.schedule(policy, n_cpus=args.n_cpus, gpu=args.gpu, costs=costs)
-        placements.append(plan.placement)
-        run_frames(g, plan, frames[:2])  # warm the threads and pools
-        runs, walls = run_frames(g, plan, frames)
-        if len(placements) > 1 and placements[-1] == placements[-2]:
-            break  # learnt under this very placement: the prediction stands
-        if costs == "history" or learn:
-            g.learn(plan, runs=runs)
-    spans = [r.makespan for r in runs]
-    suffix = "" if costs == "history" else "_calibrated"
-    if charts:
-        plan.gantt(out_dir / f"gantt_{policy}{suffix}.png",
-                   title=f"{g.name} ({policy}, {costs} costs)")
+def run_policy(g, plan, frames, args):
+    """Run ``plan`` (the graph's current plan): 2 warm-up frames, then ``frames`` one at a
+    time, then the same frames pipelined (``args.depth`` in flight). Returns the sequential
+    FrameResults, the pipelined ones and the pipelined FPS."""
+    run_frames(g, plan, frames[:2])  # threads, pools, events warm up
+    runs, walls = run_frames(g, plan, frames)
     t0 = time.perf_counter()
-    n = 0
-    for _ in g.stream(frames, depth=args.depth):
-        n += 1
-    stream_s = time.perf_counter() - t0
-    if charts and costs == "history":
-        plan.gantt(out_dir / f"gantt_{policy}_pipelined.png", frames=3,
-                   title=f"{g.name} ({policy}, depth {args.depth})")
-    predicted = plan.predicted_makespan
-    measured = statistics.median(spans)
+    n = sum(1 for _ in g.stream(frames, depth=args.depth))
+    fps = n / (time.perf_counter() - t0)
+    return runs, list(plan.last_run), fps, walls
+
+
+def median_span(runs) -> float:
+    return statistics.median(r.makespan for r in runs)
+
+
+def _err(pred, meas) -> float:
+    return 100.0 * (pred - meas) / meas if meas > 0 else float("nan")
+
+
+def experiment(g, frames, args, out_dir, tag: str) -> dict:
+    """One graph at one size: every policy run, the contention model fitted on the first
+    ``args.fit_frames`` frames of the training policy's run and of each policy's own, each
+    policy predicted (in sample: its own model on its own training frames; out of sample:
+    the training policy's model on the frames after them), ``best`` chosen by the model,
+    Gantt charts (predicted over measured, one frame and pipelined)."""
+    fit_n = min(args.fit_frames, len(frames) - 1)
+    plans, seq, piped, fps, walls = {}, {}, {}, {}, {}
+
+    def run(policy, **kw):
+        plan = g.schedule(policy, n_cpus=args.n_cpus, gpu=args.gpu, **kw)
+        plans[policy] = plan
+        seq[policy], piped[policy], fps[policy], walls[policy] = run_policy(g, plan, frames, args)
+
+    for policy in ("baseline", "heft", "xeft"):
+        run(policy)
+    model = g.fit_model(plans[args.train], runs=seq[args.train][:fit_n])
+    run("best", model=model)
+    rows = []
+    for policy in POLICIES:
+        plan, runs = plans[policy], seq[policy]
+        own = g.fit_model(plan, runs=runs[:fit_n])
+        pred_in, meas_in = own.makespan(plan), median_span(runs[:fit_n])
+        pred_out, meas_out = model.makespan(plan), median_span(runs[fit_n:])
+        rows.append({
+            "policy": policy,
+            "chosen": plan.schedule.info.get("chosen", policy),
+            "candidates": plan.schedule.info.get("candidates"),
+            "scheduler_ms": plan.schedule.makespan,
+            "pred_in_ms": pred_in, "measured_in_ms": meas_in, "error_in_pct": _err(pred_in, meas_in),
+            "pred_out_ms": pred_out, "measured_out_ms": meas_out,
+            "error_out_pct": _err(pred_out, meas_out),
+            "measured_p90_ms": float(np.percentile([r.makespan for r in runs[fit_n:]], 90)),
+            "sequential_fps": 1e3 / statistics.median(walls[policy]),
+            "pipelined_fps": fps[policy],
+            "gpu_nodes": sorted(t for t, p in plan.placement.items() if p == "gpu"),
+            "placement": plan.placement,
+            "metrics": {k: v for k, v in plan.metrics.items() if k != "idle_per_processor"},
+            "nodes": node_table(plan, runs[fit_n:]),
+            "copies": copies(runs[fit_n:]),
+            "edges": device_edges(plan),
+            "own_model": own.summary(),
+        })
+        # Charts: the out-of-sample prediction over the frames it predicted.
+        plan.prediction = model.predict(plan)
+        plan.last_run.clear()
+        plan.last_run.extend(runs[fit_n:])
+        plan.gantt(out_dir / f"gantt_{tag}_{policy}.png", title=tag)
+        plan.last_run.clear()
+        plan.last_run.extend(piped[policy])
+        plan.gantt(out_dir / f"gantt_{tag}_{policy}_pipelined.png", frames=3,
+                   title=f"{tag} (depth {args.depth})")
+        r = rows[-1]
+        print(f"{tag} {policy:9s} in sample {r['pred_in_ms']:8.3f} vs {r['measured_in_ms']:8.3f} ms "
+              f"({r['error_in_pct']:+6.1f}%)  out of sample {r['pred_out_ms']:8.3f} vs "
+              f"{r['measured_out_ms']:8.3f} ms ({r['error_out_pct']:+6.1f}%)  scheduler "
+              f"{r['scheduler_ms']:8.3f}  pipelined {r['pipelined_fps']:7.1f} FPS  gpu: {r['gpu_nodes']}",
+              flush=True)
+    fastest = min(rows, key=lambda r: r["measured_out_ms"])
+    best = rows[-1]
     return {
-        "policy": policy,
-        "costs": costs,
-        "chosen": plan.schedule.info.get("chosen", policy),
-        "predicted_ms": predicted,
-        "measured_ms": measured,
-        "measured_p90_ms": float(np.percentile(spans, 90)),
-        "wall_ms": statistics.median(walls),
-        "error_pct": 100.0 * (measured - predicted) / predicted if predicted > 0 else None,
-        "pipelined_fps": n / stream_s,
-        "sequential_fps": 1e3 / statistics.median(walls),
-        "placement": plan.placement,
-        "metrics": {k: v for k, v in plan.metrics.items() if k != "idle_per_processor"},
-        "gpu_nodes": sorted(t for t, p in plan.placement.items() if p == "gpu"),
-        "nodes": node_table(plan, runs),
-        "copies": copies(runs),
-        "edges": device_edges(plan),
-        "rounds": len(placements),
-        "transfer_scale": plan.calibration.transfer_scale,
+        "graph": g.name, "tag": tag, "nodes": len(g.nodes), "fit_frames": fit_n,
+        "frames": len(frames), "train": args.train, "model": model.summary(), "policies": rows,
+        "fastest": fastest["policy"],
+        "best_vs_fastest_pct": _err(best["measured_out_ms"], fastest["measured_out_ms"]),
+        "calibration": plans["baseline"].calibration.nodes,
     }
-
-
-def replay_ms(row, edges, dispatch, n_cpus) -> float:
-    """The model's makespan for a run's placement with each node's cost as measured in the
-    running frames (GPU: the longer of device and host time) and its copies charged to it,
-    as the executor makes them; edges carry the hand-off. Near the measured makespan when
-    the model's structure is right, so a prediction's error is then the costs' error."""
-    from warpvx.sched import cpu_gpu_dag
-    from warpvx.sched import schedule as schedule_dag
-
-    tasks = {}
-    for node, t in row["nodes"].items():
-        gpu = t["pe"] == "gpu"
-        c = t["measured_ms"]
-        if gpu and t["host_ms"] is not None:
-            c = max(c, t["host_ms"] - t["transfer_ms"])
-        c += t["transfer_ms"] + dispatch.get("gpu_gap" if gpu else "cpu_gap", 0.0)
-        tasks[node] = (None, c) if gpu else (c, None)
-    dag = cpu_gpu_dag(tasks, {e: dispatch.get("handoff", 0.0) for e in edges}, n_cpus)
-    return schedule_dag(dag, "heft").makespan
-
-
-def graph_edges(g) -> list:
-    from warpvx.graph.data import Data
-
-    return sorted({(ref.producer.name, n.name) for n in g.nodes.values()
-                   for ref in n.inputs.values() if isinstance(ref, Data) and ref.producer is not None})
-
-
-def replay_report(path: Path) -> str:
-    """``--replay``: the replayed makespans of a saved ``graph_bench.json``, as markdown."""
-    report = json.loads(Path(path).read_text())
-    edges = graph_edges(build_graph(tuple(report["size"])))
-    lines = [f"# Replay of {Path(path).name} ({report['machine']})", "",
-             "The model (task DAG, HEFT) with each node's cost as measured in the running frames "
-             "and its copies charged to the node (the executor copies on the consumer's "
-             "processor); edges carry the executor's hand-off. It tests the model's structure "
-             "apart from its costs.", "",
-             "| policy | costs | measured ms | predicted ms | replayed ms | measured vs replayed |",
-             "| --- | --- | ---: | ---: | ---: | ---: |"]
-    for row in report["policies"]:
-        rep = replay_ms(row, edges, report["dispatch"], report["n_cpus"])
-        lines.append(f"| {row['policy']} | {row['costs']} | {row['measured_ms']:.3f} | "
-                     f"{row['predicted_ms']:.3f} | {rep:.3f} | "
-                     f"{100 * (row['measured_ms'] - rep) / rep:+.1f}% |")
-    return "\n".join(lines) + "\n"
 
 
 def choose_threading(g, frames, args) -> dict:
@@ -386,96 +393,80 @@ def _fmt(v, spec=".3f"):
 
 
 def markdown(report) -> str:
+    si = report["switch_interval"]
     lines = [
         f"# Graph runtime benchmark ({report['mode']})",
         "",
+        f"Regenerate: `{report['command']}`",
+        "",
         f"Machine: {report['machine']}; GPU role: {report['gpu']}; CPU workers: "
-        f"{report['n_cpus']}; cameras {report['size'][0]}x{report['size'][1]}; "
-        f"{report['frames']} frames per policy; {report['nodes']} nodes; OpenCV threads "
-        f"{report['cv_threads']}; GIL switch interval {report['switch_interval']['chosen'] * 1e3:g} ms; "
-        f"executor spin {report['switch_interval']['spin_chosen'] * 1e6:g} us.",
+        f"{report['n_cpus']}; {report['frames']} frames per policy run one at a time, then "
+        f"pipelined (depth {report['depth']}); OpenCV threads {report['cv_threads']}; GIL "
+        f"switch interval {si['chosen'] * 1e3:g} ms; executor spin {si['spin_chosen'] * 1e6:g} us.",
         "",
-        "Predicted vs measured makespan of one frame (frames run one at a time; the target is "
-        "within 20%). *calibrated*: node costs timed alone; *history*: costs the nodes showed "
-        "in running frames (StarPU-style history model), refined over up to 3 rounds of "
-        "schedule, run, learn until the placement is stable (*rounds*); copies scaled by what "
-        "they took in running frames (*copy scale*). *replayed*: the model run with each "
-        "node's measured in-frame cost and copies (see `--replay`): how far the model's "
-        "structure, apart from its costs, is from the measurement.",
+        "The contention model (`warpvx.graph.model`): each node's calibrated cost alone plus "
+        "its copies, times an in-frame ratio and a per-node correction, slowed down by "
+        "`1 + a * (other host threads busy)`, with the measured waits between tasks, played "
+        "through a simulation of the executor. *In sample*: each policy's own model, fitted on "
+        "its first frames, against those frames. *Out of sample*: the model fitted on the "
+        "first frames of the training policy only, against the later frames of every policy "
+        "(target: within 20%). *scheduler*: the makespan the policy's own schedule claims "
+        "(isolated calibration). `best` is the schedule the out-of-sample model predicts "
+        "fastest among baseline, HEFT and XEFT on the calibrated DAG and on the model's "
+        "in-frame costs.",
         "",
-        "| policy | costs | rounds | predicted ms | measured ms (median) | error | replayed ms | "
-        f"p90 ms | sequential FPS | pipelined FPS (depth {report['depth']}) | copy scale | GPU nodes |",
-        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
     ]
-    for r in report["policies"]:
-        name = r["policy"] + (f" ({r['chosen']})" if r["chosen"] != r["policy"] else "")
-        scale = f"{r['transfer_scale']:.2f}" if r["costs"] == "history" else "-"
-        lines.append(
-            f"| {name} | {r['costs']} | {r['rounds']} | {r['predicted_ms']:.3f} | "
-            f"{r['measured_ms']:.3f} | {r['error_pct']:+.1f}% | {_fmt(r.get('replayed_ms'))} | "
-            f"{r['measured_p90_ms']:.3f} | "
-            f"{r['sequential_fps']:.1f} | {r['pipelined_fps']:.1f} | {scale} | "
-            f"{len(r['gpu_nodes'])}: {', '.join(r['gpu_nodes'])} |"
-        )
-    si = report["switch_interval"]
+    for e in report["experiments"]:
+        m = e["model"]
+        sd = m["slowdown"]
+        lines += [
+            f"## {e['tag']} ({e['nodes']} nodes)", "",
+            f"Trained on {m['trained_on']}; fit frames 1-{e['fit_frames']}, out of sample "
+            f"frames {e['fit_frames'] + 1}-{e['frames']}. Fitted: CPU worker ratio "
+            f"{sd['cpu']['ratio']:.2f}, slowdown per busy thread {sd['cpu']['per_thread']:.2f}; "
+            f"GPU host ratio {sd['gpu']['ratio']:.2f}, slowdown per busy thread "
+            f"{sd['gpu']['per_thread']:.2f}; waits (us) "
+            + ", ".join(f"{k} {v:.1f}" for k, v in m["latency_us"].items()) + ".", "",
+            "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
+            "of sample | measured | error | p90 ms | sequential FPS | pipelined FPS | GPU nodes |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
+        ]
+        for r in e["policies"]:
+            name = r["policy"] + (f" ({r['chosen']})" if r["chosen"] != r["policy"] else "")
+            lines.append(
+                f"| {name} | {r['scheduler_ms']:.3f} | {r['pred_in_ms']:.3f} | "
+                f"{r['measured_in_ms']:.3f} | {r['error_in_pct']:+.1f}% | {r['pred_out_ms']:.3f} | "
+                f"{r['measured_out_ms']:.3f} | {r['error_out_pct']:+.1f}% | "
+                f"{r['measured_p90_ms']:.3f} | {r['sequential_fps']:.1f} | "
+                f"{r['pipelined_fps']:.1f} | {len(r['gpu_nodes'])}: {', '.join(r['gpu_nodes'])} |")
+        best = e["policies"][-1]
+        within = abs(e["best_vs_fastest_pct"]) <= 5.0
+        lines += ["", f"Fastest measured: {e['fastest']}; best measured "
+                      f"{e['best_vs_fastest_pct']:+.1f}% from it ({'within' if within else 'NOT within'} "
+                      f"5%). Best's candidates, predicted ms: "
+                      + ", ".join(f"{k} {v:.3f}" for k, v in (best["candidates"] or {}).items()) + ".", ""]
+        lines += ["Per node (out-of-sample frames of each policy): calibrated alone vs measured in "
+                  "the frames (interval without transfers; GPU: device interval), ms:", ""]
+        for r in e["policies"]:
+            lines += [f"{r['policy']}: " + "; ".join(
+                f"{n} {t['pe']} {_fmt(t['calibrated_ms'])}/{_fmt(t['measured_ms'])}"
+                for n, t in r["nodes"].items()), ""]
     if si["switch"]:
-        lines += ["", "GIL switch interval (heft plan, median makespan): " + ", ".join(
-            f"{float(k) * 1e3:g} ms -> {v:.3f} ms" for k, v in si["switch"].items()) + "."]
-    if si["spin"]:
-        lines += ["", "Executor spin before blocking (heft plan, median makespan): " + ", ".join(
-            f"{float(k) * 1e6:g} us -> {v:.3f} ms" for k, v in si["spin"].items()) + "."]
-    lines += ["", "Data movement per frame (medians) and edges by where data lives "
-                  "(GPU->GPU edges stay on the device, no copy):", ""]
-    for r in report["policies"]:
-        c = r["copies"]
-        lines.append(f"- {r['policy']} ({r['costs']}): uploads {c['h2d_bytes'] / 1e6:.2f} MB, "
-                     f"downloads {c['d2h_bytes'] / 1e6:.2f} MB; edges "
-                     + ", ".join(f"{k} {v}" for k, v in sorted(r["edges"].items())))
-    lines += ["", "Per node, each policy's calibrated-costs run: cost timed alone vs in the "
-                  "running frames (interval without transfers; GPU: device interval between "
-                  "events; host: the GPU thread's time in the call), ms:", ""]
-    for r in report["policies"]:
-        if r["costs"] != "calibrated":
-            continue
-        lines += [f"{r['policy']}:", "",
-                  "| node | on | alone | in frames | transfers | GPU host alone | GPU host in frames |",
-                  "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
-        for node, t in r["nodes"].items():
-            lines.append(f"| {node} | {t['pe']} | {_fmt(t['calibrated_ms'])} | {_fmt(t['measured_ms'])} | "
-                         f"{_fmt(t['transfer_ms'])} | {_fmt(t['calibrated_host_ms'])} | {_fmt(t['host_ms'])} |")
-        lines.append("")
-    lines += ["Calibrated node costs (ms; GPU: device interval, host time in brackets):", "",
-              "| node | cpu | gpu |", "| --- | ---: | ---: |"]
-    for node, t in report["calibration"].items():
-        gpu = _fmt(t["gpu"])
-        if t.get("gpu_host") is not None:
-            gpu += f" ({t['gpu_host']:.3f})"
-        lines.append(f"| {node} | {_fmt(t['cpu'])} | {gpu} |")
+        lines += ["GIL switch interval (heft plan, median makespan): " + ", ".join(
+            f"{float(k) * 1e3:g} ms -> {v:.3f} ms" for k, v in si["switch"].items()) + ".", ""]
     tm = report["transfer"]
-    d = report["dispatch"]
-    lines += ["", f"Transfer model: h2d {tm['h2d_latency_ms'] * 1e3:.1f} us + "
-                  f"{tm['h2d_gbps']:.2f} GB/s, d2h {tm['d2h_latency_ms'] * 1e3:.1f} us + "
-                  f"{tm['d2h_gbps']:.2f} GB/s.",
-              "", f"Executor dispatch costs in the model: CPU task {d.get('cpu_node', 0) * 1e3:.1f} us, "
-                  f"GPU task {d.get('gpu_node', 0) * 1e3:.1f} us, CPU<->GPU hand-off "
-                  f"{d.get('handoff', 0) * 1e3:.1f} us (beyond the copy), frame start "
-                  f"{d.get('start', 0) * 1e3:.1f} us.", ""]
-    lines += overhead_lines(report["overhead"])
+    lines += [f"Transfer model: h2d {tm['h2d_latency_ms'] * 1e3:.1f} us + "
+              f"{tm['h2d_gbps']:.2f} GB/s, d2h {tm['d2h_latency_ms'] * 1e3:.1f} us + "
+              f"{tm['d2h_gbps']:.2f} GB/s.", ""]
+    if report["overhead"]:
+        lines += overhead_lines(report["overhead"])
     if report.get("soak"):
         s = report["soak"]
         gpu = ("n/a" if s["gpu_mem_start_mb"] is None else
                f"Warp mempool in use {s['gpu_mem_start_mb']:.1f} -> {s['gpu_mem_end_mb']:.1f} MB")
-        smi = ("" if s.get("smi_start_mb") is None else
-               f"; nvidia-smi (this process) {s['smi_start_mb']:.0f} -> {s['smi_end_mb']:.0f} MB")
-        cut = "" if s["frames"] >= s.get("requested", s["frames"]) else \
-            f" (of {s['requested']} asked: stopped at the time limit)"
-        lines += ["", f"Soak: {s['frames']} frames{cut} pipelined (depth {s['depth']}) at "
+        lines += ["", f"Soak: {s['frames']} frames pipelined (depth {s['depth']}) at "
                       f"{s['fps']:.1f} FPS; host RSS {s['rss_start_mb']:.1f} -> "
-                      f"{s['rss_end_mb']:.1f} MB; GPU: {gpu}{smi}."]
-        if s.get("samples"):
-            lines += ["", "| frame | RSS MB | mempool MB | nvidia-smi MB |", "| ---: | ---: | ---: | ---: |"]
-            for fr, rss, gm, sm in s["samples"]:
-                lines.append(f"| {fr} | {rss:.1f} | {_fmt(gm, '.1f')} | {_fmt(sm, '.0f')} |")
+                      f"{s['rss_end_mb']:.1f} MB; GPU: {gpu}."]
     lines.append("")
     return "\n".join(lines)
 
@@ -560,10 +551,18 @@ def main(argv=None):
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="small sizes, few frames, warp-cpu if no CUDA")
     p.add_argument("--out", type=Path, default=None, help="results folder")
-    p.add_argument("--frames", type=int, default=None, help="frames per policy (default 50, quick 8)")
+    p.add_argument("--frames", type=int, default=None, help="frames per policy (default 100, quick 24)")
+    p.add_argument("--fit-frames", type=int, default=None,
+                   help="frames the model learns from (default 20, quick 8); the rest are predicted")
+    p.add_argument("--train", default="baseline", choices=("baseline", "heft", "xeft"),
+                   help="the policy whose first frames train the out-of-sample model")
     p.add_argument("--n-cpus", type=int, default=None, help="CPU workers (default: cores - 1, max 4)")
     p.add_argument("--gpu", default=None, help="cuda, cuda:N or warp-cpu (default: cuda if present)")
-    p.add_argument("--size", default=None, help="camera size WxH (default 1280x720, quick 160x120)")
+    p.add_argument("--sizes", default=None,
+                   help="camera sizes WxH, comma-separated (default 1280x720,1920x1080; quick 160x120)")
+    p.add_argument("--size", default=None, help="one camera size (same as --sizes WxH)")
+    p.add_argument("--graphs", default="two-cameras,two-cameras-cv",
+                   help="two-cameras (16 nodes) and/or two-cameras-cv (more CPU-only OpenCV nodes)")
     p.add_argument("--depth", type=int, default=3, help="frames in flight when pipelined")
     p.add_argument("--soak", type=int, default=0, help="also run N frames pipelined, report memory")
     p.add_argument("--soak-seconds", type=float, default=None,
@@ -581,14 +580,9 @@ def main(argv=None):
     p.add_argument("--spin", type=float, default=None,
                    help="the executor's spin before blocking, s (default: the faster of 0, 30 us)")
     p.add_argument("--recalibrate", action="store_true")
-    p.add_argument("--replay", type=Path, default=None,
-                   help="only replay a saved graph_bench.json (writes replay.md beside it)")
     args = p.parse_args(argv)
-    if args.replay is not None:
-        text = replay_report(args.replay)
-        (args.replay.parent / "replay.md").write_text(text)
-        print(text)
-        return None
+    args.command = "PYTHONPATH=. python benchmarks/graph_bench.py " + " ".join(
+        argv if argv is not None else sys.argv[1:])
     cv_threads_before = cv2.getNumThreads()
     switch_before = sys.getswitchinterval()
     spin_before = executor.SPIN_SECONDS
@@ -601,97 +595,83 @@ def main(argv=None):
         executor.SPIN_SECONDS = spin_before
 
 
+def _sizes(args) -> list:
+    text = args.size or args.sizes or ("160x120" if args.quick else "1280x720,1920x1080")
+    return [tuple(int(v) for v in s.split("x")) for s in text.split(",")]
+
+
 def _run(args):
     init_warp()
     if args.gpu is None:
         args.gpu = "cuda" if warpvx.cuda_available() else "warp-cpu"
     if args.n_cpus is None:
         args.n_cpus = default_n_cpus()
-    size = tuple(int(v) for v in (args.size or ("160x120" if args.quick else "1280x720")).split("x"))
-    n_frames = args.frames or (8 if args.quick else 50)
+    n_frames = args.frames or (24 if args.quick else 100)
+    args.fit_frames = args.fit_frames or (8 if args.quick else 20)
     out_dir = args.out or (ROOT / "results" / "graph" / ("quick" if args.quick else ""))
     out_dir.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
+    graphs = [n.strip() for n in args.graphs.split(",") if n.strip()]
+    unknown = set(graphs) - {"two-cameras", "two-cameras-cv"}
+    if unknown:
+        raise SystemExit(f"--graphs: unknown {sorted(unknown)}")
 
-    frames = make_frames(size, max(n_frames, 2))
-    g = build_graph(size, max_corners=200 if args.quick else 500)
-    g.verify(frames[:2])
-    cal = g.calibrate(gpu=args.gpu, recalibrate=args.recalibrate,
-                      repeats=5 if args.quick else 11)
-    print(f"calibrated {len(cal.nodes)} nodes on {cal.machine} ({len(cal.fresh)} measured now); "
-          f"dispatch {({k: round(v * 1e3, 1) for k, v in cal.dispatch.items()})} us", flush=True)
-    tm = cal.transfer
-    print(f"transfer model: h2d {tm.h2d_latency * 1e3:.1f} us + {tm.bandwidth_gbps[0]:.2f} GB/s, "
-          f"d2h {tm.d2h_latency * 1e3:.1f} us + {tm.bandwidth_gbps[1]:.2f} GB/s", flush=True)
-    switch = choose_threading(g, frames, args)
-    print(f"GIL switch interval {switch['chosen'] * 1e3:g} ms "
-          f"(tried: {({k * 1e3: round(v, 3) for k, v in switch['switch'].items()})}); spin "
-          f"{switch['spin_chosen'] * 1e6:g} us (tried: "
-          f"{({k * 1e6: round(v, 3) for k, v in switch['spin'].items()})})", flush=True)
-
-    rows = []
-    for costs in ("calibrated", "history"):
-        for policy in POLICIES:
-            row = run_policy(g, policy, frames, args, out_dir, costs=costs,
-                             learn=costs == "calibrated", rounds=3 if costs == "history" else 1)
-            row["replayed_ms"] = replay_ms(row, graph_edges(g), cal.dispatch, args.n_cpus)
-            rows.append(row)
-            print(f"{policy:9s} {costs:10s} predicted {row['predicted_ms']:8.3f} ms  measured "
-                  f"{row['measured_ms']:8.3f} ms  ({row['error_pct']:+6.1f}%)  replayed "
-                  f"{row['replayed_ms']:8.3f} ms  pipelined "
-                  f"{row['pipelined_fps']:7.1f} FPS  rounds {row['rounds']}  gpu: {row['gpu_nodes']}",
+    experiments, switch, cal = [], None, None
+    for size in _sizes(args):
+        frames = make_frames(size, max(n_frames, args.fit_frames + 2))
+        for name in graphs:
+            g = build_graph(size, max_corners=200 if args.quick else 500,
+                            cpu_heavy=name == "two-cameras-cv")
+            g.verify(frames[:2])
+            cal = g.calibrate(gpu=args.gpu, recalibrate=args.recalibrate,
+                              repeats=5 if args.quick else 11)
+            print(f"{g.name} {size[0]}x{size[1]}: calibrated {len(cal.nodes)} nodes on "
+                  f"{cal.machine} ({len(cal.fresh)} measured now)", flush=True)
+            if switch is None:  # once: it sets the process-wide GIL switch interval and spin
+                switch = choose_threading(g, frames, args)
+                print(f"GIL switch interval {switch['chosen'] * 1e3:g} ms; spin "
+                      f"{switch['spin_chosen'] * 1e6:g} us", flush=True)
+            e = experiment(g, frames, args, out_dir, f"{g.name}_{size[0]}x{size[1]}")
+            print(f"  fastest measured {e['fastest']}; best {e['best_vs_fastest_pct']:+.1f}% from it",
                   flush=True)
-            if costs == "calibrated":
-                for node, t in row["nodes"].items():
-                    print(f"    {node:12s} {t['pe']:4s} alone {t['calibrated_ms']:7.3f}  in frames "
-                          f"{t['measured_ms']:7.3f}  xfer {t['transfer_ms']:6.3f}  host "
-                          f"{_fmt(t['host_ms'])} (alone {_fmt(t['calibrated_host_ms'])})  start "
-                          f"{t['start_ms']:7.3f} (planned {t['planned_start_ms']:7.3f})")
-
-    report = _report(args, cal, g, size, n_frames, switch, rows, [], None, t_start)
-    _write(out_dir, report)  # so far, in case a later step is cut short
+            experiments.append(e)
+            g.close()
+            _write(out_dir, _report(args, cal, n_frames, switch, experiments, [], None, t_start))
 
     overhead = measure_overhead(args)
-
     soak_report = None
     if args.soak:
-        g.schedule("best", n_cpus=args.n_cpus, gpu=args.gpu, costs="history")
+        g = build_graph(_sizes(args)[0], max_corners=200 if args.quick else 500)
+        frames = make_frames(_sizes(args)[0], 8)
+        g.verify(frames[:2])
+        g.schedule("best", n_cpus=args.n_cpus, gpu=args.gpu)
         soak_report = soak(g, lambda i: frames[i % len(frames)], args.soak, depth=args.depth,
                            report_every=max(1, args.soak // 10), max_seconds=args.soak_seconds)
         print(f"soak: {soak_report['frames']} frames, {soak_report['fps']:.1f} FPS, RSS "
-              f"{soak_report['rss_start_mb']:.1f} -> {soak_report['rss_end_mb']:.1f} MB, GPU mempool "
-              f"{soak_report['gpu_mem_start_mb']} -> {soak_report['gpu_mem_end_mb']} MB, nvidia-smi "
-              f"{soak_report['smi_start_mb']} -> {soak_report['smi_end_mb']} MB", flush=True)
-        for fr, rss, gm, sm in soak_report["samples"]:
-            print(f"    frame {fr:6d}: RSS {rss:8.1f} MB, mempool {_fmt(gm, '.1f')} MB, "
-                  f"nvidia-smi {_fmt(sm, '.0f')} MB")
-
-    report = _report(args, cal, g, size, n_frames, switch, rows, overhead, soak_report, t_start)
+              f"{soak_report['rss_start_mb']:.1f} -> {soak_report['rss_end_mb']:.1f} MB", flush=True)
+        g.close()
+    report = _report(args, cal, n_frames, switch, experiments, overhead, soak_report, t_start)
     _write(out_dir, report)
-    g.close()
     print(f"wrote {out_dir} in {report['seconds']:.1f} s")
     return report
 
 
-def _report(args, cal, g, size, n_frames, switch, rows, overhead, soak_report, t_start) -> dict:
+def _report(args, cal, n_frames, switch, experiments, overhead, soak_report, t_start) -> dict:
     up, down = cal.transfer.bandwidth_gbps
     return {
         "mode": "quick" if args.quick else "full",
+        "command": args.command,
         "machine": cal.machine,
         "platform": platform.platform(),
         "python": sys.version.split()[0],
         "warp": wp.config.version,
         "gpu": args.gpu,
         "n_cpus": args.n_cpus,
-        "size": size,
         "frames": n_frames,
         "depth": args.depth,
         "cv_threads": args.cv_threads,
         "switch_interval": switch,
-        "nodes": len(g.nodes),
-        "policies": rows,
-        "calibration": cal.nodes,
-        "history": cal.history,
+        "experiments": experiments,
         "transfer": {"h2d_latency_ms": cal.transfer.h2d_latency, "h2d_gbps": up,
                      "d2h_latency_ms": cal.transfer.d2h_latency, "d2h_gbps": down},
         "dispatch": cal.dispatch,

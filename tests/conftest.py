@@ -37,3 +37,12 @@ def backend(request):
 def warp_backend(request):
     """Each Warp backend under test (warp-cpu, cuda)."""
     return request.param
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _session_cache(tmp_path_factory):
+    """Graphs calibrate into a private cache (never the user's ~/.cache)."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("WARPVX_CACHE_DIR", str(tmp_path_factory.mktemp("calibration")))
+    yield
+    mp.undo()

@@ -14,7 +14,7 @@ import pytest
 
 from warpvx import cli
 
-from .subprocess_python import REPO, run_python
+from .isolated import ROOT as REPO, run_python
 
 README = REPO / "README.md"
 FENCE = re.compile(r"^(?P<indent> {0,3})(?P<fence>`{3,}|~{3,})\s*(?P<lang>[\w+-]*)")

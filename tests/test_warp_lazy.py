@@ -11,7 +11,7 @@ import pytest
 
 from warpvx.backend import cuda_driver_present
 
-from .subprocess_python import run_python
+from .isolated import run_python
 
 NO_DRIVER = "Could not find or load the NVIDIA CUDA driver"
 

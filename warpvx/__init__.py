@@ -45,6 +45,7 @@ _LAZY = {
     "knn_match_hamming": "warpvx.matching",
     "find_homography": "warpvx.homography",
     "Graph": "warpvx.graph",
+    "orb_graph": "warpvx.graph.orb_graph",
     "Delay": "warpvx.graph",
     "cv": "warpvx.cv",
     "sched": "warpvx.sched",

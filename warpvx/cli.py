@@ -142,6 +142,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="stabilize a shaky video (thesis §3.2) with the warpvx graph",
         description="Stabilize a video file or image folder IN into OUT; see apps/stabilize.py.",
     ))
+    from .apps.orbslam import add_arguments as add_orbslam_arguments
+
+    add_orbslam_arguments(sub.add_parser(
+        "orbslam",
+        help="ORB-SLAM2 front end (thesis ch. 4): trajectory of a camera sequence",
+        description="Track a KITTI/TUM folder, image folder or video; see apps/orbslam_frontend.py.",
+    ))
     return parser
 
 
@@ -179,6 +186,10 @@ def _run(argv) -> int:
         from .apps.stabilize import run_cli
 
         return run_cli(args, "warpvx stabilize")
+    if args.command == "orbslam":
+        from .apps.orbslam import run_cli as run_orbslam
+
+        return run_orbslam(args, "warpvx orbslam")
     parser.print_help()
     return 0 if not argv else 2
 

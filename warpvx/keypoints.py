@@ -8,7 +8,7 @@ import numpy as np
 
 from .arrays import is_warp_array
 from .backend import init_warp
-from .errors import ShapeError, WarpvxTypeError
+from .errors import DTypeError, ShapeError, WarpvxTypeError, WarpvxValueError
 
 FIELDS = ("x", "y", "response", "size", "angle", "octave")
 _DTYPES = {"x": np.float32, "y": np.float32, "response": np.float32, "size": np.float32,
@@ -18,6 +18,10 @@ _DTYPES = {"x": np.float32, "y": np.float32, "response": np.float32, "size": np.
 @dataclass
 class Keypoints:
     """N keypoints as parallel arrays (all NumPy, or all ``wp.array`` on one device).
+
+    Validated at construction (:meth:`validate`): six 1-D arrays of one length, of the dtypes
+    below, all host or all on one device; host coordinates finite. Fields may be reassigned
+    later, so public calls taking Keypoints validate them again (:func:`check_keypoints`).
 
     Attributes
     ----------
@@ -39,6 +43,44 @@ class Keypoints:
     size: object
     angle: object
     octave: object
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self, name: str = "keypoints") -> "Keypoints":
+        """Check the fields' kinds, shapes, dtypes and lengths (cheap: no copy, no sync), and
+        on the host that ``x`` and ``y`` are finite; device values are checked where a public
+        call reads them (:func:`check_keypoints`). Returns ``self``.
+
+        Raises
+        ------
+        WarpvxTypeError, DTypeError, ShapeError, WarpvxValueError
+            Naming ``name.field``: not an array, mixed host/device, not 1-D, wrong dtype,
+            lengths that differ, NaN/inf coordinates.
+        """
+        arrays = [getattr(self, f) for f in FIELDS]
+        host = isinstance(arrays[0], np.ndarray)
+        device = None if host else getattr(arrays[0], "device", None)
+        for f, a in zip(FIELDS, arrays):
+            if not (isinstance(a, np.ndarray) or is_warp_array(a)):
+                raise WarpvxTypeError(f"{name}.{f}: expected a NumPy array or wp.array, got "
+                                      f"{type(a).__name__}")
+            if isinstance(a, np.ndarray) != host or (not host and a.device != device):
+                want = "a NumPy array" if host else f"a wp.array on {device}"
+                got = "a NumPy array" if isinstance(a, np.ndarray) else f"a wp.array on {a.device}"
+                raise WarpvxValueError(f"{name}.{f}: expected {want} like {name}.x, got {got}")
+            if a.ndim != 1:
+                raise ShapeError(f"{name}.{f}: expected a 1-D array, got shape {tuple(a.shape)}")
+            if not _has_dtype(a, f):
+                got = a.dtype if host else getattr(a.dtype, "__name__", a.dtype)
+                raise DTypeError(f"{name}.{f}: expected dtype {np.dtype(_DTYPES[f])}, got {got}")
+        lengths = [int(a.shape[0]) for a in arrays]
+        if len(set(lengths)) > 1:
+            each = ", ".join(f"{f} {n}" for f, n in zip(FIELDS, lengths))
+            raise ShapeError(f"{name}: expected fields of one length, got {each}")
+        if host:
+            _check_finite(self, name)
+        return self
 
     @classmethod
     def empty(cls) -> "Keypoints":
@@ -142,3 +184,51 @@ class Keypoints:
             angle=np.array([k.angle for k in kps], np.float32),
             octave=np.array([k.octave for k in kps], np.int32),
         )
+
+
+def _has_dtype(a, field: str) -> bool:
+    """``a`` (NumPy or Warp, validated kind) has ``field``'s dtype exactly (Warp vector
+    dtypes such as ``wp.vec2`` do not pass as their scalar)."""
+    if isinstance(a, np.ndarray):
+        return a.dtype == _DTYPES[field]
+    wp = init_warp()
+    return a.dtype is (wp.int32 if field == "octave" else wp.float32)
+
+
+def _check_finite(kps: Keypoints, name: str) -> None:
+    """Host ``kps.x`` and ``kps.y`` hold no NaN or inf."""
+    for f in ("x", "y"):
+        a = getattr(kps, f)
+        if a.size and not np.isfinite(a).all():
+            bad = int(np.flatnonzero(~np.isfinite(a))[0])
+            raise WarpvxValueError(f"{name}.{f}: expected finite coordinates, got {a[bad]} at "
+                                   f"index {bad}")
+
+
+def check_keypoints(keypoints, name: str = "keypoints", *, n_levels=None) -> Keypoints:
+    """Validate Keypoints entering a public call and return them on the host.
+
+    The fields may have been reassigned since construction, so the structure is checked again
+    (:meth:`Keypoints.validate`), then on a host copy (one download for device keypoints,
+    which every caller makes anyway): finite ``x``, ``y``, and ``0 <= octave < n_levels``
+    when the call knows its number of levels.
+
+    Raises
+    ------
+    WarpvxTypeError
+        ``keypoints`` is not a :class:`Keypoints`.
+    DTypeError, ShapeError, WarpvxValueError
+        As :meth:`Keypoints.validate`; an octave out of range.
+    """
+    if not isinstance(keypoints, Keypoints):
+        raise WarpvxTypeError(f"{name}: expected Keypoints, got {type(keypoints).__name__}")
+    host = keypoints.validate(name).to("host")
+    if not keypoints.is_host:
+        _check_finite(host, name)
+    if n_levels is not None and len(host):
+        lo, hi = int(host.octave.min()), int(host.octave.max())
+        if lo < 0 or hi >= n_levels:
+            bad = lo if lo < 0 else hi
+            raise WarpvxValueError(f"{name}.octave: expected values in [0, {n_levels - 1}], "
+                                   f"got {bad}")
+    return host

@@ -15,12 +15,14 @@ from ._orb_spec import DESCRIPTOR_BYTES, MAX_SIDE, MIN_LEVEL_SIZE
 from .backend import resolve_backend
 from .check import check_array, check_float, check_image, check_int
 from .errors import ShapeError, WarpvxTypeError, WarpvxValueError
-from .keypoints import Keypoints
+from .keypoints import Keypoints, check_keypoints
 from .pyramid import scale_pyramid_sizes
 from .registry import dispatch
 
 # Level sizes of a (width, height, levels, scale) (validation runs on every call).
 _level_sizes = functools.lru_cache(maxsize=256)(scale_pyramid_sizes)
+# Most pyramid levels: orb's n_levels, and so one more than the largest orb_compute octave.
+MAX_LEVELS = 32
 
 def _gray(src, name: str = "src"):
     """A gray uint8 HxW image (HxWx1 viewed as HxW); colour input is refused, not converted."""
@@ -115,7 +117,7 @@ def orb(src, n_features: int = 2000, scale_factor: float = 1.2, n_levels: int = 
     src = _gray(src)
     n_features = check_int(n_features, "n_features", min_value=1)
     scale_factor = check_float(scale_factor, "scale_factor", min_value=1.0, strict_min=True)
-    n_levels = check_int(n_levels, "n_levels", min_value=1, max_value=32)
+    n_levels = check_int(n_levels, "n_levels", min_value=1, max_value=MAX_LEVELS)
     ini_th_fast = check_int(ini_th_fast, "ini_th_fast", min_value=0, max_value=255)
     min_th_fast = check_int(min_th_fast, "min_th_fast", min_value=0, max_value=255)
     h, w = int(src.shape[0]), int(src.shape[1])
@@ -148,7 +150,9 @@ def orb_compute(src, keypoints, scale_factor: float = 1.2, *, out=None, backend=
     src : uint8 HxW
         Gray image.
     keypoints : Keypoints or list of cv2.KeyPoint
-        Level-0 coordinates, ``octave`` >= 0, ``angle`` in degrees.
+        Level-0 coordinates (finite), ``octave`` in [0, 32) (orb's ``n_levels`` limit) and
+        a level that exists for the image, ``angle`` in degrees (finite). Validated on every
+        call (:func:`warpvx.keypoints.check_keypoints`): fields of one length and dtype.
     scale_factor : float > 1
     out : uint8 [N, 32], optional
         Writable, C-contiguous; receives the descriptors (N = the number of keypoints).
@@ -162,24 +166,25 @@ def orb_compute(src, keypoints, scale_factor: float = 1.2, *, out=None, backend=
 
     Raises
     ------
+    WarpvxTypeError
+        ``keypoints`` neither Keypoints nor a list of cv2.KeyPoint.
     ShapeError, DTypeError, WarpvxValueError
-        ``out`` of the wrong shape or dtype, not contiguous, or read-only.
+        Keypoints fields of different lengths or wrong dtypes, NaN/inf coordinates or angles,
+        an octave out of range; ``out`` of the wrong shape or dtype, not contiguous, or
+        read-only.
     """
     be = resolve_backend(backend, like=src)
     src = _gray(src)
     scale_factor = check_float(scale_factor, "scale_factor", min_value=1.0, strict_min=True)
-    if not isinstance(keypoints, Keypoints):
-        if isinstance(keypoints, (list, tuple)):
-            keypoints = Keypoints.from_cv(keypoints)
-        else:
-            raise WarpvxTypeError(f"keypoints: expected Keypoints or a list of cv2.KeyPoint, got "
-                                  f"{type(keypoints).__name__}")
-    host = keypoints.to("host")
-    if len(host) and not (np.all(np.isfinite(host.x)) and np.all(np.isfinite(host.y))
-                          and np.all(np.isfinite(host.angle))):
-        raise WarpvxValueError("keypoints: coordinates and angles must be finite")
-    if len(host) and host.octave.min() < 0:
-        raise WarpvxValueError(f"keypoints: octave must be >= 0, got {int(host.octave.min())}")
+    if isinstance(keypoints, (list, tuple)):
+        keypoints = Keypoints.from_cv(keypoints)
+    elif not isinstance(keypoints, Keypoints):
+        raise WarpvxTypeError(f"keypoints: expected Keypoints or a list of cv2.KeyPoint, got "
+                              f"{type(keypoints).__name__}")
+    # Octaves are bounded before any pyramid size is computed (one list entry per level).
+    host = check_keypoints(keypoints, n_levels=MAX_LEVELS)
+    if len(host) and not np.all(np.isfinite(host.angle)):
+        raise WarpvxValueError("keypoints.angle: expected finite angles (degrees), got NaN or inf")
     n_levels = int(host.octave.max()) + 1 if len(host) else 1
     h, w = int(src.shape[0]), int(src.shape[1])
     lw, lh = scale_pyramid_sizes(w, h, n_levels, scale_factor)[-1]

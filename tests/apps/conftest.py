@@ -13,15 +13,6 @@ from tests.images import bgr
 CLIP = os.path.join(os.path.dirname(__file__), "..", "..", "warpvx", "data", "bikes_shaky.mp4")
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _session_cache(tmp_path_factory):
-    """Graphs calibrate into a private cache (never the user's ~/.cache)."""
-    mp = pytest.MonkeyPatch()
-    mp.setenv("WARPVX_CACHE_DIR", str(tmp_path_factory.mktemp("calibration")))
-    yield
-    mp.undo()
-
-
 @pytest.fixture(scope="session")
 def bikes():
     """The first 16 frames of the bundled hand-held clip, halved to 320x136 (BGR uint8)."""

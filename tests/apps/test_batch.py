@@ -132,10 +132,12 @@ def test_cli_one_in_out_pair_stays_a_single_run_and_a_batch_needs_out(clips, tmp
     good, _ = clips
     assert cli.main(["stabilize", good[0], str(tmp_path / "one.mp4"), "--quiet"]) == 0
     assert os.path.isfile(tmp_path / "one.mp4") and not os.path.exists(tmp_path / "one")
-    for argv in ([good[0]], good[:3], [good[0], str(tmp_path / "o.mp4"), "--resume"]):
+    for argv, field in [([good[0]], "output"), (good[:3], "out"),
+                        ([good[0], str(tmp_path / "o.mp4"), "--resume"], "out"),
+                        ([str(tmp_path / "demo"), "--demo", "--ray"], "input")]:
         assert cli.main(["stabilize", *argv, "--quiet"]) == 2
         err = capsys.readouterr().err
-        assert "out:" in err and len(err.strip().splitlines()) == 1
+        assert f" {field}" in err.split("error:")[1].split(":")[0] and len(err.strip().splitlines()) == 1
 
 
 # --------------------------------------------------------------------------- in process

@@ -37,6 +37,37 @@ def test_weights_follow_the_thesis_form():
     assert len(causal) == 7 and causal[-1] == 1.0 and np.all(np.diff(causal) > 0)
 
 
+def test_smoothing_of_translations_is_the_mean_path_minus_the_path():
+    """The classic parameter-space smoother (cumulative shifts, weighted mean over the window,
+    correction = smoothed - actual) is exact for translations: the order and sign of
+    S_j = mean(T_i) T_j^-1 must reproduce it (a swapped inverse doubles the shake)."""
+    rng = np.random.default_rng(0)
+    path = np.cumsum(rng.normal(0, 3, (9, 2)), axis=0)  # T_i: frame 0 -> frame i, shifts
+    cfg = st.StabilizerConfig(window=9)
+    w = cfg.weights()
+    Ts = [np.array([[1, 0, x], [0, 1, y], [0, 0, 1.0]]) for x, y in path]
+    S = st.smooth_transform(*Ts, weights=w, lag=cfg.lag)
+    want = (w[:, None] * path).sum(0) / w.sum() - path[cfg.lag]
+    np.testing.assert_allclose(S, [[1, 0, want[0]], [0, 1, want[1]], [0, 0, 1]], atol=1e-9)
+
+
+def test_lost_points_are_parked_alike_on_host_and_warp():
+    import warp as wp
+
+    pts = np.float32([[1, 2], [3, 4], [5, 6], [7, 8], [9, 10]])
+    status = np.uint8([1, 0, 1, 0, 1])
+    host = st.park_lost(pts, status)
+    np.testing.assert_array_equal(host[status == 1], pts[status == 1])
+    assert (host[status == 0] == st.LOST).all()
+    dev = st._park_lost_warp(wp.array(pts, device="cpu"), wp.array(status, device="cpu"))
+    np.testing.assert_array_equal(dev.numpy(), host)
+
+
+def test_point_sets_are_padded_to_the_four_a_homography_needs():
+    pts = st.refresh_points(np.float32([[10, 10]]), np.uint8([1]), np.zeros((0, 2), np.float32))
+    assert pts.shape == (4, 2) and (pts[0] == 10).all() and (pts[1:] < -1000).all()
+
+
 def test_truncation_keeps_the_output_inside_the_frame():
     size = (160, 120)
     shift = np.array([[1, 0, 30.0], [0, 1, -25.0], [0, 0, 1]])  # beyond a 10% crop margin
@@ -73,11 +104,14 @@ def test_static_clip_stays_still(astronaut):
     assert sm.itf(out) == sm.PSNR_MAX
 
 
-@pytest.mark.parametrize("motion", ["translation", "similarity", "homography"])
-def test_known_translation_shake_is_removed(astronaut, motion):
+@pytest.mark.parametrize("motion, backend", [
+    ("translation", "cpu"), ("similarity", "cpu"), ("homography", "cpu"),
+    ("homography", "warp-cpu"),  # the find_homography primitive as a node on the Warp device
+])
+def test_known_translation_shake_is_removed(astronaut, motion, backend):
     frames, ref, _ = sm.shaky_clip(astronaut, 24, (160, 120), shift=5.0, angle=0.0, zoom=0.0, seed=4)
     cfg = st.StabilizerConfig(window=15, motion=motion, crop=0.1)
-    out = [o.image for o in st.stabilize(frames, cfg, backend="cpu")]
+    out = [o.image for o in st.stabilize(frames, cfg, backend=backend)]
     applied, residual = sm.shake_rms(frames, ref), sm.shake_rms(out, ref)
     assert applied > 3.0
     assert residual < 0.3 * applied
@@ -135,6 +169,18 @@ def test_cli_end_to_end(tmp_path, bikes, capsys):
     assert report["frames"] == 8 and report["output"]["mad10"] >= 0
 
 
+def test_demo_writes_into_a_new_folder(tmp_path):
+    folder = tmp_path / "demo"
+    assert cli.main(["stabilize", "--demo", str(folder), "--max-frames", "6", "--window", "3",
+                     "--quiet"]) == 0
+    cap = cv2.VideoCapture(str(folder / "stabilized.mp4"))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 6
+    assert int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) == 2 * 640  # input | output
+    import json
+
+    assert json.loads((folder / "metrics.json").read_text())["frames"] == 6
+
+
 def test_script_runs(tmp_path):
     out = tmp_path / "out.mp4"
     env = dict(os.environ, PYTHONPATH=os.path.abspath(ROOT))
@@ -145,7 +191,7 @@ def test_script_runs(tmp_path):
     assert int(cv2.VideoCapture(str(out)).get(cv2.CAP_PROP_FRAME_COUNT)) == 6
 
 
-@pytest.mark.parametrize("case", ["missing", "unreadable", "empty", "window", "crop"])
+@pytest.mark.parametrize("case", ["missing", "unreadable", "empty", "window", "crop", "no output"])
 def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, case):
     src, extra = CLIP, []
     if case == "missing":
@@ -158,11 +204,14 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, case):
         _write_video(src, [])
     elif case == "window":
         extra = ["--window", "0"]
+    elif case == "no output":
+        extra = None
     else:
         extra = ["--crop", "0.5"]
-    rc = cli.main(["stabilize", str(src), str(tmp_path / "o.mp4"), "--quiet"] + extra)
+    argv = [str(src), "--quiet"] if extra is None else [str(src), str(tmp_path / "o.mp4"), "--quiet"] + extra
+    rc = cli.main(["stabilize"] + argv)
     err = capsys.readouterr().err.strip()
     assert rc == 2
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert {"missing": "input", "unreadable": "input", "empty": "input", "window": "window",
-            "crop": "crop"}[case] in err
+            "crop": "crop", "no output": "output"}[case] in err

@@ -11,15 +11,6 @@ from tests.images import bgr
 SIZE = (128, 96)  # (width, height): small, so Warp's single-threaded CPU kernels stay quick
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _session_cache(tmp_path_factory):
-    """Every graph test calibrates into a private cache (never the user's ~/.cache)."""
-    mp = pytest.MonkeyPatch()
-    mp.setenv("WARPVX_CACHE_DIR", str(tmp_path_factory.mktemp("calibration")))
-    yield
-    mp.undo()
-
-
 @pytest.fixture(scope="session")
 def frames():
     """Four frames of a real photo panning by a few pixels (BGR uint8 96x128)."""

@@ -351,31 +351,33 @@ def _is_batch_path(path) -> bool:
         os.path.isdir(path) and expand_inputs([path]) != [path])
 
 
-def single_run(args, *, paths="input", output=None):
+def single_run(args, *, paths="input", output=None, alone=False):
     """The parsed arguments of ONE run of the application, or None when they ask for a batch.
 
     ``paths``: the attribute holding the positional paths (a list). ``output``: the attribute
     of the single run's output path, taken from the last positional (``IN OUT``), or None
-    when the app names its output with an option. A batch is asked for by ``--ray``,
-    ``--resume``, more inputs than one run takes, a glob, a list or a folder of videos, and
-    for apps with a positional output, by ``--out``.
+    when the app names its output with an option. Positionals a run lacks are None (the app
+    reports them). A batch is asked for by ``--ray``, ``--resume``, more inputs than one run
+    takes, a glob, a list or a folder of videos, and for apps with a positional output, by
+    ``--out``; ``alone`` (e.g. ``--demo``) asks for one run whatever the paths are.
     """
     values = list(getattr(args, paths))
     n = 2 if output else 1
-    batch = (args.ray is not None or args.resume or len(values) != n
-             or any(_is_batch_path(v) for v in values[:1]))
-    if output and args.out is not None:
-        batch = True
-    if batch:
-        if args.out is None:
-            raise WarpvxValueError("out: a batch (several inputs, a glob, a list, a folder of videos, "
-                                   "--ray or --resume) writes under --out DIR; one run is "
-                                   + ("IN OUT" if output else "SOURCE"))
-        return None
-    single = dict(vars(args), **{paths: values[0]})
-    if output:
-        single[output] = values[1]
-    return argparse.Namespace(**single)
+    batch_options = args.ray is not None or args.resume or (output and args.out is not None)
+    if alone or not (batch_options or len(values) > n or any(_is_batch_path(v) for v in values[:1])):
+        if len(values) > n or (alone and batch_options):
+            raise WarpvxValueError(f"{paths}: one run takes at most {n} paths and no batch options, "
+                                   f"got {' '.join(values)}")
+        values += [None] * (n - len(values))
+        single = dict(vars(args), **{paths: values[0]})
+        if output:
+            single[output] = values[1]
+        return argparse.Namespace(**single)
+    if args.out is None:
+        raise WarpvxValueError("out: a batch (several inputs, a glob, a list, a folder of videos, "
+                               "--ray or --resume) writes under --out DIR; one run is "
+                               + ("IN OUT" if output else "SOURCE"))
+    return None
 
 
 def app_options(args, *, paths="input") -> dict:

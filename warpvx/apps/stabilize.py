@@ -32,9 +32,13 @@ Conditional re-detection in a data-flow graph: the detector runs every frame (as
 topping them up with fresh detections away from them only when fewer than ``min_tracked``
 survived.
 
-The motion model lives in ONE user node, ``estimate_motion`` (:func:`estimate_motion`):
-homography by RANSAC (``cv2.findHomography``, the thesis), similarity
-(``cv2.estimateAffinePartial2D``) or translation (median displacement).
+The motion model: homography by RANSAC (the thesis), similarity
+(``cv2.estimateAffinePartial2D``) or translation (median displacement), in the user node
+``estimate_motion`` (:func:`estimate_motion`), except the homography on a Warp backend: there
+the lost points are parked far off the image on the device (``park_lost``) and the :func:`warpvx.find_homography`
+primitive runs on the device too (``ransac``), so the frame and the points stay there; only the
+3x3 matrix comes back for ``estimate_motion`` (:func:`as_motion`). The graph on ``cpu`` calls the
+primitive's CPU backend, the model ``cv2.findHomography``: the same OpenCV call.
 """
 
 from __future__ import annotations
@@ -58,9 +62,12 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".
 # Fewest matched points that determine each motion model.
 _MIN_POINTS = {"homography": 4, "similarity": 2, "translation": 1}
 _NAN3 = np.full((3, 3), np.nan)
-# An off-image point, the point set when nothing is tracked: LK reports it lost (status 0);
-# empty point sets are avoided because Warp reports empty arrays as non-contiguous.
-_NO_POINTS = np.full((1, 2), -1e4, np.float32)
+LOST = -1.0e5  # where park_lost moves the points LK lost (px, x and y)
+RANSAC_ITERS = 2000  # RANSAC hypotheses (OpenCV's default; the Warp backends score them all)
+# Off-image points, the padding of point sets to the 4 a homography needs (find_homography
+# refuses fewer): LK reports them lost (status 0). Empty point sets are avoided too, because
+# Warp reports empty arrays as non-contiguous.
+_NO_POINTS = np.full((4, 2), -1e4, np.float32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -145,12 +152,15 @@ class StabilizerConfig:
 # Pure functions shared by the graph's user nodes and the imperative model.
 
 
-def estimate_motion(prev_pts, next_pts, status, *, model="homography", threshold=3.0):
+def estimate_motion(prev_pts, next_pts, status, *, model="homography", threshold=3.0,
+                    backend=None):
     """The inter-frame motion from matched points: float64 3x3 mapping ``prev_pts`` to ``next_pts``.
 
     ``prev_pts``, ``next_pts``: float32 [N, 2]; ``status``: uint8 [N] (1 = tracked). Models:
     homography by RANSAC (reprojection threshold ``threshold`` px), similarity (RANSAC) or
     translation (median displacement). Identity when too few points or no model is found.
+    ``backend``: None calls ``cv2.findHomography`` (the model), a name runs
+    :func:`warpvx.find_homography` there.
     """
     ok = np.asarray(status).reshape(-1).astype(bool)
     p = np.asarray(prev_pts, np.float32).reshape(-1, 2)[ok]
@@ -161,19 +171,65 @@ def estimate_motion(prev_pts, next_pts, status, *, model="homography", threshold
         return np.eye(3)
     import cv2
 
-    if model == "homography":
-        # Swap for the primitive when it lands: warpvx.find_homography(p, q,
-        # ransac_reproj_threshold=threshold, backend="cpu")
-        H, _ = cv2.findHomography(p, q, cv2.RANSAC, threshold, maxIters=2000, confidence=0.995)
+    if model == "homography" and backend is not None:
+        from ..homography import find_homography
+
+        H, _ = find_homography(p, q, ransac_reproj_threshold=threshold, max_iters=RANSAC_ITERS,
+                               backend=backend)
+    elif model == "homography":
+        H, _ = cv2.findHomography(p, q, cv2.RANSAC, threshold, maxIters=RANSAC_ITERS,
+                                  confidence=0.995)
     elif model == "similarity":
         A, _ = cv2.estimateAffinePartial2D(p, q, method=cv2.RANSAC, ransacReprojThreshold=threshold)
         H = None if A is None else np.vstack([A, [0.0, 0.0, 1.0]])
     else:
         H = np.eye(3)
         H[:2, 2] = np.median(q - p, axis=0)
-    if H is None or not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-9:
+    return as_motion(H)
+
+
+def as_motion(H):
+    """``H`` (3x3) normalised to ``H[2, 2] = 1`` (float64); the identity for no model (None,
+    :func:`warpvx.find_homography`'s zeros, non-finite or singular)."""
+    H = None if H is None else np.asarray(H, np.float64)
+    if H is None or not np.isfinite(H).all() or H[2, 2] == 0 or abs(np.linalg.det(H)) < 1e-9:
         return np.eye(3)
-    return np.asarray(H, np.float64) / H[2, 2]
+    return H / H[2, 2]
+
+
+def park_lost(next_pts, status):
+    """``next_pts`` (float32 [N, 2]) with every lost point (``status`` 0) moved to one point
+    :data:`LOST` far off the image, so :func:`warpvx.find_homography` can take all N points
+    (no host filtering): a homography is invertible, so it maps at most one of them there
+    (one inlier at most), and a sample of parked points is degenerate."""
+    pts = np.array(next_pts, np.float32).reshape(-1, 2)
+    pts[np.asarray(status).reshape(-1) == 0] = LOST
+    return pts
+
+
+@functools.cache
+def _park_lost_kernel():
+    import warp as wp
+
+    @wp.kernel
+    def park_lost_kernel(pts: wp.array2d(dtype=wp.float32), status: wp.array(dtype=wp.uint8),
+                         out: wp.array2d(dtype=wp.float32)):
+        i = wp.tid()
+        lost = status[i] == wp.uint8(0)
+        out[i, 0] = wp.where(lost, wp.float32(LOST), pts[i, 0])
+        out[i, 1] = wp.where(lost, wp.float32(LOST), pts[i, 1])
+
+    return park_lost_kernel
+
+
+def _park_lost_warp(next_pts, status):
+    """:func:`park_lost` on the device (``wp.array`` in, ``wp.array`` out, no sync)."""
+    import warp as wp
+
+    out = wp.empty_like(next_pts)
+    wp.launch(_park_lost_kernel(), dim=next_pts.shape[0], inputs=[next_pts, status],
+              outputs=[out], device=next_pts.device)
+    return out
 
 
 def _as_points(detections, max_corners):
@@ -192,7 +248,7 @@ def refresh_points(next_pts, status, detections, *, min_tracked=150, max_corners
     Keeps the points LK tracked (``status`` 1); when fewer than ``min_tracked`` survived, adds
     the strongest ``detections`` (float32 [K, 2] or Keypoints) lying at least
     ``min_distance`` px from every kept point (tracked points have priority, as in
-    VisionWorks' Harris tracker). With no point at all, one off-image point that LK loses.
+    VisionWorks' Harris tracker). Padded to 4 points with off-image points that LK loses.
     """
     ok = np.asarray(status).reshape(-1).astype(bool)
     tracked = np.asarray(next_pts, np.float32).reshape(-1, 2)[ok]
@@ -204,7 +260,9 @@ def refresh_points(next_pts, status, detections, *, min_tracked=150, max_corners
         d2 = ((fresh[:, None, :] - tracked[None, :, :]) ** 2).sum(-1).min(1)
         fresh = fresh[d2 >= min_distance ** 2]
     merged = np.concatenate([tracked, fresh])[:max_corners]
-    return np.ascontiguousarray(merged, np.float32) if len(merged) else _NO_POINTS.copy()
+    if len(merged) < len(_NO_POINTS):
+        merged = np.concatenate([merged, _NO_POINTS[len(merged):]])
+    return np.ascontiguousarray(merged, np.float32)
 
 
 def accumulate(motion, prev_trajectory, live):
@@ -329,8 +387,16 @@ def build_graph(size, config: StabilizerConfig = StabilizerConfig(), *, backend=
     next_pts, status, _ = g.optical_flow_pyr_lk(
         g.delay(pyr)[-1], pyr, prev_points, win_size=(c.lk_win, c.lk_win),
         max_level=c.levels - 1, name="track", target=pin)
-    motion = g.user(functools.partial(estimate_motion, model=c.motion, threshold=c.ransac_threshold),
-                    [prev_points, next_pts, status], name="estimate_motion")
+    if c.motion == "homography" and pin is not None:
+        dst = g.user(park_lost, [next_pts, status], warp_fn=_park_lost_warp, name="park_lost",
+                     target=pin)
+        H, _ = g.find_homography(prev_points, dst, ransac_reproj_threshold=c.ransac_threshold,
+                                 max_iters=RANSAC_ITERS, name="ransac", target=pin)
+        motion = g.user(as_motion, [H], name="estimate_motion")
+    else:
+        motion = g.user(functools.partial(estimate_motion, model=c.motion, backend="cpu",
+                                          threshold=c.ransac_threshold),
+                        [prev_points, next_pts, status], name="estimate_motion")
     g.user(functools.partial(refresh_points, min_tracked=c.min_tracked, max_corners=c.max_corners,
                              min_distance=c.min_distance),
            [next_pts, status, detections], [points], name="refresh_points")
@@ -607,10 +673,15 @@ def add_arguments(parser):
     """The stabilizer's command-line options (shared by ``warpvx stabilize`` and
     ``apps/stabilize.py``)."""
     d = StabilizerConfig()
-    parser.add_argument("input", nargs="+", metavar="PATH",
+    parser.add_argument("input", nargs="*", metavar="PATH",
                         help="IN OUT: a video file (anything OpenCV opens) or image folder, and the "
                              "stabilized video (.mp4: mp4v, .avi: MJPG); IN... --out DIR: a batch of "
                              "inputs, folders of videos, globs or @list.txt (see warpvx.apps.batch)")
+    parser.add_argument("--demo", action="store_true",
+                        help="stabilize the bundled real shaky clip into a folder (the one positional "
+                             "argument, default a new ./warpvx-results/stabilize-<date>-<time>/): "
+                             "stabilized.mp4 (input | output side by side), metrics.json and "
+                             "trajectory.png (with matplotlib)")
     parser.add_argument("--backend", choices=BACKENDS, default="cpu")
     parser.add_argument("--window", type=int, default=d.window, help="smoothing window N in frames")
     parser.add_argument("--mode", choices=MODES, default=d.mode,
@@ -640,6 +711,10 @@ def run(args) -> int:
 
     config = StabilizerConfig(window=args.window, mode=args.mode, crop=args.crop,
                               motion=args.motion, detector=args.detector)
+    if getattr(args, "demo", False):
+        args = _demo_args(args)
+    elif args.input is None or args.output is None:
+        raise WarpvxValueError("input, output: give both (or --demo for the bundled clip)")
     if args.max_frames is not None and args.max_frames < 1:
         raise WarpvxValueError(f"max_frames: expected an int >= 1, got {args.max_frames}")
     if args.plot:  # fail before the work, not after it
@@ -688,6 +763,41 @@ def run(args) -> int:
     return 0
 
 
+def demo_clip() -> str:
+    """Path of the bundled real hand-held clip (46 frames, 640x272; data/LICENSE-bikes.md)."""
+    from importlib.resources import files
+
+    return str(files("warpvx") / "data" / "bikes_shaky.mp4")
+
+
+def _demo_args(args):
+    """``args`` for ``--demo``: the bundled clip into a folder (created; the one positional
+    argument, else a fresh ``./warpvx-results/stabilize-<date>-<time>/``)."""
+    import copy
+    import importlib.util
+    from pathlib import Path
+
+    if args.output is not None:
+        raise WarpvxValueError(f"output: --demo takes one folder, got {args.input!r} and {args.output!r}")
+    if args.input is None:
+        from ..cli import fresh_results_dir
+
+        folder = fresh_results_dir("stabilize")
+    else:
+        folder = Path(args.input)
+        if folder.exists() and not folder.is_dir():
+            raise WarpvxValueError(f"output: --demo writes into a folder; {str(folder)!r} is a file")
+        folder.mkdir(parents=True, exist_ok=True)
+    args = copy.copy(args)
+    args.input, args.output, args.compare = demo_clip(), str(folder / "stabilized.mp4"), True
+    args.metrics = args.metrics or str(folder / "metrics.json")
+    if args.plot is None and importlib.util.find_spec("matplotlib") is not None:
+        args.plot = str(folder / "trajectory.png")
+    if not args.quiet:
+        print(f"stabilize --demo: {args.input} -> {folder}/")
+    return args
+
+
 def main(argv=None, prog="stabilize") -> int:
     """Parse ``argv`` and run; bad input prints one line to stderr and returns 2."""
     import argparse
@@ -705,7 +815,7 @@ def run_cli(args, prog="stabilize") -> int:
     from .batch import run_batch, single_run
 
     try:
-        single = single_run(args, output="output")
+        single = single_run(args, output="output", alone=args.demo)
         return run(single) if single is not None else run_batch(args, "stabilize")
     except WarpvxError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
@@ -714,7 +824,7 @@ def run_cli(args, prog="stabilize") -> int:
 
 __all__ = [
     "StabilizerConfig", "StabilizedFrame", "build_graph", "schedule", "stabilize", "stabilize_model",
-    "estimate_motion", "refresh_points", "accumulate", "smooth_transform", "truncate_transform",
-    "undistort_maps", "VideoSource", "open_writer", "save_plot", "add_arguments", "run", "main",
+    "estimate_motion", "as_motion", "park_lost", "refresh_points", "accumulate", "smooth_transform", "truncate_transform",
+    "undistort_maps", "demo_clip", "VideoSource", "open_writer", "save_plot", "add_arguments", "run", "main",
     "MOTIONS", "MODES", "DETECTORS", "BACKENDS",
 ]

@@ -205,7 +205,9 @@ def shaky_clip(image, n_frames, size, *, shift=4.0, angle=1.0, zoom=0.01, seed=0
 
 
 def evaluate(inputs, outputs, homographies=None):
-    """All metrics of one input/output pair as a dict (JSON-ready).
+    """All metrics of one input/output pair as a dict (JSON-ready): for ``"input"`` and
+    ``"output"`` MAD10/MAD100 (px), ITF (dB) and stability; for the output also the cropping
+    ratio, distortion and ``mad10_input_px``/``mad100_input_px`` (MAD times the cropping ratio).
 
     ``homographies``: the per-frame input -> output warps when known (the stabilizer's
     ``warp``); else estimated from the frames (RANSAC similarity).
@@ -217,7 +219,11 @@ def evaluate(inputs, outputs, homographies=None):
     for key, frames in (("input", inputs), ("output", outputs)):
         report[key] = {"mad10": mad(frames, 10), "mad100": mad(frames, 100), "itf": itf(frames),
                        "stability": stability_score(frames)}
-    report["output"].update(cropping_ratio=crop, distortion=distortion)
+    out = report["output"]
+    # The crop's zoom scales every output motion by 1 / crop: MAD in input pixels compares
+    # with the input and with stabilizers that do not zoom.
+    out.update(cropping_ratio=crop, distortion=distortion, mad10_input_px=out["mad10"] * crop,
+               mad100_input_px=out["mad100"] * crop)
     return report
 
 

@@ -34,6 +34,7 @@ such as keypoints rounded up to a power of two). Times are in milliseconds.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -137,6 +138,8 @@ class Calibration:
         history costs scale the transfer model by it.
     placement : dict
         node -> ``"cpu"``/``"gpu"``: where each node ran when :func:`learn` last saw it.
+    contention : dict
+        ``n_cpus`` -> :func:`measure_contention`'s probe (measured on first use).
     """
 
     machine: str
@@ -149,6 +152,7 @@ class Calibration:
     keys: dict = field(default_factory=dict)
     transfer_scale: float = 1.0
     placement: dict = field(default_factory=dict)
+    contention: dict = field(default_factory=dict)
 
     def cost(self, node: str, pe: str, costs: str = "calibrated"):
         """``node``'s cost (ms) on ``pe`` (``"cpu"``/``"gpu"``), None without an
@@ -381,6 +385,82 @@ def measure_dispatch(gpu_backend, transfer: TransferModel | None = None, *, n_no
         crossing = (span - (m // 2) * (out["cpu_node"] + out["gpu_node"])) / (m - 1)
         tiny = transfer.time(x.nbytes) if transfer is not None else 0.0
         out["handoff"] = max(0.0, crossing - tiny)
+    return out
+
+
+def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats: int = 9) -> dict:
+    """How much the graph's own nodes slow each other down when run together (ms).
+
+    The heaviest CPU node is timed alone and then while every other host thread of a plan
+    with ``n_cpus`` workers is busy (``n_cpus - 1`` threads looping the same CPU call, one
+    looping the heaviest GPU node's call, as the GPU host thread would); the heaviest GPU
+    node's host call likewise while ``n_cpus`` threads loop the CPU node. Contention for
+    the GIL, the cores and memory bandwidth shows up in every placement, but a placement
+    that keeps the workers idle (all on the GPU) does not reveal it; this probe does.
+
+    Returns
+    -------
+    dict
+        ``"cpu"``/``"gpu"`` -> ``(node, alone_ms, loaded_ms, busy_threads)``; a kind is
+        absent when no node has that implementation.
+    """
+    from ..backend import init_warp, resolve_backend
+
+    def heaviest(pe):
+        cands = [(t[pe], n) for n, t in calibration.nodes.items() if t.get(pe)]
+        return max(cands)[1] if cands else None
+
+    cpu_node, gpu_node = heaviest("cpu"), heaviest("gpu") if gpu_backend is not None else None
+    calls = {}
+    if cpu_node is not None:
+        node = graph.nodes[cpu_node]
+        fn, values = node.callable("cpu", resolve_backend("cpu")), input_values(graph, node)
+        calls["cpu"] = (lambda: fn(*values), None)
+    wp = stream = None
+    if gpu_node is not None:
+        wp = init_warp()
+        node = graph.nodes[gpu_node]
+        gfn = node.callable("gpu", gpu_backend)
+        with wp.ScopedDevice(gpu_backend.device):
+            dvals = Transfers(gpu_backend.device).upload(list(input_values(graph, node)))
+        stream = wp.Stream(gpu_backend.device) if gpu_backend.is_cuda else None
+
+        def gpu_call():
+            gfn(*dvals)
+            if stream is not None:
+                wp.synchronize_stream(stream)  # the queue stays short, as in a frame
+
+        calls["gpu"] = (gpu_call, lambda: _gpu_scope(wp, gpu_backend.device, stream))
+
+    def loop(kind, stop):
+        call, scope = calls[kind]
+        with scope() if scope is not None else contextlib.nullcontext():
+            while not stop.is_set():
+                call()
+
+    def timed(kind, loaders):
+        call, scope = calls[kind]
+        stop = threading.Event()
+        threads = [threading.Thread(target=loop, args=(k, stop), daemon=True) for k in loaders]
+        for th in threads:
+            th.start()
+        try:
+            with scope() if scope is not None else contextlib.nullcontext():
+                return time_call(call, warmup=1, repeats=repeats)
+        finally:
+            stop.set()
+            for th in threads:
+                th.join()
+
+    out = {}
+    for kind, victim in (("cpu", cpu_node), ("gpu", gpu_node)):
+        if victim is None:
+            continue
+        loaders = (["cpu"] * (n_cpus - 1) + (["gpu"] if "gpu" in calls else [])
+                   if kind == "cpu" else ["cpu"] * n_cpus if "cpu" in calls else [])
+        if not loaders:
+            continue
+        out[kind] = (victim, timed(kind, []), timed(kind, loaders), len(loaders))
     return out
 
 
@@ -629,6 +709,7 @@ __all__ = [
     "learn",
     "load_cache",
     "machine_id",
+    "measure_contention",
     "measure_dispatch",
     "measure_transfer",
     "save_cache",

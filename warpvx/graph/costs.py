@@ -149,7 +149,7 @@ class CostModel:
         return cpu_gpu_dag(tasks, edges, n_cpus)
 
     def schedule(self, policy="best", *, n_cpus: int | None = None, gpu=None,
-                 recalibrate: bool = False, costs: str = "calibrated"):
+                 recalibrate: bool = False, costs: str = "calibrated", model=None):
         """Calibrate (cached), schedule with ``policy`` and make the result the current plan.
 
         Parameters
@@ -165,6 +165,13 @@ class CostModel:
         costs : str
             ``"calibrated"`` (nodes timed alone) or ``"history"`` (what running frames
             measured, after :meth:`learn`; calibrated costs where none was measured).
+        model : ContentionModel, optional
+            A fitted model (:meth:`fit_model`): the plan's prediction becomes its simulation
+            of the schedule (``plan.prediction``), and ``"best"`` keeps, of the baseline,
+            HEFT and XEFT schedules of the task DAG and of the model's in-frame costs
+            (:func:`~warpvx.graph.model.candidate_dags`), the one the model predicts
+            fastest, so a mixed placement that loses to the all-GPU one in reality loses in
+            the prediction too.
 
         Returns
         -------
@@ -183,11 +190,19 @@ class CostModel:
                 cal = self.calibrate(gpu=be.name if be else False, recalibrate=recalibrate)
             dag = self.to_task_dag(n_cpus, gpu=be.name if be else False, calibration=cal,
                                    costs=costs)
-            sch = sched.schedule(dag, policy)
+            prediction = None
+            if model is not None and policy == "best":
+                from .model import choose
+
+                sch, dag, prediction = choose(model, self._candidate_dags(dag, model, n_cpus))
+            else:
+                sch = sched.schedule(dag, policy)
             sched.validate_schedule(dag, sch)
+            if model is not None and prediction is None:
+                prediction = model.predict(sch)
             plan = Plan(weakref.ref(self), sch, dag, sched.metrics(dag, sch),
                         policy if isinstance(policy, str) else getattr(policy, "__name__", "custom"),
-                        n_cpus, be.name if be else None, cal, costs=costs)
+                        n_cpus, be.name if be else None, cal, costs=costs, prediction=prediction)
             self._invalidate_plan()
             self._plan = plan
             self._plan_box[0] = plan
@@ -196,6 +211,32 @@ class CostModel:
             if on_gpu:
                 warn_no_cuda(self.name, on_gpu)
         return plan
+
+    def _candidate_dags(self, dag, model, n_cpus) -> dict:
+        """name -> task DAG: the schedule's own and one with the model's in-frame costs."""
+        from .model import in_frame_dag
+
+        pes = {n: node.processing_elements for n, node in self.nodes.items()}
+        return {"": dag, "model costs": in_frame_dag(model, pes, n_cpus)}
+
+    def fit_model(self, plan=None, *, runs=None):
+        """A :class:`~warpvx.graph.model.ContentionModel` learnt from frames run with ``plan``
+        (default: the current plan and its ``last_run``): host contention, copies and
+        hand-offs, to predict this plan's later frames and other plans' (out of sample)."""
+        from .calibration import measure_contention
+        from .model import fit, graph_reads
+
+        plan = plan or self._plan
+        runs = list(plan.last_run) if runs is None and plan is not None else runs
+        if plan is None or not runs:
+            raise GraphError("fit_model: nothing measured yet; run g.process() first")
+        cal = plan.calibration
+        if plan.n_cpus not in cal.contention:
+            with self._run_lock:
+                cal.contention[plan.n_cpus] = measure_contention(
+                    self, cal, gpu_backend(plan.gpu or False), plan.n_cpus)
+        return fit(cal, graph_reads(self), runs, plan.placement, policy=plan.policy,
+                   probe=cal.contention[plan.n_cpus])
 
     def learn(self, plan=None, *, runs=None, skip: int = 1) -> dict:
         """Fold measured frames into the plan's calibration history (and the cache), for

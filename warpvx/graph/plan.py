@@ -34,6 +34,10 @@ class Plan:
     calibration : Calibration
     costs : str
         ``"calibrated"`` or ``"history"``: which node costs the schedule used.
+    prediction : Schedule or None
+        The fitted contention model's simulation of one frame
+        (:func:`warpvx.graph.model.simulate`), when the plan was made with a model; it is
+        then the prediction (:attr:`predicted_makespan`, the Gantt chart's top row).
     last_run : collections.deque of FrameResult
         Measured timelines (ms from each frame's submission) of the last ``process`` or
         ``stream`` call, newest last, at most :data:`KEEP_FRAMES` (without their outputs,
@@ -51,15 +55,21 @@ class Plan:
     last_run: deque = field(default_factory=lambda: deque(maxlen=KEEP_FRAMES))
     _executor: object = None
     costs: str = "calibrated"
+    prediction: Schedule | None = None
 
     @property
     def graph(self):
         return self.graph_ref()
 
     @property
+    def predicted(self) -> Schedule:
+        """The predicted timeline of one frame: the model's simulation, else the schedule."""
+        return self.prediction if self.prediction is not None else self.schedule
+
+    @property
     def predicted_makespan(self) -> float:
         """Predicted time of one frame (ms)."""
-        return self.schedule.makespan
+        return self.predicted.makespan
 
     def processor_label(self, processor: str) -> str:
         """How charts and summaries name ``processor``: the GPU role on Warp's CPU device is
@@ -130,8 +140,12 @@ class Plan:
                         policy=f"{self.policy} (measured, {len(runs)} frames)")
 
     def gantt(self, path=None, *, frames: int = 1, title: str | None = None):
-        """Predicted (top) and measured (bottom) Gantt charts in one figure (the GPU row
-        reads ``gpu (warp-cpu)`` when the GPU role is Warp's CPU device).
+        """Predicted (top) and measured (bottom) Gantt charts in one figure, time in ms.
+
+        The title gives the prediction's error against the measured makespan (the median
+        of the last run's frames); bars too narrow for their name are numbered and listed
+        under each row's axis; the GPU row reads ``gpu (warp-cpu)`` when the GPU role is
+        Warp's CPU device.
 
         Parameters
         ----------
@@ -144,34 +158,44 @@ class Plan:
         -------
         matplotlib.figure.Figure
         """
+        import statistics
+
         import matplotlib
 
         if path is not None:
             matplotlib.use("Agg", force=False)
         import matplotlib.pyplot as plt
 
-        from ..sched import plot_gantt
+        from ..sched.gantt import plot_gantt
 
-        fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(11, 6.5), constrained_layout=True)
+        fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(12, 7.5), constrained_layout=True)
         name = title or self.graph.name
-        plot_gantt(self.schedule, ax=ax0, dag=self.dag,
-                   title=f"{name}: predicted ({self.policy}), makespan "
-                         f"{self.schedule.makespan:.3f} ms")
+        predicted = self.predicted
+        source = "contention model" if self.prediction is not None else f"{self.costs} costs"
+        chosen = self.schedule.info.get("chosen")
+        what = f"{self.policy}" + (f" -> {chosen}" if chosen and chosen != self.policy else "")
+        error = ""
+        meas = self.measured_makespans()
+        if meas:
+            m = statistics.median(meas)
+            error = (f"; measured {m:.3f} ms (median of {len(meas)}), prediction error "
+                     f"{100 * (predicted.makespan - m) / m:+.1f}%")
+        fig.suptitle(f"{name}: {what}, predicted {predicted.makespan:.3f} ms{error}", fontsize=10)
+        plot_gantt(predicted, ax=ax0, dag=self.dag, unit="ms",
+                   title=f"predicted ({source}), makespan {predicted.makespan:.3f} ms")
         if self.last_run:
             measured = self.measured(frames)
             if frames > 1:
                 shown = min(frames, len(self.last_run))
-                title_m = (f"{name}: measured, {shown} pipelined frames; "
+                title_m = (f"measured, {shown} pipelined frames; "
                            f"{shown / measured.makespan * 1e3:.1f} frames/s over this window")
             else:
-                title_m = f"{name}: measured, makespan {self.last_run[-1].makespan:.3f} ms"
-            plot_gantt(measured, ax=ax1, dag=self._frames_dag(measured), title=title_m)
+                title_m = f"measured (newest frame), makespan {self.last_run[-1].makespan:.3f} ms"
+            plot_gantt(measured, ax=ax1, dag=self._frames_dag(measured), title=title_m, unit="ms")
             if frames == 1:  # one frame each: one time scale for both
-                hi = max(self.schedule.makespan, measured.makespan) * 1.02
+                hi = max(predicted.makespan, measured.makespan) * 1.02
                 ax0.set_xlim(0, hi)
                 ax1.set_xlim(0, hi)
-            ax0.set_xlabel("time (ms)")
-            ax1.set_xlabel("time (ms)")
             self._label_rows(ax1)
         else:
             ax1.set_axis_off()
@@ -207,7 +231,7 @@ class Plan:
             "n_cpus": self.n_cpus,
             "gpu": self.gpu,
             "processors": [self.processor_label(p) for p in self.schedule.processors],
-            "predicted_makespan_ms": self.schedule.makespan,
+            "predicted_makespan_ms": self.predicted_makespan,
             "measured_makespan_ms": statistics.median(meas) if meas else None,
             "placement": self.placement,
             "metrics": {k: v for k, v in self.metrics.items() if k != "idle_per_processor"},
@@ -215,7 +239,7 @@ class Plan:
 
     def __repr__(self):
         return (f"Plan({self.graph.name!r}, policy={self.policy!r}, n_cpus={self.n_cpus}, "
-                f"gpu={self.gpu!r}, makespan={self.schedule.makespan:.3f} ms)")
+                f"gpu={self.gpu!r}, makespan={self.predicted_makespan:.3f} ms)")
 
 
 __all__ = ["Plan", "KEEP_FRAMES"]

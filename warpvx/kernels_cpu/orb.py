@@ -27,28 +27,11 @@ import cv2
 import numpy as np
 
 from .._orb_quadtree import distribute_octtree, order_candidates
-from .._orb_spec import (ATAN_EPS, ATAN_P1, ATAN_P3, ATAN_P5, ATAN_P7, DESCRIPTOR_BYTES,
-                         HALF_PATCH_SIZE, PATTERN_RADIUS, CellGrid, cell_grid, features_per_level,
-                         keypoint_sizes, level_scales, pattern, refuse_out, umax)
+from .._orb_spec import (DESCRIPTOR_BYTES, HALF_PATCH_SIZE, PATTERN_RADIUS, CellGrid, cell_grid,
+                         fast_atan2, features_per_level, keypoint_sizes, level_scales, pattern,
+                         refuse_out, umax)
 from ..keypoints import Keypoints
 from .scale_pyramid import scale_pyramid
-
-
-def fast_atan2(y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """float32 degrees in [0, 360): OpenCV's ``cv::fastAtan2(y, x)``, elementwise."""
-    y = np.asarray(y, np.float32)
-    x = np.asarray(x, np.float32)
-    ax, ay = np.abs(x), np.abs(y)
-    wide = ax >= ay
-    eps = np.float32(ATAN_EPS)
-    c = np.where(wide, ay, ax) / (np.where(wide, ax, ay) + eps)
-    c2 = c * c
-    p = (((np.float32(ATAN_P7) * c2 + np.float32(ATAN_P5)) * c2 + np.float32(ATAN_P3)) * c2
-         + np.float32(ATAN_P1)) * c
-    a = np.where(wide, p, np.float32(90.0) - p)
-    a = np.where(x < 0, np.float32(180.0) - a, a)
-    a = np.where(y < 0, np.float32(360.0) - a, a)
-    return a.astype(np.float32)
 
 
 # --------------------------------------------------------------------------------------------

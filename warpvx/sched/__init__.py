@@ -4,10 +4,12 @@ Task graphs are :class:`networkx.DiGraph` objects (model in :mod:`warpvx.sched.d
 are plain functions ``policy(dag) -> Schedule``. The Gantt chart and the synthetic study live in
 :mod:`warpvx.sched.gantt` and :mod:`warpvx.sched.study` (matplotlib is imported only there).
 This package is pure algorithms (networkx in, :class:`Schedule` out) and never imports Warp;
-running a schedule for real is :mod:`warpvx.runtime`.
+running a schedule for real is :mod:`warpvx.runtime`. Frames in flight: :func:`unroll` a DAG
+over K frames (or ``schedule(dag, policy, frames=K)``); every policy orders it frame-major.
 """
 
 from .dag import cpu_gpu_dag, exclusive_kind, processor_kinds
+from .frames import FrameTimes, frame_times, unroll
 from .generator import random_dag
 from .metrics import (
     IdleTime,
@@ -49,6 +51,9 @@ __all__ = [
     "processor_kinds",
     "exclusive_kind",
     "random_dag",
+    "unroll",
+    "frame_times",
+    "FrameTimes",
     "upward_rank",
     "xeft_order",
     "baseline",

@@ -11,6 +11,10 @@ A task graph is a :class:`networkx.DiGraph`:
   ``"host"``, ``"gpu"`` -> ``"device"``. Communication is paid only between processors in
   different memory spaces; without ``memory`` it is paid between any two different processors
   (the model of Topcuoglu et al. 2002).
+- optional node attribute ``frame``: an int >= 0, the frame a task belongs to in a DAG
+  unrolled over several frames (:func:`warpvx.sched.frames.unroll`). When one task has it,
+  every task must, and no edge may go from a later frame to an earlier one; every policy then
+  schedules frame-major (frame f's tasks before frame f+1's in the priority list).
 
 All costs and transfers of one DAG must sum to at most :data:`MAX_TOTAL_TIME` (1e300): every
 rank, start and finish time, makespan and metric (overlaps included) is then a finite float.
@@ -235,11 +239,13 @@ class Problem:
         task -> the kind it is exclusive to, or -1.
     memory_model : bool
         Whether the graph gave ``memory``.
+    frame : list of int or None
+        task -> its ``frame`` attribute; ``None`` when the DAG has no frames.
     """
 
     __slots__ = (
         "names", "procs", "cost", "can", "preds", "succs", "topo", "space", "kind", "kinds",
-        "kind_size", "excl", "memory_model", "n_spaces",
+        "kind_size", "excl", "memory_model", "n_spaces", "frame",
     )
 
 
@@ -253,8 +259,9 @@ def prepare(dag: nx.DiGraph) -> Problem:
     ScheduleError
         Empty graph, missing/bad ``processors`` or ``memory``, a task without a ``cost`` dict,
         a cost for an unknown processor, a negative/NaN/inf cost or ``comm``, a task no
-        processor can run, a cycle, costs and transfers summing over :data:`MAX_TOTAL_TIME`.
-        The message names the task, edge or attribute.
+        processor can run, a cycle, costs and transfers summing over :data:`MAX_TOTAL_TIME`,
+        a ``frame`` that is not an int >= 0 or is missing on some tasks only, an edge from a
+        later frame to an earlier one. The message names the task, edge or attribute.
     """
     procs = _processors(dag)
     if dag.number_of_nodes() == 0:
@@ -342,6 +349,32 @@ def prepare(dag: nx.DiGraph) -> Problem:
     if len(topo) != n:
         raise ScheduleError(f"dag: the graph has a cycle: {_cycle_text(dag)}")
     _check_total(total, "dag")
+    problem.frame = _frames(dag, names, preds)
     problem.names, problem.cost, problem.can, problem.preds = names, cost, can, preds
     problem.succs, problem.topo, problem.excl = succs, topo, excl
     return problem
+
+
+def _frames(dag, names, preds):
+    """task index -> ``frame`` attribute (checked), or ``None`` when no task has one."""
+    raw = [dag.nodes[v].get("frame") for v in names]
+    if all(f is None for f in raw):
+        return None
+    frame = []
+    for v, f in zip(names, raw):
+        if f is None:
+            raise ScheduleError(
+                f"dag: task {v!r} has no 'frame' attribute while other tasks have one; "
+                "give every task of an unrolled DAG its frame number"
+            )
+        if isinstance(f, bool) or not isinstance(f, numbers.Integral) or f < 0:
+            raise ScheduleError(f"dag: task {v!r}: 'frame' is {f!r}; expected an int >= 0")
+        frame.append(int(f))
+    for iv, pv in enumerate(preds):
+        for iu, _ in pv:
+            if frame[iu] > frame[iv]:
+                raise ScheduleError(
+                    f"dag: edge ({names[iu]!r}, {names[iv]!r}) goes from frame {frame[iu]} back "
+                    f"to frame {frame[iv]}; inter-frame edges must go forward in time"
+                )
+    return frame

@@ -51,7 +51,8 @@ def _xo_intervals(schedule: Schedule, excl: dict) -> list:
     return out
 
 
-def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title=None):
+def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title=None,
+               unit: str | None = None):
     """Draw ``schedule`` as a Gantt chart on a matplotlib Axes.
 
     One row per processor (in ``schedule.processors`` order, top to bottom), one labelled bar
@@ -69,6 +70,9 @@ def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title
         The task DAG, for exclusive tasks and XO shading.
     title : str, optional
         Default: the policy name and the makespan.
+    unit : str, optional
+        Time unit for the axis label (``"ms"``). Bars too narrow for their name carry a
+        number instead, and the axis label lists the numbers with the names.
 
     Returns
     -------
@@ -95,6 +99,7 @@ def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title
         proc_kind = {p: problem.kind[k] for k, p in enumerate(problem.procs)}
         kinds = problem.kinds
     span = schedule.makespan
+    narrow = []
     for s, f in _xo_intervals(schedule, excl):
         ax.axvspan(s, f, color=_XO_COLOR, alpha=0.35, lw=0, zorder=0)
     for v, t in schedule.tasks.items():
@@ -107,17 +112,30 @@ def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title
             y, t.finish - t.start, left=t.start, height=0.6, color=color, edgecolor="black",
             linewidth=0.6, hatch="///" if hatched else None, zorder=2,
         )
-        if span > 0 and (t.finish - t.start) > 0.025 * span:
+        if span > 0 and _fits(ax, str(v), t.finish - t.start, span):
             ax.text(
                 (t.start + t.finish) / 2, y, str(v), ha="center", va="center", fontsize=7,
                 zorder=3, clip_on=True,
                 bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8},
             )
+        else:
+            narrow.append((t, y))
+    numbered = sorted(narrow, key=lambda ty: (ty[1], ty[0].start))
+    for i, (t, y) in enumerate(numbered, 1):
+        # Staggered above the bar so neighbouring slivers' numbers do not collide.
+        ax.text((t.start + t.finish) / 2, y - 0.31 - 0.13 * (i % 3), str(i), ha="center",
+                va="bottom", fontsize=6, zorder=3, clip_on=True)
     ax.set_yticks(range(len(procs)))
     ax.set_yticklabels(procs)
-    ax.set_ylim(len(procs) - 0.5, -0.5)
+    ax.set_ylim(len(procs) - 0.5, -0.85)  # room above the top row for sliver numbers
     ax.set_xlim(0, span * 1.02 if span > 0 else 1)
-    ax.set_xlabel("time")
+    label = f"time ({unit})" if unit else "time"
+    if numbered:
+        import textwrap
+
+        key = ", ".join(f"{i} {t.task}" for i, (t, _) in enumerate(numbered, 1))
+        label += "\n" + "\n".join(textwrap.wrap(key, 160))
+    ax.set_xlabel(label, fontsize=8 if numbered else None)
     ax.grid(axis="x", alpha=0.3, zorder=1)
     ax.set_title(title if title is not None else f"{schedule.policy or 'schedule'}: makespan {span:.4g}")
     if dag is not None:
@@ -130,6 +148,13 @@ def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title
         ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7,
                   frameon=False)
     return ax
+
+
+def _fits(ax, text: str, width: float, span: float, fontsize: float = 7) -> bool:
+    """Whether ``text`` fits inside a bar ``width`` long on an axis about ``span`` wide."""
+    dpi = ax.figure.dpi
+    bar_px = ax.bbox.width * width / (span * 1.02)
+    return bar_px > (0.62 * fontsize * len(text) + 6) * dpi / 72
 
 
 def _figsize(schedule):

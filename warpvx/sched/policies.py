@@ -16,6 +16,7 @@ import networkx as nx
 
 from ..errors import UnsupportedError, WarpvxTypeError
 from .dag import DEVICE, GPU, Problem, prepare
+from .frames import frame_times, unroll
 from .schedule import Schedule, ScheduledTask
 
 
@@ -32,12 +33,17 @@ def _upward_rank(problem: Problem) -> list:
     mean_w: mean cost over the processors that can run t. mean_c: without a memory model the
     edge's ``comm`` (Topcuoglu's edge weights are already the average cost); with one, ``comm``
     times the share of processor pairs (p able to run t, q able to run the successor, p == q
-    included) that lie in different memory spaces.
+    included) that lie in different memory spaces. In a DAG with frames only successors of the
+    same frame count: the order is frame-major anyway, and a frame's rank list is then the one
+    of that frame alone (inter-frame edges would inflate the ranks of a frame's sources).
     """
     mean_cost = _mean_costs(problem)
     n = len(mean_cost)
     rank = [0.0] * n
     succs = problem.succs
+    frame = problem.frame
+    if frame is not None:
+        succs = [[(q, c) for q, c in sq if frame[q] == frame[v]] for v, sq in enumerate(succs)]
     if not problem.memory_model:
         for v in reversed(problem.topo):
             best = 0.0
@@ -76,14 +82,17 @@ def _upward_rank(problem: Problem) -> list:
 def _rank_order(problem: Problem, rank: list) -> list:
     # Decreasing rank; ranks equal up to round-off (1e-9 of the largest) fall back to the
     # topological order, which keeps insertion order among independent tasks and keeps the
-    # list a valid topological order when zero-cost tasks tie with their successors.
+    # list a valid topological order when zero-cost tasks tie with their successors. With
+    # frames, frame-major first: every edge goes to the same or a later frame, so the list
+    # stays topological, and frame f never waits behind frame f+1 for a processor.
     pos = [0] * len(rank)
     for i, v in enumerate(problem.topo):
         pos[v] = i
+    frame = problem.frame or [0] * len(rank)
     unit = 1e-9 * max(rank)
     if unit > 0:
-        return sorted(range(len(rank)), key=lambda v: (-round(rank[v] / unit), pos[v]))
-    return sorted(range(len(rank)), key=lambda v: pos[v])
+        return sorted(range(len(rank)), key=lambda v: (frame[v], -round(rank[v] / unit), pos[v]))
+    return sorted(range(len(rank)), key=lambda v: (frame[v], pos[v]))
 
 
 def _heft_order(problem: Problem) -> list:
@@ -116,13 +125,28 @@ def upward_rank(dag: nx.DiGraph) -> dict:
 # --------------------------------------------------------------------------- placement
 
 
-def _place_eft(problem: Problem, order: list):
+def _place(problem: Problem, order: list):
+    """:func:`_place_eft`, and for a DAG with frames the shorter of it and frames back to back.
+
+    Greedy list scheduling has anomalies: letting frame f+1 fill frame f's gaps can, rarely,
+    end later than running the frames one after the other. The back-to-back placement is the
+    guarantee that frames in flight never cost more than K single-frame schedules in a row.
+    """
+    placed = _place_eft(problem, order)
+    if problem.frame is None:
+        return placed
+    serial = _place_eft(problem, order, barrier=True)
+    return serial if max(serial[2]) < max(placed[2]) else placed
+
+
+def _place_eft(problem: Problem, order: list, barrier: bool = False):
     """Insertion-based earliest-finish-time placement of tasks in ``order`` (Topcuoglu §4.1).
 
     Each processor keeps its free intervals as two sorted lists (starts, ends; the last one is
     open-ended); a task takes, on each processor that can run it, the first free interval that
     holds it after its data-ready time, and goes to the processor where it finishes first
-    (ties: the first in ``processors`` order).
+    (ties: the first in ``processors`` order). ``barrier`` (a frame-major order of a DAG with
+    frames): each frame starts when every earlier task has finished, frames back to back.
     """
     n = len(problem.names)
     P = len(problem.procs)
@@ -137,7 +161,13 @@ def _place_eft(problem: Problem, order: list):
     cost = problem.cost
     preds = problem.preds
     can = problem.can
+    frame = problem.frame if barrier else None
+    current, end = -1, 0.0
     for v in order:
+        if frame is not None and frame[v] != current:
+            current = frame[v]
+            gap_s = [[end] for _ in range(P)]
+            gap_e = [[inf] for _ in range(P)]
         pv = preds[v]
         row = cost[v]
         best_f = inf
@@ -182,6 +212,7 @@ def _place_eft(problem: Problem, order: list):
         gap_s[k][g : g + 1] = new_s
         gap_e[k][g : g + 1] = new_e
         start[v], finish[v], proc[v], pspace[v] = best_st, best_f, k, space[k]
+        end = max(end, best_f)
     return proc, start, finish
 
 
@@ -222,7 +253,7 @@ def heft(dag: nx.DiGraph) -> Schedule:
     """
     problem = prepare(dag)
     order = _heft_order(problem)
-    return _to_schedule(problem, *_place_eft(problem, order), "heft", order)
+    return _to_schedule(problem, *_place(problem, order), "heft", order)
 
 
 def xeft(dag: nx.DiGraph) -> Schedule:
@@ -239,7 +270,7 @@ def xeft(dag: nx.DiGraph) -> Schedule:
     """
     problem = prepare(dag)
     order = _xeft_order(problem, _heft_order(problem))
-    return _to_schedule(problem, *_place_eft(problem, order), "xeft", order)
+    return _to_schedule(problem, *_place(problem, order), "xeft", order)
 
 
 def xeft_order(dag: nx.DiGraph) -> list:
@@ -257,7 +288,8 @@ def xeft_order(dag: nx.DiGraph) -> list:
     the cluster, the others after it (the member moves up); the walk goes on after the
     cluster. A cluster of fewer than two tasks changes nothing and the walk goes on at
     ``i + 1``. Paths between cluster members are impossible (row 9), so the list stays a
-    topological order.
+    topological order. In a DAG with frames the candidates come from ``a``'s frame only, so
+    the list stays frame-major.
 
     With two kinds (CPUs and one GPU) this is the thesis' algorithm: ``total_gpu <
     total_cpu / n_cores`` picks the GPU tasks, else the CPU tasks.
@@ -288,6 +320,7 @@ def _xeft_order(problem: Problem, rank_order: list) -> list:
     descendants = _descendant_bits(problem)
     mean_cost = _mean_costs(problem)
     kind_size = problem.kind_size
+    frame = problem.frame or [0] * n
     # Tie rule for the smallest load: the kind whose first processor comes first.
     kind_first = {}
     for k, kd in enumerate(problem.kind):
@@ -300,7 +333,9 @@ def _xeft_order(problem: Problem, rank_order: list) -> list:
             continue
         cand = [a]
         reach = descendants[a]
-        for b in [b for b in order[i + 1 :] if excl[b] >= 0]:
+        # With frames a cluster stays inside one frame, so the list stays frame-major.
+        fa = frame[a]
+        for b in [b for b in order[i + 1 :] if excl[b] >= 0 and frame[b] == fa]:
             if not (reach >> b) & 1:
                 cand.append(b)
                 reach |= descendants[b]
@@ -408,12 +443,12 @@ def best(dag: nx.DiGraph) -> Schedule:
     """
     problem = prepare(dag)
     order_h = _heft_order(problem)
-    placed_h = _place_eft(problem, order_h)
+    placed_h = _place(problem, order_h)
     order_x = _xeft_order(problem, order_h)
     if order_x == order_h:
         chosen, order, placed = "heft", order_h, placed_h
     else:
-        placed_x = _place_eft(problem, order_x)
+        placed_x = _place(problem, order_x)
         if max(placed_x[2]) < max(placed_h[2]):
             chosen, order, placed = "xeft", order_x, placed_x
         else:
@@ -426,8 +461,21 @@ def best(dag: nx.DiGraph) -> Schedule:
 POLICIES: dict = {"baseline": baseline, "heft": heft, "xeft": xeft, "best": best}
 
 
-def schedule(dag: nx.DiGraph, policy="heft") -> Schedule:
+def schedule(dag: nx.DiGraph, policy="heft", *, frames=None, delays=()) -> Schedule:
     """Schedule ``dag`` with a policy given by name (a key of :data:`POLICIES`) or callable.
+
+    Parameters
+    ----------
+    dag : networkx.DiGraph
+        A task DAG (:mod:`warpvx.sched.dag`).
+    policy : str or callable
+    frames : int, optional
+        Frames in flight K: schedule ``unroll(dag, K, delays)`` (tasks ``(v, f)``,
+        :func:`warpvx.sched.frames.unroll`) frame-major, and put the unrolled DAG
+        (``info["dag"]``), ``info["latency"]`` (per frame) and ``info["period"]`` (steady
+        state) in the result.
+    delays : dict or iterable
+        Inter-frame edges for ``frames`` (see :func:`~warpvx.sched.frames.unroll`).
 
     Raises
     ------
@@ -445,7 +493,12 @@ def schedule(dag: nx.DiGraph, policy="heft") -> Schedule:
         fn = policy
     else:
         raise WarpvxTypeError(f"policy: expected a policy name or a callable, got {type(policy).__name__}")
+    if frames is not None:
+        dag = unroll(dag, frames, delays)
     result = fn(dag)
     if not isinstance(result, Schedule):
         raise WarpvxTypeError(f"policy: {policy!r} returned {type(result).__name__}, expected a Schedule")
+    if frames is not None:
+        times = frame_times(dag, result)
+        result.info.update(dag=dag, latency=times.latency, period=times.period)
     return result

@@ -1,0 +1,201 @@
+"""Speed of the video stabilizer: the warpvx graph beside the imperative OpenCV model.
+
+Usage (repository root; about 3 minutes on one H100, results into ``$OUT``):
+
+    PYTHONPATH=. python benchmarks/stabilize_bench.py
+    PYTHONPATH=. python benchmarks/stabilize_bench.py --backend warp-cpu --frames 10 --sizes 320x240
+
+Frames: the bundled real photo (astronaut) upscaled and shaken by a random similarity per
+frame (``stabilize_metrics.shaky_clip``, 30 distinct frames cycled), so no large file is needed.
+Per size (default 1920x1080, 1280x720, 640x480), end to end with frames from and back to host
+memory (NumPy in, NumPy out):
+
+* ``model``: :func:`warpvx.apps.stabilize.stabilize_model`, plain OpenCV calls, with OpenCV on
+  all cores (``cv2.setNumThreads``);
+* ``graph``: the stabilizer graph on ``--backend`` (``cuda``: primitives and RANSAC on the GPU,
+  user nodes on CPU workers), scheduled (policy best), run by ``Graph.stream`` with
+  ``--depth`` frames in flight (uploads of large host arrays go through the runtime's pinned
+  staging buffers); warmed up first (JIT, calibration, allocations untimed);
+* decode and encode (OpenCV, mp4v) of the same frames, timed apart, and the FPS of
+  decode + graph as one serial loop would see it (1 / (1/decode + 1/graph)).
+
+Each measurement stops after ``--seconds`` (the frames done so far count). Writes
+``stabilize_bench.json``, ``stabilize_bench.md`` and ``gantt_<size>.png`` (the plan's
+predicted over measured timelines, 3 frames) into ``--out`` (default ``$OUT``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from importlib.resources import files
+
+import cv2
+import numpy as np
+
+from warpvx.apps import stabilize as st
+from warpvx.apps import stabilize_metrics as sm
+
+UNIQUE_FRAMES = 30
+LIVE = np.ones(1, np.uint8)
+
+
+def parse_size(text):
+    w, h = (int(v) for v in text.lower().split("x"))
+    return w, h
+
+
+def synthetic_frames(size, n=UNIQUE_FRAMES):
+    """``n`` BGR uint8 frames of ``size``: the bundled photo upscaled 15% past the frame and
+    shaken (+-6 px, +-1 deg, +-1% zoom per frame)."""
+    photo = cv2.imread(str(files("warpvx") / "data" / "astronaut_448.png"))
+    w, h = size
+    side = int(1.15 * max(w, h))
+    big = cv2.resize(photo, (side, side), interpolation=cv2.INTER_CUBIC)
+    frames, _, _ = sm.shaky_clip(big, n, size, shift=6.0, angle=1.0, zoom=0.01, seed=0)
+    return frames
+
+
+def timed(iterable, n, seconds):
+    """(frames consumed, wall seconds) of iterating at most ``n`` items or ``seconds``."""
+    t0 = time.perf_counter()
+    done = 0
+    for _ in iterable:
+        done += 1
+        if done >= n or time.perf_counter() - t0 > seconds:
+            break
+    return done, time.perf_counter() - t0
+
+
+def bench_model(frames, config, n, seconds):
+    cv2.setNumThreads(os.cpu_count() or 1)
+    gen = st.stabilize_model(itertools.islice(itertools.cycle(frames), n + 5), config)
+    list(itertools.islice(gen, 5))  # warm-up: first allocations, OpenCV's thread pool
+    done, s = timed(gen, n, seconds)
+    gen.close()
+    return done / s
+
+
+def bench_graph(frames, config, backend, depth, n, seconds, gantt_path=None):
+    size = frames[0].shape[1::-1]
+    g = st.build_graph(size, config, backend=backend)
+    t = time.perf_counter()
+    plan = st.schedule(g, backend)
+    schedule_s = time.perf_counter() - t
+    feed = ({"frame": f, "live": LIVE} for f in itertools.cycle(frames))
+    with g:
+        stream = g.stream(feed, depth=depth, host=True)
+        list(itertools.islice(stream, 3 * depth + 5))  # warm-up: JIT, allocations, staging
+        done, s = timed(stream, n, seconds)
+        stream.close()
+        info = plan.summary()
+        if gantt_path is not None:
+            try:
+                plan.gantt(gantt_path, frames=3, title=f"stabilize {size[0]}x{size[1]} {backend}")
+            except ImportError:
+                gantt_path = None
+    return {"fps": done / s, "frames": done, "seconds": s, "schedule_s": schedule_s,
+            "nodes": len(g.nodes), "placement": info["placement"],
+            "predicted_makespan_ms": info["predicted_makespan_ms"],
+            "measured_makespan_ms": info["measured_makespan_ms"],
+            "gantt": os.path.basename(gantt_path) if gantt_path else None}
+
+
+def bench_codec(frames, n):
+    """(encode FPS, decode FPS) of OpenCV's mp4v writer and reader on ``n`` frames."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "clip.mp4")
+        w = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"mp4v"), 30, frames[0].shape[1::-1])
+        t = time.perf_counter()
+        for f in itertools.islice(itertools.cycle(frames), n):
+            w.write(f)
+        w.release()
+        enc = n / (time.perf_counter() - t)
+        cap = cv2.VideoCapture(path)
+        t, got = time.perf_counter(), 0
+        while cap.read()[0]:
+            got += 1
+        dec = got / (time.perf_counter() - t)
+    return enc, dec
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--backend", default="cuda", choices=("cuda", "warp-cpu", "cpu"))
+    p.add_argument("--sizes", default="1920x1080,1280x720,640x480")
+    p.add_argument("--frames", type=int, default=600, help="timed frames per measurement at most")
+    p.add_argument("--seconds", type=float, default=8.0, help="time per measurement at most")
+    p.add_argument("--depth", type=int, default=4, help="frames in flight in the graph")
+    p.add_argument("--motion", default="homography", choices=st.MOTIONS)
+    p.add_argument("--window", type=int, default=st.StabilizerConfig().window)
+    p.add_argument("--out", default=os.environ.get("OUT"), help="results folder (default $OUT)")
+    args = p.parse_args(argv)
+    if not args.out:
+        p.error("--out: give a folder (or set $OUT)")
+    os.makedirs(args.out, exist_ok=True)
+    config = st.StabilizerConfig(window=args.window, motion=args.motion)
+    rows = []
+    for text in args.sizes.split(","):
+        size = parse_size(text)
+        frames = synthetic_frames(size)
+        enc, dec = bench_codec(frames, min(args.frames, 120))
+        model = bench_model(frames, config, args.frames, args.seconds)
+        graph = bench_graph(frames, config, args.backend, args.depth, args.frames, args.seconds,
+                            os.path.join(args.out, f"gantt_{text}.png"))
+        row = {"size": text, "model_fps": model, "graph_fps": graph["fps"],
+               "ratio": graph["fps"] / model, "decode_fps": dec, "encode_fps": enc,
+               "graph_with_decode_fps": 1.0 / (1.0 / dec + 1.0 / graph["fps"]), "graph": graph}
+        rows.append(row)
+        print(f"{text}: model {model:.1f} FPS, graph ({args.backend}) {graph['fps']:.1f} FPS "
+              f"(x{row['ratio']:.2f}), decode {dec:.0f} FPS, encode {enc:.0f} FPS", flush=True)
+    report = {"backend": args.backend, "depth": args.depth, "motion": args.motion,
+              "window": args.window, "cpu_cores": os.cpu_count(), "machine": platform.platform(),
+              "processor": platform.processor(), "opencv": cv2.__version__, "gpu": _gpu_name(args.backend),
+              "rows": rows}
+    with open(os.path.join(args.out, "stabilize_bench.json"), "w") as f:
+        json.dump(report, f, indent=2)
+    md = render(report, argv)
+    with open(os.path.join(args.out, "stabilize_bench.md"), "w") as f:
+        f.write(md)
+    print(md)
+    return 0
+
+
+def _gpu_name(backend):
+    if not backend.startswith("cuda"):
+        return None
+    import warp as wp
+
+    return wp.get_device(backend).name
+
+
+def render(report, argv):
+    cmd = "PYTHONPATH=. python benchmarks/stabilize_bench.py " + " ".join(argv or sys.argv[1:])
+    lines = [f"<!-- {cmd.strip()} -->",
+             f"# Stabilizer speed: graph on {report['backend']} ({report['gpu'] or 'no GPU'}) vs "
+             f"the OpenCV model on {report['cpu_cores']} cores", "",
+             f"{report['motion']}, window {report['window']}, depth {report['depth']}; frames from "
+             "and back to host memory; decode/encode (OpenCV mp4v) apart.", "",
+             "| size | OpenCV model FPS | graph FPS | graph / model | decode FPS | encode FPS | "
+             "decode + graph FPS | predicted ms/frame | measured ms/frame | nodes |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in report["rows"]:
+        g = r["graph"]
+        meas = g["measured_makespan_ms"]
+        lines.append(f"| {r['size']} | {r['model_fps']:.1f} | {r['graph_fps']:.1f} | {r['ratio']:.2f} | "
+                     f"{r['decode_fps']:.0f} | {r['encode_fps']:.0f} | {r['graph_with_decode_fps']:.1f} | "
+                     f"{g['predicted_makespan_ms']:.2f} | {'-' if meas is None else f'{meas:.2f}'} | "
+                     f"{g['nodes']} |")
+    last = report["rows"][-1]["graph"]["placement"]
+    lines += ["", "Placement (last size): " + ", ".join(f"{k}: {v}" for k, v in sorted(last.items()))]
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,152 @@
+"""The contention cost model: the fit recovers a known law, the executor simulation gives
+hand-computed timelines, and on a real graph it predicts other placements out of sample."""
+
+from __future__ import annotations
+
+import math
+import statistics
+
+import numpy as np
+import pytest
+
+import warpvx
+from warpvx.graph.calibration import TransferModel
+from warpvx.graph.model import (
+    LATENCIES,
+    ContentionModel,
+    Reads,
+    Slowdown,
+    copied_bytes,
+    fit_slowdown,
+    simulate,
+)
+from warpvx.sched.schedule import Schedule, ScheduledTask
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def test_fit_slowdown_recovers_a_known_law():
+    rng = np.random.default_rng(3)
+    ratio, per_thread = 1.3, 0.45
+    e = {"a": 0.8, "b": 1.0, "c": 1.25}
+    samples = []
+    for node, corr in e.items():
+        alone = rng.uniform(0.5, 4.0)
+        for _ in range(30):
+            busy = rng.uniform(0.0, 3.0)
+            noise = math.exp(rng.normal(0, 0.02))
+            samples.append((node, alone, alone * ratio * corr * (1 + per_thread * busy) * noise, busy))
+    s = fit_slowdown(samples)
+    assert s.per_thread == pytest.approx(per_thread, abs=0.03)
+    # ratio * e is what is identified per node; the corrections keep their proportions.
+    for node, corr in e.items():
+        assert s.ratio * s.node[node] == pytest.approx(ratio * corr, rel=0.04)
+    assert s.node["c"] / s.node["a"] == pytest.approx(1.25 / 0.8, rel=0.04)
+    assert s.rms_log < 0.05
+
+
+def test_fit_slowdown_without_variation_in_busy_is_zero_slowdown():
+    s = fit_slowdown([("a", 1.0, 2.0, 1.0)] * 5)
+    assert s.factor("a", 1.0) == pytest.approx(2.0)
+    assert fit_slowdown([]).ratio == 1.0
+
+
+def _model(alone, reads, *, cpu=0.0, gpu=0.0, latency=0.0, cuda=False, transfer=None):
+    return ContentionModel(
+        {"cpu": Slowdown(per_thread=cpu), "gpu": Slowdown(per_thread=gpu)},
+        dict.fromkeys(LATENCIES, latency), alone, reads, transfer or TransferModel(), cuda)
+
+
+def _sched(places):
+    return Schedule({t: ScheduledTask(t, p, i, i + 1) for i, (t, p) in enumerate(places)},
+                    ["cpu0", "cpu1", "gpu"])
+
+
+def test_simulate_two_busy_workers_share_at_the_fitted_rate():
+    # a and b (1 ms alone each) run together on two workers at half speed (a = 1), then c.
+    alone = {n: {"cpu": 1.0, "gpu": None, "device": 0.0} for n in "abc"}
+    reads = {"a": (), "b": (), "c": (Reads("a.out", "a", 8, False), Reads("b.out", "b", 8, False))}
+    pred = simulate(_model(alone, reads, cpu=1.0), _sched([("a", "cpu0"), ("b", "cpu1"), ("c", "cpu0")]))
+    assert pred.tasks["a"].finish == pytest.approx(2.0)
+    assert pred.tasks["b"].finish == pytest.approx(2.0)
+    assert pred.tasks["c"].start == pytest.approx(2.0)
+    assert pred.makespan == pytest.approx(3.0)
+    # Without contention they overlap fully.
+    assert simulate(_model(alone, reads), _sched([("a", "cpu0"), ("b", "cpu1"), ("c", "cpu0")])
+                    ).makespan == pytest.approx(2.0)
+
+
+def test_simulate_cuda_device_follows_the_host_call_and_copies_are_charged_once():
+    # g (GPU, host 0.2 ms, device 3 ms) feeds two CPU readers; its output crosses once.
+    alone = {"g": {"cpu": None, "gpu": 0.2, "device": 3.0},
+             "x": {"cpu": 1.0, "gpu": None, "device": 0.0},
+             "y": {"cpu": 1.0, "gpu": None, "device": 0.0}}
+    reads = {"g": (Reads("in", None, 1000, False),),
+             "x": (Reads("g.out", "g", 1000, False),), "y": (Reads("g.out", "g", 1000, False),)}
+    tm = TransferModel(0.0, 1e-4, 0.0, 2e-4)  # upload 0.1 ms, download 0.2 ms per 1000 bytes
+    sch = _sched([("g", "gpu"), ("x", "cpu0"), ("y", "cpu0")])
+    order = ["g", "x", "y"]
+    assert copied_bytes(reads, {t: s.processor for t, s in sch.tasks.items()}, order) == \
+        {"g": 1000, "x": 1000}
+    pred = simulate(_model(alone, reads, cuda=True, transfer=tm), sch)
+    # Host call: 0.2 + 0.1 upload; the device runs 3 ms from the call's start.
+    assert pred.tasks["g"].start == pytest.approx(0.0)
+    assert pred.tasks["g"].finish == pytest.approx(3.0)
+    assert pred.tasks["x"].start == pytest.approx(3.0)
+    assert pred.tasks["x"].finish == pytest.approx(3.0 + 1.0 + 0.2)
+    assert pred.makespan == pytest.approx(5.2)
+
+
+def test_simulate_refuses_an_order_that_deadlocks():
+    alone = {n: {"cpu": 1.0, "gpu": None, "device": 0.0} for n in "ab"}
+    reads = {"a": (Reads("b.out", "b", 8, False),), "b": ()}
+    sch = Schedule({"a": ScheduledTask("a", "cpu0", 0, 1), "b": ScheduledTask("b", "cpu0", 1, 2)},
+                   ["cpu0", "gpu"])
+    with pytest.raises(warpvx.GraphError, match="deadlock"):
+        simulate(_model(alone, reads), sch)
+
+
+def _graph(size):
+    w, h = size
+    g = warpvx.Graph("model")
+    frame = g.input("frame", shape=(h, w, 3), dtype=np.uint8)
+    gray = g.color_convert(frame, code="BGR2GRAY", name="gray")
+    blur = g.gaussian_blur(gray, ksize=(5, 5), sigma=1.2, name="blur")
+    g.output("kps", g.fast_corners(blur, threshold=20, name="fast"))
+    g.output("pyr", g.gaussian_pyramid(gray, levels=3, name="pyramid"))
+    g.output("mean", g.user(lambda x: np.array([x.mean()]), [blur], "m", name="mean"))
+    return g
+
+
+def test_model_fits_one_placement_and_predicts_others_out_of_sample(frames):
+    g = _graph((frames[0].shape[1], frames[0].shape[0]))
+    g.verify({"frame": frames[0]})
+    runs, plans = {}, {}
+    for policy in ("baseline", "heft"):
+        plans[policy] = plan = g.schedule(policy, n_cpus=1, gpu="warp-cpu")
+        got = []
+        for i in range(12):
+            g.process({"frame": frames[i % len(frames)]})
+            got.append(plan.last_run[-1])
+        runs[policy] = got
+    model = g.fit_model(plans["baseline"], runs=runs["baseline"][:6])
+    assert set(model.slowdown) == {"cpu", "gpu"}
+    errors = {}
+    for policy, plan in plans.items():
+        pred = model.predict(plan)
+        assert set(pred.tasks) == set(g.nodes)
+        assert math.isfinite(pred.makespan) and pred.makespan > 0
+        measured = statistics.median(r.makespan for r in runs[policy][6:])
+        errors[policy] = 100 * (pred.makespan - measured) / measured
+    assert all(math.isfinite(e) for e in errors.values())
+    # best with the model: the fastest predicted candidate, the baseline among them.
+    best = g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model)
+    cands = best.schedule.info["candidates"]
+    assert "baseline" in cands and len(cands) == 6
+    assert best.predicted_makespan == pytest.approx(min(cands.values()))
+    assert best.prediction is not None and best.predicted_makespan == best.prediction.makespan
+    g.process({"frame": frames[0]})
+    fig = best.gantt()
+    assert "prediction error" in fig._suptitle.get_text()
+    assert "time (ms)" in fig.axes[0].get_xlabel()
+    g.close()

@@ -1,0 +1,888 @@
+"""ORB-SLAM2's front end (thesis ch. 4, SPEC §8) as a warpvx graph: extraction, matching, motion.
+
+Per frame (``image``, and ``right`` for a stereo sequence)::
+
+    image -> orb (ORB-SLAM2 extractor, GPU role) -> keypoints, descriptors
+    descriptors, descriptors[-1] (a delay) -> match_hamming (cross-check / ratio) -> pairs
+    right -> orb_right -> stereo (CPU: ComputeStereoMatches) -> depth per left keypoint
+    state[-1] (a delay), keypoints, pairs [, depth] -> track (CPU) -> state, pose, stats
+
+``track`` filters the matches (Hamming distance, ORB-SLAM2's rotation-consistency histogram),
+falls back to the last keyframe when the previous frame gives too few, and estimates the motion
+from the reference frame: PnP with RANSAC on the reference's stereo 3-D points (metric, the
+constant-velocity motion model as the initial guess, ``useExtrinsicGuess``), or for monocular
+sequences the essential matrix by RANSAC with the cheirality check (``cv2.recoverPose``). A
+monocular camera cannot observe scale: the first step has unit length and later steps take
+their length from the depths triangulated at the step before (the median ratio over the points
+seen in both), so the trajectory is right up to one global scale -- evaluate it after a Sim(3)
+alignment. Keyframes: every ``keyframe_interval`` frames, when the inliers drop under
+``keyframe_ratio`` of those tracked just after the last keyframe, or after a tracking loss.
+
+All tracking state is carried from frame to frame through a delay (:class:`TrackState`,
+immutable), so every node is a pure function: verification and calibration may run them on
+samples, and pipelined frames see the same values as frames run one by one. With
+``g.stream(depth >= 2)`` the extraction of frame t+1 (GPU) overlaps the tracking of frame t (CPU
+workers); on a machine without CUDA, ``--backend warp-cpu`` gives the GPU role to Warp's CPU device.
+
+Conventions: pixel centres at integers; poses are camera-to-world float64 4x4 (world = first
+camera); ``T_cur_ref`` maps points from the reference camera's frame to the current one's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import WarpvxError, WarpvxValueError
+
+BACKENDS = ("cpu", "warp-cpu", "cuda")
+# ORB-SLAM2's ORBmatcher thresholds (Hamming distance, 256-bit descriptors).
+TH_HIGH, TH_LOW = 100, 50
+REF_PREVIOUS, REF_KEYFRAME, REF_LOST = 0, 1, 2
+# Set bits of each byte value: Hamming distances of descriptor bytes by table look-up.
+_POPCOUNT = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).sum(1).astype(np.int32)
+STATS = ("n_keypoints", "n_matches", "n_inliers", "keyframe", "reference", "track_ms")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackerConfig:
+    """Parameters of the front end (checked on construction; a warpvx error names the field).
+
+    Attributes
+    ----------
+    n_features, scale_factor, n_levels, ini_th_fast, min_th_fast
+        ORB-SLAM2's extractor (KITTI settings: 2000, 1.2, 8, 20, 7).
+    cross_check : bool
+        Keep mutual best matches only.
+    ratio : float or None
+        Lowe's ratio test (ORB-SLAM2's nnratio) when given.
+    max_distance : int
+        Largest Hamming distance kept (ORB-SLAM2's TH_HIGH = 100; 64 here, tighter since
+        frame-to-frame matching has no projection window to restrict the candidates).
+    check_orientation : bool
+        ORB-SLAM2's rotation-consistency check (``histo_length`` bins of the angle difference,
+        the three most populated kept).
+    min_matches : int
+        Fewer good matches to the previous frame: match to the last keyframe.
+    ransac_threshold : float
+        Essential-matrix RANSAC threshold (px).
+    min_parallax : float
+        Median match displacement (px) under which a monocular step is taken as no motion.
+    pnp_threshold : float
+        PnP RANSAC reprojection threshold (px).
+    keyframe_interval, keyframe_ratio
+        Keyframe policy (see the module docstring).
+    stereo_max_distance : int
+        Stereo matching's Hamming bound (ORB-SLAM2: (TH_HIGH + TH_LOW) / 2 = 75).
+    """
+
+    n_features: int = 2000
+    scale_factor: float = 1.2
+    n_levels: int = 8
+    ini_th_fast: int = 20
+    min_th_fast: int = 7
+    cross_check: bool = True
+    ratio: float | None = None
+    max_distance: int = 64
+    check_orientation: bool = True
+    histo_length: int = 30
+    min_matches: int = 30
+    ransac_threshold: float = 0.5
+    min_parallax: float = 1.0
+    pnp_threshold: float = 2.0
+    keyframe_interval: int = 10
+    keyframe_ratio: float = 0.5
+    stereo_max_distance: int = (TH_HIGH + TH_LOW) // 2
+
+    def __post_init__(self):
+        from ..check import check_float, check_int
+
+        check_int(self.n_features, "n_features", min_value=1)
+        check_int(self.n_levels, "n_levels", min_value=1)
+        check_int(self.max_distance, "max_distance", min_value=0)
+        check_int(self.histo_length, "histo_length", min_value=1)
+        check_int(self.min_matches, "min_matches", min_value=5)
+        check_int(self.keyframe_interval, "keyframe_interval", min_value=1)
+        check_float(self.keyframe_ratio, "keyframe_ratio", min_value=0.0, max_value=1.0)
+        check_float(self.ransac_threshold, "ransac_threshold", min_value=0.0, strict_min=True)
+
+    def orb_args(self) -> dict:
+        return dict(n_features=self.n_features, scale_factor=self.scale_factor,
+                    n_levels=self.n_levels, ini_th_fast=self.ini_th_fast, min_th_fast=self.min_th_fast)
+
+
+@dataclasses.dataclass(frozen=True)
+class Camera:
+    """A pinhole camera: ``K`` float64 3x3, ``size`` (w, h) in px, ``baseline`` (m, stereo
+    rectified; None for monocular)."""
+
+    K: np.ndarray
+    size: tuple
+    baseline: float | None = None
+
+    @property
+    def stereo(self) -> bool:
+        return self.baseline is not None
+
+
+# --------------------------------------------------------------------------- matching
+
+
+def three_maxima(counts) -> list:
+    """Indices of the (up to) three most populated histogram bins, as ORB-SLAM2's
+    ``ORBmatcher::ComputeThreeMaxima``: the second and third are dropped when they hold under a
+    tenth of the first (the third alone when only it does); empty bins never count."""
+    m = [0, 0, 0]
+    ind = [-1, -1, -1]
+    for i, s in enumerate(np.asarray(counts).tolist()):
+        if s > m[0]:
+            m, ind = [s, m[0], m[1]], [i, ind[0], ind[1]]
+        elif s > m[1]:
+            m[1:], ind[1:] = [s, m[1]], [i, ind[1]]
+        elif s > m[2]:
+            m[2], ind[2] = s, i
+    if m[1] < 0.1 * m[0]:
+        ind[1] = ind[2] = -1
+    elif m[2] < 0.1 * m[0]:
+        ind[2] = -1
+    return [i for i in ind if i >= 0]
+
+
+def rotation_consistent(angles1, angles2, histo_length: int = 30) -> np.ndarray:
+    """bool [M]: the matches whose keypoint angle difference (degrees, ``angles1 - angles2``
+    in [0, 360)) falls in one of the three most populated of ``histo_length`` equal bins
+    (:func:`three_maxima`). ORB-SLAM2 bins with ``round(rot / histo_length)`` (a factor that
+    gives 13 bins of 30 degrees); here the bins are the intended 360 / ``histo_length`` wide."""
+    rot = np.mod(np.asarray(angles1, np.float64) - np.asarray(angles2, np.float64), 360.0)
+    bins = np.minimum((rot * histo_length / 360.0).astype(np.int64), histo_length - 1)
+    keep = three_maxima(np.bincount(bins, minlength=histo_length))
+    return np.isin(bins, keep)
+
+
+def filter_matches(pairs, distances, angles_q, angles_t, config: TrackerConfig) -> np.ndarray:
+    """The good (query, train) pairs, int32 [M, 2]: Hamming distance <= ``max_distance``, then
+    the rotation-consistency check on the keypoint angles (float [Nq], [Nt], degrees)."""
+    pairs = np.asarray(pairs).reshape(-1, 2)
+    pairs = pairs[np.asarray(distances).reshape(-1) <= config.max_distance]
+    if config.check_orientation and len(pairs):
+        pairs = pairs[rotation_consistent(np.asarray(angles_q)[pairs[:, 0]],
+                                          np.asarray(angles_t)[pairs[:, 1]], config.histo_length)]
+    return pairs
+
+
+def stereo_depth(kps_left, desc_left, kps_right, desc_right, left, right, *, fx, baseline,
+                 config: TrackerConfig = TrackerConfig()) -> np.ndarray:
+    """Depth (m) of each left keypoint from ORB matches along the epipolar rows, float32 [N]
+    (NaN where unmatched), after ORB-SLAM2's ``Frame::ComputeStereoMatches``:
+
+    a right keypoint is a candidate when its row is within 2 s of the left one (s = the right
+    keypoint's octave scale), its octave within one of the left one's, and its disparity in
+    [0, fx]; the best Hamming distance wins if under ``stereo_max_distance``; the column is
+    refined by the SAD of 11x11 patches over +-5 px and a parabola through the three best
+    (dropped when the vertex moves more than 1 px); depth = fx baseline / disparity; matches
+    whose SAD exceeds 1.5 x 1.4 x the median are dropped. Patches are taken on the level-0
+    images (ORB-SLAM2 uses the keypoint's pyramid level).
+    """
+    n = len(kps_left)
+    depth = np.full(n, np.nan, np.float32)
+    if n == 0 or len(kps_right) == 0:
+        return depth
+    xl, yl, ol = (np.asarray(a) for a in (kps_left.x, kps_left.y, kps_left.octave))
+    xr, yr, orr = (np.asarray(a) for a in (kps_right.x, kps_right.y, kps_right.octave))
+    # Candidate pairs: right keypoints sorted by row, those within the widest band of each
+    # left row, then the exact rules (band of the right octave, octave, disparity range).
+    order = np.argsort(yr, kind="stable")
+    ys = yr[order]
+    reach = 2.0 * config.scale_factor ** max(int(orr.max()), 0)
+    lo, hi = np.searchsorted(ys, yl - reach), np.searchsorted(ys, yl + reach, side="right")
+    counts = hi - lo
+    li = np.repeat(np.arange(n), counts)
+    ri = order[np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + np.repeat(lo, counts)]
+    disp = xl[li] - xr[ri]
+    ok = ((np.abs(yl[li] - yr[ri]) <= 2.0 * config.scale_factor ** orr[ri]) & (disp >= 0)
+          & (disp <= fx) & (np.abs(ol[li] - orr[ri]) <= 1))
+    li, ri = li[ok], ri[ok]
+    dist = _POPCOUNT[np.asarray(desc_left)[li] ^ np.asarray(desc_right)[ri]].sum(1)
+    # Best (smallest distance, then lowest right index) per left keypoint.
+    first = np.lexsort((ri, dist, li))
+    li, ri, dist = li[first], ri[first], dist[first]
+    head = np.r_[True, li[1:] != li[:-1]] if len(li) else np.zeros(0, bool)
+    li, ri, dist = li[head], ri[head], dist[head]
+    keep = dist < config.stereo_max_distance
+    good, best_r = li[keep], ri[keep]
+    if len(good) == 0:
+        return depth
+    ur = xr[best_r].astype(np.float64)
+    # SAD refinement: 11x11 patches, right patch shifted by -5..5 px around the matched column.
+    w, L = 5, 5
+    pad = w + L + 1
+    lp = np.pad(left.astype(np.int32), pad, mode="edge")
+    rp = np.pad(right.astype(np.int32), pad, mode="edge")
+    cx = np.rint(xl[good]).astype(np.int64) + pad
+    cy = np.rint(yl[good]).astype(np.int64) + pad
+    cr = np.rint(ur).astype(np.int64) + pad
+    h, wd = rp.shape
+    inside = (cr - w - L >= 0) & (cr + w + L < wd) & (cy - w >= 0) & (cy + w < h)
+    good, ur, cx, cy, cr = good[inside], ur[inside], cx[inside], cy[inside], cr[inside]
+    off = np.arange(-w, w + 1)
+    shifts = np.arange(-L, L + 1)
+    rows = cy[:, None, None] + off[None, :, None]
+    pl = lp[rows, cx[:, None, None] + off[None, None, :]]
+    pl = pl - pl[:, w:w + 1, w:w + 1]  # ORB-SLAM2 subtracts the centre value (illumination)
+    cols = cr[:, None, None, None] + shifts[None, :, None, None] + off[None, None, None, :]
+    pr = rp[rows[:, None], cols]
+    pr = pr - pr[:, :, w:w + 1, w:w + 1]
+    sad = np.abs(pl[:, None] - pr).sum(axis=(2, 3)).astype(np.float64)
+    k = np.argmin(sad, axis=1)
+    interior = (k > 0) & (k < 2 * L)
+    i = np.arange(len(k))
+    kc = np.clip(k, 1, 2 * L - 1)
+    d1, d2, d3 = sad[i, kc - 1], sad[i, kc], sad[i, kc + 1]
+    denom = 2.0 * (d1 + d3 - 2.0 * d2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        delta = np.where(denom != 0, (d1 - d3) / denom, 0.0)
+    keep = interior & (np.abs(delta) <= 1.0)
+    ur_refined = np.rint(ur) + shifts[k] + delta
+    disparity = xl[good] - ur_refined
+    keep &= disparity > 0
+    best_sad = sad[i, k]
+    if keep.any():
+        keep &= best_sad <= 1.5 * 1.4 * np.median(best_sad[keep])
+    depth[good[keep]] = (fx * baseline / disparity[keep]).astype(np.float32)
+    return depth
+
+
+# --------------------------------------------------------------------------- tracking
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameRecord:
+    """What tracking keeps of a frame: ``pts`` float64 [N, 2], ``angles`` float [N] (deg),
+    ``depth`` float [N] (camera z, m for stereo, the sequence's running scale for monocular;
+    NaN unknown), ``desc`` uint8 [N, 32] (kept for keyframes), ``pose`` 4x4, ``index``."""
+
+    pts: np.ndarray
+    angles: np.ndarray
+    depth: np.ndarray
+    desc: np.ndarray
+    pose: np.ndarray
+    index: int
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackState:
+    """Tracking state carried by a delay from frame to frame: the previous frame, the last
+    keyframe, the motion model (``velocity`` = T_prev_prevprev, 4x4), the inliers tracked just
+    after the keyframe (``keyframe_inliers``) and the frame count."""
+
+    frames: int = 0
+    previous: FrameRecord | None = None
+    keyframe: FrameRecord | None = None
+    velocity: np.ndarray = dataclasses.field(default_factory=lambda: np.eye(4))
+    keyframe_inliers: int = 0
+
+
+def _inv(T):
+    R, t = T[:3, :3], T[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ t
+    return out
+
+
+def _rt(R, t):
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(t).reshape(3)
+    return T
+
+
+def _pose_pnp(ref, cur_pts, pairs, K, guess, config):
+    """T_cur_ref by PnP RANSAC on the reference's 3-D points; (T, inlier count) or None."""
+    import cv2
+
+    z = ref.depth[pairs[:, 1]]
+    ok = np.isfinite(z) & (z > 0)
+    if ok.sum() < 6:
+        return None
+    p = ref.pts[pairs[ok, 1]]
+    Kinv = np.linalg.inv(K)
+    X = (np.c_[p, np.ones(len(p))] @ Kinv.T) * z[ok, None]
+    rvec, _ = cv2.Rodrigues(guess[:3, :3])
+    tvec = guess[:3, 3].reshape(3, 1).copy()
+    found, rvec, tvec, inliers = cv2.solvePnPRansac(
+        X, cur_pts[pairs[ok, 0]], K, None, rvec, tvec, useExtrinsicGuess=True,
+        iterationsCount=100, reprojectionError=config.pnp_threshold, confidence=0.99,
+        flags=cv2.SOLVEPNP_ITERATIVE)
+    if not found or inliers is None or len(inliers) < 6:
+        return None
+    return _rt(cv2.Rodrigues(rvec)[0], tvec), len(inliers), None
+
+
+def _pose_essential(ref, cur_pts, pairs, K, step, config):
+    """T_cur_ref from the essential matrix (RANSAC, cheirality), the translation scaled by the
+    reference's depths (or ``step`` when none are shared); returns (T, inliers, depth of the
+    inliers in the current frame as (cur indices, z)) or None."""
+    import cv2
+
+    p1, p2 = ref.pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
+    if np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
+        return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]])
+    E, mask = cv2.findEssentialMat(p1, p2, K, cv2.RANSAC, 0.999, config.ransac_threshold)
+    if E is None or E.shape != (3, 3):
+        return None
+    n, R, t, mask = cv2.recoverPose(E, p1, p2, K, mask=mask)
+    inl = mask.reshape(-1) > 0
+    if n < 8:
+        return None
+    X = cv2.triangulatePoints(K @ np.eye(3, 4), K @ np.hstack([R, t]), p1[inl].T, p2[inl].T)
+    X = (X[:3] / X[3]).T
+    z_ref = X[:, 2]
+    prior = ref.depth[pairs[inl, 1]]
+    common = np.isfinite(prior) & (prior > 0) & (z_ref > 0)
+    scale = float(np.median(prior[common] / z_ref[common])) if common.sum() >= 5 else step
+    z_cur = (X @ R.T + t.reshape(1, 3))[:, 2] * scale
+    z_cur = np.where((z_ref > 0) & (z_cur > 0), z_cur, np.nan)
+    return _rt(R, scale * t), int(inl.sum()), (pairs[inl, 0], z_cur)
+
+
+def _record(kps, desc, depth, pose, index):
+    pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
+    return FrameRecord(pts, np.asarray(kps.angle, np.float64), depth, np.asarray(desc), pose, index)
+
+
+def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
+          config: TrackerConfig = TrackerConfig()):
+    """One frame of tracking (the graph's ``track`` node; pure).
+
+    Parameters
+    ----------
+    state : TrackState
+        The previous frame's state (a delay).
+    kps, desc : Keypoints [N], uint8 [N, 32]
+        This frame's ORB features.
+    pairs, distances : int32 [M, 2], int32 [M]
+        ``match_hamming(desc, previous desc)``: (this frame's index, previous frame's index).
+    depth : float32 [N], optional
+        Stereo depth (m) of each keypoint, NaN unknown; None for monocular.
+    K : float64 3x3
+        Intrinsics.
+
+    Returns
+    -------
+    state : TrackState
+    pose : float64 4x4
+        Camera-to-world pose of this frame.
+    stats : float64 [6]
+        n_keypoints, n_matches, n_inliers, keyframe (0/1), reference (0 previous frame,
+        1 keyframe, 2 lost: motion model), milliseconds in this node.
+    """
+    t0 = time.perf_counter()
+    import warpvx
+
+    K = np.asarray(K, np.float64)
+    n = len(kps)
+    stereo = depth is not None
+    cur_depth = np.asarray(depth, np.float64) if stereo else np.full(n, np.nan)
+    if state.previous is None:
+        rec = _record(kps, desc, cur_depth, np.eye(4), state.frames)
+        new = TrackState(state.frames + 1, rec, rec, np.eye(4), 0)
+        return new, np.eye(4), np.array([n, 0, 0, 1, REF_PREVIOUS, 1e3 * (time.perf_counter() - t0)])
+    prev, kf = state.previous, state.keyframe
+    cur_pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
+    angles = np.asarray(kps.angle, np.float64)
+    good = filter_matches(pairs, distances, angles, prev.angles, config) if n else np.zeros((0, 2), int)
+    ref, reference = prev, REF_PREVIOUS
+    if len(good) < config.min_matches and kf.index != prev.index and n:
+        kp, kd = warpvx.match_hamming(np.asarray(desc), kf.desc, config.cross_check, config.ratio,
+                                      backend="cpu")
+        kgood = filter_matches(kp, kd, angles, kf.angles, config)
+        if len(kgood) > len(good):
+            good, ref, reference = kgood, kf, REF_KEYFRAME
+    # Constant-velocity guess of T_cur_ref: T_cur_prev = velocity, T_prev_ref from the poses.
+    guess = state.velocity @ _inv(prev.pose) @ ref.pose
+    result = None
+    if len(good) >= 8:
+        if stereo:
+            result = _pose_pnp(ref, cur_pts, good, K, guess, config)
+        if result is None:
+            step = float(np.linalg.norm(state.velocity[:3, 3])) or 1.0
+            result = _pose_essential(ref, cur_pts, good, K, step, config)
+    if result is None:
+        T, inliers, reference = guess, 0, REF_LOST
+    else:
+        T, inliers, tri = result
+        if not stereo and tri is not None:
+            idx, z = tri
+            cur_depth[idx] = z
+    pose = ref.pose @ _inv(T)
+    velocity = _inv(pose) @ prev.pose
+    since = state.frames - kf.index
+    kf_inliers = state.keyframe_inliers or inliers
+    is_kf = (reference == REF_LOST or since >= config.keyframe_interval
+             or inliers < config.keyframe_ratio * kf_inliers)
+    rec = _record(kps, desc, cur_depth, pose, state.frames)
+    new = TrackState(state.frames + 1, rec, rec if is_kf else kf, velocity, 0 if is_kf else kf_inliers)
+    stats = np.array([n, len(good), inliers, float(is_kf), reference, 1e3 * (time.perf_counter() - t0)])
+    return new, pose, stats
+
+
+# --------------------------------------------------------------------------- the graph
+
+
+def build_graph(camera: Camera, config: TrackerConfig = TrackerConfig(), *, backend="cpu"):
+    """The front-end graph for gray uint8 frames of ``camera.size``.
+
+    Inputs: ``image`` (uint8 HxW) and, for a stereo camera, ``right``. Outputs: ``pose``
+    (float64 4x4, camera to world) and ``stats`` (float64 [6], see :func:`track`).
+    ``backend``: ``"cpu"`` runs every node on CPU workers; ``"warp-cpu"``/``"cuda"`` pins the
+    extractors and the matcher to the Warp device (the GPU role); ``stereo`` and ``track``
+    are CPU user nodes.
+    """
+    from ..check import check_choice
+    from ..graph import Graph
+
+    check_choice(backend, "backend", BACKENDS)
+    w, h = camera.size
+    pin = None if backend == "cpu" else "gpu"
+    g = Graph("orbslam")
+    image = g.input("image", shape=(h, w), dtype=np.uint8)
+    kps, desc = g.orb(image, **config.orb_args(), name="orb", target=pin)
+    pairs, dists = g.match_hamming(desc, g.delay(desc)[-1], cross_check=config.cross_check,
+                                   ratio=config.ratio, name="match", target=pin)
+    extra = []
+    if camera.stereo:
+        right = g.input("right", shape=(h, w), dtype=np.uint8)
+        kps_r, desc_r = g.orb(right, **config.orb_args(), name="orb_right", target=pin)
+        extra = [g.user(functools.partial(stereo_depth, fx=float(camera.K[0, 0]),
+                                          baseline=float(camera.baseline), config=config),
+                        [kps, desc, kps_r, desc_r, image, right], name="stereo")]
+    state = g.virtual("state")
+    previous = g.delay(state, init=TrackState())[-1]
+    _, pose, stats = g.user(functools.partial(track, K=camera.K, config=config),
+                            [previous, kps, desc, pairs, dists] + extra, [state, "pose", "stats"],
+                            name="track")
+    g.output("pose", pose)
+    g.output("stats", stats)
+    return g
+
+
+def schedule(graph, backend="cpu"):
+    """Place ``graph`` with the scheduler (policy ``best``): CPU workers only for ``"cpu"``,
+    CPU workers plus the Warp device otherwise. Returns the plan."""
+    return graph.schedule("best", gpu=False if backend == "cpu" else backend)
+
+
+@dataclasses.dataclass
+class TrackedFrame:
+    """One tracked frame: ``index``, ``pose`` (float64 4x4 camera to world), ``stats``
+    (dict of :data:`STATS`), ``ms`` (wall time since the previous frame came out)."""
+
+    index: int
+    pose: np.ndarray
+    stats: dict
+    ms: float
+
+
+def track_frames(frames, camera: Camera, config: TrackerConfig = TrackerConfig(), *,
+                 backend="cpu", depth: int = 2, on_finish=None):
+    """Run the front-end graph over ``frames`` (an iterable of input dicts: ``image`` and, for
+    stereo, ``right``; gray uint8); a generator of :class:`TrackedFrame` in order. ``depth``
+    frames in flight (>= 2 overlaps extraction of frame t+1 with tracking of frame t).
+    ``on_finish(plan)``, if given, is called with the scheduler's plan after the last frame
+    (for its placement, predicted vs measured makespans and Gantt charts)."""
+    frames = iter(frames)
+    first = [f for _, f in zip(range(2), frames)]
+    if not first:
+        raise WarpvxValueError("frames: the sequence has no frames")
+    g = build_graph(camera, config, backend=backend)
+    # Verify on two real frames so calibration times matching and tracking on real motion.
+    g.verify(first if len(first) == 2 else first[0])
+    plan = schedule(g, backend)
+
+    def feed():
+        yield from first
+        yield from frames
+
+    t = time.perf_counter()
+    with g:
+        for k, out in enumerate(g.stream(feed(), depth=depth)):
+            now = time.perf_counter()
+            stats = dict(zip(STATS, out["stats"].tolist()))
+            yield TrackedFrame(k, out["pose"], stats, 1e3 * (now - t))
+            t = now
+        if on_finish is not None:
+            on_finish(plan)
+
+
+# --------------------------------------------------------------------------- the OpenCV baseline
+
+
+def baseline_step(cur, prev, matcher, K) -> np.ndarray:
+    """One step of the OpenCV baseline: T_cur_prev (4x4, unit translation; identity when it
+    fails) from ``(keypoints, descriptors)`` of ``detectAndCompute`` for both frames."""
+    import cv2
+
+    (kp, des), (kp0, des0) = cur, prev
+    if des is None or des0 is None:
+        return np.eye(4)
+    m = matcher.match(des, des0)
+    if len(m) < 8:
+        return np.eye(4)
+    p2 = np.float64([kp[x.queryIdx].pt for x in m])
+    p1 = np.float64([kp0[x.trainIdx].pt for x in m])
+    E, mask = cv2.findEssentialMat(p1, p2, K, cv2.RANSAC, 0.999, 1.0)
+    if E is None or E.shape != (3, 3):
+        return np.eye(4)
+    _, R, t, _ = cv2.recoverPose(E, p1, p2, K, mask=mask)
+    return _rt(R, t)
+
+
+def opencv_baseline(images, K):
+    """The monocular front end a user writes with OpenCV alone (the issue's baseline):
+    ``cv2.ORB_create(2000, 1.2, 8)``, ``BFMatcher(NORM_HAMMING, crossCheck=True)``,
+    ``findEssentialMat`` (RANSAC) + ``recoverPose``, poses chained with unit steps. Returns
+    camera-to-world poses float64 [N, 4, 4]."""
+    import cv2
+
+    orb = cv2.ORB_create(2000, 1.2, 8)
+    bf = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+    poses, prev = [np.eye(4)], None
+    for img in images:
+        cur = orb.detectAndCompute(img, None)
+        if prev is not None:
+            poses.append(poses[-1] @ _inv(baseline_step(cur, prev, bf, K)))
+        prev = cur
+    return np.asarray(poses[:len(images)])
+
+
+# --------------------------------------------------------------------------- sources
+
+
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
+
+
+def parse_intrinsics(text) -> np.ndarray:
+    """K (float64 3x3) from ``"fx,fy,cx,cy"`` or a file: OpenCV YAML/XML with ``camera_matrix``
+    (or ``K``, ``cameraMatrix``), a KITTI ``calib.txt`` (its P0), or text starting with
+    ``fx fy cx cy``."""
+    text = os.fspath(text)
+    if not os.path.isfile(text):
+        try:
+            fx, fy, cx, cy = (float(v) for v in text.split(","))
+        except ValueError:
+            raise WarpvxValueError(f"intrinsics: expected fx,fy,cx,cy or a file, got {text!r}") from None
+        K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    elif text.lower().endswith((".yml", ".yaml", ".xml")):
+        import cv2
+
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ)
+        node = next((fs.getNode(k) for k in ("camera_matrix", "K", "cameraMatrix")
+                     if not fs.getNode(k).empty()), None)
+        K = None if node is None else node.mat()
+        fs.release()
+        if K is None or np.asarray(K).size != 9:
+            raise WarpvxValueError(f"intrinsics: {text!r} has no 3x3 camera_matrix (or K) node")
+        K = np.asarray(K, np.float64).reshape(3, 3)
+    else:
+        calib = _read_calib(text, required=False)
+        if "P0" in calib:
+            K = calib["P0"][:, :3]
+        else:
+            try:
+                values = [float(v) for v in open(text).read().replace(",", " ").split()[:4]]
+            except ValueError:
+                values = []
+            if len(values) != 4:
+                raise WarpvxValueError(f"intrinsics: {text!r}: expected 'fx fy cx cy' numbers")
+            fx, fy, cx, cy = values
+            K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    if not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise WarpvxValueError(f"intrinsics: expected positive finite focal lengths, got {K[0, 0]}, {K[1, 1]}")
+    return K
+
+
+def _read_calib(path, required=True) -> dict:
+    """``{"P0": 3x4, ...}`` from a KITTI ``calib.txt``."""
+    out = {}
+    with open(path) as f:
+        for line in f:
+            key, _, rest = line.partition(":")
+            if not rest:
+                continue
+            try:
+                values = [float(v) for v in rest.split()]
+            except ValueError:
+                raise WarpvxValueError(f"calib: {os.fspath(path)!r}: line {key!r} is not numbers") from None
+            if key.strip().startswith("P"):
+                if len(values) != 12:
+                    raise WarpvxValueError(f"calib: {os.fspath(path)!r}: {key.strip()} needs 12 numbers, "
+                                           f"got {len(values)}")
+                out[key.strip()] = np.asarray(values).reshape(3, 4)
+    if required and "P0" not in out:
+        raise WarpvxValueError(f"calib: {os.fspath(path)!r} has no 'P0:' line")
+    return out
+
+
+def _images(folder):
+    return sorted(str(p) for p in Path(folder).iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
+
+
+class Sequence:
+    """A camera sequence: ``camera`` (:class:`Camera`), ``times`` (float64 [N] s), ``count``,
+    ``kind`` (``"kitti"``, ``"tum"``, ``"images"``, ``"video"``); iterate for input dicts
+    (gray uint8 ``image`` [and ``right``]). Read with :func:`open_source`."""
+
+    def __init__(self, kind, camera, times, left, right=None, video=None):
+        self.kind, self.camera, self.times = kind, camera, np.asarray(times, np.float64)
+        self._left, self._right, self._video = left, right, video
+        self.count = len(self.times)
+        self.read_ms = 0.0
+
+    def _read(self, path):
+        import cv2
+
+        img = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise WarpvxValueError(f"source: cannot read image {path!r}")
+        if img.shape[::-1] != tuple(self.camera.size):
+            raise WarpvxValueError(f"source: {path!r} is {img.shape[1]}x{img.shape[0]}, expected "
+                                   f"{self.camera.size[0]}x{self.camera.size[1]} like the first image")
+        return img
+
+    def __iter__(self):
+        import cv2
+
+        if self._video is not None:
+            for k, frame in zip(range(self.count), self._video):
+                t = time.perf_counter()
+                img = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+                self.read_ms += 1e3 * (time.perf_counter() - t)
+                yield {"image": img}
+            return
+        for k in range(self.count):
+            t = time.perf_counter()
+            item = {"image": self._read(self._left[k])}
+            if self._right is not None:
+                item["right"] = self._read(self._right[k])
+            self.read_ms += 1e3 * (time.perf_counter() - t)
+            yield item
+
+
+def open_source(path, intrinsics=None, max_frames=None) -> Sequence:
+    """Open SOURCE: a KITTI odometry folder (``image_0/``, ``calib.txt``, optional
+    ``times.txt``, ``image_1/`` for stereo), a TUM RGB-D folder (``rgb.txt``), an image folder,
+    or a video; the last three need ``intrinsics`` (see :func:`parse_intrinsics`).
+
+    Raises a warpvx error naming what is wrong (missing folder or calibration, no images,
+    a video OpenCV cannot open, missing intrinsics)."""
+    import cv2
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise WarpvxValueError(f"source: no such file or folder {path!r}")
+    K = parse_intrinsics(intrinsics) if intrinsics is not None else None
+    cap = lambda n: n if max_frames is None else min(n, max_frames)  # noqa: E731
+    root = Path(path)
+    if root.is_dir() and (root / "image_0").is_dir():
+        left = _images(root / "image_0")
+        if not left:
+            raise WarpvxValueError(f"source: no images in {str(root / 'image_0')!r}")
+        if not (root / "calib.txt").is_file():
+            raise WarpvxValueError(f"source: KITTI folder {path!r} has no calib.txt")
+        calib = _read_calib(root / "calib.txt")
+        K = calib["P0"][:, :3] if K is None else K
+        right, baseline = None, None
+        if (root / "image_1").is_dir():
+            right = _images(root / "image_1")
+            if "P1" not in calib:
+                raise WarpvxValueError(f"calib: {str(root / 'calib.txt')!r} has no 'P1:' line for image_1/")
+            baseline = -calib["P1"][0, 3] / calib["P1"][0, 0]
+            if not baseline > 0 or len(right) < len(left):
+                raise WarpvxValueError(f"calib: expected a positive baseline and one image_1/ image "
+                                       f"per image_0/ image, got baseline {baseline:g}, "
+                                       f"{len(right)} vs {len(left)} images")
+        n = cap(len(left))
+        times = np.arange(n) * 0.1
+        if (root / "times.txt").is_file():
+            t = np.loadtxt(root / "times.txt", ndmin=1)
+            if len(t) >= n:
+                times = t[:n]
+        first = cv2.imread(left[0], cv2.IMREAD_GRAYSCALE)
+        if first is None:
+            raise WarpvxValueError(f"source: cannot read image {left[0]!r}")
+        return Sequence("kitti", Camera(K, first.shape[::-1], baseline), times, left, right)
+    if K is None:
+        raise WarpvxValueError(f"intrinsics: {path!r} is not a KITTI folder; give --intrinsics "
+                               f"fx,fy,cx,cy (or a file)")
+    if root.is_dir() and (root / "rgb.txt").is_file():
+        rows = [ln.split() for ln in (root / "rgb.txt").read_text().splitlines()
+                if ln.strip() and not ln.startswith("#")]
+        if not rows:
+            raise WarpvxValueError(f"source: {str(root / 'rgb.txt')!r} lists no image")
+        rows = rows[:cap(len(rows))]
+        files = [str(root / r[1]) for r in rows]
+        first = cv2.imread(files[0], cv2.IMREAD_GRAYSCALE)
+        if first is None:
+            raise WarpvxValueError(f"source: cannot read image {files[0]!r}")
+        return Sequence("tum", Camera(K, first.shape[::-1]), [float(r[0]) for r in rows], files)
+    from .stabilize import VideoSource
+
+    video = VideoSource(path, max_frames)
+    kind = "images" if root.is_dir() else "video"
+    count = video.count if video.count is not None else (max_frames or 10 ** 9)
+    return Sequence(kind, Camera(K, tuple(video.size)), np.arange(count) / video.fps, None, video=video)
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def add_arguments(parser):
+    """The front end's command-line options (``warpvx orbslam`` and ``apps/orbslam_frontend.py``)."""
+    parser.add_argument("source", help="KITTI odometry folder, TUM RGB-D folder (rgb.txt), image folder or video")
+    parser.add_argument("--intrinsics", help="fx,fy,cx,cy or a file (OpenCV yml, KITTI calib.txt, 'fx fy cx cy' text); "
+                                             "needed unless SOURCE is a KITTI folder")
+    parser.add_argument("--gt", metavar="FILE", help="ground truth (KITTI poses or TUM file): writes metrics.json")
+    parser.add_argument("--out", metavar="DIR", help="output folder (default: a new folder under ./warpvx-results/)")
+    parser.add_argument("--backend", choices=BACKENDS, default="cpu")
+    parser.add_argument("--max-frames", type=int, default=None)
+    parser.add_argument("--mono", action="store_true", help="ignore image_1/ (monocular even on a stereo folder)")
+    parser.add_argument("--depth", type=int, default=2, help="frames in flight")
+    parser.add_argument("--baseline", action="store_true",
+                        help="also run the OpenCV-only monocular baseline and score it (with --gt)")
+    parser.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _ground_truth(path, seq, n):
+    from .trajectory_eval import associate, read_trajectory
+
+    times, gt = read_trajectory(path)
+    if times is None:
+        if len(gt) < n:
+            raise WarpvxValueError(f"gt: {path!r} has {len(gt)} poses for {n} frames")
+        return np.arange(n), gt[:n]
+    idx, gt = associate(seq.times[:n], times, gt)
+    if len(idx) < 3:
+        raise WarpvxValueError(f"gt: fewer than 3 ground-truth poses match the frames' timestamps in {path!r}")
+    return idx, gt
+
+
+def _anchor(poses):
+    """Poses re-expressed relative to the first one (so frame 0 is the world)."""
+    return np.linalg.inv(poses[0]) @ poses
+
+
+def run(args) -> int:
+    """Run the front end for parsed ``args`` (see :func:`add_arguments`); returns 0. Raises a
+    warpvx error on bad input (the callers print it as one line, exit status 2)."""
+    import csv
+    import json
+
+    from tqdm import tqdm
+
+    from . import trajectory_eval as te
+
+    if args.max_frames is not None and args.max_frames < 1:
+        raise WarpvxValueError(f"max_frames: expected an int >= 1, got {args.max_frames}")
+    if not args.no_plot:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise WarpvxValueError("plot: matplotlib is not installed (pip install 'warpvx[plot]'; "
+                                   "or pass --no-plot)") from None
+    if args.gt is not None and not os.path.isfile(args.gt):
+        raise WarpvxValueError(f"gt: no such file {args.gt!r}")
+    seq = open_source(args.source, args.intrinsics, args.max_frames)
+    if args.mono and seq.camera.stereo:
+        seq = Sequence(seq.kind, Camera(seq.camera.K, seq.camera.size), seq.times, seq._left)
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+    else:
+        from ..cli import fresh_results_dir
+
+        out = fresh_results_dir("orbslam")
+    mode = "stereo" if seq.camera.stereo else "monocular"
+    poses, rows = [], []
+    images = [] if args.baseline else None
+
+    def feed():
+        for item in seq:
+            if images is not None:
+                images.append(item["image"])
+            yield item
+
+    with tqdm(total=seq.count, unit="frame", disable=args.quiet, desc=f"orbslam ({mode})") as bar:
+        for f in track_frames(feed(), seq.camera, backend=args.backend, depth=args.depth):
+            poses.append(f.pose)
+            rows.append([f.index, f"{seq.times[f.index]:.6f}"] + [int(f.stats[k]) for k in STATS[:5]]
+                        + [f"{f.stats['track_ms']:.3f}", f"{f.ms:.3f}"])
+            bar.update()
+    poses = np.asarray(poses)
+    n = len(poses)
+    te.write_tum(out / "trajectory.tum.txt", seq.times[:n], poses)
+    te.write_kitti(out / "trajectory.kitti.txt", poses)
+    with open(out / "frames.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "time", *STATS[:5], "track_ms", "ms"])
+        w.writerows(rows)
+    note = ("monocular: scale is unobservable, the trajectory is right up to one global scale "
+            "(ATE after Sim(3) alignment)" if mode == "monocular"
+            else "stereo: metric scale from the stereo baseline (ATE after SE(3) alignment)")
+    report = {"source": os.fspath(args.source), "kind": seq.kind, "mode": mode, "note": note,
+              "frames": n, "backend": args.backend, "read_ms_per_frame": seq.read_ms / max(n, 1)}
+    gt = None
+    if args.gt:
+        idx, gt = _ground_truth(args.gt, seq, n)
+        gt = _anchor(gt)
+        report["warpvx"] = te.evaluate(_anchor(poses[idx]), gt, with_scale=mode == "monocular")
+        if images is not None:
+            base = opencv_baseline(images, seq.camera.K)
+            report["opencv_baseline"] = te.evaluate(_anchor(base[idx]), gt, with_scale=True)
+        with open(out / "metrics.json", "w") as f:
+            json.dump(report, f, indent=2)
+    if not args.no_plot:
+        if gt is not None:
+            aligned, _ = te.align(_anchor(poses[idx]), gt, mode == "monocular")
+            te.save_plot(out / "trajectory.png", aligned, gt, f"{mode}, aligned to ground truth")
+        else:
+            te.save_plot(out / "trajectory.png", poses, None, f"{mode} (top view)")
+    msg = f"{n} frames ({mode}; {note}) -> {out}"
+    if gt is not None:
+        msg += f"; ATE {report['warpvx']['ate']['rmse']:.4g}"
+    print(msg)
+    return 0
+
+
+def main(argv=None, prog="orbslam_frontend.py") -> int:
+    """Parse ``argv`` and run; bad input prints one line to stderr and returns 2."""
+    from ..cli import ArgumentParser
+
+    parser = ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    return run_cli(parser.parse_args(argv), prog)
+
+
+def run_cli(args, prog="orbslam") -> int:
+    """:func:`run` with warpvx errors reported as one line on stderr (exit status 2)."""
+    import sys
+
+    try:
+        return run(args)
+    except WarpvxError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+__all__ = [
+    "TrackerConfig", "Camera", "TrackState", "FrameRecord", "TrackedFrame", "three_maxima",
+    "rotation_consistent", "filter_matches", "stereo_depth", "track", "build_graph", "schedule",
+    "track_frames", "opencv_baseline", "baseline_step", "parse_intrinsics", "Sequence", "open_source",
+    "add_arguments", "run", "main", "run_cli", "BACKENDS", "STATS",
+]

@@ -1,0 +1,525 @@
+"""A cost model that predicts out of sample: host contention, copies and hand-offs, fitted
+on running frames and played through a simulation of the executor.
+
+Why: a node's time inside a running frame is not its time alone. CPU workers and the GPU
+host thread share Python's GIL, the cores and the memory bandwidth, so a task runs slower
+the more other host threads are busy beside it; copies and hand-offs between threads cost
+time the isolated calibration never sees; and the makespan is a function of placement *and*
+overlap. So the model is
+
+    work(node, pe) = r_pe * e_node,pe * (alone(node, pe) + copies(node, pe))
+    speed(t)       = 1 / (1 + a_pe * c(t))
+
+where ``alone`` is the calibrated time (:mod:`warpvx.graph.calibration`; for a GPU node the
+host side of the call), ``copies`` the transfer model's time for the bytes the executor
+copies for the task, ``c(t)`` the number of *other* host threads busy at time ``t`` (CPU
+workers running a task, the GPU host thread inside a call), ``r_pe`` the in-frame over alone
+ratio and ``a_pe`` the slowdown per busy neighbour of each kind of processing element
+(``"cpu"``, ``"gpu"`` for the GPU host thread), and ``e`` a per-node correction, 1 for a
+node never seen on that ``pe``. The fit (:func:`fit_slowdown`) is least squares on
+``log(measured / alone)``. On CUDA the device runs a GPU node's kernels for its calibrated
+device time, not before the host started enqueuing them and not ending before the host
+call ended. Waits between tasks (a thread taking its next task, a hand-off between threads,
+the start of a frame) are the medians measured in the training frames.
+
+:func:`simulate` runs a schedule's per-processor orders through this model, event by event
+(every busy thread advances at its current speed), and returns the predicted timeline; its
+makespan is the prediction. :func:`fit` learns the model from frames run with one plan;
+:meth:`ContentionModel.predict` predicts any plan of the same graph and GPU role, including
+other policies' placements (out of sample).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import GraphError
+from ..sched.schedule import Schedule, ScheduledTask
+from .data import INPUT, Data, DelayRef, nbytes
+
+#: Grid of slowdowns per busy neighbour tried by :func:`fit_slowdown`.
+SLOWDOWN_GRID = np.linspace(0.0, 4.0, 401)
+
+#: Latency classes: what a task waited for last before it started.
+LATENCIES = ("start", "cpu_same", "gpu_same", "cpu_from_cpu", "cpu_from_gpu", "gpu_from_cpu")
+
+
+def pe_of(processor: str) -> str:
+    """``"gpu"`` for the GPU processor, ``"cpu"`` for a CPU worker ``"cpu<i>"``."""
+    return "gpu" if processor.startswith("gpu") else "cpu"
+
+
+# --------------------------------------------------------------------------- structure
+
+
+@dataclass(frozen=True)
+class Reads:
+    """One input of a node: the data's name, its producer (None: a graph input, on the host),
+    its bytes, and whether it comes from an earlier frame (a delay)."""
+
+    key: str
+    producer: str | None
+    nbytes: int
+    delayed: bool
+
+
+def graph_reads(graph) -> dict:
+    """node -> tuple of :class:`Reads` of a verified graph (data sizes from its samples)."""
+    out = {}
+    for node in graph.nodes.values():
+        reads = []
+        for ref in node.inputs.values():
+            delayed = isinstance(ref, DelayRef)
+            data = ref.data if delayed else ref
+            if not isinstance(data, Data):
+                continue
+            producer = None if data.kind == INPUT or data.producer is None else data.producer.name
+            reads.append(Reads(data.name, producer, nbytes(data.sample), delayed))
+        out[node.name] = tuple(reads)
+    return out
+
+
+def copied_bytes(reads: dict, placement: dict, order: list) -> dict:
+    """node -> bytes the executor copies for it under ``placement`` (node -> processor).
+
+    A value crosses once per side: the first reader on the other side of its producer (in
+    ``order``, the tasks by predicted start) copies it; later readers there reuse the copy.
+    Graph inputs live on the host.
+    """
+    done, out = set(), {}
+    for node in order:
+        side = pe_of(placement[node])
+        for r in reads[node]:
+            home = "cpu" if r.producer is None else pe_of(placement[r.producer])
+            if home != side and (r.key, side) not in done:
+                done.add((r.key, side))
+                out[node] = out.get(node, 0) + r.nbytes
+    return out
+
+
+# --------------------------------------------------------------------------- fitting
+
+
+@dataclass
+class Slowdown:
+    """The fitted contention law of one kind of processing element.
+
+    ``ratio``: in-frame over alone time with no busy neighbour; ``per_thread``: extra
+    slowdown per busy neighbour (``a``); ``node``: node -> its correction factor ``e``;
+    ``samples``: how many samples the fit used; ``rms_log``: the fit's rms residual of
+    ``log(measured / predicted)``.
+    """
+
+    ratio: float = 1.0
+    per_thread: float = 0.0
+    node: dict = field(default_factory=dict)
+    samples: int = 0
+    rms_log: float = 0.0
+
+    def factor(self, node: str, busy: float) -> float:
+        """Measured over alone time of ``node`` with ``busy`` other threads busy throughout."""
+        return self.ratio * self.node.get(node, 1.0) * (1.0 + self.per_thread * busy)
+
+
+def fit_slowdown(samples, *, per_node: bool = True) -> Slowdown:
+    """Fit ``measured = ratio * e_node * alone * (1 + a * busy)`` to ``samples``.
+
+    Parameters
+    ----------
+    samples : iterable of (node, alone_ms, measured_ms, busy)
+        ``busy``: the mean number of other host threads busy during the measured interval.
+        Samples with a non-positive time are skipped.
+    per_node : bool
+        Fit the per-node corrections ``e`` (geometric mean 1 over the nodes); without them
+        every node shares ``ratio``.
+
+    Returns
+    -------
+    Slowdown
+        ``a`` is the best of :data:`SLOWDOWN_GRID` (least squares on the logs, ``ratio`` and
+        ``e`` solved exactly for each ``a``).
+    """
+    rows = [(n, a, m, c) for n, a, m, c in samples if a > 0 and m > 0]
+    if not rows:
+        return Slowdown()
+    names = sorted({r[0] for r in rows})
+    idx = np.array([names.index(r[0]) for r in rows])
+    y = np.log(np.array([r[2] / r[1] for r in rows]))
+    busy = np.array([r[3] for r in rows], np.float64)
+    best = None
+    for a in SLOWDOWN_GRID:
+        z = y - np.log1p(a * busy)
+        if per_node:
+            means = np.bincount(idx, z, len(names)) / np.bincount(idx, minlength=len(names))
+            resid = z - means[idx]
+        else:
+            means = np.full(len(names), z.mean())
+            resid = z - z.mean()
+        sse = float(resid @ resid)
+        if best is None or sse < best[0] - 1e-12:
+            best = (sse, a, means)
+    sse, a, means = best
+    # ratio: the samples' mean (a node seen often weighs more); e: each node's offset from it.
+    log_ratio = float(np.mean(means[idx]))
+    node = {n: math.exp(m - log_ratio) for n, m in zip(names, means)} if per_node else {}
+    return Slowdown(math.exp(log_ratio), float(a), node, len(rows), math.sqrt(sse / len(rows)))
+
+
+def busy_overlap(interval, others) -> float:
+    """Mean number of ``others`` (``(start, end)`` intervals) active during ``interval``."""
+    s, f = interval
+    if f <= s:
+        return 0.0
+    total = sum(max(0.0, min(f, b) - max(s, a)) for a, b in others)
+    return total / (f - s)
+
+
+def host_intervals(run) -> dict:
+    """task -> ``(processor, start, end)`` of a FrameResult's host-side work: a CPU task's
+    interval, a GPU task's call on the GPU host thread (its device interval without CUDA)."""
+    out = {}
+    for task, t in run.timeline.items():
+        if pe_of(t.processor) == "gpu" and task in run.host:
+            out[task] = (t.processor,) + tuple(run.host[task])
+        else:
+            out[task] = (t.processor, t.start, t.finish)
+    return out
+
+
+@dataclass
+class ContentionModel:
+    """What :func:`fit` learnt (times in ms); :meth:`predict` simulates a plan with it.
+
+    Attributes
+    ----------
+    slowdown : dict
+        ``"cpu"``/``"gpu"`` -> :class:`Slowdown` (``"gpu"``: the GPU host thread's calls).
+    latency : dict
+        :data:`LATENCIES` -> median wait (ms) between a task becoming ready and starting.
+    alone : dict
+        node -> ``{"cpu": ms, "gpu": ms (host side of the call), "device": ms}`` from the
+        calibration (None where there is no implementation; ``device`` 0 without CUDA).
+    reads : dict
+        :func:`graph_reads` of the graph.
+    transfer : TransferModel
+    cuda : bool
+        The GPU role is a CUDA device (host enqueue and device run apart).
+    trained_on : str
+        The policy whose frames the model learnt from, and how many.
+    """
+
+    slowdown: dict
+    latency: dict
+    alone: dict
+    reads: dict
+    transfer: object
+    cuda: bool
+    trained_on: str = ""
+
+    def work(self, node: str, pe: str, copied: int = 0) -> float:
+        """``node``'s alone work on ``pe`` plus its copies of ``copied`` bytes (ms)."""
+        alone = self.alone[node][pe]
+        if alone is None:
+            raise GraphError(f"node {node!r}: no {pe.upper()} implementation to predict")
+        if copied:
+            alone += self.transfer.upload(copied) if pe == "gpu" else self.transfer.download(copied)
+        return alone
+
+    def predict(self, plan_or_schedule, processors=None) -> Schedule:
+        """The predicted timeline of one frame of a plan (or of a Schedule's orders):
+        :func:`simulate`."""
+        sch = getattr(plan_or_schedule, "schedule", plan_or_schedule)
+        return simulate(self, sch)
+
+    def makespan(self, plan_or_schedule) -> float:
+        """Predicted makespan (ms) of one frame."""
+        return self.predict(plan_or_schedule).makespan
+
+    def summary(self) -> dict:
+        """JSON-friendly parameters."""
+        return {
+            "trained_on": self.trained_on,
+            "slowdown": {k: {"ratio": s.ratio, "per_thread": s.per_thread, "samples": s.samples,
+                             "rms_log": s.rms_log} for k, s in self.slowdown.items()},
+            "latency_us": {k: v * 1e3 for k, v in self.latency.items()},
+        }
+
+
+def alone_costs(calibration) -> dict:
+    """node -> ``{"cpu", "gpu" (host side), "device"}`` ms from a Calibration."""
+    cuda = bool(calibration.gpu) and calibration.gpu.startswith("cuda")
+    out = {}
+    for node, t in calibration.nodes.items():
+        host = t.get("gpu_host") if cuda else t.get("gpu")
+        out[node] = {"cpu": t.get("cpu"),
+                     "gpu": host if host is not None else t.get("gpu"),
+                     "device": (t.get("gpu") or 0.0) if cuda else 0.0}
+    return out
+
+
+def _ready_parts(run, task, reads, placement, hosts):
+    """(latency class, time the task became ready) in a measured frame."""
+    proc, start, _ = hosts[task]
+    side = pe_of(proc)
+    ready, cls = 0.0, "start"
+    same = [t for t, (p, s, _) in hosts.items() if p == proc and s < start]
+    if same:
+        prev = max(same, key=lambda t: hosts[t][1])
+        ready, cls = hosts[prev][2], f"{side}_same"
+    for r in reads[task]:
+        if r.delayed or r.producer is None or r.producer not in hosts:
+            continue
+        p_side = pe_of(placement[r.producer])
+        if hosts[r.producer][0] == proc:
+            continue  # ordered on this thread already
+        # A CPU reader of GPU data waits for the device; a GPU reader for the host call.
+        t = (run.timeline[r.producer].finish if p_side == "gpu" and side == "cpu"
+             else hosts[r.producer][2])
+        if t > ready:
+            ready, cls = t, f"{side}_from_{p_side}"
+    return cls, ready
+
+
+#: Weight of a contention probe (:func:`~warpvx.graph.calibration.measure_contention`)
+#: measurement in the fit, in training samples.
+PROBE_WEIGHT = 8
+
+
+def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
+        probe: dict | None = None) -> ContentionModel:
+    """Learn a :class:`ContentionModel` from frames run with one plan.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        Of the graph and GPU role that ran (alone costs and the transfer model).
+    reads : dict
+        :func:`graph_reads` of the graph.
+    runs : list of FrameResult
+        The training frames (one at a time, not pipelined).
+    placement : dict
+        node -> processor of the plan that ran.
+    probe : dict, optional
+        :func:`~warpvx.graph.calibration.measure_contention`'s ``kind -> (node, alone,
+        loaded, busy)``: a node timed alone and with ``busy`` other host threads busy, so
+        the slowdown per busy thread is known even when the training placement keeps the
+        other threads idle. It enters the fit as :data:`PROBE_WEIGHT` pairs of samples
+        under a name of its own (its in-frame correction stays apart).
+    """
+    runs = [r for r in runs if r.timeline]
+    if not runs:
+        raise GraphError("fit: no measured frames to learn from")
+    alone = alone_costs(calibration)
+    cuda = bool(calibration.gpu) and calibration.gpu.startswith("cuda")
+    samples = {"cpu": [], "gpu": []}
+    waits = {k: [] for k in LATENCIES}
+    for run in runs:
+        hosts = host_intervals(run)
+        for task, (proc, s, f) in hosts.items():
+            pe = pe_of(proc)
+            others = [(a, b) for t, (p, a, b) in hosts.items() if p != proc]
+            a = alone[task][pe]
+            if a is not None:
+                a += _copy_ms(calibration.transfer, pe, run.copied.get(task, 0))
+                samples[pe].append((task, a, f - s, busy_overlap((s, f), others)))
+            cls, ready = _ready_parts(run, task, reads, placement, hosts)
+            waits[cls].append(max(0.0, s - ready))
+    for pe, (node, alone_ms, loaded, busy) in (probe or {}).items():
+        samples[pe] += [(f"{node} (probe)", alone_ms, alone_ms, 0.0),
+                        (f"{node} (probe)", alone_ms, loaded, float(busy))] * PROBE_WEIGHT
+    slow = {pe: fit_slowdown(s) for pe, s in samples.items()}
+    d = calibration.dispatch or {}
+    fallback = {"start": d.get("start", 0.0), "cpu_same": d.get("cpu_gap", 0.0),
+                "gpu_same": d.get("gpu_gap", 0.0), "cpu_from_cpu": d.get("cpu_gap", 0.0),
+                "cpu_from_gpu": d.get("handoff", 0.0), "gpu_from_cpu": d.get("handoff", 0.0)}
+    latency = {k: statistics.median(v) if v else fallback[k] for k, v in waits.items()}
+    return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
+                           f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames")
+
+
+def _copy_ms(transfer, pe, n):
+    if not n:
+        return 0.0
+    return transfer.upload(n) if pe == "gpu" else transfer.download(n)
+
+
+# --------------------------------------------------------------------------- simulation
+
+
+def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
+    """Play ``schedule``'s per-processor orders through ``model``: the predicted timeline.
+
+    Each processor takes its tasks in the executor's order (by scheduled start). A task
+    starts when its processor is free and its inputs are ready, plus the measured latency of
+    what it waited for last (:data:`LATENCIES`); it then does its work (alone cost plus
+    copies, times ``ratio * e``) at speed ``1 / (1 + a * c(t))``, ``c(t)`` the other host
+    threads busy at ``t``, re-evaluated whenever a task starts or ends. On CUDA a GPU task's
+    device interval follows its host call: from ``max(device free, call start)`` for its
+    device time, ending no earlier than the call. Returned times are ms from the frame's
+    submission; a GPU task's interval is its device interval, as the executor measures it.
+    """
+    placement = {t: s.processor for t, s in schedule.tasks.items()}
+    order = sorted(schedule.tasks, key=lambda t: (schedule.tasks[t].start, schedule.tasks[t].finish))
+    queues = {p: [t for t in order if placement[t] == p] for p in schedule.processors}
+    queues = {p: q for p, q in queues.items() if q}
+    copied = copied_bytes(model.reads, placement, order)
+    lat = model.latency
+    pos = {p: 0 for p in queues}
+    free_at = {p: 0.0 for p in queues}
+    started_any = {p: False for p in queues}
+    running = {}  # proc -> [task, remaining work, host start]
+    host_done, avail_gpu, avail_cpu = {}, {}, {}  # task -> ms
+    device_free = 0.0
+    out = {}
+    now = 0.0
+
+    def ready_time(proc, task):
+        side = pe_of(proc)
+        t = free_at[proc] + (lat[f"{side}_same"] if started_any[proc] else lat["start"])
+        for r in model.reads[task]:
+            if r.delayed or r.producer is None:
+                continue
+            if placement[r.producer] == proc:
+                if r.producer not in host_done:
+                    return None
+                continue
+            p_side = pe_of(placement[r.producer])
+            done = (avail_cpu if side == "cpu" else avail_gpu).get(r.producer)
+            if done is None:
+                return None
+            t = max(t, done + lat[f"{side}_from_{p_side}"])
+        return t
+
+    while len(out) < len(schedule.tasks):
+        # Start every task whose time has come.
+        starts = []
+        for p, q in queues.items():
+            if p in running or pos[p] >= len(q):
+                continue
+            t = ready_time(p, q[pos[p]])
+            if t is not None:
+                starts.append((t, p))
+        for t, p in starts:
+            if t <= now + 1e-12:
+                task = queues[p][pos[p]]
+                pe = pe_of(p)
+                work = model.work(task, pe, copied.get(task, 0)) * \
+                    model.slowdown[pe].factor(task, 0.0)
+                running[p] = [task, work, now]
+        if not running:
+            if not starts:
+                raise GraphError("simulate: the schedule's orders deadlock")
+            now = min(t for t, _ in starts)
+            continue
+        # Advance to the next start or end at the current speeds.
+        n_busy = len(running)
+        speed = {p: 1.0 / (1.0 + model.slowdown[pe_of(p)].per_thread * (n_busy - 1)) for p in running}
+        dt_end = min(r[1] / speed[p] for p, r in running.items())
+        pending = [t for t, p in starts if p not in running and t > now]
+        dt = min([dt_end] + [t - now for t in pending])
+        for p, r in running.items():
+            r[1] -= dt * speed[p]
+        now += dt
+        for p in [p for p, r in running.items() if r[1] <= 1e-12]:
+            task, _, h0 = running.pop(p)
+            pos[p] += 1
+            free_at[p] = now
+            started_any[p] = True
+            host_done[task] = now
+            if pe_of(p) == "gpu" and model.cuda:
+                d0 = max(device_free, h0)
+                d1 = max(d0 + model.alone[task]["device"], now)
+                device_free = d1
+                avail_gpu[task], avail_cpu[task] = now, d1
+                out[task] = ScheduledTask(task, p, d0, d1)
+            else:
+                avail_gpu[task] = avail_cpu[task] = now
+                out[task] = ScheduledTask(task, p, h0, now)
+    return Schedule(out, list(schedule.processors), policy=f"{schedule.policy} (simulated)",
+                    info={"model": model.trained_on})
+
+
+# --------------------------------------------------------------------------- choosing
+
+
+def in_frame_dag(model: ContentionModel, pes: dict, n_cpus: int):
+    """The task DAG with the model's in-frame costs (no busy neighbour) for a scheduler.
+
+    ``pes``: node -> the processing elements it may run on (``{"cpu", "gpu"}``, narrowed by
+    pins). A GPU node costs the longer of its host call and its device time; an edge costs
+    a hand-off plus the transfer model's time for its bytes.
+    """
+    from ..sched import cpu_gpu_dag
+
+    tasks = {}
+    for node, allowed in pes.items():
+        times = []
+        for pe in ("cpu", "gpu"):
+            if pe not in allowed or model.alone[node][pe] is None:
+                times.append(None)
+                continue
+            t = model.work(node, pe) * model.slowdown[pe].factor(node, 0.0)
+            times.append(max(t, model.alone[node]["device"]) if pe == "gpu" else t)
+        tasks[node] = tuple(times)
+    handoff = 0.5 * (model.latency["cpu_from_gpu"] + model.latency["gpu_from_cpu"])
+    edges = {}
+    for node, reads in model.reads.items():
+        for r in reads:
+            if r.producer is not None and not r.delayed:
+                edges[(r.producer, node)] = handoff + model.transfer.time(r.nbytes)
+    return cpu_gpu_dag(tasks, edges, n_cpus)
+
+
+def choose(model: ContentionModel, dags: dict, policies=("baseline", "heft", "xeft")) -> tuple:
+    """The schedule ``model`` predicts fastest among ``policies`` run on each of ``dags``.
+
+    Parameters
+    ----------
+    dags : dict
+        label -> task DAG (same tasks and processors).
+
+    Returns
+    -------
+    (Schedule, task DAG, predicted Schedule)
+        The winner (``info["chosen"]`` names its policy and DAG, ``info["candidates"]``
+        maps each candidate to its predicted makespan in ms), the DAG it was scheduled on,
+        and its simulation.
+    """
+    from .. import sched
+
+    best, found = None, {}
+    for label, dag in dags.items():
+        for policy in policies:
+            sch = sched.schedule(dag, policy)
+            pred = simulate(model, sch)
+            name = f"{policy} ({label})" if label else policy
+            found[name] = pred.makespan
+            if best is None or pred.makespan < best[2].makespan:
+                best = (sch, dag, pred, name)
+    sch, dag, pred, name = best
+    sch.info = {**sch.info, "chosen": name, "candidates": found}
+    sch.policy = "best"
+    return sch, dag, pred
+
+
+__all__ = [
+    "choose",
+    "in_frame_dag",
+    "ContentionModel",
+    "LATENCIES",
+    "Reads",
+    "Slowdown",
+    "alone_costs",
+    "busy_overlap",
+    "copied_bytes",
+    "fit",
+    "fit_slowdown",
+    "graph_reads",
+    "host_intervals",
+    "pe_of",
+    "simulate",
+]
