@@ -21,12 +21,14 @@ from tests.apps.conftest import CLIP
 from tests.images import bgr
 from warpvx import cli
 from warpvx.apps import batch
+from warpvx.apps import orbslam as orb
 from warpvx.apps import stabilize as st
 from warpvx.apps import stabilize_metrics as sm
 from warpvx.errors import WarpvxError
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 ARGS = ["--window", "5", "--max-frames", "10", "--metrics", "m.json", "--quiet"]
+ORB_ARGS = ["--mono", "--no-plot", "--quiet"]
 
 
 def _write_video(path, frames, fps=25.0):
@@ -85,10 +87,7 @@ def alone(clips, tmp_path_factory):
 
 
 def sm_itf(path):
-    import json
-
-    with open(path) as f:
-        return json.load(f)["output"]["itf"]
+    return sm_json(path)["output"]["itf"]
 
 
 def options(*argv):
@@ -276,32 +275,61 @@ def test_ray_worker_count_fits_the_cluster():
             worker_count(resources, *args)
 
 
-def test_orbslam_adapter_contract(monkeypatch, clips, tmp_path):
-    """The orbslam adapter imports warpvx.apps.orbslam when called and needs its
-    run_source(source, out_dir, options) -> dict; missing either, the input fails alone."""
-    import types
+@pytest.fixture(scope="module")
+def sequences(tmp_path_factory):
+    """Two rendered 8-frame KITTI-layout sequences (320x240, exact poses in poses.txt) and,
+    for each, the ATE and trajectory of ``warpvx orbslam SOURCE --gt poses.txt`` alone."""
+    from warpvx.apps.orbslam_synth import render_sequence, write_kitti_sequence
 
+    d, seqs, ref = tmp_path_factory.mktemp("seqs"), [], {}
+    for k, step in enumerate((0.05, 0.03)):
+        left, _, K, poses = render_sequence(8, (320, 240), step=step, supersample=1)
+        seq = str(write_kitti_sequence(d / f"seq{k}", left, K, poses))
+        out = d / f"alone{k}"
+        assert cli.main(["orbslam", seq, "--gt", os.path.join(seq, "poses.txt"), "--out", str(out)]
+                        + ORB_ARGS) == 0
+        ref[seq] = (sm_json(out / "metrics.json")["warpvx"]["ate"]["rmse"],
+                    (out / "trajectory.kitti.txt").read_text())
+        seqs.append(seq)
+    return seqs, ref
+
+
+def sm_json(path):
+    import json
+
+    with open(path) as f:
+        return json.load(f)
+
+
+def check_orbslam_matches_alone(rows, ref):
+    for row in rows:
+        ate, trajectory = ref[row["input"]]
+        assert row["status"] == "done", row["error"]
+        assert float(row["ate"]) == ate and int(row["frames"]) == 8
+        with open(os.path.join(row["output"], "trajectory.kitti.txt")) as f:
+            assert f.read() == trajectory
+
+
+def test_orbslam_batch_finds_each_ground_truth_and_matches_runs_alone(sequences, tmp_path, capsys):
+    seqs, ref = sequences
+    out = tmp_path / "out"
+    assert cli.main(["orbslam", *seqs, "--out", str(out)] + ORB_ARGS) == 0
+    with open(out / batch.SUMMARY_CSV) as f:
+        check_orbslam_matches_alone(list(csv.DictReader(f)), ref)
+    assert "ate" in capsys.readouterr().out
+
+
+def test_orbslam_adapter_needs_the_module(monkeypatch, sequences, tmp_path):
     import warpvx.apps
 
-    src = clips[0][0]
-    monkeypatch.delattr(warpvx.apps, "orbslam", raising=False)  # whether or not it exists here
+    monkeypatch.delattr(warpvx.apps, "orbslam", raising=False)
     monkeypatch.setitem(sys.modules, "warpvx.apps.orbslam", None)
-    [row] = batch.run_items("orbslam", [src], str(tmp_path / "a"), {}, progress=False)
+    [row] = batch.run_items("orbslam", sequences[0][:1], str(tmp_path), {}, progress=False)
     assert row["status"] == "failed" and "warpvx.apps.orbslam is not available" in row["error"]
-    fake = types.ModuleType("warpvx.apps.orbslam")
-    monkeypatch.setitem(sys.modules, "warpvx.apps.orbslam", fake)
-    monkeypatch.setattr(warpvx.apps, "orbslam", fake, raising=False)
-    [row] = batch.run_items("orbslam", [src], str(tmp_path / "b"), {}, progress=False)
-    assert row["status"] == "failed" and "run_source" in row["error"]
-    seen = []
 
-    def run_source(source, out_dir, options):
-        seen.append((source, os.path.basename(out_dir).startswith(".bikes0.partial-"), options))
-        open(os.path.join(out_dir, "trajectory.txt"), "w").close()
-        return {"frames": 10, "ate": 0.25}
 
-    fake.run_source = run_source
-    [row] = batch.run_items("orbslam", [src], str(tmp_path / "c"), {"n_features": 500}, progress=False)
-    assert seen == [(src, True, {"n_features": 500})]
-    assert (row["status"], row["frames"], row["ate"]) == ("done", 10, 0.25)
-    assert sorted(os.listdir(tmp_path / "c" / "bikes0")) == [batch.MARKER, "trajectory.txt"]
+def test_ray_orbslam_batch_matches_runs_alone(ray_local, sequences, tmp_path):
+    seqs, ref = sequences
+    opts = batch.parse_options(orb.add_arguments, ["S", *ORB_ARGS], paths="source")
+    rows = batch.run_items("orbslam", seqs, str(tmp_path), opts, ray="", cpus_per_input=1, progress=False)
+    check_orbslam_matches_alone(rows, ref)

@@ -108,17 +108,34 @@ def run_stabilize(source, out_dir, options) -> dict:
 
 
 def run_orbslam(source, out_dir, options) -> dict:
-    """Batch adapter of :mod:`warpvx.apps.orbslam`, imported when called: it expects
-    ``warpvx.apps.orbslam.run_source(source, out_dir, options) -> dict`` (``frames``, and
-    ``ate`` in m when the sequence has ground truth), the adapter contract of this module."""
+    """Batch adapter of :mod:`warpvx.apps.orbslam` (imported when called): its ``run`` writes
+    the trajectories, ``frames.csv`` and, with ground truth, ``metrics.json`` into ``out_dir``.
+
+    Ground truth per input: ``gt`` a folder -> ``gt/<input stem>.txt`` (KITTI's ``poses/``),
+    a file -> that file for every input, none -> ``groundtruth.txt`` (TUM RGB-D) or
+    ``poses.txt`` in the source folder when there is one. ``ate``: the ATE RMSE (m, up to
+    scale when monocular).
+    """
     try:
         from . import orbslam
     except ImportError as exc:
         raise WarpvxValueError(f"app: warpvx.apps.orbslam is not available in this build ({exc})") from None
-    if not hasattr(orbslam, "run_source"):
-        raise WarpvxValueError("app: warpvx.apps.orbslam has no run_source(source, out_dir, options) "
-                               "for batches")
-    return orbslam.run_source(source, out_dir, options)
+    args = argparse.Namespace(**options)
+    args.source, args.out, args.quiet = source, out_dir, True
+    stem = os.path.splitext(os.path.basename(os.path.normpath(source)))[0]
+    if args.gt and os.path.isdir(args.gt):
+        args.gt = os.path.join(args.gt, f"{stem}.txt")
+    elif args.gt is None:
+        found = [p for p in (os.path.join(source, n) for n in ("groundtruth.txt", "poses.txt")) if os.path.isfile(p)]
+        args.gt = found[0] if found else None
+    orbslam.run(args)
+    with open(os.path.join(out_dir, "frames.csv")) as f:
+        frames = sum(1 for _ in f) - 1
+    metrics = os.path.join(out_dir, "metrics.json")
+    if not os.path.isfile(metrics):
+        return {"frames": frames}
+    with open(metrics) as f:
+        return {"frames": frames, "ate": json.load(f)["warpvx"]["ate"]["rmse"]}
 
 
 register_app("stabilize", run_stabilize)
