@@ -744,7 +744,8 @@ def open_source(path, intrinsics=None, max_frames=None) -> Sequence:
 
 def add_arguments(parser):
     """The front end's command-line options (``warpvx orbslam`` and ``apps/orbslam_frontend.py``)."""
-    parser.add_argument("source", help="KITTI odometry folder, TUM RGB-D folder (rgb.txt), image folder or video")
+    parser.add_argument("source", nargs="+", help="KITTI odometry folder, TUM RGB-D folder (rgb.txt), image folder "
+                        "or video; several, a glob or @list.txt: a batch under --out (see warpvx.apps.batch)")
     parser.add_argument("--intrinsics", help="fx,fy,cx,cy or a file (OpenCV yml, KITTI calib.txt, 'fx fy cx cy' text); "
                                              "needed unless SOURCE is a KITTI folder")
     parser.add_argument("--gt", metavar="FILE", help="ground truth (KITTI poses or TUM file): writes metrics.json")
@@ -757,6 +758,9 @@ def add_arguments(parser):
                         help="also run the OpenCV-only monocular baseline and score it (with --gt)")
     parser.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    from .batch import add_batch_arguments
+
+    add_batch_arguments(parser, out=False)
 
 
 def _ground_truth(path, seq, n):
@@ -873,8 +877,11 @@ def run_cli(args, prog="orbslam") -> int:
     """:func:`run` with warpvx errors reported as one line on stderr (exit status 2)."""
     import sys
 
+    from .batch import run_batch, single_run
+
     try:
-        return run(args)
+        single = single_run(args, paths="source")
+        return run(single) if single is not None else run_batch(args, "orbslam", paths="source")
     except WarpvxError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

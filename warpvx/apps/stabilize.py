@@ -673,8 +673,10 @@ def add_arguments(parser):
     """The stabilizer's command-line options (shared by ``warpvx stabilize`` and
     ``apps/stabilize.py``)."""
     d = StabilizerConfig()
-    parser.add_argument("input", nargs="?", help="video file (anything OpenCV opens) or image folder")
-    parser.add_argument("output", nargs="?", help="stabilized video (.mp4: mp4v, .avi: MJPG)")
+    parser.add_argument("input", nargs="*", metavar="PATH",
+                        help="IN OUT: a video file (anything OpenCV opens) or image folder, and the "
+                             "stabilized video (.mp4: mp4v, .avi: MJPG); IN... --out DIR: a batch of "
+                             "inputs, folders of videos, globs or @list.txt (see warpvx.apps.batch)")
     parser.add_argument("--demo", action="store_true",
                         help="stabilize the bundled real shaky clip into a folder (the one positional "
                              "argument, default a new ./warpvx-results/stabilize-<date>-<time>/): "
@@ -693,6 +695,9 @@ def add_arguments(parser):
     parser.add_argument("--plot", metavar="PNG", help="save the trajectory before/after smoothing")
     parser.add_argument("--metrics", metavar="JSON", help="write the quality metrics (keeps the frames in memory)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    from .batch import add_batch_arguments
+
+    add_batch_arguments(parser)
 
 
 def run(args) -> int:
@@ -807,8 +812,11 @@ def run_cli(args, prog="stabilize") -> int:
     """:func:`run` with warpvx errors reported as one line on stderr (exit status 2)."""
     import sys
 
+    from .batch import run_batch, single_run
+
     try:
-        return run(args)
+        single = single_run(args, output="output", alone=args.demo)
+        return run(single) if single is not None else run_batch(args, "stabilize")
     except WarpvxError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
