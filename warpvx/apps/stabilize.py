@@ -5,10 +5,11 @@ calls (the imperative "model", :func:`stabilize_model`, thesis §2's multi-level
 
     frame -> [undistort: remap] -> gray -> Gaussian pyramid ---------------------.
                                      \\-> detect (Harris or FAST)                  |
-    pyramid[-1], points[-1] (delays) -> pyramidal LK -> estimate_motion (H: k-1 -> k)
+    pyramid[-1], points[-1] (delays) -> pyramidal LK -> [park_lost -> ransac]
     tracked + detections -> refresh_points -> points (delayed to the next frame)
-    H, trajectory[-1] -> accumulate -> trajectory T_k (frame 0 -> frame k)
-    T over a window of N frames (a delay) -> smooth -> truncate (crop) -> warp_perspective
+    motion (one host node, :func:`follow_motion`): estimate_motion (H: k-1 -> k),
+      accumulate (trajectory T_k: frame 0 -> frame k, with T over N frames in a delay),
+      smooth, truncate (crop) -> warp_perspective
 
 Conventions: images are BGR uint8 HxWx3; points float32 [N, 2] (x, y), pixel centres at
 integers; matrices float64 3x3 mapping column vectors (x, y, 1). ``H_k`` maps frame k-1 to frame
@@ -33,11 +34,11 @@ topping them up with fresh detections away from them only when fewer than ``min_
 survived.
 
 The motion model: homography by RANSAC (the thesis), similarity
-(``cv2.estimateAffinePartial2D``) or translation (median displacement), in the user node
-``estimate_motion`` (:func:`estimate_motion`), except the homography on a Warp backend: there
+(``cv2.estimateAffinePartial2D``) or translation (median displacement), by
+:func:`estimate_motion` in the host node ``motion``, except the homography on a Warp backend: there
 the lost points are parked far off the image on the device (``park_lost``) and the :func:`warpvx.find_homography`
 primitive runs on the device too (``ransac``), so the frame and the points stay there; only the
-3x3 matrix comes back for ``estimate_motion`` (:func:`as_motion`). The graph on ``cpu`` calls the
+3x3 matrix comes back for the ``motion`` node (:func:`as_motion`). The graph on ``cpu`` calls the
 primitive's CPU backend, the model ``cv2.findHomography``: the same OpenCV call.
 """
 
@@ -846,7 +847,7 @@ def run_cli(args, prog="stabilize") -> int:
 
 __all__ = [
     "StabilizerConfig", "StabilizedFrame", "build_graph", "schedule", "stabilize", "stabilize_model",
-    "estimate_motion", "as_motion", "park_lost", "refresh_points", "accumulate", "smooth_transform", "truncate_transform",
+    "estimate_motion", "follow_motion", "as_motion", "park_lost", "refresh_points", "accumulate", "smooth_transform", "truncate_transform",
     "undistort_maps", "demo_clip", "VideoSource", "open_writer", "save_plot", "add_arguments", "run", "main",
     "MOTIONS", "MODES", "DETECTORS", "BACKENDS",
 ]
