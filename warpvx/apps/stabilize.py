@@ -5,10 +5,11 @@ calls (the imperative "model", :func:`stabilize_model`, thesis §2's multi-level
 
     frame -> [undistort: remap] -> gray -> Gaussian pyramid ---------------------.
                                      \\-> detect (Harris or FAST)                  |
-    pyramid[-1], points[-1] (delays) -> pyramidal LK -> estimate_motion (H: k-1 -> k)
+    pyramid[-1], points[-1] (delays) -> pyramidal LK -> [park_lost -> ransac]
     tracked + detections -> refresh_points -> points (delayed to the next frame)
-    H, trajectory[-1] -> accumulate -> trajectory T_k (frame 0 -> frame k)
-    T over a window of N frames (a delay) -> smooth -> truncate (crop) -> warp_perspective
+    motion (one host node, :func:`follow_motion`): estimate_motion (H: k-1 -> k),
+      accumulate (trajectory T_k: frame 0 -> frame k, with T over N frames in a delay),
+      smooth, truncate (crop) -> warp_perspective
 
 Conventions: images are BGR uint8 HxWx3; points float32 [N, 2] (x, y), pixel centres at
 integers; matrices float64 3x3 mapping column vectors (x, y, 1). ``H_k`` maps frame k-1 to frame
@@ -33,11 +34,11 @@ topping them up with fresh detections away from them only when fewer than ``min_
 survived.
 
 The motion model: homography by RANSAC (the thesis), similarity
-(``cv2.estimateAffinePartial2D``) or translation (median displacement), in the user node
-``estimate_motion`` (:func:`estimate_motion`), except the homography on a Warp backend: there
+(``cv2.estimateAffinePartial2D``) or translation (median displacement), by
+:func:`estimate_motion` in the host node ``motion``, except the homography on a Warp backend: there
 the lost points are parked far off the image on the device (``park_lost``) and the :func:`warpvx.find_homography`
 primitive runs on the device too (``ransac``), so the frame and the points stay there; only the
-3x3 matrix comes back for ``estimate_motion`` (:func:`as_motion`). The graph on ``cpu`` calls the
+3x3 matrix comes back for the ``motion`` node (:func:`as_motion`). The graph on ``cpu`` calls the
 primitive's CPU backend, the model ``cv2.findHomography``: the same OpenCV call.
 """
 
@@ -63,7 +64,6 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".
 _MIN_POINTS = {"homography": 4, "similarity": 2, "translation": 1}
 _NAN3 = np.full((3, 3), np.nan)
 LOST = -1.0e5  # where park_lost moves the points LK lost (px, x and y)
-RANSAC_ITERS = 2000  # RANSAC hypotheses (OpenCV's default; the Warp backends score them all)
 # Off-image points, the padding of point sets to the 4 a homography needs (find_homography
 # refuses fewer): LK reports them lost (status 0). Empty point sets are avoided too, because
 # Warp reports empty arrays as non-contiguous.
@@ -97,6 +97,11 @@ class StabilizerConfig:
         Pyramid levels (LK uses levels - 1 as its highest) and LK window side (px).
     ransac_threshold : float
         RANSAC reprojection threshold (px).
+    ransac_iters : int
+        RANSAC hypotheses (OpenCV stops earlier once 99.5% confident; the Warp backends score
+        all of them). LK tracks of one frame pair are mostly inliers: 500 still finds an
+        all-inlier sample with 99% confidence at 30% inliers, at a quarter of the device
+        cost of OpenCV's default 2000.
     camera_matrix, dist_coeffs : array, optional
         3x3 intrinsics and OpenCV distortion coefficients: undistort every frame first.
     """
@@ -114,6 +119,7 @@ class StabilizerConfig:
     levels: int = 3
     lk_win: int = 21
     ransac_threshold: float = 3.0
+    ransac_iters: int = 500
     camera_matrix: object = None
     dist_coeffs: object = None
 
@@ -131,6 +137,7 @@ class StabilizerConfig:
         check_int(self.min_tracked, "min_tracked", min_value=0)
         check_int(self.levels, "levels", min_value=1)
         check_int(self.lk_win, "lk_win", min_value=3)
+        check_int(self.ransac_iters, "ransac_iters", min_value=1)
         if (self.camera_matrix is None) != (self.dist_coeffs is None):
             raise WarpvxValueError("camera_matrix, dist_coeffs: give both or neither")
 
@@ -153,12 +160,12 @@ class StabilizerConfig:
 
 
 def estimate_motion(prev_pts, next_pts, status, *, model="homography", threshold=3.0,
-                    backend=None):
+                    max_iters=500, backend=None):
     """The inter-frame motion from matched points: float64 3x3 mapping ``prev_pts`` to ``next_pts``.
 
     ``prev_pts``, ``next_pts``: float32 [N, 2]; ``status``: uint8 [N] (1 = tracked). Models:
-    homography by RANSAC (reprojection threshold ``threshold`` px), similarity (RANSAC) or
-    translation (median displacement). Identity when too few points or no model is found.
+    homography by RANSAC (reprojection threshold ``threshold`` px, ``max_iters`` hypotheses),
+    similarity (RANSAC) or translation (median displacement). Identity when too few points or no model is found.
     ``backend``: None calls ``cv2.findHomography`` (the model), a name runs
     :func:`warpvx.find_homography` there.
     """
@@ -174,10 +181,10 @@ def estimate_motion(prev_pts, next_pts, status, *, model="homography", threshold
     if model == "homography" and backend is not None:
         from ..homography import find_homography
 
-        H, _ = find_homography(p, q, ransac_reproj_threshold=threshold, max_iters=RANSAC_ITERS,
+        H, _ = find_homography(p, q, ransac_reproj_threshold=threshold, max_iters=max_iters,
                                backend=backend)
     elif model == "homography":
-        H, _ = cv2.findHomography(p, q, cv2.RANSAC, threshold, maxIters=RANSAC_ITERS,
+        H, _ = cv2.findHomography(p, q, cv2.RANSAC, threshold, maxIters=max_iters,
                                   confidence=0.995)
     elif model == "similarity":
         A, _ = cv2.estimateAffinePartial2D(p, q, method=cv2.RANSAC, ransacReprojThreshold=threshold)
@@ -338,6 +345,23 @@ def truncate_transform(transform, *, size, crop):
     return C @ ((1 - hi) * S + hi * np.eye(3))
 
 
+def follow_motion(*inputs, motion_fn, n_motion, config, size):
+    """The host side of a frame: (H_k, T_k, smoothing transform, warp), float64 3x3 each.
+
+    ``inputs``: ``motion_fn``'s ``n_motion`` inputs (H_k = ``motion_fn(*those)``), ``live``
+    (uint8 [1]), then the trajectory's delay slots T_{k-m} .. T_{k-1}, oldest first (m >= 1).
+    Chains :func:`accumulate`, :func:`smooth_transform` over the last ``len(weights)``
+    trajectories and :func:`truncate_transform` (``size`` (w, h)), as the model does.
+    """
+    motion = motion_fn(*inputs[:n_motion])
+    live, slots = inputs[n_motion], inputs[n_motion + 1:]
+    weights = config.weights()
+    T = accumulate(motion, slots[-1], live)
+    window = slots[len(slots) + 1 - len(weights):]
+    transform = smooth_transform(*window, T, weights=weights, lag=config.lag)
+    return motion, T, transform, truncate_transform(transform, size=size, crop=config.crop)
+
+
 def undistort_maps(config, size):
     """float32 HxW remap maps undoing the lens distortion (``cv2.initUndistortRectifyMap``)."""
     import cv2
@@ -391,24 +415,24 @@ def build_graph(size, config: StabilizerConfig = StabilizerConfig(), *, backend=
         dst = g.user(park_lost, [next_pts, status], warp_fn=_park_lost_warp, name="park_lost",
                      target=pin)
         H, _ = g.find_homography(prev_points, dst, ransac_reproj_threshold=c.ransac_threshold,
-                                 max_iters=RANSAC_ITERS, name="ransac", target=pin)
-        motion = g.user(as_motion, [H], name="estimate_motion")
+                                 max_iters=c.ransac_iters, name="ransac", target=pin)
+        motion_fn, motion_inputs = as_motion, [H]
     else:
-        motion = g.user(functools.partial(estimate_motion, model=c.motion, backend="cpu",
-                                          threshold=c.ransac_threshold),
-                        [prev_points, next_pts, status], name="estimate_motion")
+        motion_fn = functools.partial(estimate_motion, model=c.motion, backend="cpu",
+                                      threshold=c.ransac_threshold, max_iters=c.ransac_iters)
+        motion_inputs = [prev_points, next_pts, status]
     g.user(functools.partial(refresh_points, min_tracked=c.min_tracked, max_corners=c.max_corners,
                              min_distance=c.min_distance),
            [next_pts, status, detections], [points], name="refresh_points")
-    weights = c.weights()
     trajectory = g.virtual("trajectory")
-    history = g.delay(trajectory, max(1, len(weights) - 1), init=_NAN3)
-    g.user(accumulate, [motion, history[-1], live], [trajectory], name="accumulate")
-    window = [history[-m] for m in range(len(weights) - 1, 0, -1)] + [trajectory]
-    transform = g.user(functools.partial(smooth_transform, weights=weights, lag=c.lag), window,
-                       name="smooth")
-    warp = g.user(functools.partial(truncate_transform, size=(w, h), crop=c.crop), [transform],
-                  name="truncate")
+    history = g.delay(trajectory, max(1, len(c.weights()) - 1), init=_NAN3)
+    # One host node for the whole 3x3 chain (motion, accumulate, smooth, truncate): one
+    # executor hand-off per frame instead of four.
+    chain = functools.partial(follow_motion, motion_fn=motion_fn, n_motion=len(motion_inputs),
+                              config=c, size=(w, h))
+    slots = [history[-m] for m in range(history.slots, 0, -1)]
+    motion, _, transform, warp = g.user(chain, motion_inputs + [live] + slots,
+                                        ["motion", trajectory, "transform", "warp"], name="motion")
     src = g.delay(frame, c.lag)[-c.lag] if c.lag else frame
     out = g.warp_perspective(src, warp, dsize=(w, h), name="warp", target=pin)
     g.output("stabilized", out)
@@ -513,11 +537,12 @@ def stabilize_model(frames, config: StabilizerConfig = StabilizerConfig()):
     import cv2
 
     c = config
-    weights = c.weights()
+    motion_fn = functools.partial(estimate_motion, model=c.motion, threshold=c.ransac_threshold,
+                                  max_iters=c.ransac_iters)
 
     def run(feed, size):
         maps = undistort_maps(c, size) if c.camera_matrix is not None else None
-        window = deque([_NAN3] * len(weights), maxlen=len(weights))
+        window = deque([_NAN3] * len(c.weights()), maxlen=len(c.weights()))
         sources = deque(maxlen=c.lag + 1)
         prev_gray, points = None, _NO_POINTS
         lk = dict(winSize=(c.lk_win, c.lk_win), maxLevel=c.levels - 1,
@@ -540,15 +565,13 @@ def stabilize_model(frames, config: StabilizerConfig = StabilizerConfig()):
                 nxt, status = points, np.zeros(len(points), np.uint8)
             else:
                 nxt, status, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, points, None, **lk)
-            motion = estimate_motion(points, nxt, status, model=c.motion, threshold=c.ransac_threshold)
+            _, T, transform, warp = follow_motion(points, nxt, status, item["live"], *window,
+                                                  motion_fn=motion_fn, n_motion=3, config=c, size=size)
             points = refresh_points(nxt, status, det, min_tracked=c.min_tracked,
                                     max_corners=c.max_corners, min_distance=c.min_distance)
             prev_gray = gray
-            T = accumulate(motion, window[-1], item["live"])
             window.append(T)
             sources.append(frame)
-            transform = smooth_transform(*window, weights=weights, lag=c.lag)
-            warp = truncate_transform(transform, size=size, crop=c.crop)
             out = cv2.warpPerspective(sources[0], warp, tuple(size), flags=cv2.INTER_LINEAR,
                                       borderMode=cv2.BORDER_CONSTANT)
             yield {"stabilized": out, "warp": warp, "transform": transform, "trajectory": T}
@@ -824,7 +847,7 @@ def run_cli(args, prog="stabilize") -> int:
 
 __all__ = [
     "StabilizerConfig", "StabilizedFrame", "build_graph", "schedule", "stabilize", "stabilize_model",
-    "estimate_motion", "as_motion", "park_lost", "refresh_points", "accumulate", "smooth_transform", "truncate_transform",
+    "estimate_motion", "follow_motion", "as_motion", "park_lost", "refresh_points", "accumulate", "smooth_transform", "truncate_transform",
     "undistort_maps", "demo_clip", "VideoSource", "open_writer", "save_plot", "add_arguments", "run", "main",
     "MOTIONS", "MODES", "DETECTORS", "BACKENDS",
 ]
