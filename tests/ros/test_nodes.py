@@ -34,13 +34,16 @@ def test_ros_stabilize_equals_the_offline_app(rospy, bikes, node_process):
 
 
 def test_ros_orbslam_equals_the_offline_front_end(rospy, castle, node_process):
+    """The node's poses are the ORB-SLAM front end app's (warpvx.apps.orbslam) run offline on
+    the same frames with the K the node got from CameraInfo; two frames in flight."""
     from geometry_msgs.msg import PoseStamped
     from nav_msgs.msg import Path
     from sensor_msgs.msg import CameraInfo
     from std_msgs.msg import UInt32
 
     import warpvx
-    from warpvx.ros.track import pose_matrix, track_frames
+    from warpvx.apps.orbslam import Camera, TrackerConfig, track_frames
+    from warpvx.ros import pose_matrix
 
     frames, K = castle
     n = len(frames)
@@ -49,7 +52,7 @@ def test_ros_orbslam_equals_the_offline_front_end(rospy, castle, node_process):
     info = rospy.Publisher("/cam/camera_info", CameraInfo, queue_size=1, latch=True)
     info.publish(CameraInfo(K=K.ravel().tolist(), width=frames[0].shape[1], height=frames[0].shape[0]))
     proc = node_process("ros-orbslam", "__name:=slam", "image:=/cam/image",
-                        "camera_info:=/cam/camera_info", "_n_features:=1000",
+                        "camera_info:=/cam/camera_info", "_n_features:=1000", "_depth:=2",
                         f"_queue_size:={n}", f"_publish_queue:={n}")
     wait_connected(info)
     publish(rospy, "/cam/image", frames, encoding="mono8", wait_for=(poses.sub, path.sub, counts.sub))
@@ -57,12 +60,14 @@ def test_ros_orbslam_equals_the_offline_front_end(rospy, castle, node_process):
     got_counts = [m.data for m in counts.wait(n)]
     last_path = path.wait(n)[-1]
     output = stop(proc)
-    expected = track_frames(frames, K, n_features=1000, backend="cpu")
+    offline = list(track_frames(({"image": f} for f in frames), Camera(K, frames[0].shape[::-1]),
+                                TrackerConfig(n_features=1000), backend="cpu"))
     assert got_counts == [len(warpvx.orb(f, n_features=1000, backend="cpu")[0]) for f in frames]
-    for k, (msg, pose) in enumerate(zip(got, expected)):
+    for k, (msg, frame) in enumerate(zip(got, offline)):
         assert msg.header.stamp == rospy.Time(1000 + k) and msg.header.frame_id == "world"
-        np.testing.assert_allclose(pose_matrix(msg), pose, atol=1e-9)
-    assert not np.allclose(expected[-1], np.eye(4))  # the camera moved
+        np.testing.assert_allclose(pose_matrix(msg), frame.pose, rtol=0, atol=1e-9)
+    # The camera moved, and the node's first pose is the identity, so the world is frame 0.
+    assert not np.allclose(offline[-1].pose, np.eye(4)) and np.allclose(pose_matrix(got[0]), np.eye(4))
     assert [m.header.stamp for m in last_path.poses] == [m.header.stamp for m in got]
     assert f"received {n}, processed {n}" in output, output[-2000:]
 

@@ -7,7 +7,7 @@
 * Server model (:class:`GraphServer`): a ROS service (``warpvx/ProcessImage``) runs the graph
   per request; :func:`call_process_image` calls it.
 * Conversions (:mod:`warpvx.ros.convert`): sensor_msgs/Image <-> uint8 arrays without a copy
-  where the encoding allows (mono8, bgr8, rgb8).
+  where the encoding allows (mono8, bgr8, rgb8); poses <-> geometry_msgs/PoseStamped.
 
 An optional part: nothing else in warpvx imports it. ROS 1 comes from the distribution
 (``apt-get install python3-rospy ros-core python3-sensor-msgs python3-geometry-msgs
@@ -20,12 +20,13 @@ from ._env import import_rospy
 from .client import (FrameQueue, FrameStats, GraphClient, Topic, camera_info_input, image_input,
                      image_output, matrix_output)
 from .convert import (ENCODINGS, array_to_image, camera_matrix, image_to_array,
-                      matrix_to_multiarray, multiarray_to_matrix)
+                      matrix_to_multiarray, multiarray_to_matrix, path_message, pose_matrix,
+                      pose_message)
 from .server import GraphServer, call_process_image, process_image_service
 
 __all__ = [
     "import_rospy", "GraphClient", "GraphServer", "call_process_image", "process_image_service",
     "FrameQueue", "FrameStats", "Topic", "image_input", "camera_info_input", "image_output",
     "matrix_output", "ENCODINGS", "image_to_array", "array_to_image", "camera_matrix",
-    "matrix_to_multiarray", "multiarray_to_matrix",
+    "matrix_to_multiarray", "multiarray_to_matrix", "pose_message", "pose_matrix", "path_message",
 ]

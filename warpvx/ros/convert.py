@@ -1,4 +1,5 @@
-"""``sensor_msgs`` messages to and from NumPy arrays.
+"""ROS messages to and from NumPy arrays: ``sensor_msgs`` images and camera info,
+``std_msgs`` matrices, ``geometry_msgs``/``nav_msgs`` poses and paths.
 
 Incoming images are read without a copy where the encoding allows: the array is a read-only
 view of ``msg.data`` (the bytes rospy deserialised), rows ``msg.step`` bytes apart, so a padded
@@ -143,3 +144,45 @@ def multiarray_to_matrix(msg) -> np.ndarray:
     """The float64 2-D array of a ``std_msgs/Float64MultiArray`` from :func:`matrix_to_multiarray`."""
     dims = [d.size for d in msg.layout.dim]
     return np.asarray(msg.data, np.float64).reshape(dims)
+
+
+def pose_message(pose, header, frame_id: str):
+    """A geometry_msgs/PoseStamped of camera-to-world 4x4 ``pose`` (stamp from ``header``)."""
+    import cv2
+
+    out = _msg("geometry_msgs", "PoseStamped")()
+    out.header.stamp, out.header.frame_id = header.stamp, frame_id
+    rvec = cv2.Rodrigues(np.ascontiguousarray(pose[:3, :3]))[0].ravel()
+    angle = float(np.linalg.norm(rvec))
+    axis = rvec / angle if angle > 0 else np.zeros(3)
+    q = out.pose.orientation
+    q.x, q.y, q.z = (axis * np.sin(angle / 2)).tolist()
+    q.w = float(np.cos(angle / 2))
+    p = out.pose.position
+    p.x, p.y, p.z = pose[:3, 3].tolist()
+    return out
+
+
+def pose_matrix(msg) -> np.ndarray:
+    """The camera-to-world float64 4x4 of a geometry_msgs/Pose(Stamped)."""
+    import cv2
+
+    pose = getattr(msg, "pose", msg)
+    q, p = pose.orientation, pose.position
+    half = np.arccos(np.clip(q.w, -1.0, 1.0))
+    s = np.sin(half)
+    rvec = np.array([q.x, q.y, q.z]) / s * 2 * half if s > 1e-12 else np.zeros(3)
+    out = np.eye(4)
+    out[:3, :3] = cv2.Rodrigues(rvec)[0]
+    out[:3, 3] = p.x, p.y, p.z
+    return out
+
+
+def path_message(poses: list, frame_id: str):
+    """A nav_msgs/Path of PoseStamped messages ``poses`` (the header: the last pose's stamp)."""
+    out = _msg("nav_msgs", "Path")()
+    out.header.frame_id = frame_id
+    if poses:
+        out.header.stamp = poses[-1].header.stamp
+    out.poses = list(poses)
+    return out

@@ -19,7 +19,10 @@ output pixels). Parameters: ``~backend`` (cpu | warp-cpu | cuda), ``~window``, `
 for the first one) and publishes ``~pose`` (geometry_msgs/PoseStamped, camera in the first
 camera's frame ``~world_frame``), ``~path`` (nav_msgs/Path, every pose so far) and
 ``~keypoints`` (std_msgs/UInt32). Parameters: ``~backend``, ``~n_features``, ``~world_frame``
-and the client's but ``~depth`` (one frame in flight: tracking is sequential). Tracking is :class:`~warpvx.ros.track.MonoTracker` (monocular, unit steps).
+and the client's. It runs the front end of ``warpvx orbslam`` (:mod:`warpvx.apps.orbslam`:
+ORB on the GPU role, Hamming matching, tracking on the CPU with its state in a delay, so
+``~depth`` frames may be in flight), monocular: the trajectory is right up to one global scale.
+The graph is built on the first frame with the camera info's K; a later K is not applied.
 
 Both publish ``~dropped`` (std_msgs/UInt64, frames skipped at the processing rate so far) and
 log a frame summary at shutdown.
@@ -72,31 +75,37 @@ STABILIZE_PARAMS = {"backend": "cpu", "window": 15, "mode": "causal", "crop": 0.
 
 
 def orbslam_client(params: dict) -> GraphClient:
-    """The ``ros-orbslam`` client for parameters ``params`` (keys as the ``~`` parameters)."""
-    from .track import MonoTracker, orb_graph, path_message, pose_message
+    """The ``ros-orbslam`` client for parameters ``params`` (keys as the ``~`` parameters): the
+    front-end graph of :mod:`warpvx.apps.orbslam` (monocular), built on the first frame with the
+    intrinsics of the latest camera info."""
+    from ..apps.orbslam import Camera, TrackerConfig, build_graph, schedule
+    from .convert import path_message, pose_message
 
-    backend = params["backend"]
-    tracker = MonoTracker(backend=backend)
-    world = params["world_frame"]
+    backend, world = params["backend"], params["world_frame"]
+    config = TrackerConfig(n_features=params["n_features"])
     poses = []
 
+    def make(first):
+        image = first["image"]
+        graph = build_graph(Camera(first["K"], image.shape[::-1]), config, backend=backend)
+        schedule(graph, backend)
+        return graph
+
     def post(outputs, inputs, header):
-        pose = tracker.update(outputs["keypoints"], outputs["descriptors"], inputs["K"])
-        poses.append(pose_message(pose, header, world))
-        return {"pose": poses[-1], "path": poses, "count": len(outputs["keypoints"])}
+        poses.append(pose_message(outputs["pose"], header, world))
+        # The message replaces the graph's 4x4 "pose" output; stats[0] is n_keypoints.
+        return {"pose": poses[-1], "path": poses, "count": int(outputs["stats"][0])}
 
     return GraphClient(
-        lambda first: orb_graph(first["image"].shape, params["n_features"], backend),
-        {"image": image_input("image", "mono8"), "K": camera_info_input("camera_info")},
+        make, {"image": image_input("image", "mono8"), "K": camera_info_input("camera_info")},
         {"pose": Topic("~pose", ("geometry_msgs", "PoseStamped"), lambda pose, header: pose),
          "path": Topic("~path", ("nav_msgs", "Path"), lambda path, header: path_message(path, world)),
          "count": Topic("~keypoints", ("std_msgs", "UInt32"),
                         lambda n, header: _msg("std_msgs", "UInt32")(n))},
-        post=post, depth=1, **_client_args(params))  # one frame in flight: tracking is sequential
+        post=post, **_client_args(params))
 
 
-ORBSLAM_PARAMS = {"backend": "cpu", "n_features": 2000, "world_frame": "world",
-                  **{k: v for k, v in _CLIENT.items() if k != "depth"}}
+ORBSLAM_PARAMS = {"backend": "cpu", "n_features": 2000, "world_frame": "world", **_CLIENT}
 
 _NODES = {"ros-stabilize": ("warpvx_stabilize", STABILIZE_PARAMS, stabilize_client),
           "ros-orbslam": ("warpvx_orbslam", ORBSLAM_PARAMS, orbslam_client)}
