@@ -121,11 +121,13 @@ def bikes():
 def castle(bikes):
     """The first 10 frames of the castle sequence (gray uint8 480x640) and its K (float64
     3x3); where the shared data is absent (a bare CI checkout), the bundled clip's frames in
-    gray with a nominal K (focal length = width)."""
+    gray, doubled to 640x272 so that ORB-SLAM2's 8 levels fit, with a nominal K (focal length =
+    width)."""
     if not CASTLE.is_dir():
-        h, w = bikes[0].shape[:2]
-        return ([cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) for f in bikes[:10]],
-                np.array([[w, 0, w / 2], [0, w, h / 2], [0, 0, 1]], np.float64))
+        frames = [cv2.resize(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY), None, fx=2, fy=2,
+                             interpolation=cv2.INTER_LINEAR) for f in bikes[:10]]
+        h, w = frames[0].shape
+        return frames, np.array([[w, 0, w / 2], [0, w, h / 2], [0, 0, 1]], np.float64)
     fx, fy, cx, cy, _, _ = np.loadtxt(CASTLE / "intrinsics.txt")
     frames = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
               for p in sorted((CASTLE / "image_0").glob("*.png"))[:10]]
