@@ -22,7 +22,7 @@ Same as `warpvx orbslam SOURCE ...`; the logic is warpvx.apps.orbslam.
 
 import sys
 
-from warpvx.apps.orbslam import main
+from warpvx.apps.orbslam_cli import main
 
 if __name__ == "__main__":
     sys.exit(main(prog="orbslam_frontend.py"))

@@ -19,7 +19,7 @@ Same as `warpvx stabilize IN OUT ...`; the logic is warpvx.apps.stabilize.
 
 import sys
 
-from warpvx.apps.stabilize import main
+from warpvx.apps.stabilize_cli import main
 
 if __name__ == "__main__":
     sys.exit(main(prog="stabilize.py"))

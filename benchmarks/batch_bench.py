@@ -35,6 +35,7 @@ sys.path.insert(0, ROOT)
 
 from warpvx.apps import batch  # noqa: E402
 from warpvx.apps import stabilize as st  # noqa: E402
+from warpvx.apps import stabilize_cli  # noqa: E402
 
 CLIP = os.path.join(ROOT, "warpvx", "data", "bikes_shaky.mp4")
 
@@ -107,7 +108,7 @@ def main(argv=None):
     # Ray's workers import this checkout's warpvx (and inherit the calibration cache).
     os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [ROOT, os.environ.get("PYTHONPATH")]))
     clips = make_clips(work, args.clips, args.frames, args.scale)
-    options = batch.parse_options(st.add_arguments, ["IN", "--backend", args.backend, "--quiet"])
+    options = batch.parse_options(stabilize_cli.add_arguments, ["IN", "--backend", args.backend, "--quiet"])
     gpus = 0
     if args.backend == "cuda":
         import warp as wp

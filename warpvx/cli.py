@@ -135,14 +135,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="HEFT/XEFT scheduling study (arguments go to warpvx.sched.study; see its --help)",
         add_help=False,
     )
-    from .apps.stabilize import add_arguments as add_stabilize_arguments
+    from .apps.stabilize_cli import add_arguments as add_stabilize_arguments
 
     add_stabilize_arguments(sub.add_parser(
         "stabilize",
         help="stabilize a shaky video (thesis §3.2) with the warpvx graph",
         description="Stabilize a video file or image folder IN into OUT; see apps/stabilize.py.",
     ))
-    from .apps.orbslam import add_arguments as add_orbslam_arguments
+    from .apps.orbslam_cli import add_arguments as add_orbslam_arguments
 
     add_orbslam_arguments(sub.add_parser(
         "orbslam",
@@ -192,11 +192,11 @@ def _run(argv) -> int:
 
         return main_from_args(args)
     if args.command == "stabilize":
-        from .apps.stabilize import run_cli
+        from .apps.stabilize_cli import run_cli
 
         return run_cli(args, "warpvx stabilize")
     if args.command == "orbslam":
-        from .apps.orbslam import run_cli as run_orbslam
+        from .apps.orbslam_cli import run_cli as run_orbslam
 
         return run_orbslam(args, "warpvx orbslam")
     parser.print_help()

@@ -19,6 +19,8 @@ import numpy as np
 import pytest
 
 from warpvx.apps import orbslam as o
+from warpvx.apps import orbslam_cli
+from warpvx.apps.orbslam_sources import open_source
 from warpvx.apps import trajectory_eval as te
 from warpvx.apps.orbslam_synth import render_sequence, write_kitti_sequence
 
@@ -35,7 +37,7 @@ def stereo_seq(tmp_path_factory):
 
 
 def _run(args, capsys=None):
-    status = o.main([str(a) for a in args])
+    status = orbslam_cli.main([str(a) for a in args])
     return status, (capsys.readouterr() if capsys else None)
 
 
@@ -94,7 +96,7 @@ def test_stereo_metric_scale(tmp_path, stereo_seq, capsys):
 
 
 def test_graph_places_extraction_on_the_gpu_role(stereo_seq):
-    seq = o.open_source(stereo_seq, max_frames=4)
+    seq = open_source(stereo_seq, max_frames=4)
     plans = []
     frames = list(o.track_frames(seq, seq.camera, backend="warp-cpu", on_finish=plans.append))
     assert len(frames) == 4
@@ -120,7 +122,7 @@ def test_castle_simu_mono_beats_the_opencv_baseline(tmp_path, capsys):
 def test_image_folder_and_tum_sources(tmp_path, stereo_seq):
     folder = tmp_path / "imgs"
     shutil.copytree(stereo_seq / "image_0", folder)
-    seq = o.open_source(folder, "364.8,364.8,319.5,239.5", max_frames=4)
+    seq = open_source(folder, "364.8,364.8,319.5,239.5", max_frames=4)
     assert seq.kind == "images" and seq.count == 4 and not seq.camera.stereo
     assert next(iter(seq))["image"].shape == (480, 640)
     tum = tmp_path / "tum"
@@ -132,7 +134,7 @@ def test_image_folder_and_tum_sources(tmp_path, stereo_seq):
     fs = cv2.FileStorage(str(yml), cv2.FILE_STORAGE_WRITE)
     fs.write("camera_matrix", np.array([[364.8, 0, 319.5], [0, 364.8, 239.5], [0, 0, 1]]))
     fs.release()
-    seq = o.open_source(tum, yml)
+    seq = open_source(tum, yml)
     assert seq.kind == "tum" and seq.count == 10 and seq.times[1] == pytest.approx(100 + 1 / 30)
     np.testing.assert_allclose(seq.camera.K[0], [364.8, 0, 319.5])
 

@@ -92,14 +92,14 @@ def run_stabilize(source, out_dir, options) -> dict:
     """Batch adapter of :mod:`warpvx.apps.stabilize`: ``out_dir/stabilized.mp4`` (and, when
     the options ask for them, the metrics JSON and trajectory plot under their base names).
     ``quality``: the output's ITF (dB, higher is steadier) when metrics are asked for."""
-    from . import stabilize
+    from . import stabilize_cli
 
     args = argparse.Namespace(**options)
     args.input, args.output, args.quiet = source, os.path.join(out_dir, "stabilized.mp4"), True
     for key in ("metrics", "plot"):
         if getattr(args, key, None):
             setattr(args, key, os.path.join(out_dir, os.path.basename(getattr(args, key))))
-    stabilize.run(args)
+    stabilize_cli.run(args)
     if args.metrics:
         with open(args.metrics) as f:
             report = json.load(f)
@@ -117,7 +117,7 @@ def run_orbslam(source, out_dir, options) -> dict:
     scale when monocular).
     """
     try:
-        from . import orbslam
+        from . import orbslam_cli
     except ImportError as exc:
         raise WarpvxValueError(f"app: warpvx.apps.orbslam is not available in this build ({exc})") from None
     args = argparse.Namespace(**options)
@@ -128,7 +128,7 @@ def run_orbslam(source, out_dir, options) -> dict:
     elif args.gt is None:
         found = [p for p in (os.path.join(source, n) for n in ("groundtruth.txt", "poses.txt")) if os.path.isfile(p)]
         args.gt = found[0] if found else None
-    orbslam.run(args)
+    orbslam_cli.run(args)
     with open(os.path.join(out_dir, "frames.csv")) as f:
         frames = sum(1 for _ in f) - 1
     metrics = os.path.join(out_dir, "metrics.json")

@@ -46,19 +46,17 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
-import os
 from collections import deque
 
 import numpy as np
 
-from ..errors import WarpvxError, WarpvxValueError
+from ..errors import WarpvxValueError
+from .video_io import VideoSource, open_writer  # noqa: F401  (public API: frames in, video out)
 
 MOTIONS = ("homography", "similarity", "translation")
 MODES = ("causal", "centered")
 DETECTORS = ("harris", "fast")
 BACKENDS = ("cpu", "warp-cpu", "cuda")
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 
 # Fewest matched points that determine each motion model.
 _MIN_POINTS = {"homography": 4, "similarity": 2, "translation": 1}
@@ -579,213 +577,6 @@ def stabilize_model(frames, config: StabilizerConfig = StabilizerConfig()):
     return _drive(frames, config, run)
 
 
-# --------------------------------------------------------------------------- video I/O
-
-
-class VideoSource:
-    """Frames of a video file (anything OpenCV opens) or of an image folder (sorted names).
-
-    Raises a warpvx error naming ``path`` when it is missing, unreadable or holds no frame.
-    Attributes: ``size`` (w, h), ``fps``, ``count`` (frames to expect, or None), ``first``.
-    """
-
-    def __init__(self, path, max_frames=None):
-        import cv2
-
-        self.path = os.fspath(path)
-        self.max_frames = max_frames
-        self.fps = 25.0
-        self._cap = None
-        if os.path.isdir(self.path):
-            self._files = sorted(os.path.join(self.path, f) for f in os.listdir(self.path)
-                                 if f.lower().endswith(IMAGE_EXTENSIONS))
-            if not self._files:
-                raise WarpvxValueError(f"input: no images ({', '.join(IMAGE_EXTENSIONS)}) in folder {self.path!r}")
-            self.count = len(self._files)
-        elif os.path.isfile(self.path):
-            self._files = None
-            self._cap = cv2.VideoCapture(self.path)
-            if not self._cap.isOpened():
-                raise WarpvxValueError(f"input: OpenCV cannot open {self.path!r} as a video")
-            self.fps = self._cap.get(cv2.CAP_PROP_FPS) or 25.0
-            n = int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT))
-            self.count = n if n > 0 else None
-        else:
-            raise WarpvxValueError(f"input: no such file or folder {self.path!r}")
-        self._it = self._read()
-        self.first = next(self._it, None)
-        if self.first is None:
-            raise WarpvxValueError(f"input: {self.path!r} holds no readable frame")
-        self.size = self.first.shape[1::-1]
-        if max_frames is not None and (self.count is None or self.count > max_frames):
-            self.count = max_frames
-
-    def _read(self):
-        import cv2
-
-        n = 0
-        while self.max_frames is None or n < self.max_frames:
-            if self._files is not None:
-                if n >= len(self._files):
-                    return
-                frame = cv2.imread(self._files[n], cv2.IMREAD_COLOR)
-                if frame is None:
-                    raise WarpvxValueError(f"input: cannot read image {self._files[n]!r}")
-            else:
-                ok, frame = self._cap.read()
-                if not ok:
-                    return
-            n += 1
-            yield frame
-
-    def __iter__(self):
-        if self.first is not None:
-            yield self.first
-            self.first = None
-        yield from self._it
-
-
-def open_writer(path, size, fps):
-    """A ``cv2.VideoWriter`` for ``path``: MJPG for ``.avi``, mp4v otherwise (the codecs the
-    headless OpenCV wheels write)."""
-    import cv2
-
-    fourcc = "MJPG" if str(path).lower().endswith(".avi") else "mp4v"
-    writer = cv2.VideoWriter(os.fspath(path), cv2.VideoWriter_fourcc(*fourcc), fps, tuple(size))
-    if not writer.isOpened():
-        raise WarpvxValueError(f"output: OpenCV cannot write a {fourcc} video to {os.fspath(path)!r}")
-    return writer
-
-
-def trajectory_params(T):
-    """(x, y, angle in degrees) of a 3x3 motion: translation and rotation of its affine part."""
-    return float(T[0, 2]), float(T[1, 2]), math.degrees(math.atan2(T[1, 0], T[0, 0]))
-
-
-def save_plot(path, before, after):
-    """Plot the trajectory (x, y, angle over frames) before and after smoothing as a PNG.
-
-    ``before``, ``after``: lists of 3x3 matrices (T_k and the smoothed path S_k T_k).
-    """
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise WarpvxValueError("plot: matplotlib is not installed (pip install 'warpvx[plot]')") from None
-    a = np.array([trajectory_params(T) for T in before])
-    b = np.array([trajectory_params(T) for T in after])
-    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
-    for i, label in enumerate(("x (px)", "y (px)", "angle (deg)")):
-        axes[i].plot(a[:, i], label="input")
-        axes[i].plot(b[:, i], label="stabilized")
-        axes[i].set_ylabel(label)
-    axes[0].legend()
-    axes[-1].set_xlabel("frame")
-    fig.suptitle("camera trajectory (frame 0 -> frame k)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-# --------------------------------------------------------------------------- command line
-
-
-def add_arguments(parser):
-    """The stabilizer's command-line options (shared by ``warpvx stabilize`` and
-    ``apps/stabilize.py``)."""
-    d = StabilizerConfig()
-    parser.add_argument("input", nargs="*", metavar="PATH",
-                        help="IN OUT: a video file (anything OpenCV opens) or image folder, and the "
-                             "stabilized video (.mp4: mp4v, .avi: MJPG); IN... --out DIR: a batch of "
-                             "inputs, folders of videos, globs or @list.txt (see warpvx.apps.batch)")
-    parser.add_argument("--demo", action="store_true",
-                        help="stabilize the bundled real shaky clip into a folder (the one positional "
-                             "argument, default a new ./warpvx-results/stabilize-<date>-<time>/): "
-                             "stabilized.mp4 (input | output side by side), metrics.json and "
-                             "trajectory.png (with matplotlib)")
-    parser.add_argument("--backend", choices=BACKENDS, default="cpu")
-    parser.add_argument("--window", type=int, default=d.window, help="smoothing window N in frames")
-    parser.add_argument("--mode", choices=MODES, default=d.mode,
-                        help="centered: lags N//2 frames (thesis); causal: no look-ahead")
-    parser.add_argument("--crop", type=float, default=d.crop, help="fraction cut from each side, [0, 0.5)")
-    parser.add_argument("--motion", choices=MOTIONS, default=d.motion)
-    parser.add_argument("--detector", choices=DETECTORS, default=d.detector)
-    parser.add_argument("--max-frames", type=int, default=None)
-    parser.add_argument("--model", action="store_true", help="run the imperative OpenCV model instead of the graph")
-    parser.add_argument("--compare", action="store_true", help="write input and output side by side")
-    parser.add_argument("--plot", metavar="PNG", help="save the trajectory before/after smoothing")
-    parser.add_argument("--metrics", metavar="JSON", help="write the quality metrics (keeps the frames in memory)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    from .batch import add_batch_arguments
-
-    add_batch_arguments(parser)
-
-
-def run(args) -> int:
-    """Run the stabilizer for parsed ``args`` (see :func:`add_arguments`); returns 0.
-
-    Raises a warpvx error on bad input (the callers print it as one line, exit status 2).
-    """
-    import json
-
-    from tqdm import tqdm
-
-    config = StabilizerConfig(window=args.window, mode=args.mode, crop=args.crop,
-                              motion=args.motion, detector=args.detector)
-    if getattr(args, "demo", False):
-        args = _demo_args(args)
-    elif args.input is None or args.output is None:
-        raise WarpvxValueError("input, output: give both (or --demo for the bundled clip)")
-    if args.max_frames is not None and args.max_frames < 1:
-        raise WarpvxValueError(f"max_frames: expected an int >= 1, got {args.max_frames}")
-    if args.plot:  # fail before the work, not after it
-        try:
-            import matplotlib  # noqa: F401
-        except ImportError:
-            raise WarpvxValueError("plot: matplotlib is not installed (pip install 'warpvx[plot]')") from None
-    source = VideoSource(args.input, args.max_frames)
-    w, h = source.size
-    writer = open_writer(args.output, (2 * w if args.compare else w, h), source.fps)
-    keep_in, keep_out = [], []
-    before, after, warps = [], [], []
-    inputs = deque()
-
-    def tee():
-        for f in source:
-            inputs.append(f)
-            yield f
-
-    frames = stabilize_model(tee(), config) if args.model else stabilize(tee(), config, backend=args.backend)
-    try:
-        with tqdm(total=source.count, unit="frame", disable=args.quiet, desc="stabilize") as bar:
-            for sf in frames:
-                src = inputs.popleft()
-                writer.write(np.hstack([src, sf.image]) if args.compare else sf.image)
-                before.append(sf.trajectory)
-                after.append(sf.transform @ sf.trajectory)
-                warps.append(sf.warp)
-                if args.metrics:
-                    keep_in.append(src)
-                    keep_out.append(sf.image)
-                bar.update()
-    finally:
-        writer.release()
-    if args.plot:
-        save_plot(args.plot, before, after)
-    if args.metrics:
-        from .stabilize_metrics import evaluate
-
-        report = {"source": args.input, "frames": len(keep_in), "config": {
-            k: v for k, v in dataclasses.asdict(config).items() if k not in ("camera_matrix", "dist_coeffs")},
-            "backend": "model" if args.model else args.backend}
-        report.update(evaluate(keep_in, keep_out, warps))
-        with open(args.metrics, "w") as f:
-            json.dump(report, f, indent=2)
-    return 0
-
-
 def demo_clip() -> str:
     """Path of the bundled real hand-held clip (46 frames, 640x272; data/LICENSE-bikes.md)."""
     from importlib.resources import files
@@ -793,61 +584,9 @@ def demo_clip() -> str:
     return str(files("warpvx") / "data" / "bikes_shaky.mp4")
 
 
-def _demo_args(args):
-    """``args`` for ``--demo``: the bundled clip into a folder (created; the one positional
-    argument, else a fresh ``./warpvx-results/stabilize-<date>-<time>/``)."""
-    import copy
-    import importlib.util
-    from pathlib import Path
-
-    if args.output is not None:
-        raise WarpvxValueError(f"output: --demo takes one folder, got {args.input!r} and {args.output!r}")
-    if args.input is None:
-        from ..cli import fresh_results_dir
-
-        folder = fresh_results_dir("stabilize")
-    else:
-        folder = Path(args.input)
-        if folder.exists() and not folder.is_dir():
-            raise WarpvxValueError(f"output: --demo writes into a folder; {str(folder)!r} is a file")
-        folder.mkdir(parents=True, exist_ok=True)
-    args = copy.copy(args)
-    args.input, args.output, args.compare = demo_clip(), str(folder / "stabilized.mp4"), True
-    args.metrics = args.metrics or str(folder / "metrics.json")
-    if args.plot is None and importlib.util.find_spec("matplotlib") is not None:
-        args.plot = str(folder / "trajectory.png")
-    if not args.quiet:
-        print(f"stabilize --demo: {args.input} -> {folder}/")
-    return args
-
-
-def main(argv=None, prog="stabilize") -> int:
-    """Parse ``argv`` and run; bad input prints one line to stderr and returns 2."""
-    import argparse
-
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    return run_cli(args, prog)
-
-
-def run_cli(args, prog="stabilize") -> int:
-    """:func:`run` with warpvx errors reported as one line on stderr (exit status 2)."""
-    import sys
-
-    from .batch import run_batch, single_run
-
-    try:
-        single = single_run(args, output="output", alone=args.demo)
-        return run(single) if single is not None else run_batch(args, "stabilize")
-    except WarpvxError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
-
-
 __all__ = [
     "StabilizerConfig", "StabilizedFrame", "build_graph", "schedule", "stabilize", "stabilize_model",
     "estimate_motion", "follow_motion", "as_motion", "park_lost", "refresh_points", "accumulate", "smooth_transform", "truncate_transform",
-    "undistort_maps", "demo_clip", "VideoSource", "open_writer", "save_plot", "add_arguments", "run", "main",
+    "undistort_maps", "demo_clip", "VideoSource", "open_writer",
     "MOTIONS", "MODES", "DETECTORS", "BACKENDS",
 ]
