@@ -53,16 +53,60 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def start_roscore(port: int, log_path) -> subprocess.Popen:
+    """A roscore on loopback ``port`` (its own process group, output in ``log_path``), once its
+    master answers; fails the test if it does not within :data:`WAIT` s."""
+    import rosgraph
+
+    with open(log_path, "a") as log:
+        proc = subprocess.Popen(["roscore", "-p", str(port)], stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+    deadline = time.monotonic() + WAIT
+    while not rosgraph.is_master_online(f"http://127.0.0.1:{port}"):
+        if proc.poll() is not None or time.monotonic() > deadline:
+            kill_roscore(proc)
+            pytest.fail(f"roscore did not start on port {port}: {log_path.read_text()[-2000:]}")
+        time.sleep(0.1)
+    return proc
+
+
+def _descendants(pid: int) -> list[int]:
+    kids = [int(p) for p in subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)],
+                                           capture_output=True, text=True).stdout.split()]
+    return kids + [d for k in kids for d in _descendants(k)]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def kill_roscore(proc, sig=signal.SIGINT):
+    """Stop a roscore and its children (rosmaster, rosout: roslaunch starts each in a session
+    of its own) with ``sig`` (SIGKILL: a crash), and wait until all are gone; SIGKILL if that
+    hangs."""
+    family = _descendants(proc.pid)
+    for send in (sig, signal.SIGKILL):
+        if proc.poll() is None:
+            os.killpg(proc.pid, send)
+        for pid in family:
+            if _alive(pid):
+                os.kill(pid, send)
+        deadline = time.monotonic() + WAIT
+        while (proc.poll() is None or any(map(_alive, family))) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if proc.poll() is not None and not any(map(_alive, family)):
+            return
+
+
 @pytest.fixture(scope="session")
 def roscore(ros_available, tmp_path_factory):
     """A real roscore on a free loopback port; the environment points ROS at it (this process
     and the node processes tests start). Yields the master URI; stopped with SIGINT (its
     children with it) at the end of the session."""
-    from warpvx.ros import import_rospy
-
-    import_rospy()
-    import rosgraph
-
     port = _free_port()
     uri = f"http://127.0.0.1:{port}"
     mp = pytest.MonkeyPatch()
@@ -71,25 +115,11 @@ def roscore(ros_available, tmp_path_factory):
     mp.delenv("ROS_IP", raising=False)
     mp.setenv("ROS_HOME", str(tmp_path_factory.mktemp("ros_home")))
     mp.setenv("WARPVX_CACHE_DIR", str(tmp_path_factory.mktemp("calibration")))
-    log = open(tmp_path_factory.mktemp("roscore") / "roscore.log", "w+")
-    proc = subprocess.Popen(["roscore", "-p", str(port)], stdout=log, stderr=subprocess.STDOUT,
-                            start_new_session=True)
     try:
-        deadline = time.monotonic() + WAIT
-        while not rosgraph.is_master_online(uri):
-            if proc.poll() is not None or time.monotonic() > deadline:
-                log.seek(0)
-                pytest.fail(f"roscore did not start on port {port}: {log.read()[-2000:]}")
-            time.sleep(0.1)
+        proc = start_roscore(port, tmp_path_factory.mktemp("roscore") / "roscore.log")
         yield uri
+        kill_roscore(proc)
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(WAIT)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        log.close()
         mp.undo()
 
 
@@ -167,20 +197,35 @@ def wait_connected(*endpoints, timeout=WAIT):
 
 @pytest.fixture
 def node_process(roscore):
-    """Start ``warpvx <args>`` as a ROS node process; stopped with SIGINT at teardown (its
-    output is then in ``proc.output``)."""
+    """Start ``warpvx <args>`` as a ROS node process (or ``python -c code <args>``; ``env``:
+    variables over this process' environment); stopped with SIGINT at teardown. Its output so far is in ``proc.lines``
+    (:func:`wait_output`), all of it in ``proc.output`` once stopped (:func:`stop`)."""
     procs = []
 
-    def start(*args):
-        proc = subprocess.Popen([sys.executable, "-m", "warpvx", *args], cwd=REPO,
-                                env={**os.environ, "PYTHONPATH": str(REPO)}, text=True,
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    def start(*args, env=None, code=None):
+        run = ("-c", code) if code else ("-m", "warpvx")
+        proc = subprocess.Popen([sys.executable, *run, *args], cwd=REPO,
+                                env={**os.environ, "PYTHONPATH": str(REPO), **(env or {})},
+                                text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        proc.lines = []
+        proc.reader = threading.Thread(target=lambda: proc.lines.extend(proc.stdout), daemon=True)
+        proc.reader.start()
         procs.append(proc)
         return proc
 
     yield start
     for proc in procs:
         print(f"--- output of {proc.args[2:]}:\n{stop(proc)[-3000:]}")  # shown when a test fails
+
+
+def wait_output(proc, text, timeout=WAIT):
+    """Wait until a line of ``proc``'s output (a :func:`node_process`) contains ``text``."""
+    deadline = time.monotonic() + timeout
+    while not any(text in line for line in list(proc.lines)):
+        if time.monotonic() > deadline or proc.poll() is not None and not proc.reader.is_alive():
+            pytest.fail(f"no {text!r} in the node's output within {timeout} s:\n"
+                        f"{''.join(proc.lines)[-3000:]}")
+        time.sleep(0.05)
 
 
 def stop(proc, timeout=WAIT):
@@ -190,9 +235,14 @@ def stop(proc, timeout=WAIT):
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
     try:
-        proc.output = proc.communicate(timeout=timeout)[0]
+        proc.wait(timeout)
+        hung = False
     except subprocess.TimeoutExpired:
         proc.kill()
-        proc.output = proc.communicate()[0]
+        proc.wait()
+        hung = True
+    proc.reader.join(timeout)
+    proc.output = "".join(proc.lines)
+    if hung:
         pytest.fail(f"node did not stop within {timeout} s on SIGINT:\n{proc.output[-3000:]}")
     return proc.output

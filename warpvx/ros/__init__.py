@@ -22,10 +22,11 @@ from .client import (FrameQueue, FrameStats, GraphClient, Topic, camera_info_inp
 from .convert import (ENCODINGS, array_to_image, camera_matrix, image_to_array,
                       matrix_to_multiarray, multiarray_to_matrix, path_message, pose_matrix,
                       pose_message)
+from .master import MasterWatchdog
 from .server import GraphServer, call_process_image, process_image_service
 
 __all__ = [
-    "import_rospy", "GraphClient", "GraphServer", "call_process_image", "process_image_service",
+    "import_rospy", "MasterWatchdog", "GraphClient", "GraphServer", "call_process_image", "process_image_service",
     "FrameQueue", "FrameStats", "Topic", "image_input", "camera_info_input", "image_output",
     "matrix_output", "ENCODINGS", "image_to_array", "array_to_image", "camera_matrix",
     "matrix_to_multiarray", "multiarray_to_matrix", "pose_message", "pose_matrix", "path_message",

@@ -195,6 +195,7 @@ class GraphClient:
         (self._camera_name, self._camera), *others = inputs.items()
         self._subs = [rospy.Subscriber(self._camera.topic, _msg(*self._camera.msg_type),
                                        self._on_camera, queue_size=None, buff_size=1 << 24)]
+        self._camera_topic = self._subs[0].resolved_name  # "image" logs as "/camera/image_raw"
         self._subs += [rospy.Subscriber(t.topic, _msg(*t.msg_type), self._on_latest, (name, t))
                        for name, t in others]
         self._others = {name: t.topic for name, t in others}
@@ -223,13 +224,13 @@ class GraphClient:
         try:
             frame = {self._camera_name: self._camera.convert(msg)}
         except WarpvxError as exc:
-            self._reject(f"{self._camera.topic}: frame rejected: {exc}")
+            self._reject(f"{self._camera_topic}: frame rejected: {exc}")
             return
         with self._latest_lock:
             missing = [t for n, t in self._others.items() if n not in self._latest]
             frame.update(self._latest)
         if missing:
-            self._reject(f"{self._camera.topic}: frame rejected: waiting for a first message on "
+            self._reject(f"{self._camera_topic}: frame rejected: waiting for a first message on "
                          f"{missing}")
             return
         frame.update(self._constants)
@@ -255,10 +256,10 @@ class GraphClient:
                 return None
             if item is not None:
                 if silent:
-                    self.rospy.loginfo(f"warpvx: {self._camera.topic}: frames again")
+                    self.rospy.loginfo(f"warpvx: {self._camera_topic}: frames again")
                 return item
             if not silent:
-                self.rospy.logwarn(f"warpvx: {self._camera.topic}: no frame for {self.watchdog:g} s "
+                self.rospy.logwarn(f"warpvx: {self._camera_topic}: no frame for {self.watchdog:g} s "
                                    f"(publisher gone?); waiting")
                 silent = True
 
@@ -277,7 +278,7 @@ class GraphClient:
                 for name, value in graph_frame.items():
                     check_input(self.graph.inputs[name], value)
             except WarpvxError as exc:
-                self._reject(f"{self._camera.topic}: frame rejected: {exc} (did the image size "
+                self._reject(f"{self._camera_topic}: frame rejected: {exc} (did the image size "
                              f"change mid-stream?)")
             else:
                 self._in_flight.append((header, frame))
@@ -328,7 +329,7 @@ class GraphClient:
         self._thread.join(timeout)
         if self._thread.is_alive():
             self.rospy.logwarn(f"warpvx: the processing thread did not stop within {timeout:g} s")
-        self.rospy.loginfo(f"warpvx: {self._camera.topic}: {self.stats.summary()}")
+        self.rospy.loginfo(f"warpvx: {self._camera_topic}: {self.stats.summary()}")
         for pub in [*self._pubs.values(), self._dropped_pub]:
             if pub is not None:
                 pub.unregister()

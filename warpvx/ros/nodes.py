@@ -25,7 +25,11 @@ ORB on the GPU role, Hamming matching, tracking on the CPU with its state in a d
 The graph is built on the first frame with the camera info's K; a later K is not applied.
 
 Both publish ``~dropped`` (std_msgs/UInt64, frames skipped at the processing rate so far) and
-log a frame summary at shutdown.
+log a frame summary at shutdown. Faults are logged and the node goes on: a camera publisher
+that stops (a warning after ``~watchdog`` s of silence, a line when frames come again), and
+roscore going away (``~master_check``: seconds between checks; one error line when the master is
+unreachable, one when it is back, :class:`~warpvx.ros.master.MasterWatchdog`). Ctrl-C (SIGINT)
+stops the node with or without a master.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ import numpy as np
 
 from ._env import import_rospy, msg as _msg
 from .client import GraphClient, Topic, camera_info_input, image_input, image_output, matrix_output
+from .master import MasterWatchdog
 
 NODES = ("ros-stabilize", "ros-orbslam")
 
@@ -46,6 +51,8 @@ def _params(rospy, defaults: dict) -> dict:
 
 
 _CLIENT = {"queue_size": 2, "depth": 2, "watchdog": 5.0, "publish_queue": 10}
+#: Parameters of the node itself: seconds between checks that roscore is still there.
+_NODE = {"master_check": 2.0}
 
 
 def _client_args(p):
@@ -71,7 +78,7 @@ def stabilize_client(params: dict) -> GraphClient:
 
 
 STABILIZE_PARAMS = {"backend": "cpu", "window": 15, "mode": "causal", "crop": 0.1,
-                    "motion": "homography", "detector": "harris", **_CLIENT}
+                    "motion": "homography", "detector": "harris", **_CLIENT, **_NODE}
 
 
 def orbslam_client(params: dict) -> GraphClient:
@@ -105,7 +112,7 @@ def orbslam_client(params: dict) -> GraphClient:
         post=post, **_client_args(params))
 
 
-ORBSLAM_PARAMS = {"backend": "cpu", "n_features": 2000, "world_frame": "world", **_CLIENT}
+ORBSLAM_PARAMS = {"backend": "cpu", "n_features": 2000, "world_frame": "world", **_CLIENT, **_NODE}
 
 _NODES = {"ros-stabilize": ("warpvx_stabilize", STABILIZE_PARAMS, stabilize_client),
           "ros-orbslam": ("warpvx_orbslam", ORBSLAM_PARAMS, orbslam_client)}
@@ -128,8 +135,11 @@ def main(command: str, argv) -> int:
         print(f"warpvx {command}: error: unexpected arguments {extra} (ROS remappings look like "
               f"name:=/topic, parameters _name:=value)", file=sys.stderr)
         return 2
-    client = make(_params(rospy, defaults))
+    params = _params(rospy, defaults)
+    master = MasterWatchdog(params["master_check"])
+    client = make(params)
     rospy.on_shutdown(client.close)
+    rospy.on_shutdown(master.close)
     rospy.loginfo(f"warpvx {command}: running on {rospy.resolve_name('image')}")
     rospy.spin()
     return 0
