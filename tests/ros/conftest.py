@@ -17,9 +17,9 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.images import clip_frames
 from tests.isolated import ROOT as REPO
 
-CLIP = REPO / "warpvx" / "data" / "bikes_shaky.mp4"
 CASTLE = REPO.parent.parent / "shared" / "data" / "real" / "castle_simu"
 CASTLE = CASTLE if CASTLE.is_dir() else REPO.parent / "shared" / "data" / "real" / "castle_simu"
 #: Seconds any wait in these tests may take before it fails (no test hangs).
@@ -138,13 +138,7 @@ def rospy(roscore):
 @pytest.fixture(scope="session")
 def bikes():
     """The first 12 frames of the bundled hand-held clip at 320x136 (BGR uint8)."""
-    cap = cv2.VideoCapture(str(CLIP))
-    frames = []
-    while len(frames) < 12:
-        ok, frame = cap.read()
-        assert ok, "the bundled clip is shorter than 12 frames"
-        frames.append(cv2.resize(frame, (320, 136), interpolation=cv2.INTER_AREA))
-    return frames
+    return clip_frames(12)
 
 
 @pytest.fixture(scope="session")

@@ -37,6 +37,7 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
+from .placement import schedule
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
 # ORB-SLAM2's ORBmatcher thresholds (Hamming distance, 256-bit descriptors).
@@ -468,12 +469,6 @@ def build_graph(camera: Camera, config: TrackerConfig = TrackerConfig(), *, back
     g.output("pose", pose)
     g.output("stats", stats)
     return g
-
-
-def schedule(graph, backend="cpu"):
-    """Place ``graph`` with the scheduler (policy ``best``): CPU workers only for ``"cpu"``,
-    CPU workers plus the Warp device otherwise. Returns the plan."""
-    return graph.schedule("best", gpu=False if backend == "cpu" else backend)
 
 
 @dataclasses.dataclass

@@ -51,6 +51,7 @@ from collections import deque
 import numpy as np
 
 from ..errors import WarpvxValueError
+from .placement import schedule
 from .video_io import VideoSource, open_writer  # noqa: F401  (public API: frames in, video out)
 
 MOTIONS = ("homography", "similarity", "translation")
@@ -439,12 +440,6 @@ def build_graph(size, config: StabilizerConfig = StabilizerConfig(), *, backend=
     g.output("trajectory", trajectory)
     g.output("motion", motion)
     return g
-
-
-def schedule(graph, backend="cpu"):
-    """Place ``graph`` with the scheduler (policy ``best``): CPU workers only for ``"cpu"``,
-    CPU workers plus the Warp device otherwise. Returns the plan."""
-    return graph.schedule("best", gpu=False if backend == "cpu" else backend)
 
 
 # --------------------------------------------------------------------------- running
