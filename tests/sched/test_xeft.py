@@ -1,6 +1,12 @@
 """XEFT (thesis Algorithm 1) and best-of, on hand-checked DAGs."""
 
-from warpvx.sched import best, cpu_gpu_dag, heft, validate_schedule, xeft, xeft_order
+import pytest
+
+from warpvx.sched import (
+    best, cpu_gpu_dag, heft, random_dag, validate_schedule, xeft, xeft_order,
+)
+from warpvx.sched.dag import prepare
+from warpvx.sched.policies import _heft_order, _place, _xeft_order
 
 from .dags import fig51_dag, spans
 
@@ -125,3 +131,23 @@ def test_xeft_order_moves_dependent_tasks_before_the_cluster_in_order():
     assert xeft_order(dag) == ["r", "x", "y", "g", "c", "z"]
     for s in (heft(dag), xeft(dag)):
         validate_schedule(dag, s)
+
+
+@pytest.mark.parametrize("shape", [
+    ("linear", 150, 0.2, 0.8, (0.5, 2), 5, 7),
+    ("linear", 45, 0.8, 0.8, (1, 4), 4, 8),
+])
+def test_xeft_keeps_the_shorter_of_mean_and_best_cost_ranks(shape):
+    # On these DAGs Algorithm 1 on ranks from best costs ends first; the thesis' list (mean
+    # costs) must lose to it, and the other way round XEFT would never be longer than it.
+    kind, n, p_single, p_cpu, speedup, n_cpus, seed = shape
+    dag = random_dag(n, kind, p_single=p_single, p_cpu_only=p_cpu, gpu_speedup=speedup,
+                     n_cpus=n_cpus, seed=seed)
+    problem = prepare(dag)
+    thesis = _xeft_order(problem, _heft_order(problem))
+    thesis_span = max(_place(problem, thesis)[2])
+    s = xeft(dag)
+    validate_schedule(dag, s)
+    assert s.makespan < thesis_span
+    assert s.priority == xeft_order(dag) != [problem.names[i] for i in thesis]
+    assert best(dag).makespan == min(s.makespan, heft(dag).makespan)

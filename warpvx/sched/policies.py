@@ -27,7 +27,11 @@ def _mean_costs(problem: Problem) -> list:
     return [sum(row[k] for k in runs) / len(runs) for row, runs in zip(problem.cost, problem.can)]
 
 
-def _upward_rank(problem: Problem) -> list:
+def _best_costs(problem: Problem) -> list:
+    return [min(row[k] for k in runs) for row, runs in zip(problem.cost, problem.can)]
+
+
+def _upward_rank(problem: Problem, node_cost: list | None = None) -> list:
     """rank(t) = mean_w(t) + max over successors q of (mean_c(t, q) + rank(q)) (thesis eq. 1).
 
     mean_w: mean cost over the processors that can run t. mean_c: without a memory model the
@@ -36,8 +40,9 @@ def _upward_rank(problem: Problem) -> list:
     included) that lie in different memory spaces. In a DAG with frames only successors of the
     same frame count: the order is frame-major anyway, and a frame's rank list is then the one
     of that frame alone (inter-frame edges would inflate the ranks of a frame's sources).
+    ``node_cost`` (task -> cost) replaces mean_w, e.g. by the best cost (:func:`_best_costs`).
     """
-    mean_cost = _mean_costs(problem)
+    mean_cost = _mean_costs(problem) if node_cost is None else node_cost
     n = len(mean_cost)
     rank = [0.0] * n
     succs = problem.succs
@@ -261,7 +266,8 @@ def xeft(dag: nx.DiGraph) -> Schedule:
 
     The reordering builds clusters of mutually independent exclusive tasks that are adjacent
     in the list, so tasks that cannot compete for one processor kind run side by side
-    (exclusive overlap, thesis §5.2). See :func:`xeft_order` for the exact rules.
+    (exclusive overlap, thesis §5.2). See :func:`xeft_order` for the exact rules and for the
+    second rank list (best costs) tried besides HEFT's.
 
     Returns
     -------
@@ -269,8 +275,8 @@ def xeft(dag: nx.DiGraph) -> Schedule:
         ``policy="xeft"``, ``priority`` the reordered list.
     """
     problem = prepare(dag)
-    order = _xeft_order(problem, _heft_order(problem))
-    return _to_schedule(problem, *_place(problem, order), "xeft", order)
+    order, placed = _xeft(problem, _heft_order(problem))
+    return _to_schedule(problem, *placed, "xeft", order)
 
 
 def xeft_order(dag: nx.DiGraph) -> list:
@@ -293,10 +299,31 @@ def xeft_order(dag: nx.DiGraph) -> list:
 
     With two kinds (CPUs and one GPU) this is the thesis' algorithm: ``total_gpu <
     total_cpu / n_cores`` picks the GPU tasks, else the CPU tasks.
+
+    The rank list walked is HEFT's (mean costs) or the one of ranks from each task's best
+    cost, whichever list, once reordered and placed, ends first (ties: HEFT's). The rank
+    function is a free choice of HEFT (Zhao and Sakellariou, "An experimental investigation
+    into the rank function of the heterogeneous earliest finish time scheduling algorithm",
+    Euro-Par 2003); the best cost suits tasks whose CPU and GPU costs differ by an order of
+    magnitude, where the mean overstates a task that will run on its fast processor.
     """
     problem = prepare(dag)
-    order = _xeft_order(problem, _heft_order(problem))
+    order, _ = _xeft(problem, _heft_order(problem))
     return [problem.names[i] for i in order]
+
+
+def _xeft(problem: Problem, heft_order: list):
+    """XEFT's (order, placement) from HEFT's rank list, see :func:`xeft_order`."""
+    order = _xeft_order(problem, heft_order)
+    placed = _place(problem, order)
+    if all(e < 0 for e in problem.excl):
+        return order, placed  # no clusters: XEFT is HEFT
+    alt = _xeft_order(problem, _rank_order(problem, _upward_rank(problem, _best_costs(problem))))
+    if alt != order:
+        alt_placed = _place(problem, alt)
+        if max(alt_placed[2]) < max(placed[2]):
+            return alt, alt_placed
+    return order, placed
 
 
 def _descendant_bits(problem: Problem) -> list:
@@ -444,15 +471,11 @@ def best(dag: nx.DiGraph) -> Schedule:
     problem = prepare(dag)
     order_h = _heft_order(problem)
     placed_h = _place(problem, order_h)
-    order_x = _xeft_order(problem, order_h)
-    if order_x == order_h:
-        chosen, order, placed = "heft", order_h, placed_h
+    order_x, placed_x = _xeft(problem, order_h)
+    if order_x != order_h and max(placed_x[2]) < max(placed_h[2]):
+        chosen, order, placed = "xeft", order_x, placed_x
     else:
-        placed_x = _place(problem, order_x)
-        if max(placed_x[2]) < max(placed_h[2]):
-            chosen, order, placed = "xeft", order_x, placed_x
-        else:
-            chosen, order, placed = "heft", order_h, placed_h
+        chosen, order, placed = "heft", order_h, placed_h
     sched = _to_schedule(problem, *placed, "best", order)
     sched.info["chosen"] = chosen
     return sched
