@@ -180,7 +180,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     args.measure = {int(c) for c in args.measure_cpus.split(",") if c}
     os.makedirs(args.out, exist_ok=True)
-    command = "python benchmarks/table51.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = "PYTHONPATH=. python benchmarks/table51.py " + " ".join(sys.argv[1:] if argv is None else argv)
     if args.authors:
         if not args.authors_csv:
             ap.error("--authors needs --authors-csv (their orb_graph.csv)")
