@@ -17,6 +17,7 @@ after :attr:`Runner.stream_wait` seconds.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import threading
 import time
 import weakref
@@ -183,7 +184,7 @@ class Runner:
             where = HOST
             if not isinstance(value, np.ndarray) and hasattr(value, "device") and hasattr(value, "ptr"):
                 all_host = False
-                if device is not None and str(value.device) == str(device):
+                if device is not None and str(value.device) == _device_name(device):
                     where = DEVICE
                 else:
                     value = value.numpy()
@@ -225,7 +226,7 @@ class Runner:
                 self.verify(inputs if isinstance(inputs, dict) else self._as_dict(inputs))
             plan = self._ensure_plan(None)
             ex = plan.executor()
-            feed, all_host = self._frame_inputs(inputs, ex.gpu_device and _device_name(ex.gpu_device))
+            feed, all_host = self._frame_inputs(inputs, ex.gpu_device)
             ex.reanchor(max_age=5.0)
             frame = ex.submit(self._next_frame(), feed)
             try:
@@ -288,8 +289,7 @@ class Runner:
                         ex = plan.executor()
                         ex.reanchor()
                         plan.last_run.clear()
-                    feed, all_host = self._frame_inputs(
-                        item, ex.gpu_device and _device_name(ex.gpu_device))
+                    feed, all_host = self._frame_inputs(item, ex.gpu_device)
                     pending.append((ex.submit(self._next_frame(), feed), all_host))
                 except StopIteration:
                     break
@@ -357,7 +357,9 @@ def _timing_only(result):
     return dataclasses.replace(result, outputs={})
 
 
-def _device_name(device):
+@functools.lru_cache(maxsize=None)
+def _device_name(device) -> str:
+    """Warp's name of ``device`` (``"cuda"`` -> ``"cuda:0"``), resolved once per device."""
     from ..backend import init_warp
 
     return str(init_warp().get_device(device))
