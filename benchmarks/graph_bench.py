@@ -364,7 +364,7 @@ def choose_threading(g, frames, args) -> dict:
         plan = g.schedule("heft", n_cpus=args.n_cpus, gpu=args.gpu)
         run_frames(g, plan, sample[:2])
         runs, _ = run_frames(g, plan, sample)
-        return statistics.median(r.makespan for r in runs)
+        return median_span(runs)
 
     out = {"switch": {}, "spin": {}}
     if args.switch_interval is not None:

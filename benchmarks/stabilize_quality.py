@@ -32,7 +32,6 @@ import time
 from importlib.resources import files
 
 import cv2
-import numpy as np
 
 from warpvx.apps import stabilize as st
 from warpvx.apps import stabilize_metrics as sm

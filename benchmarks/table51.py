@@ -126,7 +126,6 @@ def _camera_frames(n_cams, width, height, n_frames):
 
 def gpu_table(args) -> tuple[list, str]:
     import warpvx
-    from warpvx.sched import frame_times  # noqa: F401  (documents where period comes from)
 
     rows = []
     dls = [None if d == "none" else float(d) for d in args.dl.split(",")]

@@ -22,7 +22,6 @@ replaces the recorded study) or ``python -m warpvx.sched.study ...``.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
