@@ -18,7 +18,6 @@ layout (``image_0/``, ``image_1/``, ``calib.txt`` with P0/P1, ``times.txt``, ``p
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np

@@ -23,8 +23,6 @@ import time
 from collections import deque
 from typing import Callable
 
-import numpy as np
-
 from ..errors import WarpvxError, WarpvxValueError
 from ._env import import_rospy, msg as _msg
 from .convert import array_to_image, camera_matrix, check_encoding, image_to_array, matrix_to_multiarray
