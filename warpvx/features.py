@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from .backend import resolve_backend
-from .check import check_array, check_choice, check_float, check_image, check_int
+from .check import check_choice, check_float, check_image, check_int, check_out
 from .errors import WarpvxTypeError
 from .keypoints import Keypoints
 from .registry import dispatch
@@ -142,7 +142,7 @@ def harris_response(src, block_size: int = 2, ksize: int = 3, k: float = 0.04, *
     k = check_float(k, "k")
     score = check_choice(score, "score", SCORES)
     if out is not None:
-        check_array(out, "out", shape=tuple(src.shape[:2]), dtypes=(np.float32,))
+        check_out(out, tuple(src.shape[:2]), inputs=(("src", src),), dtypes=(np.float32,))
     return dispatch("harris_response", be, src, block_size, ksize, k, score=score, out=out,
                     stream=stream)
 

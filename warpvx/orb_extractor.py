@@ -13,7 +13,7 @@ import numpy as np
 
 from ._orb_spec import DESCRIPTOR_BYTES, MAX_SIDE, MIN_LEVEL_SIZE
 from .backend import resolve_backend
-from .check import check_array, check_float, check_image, check_int
+from .check import check_float, check_image, check_int, check_out
 from .errors import ShapeError, WarpvxTypeError, WarpvxValueError
 from .keypoints import Keypoints, check_keypoints
 from .pyramid import scale_pyramid_sizes
@@ -192,9 +192,7 @@ def orb_compute(src, keypoints, scale_factor: float = 1.2, *, out=None, backend=
         raise ShapeError(f"src: image of {w}x{h} (WxH) has no pyramid level {n_levels - 1} "
                          f"(keypoints: octave {n_levels - 1}) at scale_factor {scale_factor}")
     if out is not None:
-        check_array(out, "out", shape=(len(host), DESCRIPTOR_BYTES), dtypes=(np.uint8,))
-        if isinstance(out, np.ndarray) and not out.flags.writeable:
-            raise WarpvxValueError("out: expected a writable array, got a read-only one")
+        check_out(out, (len(host), DESCRIPTOR_BYTES))
     return dispatch("orb_compute", be, src, keypoints, scale_factor, n_levels, out=out,
                     stream=stream)
 
