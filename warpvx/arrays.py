@@ -167,3 +167,17 @@ def _convert(obj, host: bool, device):
     if hasattr(obj, "to") and callable(obj.to):
         return obj.to("host" if host else device)
     return obj
+
+
+def contiguous(x):
+    """``x``, or one C-contiguous copy of it when it is a strided NumPy view or ``wp.array``
+    (on its own device); anything else (None, lists, contiguous arrays) unchanged.
+
+    cv2 reads ROI slices and negative strides (``bgr[:, :, ::-1]``) directly and graph inputs
+    may be views; warpvx's kernels take C-contiguous arrays, so such a view is copied once.
+    """
+    if isinstance(x, np.ndarray):
+        return x if x.flags.c_contiguous else np.ascontiguousarray(x)
+    if is_warp_array(x) and not is_contiguous(x):
+        return x.contiguous()
+    return x

@@ -18,7 +18,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .arrays import as_input, byte_range, is_contiguous, numpy_dtype
+from .arrays import as_input, byte_range, is_contiguous, is_warp_array, numpy_dtype
 from .errors import DTypeError, ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
 
 
@@ -202,15 +202,18 @@ def check_output_size(width: int, height: int, name: str) -> None:
             f"{MAX_OUTPUT_PIXELS} in all, got {width}x{height} (WxH)")
 
 
-def check_out(out, shape, *, inputs=(), in_place=False, dtypes=(np.uint8,)):
-    """Validate an ``out=`` array: shape, dtype, C-contiguity, writable, and no memory shared
-    with the ``inputs`` (``(name, array)`` pairs), which a kernel would read after writing.
+def check_out(out, shape, *, inputs=(), in_place=False, dtypes=(np.uint8,), name="out"):
+    """Validate an ``out=`` array (None passes: no output given): shape, dtype, C-contiguity,
+    writable, and no memory shared with the ``inputs`` (``(name, array)`` pairs), which a
+    kernel would read after writing. ``name`` is the argument named in errors.
 
     ``in_place``: ``out`` may be exactly an input (same address and shape), for kernels that
     support it; a partial overlap (a shifted view) is refused all the same.
     """
-    out = check_array(out, "out", shape=shape, dtypes=dtypes)
-    check_writable(out)
+    if out is None:
+        return None
+    out = check_array(out, name, shape=shape, dtypes=dtypes)
+    check_writable(out, name)
     for name, a in inputs:
         if not _overlap(out, a):
             continue
@@ -221,6 +224,22 @@ def check_out(out, shape, *, inputs=(), in_place=False, dtypes=(np.uint8,)):
             f"out: expected memory apart from {name}, got an array that {what} {name} "
             f"(pass a separate array{'' if not in_place else ' or ' + name + ' itself'})")
     return out
+
+
+def check_outs(out, specs):
+    """Validate an ``out=`` tuple of arrays, one per ``(label, shape, dtypes)`` in ``specs``,
+    each with :func:`check_out` under the name ``out[i] (label)``; returns the tuple."""
+    labels = ", ".join(label for label, _, _ in specs)
+    if not isinstance(out, (tuple, list)) or len(out) != len(specs):
+        raise WarpvxTypeError(f"out: expected a tuple ({labels}) of arrays, got "
+                              f"{type(out).__name__}")
+    checked = []
+    for i, (a, (label, shape, dtypes)) in enumerate(zip(out, specs)):
+        name = f"out[{i}] ({label})"
+        if not (isinstance(a, np.ndarray) or is_warp_array(a)):
+            raise WarpvxTypeError(f"{name}: expected a NumPy or Warp array, got {type(a).__name__}")
+        checked.append(check_out(a, shape, dtypes=dtypes, name=name))
+    return tuple(checked)
 
 
 def check_writable(out, name: str = "out") -> None:

@@ -141,8 +141,7 @@ def harris_response(src, block_size: int = 2, ksize: int = 3, k: float = 0.04, *
     ksize = check_choice(int(ksize), "ksize", KSIZES)
     k = check_float(k, "k")
     score = check_choice(score, "score", SCORES)
-    if out is not None:
-        check_out(out, tuple(src.shape[:2]), inputs=(("src", src),), dtypes=(np.float32,))
+    check_out(out, tuple(src.shape[:2]), inputs=(("src", src),), dtypes=(np.float32,))
     return dispatch("harris_response", be, src, block_size, ksize, k, score=score, out=out,
                     stream=stream)
 

@@ -64,8 +64,7 @@ def gaussian_blur(src, ksize, sigma, border="reflect101", *, out=None, backend=N
     if sy == 0:
         sy = sx
     code = mode_code(border, "border", FILTER_BORDERS)
-    if out is not None:
-        check_out(out, tuple(src.shape), inputs=(("src", src),), in_place=True)
+    check_out(out, tuple(src.shape), inputs=(("src", src),), in_place=True)
     return dispatch("gaussian_blur", be, src, (kx, ky), (sx, sy), code, out=out, stream=stream)
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .backend import resolve_backend
-from .check import check_array, check_float, check_image, check_int, check_size
+from .check import check_array, check_float, check_image, check_int, check_outs, check_size
 from .errors import ShapeError, WarpvxValueError
 from .registry import dispatch
 
@@ -120,7 +120,8 @@ def optical_flow_pyr_lk(
     n = pts.shape[0]
     guess = None if next_pts is None else _check_points(next_pts, "next_pts", n)
     if out is not None:
-        out = _check_out(out, n)
+        out = check_outs(out, [("next_pts", (n, 2), (np.float32,)), ("status", (n,), (np.uint8,)),
+                               ("err", (n,), (np.float32,))])
     return dispatch(
         "optical_flow_pyr_lk",
         be,
@@ -249,20 +250,6 @@ def _check_points(p, name, n=None):
     if len(shape) == 3:
         arr = arr.reshape((shape[0], 2))
     return arr
-
-
-def _check_out(out, n):
-    try:
-        pts, status, err = out
-    except (TypeError, ValueError):
-        raise WarpvxValueError(
-            "out: expected a tuple (next_pts, status, err), got " + type(out).__name__
-        ) from None
-    return (
-        check_array(pts, "out[0] (next_pts)", shape=(n, 2), dtypes=(np.float32,)),
-        check_array(status, "out[1] (status)", shape=(n,), dtypes=(np.uint8,)),
-        check_array(err, "out[2] (err)", shape=(n,), dtypes=(np.float32,)),
-    )
 
 
 def _pyramid(img, max_level: int, be, stream) -> list:

@@ -84,8 +84,8 @@ def remap(src, map_x, map_y, interpolation="linear", border="constant", border_v
     channels = 1 if src.ndim == 2 else src.shape[2]
     bval = _border_value(border_value)
     h, w = map_x.shape
-    _check_out(out, (h, w) if channels == 1 else (h, w, channels),
-               (("src", src), ("map_x", map_x), ("map_y", map_y)))
+    check_out(out, (h, w) if channels == 1 else (h, w, channels),
+              inputs=(("src", src), ("map_x", map_x), ("map_y", map_y)))
     return dispatch("remap", be, src, map_x, map_y, interp, bmode, bval, out=out, stream=stream)
 
 
@@ -152,7 +152,7 @@ def warp_perspective(src, M, dsize, interpolation="linear", inverse_map=False, b
     bmode = mode_code(border, "border", SAMPLER_BORDERS)
     channels = 1 if src.ndim == 2 else src.shape[2]
     bval = _border_value(border_value)
-    _check_out(out, (h, w) if channels == 1 else (h, w, channels), (("src", src),))
+    check_out(out, (h, w) if channels == 1 else (h, w, channels), inputs=(("src", src),))
     coeffs = _dst_to_src(m, bool(inverse_map))
     return dispatch("warp_perspective", be, src, coeffs, (w, h), interp, bmode, bval, out=out,
                     stream=stream)
@@ -229,6 +229,3 @@ def _saturated_border_value(value) -> tuple:
     return tuple(float(min(255, max(0, round(v)))) for v in vals)
 
 
-def _check_out(out, shape, inputs):
-    if out is not None:
-        check_out(out, shape, inputs=inputs)

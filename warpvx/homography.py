@@ -12,7 +12,7 @@ import numpy as np
 
 from .arrays import numpy_dtype
 from .backend import resolve_backend
-from .check import check_array, check_choice, check_float, check_int
+from .check import check_array, check_choice, check_float, check_int, check_outs
 from .errors import DTypeError, ShapeError, WarpvxValueError
 from .registry import dispatch
 
@@ -131,8 +131,7 @@ def _check_out(out, n):
         h, mask = out
     except (TypeError, ValueError):
         raise WarpvxValueError(f"out: expected a pair (H, mask), got {type(out).__name__}") from None
-    return (check_array(h, "out[0] (H)", shape=(3, 3), dtypes=(np.float64,)),
-            check_array(mask, "out[1] (mask)", shape=(n,), dtypes=(np.uint8,)))
+    return check_outs((h, mask), [("H", (3, 3), (np.float64,)), ("mask", (n,), (np.uint8,))])
 
 
 __all__ = ["find_homography", "MAX_ITERS_LIMIT"]

@@ -11,10 +11,9 @@ import numbers
 
 import numpy as np
 
-from .arrays import is_warp_array
 from .backend import resolve_backend
-from .check import check_array, check_float, check_int
-from .errors import ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
+from .check import check_array, check_float, check_int, check_outs
+from .errors import ShapeError, UnsupportedError, WarpvxTypeError
 from .registry import dispatch
 
 def _descriptors(desc1, desc2) -> tuple:
@@ -121,22 +120,9 @@ def knn_match_hamming(desc1, desc2, k: int = 2, *, out=None, backend=None, strea
         raise UnsupportedError(f"k: only k = 1 or 2 is supported, got {k}")
     k = min(k, int(desc2.shape[0]))
     if out is not None:
-        out = _check_out(out, (int(desc1.shape[0]), k))
+        shape = (int(desc1.shape[0]), k)
+        out = check_outs(out, [("indices", shape, (np.int32,)), ("distances", shape, (np.int32,))])
     return dispatch("knn_match_hamming", be, desc1, desc2, k, out=out, stream=stream)
-
-
-def _check_out(out, shape: tuple) -> tuple:
-    """``out`` as a tuple (indices, distances) of writable int32 arrays of ``shape``."""
-    if not isinstance(out, (tuple, list)) or len(out) != 2:
-        raise WarpvxTypeError(f"out: expected a pair (indices, distances) of arrays, got "
-                              f"{type(out).__name__}")
-    for a, name in zip(out, ("out[0] (indices)", "out[1] (distances)")):
-        if not (isinstance(a, np.ndarray) or is_warp_array(a)):
-            raise WarpvxTypeError(f"{name}: expected a NumPy or Warp array, got {type(a).__name__}")
-        check_array(a, name, shape=shape, dtypes=(np.int32,))
-        if isinstance(a, np.ndarray) and not a.flags.writeable:
-            raise WarpvxValueError(f"{name}: expected a writable array, got a read-only one")
-    return tuple(out)
 
 
 __all__ = ["match_hamming", "knn_match_hamming"]

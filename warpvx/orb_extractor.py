@@ -191,8 +191,7 @@ def orb_compute(src, keypoints, scale_factor: float = 1.2, *, out=None, backend=
     if lw < 1 or lh < 1:
         raise ShapeError(f"src: image of {w}x{h} (WxH) has no pyramid level {n_levels - 1} "
                          f"(keypoints: octave {n_levels - 1}) at scale_factor {scale_factor}")
-    if out is not None:
-        check_out(out, (len(host), DESCRIPTOR_BYTES))
+    check_out(out, (len(host), DESCRIPTOR_BYTES))
     return dispatch("orb_compute", be, src, keypoints, scale_factor, n_levels, out=out,
                     stream=stream)
 

@@ -4,23 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..arrays import as_input, is_contiguous, is_warp_array, numpy_dtype
-
-
-def contiguous(x):
-    """``x``, or a C-contiguous copy when it is a strided NumPy view or ``wp.array``.
-
-    cv2 reads ROI slices and negative strides (``bgr[:, :, ::-1]``) directly; warpvx's
-    kernels take C-contiguous arrays, so the drop-ins copy such a view once. Anything else
-    (None, lists, contiguous arrays) is returned unchanged for the callee to validate.
-    """
-    if isinstance(x, np.ndarray):
-        return x if x.flags.c_contiguous else np.ascontiguousarray(x)
-    if is_warp_array(x) and not x.is_contiguous:
-        import warp as wp
-
-        return wp.clone(x)
-    return x
+from ..arrays import as_input, contiguous, is_contiguous, numpy_dtype  # noqa: F401  (contiguous: used by the drop-ins)
 
 
 def channels(src):

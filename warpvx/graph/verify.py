@@ -19,6 +19,7 @@ import zlib
 import networkx as nx
 import numpy as np
 
+from ..arrays import contiguous
 from ..errors import GraphError, WarpvxError
 from ..runtime import Transfers
 from .data import INPUT, DelayRef, describe, synth, zeros_like
@@ -96,18 +97,6 @@ def check_input_names(graph, inputs: dict):
     unknown = [k for k in inputs if k not in graph.inputs]
     if unknown:
         raise GraphError(f"inputs: unknown input(s) {unknown}; the graph has {sorted(graph.inputs)}")
-
-
-def contiguous(value):
-    """A C-contiguous array of ``value``: itself, or (a strided view) one copy of it, on its
-    own device; other values unchanged. Nodes take contiguous arrays."""
-    from ..arrays import is_contiguous, is_warp_array
-
-    if isinstance(value, np.ndarray):
-        return np.ascontiguousarray(value)
-    if is_warp_array(value) and not is_contiguous(value):
-        return value.contiguous()
-    return value
 
 
 def check_input(data, value):
