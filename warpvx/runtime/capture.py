@@ -1,0 +1,189 @@
+"""CUDA-graph capture of GPU segments: consecutive GPU tasks enqueued as one graph launch.
+
+A *segment* is a run of consecutive tasks of the GPU queue (schedule order) that may be
+captured (:attr:`ExecTask.capture`: given ``out=``, the task only enqueues work on the
+current stream), cut wherever a task reads a value a CPU task produces (a CPU hand-off: the
+segment is replayed once all its inputs are there, so a hand-off inside it would hold the
+earlier tasks back). Every other GPU task is a segment of its own, run eagerly.
+:func:`segments` is the pure rule; :class:`SegmentGraph` is one segment captured for one
+input signature (the shapes and dtypes of a frame's inputs): fixed buffers and the graph.
+
+Buffers are static, as a CUDA graph holds pointers: each input the segment reads from
+outside (a graph input, a CPU task's output, an eager GPU task's, a delay's) is copied into
+a fixed device buffer before the replay, each task writes a fixed output buffer
+(``gpu_out``), and each value read outside the segment (by another task, as a graph output,
+by a delay) is copied out into a buffer of the frame's after it, as frames in flight share
+the fixed buffers. Copies and replay run on the executor's stream, in frame order.
+
+Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
+code runs there when asked (``capture=True``), which is how it is tested without a GPU.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .native_copy import copy_device, is_warp_array, to_device, warp
+from .program import InputRef, Program
+
+#: Input signatures (shapes and dtypes of a frame's inputs) whose captures an executor keeps.
+MAX_SIGNATURES = 4
+
+
+class NotCapturable(Exception):
+    """A segment cannot be captured (a value is no single array, a task allocated its result
+    or a capture failed); the executor runs it eagerly."""
+
+
+@dataclass(frozen=True)
+class Segment:
+    """GPU tasks run together.
+
+    Attributes
+    ----------
+    tasks : tuple of ExecTask
+        In GPU queue order.
+    captured : bool
+        A capture candidate; False: one task, run eagerly.
+    inputs : tuple of InputRef
+        What its tasks read from outside it, each once, in order of first use.
+    outputs : tuple of str
+        Keys it produces that are read outside it (by other tasks, as graph outputs, by
+        delays): copied out of the fixed buffers each frame.
+    """
+
+    tasks: tuple
+    captured: bool
+    inputs: tuple = ()
+    outputs: tuple = ()
+
+
+def segments(program: Program, gpu_order) -> list:
+    """Split the GPU queue ``gpu_order`` (task names in schedule order) into :class:`Segment`s.
+
+    A task with ``capture`` joins the current segment unless it reads (at any frame offset)
+    a key produced by a task outside the GPU queue (a CPU hand-off), which starts a new one;
+    a task without ``capture`` is an eager segment of its own and ends the current one.
+    """
+    on_gpu = set(gpu_order)
+    cpu_keys = {k for t in program.tasks.values() if t.name not in on_gpu for k in t.outputs}
+    groups, current = [], []
+    for name in gpu_order:
+        task = program.tasks[name]
+        if not (task.capture and task.gpu_out is not None and len(task.outputs) == 1):
+            if current:
+                groups.append(current)
+                current = []
+            groups.append([task])
+            continue
+        if current and any(r.key in cpu_keys for r in task.inputs):
+            groups.append(current)
+            current = []
+        current.append(task)
+    if current:
+        groups.append(current)
+    return [_segment(program, g) for g in groups]
+
+
+def _segment(program: Program, tasks: list) -> Segment:
+    first = tasks[0]
+    if not (first.capture and first.gpu_out is not None and len(first.outputs) == 1):
+        return Segment((first,), False)
+    names = {t.name for t in tasks}
+    made = {k for t in tasks for k in t.outputs}
+    inputs = []
+    for t in tasks:
+        for r in t.inputs:
+            if (r.offset or r.key not in made) and r not in inputs:
+                inputs.append(r)
+    outside = {r.key for t in program.tasks.values() if t.name not in names for r in t.inputs}
+    outside |= set(program.outputs.values()) | set(program.rings)
+    outputs = tuple(k for t in tasks for k in t.outputs if k in outside)
+    return Segment(tuple(tasks), True, tuple(inputs), outputs)
+
+
+def signature(inputs) -> tuple:
+    """The capture key of a frame's inputs (key -> ``(value, where)``): shapes and dtypes."""
+    return tuple((k, getattr(v, "shape", None), str(getattr(v, "dtype", type(v))))
+                 for k, (v, _) in inputs.items())
+
+
+def _single_array(value):
+    if not (isinstance(value, np.ndarray) or is_warp_array(value)):
+        raise NotCapturable(f"a segment input is a {type(value).__name__}, not one array")
+    return value
+
+
+class SegmentGraph:
+    """A :class:`Segment` captured for one input signature: fixed buffers and its graph.
+
+    Parameters
+    ----------
+    segment : Segment
+    values : list
+        The current frame's values of ``segment.inputs`` (arrays: host or device), which
+        fix the input buffers' shapes and dtypes.
+    device : str
+        Warp device of the GPU role.
+    """
+
+    def __init__(self, segment: Segment, values, device: str):
+        wp = warp()
+        self.segment = segment
+        self.inputs = {}
+        for ref, v in zip(segment.inputs, values):
+            v = _single_array(v)
+            dtype = v.dtype if is_warp_array(v) else wp.dtype_from_numpy(v.dtype)
+            self.inputs[ref] = wp.empty(v.shape, dtype=dtype, device=device)
+        self.outputs = {t.outputs[0]: t.gpu_out() for t in segment.tasks}
+        self.graph = None
+
+    def value(self, ref: InputRef):
+        """The fixed buffer a task of the segment reads for ``ref``."""
+        if ref.offset == 0 and ref.key in self.outputs:
+            return self.outputs[ref.key]
+        return self.inputs[ref]
+
+    def capture(self, device: str, stream):
+        """Capture the segment's tasks writing the fixed buffers (``stream``: CUDA only).
+
+        Raises
+        ------
+        NotCapturable
+            A task did not return its ``out=`` buffer (it allocated), or Warp refused or
+            failed the capture (a host sync or read-back inside, a caller's capture).
+        """
+        wp = warp()
+        try:
+            with wp.ScopedCapture(device=device, stream=stream) as cap:
+                for task in self.segment.tasks:
+                    out = self.outputs[task.outputs[0]]
+                    if task.gpu(*[self.value(r) for r in task.inputs], out=out) is not out:
+                        raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
+        except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
+            raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
+        if cap.graph is None:
+            raise NotCapturable("the capture produced no graph")
+        self.graph = cap.graph
+
+    def fill(self, ref: InputRef, value, io, stream):
+        """Copy this frame's ``value`` of ``ref`` into its fixed buffer (on ``stream``)."""
+        buf = self.inputs[ref]
+        _single_array(value)
+        if tuple(value.shape) != tuple(buf.shape):
+            raise NotCapturable(f"input {ref.key!r}: shape {value.shape} != {buf.shape}")
+        if is_warp_array(value):
+            copy_device(buf, value, stream)
+        elif buf.device.is_cuda:
+            io.upload(value, lambda shape, dtype: buf)
+        else:  # Warp's CPU device: uploads alias host data; the buffer must be written
+            to_device(buf, np.ascontiguousarray(value))
+            io.moved += value.nbytes
+
+    def launch(self, stream):
+        warp().capture_launch(self.graph, stream=stream)
+
+
+__all__ = ["MAX_SIGNATURES", "NotCapturable", "Segment", "SegmentGraph", "segments", "signature"]
