@@ -110,6 +110,16 @@ def signature(inputs) -> tuple:
                  for k, (v, _) in inputs.items())
 
 
+def _workspaces() -> list:
+    """The kernels' cached scratch state (buffers, recorded launches) alive now. A graph holds
+    the raw pointers its kernels were captured with, so it keeps these alive: the kernels'
+    cache may drop them (least recently used) while the graph still replays."""
+    from ..kernels_warp import _launch
+
+    with _launch._workspaces_lock:
+        return list(_launch._WORKSPACES.values())
+
+
 def _single_array(value):
     if not (isinstance(value, np.ndarray) or is_warp_array(value)):
         raise NotCapturable(f"a segment input is a {type(value).__name__}, not one array")
@@ -139,6 +149,7 @@ class SegmentGraph:
             self.inputs[ref] = wp.empty(v.shape, dtype=dtype, device=device)
         self.outputs = {t.outputs[0]: t.gpu_out() for t in segment.tasks}
         self.graph = None
+        self.scratch = ()
 
     def value(self, ref: InputRef):
         """The fixed buffer a task of the segment reads for ``ref``."""
@@ -167,6 +178,8 @@ class SegmentGraph:
         if cap.graph is None:
             raise NotCapturable("the capture produced no graph")
         self.graph = cap.graph
+        self.scratch = _workspaces()
+
 
     def fill(self, ref: InputRef, value, io, stream):
         """Copy this frame's ``value`` of ``ref`` into its fixed buffer (on ``stream``)."""
@@ -174,6 +187,8 @@ class SegmentGraph:
         _single_array(value)
         if tuple(value.shape) != tuple(buf.shape):
             raise NotCapturable(f"input {ref.key!r}: shape {value.shape} != {buf.shape}")
+        if is_warp_array(value) and value.device != buf.device:
+            value = value.numpy()
         if is_warp_array(value):
             copy_device(buf, value, stream)
         elif buf.device.is_cuda:

@@ -393,12 +393,15 @@ class Executor:
                 sg = self._segment_graph(captures, i, seg, frame, state) if captures is not None \
                     and seg.captured else None
                 if sg is not None:
-                    self._run_segment(frame, seg, sg, state)
-                else:
-                    for task in seg.tasks:
-                        if frame.cancel.is_set():
-                            return
-                        self._run_gpu_task(frame, task, state)
+                    try:
+                        self._run_segment(frame, seg, sg, state)
+                        continue
+                    except NotCapturable:  # an input unlike the captured one: eagerly from now
+                        captures[i] = None
+                for task in seg.tasks:
+                    if frame.cancel.is_set():
+                        return
+                    self._run_gpu_task(frame, task, state)
             except Cancelled:
                 return
             except BaseException as exc:  # noqa: BLE001 - reported to the caller
@@ -503,6 +506,7 @@ class Executor:
             return None
         self.captures += 1
         states[i] = sg
+        state.prev_end = None  # the stream idled while the host captured
         return sg
 
     def _wait(self, frame: Frame, slot: Slot, state: "_GpuState") -> Slot:
