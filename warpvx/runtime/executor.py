@@ -331,18 +331,17 @@ class Executor:
     def _publish(self, frame: Frame, task: ExecTask, result, where, event=None):
         n = len(task.outputs)
         if n == 1:
-            values = (result,)
-        else:
-            if not isinstance(result, (tuple, list)) or len(result) != n:
-                raise TypeError(f"expected {n} outputs {task.outputs}, got "
-                                f"{type(result).__name__}")
-            values = tuple(result)
-        for key, value in zip(task.outputs, values):
+            frame.slots[task.outputs[0]].set(result, where, event)
+            return
+        if not isinstance(result, (tuple, list)) or len(result) != n:
+            raise TypeError(f"expected {n} outputs {task.outputs}, got {type(result).__name__}")
+        for key, value in zip(task.outputs, result):
             frame.slots[key].set(value, where, event)
 
     def _ready_inputs(self, frame: Frame, task: ExecTask):
         """``task``'s input slots once all are set, and whether any had to be waited for."""
-        slots = [self._slot(frame, ref) for ref in task.inputs]
+        fs = frame.slots
+        slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref) for ref in task.inputs]
         waited = False
         for s in slots:
             if not s.done.is_set():
