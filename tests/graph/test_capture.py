@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 import warpvx
-from warpvx.errors import NodeExecutionError
 from warpvx.runtime import ExecTask, InputRef, Program, Ring
 from warpvx.runtime.capture import segments
 from tests.isolated import run_python

@@ -41,6 +41,15 @@ Buffers
     Uploads on CUDA work the same way: each host value a GPU task reads is copied into a
     device buffer from a pool of that edge (allocating a ``wp.array`` costs more host time
     than a small copy), returned under the same rules (:meth:`Executor._reuse_rule`).
+Capture
+    The GPU queue is cut into segments (:func:`~warpvx.runtime.capture.segments`): runs of
+    consecutive capturable tasks between CPU hand-offs, and single eager tasks. With capture
+    on (CUDA by default; ``capture=`` per executor or per frame), each segment is captured
+    as one graph per input signature on its second frame of that signature and replayed
+    after: its inputs copied into fixed buffers, one launch, the values read outside it
+    copied out into the frame's buffers, one pair of timing events around it (its tasks
+    share the interval in proportion to their scheduled durations). A segment that cannot
+    be captured runs eagerly; capture is never an error.
 CPU threads
     Calibration times each CPU implementation alone; OpenCV's own thread pool then competes
     with the workers when they run together, so predictions hold best with
@@ -73,8 +82,8 @@ import networkx as nx
 
 from ..errors import NodeExecutionError, ScheduleError, WarpvxValueError
 from ..sched.schedule import Schedule
-from .capture import MAX_SIGNATURES, NotCapturable, Segment, SegmentGraph, segments, signature
-from .native_copy import copy_device, record_event, synchronize_event, warp
+from .capture import NotCapturable, SegmentRunner, segments, signature
+from .native_copy import record_event, synchronize_event, warp
 from .program import ExecTask, InputRef, Program, data_graph
 from .slots import DEVICE, HOST, Slot
 from .timeline import WAIT_SLICE, Cancelled, EventPool, Frame, FrameResult, event_clock, frame_result
@@ -106,7 +115,7 @@ class _GpuState:
         self.task = "<executor>"  # the task running, for error reports
 
 
-class Executor:
+class Executor(SegmentRunner):
     """Run ``program`` according to ``schedule`` on CPU worker threads and a GPU host thread.
 
     Parameters
@@ -470,84 +479,6 @@ class Executor:
             frame.trace[task.name] = (state.proc, h0, h1, mid)
         frame.host_trace[task.name] = (h0, h1)
 
-    # ------------------------------------------------------------------ captured segments
-
-    def _captures_of(self, frame: Frame) -> list:
-        """The capture states of ``frame``'s input signature, one per segment: 0 unseen, 1
-        run eagerly once (caches warm), a :class:`SegmentGraph`, or None (not capturable)."""
-        states = self._captured.get(frame.signature)
-        if states is None:
-            states = self._captured[frame.signature] = [0] * len(self._segments)
-            while len(self._captured) > MAX_SIGNATURES:
-                self._captured.popitem(last=False)
-        else:
-            self._captured.move_to_end(frame.signature)
-        return states
-
-    def _segment_graph(self, states: list, i: int, seg: Segment, frame: Frame,
-                       state: "_GpuState"):
-        """Segment ``i``'s graph for this frame's signature, captured on its second sighting
-        (the first, eager, loads the kernels and fills the primitives' caches, so nothing
-        allocates inside the capture); None: run it eagerly."""
-        sg = states[i]
-        if sg is None or isinstance(sg, SegmentGraph):
-            return sg
-        if sg == 0:
-            states[i] = 1
-            return None
-        slots = [self._wait(frame, self._slot(frame, r), state) for r in seg.inputs]
-        try:
-            sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
-            with self._capture_lock:
-                sg.capture(self.gpu_device, self._stream)
-        except NotCapturable:
-            states[i] = None
-            return None
-        self.captures += 1
-        states[i] = sg
-        state.prev_end = None  # the stream idled while the host captured
-        return sg
-
-    def _wait(self, frame: Frame, slot: Slot, state: "_GpuState") -> Slot:
-        if not slot.done.is_set():
-            state.waited = True
-            frame.wait_slot(slot, self._closing, self.spin)
-        return slot
-
-    def _run_segment(self, frame: Frame, seg: Segment, sg: SegmentGraph, state: "_GpuState"):
-        """Replay ``sg``: inputs copied into its fixed buffers, one graph launch, the values
-        read outside it copied out into the frame's buffers; one timing interval, shared by
-        its tasks in proportion to their scheduled durations."""
-        state.task = seg.tasks[0].name
-        cuda = self.cuda
-        io = state.io
-        state.waited = False
-        slots = [self._wait(frame, self._slot(frame, r), state) for r in seg.inputs]
-        h0 = time.perf_counter()
-        ev0 = self._start_event(frame, state, slots, state.waited) if cuda else h0
-        before = io.moved
-        for ref, s in zip(seg.inputs, slots):
-            sg.fill(ref, s.value, io, self._stream)
-        if io.moved > before:
-            frame.copied[seg.tasks[0].name] = io.moved - before
-        sg.launch(self._stream)
-        outs = dict(sg.outputs)
-        for key in seg.outputs:
-            fixed = sg.outputs[key]
-            outs[key] = self._lease_upload(frame, key, fixed.shape, fixed.dtype)
-            copy_device(outs[key], fixed, self._stream)
-        ev1 = self._end_event(frame) if cuda else None
-        h1 = time.perf_counter()
-        for task in seg.tasks:
-            key = task.outputs[0]
-            frame.slots[key].set(outs[key], DEVICE, ev1)
-            lo, hi = self._shares[task.name]
-            frame.trace[task.name] = (state.proc, ev0, ev1, None) if cuda else \
-                (state.proc, h0, h1, None)
-            frame.shares[task.name] = (lo, hi)
-            frame.host_trace[task.name] = (h0 + lo * (h1 - h0), h0 + hi * (h1 - h0))
-        state.prev_end = ev1
-
     def _lease(self, frame: Frame, task: ExecTask):
         pool = self._out_pools[task.name]
         try:
@@ -620,32 +551,6 @@ class Executor:
             return {}
         g = self._data
         return {key: self._reuse_rule(g, tasks, [key]) for key, tasks in readers.items()}
-
-    def _copy_rule(self, seg: Segment, key: str) -> str:
-        """When the copy of ``key`` a captured segment makes for its frame may be reused
-        (:meth:`_reuse_rule` over the tasks outside ``seg`` that read it)."""
-        inside = {t.name for t in seg.tasks}
-        readers = [t.name for t in self.program.tasks.values() if t.name not in inside
-                   and any(r.key == key for r in t.inputs)]
-        return self._reuse_rule(self._data, readers, [key])
-
-    def _segment_shares(self) -> dict:
-        """task -> (start, end) fractions of its captured segment's measured interval, in
-        proportion to the schedule's durations (a replay is timed as a whole)."""
-        shares = {}
-        for seg in self._segments:
-            if not seg.captured:
-                continue
-            spans = [max(0.0, self.schedule.tasks[t.name].finish - self.schedule.tasks[t.name].start)
-                     for t in seg.tasks]
-            total = sum(spans)
-            spans = spans if total > 0 else [1.0] * len(spans)
-            total = sum(spans)
-            at = 0.0
-            for task, span in zip(seg.tasks, spans):
-                shares[task.name] = (at / total, (at + span) / total)
-                at += span
-        return shares
 
     def _release(self, frame: Frame, host: bool):
         """Frame waited for: its output and upload buffers go back to their pools where
