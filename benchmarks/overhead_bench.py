@@ -29,6 +29,7 @@ import platform
 import statistics
 import sys
 import time
+import traceback
 from pathlib import Path
 
 import cv2
@@ -158,7 +159,7 @@ def markdown(report) -> str:
     for r in report["chains"]:
         lines.append(f"| {r['chain']} | {r['n_nodes']} | {r['per_node_us']:.1f} | "
                      f"{r['per_node_us_stream']:.1f} |")
-    n0, n1 = report["primitive_chain"][0]["nodes"]
+    n0, n1 = report["primitive_chain"][0]["nodes"] if report["primitive_chain"] else ("?", "?")
     lines += ["", f"## GPU-only chain of 3x3 blurs (16x16 uint8): cost of one more node "
                   f"(chains of {n0} and {n1})", "",
               "| mode | us/node (process) | us/node (stream, 4 in flight) | frame of the long "
@@ -178,6 +179,8 @@ def markdown(report) -> str:
             mode = r["mode"] + (cpu_note if r["mode"] == "captured" else "")
             lines.append(f"| {r['depth']} | {mode} | {r['fps']:.1f} | {r['frame_ms_median']:.2f} | "
                          f"{r['frames']} |")
+    for key, err in report["errors"].items():
+        lines += ["", f"**{key} failed**: {err}"]
     return "\n".join(lines) + "\n"
 
 
@@ -210,21 +213,25 @@ def main(argv=None):
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # one core per CPU worker, as the graph benchmark
     t_start = time.perf_counter()
+    sections, errors = {}, {}
     try:
-        print("identity chains", flush=True)
-        chains = _chains(args)
-        print("primitive chain", flush=True)
-        prim = _primitive_chain(args)
-        print("two-camera graph", flush=True)
-        cams = _two_cameras(args)
+        for key, title, run in (("chains", "identity chains", _chains),
+                                ("primitive_chain", "primitive chain", _primitive_chain),
+                                ("two_cameras", "two-camera graph", _two_cameras)):
+            print(title, flush=True)
+            try:
+                sections[key] = run(args)
+            except Exception as exc:  # noqa: BLE001 - the other sections still run and report
+                errors[key] = f"{type(exc).__name__}: {exc}"
+                sections[key] = []
+                traceback.print_exc()
     finally:
         cv2.setNumThreads(threads)
     wp = init_warp()
     report = {"command": command, "machine": f"{platform.node()}|{graph_bench._gpu_name(args.gpu)}",
               "platform": platform.platform(), "python": sys.version.split()[0],
-              "warp": wp.config.version, "gpu": args.gpu, "n_cpus": args.n_cpus,
-              "chains": chains, "primitive_chain": prim, "two_cameras": cams,
-              "seconds": time.perf_counter() - t_start}
+              "warp": wp.config.version, "gpu": args.gpu, "n_cpus": args.n_cpus, **sections,
+              "errors": errors, "seconds": time.perf_counter() - t_start}
     (out_dir / "overhead_bench.json").write_text(json.dumps(report, indent=1, default=str))
     (out_dir / "overhead_bench.md").write_text(markdown(report))
     print(f"wrote {out_dir / 'overhead_bench.md'} in {report['seconds']:.1f} s", flush=True)
