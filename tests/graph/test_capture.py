@@ -289,3 +289,19 @@ def test_error_in_cpu_node_reaches_caller_without_hang(warp_backend):
     lines = res.stdout.split("\n")
     assert "raised 1" in lines, res.stdout  # the gray+blur segment was captured, then the error
     assert "after True" in lines, res.stdout
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_copy_device_copies_the_bytes(warp_backend, native):
+    """The copy a captured segment uses in and out of its fixed buffers: native entry point
+    and Warp's public fallback give the source's bytes."""
+    from warpvx.backend import resolve_backend
+    from warpvx.runtime.native_copy import copy_device
+
+    wp = warpvx.backend.init_warp()
+    device = resolve_backend(warp_backend).device
+    host = np.random.default_rng(5).random((7, 9)).astype(np.float32)
+    src = wp.array(host, device=device)
+    dst = wp.zeros_like(src)
+    copy_device(dst, src, native=native)
+    np.testing.assert_array_equal(dst.numpy(), host)
