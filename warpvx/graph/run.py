@@ -216,10 +216,11 @@ class Runner:
         is copied once to a contiguous one, as the nodes take contiguous arrays.
 
         ``capture``: replay runs of consecutive capturable GPU nodes from CUDA graphs
-        (:mod:`warpvx.runtime.capture`; captured on the second frame of each input shape).
-        None (default): on CUDA; False: never; True: also on Warp's CPU device. Where a
-        capture fails (a node synchronising, a caller's own capture) those nodes run
-        eagerly, never an error.
+        (:mod:`warpvx.runtime.capture`; captured on the second frame). None (default): on
+        CUDA; False: never; True: also on Warp's CPU device. Where a capture fails (a node
+        synchronising, a caller's own capture, inputs of another shape than verification's,
+        for which the nodes' output buffers are not sized) those nodes run eagerly, never
+        an error.
 
         Raises
         ------

@@ -276,10 +276,9 @@ class SegmentRunner:
         for task in seg.tasks:
             key = task.outputs[0]
             frame.slots[key].set(outs[key], DEVICE, ev1)
-            lo, hi = self._shares[task.name]
+            lo, hi = frame.shares[task.name] = self._shares[task.name]
             frame.trace[task.name] = (state.proc, ev0, ev1, None) if cuda else \
                 (state.proc, h0, h1, None)
-            frame.shares[task.name] = (lo, hi)
             frame.host_trace[task.name] = (h0 + lo * (h1 - h0), h0 + hi * (h1 - h0))
         state.prev_end = ev1
 
