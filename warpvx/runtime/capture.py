@@ -17,6 +17,13 @@ the fixed buffers. Copies and replay run on the executor's stream, in frame orde
 
 Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
 code runs there when asked (``capture=True``), which is how it is tested without a GPU.
+
+Limits: Warp's current stream belongs to the device, not the thread, so Warp work another
+thread enqueues on the GPU role's device while a segment is being captured (once per
+segment and signature, on the GPU thread) would land in the graph; the executor's own
+threads enqueue none then (their copies use their own streams and Warp's native entry
+points, and the legacy-stream event of a device input waits for the capture to end). On
+Warp's CPU device a capture is process-wide, hence opt-in there.
 """
 
 from __future__ import annotations
