@@ -43,6 +43,13 @@ wp.set_module_options({"enable_backward": False})
 # --------------------------------------------------------------------------------------------
 
 
+@wp.func
+def cell_of(row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int32), n_cols: int,
+            x: int, y: int) -> int:
+    """The index of the cell owning pixel (x, y) (row-major over the level's cell grid)."""
+    return row_of_y[y] * n_cols + col_of_x[x]
+
+
 @wp.kernel
 def collect_survivors(kept: wp.array2d(dtype=wp.int32), row_of_y: wp.array(dtype=wp.int32),
                       col_of_x: wp.array(dtype=wp.int32), n_cols: int,
@@ -54,7 +61,7 @@ def collect_survivors(kept: wp.array2d(dtype=wp.int32), row_of_y: wp.array(dtype
         slot = wp.atomic_add(count, 0, 1)
         # The capacity bounds strict 3x3 maxima; the guard only keeps a bug in bounds.
         if slot < keys.shape[0]:
-            keys[slot] = candidate_key(0, row_of_y[y] * n_cols + col_of_x[x], y, x, s)
+            keys[slot] = candidate_key(0, cell_of(row_of_y, col_of_x, n_cols, x, y), y, x, s)
 
 
 @wp.kernel
@@ -75,7 +82,7 @@ def count_strong(x: wp.array(dtype=wp.int32), y: wp.array(dtype=wp.int32),
     """Points >= ``ini_th`` per cell."""
     i = wp.tid()
     if score[i] >= ini_th:
-        wp.atomic_add(strong, row_of_y[y[i]] * n_cols + col_of_x[x[i]], 1)
+        wp.atomic_add(strong, cell_of(row_of_y, col_of_x, n_cols, x[i], y[i]), 1)
 
 
 @wp.kernel
@@ -86,7 +93,7 @@ def flag_kept(x: wp.array(dtype=wp.int32), y: wp.array(dtype=wp.int32),
     """1 where a point reaches its cell's threshold (``ini_th`` if the cell has such a point)."""
     i = wp.tid()
     th = min_th
-    if strong[row_of_y[y[i]] * n_cols + col_of_x[x[i]]] > 0:
+    if strong[cell_of(row_of_y, col_of_x, n_cols, x[i], y[i])] > 0:
         th = ini_th
     flags[i] = wp.where(score[i] >= th, 1, 0)
 
@@ -119,7 +126,7 @@ def seed_quadtree(x: wp.array(dtype=wp.int32), y: wp.array(dtype=wp.int32),
     i = wp.tid()
     if i == 0:
         counters[C_CAND] = n
-    cell = row_of_y[y[i]] * levels[0].n_cols + col_of_x[x[i]]
+    cell = cell_of(row_of_y, col_of_x, levels[0].n_cols, x[i], y[i])
     cand[i] = candidate_key(0, cell, y[i], x[i], score[i])
     path = quadtree_path(0, x[i], y[i], levels, roots)
     paths[i] = path
