@@ -46,6 +46,9 @@ import time
 
 import numpy as np
 
+# The repository root: warpvx and tests.images import without PYTHONPATH.
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
 #: The authors' simulator's makespans on their ORB graph, 5 frames, 2/3/4/5 CPU workers + 1 GPU
 #: (replayed from their sim.py by a session of this project, issue 14).
 AUTHORS = {"heft": (483.7, 387.1, 343.8, 313.4), "xeft": (455.4, 353.6, 309.6, 289.5)}
