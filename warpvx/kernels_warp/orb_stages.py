@@ -137,11 +137,15 @@ def seed_quadtree(x: wp.array(dtype=wp.int32), y: wp.array(dtype=wp.int32),
 
 
 @wp.kernel
-def gather_points(index: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.int32),
-                  y: wp.array(dtype=wp.int32), score: wp.array(dtype=wp.int32),
-                  out_x: wp.array(dtype=wp.int32), out_y: wp.array(dtype=wp.int32),
-                  out_score: wp.array(dtype=wp.int32)):
+def gather_finals(counters: wp.array(dtype=wp.int32), index: wp.array(dtype=wp.int32),
+                  x: wp.array(dtype=wp.int32), y: wp.array(dtype=wp.int32),
+                  score: wp.array(dtype=wp.int32), out_x: wp.array(dtype=wp.int32),
+                  out_y: wp.array(dtype=wp.int32), out_score: wp.array(dtype=wp.int32)):
+    """The quadtree's kept points (``index``: the final nodes' points, counters[C_FINAL] of
+    them), in its order."""
     i = wp.tid()
+    if i >= wp.min(counters[C_FINAL], out_x.shape[0]):
+        return
     k = index[i]
     out_x[i] = x[k]
     out_y[i] = y[k]
@@ -283,13 +287,16 @@ def quadtree(level, x, y, score, n_wanted: int, scale_factor: float) -> tuple:
                       outputs=[plan.sorted_paths], device=device)
             plan.stage_nodes()
             plan.stage_finals()
+            # Gathered into fresh buffers before the one sync: once it returns, nothing queued
+            # reads the plan, so it can go back to the pool (another stream may take it).
+            finals = _points(plan.final_cap, device)
+            wp.launch(gather_finals, dim=plan.final_cap,
+                      inputs=[plan.counters, plan.final_values, x, y, score],
+                      outputs=list(finals), device=device)
             head = plan.read_head()
             if not plan.overflowed(head):
                 m = int(head[C_FINAL])
-                kept = _points(m, device)
-                if m:
-                    wp.launch(gather_points, dim=m, inputs=[plan.final_values, x, y, score],
-                              outputs=list(kept), device=device)
+                kept = tuple(a[:m] for a in finals)
     finally:
         release(key, plan)
     if kept is None:
