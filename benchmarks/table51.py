@@ -37,6 +37,7 @@ under ``--out``.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import shutil
@@ -276,7 +277,8 @@ def gains(rows) -> list:
     in percent of the slower one's makespan, predicted and (where run) measured."""
     cells = {}
     for r in rows:
-        cells.setdefault((r["cameras"], r["quadtree"], r["dl_ms"], r["n_cpus"]), {})[r["policy"]] = r
+        key = (r["cameras"], r["quadtree"], r["dl_ms"], r["n_cpus"])
+        cells.setdefault(key, {})[r["policy"]] = r
     out = []
     for (cams, quadtree, dl, cpus), by in cells.items():
         if not {"baseline", "heft", "xeft"} <= set(by):
@@ -370,9 +372,7 @@ Where and why ours differ from the thesis:
 def write_gantt(plan, args, n_cams, quadtree, dl, n_cpus, policy) -> str | None:
     """Predicted-over-measured Gantt chart of the current plan (``Plan.gantt``) as a PNG under
     ``--out``/gantt; None (and a note) without matplotlib."""
-    try:
-        import matplotlib  # noqa: F401 - the "plot" extra
-    except ImportError:
+    if importlib.util.find_spec("matplotlib") is None:  # the "plot" extra
         print("gantt: matplotlib not installed, chart skipped", flush=True)
         return None
     os.makedirs(os.path.join(args.out, "gantt"), exist_ok=True)
