@@ -38,13 +38,15 @@ def build(frames):
     return g
 
 
-def expected(placement, frames, pts_init):
-    """The functional API on each node's placed backend, frame after frame."""
+def expected(placement, frames, pts_init, gpu="warp-cpu"):
+    """The functional API on each node's placed backend, frame after frame (``gpu``: the GPU
+    role's backend); ``placement`` is node -> processor, or a callable frame -> that."""
     def be(node):
-        return "warp-cpu" if placement[node] == "gpu" else "cpu"
+        where = placement(i)[node] if callable(placement) else placement[node]
+        return gpu if where == "gpu" else "cpu"
 
     outs, prev_pyr, prev_pts = [], None, pts_init
-    for frame in frames:
+    for i, frame in enumerate(frames):
         gray = warpvx.color_convert(frame, "BGR2GRAY", backend=be("gray"))
         pyr = warpvx.gaussian_pyramid(gray, 3, backend=be("pyr"))
         kps = warpvx.fast_corners(gray, 20, backend=be("fast"))
@@ -192,7 +194,7 @@ def test_pinning_is_respected_by_every_policy(frames):
 # --------------------------------------------------------------------------- errors
 
 
-def _failing_graph(fail_on, *, gpu_fail=False):
+def _failing_graph(fail_on, *, gpu_fail=False, frames=1):
     g = warpvx.Graph("fail")
     x = g.input("x", shape=(4,), dtype=np.float32)
 
@@ -212,7 +214,7 @@ def _failing_graph(fail_on, *, gpu_fail=False):
         b = g.user(check, [x], name="check")
     c = g.user(lambda p, q: p + q, [a, b], name="join")
     g.output("y", c)
-    g.schedule("heft", n_cpus=2, gpu="warp-cpu")
+    g.schedule("heft", n_cpus=2, gpu="warp-cpu", frames=frames)
     return g
 
 

@@ -10,6 +10,9 @@ Usage::
     out = g.process({"frame": image})                  # verifies, calibrates, schedules (best)
     for out in g.stream(video_frames, depth=3):        # pipelined
         ...
+    g.schedule("heft", frames=4)                       # 4 frames in flight, each its placement
+    for out in g.stream(video_frames):                 # runs that 4-frame schedule cyclically
+        ...
 
 Nodes take data objects where the primitive takes arrays and plain values for the other
 arguments; they return the node's output data object (a tuple for several, see
@@ -25,10 +28,11 @@ import weakref
 
 import numpy as np
 
+from ..check import check_int
 from ..errors import GraphError
 from ..registry import REGISTRY
 from .costs import CostModel, default_n_cpus
-from .data import INPUT, VIRTUAL, Data, Delay, DelayRef
+from .data import INPUT, VIRTUAL, Data, Delay, DelayRef, nbytes
 from .nodes import PrimitiveNode, UserNode
 from .run import Runner, RunLock
 from .verify import verify as _verify
@@ -212,6 +216,50 @@ class Graph(CostModel, Runner):
             return self.nodes[name]
         except KeyError:
             raise GraphError(f"node {name!r}: no such node in graph {self.name!r}") from None
+
+    def schedule(self, policy="best", *, frames: int = 1, **kwargs):
+        """:meth:`CostModel.schedule <warpvx.graph.costs.CostModel.schedule>` (the same
+        arguments), with ``frames`` in flight.
+
+        Parameters
+        ----------
+        frames : int
+            K >= 1. With K > 1 the plan also holds ``policy``'s schedule of the task DAG
+            unrolled over K frames, with the inter-frame edges of the graph's delays
+            (:func:`warpvx.sched.schedule` with ``frames=K``), as ``plan.frame_schedule``;
+            :meth:`process` and :meth:`stream` run it cyclically: frame *i* with the
+            placement and order of its frame ``i mod K``, so consecutive frames may run a
+            node on different processors. ``plan.schedule`` stays the one-frame schedule
+            (metrics, charts, learning).
+
+        Returns
+        -------
+        Plan
+
+        Raises
+        ------
+        WarpvxTypeError, WarpvxValueError
+            ``frames`` is not an int >= 1.
+        """
+        from .. import sched
+
+        frames = check_int(frames, "frames", min_value=1)
+        with self._run_lock:
+            plan = CostModel.schedule(self, policy, **kwargs)
+            if frames > 1:
+                ksched = sched.schedule(plan.dag, policy, frames=frames,
+                                        delays=self._delay_edges(plan.calibration))
+                sched.validate_schedule(ksched.info["dag"], ksched)
+                plan.frame_schedule = ksched
+        return plan
+
+    def _delay_edges(self, cal) -> dict:
+        """``{(producer, reader): ms}``: the inter-frame edges of the delays, each costing
+        the transfer of its data as a data edge does (:meth:`to_task_dag`)."""
+        handoff = (cal.dispatch or {}).get("handoff", 0.0)
+        return {(ref.data.producer.name, node.name): handoff + cal.transfer.time(nbytes(ref.data.sample))
+                for node in self.nodes.values() for ref in node.inputs.values()
+                if isinstance(ref, DelayRef) and ref.data.producer is not None}
 
     # ------------------------------------------------------------------ helpers
 

@@ -38,6 +38,11 @@ class Plan:
         The fitted contention model's simulation of one frame
         (:func:`warpvx.graph.model.simulate`), when the plan was made with a model; it is
         then the prediction (:attr:`predicted_makespan`, the Gantt chart's top row).
+    frame_schedule : Schedule or None
+        With K frames in flight (``Graph.schedule(..., frames=K)``, K > 1): the schedule of
+        the task DAG unrolled over K frames (tasks ``(node, f)``; ``info`` holds its ``dag``,
+        each frame's ``latency`` and the steady-state ``period``), which the executor runs,
+        frame *i* as frame ``i mod K`` of it.
     last_run : collections.deque of FrameResult
         Measured timelines (ms from each frame's submission) of the last ``process`` or
         ``stream`` call, newest last, at most :data:`KEEP_FRAMES` (without their outputs,
@@ -56,6 +61,7 @@ class Plan:
     _executor: object = None
     costs: str = "calibrated"
     prediction: Schedule | None = None
+    frame_schedule: Schedule | None = None
 
     @property
     def graph(self):
@@ -93,7 +99,7 @@ class Plan:
             from .run import gpu_device, program
 
             graph = self.graph
-            self._executor = Executor(self.schedule, program(graph, self.gpu),
+            self._executor = Executor(self.frame_schedule or self.schedule, program(graph, self.gpu),
                                       gpu_device=gpu_device(self.gpu), name=graph.name)
         return self._executor
 

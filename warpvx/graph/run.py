@@ -215,9 +215,13 @@ class Runner:
         were produced (``host`` forces either). A non-contiguous input array (a strided view)
         is copied once to a contiguous one, as the nodes take contiguous arrays.
 
+        With a plan of K frames in flight (:meth:`schedule`), the frame runs with the
+        placement of its index mod K.
+
         ``capture``: replay runs of consecutive capturable GPU nodes from CUDA graphs
         (:mod:`warpvx.runtime.capture`; captured on the second frame). None (default): on
-        CUDA; False: never; True: also on Warp's CPU device. Where a capture fails (a node
+        CUDA; False: never; True: also on Warp's CPU device. A plan of K > 1 frames in
+        flight never captures (its GPU queue interleaves frames). Where a capture fails (a node
         synchronising, a caller's own capture, inputs of another shape than verification's,
         for which the nodes' output buffers are not sized) those nodes run eagerly, never
         an error.
@@ -249,12 +253,13 @@ class Runner:
             self._publish(result)
             return result.outputs
 
-    def stream(self, frames, *, depth: int = 2, host: bool | None = None,
+    def stream(self, frames, *, depth: int | None = None, host: bool | None = None,
                capture: bool | None = None):
         """Run many frames pipelined; a generator of output dicts, in frame order.
 
         ``frames`` is an iterable of frames, each what :meth:`process` takes. Up to ``depth``
-        frames are in flight: frame *i+1*'s early nodes run while frame *i*'s late ones
+        frames are in flight (default: 2, or K for a plan of K frames in flight, see
+        :meth:`schedule`): frame *i+1*'s early nodes run while frame *i*'s late ones
         finish. Delays age in frame order. If a node fails, the frames before it are still
         yielded, then :class:`~warpvx.errors.NodeExecutionError` is raised and the frames
         after it are cancelled. If ``frames`` itself raises (or a frame is refused: a wrong
@@ -270,9 +275,10 @@ class Runner:
         Raises
         ------
         GraphError
-            ``frames`` is not iterable, ``depth`` is not an int >= 1 (both at the call).
+            ``frames`` is not iterable, ``depth`` is not None or an int >= 1 (both at the call).
         """
-        if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or depth < 1:
+        if depth is not None and (isinstance(depth, bool) or not isinstance(depth, (int, np.integer))
+                                  or depth < 1):
             raise GraphError(f"depth: expected an int >= 1, got {depth!r}")
         try:
             if isinstance(frames, dict):  # one frame's inputs: iterating gives their names
@@ -281,7 +287,7 @@ class Runner:
         except TypeError:
             raise GraphError(f"frames: expected an iterable of frames (input dicts or arrays), "
                              f"got {type(frames).__name__}; use process() for one frame") from None
-        return self._stream(frames, int(depth), host, capture)
+        return self._stream(frames, depth, host, capture)
 
     def _stream(self, frames, depth, host, capture):
         lock = self._run_lock
@@ -301,6 +307,7 @@ class Runner:
                         ex = plan.executor()
                         ex.reanchor()
                         plan.last_run.clear()
+                        depth = int(depth) if depth is not None else max(2, ex.frames)
                     feed, all_host = self._frame_inputs(item, ex.gpu_device)
                     pending.append((ex.submit(self._next_frame(), feed, capture=capture), all_host))
                 except StopIteration:

@@ -304,7 +304,7 @@ class SegmentRunner:
         for seg in self._segments:
             if not seg.captured:
                 continue
-            spans = [max(0.0, self.schedule.tasks[t.name].finish - self.schedule.tasks[t.name].start)
+            spans = [max(0.0, self.placed[t.name, 0].finish - self.placed[t.name, 0].start)
                      for t in seg.tasks]
             total = sum(spans)
             spans = spans if total > 0 else [1.0] * len(spans)

@@ -60,6 +60,17 @@ Pipelining
     processor works through frames in order, so frame *i+1*'s early tasks run while frame *i*'s
     late ones finish. Inputs with a negative frame offset (delays) read the slot of an earlier
     frame from a :class:`Ring`, waiting for it like any other slot.
+K frames in flight
+    A schedule of a DAG unrolled over K frames (:func:`warpvx.sched.frames.unroll`: tasks
+    ``(task, f)``, f < K) is run cyclically: frame *i* takes slot ``f = i mod K``, so frames
+    0..K-1 run with the K-frame schedule's placement, K..2K-1 again with the same one. Each
+    processor's queue is the K-frame schedule's order of ``(task, f)`` entries and runs on a
+    :class:`_Batch`, consecutive frames of one cycle: an entry waits until its frame is
+    submitted, or is skipped once the batch is closed without it (a cycle is closed when its
+    K frames are in, when the caller waits for one of its frames, or on abort), so a run that
+    is not a multiple of K frames, one :meth:`Executor.wait` at a time, never waits for
+    frames that will not come. Captured segments need one frame's GPU tasks consecutive on
+    the queue, which a K-frame order interleaves: with K > 1 GPU tasks run eagerly.
 Errors
     A task that raises fails its frame: that frame and every later frame in flight are
     cancelled (their waits see the cancel flag within :data:`WAIT_SLICE` seconds and their
@@ -102,6 +113,54 @@ def _is_gpu_processor(name: str) -> bool:
     return name.startswith("gpu")
 
 
+def _frames_of(schedule: Schedule):
+    """K and scheduled key -> ``(task, slot)``: a schedule of an unrolled DAG names every task
+    ``(task, f)`` with an int ``f`` (K = the largest ``f`` + 1); any other is one frame."""
+    keys = list(schedule.tasks)
+    if keys and all(isinstance(k, tuple) and len(k) == 2 and isinstance(k[1], int)
+                    and not isinstance(k[1], bool) and k[1] >= 0 for k in keys):
+        return max(f for _, f in keys) + 1, {k: k for k in keys}
+    return 1, {k: (k, 0) for k in keys}
+
+
+class _Batch:
+    """Consecutive frames of one cycle of a K-frame schedule, slots ``first``.. ``last``: what
+    the processors run their ``(task, slot)`` queues over together (see the module
+    docstring). Closed, it takes no more frames and its missing slots are skipped."""
+
+    def __init__(self, cycle: int, first: int, k: int):
+        self.cycle = cycle
+        self.first = first
+        self.last = first - 1
+        self.closed = False
+        self._frames = [None] * k
+        self._cond = threading.Condition()
+
+    def add(self, slot: int, frame: Frame):
+        with self._cond:
+            self._frames[slot] = frame
+            self.last = slot
+            self._cond.notify_all()
+
+    def close(self):
+        with self._cond:
+            self.closed = True
+            self._cond.notify_all()
+
+    def __contains__(self, frame) -> bool:
+        return any(f is frame for f in self._frames)
+
+    def frame(self, slot: int, closing: threading.Event) -> Frame | None:
+        """The frame of ``slot``, waiting for its submission; None once the batch closed
+        without it (or the executor is closing)."""
+        with self._cond:
+            while self._frames[slot] is None:
+                if self.closed or slot < self.first or closing.is_set():
+                    return None
+                self._cond.wait(WAIT_SLICE)
+            return self._frames[slot]
+
+
 class _GpuState:
     """The GPU thread's state through one frame."""
 
@@ -121,7 +180,9 @@ class Executor(SegmentRunner):
     Parameters
     ----------
     schedule : Schedule
-        Every task of ``program`` placed once; processors ``"cpu<i>"`` and ``"gpu"``.
+        Every task of ``program`` placed once; processors ``"cpu<i>"`` and ``"gpu"``. Or a
+        K-frame schedule (of :func:`warpvx.sched.frames.unroll`'s DAG): every ``(task, f)``,
+        f < K, placed once; frame *i* then runs as ``f = i mod K`` (see the module docstring).
     program : Program
         Tasks, inputs, outputs and rings (delays).
     gpu_device : str, optional
@@ -136,14 +197,14 @@ class Executor(SegmentRunner):
     capture : bool, optional
         Replay GPU segments from captured graphs (:mod:`.capture`) by default: None (the
         default) on CUDA only; True also on Warp's CPU device; False never.
-        :meth:`submit` can turn it off (or on) per frame.
+        :meth:`submit` can turn it off (or on) per frame. Never with K > 1 frames.
 
     Raises
     ------
     ScheduleError
         A task unscheduled or scheduled twice, a task on a processor it has no callable for,
         an unknown processor, or per-processor orders that contradict the data dependencies
-        (running them would deadlock).
+        (running them would deadlock; with K frames, also the delays' reads across frames).
     """
 
     #: Device buffers kept per pooled upload edge (a few frames in flight, several leaves).
@@ -160,21 +221,32 @@ class Executor(SegmentRunner):
         self.processors = list(schedule.processors)
         self.gpu_device = gpu_device
         self.cuda = bool(gpu_device) and str(gpu_device).startswith("cuda")
-        unknown = [t for t in schedule.tasks if t not in program.tasks]
+        #: K: frames of the schedule's cycle (1 for a one-frame schedule).
+        self.frames, keys = _frames_of(schedule)
+        unknown = [k for k, (t, _) in keys.items() if t not in program.tasks]
         if unknown:
             raise ScheduleError(f"schedule: places unknown task {unknown[0]!r}")
+        self.placed = {keys[k]: st for k, st in schedule.tasks.items()}  # (task, slot) -> when
         self._data = data_graph(program)
         try:
             self._topo = {n: i for i, n in enumerate(nx.topological_sort(self._data))}
         except nx.NetworkXUnfeasible:
             raise ScheduleError("program: its data dependencies have a cycle") from None
-        self.queues = {p: [program.tasks[t] for t in self._order(p)] for p in self.processors}
+        # processor -> its (task, slot) entries in schedule order; queues: their tasks (the
+        # one-frame order when K == 1).
+        self.entries = {p: [(program.tasks[t], f) for t, f in self._order(p)] for p in self.processors}
+        self.queues = {p: [t for t, _ in self.entries[p]] for p in self.processors}
         self._check()
         # The GPU thread first: it hands frames out in this order, and the threads woken
         # first take Python's GIL first; the GPU thread (Python-heavy, usually the critical
         # path) should not start its frame behind every CPU worker's Python prologue.
         self._active = sorted((p for p in self.processors if self.queues[p]),
                               key=lambda p: not _is_gpu_processor(p))
+        # slot -> processors a frame of that slot waits for; processor -> slot -> its last entry.
+        self._slot_procs = [sum(any(f == s for _, f in self.entries[p]) for p in self._active)
+                            for s in range(self.frames)]
+        self._last = {p: {f: i for i, (_, f) in enumerate(self.entries[p])} for p in self._active}
+        self._batch: _Batch | None = None  # the open batch (K > 1)
         self._inbox = {p: queue.SimpleQueue() for p in self._active}
         self._threads: dict[str, threading.Thread] = {}
         self._closing = threading.Event()
@@ -196,9 +268,12 @@ class Executor(SegmentRunner):
                                            if rule != "never"}
         self._up_lock = threading.Lock()  # the GPU thread leases, wait() returns
         gpu_queue = [t.name for p in self.processors if _is_gpu_processor(p) for t in self.queues[p]]
-        self._segments = segments(program, gpu_queue)
+        # A captured segment is one frame's consecutive GPU tasks; a K-frame order interleaves
+        # frames on the GPU queue, so with K > 1 nothing is captured (every task runs eagerly).
+        self._segments = segments(program, gpu_queue) if self.frames == 1 else []
         self._shares = self._segment_shares()
-        self.capture = bool(gpu_device) and (self.cuda if capture is None else bool(capture))
+        self.capture = bool(gpu_device) and self.frames == 1 and \
+            (self.cuda if capture is None else bool(capture))
         self.captures = 0  # segments captured so far (each signature's once)
         self._captured: OrderedDict = OrderedDict()  # input signature -> per-segment state
         # Held while capturing and while recording on the legacy stream (submit): that
@@ -217,24 +292,31 @@ class Executor(SegmentRunner):
     # ------------------------------------------------------------------ checks
 
     def _order(self, proc: str) -> list:
-        """Tasks on ``proc`` by start time; ties (zero-cost tasks) in dependency order."""
-        on = [st for st in self.schedule.tasks.values() if st.processor == proc]
-        on.sort(key=lambda st: (st.start, st.finish, self._topo.get(st.task, 0)))
-        return [st.task for st in on]
+        """``(task, slot)`` entries on ``proc`` by start time; ties (zero-cost tasks) by frame,
+        then in dependency order."""
+        on = [(st, e) for e, st in self.placed.items() if st.processor == proc]
+        on.sort(key=lambda x: (x[0].start, x[0].finish, x[1][1], self._topo.get(x[1][0], 0)))
+        return [e for _, e in on]
+
+    def _label(self, task: str, slot: int):
+        """How messages name entry ``(task, slot)``: the task alone for one frame."""
+        return task if self.frames == 1 else (task, slot)
 
     def _check(self):
         placed = {}
         for p in self.processors:
-            for task in self.queues[p]:
-                if task.name in placed:
-                    raise ScheduleError(f"schedule: task {task.name!r} is placed on both "
-                                        f"{placed[task.name]!r} and {p!r}")
-                placed[task.name] = p
+            for task, f in self.entries[p]:
+                label = self._label(task.name, f)
+                if label in placed:
+                    raise ScheduleError(f"schedule: task {label!r} is placed on both "
+                                        f"{placed[label]!r} and {p!r}")
+                placed[label] = p
                 kind = "gpu" if _is_gpu_processor(p) else "cpu"
                 if getattr(task, kind) is None:
-                    raise ScheduleError(f"schedule: task {task.name!r} is placed on {p!r} but has "
+                    raise ScheduleError(f"schedule: task {label!r} is placed on {p!r} but has "
                                         f"no {kind.upper()} implementation")
-        missing = [t for t in self.program.tasks if t not in placed]
+        missing = [self._label(t, f) for f in range(self.frames) for t in self.program.tasks
+                   if self._label(t, f) not in placed]
         if missing:
             raise ScheduleError(f"schedule: tasks {missing!r} are not scheduled")
         gpus = [p for p in self.processors if _is_gpu_processor(p)]
@@ -242,13 +324,22 @@ class Executor(SegmentRunner):
             raise ScheduleError(f"schedule: one GPU processor is supported, got {gpus}")
         if any(_is_gpu_processor(p) and self.queues[p] for p in self.processors) and not self.gpu_device:
             raise ScheduleError("schedule: tasks are placed on the GPU but no gpu_device was given")
-        # Data edges plus each processor's order must be acyclic, or some wait never returns.
-        g = self._data.copy()
+        # Data edges (each slot's, and delayed reads of an earlier slot of the cycle) plus
+        # each processor's order must be acyclic, or some wait never returns. A later cycle
+        # reads only earlier ones and every processor ends a cycle before the next: acyclic.
+        g = nx.DiGraph()
+        k = self.frames
+        producer = {key: t.name for t in self.program.tasks.values() for key in t.outputs}
+        for f in range(k):
+            g.add_edges_from(((u, f), (v, f)) for u, v in self._data.edges)
+            g.add_edges_from(((producer[r.key], f + r.offset), (t.name, f))
+                             for t in self.program.tasks.values() for r in t.inputs
+                             if r.offset < 0 and f + r.offset >= 0 and r.key in producer)
         for p in self.processors:
-            names = [t.name for t in self.queues[p]]
+            names = [(t.name, f) for t, f in self.entries[p]]
             g.add_edges_from(zip(names, names[1:]))
         if not nx.is_directed_acyclic_graph(g):
-            cyc = " -> ".join(u for u, _ in nx.find_cycle(g))
+            cyc = " -> ".join(str(self._label(*u)) for u, _ in nx.find_cycle(g))
             raise ScheduleError(f"schedule: processor orders contradict data dependencies "
                                 f"(would deadlock): {cyc}")
 
@@ -296,14 +387,22 @@ class Executor(SegmentRunner):
         gpu = _is_gpu_processor(proc)
         inbox = self._inbox[proc]
         while True:
-            frame = inbox.get()
-            if frame is None:
+            item = inbox.get()
+            if item is None:
                 return
             if gpu:
-                if self._gpu_frames(proc, frame, inbox):
+                if self._gpu_frames(proc, item, inbox):
                     return
             else:
-                self._one_frame(proc, frame, self._run_cpu)
+                self._run_item(proc, item)
+
+    def _run_item(self, proc: str, item):
+        """Run ``proc``'s part of a frame (its queue) or of a :class:`_Batch` (K frames)."""
+        if isinstance(item, _Batch):
+            self._run_batch(proc, item)
+        else:
+            self._one_frame(proc, item, self._run_gpu_tasks if _is_gpu_processor(proc)
+                            else self._run_cpu)
 
     def _one_frame(self, proc: str, frame: Frame, run):
         try:
@@ -314,22 +413,61 @@ class Executor(SegmentRunner):
         finally:
             frame.processor_done()
 
-    def _gpu_frames(self, proc: str, frame: Frame, inbox) -> bool:
-        """Run ``frame`` and the frames queued behind it in one device/stream scope (entering
-        and leaving the scope per frame costs host time on the critical thread). Returns True
-        when the stop sentinel came."""
+    def _run_batch(self, proc: str, batch: _Batch):
+        """``proc``'s ``(task, slot)`` entries for the frames of ``batch``, in the K-frame
+        schedule's order; a frame is done on ``proc`` after its slot's last entry there."""
+        gpu = _is_gpu_processor(proc)
+        io = self._io()
+        state = _GpuState(proc, io) if gpu else None
+        last = self._last[proc]
+        current = None
+        for i, (task, slot) in enumerate(self.entries[proc]):
+            frame = batch.frame(slot, self._closing)
+            if frame is None:
+                continue
+            try:
+                if frame.cancel.is_set():
+                    continue
+                if gpu:
+                    if frame is not current:
+                        # A fresh start event: the last end event is another frame's (pooled
+                        # with it) and the stream ran that frame's work in between.
+                        state.prev_end, current = None, frame
+                    self._guarded(proc, frame, task.name, self._run_gpu_task, frame, task, state)
+                else:
+                    self._guarded(proc, frame, task.name, self._run_cpu_task, proc, frame, task, io)
+            finally:
+                if i == last[slot]:
+                    frame.processor_done()
+
+    def _guarded(self, proc: str, frame: Frame, name: str, run, *args) -> bool:
+        """``run(*args)``, task ``name`` of ``frame``: False when the frame was cancelled
+        meanwhile or the task failed (reported, see :meth:`_fail`)."""
+        try:
+            run(*args)
+            return True
+        except Cancelled:
+            return False
+        except BaseException as exc:  # noqa: BLE001 - reported to the caller
+            self._fail(frame, name, proc, exc)
+            return False
+
+    def _gpu_frames(self, proc: str, item, inbox) -> bool:
+        """Run ``item`` (a frame or a batch) and those queued behind it in one device/stream
+        scope (entering and leaving the scope per frame costs host time on the critical
+        thread). Returns True when the stop sentinel came."""
         wp = warp()
         scope = (wp.ScopedStream(self._stream, sync_enter=False) if self.cuda
                  # sync_enter=False: the stream's order is ours; the user's stream is not a producer.
                  else contextlib.nullcontext())
         with wp.ScopedDevice(self.gpu_device), scope:
             while True:
-                self._one_frame(proc, frame, self._run_gpu_tasks)
+                self._run_item(proc, item)
                 try:
-                    frame = inbox.get_nowait()
+                    item = inbox.get_nowait()
                 except queue.Empty:
                     return False
-                if frame is None:
+                if item is None:
                     return True
 
     def _slot(self, frame: Frame, ref: InputRef) -> Slot:
@@ -361,35 +499,33 @@ class Executor(SegmentRunner):
     def _run_cpu(self, proc: str, frame: Frame):
         io = self._io()
         for task in self.queues[proc]:
-            if frame.cancel.is_set():
+            if frame.cancel.is_set() or \
+                    not self._guarded(proc, frame, task.name, self._run_cpu_task, proc, frame, task, io):
                 return
-            try:
-                slots, _ = self._ready_inputs(frame, task)
-                remote = [s for s in slots if s.where == DEVICE]
-                if self.cuda:
-                    for s in remote:
-                        ev = s.event
-                        if ev is not None:
-                            synchronize_event(ev)
-                t0 = time.perf_counter()
-                t_mid = None
-                if remote:
-                    before = io.moved
-                    values = [s.host(io, ready=True) for s in slots]
-                    t_mid = time.perf_counter()
-                    if io.moved > before:
-                        frame.copied[task.name] = io.moved - before
-                else:
-                    values = [s.value for s in slots]
-                result = task.cpu(*values)
-                t1 = time.perf_counter()
-                self._publish(frame, task, result, HOST)
-            except Cancelled:
-                return
-            except BaseException as exc:  # noqa: BLE001 - reported to the caller
-                self._fail(frame, task.name, proc, exc)
-                return
-            frame.trace[task.name] = (proc, t0, t1, t_mid)
+
+    def _run_cpu_task(self, proc: str, frame: Frame, task: ExecTask, io: Transfers):
+        """One CPU task: waits for its inputs, downloads device ones, calls, publishes."""
+        slots, _ = self._ready_inputs(frame, task)
+        remote = [s for s in slots if s.where == DEVICE]
+        if self.cuda:
+            for s in remote:
+                ev = s.event
+                if ev is not None:
+                    synchronize_event(ev)
+        t0 = time.perf_counter()
+        t_mid = None
+        if remote:
+            before = io.moved
+            values = [s.host(io, ready=True) for s in slots]
+            t_mid = time.perf_counter()
+            if io.moved > before:
+                frame.copied[task.name] = io.moved - before
+        else:
+            values = [s.value for s in slots]
+        result = task.cpu(*values)
+        t1 = time.perf_counter()
+        self._publish(frame, task, result, HOST)
+        frame.trace[task.name] = (proc, t0, t1, t_mid)
 
     def _run_gpu_tasks(self, proc: str, frame: Frame):
         state = _GpuState(proc, self._io())
@@ -616,9 +752,10 @@ class Executor(SegmentRunner):
                 slot.external = True
         for key in self._task_keys:
             slots[key] = Slot()
-        frame = Frame(frame_index, slots, len(self._active))
+        frame = Frame(frame_index, slots, self._slot_procs[frame_index % self.frames])
         frame.events.extend(events)
-        frame.capture = bool(self.gpu_device) and (self.capture if capture is None else bool(capture))
+        frame.capture = bool(self.gpu_device) and self.frames == 1 and \
+            (self.capture if capture is None else bool(capture))
         if frame.capture:
             frame.signature = signature(inputs)
         for key, ring in self.program.rings.items():
@@ -626,12 +763,37 @@ class Executor(SegmentRunner):
         with self._lock:
             failed = [f.index for f in self._inflight if f.error is not None]
             self._inflight.append(frame)
+            batch = self._join_batch(frame) if self.frames > 1 else frame
         if failed:
             frame.cancelled_by = failed[0]
             frame.cancel.set()
-        for p in self._active:
-            self._inbox[p].put(frame)
+        if batch is not None:
+            for p in self._active:
+                self._inbox[p].put(batch)
         return frame
+
+    def _join_batch(self, frame: Frame) -> _Batch | None:
+        """Put ``frame`` in the open batch of its cycle, or in a new one (returned, for the
+        processors' inboxes; None when it joined the open one). Call with the lock held."""
+        k = self.frames
+        slot, cycle = frame.index % k, frame.index // k
+        batch, new = self._batch, None
+        if batch is None or batch.closed or batch.cycle != cycle or batch.last >= slot:
+            if batch is not None:
+                batch.close()
+            batch = new = self._batch = _Batch(cycle, slot, k)
+        batch.add(slot, frame)
+        if slot == k - 1:  # the cycle is complete
+            batch.close()
+        return new
+
+    def _close_batch(self, frame: Frame | None = None):
+        """Close the open batch (if it holds ``frame``, when given): its processors skip the
+        slots no frame came for."""
+        with self._lock:
+            batch = self._batch
+            if batch is not None and (frame is None or frame in batch):
+                batch.close()
 
     def wait(self, frame: Frame, *, host: bool = True) -> FrameResult:
         """Wait for ``frame`` and return its outputs (host data when ``host``) and timeline.
@@ -642,6 +804,8 @@ class Executor(SegmentRunner):
             A task of this frame raised (``__cause__`` is its exception), or the frame was
             cancelled because an earlier frame failed.
         """
+        if self.frames > 1:  # no frame joins its batch while the caller waits for this one
+            self._close_batch(frame)
         while not frame.finished.wait(WAIT_SLICE):
             dead = [p for p, th in self._threads.items() if not th.is_alive()]
             if dead:
@@ -698,6 +862,7 @@ class Executor(SegmentRunner):
 
     def abort(self):
         """Cancel every frame in flight and wait until the processors have dropped them."""
+        self._close_batch()
         with self._lock:
             frames = list(self._inflight)
         for f in frames:
