@@ -256,7 +256,8 @@ def table_markdown(rows, args) -> str:
         "device quadtree (both implementations). GPU nodes: nodes the policy put on the GPU. "
         f"K-frame period: `g.schedule(policy, frames={args.period_frames})`'s "
         "steady-state period (predicted, measured cells only); pipelined: that K-frame schedule "
-        "run by the executor, `g.stream(depth=8)`, measured. Cells without measurements: CPU counts not in --measure-cpus, or past "
+        "run by the executor, `g.stream(depth=8)`, measured. Cells without measurements: CPU "
+        "counts not in --measure-cpus, or past "
         f"--budget-s ({args.budget_s:g} s).", "",
         "| cameras | quadtree | DL ms | CPUs | policy | GPU nodes | predicted ms | error | "
         "model ms | error | speedup | SLR | measured ms | K-frame period ms | "

@@ -22,7 +22,7 @@ from warpvx.runtime import HOST, Executor, ExecTask, InputRef, Program, Ring
 from warpvx.sched.schedule import Schedule, ScheduledTask
 from tests.images import clip_frames
 
-from .test_run import _add_kernel, _failing_graph, assert_same, build, expected
+from .test_run import _accumulator, _add_kernel, _failing_graph, assert_same, build, expected
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -301,6 +301,20 @@ def test_graph_follows_an_alternating_k_frame_schedule(warp_backend):
         want = {v: plan.frame_schedule.tasks[v, i % 2].processor for v in ("sum", "twice")}
         assert want == {"sum": "gpu" if i % 2 else "cpu0", "twice": f"cpu{i % 2}"}
         assert {v: rec.ran[v, i] for v in ("sum", "twice")} == want, i
+
+
+@pytest.mark.parametrize("gpu_node", [False, True], ids=["cpu", "gpu"])
+def test_delays_two_frames_back_read_the_right_frames(gpu_node):
+    g, _ = _accumulator(gpu_node, slots=2)
+    try:
+        g.schedule("heft", n_cpus=2, gpu="warp-cpu", frames=3)
+        got = list(g.stream({"x": np.full(3, i, np.float32)} for i in range(1, 8)))
+    finally:
+        g.close()
+    sums = 100 + np.cumsum(np.arange(1, 8))
+    assert [float(o["acc"][0]) for o in got] == list(map(float, sums))
+    assert [float(o["past1"][0]) for o in got] == [100.0] + list(map(float, sums[:-1]))
+    assert [float(o["past2"][0]) for o in got] == [100.0, 100.0] + list(map(float, sums[:-2]))
 
 
 @pytest.mark.timeout(60)

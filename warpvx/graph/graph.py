@@ -254,12 +254,21 @@ class Graph(CostModel, Runner):
         return plan
 
     def _delay_edges(self, cal) -> dict:
-        """``{(producer, reader): ms}``: the inter-frame edges of the delays, each costing
-        the transfer of its data as a data edge does (:meth:`to_task_dag`)."""
+        """``{(producer, reader): ms}``: the inter-frame edges of the delays (producer of
+        frame f-1 -> reader of frame f), each costing the transfer of its data as a data
+        edge does (:meth:`to_task_dag`). A read ``j >= 2`` frames back also chains the
+        producer's frames (``(producer, producer): 0``), so its frame f-j comes before
+        frame f-1, hence before the reader of frame f."""
         handoff = (cal.dispatch or {}).get("handoff", 0.0)
-        return {(ref.data.producer.name, node.name): handoff + cal.transfer.time(nbytes(ref.data.sample))
-                for node in self.nodes.values() for ref in node.inputs.values()
-                if isinstance(ref, DelayRef) and ref.data.producer is not None}
+        edges = {}
+        for node in self.nodes.values():
+            for ref in node.inputs.values():
+                if isinstance(ref, DelayRef) and ref.data.producer is not None:
+                    u = ref.data.producer.name
+                    edges[u, node.name] = handoff + cal.transfer.time(nbytes(ref.data.sample))
+                    if ref.offset < -1:
+                        edges.setdefault((u, u), 0.0)
+        return edges
 
     # ------------------------------------------------------------------ helpers
 
