@@ -45,6 +45,9 @@ TH_HIGH, TH_LOW = 100, 50
 REF_PREVIOUS, REF_KEYFRAME, REF_LOST = 0, 1, 2
 # Set bits of each byte value: Hamming distances of descriptor bytes by table look-up.
 _POPCOUNT = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).sum(1).astype(np.int32)
+_BITWISE_COUNT = getattr(np, "bitwise_count", None)
+# Depth (in units of the baseline) beyond which cv2.recoverPose does not count a point.
+_FAR = 50.0
 STATS = ("n_keypoints", "n_matches", "n_inliers", "keyframe", "reference", "track_ms")
 
 
@@ -174,6 +177,75 @@ def filter_matches(pairs, distances, angles_q, angles_t, config: TrackerConfig) 
     return pairs
 
 
+def hamming_pairs(desc_a, desc_b) -> np.ndarray:
+    """int [M]: Hamming distances of row pairs of two uint8 [M, 32] descriptor arrays."""
+    x = np.ascontiguousarray(desc_a) ^ np.ascontiguousarray(desc_b)
+    if _BITWISE_COUNT is not None:  # NumPy >= 2: popcount of 64-bit words
+        return _BITWISE_COUNT(x.view(np.uint64)).sum(1, dtype=np.int32)
+    return _POPCOUNT[x].sum(1)
+
+
+def _band_pairs(yl, reach, ys):
+    """(left index, index into ``ys``) of every pair with ``|yl - ys| <= reach`` (``ys``
+    sorted), grouped by left index: a row-band join without the full N x M table."""
+    lo = np.searchsorted(ys, yl - reach)
+    counts = np.searchsorted(ys, yl + reach, side="right") - lo
+    li = np.repeat(np.arange(len(yl)), counts)
+    starts = np.repeat(lo - (np.cumsum(counts) - counts), counts)
+    return li, np.arange(len(li)) + starts
+
+
+def _best_per_group(li, key):
+    """Positions of the smallest non-negative int ``key`` within each run of equal ``li``
+    (``li`` sorted; ties to the first position)."""
+    n = len(li)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    heads = np.flatnonzero(np.r_[True, li[1:] != li[:-1]])
+    # The position rides in the low digits, so one minimum per run gives it back.
+    return np.minimum.reduceat(key.astype(np.int64) * n + np.arange(n), heads) % n
+
+
+def _sad_refine(left, right, xl, yl, ur, w=5, L=5):
+    """ORB-SLAM2's sub-pixel refinement of stereo matches on the level-0 images (uint8 HxW):
+    the SAD of the (2w+1)^2 left patch (centre value subtracted) against the right one shifted
+    over -L..L px around column ``round(ur)``, a parabola through the best three.
+
+    Returns (``inside`` bool [M]: patches within the edge-padded images; then for those:
+    refined right column float64, ``ok`` bool (interior minimum, vertex within 1 px), best SAD).
+    """
+    pad = w + L + 1
+    lp = np.pad(left, pad, mode="edge")
+    rp = np.pad(right, pad, mode="edge")
+    cx = np.rint(xl).astype(np.int64) + pad
+    cy = np.rint(yl).astype(np.int64) + pad
+    cr = np.rint(ur).astype(np.int64) + pad
+    h, wd = rp.shape
+    inside = (cr - w - L >= 0) & (cr + w + L < wd) & (cy - w >= 0) & (cy + w < h)
+    cx, cy, cr, ur = cx[inside], cy[inside], cr[inside], ur[inside]
+    off = np.arange(-w, w + 1)
+    rows = (cy[:, None] + off)[:, :, None]
+    pl = lp[rows, (cx[:, None] + off)[:, None, :]].astype(np.int16)
+    pl -= pl[:, w:w + 1, w:w + 1]  # ORB-SLAM2 subtracts the centre value (illumination)
+    # One strip of 2(w+L)+1 right columns per match; the 2L+1 shifted patches are views of it.
+    strip = rp[rows, (cr[:, None] + np.arange(-w - L, w + L + 1))[:, None, :]].astype(np.int16)
+    # SAD per shift k: |pl - (strip window k - its centre)|, one (M, rows, cols) pass each.
+    centre = strip[:, w, w:w + 2 * L + 1]
+    sad = np.empty((len(cx), 2 * L + 1))
+    for k in range(2 * L + 1):
+        diff = pl + centre[:, k, None, None] - strip[:, :, k:k + 2 * w + 1]
+        sad[:, k] = np.abs(diff).sum(axis=(1, 2), dtype=np.int32)
+    k = np.argmin(sad, axis=1)
+    i = np.arange(len(k))
+    kc = np.clip(k, 1, 2 * L - 1)
+    d1, d2, d3 = sad[i, kc - 1], sad[i, kc], sad[i, kc + 1]
+    denom = 2.0 * (d1 + d3 - 2.0 * d2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        delta = np.where(denom != 0, (d1 - d3) / denom, 0.0)
+    ok = (k > 0) & (k < 2 * L) & (np.abs(delta) <= 1.0)
+    return inside, np.rint(ur) + (k - L) + delta, ok, sad[i, k]
+
+
 def stereo_depth(kps_left, desc_left, kps_right, desc_right, left, right, *, fx, baseline,
                  config: TrackerConfig = TrackerConfig()) -> np.ndarray:
     """Depth (m) of each left keypoint from ORB matches along the epipolar rows, float32 [N]
@@ -193,63 +265,27 @@ def stereo_depth(kps_left, desc_left, kps_right, desc_right, left, right, *, fx,
         return depth
     xl, yl, ol = (np.asarray(a) for a in (kps_left.x, kps_left.y, kps_left.octave))
     xr, yr, orr = (np.asarray(a) for a in (kps_right.x, kps_right.y, kps_right.octave))
-    # Candidate pairs: right keypoints sorted by row, those within the widest band of each
-    # left row, then the exact rules (band of the right octave, octave, disparity range).
+    # Candidate pairs: right keypoints sorted by row, those within the widest band a right
+    # octave allowed for this left one can have (octave + 1), then the exact rules.
     order = np.argsort(yr, kind="stable")
-    ys = yr[order]
-    reach = 2.0 * config.scale_factor ** max(int(orr.max()), 0)
-    lo, hi = np.searchsorted(ys, yl - reach), np.searchsorted(ys, yl + reach, side="right")
-    counts = hi - lo
-    li = np.repeat(np.arange(n), counts)
-    ri = order[np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + np.repeat(lo, counts)]
-    disp = xl[li] - xr[ri]
-    ok = ((np.abs(yl[li] - yr[ri]) <= 2.0 * config.scale_factor ** orr[ri]) & (disp >= 0)
-          & (disp <= fx) & (np.abs(ol[li] - orr[ri]) <= 1))
+    band = 2.0 * config.scale_factor ** np.arange(max(int(orr.max()), int(ol.max())) + 2)
+    li, pos = _band_pairs(yl, band[np.minimum(ol + 1, max(int(orr.max()), 0))], yr[order])
+    ri = order[pos]
+    dy, disp, do = yl[li] - yr[ri], xl[li] - xr[ri], ol[li] - orr[ri]
+    ok = (np.abs(dy) <= band[orr][ri]) & (disp >= 0) & (disp <= fx) & (np.abs(do) <= 1)
     li, ri = li[ok], ri[ok]
-    dist = _POPCOUNT[np.asarray(desc_left)[li] ^ np.asarray(desc_right)[ri]].sum(1)
-    # Best (smallest distance, then lowest right index) per left keypoint.
-    first = np.lexsort((ri, dist, li))
-    li, ri, dist = li[first], ri[first], dist[first]
-    head = np.r_[True, li[1:] != li[:-1]] if len(li) else np.zeros(0, bool)
-    li, ri, dist = li[head], ri[head], dist[head]
-    keep = dist < config.stereo_max_distance
-    good, best_r = li[keep], ri[keep]
+    dist = hamming_pairs(np.asarray(desc_left)[li], np.asarray(desc_right)[ri])
+    # Best per left keypoint: the smallest distance, then the lowest right index.
+    best = _best_per_group(li, dist.astype(np.int64) * (len(xr) + 1) + ri)
+    keep = dist[best] < config.stereo_max_distance
+    good, best_r = li[best][keep], ri[best][keep]
     if len(good) == 0:
         return depth
-    ur = xr[best_r].astype(np.float64)
-    # SAD refinement: 11x11 patches, right patch shifted by -5..5 px around the matched column.
-    w, L = 5, 5
-    pad = w + L + 1
-    lp = np.pad(left.astype(np.int32), pad, mode="edge")
-    rp = np.pad(right.astype(np.int32), pad, mode="edge")
-    cx = np.rint(xl[good]).astype(np.int64) + pad
-    cy = np.rint(yl[good]).astype(np.int64) + pad
-    cr = np.rint(ur).astype(np.int64) + pad
-    h, wd = rp.shape
-    inside = (cr - w - L >= 0) & (cr + w + L < wd) & (cy - w >= 0) & (cy + w < h)
-    good, ur, cx, cy, cr = good[inside], ur[inside], cx[inside], cy[inside], cr[inside]
-    off = np.arange(-w, w + 1)
-    shifts = np.arange(-L, L + 1)
-    rows = cy[:, None, None] + off[None, :, None]
-    pl = lp[rows, cx[:, None, None] + off[None, None, :]]
-    pl = pl - pl[:, w:w + 1, w:w + 1]  # ORB-SLAM2 subtracts the centre value (illumination)
-    cols = cr[:, None, None, None] + shifts[None, :, None, None] + off[None, None, None, :]
-    pr = rp[rows[:, None], cols]
-    pr = pr - pr[:, :, w:w + 1, w:w + 1]
-    sad = np.abs(pl[:, None] - pr).sum(axis=(2, 3)).astype(np.float64)
-    k = np.argmin(sad, axis=1)
-    interior = (k > 0) & (k < 2 * L)
-    i = np.arange(len(k))
-    kc = np.clip(k, 1, 2 * L - 1)
-    d1, d2, d3 = sad[i, kc - 1], sad[i, kc], sad[i, kc + 1]
-    denom = 2.0 * (d1 + d3 - 2.0 * d2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        delta = np.where(denom != 0, (d1 - d3) / denom, 0.0)
-    keep = interior & (np.abs(delta) <= 1.0)
-    ur_refined = np.rint(ur) + shifts[k] + delta
+    inside, ur_refined, keep, best_sad = _sad_refine(left, right, xl[good], yl[good],
+                                                     xr[best_r].astype(np.float64))
+    good = good[inside]
     disparity = xl[good] - ur_refined
     keep &= disparity > 0
-    best_sad = sad[i, k]
     if keep.any():
         keep &= best_sad <= 1.5 * 1.4 * np.median(best_sad[keep])
     depth[good[keep]] = (fx * baseline / disparity[keep]).astype(np.float32)
@@ -323,31 +359,68 @@ def _pose_pnp(ref, cur_pts, pairs, K, guess, config):
     return _rt(cv2.Rodrigues(rvec)[0], tvec), len(inliers), None
 
 
+def _ray_depths(x1, x2, R, t):
+    """Depths (z1, z2), float64 [M] each, of the points whose normalised rays are ``x1`` in the
+    reference camera and ``x2`` in the current one (float64 [M, 3], z = 1), for the motion
+    X_cur = R X_ref + t: the least-squares solution of z2 x2 = z1 R x1 + t (midpoint
+    triangulation); z2 is the current depth of the point on the reference ray. NaN when the
+    rays are parallel."""
+    a = x1 @ R.T
+    aa, bb, ab = (a * a).sum(1), (x2 * x2).sum(1), (a * x2).sum(1)
+    at, bt = a @ t, x2 @ t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z1 = (ab * bt - bb * at) / (aa * bb - ab * ab)
+    return z1, z1 * a[:, 2] + t[2]
+
+
+def _cheirality(E, x1, x2):
+    """(R, t) of the four motions that decompose ``E``: the one with the most points in front
+    of both cameras, as ``cv2.recoverPose`` chooses (depth in (0, ``_FAR``) in both, unit
+    baseline; midpoint depths, vectorised, instead of its four DLT triangulations)."""
+    import cv2
+
+    R1, R2, t = cv2.decomposeEssentialMat(E)
+    best = None
+    for R, tt in ((R1, t), (R2, t), (R1, -t), (R2, -t)):
+        tt = tt.reshape(3)
+        z1, z2 = _ray_depths(x1, x2, R, tt)
+        front = np.count_nonzero((z1 > 0) & (z1 < _FAR) & (z2 > 0) & (z2 < _FAR))
+        if best is None or front > best[0]:
+            best = front, R, tt
+    return best[1:]
+
+
 def _pose_essential(ref, cur_pts, pairs, K, step, config):
-    """T_cur_ref from the essential matrix (RANSAC, cheirality), the translation scaled by the
-    reference's depths (or ``step`` when none are shared); returns (T, inliers, depth of the
-    inliers in the current frame as (cur indices, z)) or None."""
+    """T_cur_ref from the essential matrix (MAGSAC++ RANSAC, cheirality), the translation
+    scaled by the reference's depths (or ``step`` when none are shared); returns (T, inliers,
+    depth of the inliers in the current frame as (cur indices, z)) or None."""
     import cv2
 
     p1, p2 = ref.pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
     if np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
         return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]])
-    E, mask = cv2.findEssentialMat(p1, p2, K, cv2.RANSAC, 0.999, config.ransac_threshold)
+    # MAGSAC++ (OpenCV's USAC): ~10x fewer hypotheses than plain RANSAC at this threshold,
+    # and more accurate (its inlier scoring is not a hard 0/1 at the threshold).
+    E, mask = cv2.findEssentialMat(p1, p2, K, cv2.USAC_MAGSAC, 0.999, config.ransac_threshold)
     if E is None or E.shape != (3, 3):
         return None
-    n, R, t, mask = cv2.recoverPose(E, p1, p2, K, mask=mask)
-    inl = mask.reshape(-1) > 0
-    if n < 8:
-        return None
-    X = cv2.triangulatePoints(K @ np.eye(3, 4), K @ np.hstack([R, t]), p1[inl].T, p2[inl].T)
+    inl = np.flatnonzero(mask.reshape(-1))
+    Kinv = np.linalg.inv(K)
+    x1 = np.c_[p1[inl], np.ones(len(inl))] @ Kinv.T
+    x2 = np.c_[p2[inl], np.ones(len(inl))] @ Kinv.T
+    R, t = _cheirality(E, x1, x2)
+    # The points in front, as recoverPose counts them: DLT triangulation, depth in (0, 50).
+    X = cv2.triangulatePoints(np.eye(3, 4), np.c_[R, t], x1[:, :2].T, x2[:, :2].T)
     X = (X[:3] / X[3]).T
-    z_ref = X[:, 2]
+    z_ref, z_cur = X[:, 2], X @ R[2] + t[2]
+    front = (z_ref > 0) & (z_ref < _FAR) & (z_cur > 0) & (z_cur < _FAR)
+    if front.sum() < 8:
+        return None
+    inl, z_ref, z_cur = inl[front], z_ref[front], z_cur[front]
     prior = ref.depth[pairs[inl, 1]]
-    common = np.isfinite(prior) & (prior > 0) & (z_ref > 0)
+    common = np.isfinite(prior) & (prior > 0)
     scale = float(np.median(prior[common] / z_ref[common])) if common.sum() >= 5 else step
-    z_cur = (X @ R.T + t.reshape(1, 3))[:, 2] * scale
-    z_cur = np.where((z_ref > 0) & (z_cur > 0), z_cur, np.nan)
-    return _rt(R, scale * t), int(inl.sum()), (pairs[inl, 0], z_cur)
+    return _rt(R, scale * t), len(inl), (pairs[inl, 0], z_cur * scale)
 
 
 def _record(kps, desc, depth, pose, index):
@@ -384,7 +457,8 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     t0 = time.perf_counter()
     import warpvx
 
-    K = np.asarray(K, np.float64)
+    # Contiguous: OpenCV's USAC estimators return no model for a strided K (a view of P0).
+    K = np.ascontiguousarray(K, np.float64)
     n = len(kps)
     stereo = depth is not None
     cur_depth = np.asarray(depth, np.float64) if stereo else np.full(n, np.nan)
