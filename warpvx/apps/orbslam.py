@@ -37,15 +37,13 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
+from .orbslam_match import mutual_pairs, nearest_both_ways, nearest_both_ways_warp, stereo_depth
 from .placement import schedule
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
 # ORB-SLAM2's ORBmatcher thresholds (Hamming distance, 256-bit descriptors).
 TH_HIGH, TH_LOW = 100, 50
 REF_PREVIOUS, REF_KEYFRAME, REF_LOST = 0, 1, 2
-# Set bits of each byte value: Hamming distances of descriptor bytes by table look-up.
-_POPCOUNT = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).sum(1).astype(np.int32)
-_BITWISE_COUNT = getattr(np, "bitwise_count", None)
 # Depth (in units of the baseline) beyond which cv2.recoverPose does not count a point.
 _FAR = 50.0
 STATS = ("n_keypoints", "n_matches", "n_inliers", "keyframe", "reference", "track_ms")
@@ -175,121 +173,6 @@ def filter_matches(pairs, distances, angles_q, angles_t, config: TrackerConfig) 
         pairs = pairs[rotation_consistent(np.asarray(angles_q)[pairs[:, 0]],
                                           np.asarray(angles_t)[pairs[:, 1]], config.histo_length)]
     return pairs
-
-
-def hamming_pairs(desc_a, desc_b) -> np.ndarray:
-    """int [M]: Hamming distances of row pairs of two uint8 [M, 32] descriptor arrays."""
-    x = np.ascontiguousarray(desc_a) ^ np.ascontiguousarray(desc_b)
-    if _BITWISE_COUNT is not None:  # NumPy >= 2: popcount of 64-bit words
-        return _BITWISE_COUNT(x.view(np.uint64)).sum(1, dtype=np.int32)
-    return _POPCOUNT[x].sum(1)
-
-
-def _band_pairs(yl, reach, ys):
-    """(left index, index into ``ys``) of every pair with ``|yl - ys| <= reach`` (``ys``
-    sorted), grouped by left index: a row-band join without the full N x M table."""
-    lo = np.searchsorted(ys, yl - reach)
-    counts = np.searchsorted(ys, yl + reach, side="right") - lo
-    li = np.repeat(np.arange(len(yl)), counts)
-    starts = np.repeat(lo - (np.cumsum(counts) - counts), counts)
-    return li, np.arange(len(li)) + starts
-
-
-def _best_per_group(li, key):
-    """Positions of the smallest non-negative int ``key`` within each run of equal ``li``
-    (``li`` sorted; ties to the first position)."""
-    n = len(li)
-    if n == 0:
-        return np.zeros(0, np.int64)
-    heads = np.flatnonzero(np.r_[True, li[1:] != li[:-1]])
-    # The position rides in the low digits, so one minimum per run gives it back.
-    return np.minimum.reduceat(key.astype(np.int64) * n + np.arange(n), heads) % n
-
-
-def _sad_refine(left, right, xl, yl, ur, w=5, L=5):
-    """ORB-SLAM2's sub-pixel refinement of stereo matches on the level-0 images (uint8 HxW):
-    the SAD of the (2w+1)^2 left patch (centre value subtracted) against the right one shifted
-    over -L..L px around column ``round(ur)``, a parabola through the best three.
-
-    Returns (``inside`` bool [M]: patches within the edge-padded images; then for those:
-    refined right column float64, ``ok`` bool (interior minimum, vertex within 1 px), best SAD).
-    """
-    pad = w + L + 1
-    lp = np.pad(left, pad, mode="edge")
-    rp = np.pad(right, pad, mode="edge")
-    cx = np.rint(xl).astype(np.int64) + pad
-    cy = np.rint(yl).astype(np.int64) + pad
-    cr = np.rint(ur).astype(np.int64) + pad
-    h, wd = rp.shape
-    inside = (cr - w - L >= 0) & (cr + w + L < wd) & (cy - w >= 0) & (cy + w < h)
-    cx, cy, cr, ur = cx[inside], cy[inside], cr[inside], ur[inside]
-    off = np.arange(-w, w + 1)
-    rows = (cy[:, None] + off)[:, :, None]
-    pl = lp[rows, (cx[:, None] + off)[:, None, :]].astype(np.int16)
-    pl -= pl[:, w:w + 1, w:w + 1]  # ORB-SLAM2 subtracts the centre value (illumination)
-    # One strip of 2(w+L)+1 right columns per match; the 2L+1 shifted patches are views of it.
-    strip = rp[rows, (cr[:, None] + np.arange(-w - L, w + L + 1))[:, None, :]].astype(np.int16)
-    # SAD per shift k: |pl - (strip window k - its centre)|, one (M, rows, cols) pass each.
-    centre = strip[:, w, w:w + 2 * L + 1]
-    sad = np.empty((len(cx), 2 * L + 1))
-    for k in range(2 * L + 1):
-        diff = pl + centre[:, k, None, None] - strip[:, :, k:k + 2 * w + 1]
-        sad[:, k] = np.abs(diff).sum(axis=(1, 2), dtype=np.int32)
-    k = np.argmin(sad, axis=1)
-    i = np.arange(len(k))
-    kc = np.clip(k, 1, 2 * L - 1)
-    d1, d2, d3 = sad[i, kc - 1], sad[i, kc], sad[i, kc + 1]
-    denom = 2.0 * (d1 + d3 - 2.0 * d2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        delta = np.where(denom != 0, (d1 - d3) / denom, 0.0)
-    ok = (k > 0) & (k < 2 * L) & (np.abs(delta) <= 1.0)
-    return inside, np.rint(ur) + (k - L) + delta, ok, sad[i, k]
-
-
-def stereo_depth(kps_left, desc_left, kps_right, desc_right, left, right, *, fx, baseline,
-                 config: TrackerConfig = TrackerConfig()) -> np.ndarray:
-    """Depth (m) of each left keypoint from ORB matches along the epipolar rows, float32 [N]
-    (NaN where unmatched), after ORB-SLAM2's ``Frame::ComputeStereoMatches``:
-
-    a right keypoint is a candidate when its row is within 2 s of the left one (s = the right
-    keypoint's octave scale), its octave within one of the left one's, and its disparity in
-    [0, fx]; the best Hamming distance wins if under ``stereo_max_distance``; the column is
-    refined by the SAD of 11x11 patches over +-5 px and a parabola through the three best
-    (dropped when the vertex moves more than 1 px); depth = fx baseline / disparity; matches
-    whose SAD exceeds 1.5 x 1.4 x the median are dropped. Patches are taken on the level-0
-    images (ORB-SLAM2 uses the keypoint's pyramid level).
-    """
-    n = len(kps_left)
-    depth = np.full(n, np.nan, np.float32)
-    if n == 0 or len(kps_right) == 0:
-        return depth
-    xl, yl, ol = (np.asarray(a) for a in (kps_left.x, kps_left.y, kps_left.octave))
-    xr, yr, orr = (np.asarray(a) for a in (kps_right.x, kps_right.y, kps_right.octave))
-    # Candidate pairs: right keypoints sorted by row, those within the widest band a right
-    # octave allowed for this left one can have (octave + 1), then the exact rules.
-    order = np.argsort(yr, kind="stable")
-    band = 2.0 * config.scale_factor ** np.arange(max(int(orr.max()), int(ol.max())) + 2)
-    li, pos = _band_pairs(yl, band[np.minimum(ol + 1, max(int(orr.max()), 0))], yr[order])
-    ri = order[pos]
-    dy, disp, do = yl[li] - yr[ri], xl[li] - xr[ri], ol[li] - orr[ri]
-    ok = (np.abs(dy) <= band[orr][ri]) & (disp >= 0) & (disp <= fx) & (np.abs(do) <= 1)
-    li, ri = li[ok], ri[ok]
-    dist = hamming_pairs(np.asarray(desc_left)[li], np.asarray(desc_right)[ri])
-    # Best per left keypoint: the smallest distance, then the lowest right index.
-    best = _best_per_group(li, dist.astype(np.int64) * (len(xr) + 1) + ri)
-    keep = dist[best] < config.stereo_max_distance
-    good, best_r = li[best][keep], ri[best][keep]
-    if len(good) == 0:
-        return depth
-    inside, ur_refined, keep, best_sad = _sad_refine(left, right, xl[good], yl[good],
-                                                     xr[best_r].astype(np.float64))
-    good = good[inside]
-    disparity = xl[good] - ur_refined
-    keep &= disparity > 0
-    if keep.any():
-        keep &= best_sad <= 1.5 * 1.4 * np.median(best_sad[keep])
-    depth[good[keep]] = (fx * baseline / disparity[keep]).astype(np.float32)
-    return depth
 
 
 # --------------------------------------------------------------------------- tracking
@@ -505,6 +388,15 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     return new, pose, stats
 
 
+def track_nearest(state: TrackState, kps, desc, nearest, distance, back, depth=None, *, K,
+                  config: TrackerConfig = TrackerConfig()):
+    """:func:`track` fed by the ``match`` node's nearest rows both ways (see
+    :func:`~warpvx.apps.orbslam_match.mutual_pairs`) instead of the pairs."""
+    n_prev = 0 if state.previous is None else len(state.previous.pts)
+    pairs, distances = mutual_pairs(nearest, distance, back, len(kps), n_prev)
+    return track(state, kps, desc, pairs, distances, depth, K=K, config=config)
+
+
 # --------------------------------------------------------------------------- the graph
 
 
@@ -515,7 +407,9 @@ def build_graph(camera: Camera, config: TrackerConfig = TrackerConfig(), *, back
     (float64 4x4, camera to world) and ``stats`` (float64 [6], see :func:`track`).
     ``backend``: ``"cpu"`` runs every node on CPU workers; ``"warp-cpu"``/``"cuda"`` pins the
     extractors and the matcher to the Warp device (the GPU role); ``stereo`` and ``track``
-    are CPU user nodes.
+    are CPU user nodes. With ``cross_check`` and no ``ratio`` (the defaults) the ``match``
+    node finds the nearest rows both ways and ``track`` keeps the mutual best pairs (no host
+    sync on the device); otherwise it is the ``match_hamming`` primitive.
     """
     from ..check import check_choice
     from ..graph import Graph
@@ -526,19 +420,31 @@ def build_graph(camera: Camera, config: TrackerConfig = TrackerConfig(), *, back
     g = Graph("orbslam")
     image = g.input("image", shape=(h, w), dtype=np.uint8)
     kps, desc = g.orb(image, **config.orb_args(), name="orb", target=pin)
-    pairs, dists = g.match_hamming(desc, g.delay(desc)[-1], cross_check=config.cross_check,
-                                   ratio=config.ratio, name="match", target=pin)
+    if config.cross_check and config.ratio is None:
+        # Mutual best pairs from the nearest rows both ways (no host sync, see orbslam_match).
+        padded = g.virtual("desc_padded")
+        previous_desc = g.delay(padded, init=np.zeros((0, 32), np.uint8))[-1]
+        _, *nearest = g.user(nearest_both_ways, [desc, previous_desc],
+                             [padded, "nearest", "distance", "back"],
+                             warp_fn=nearest_both_ways_warp, name="match", target=pin)
+        track_fn = track_nearest
+    else:
+        nearest = g.match_hamming(desc, g.delay(desc)[-1], cross_check=config.cross_check,
+                                  ratio=config.ratio, name="match", target=pin)
+        track_fn = track
     extra = []
     if camera.stereo:
         right = g.input("right", shape=(h, w), dtype=np.uint8)
         kps_r, desc_r = g.orb(right, **config.orb_args(), name="orb_right", target=pin)
         extra = [g.user(functools.partial(stereo_depth, fx=float(camera.K[0, 0]),
-                                          baseline=float(camera.baseline), config=config),
+                                          baseline=float(camera.baseline),
+                                          scale_factor=config.scale_factor,
+                                          max_distance=config.stereo_max_distance),
                         [kps, desc, kps_r, desc_r, image, right], name="stereo")]
     state = g.virtual("state")
     previous = g.delay(state, init=TrackState())[-1]
-    _, pose, stats = g.user(functools.partial(track, K=camera.K, config=config),
-                            [previous, kps, desc, pairs, dists] + extra, [state, "pose", "stats"],
+    _, pose, stats = g.user(functools.partial(track_fn, K=camera.K, config=config),
+                            [previous, kps, desc, *nearest] + extra, [state, "pose", "stats"],
                             name="track")
     g.output("pose", pose)
     g.output("stats", stats)
@@ -630,6 +536,6 @@ def opencv_baseline(images, K):
 
 __all__ = [
     "TrackerConfig", "Camera", "TrackState", "FrameRecord", "TrackedFrame", "three_maxima",
-    "rotation_consistent", "filter_matches", "stereo_depth", "track", "build_graph", "schedule",
+    "rotation_consistent", "filter_matches", "stereo_depth", "track", "track_nearest", "build_graph", "schedule",
     "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
 ]
