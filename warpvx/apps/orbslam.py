@@ -37,7 +37,7 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
-from .orbslam_match import mutual_pairs, nearest_both_ways, nearest_both_ways_warp, stereo_depth
+from .orbslam_match import add_match_node, mutual_pairs, stereo_depth
 from .placement import schedule
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
@@ -422,11 +422,7 @@ def build_graph(camera: Camera, config: TrackerConfig = TrackerConfig(), *, back
     kps, desc = g.orb(image, **config.orb_args(), name="orb", target=pin)
     if config.cross_check and config.ratio is None:
         # Mutual best pairs from the nearest rows both ways (no host sync, see orbslam_match).
-        padded = g.virtual("desc_padded")
-        previous_desc = g.delay(padded, init=np.zeros((0, 32), np.uint8))[-1]
-        _, *nearest = g.user(nearest_both_ways, [desc, previous_desc],
-                             [padded, "nearest", "distance", "back"],
-                             warp_fn=nearest_both_ways_warp, name="match", target=pin)
+        nearest = add_match_node(g, desc, target=pin)
         track_fn = track_nearest
     else:
         nearest = g.match_hamming(desc, g.delay(desc)[-1], cross_check=config.cross_check,

@@ -97,6 +97,18 @@ def nearest_both_ways_warp(desc, prev):
     return padded, idx, dist, back
 
 
+def add_match_node(g, desc, *, target=None):
+    """Add the ``match`` node to graph ``g`` for the descriptors ``desc`` (a data object of
+    uint8 [N, 32]): it matches them to the previous frame's both ways (the padded
+    descriptors go through a delay). Returns the data objects (nearest, distance, back) that
+    :func:`mutual_pairs` turns into pairs; ``target`` pins the node (``"gpu"``)."""
+    padded = g.virtual("desc_padded")
+    previous = g.delay(padded, init=np.zeros((0, 32), np.uint8))[-1]
+    _, *nearest = g.user(nearest_both_ways, [desc, previous], [padded, "nearest", "distance", "back"],
+                         warp_fn=nearest_both_ways_warp, name="match", target=target)
+    return nearest
+
+
 def mutual_pairs(nearest, distance, back, n: int, n_prev: int) -> tuple:
     """The mutual best pairs of the ``match`` node's outputs (host arrays, see
     :func:`nearest_both_ways_warp`) for ``n`` real rows of this frame and ``n_prev`` of the
@@ -123,25 +135,21 @@ def hamming_pairs(desc_a, desc_b) -> np.ndarray:
     return _POPCOUNT[x].sum(1)
 
 
-def _band_pairs(yl, reach, ys):
-    """(left index, index into ``ys``) of every pair with ``|yl - ys| <= reach`` (``ys``
-    sorted), grouped by left index: a row-band join without the full N x M table."""
-    lo = np.searchsorted(ys, yl - reach)
-    counts = np.searchsorted(ys, yl + reach, side="right") - lo
-    li = np.repeat(np.arange(len(yl)), counts)
-    starts = np.repeat(lo - (np.cumsum(counts) - counts), counts)
-    return li, np.arange(len(li)) + starts
-
-
-def _best_per_group(li, key):
-    """Positions of the smallest non-negative int ``key`` within each run of equal ``li``
-    (``li`` sorted; ties to the first position)."""
-    n = len(li)
-    if n == 0:
-        return np.zeros(0, np.int64)
-    heads = np.flatnonzero(np.r_[True, li[1:] != li[:-1]])
-    # The position rides in the low digits, so one minimum per run gives it back.
-    return np.minimum.reduceat(key.astype(np.int64) * n + np.arange(n), heads) % n
+def _candidates(yl, ol, yr, orr, band):
+    """(left, right) index pairs whose octaves differ by at most one and whose rows are within
+    ``band[right octave]`` (+ a margin; the caller applies the exact test): a row-band join
+    per right octave, right keypoints sorted by row, no N x M table."""
+    lis, ris = [], []
+    for octave in np.unique(orr):
+        right = np.flatnonzero(orr == octave)
+        right = right[np.argsort(yr[right], kind="stable")]
+        left = np.flatnonzero(np.abs(ol - octave) <= 1)
+        reach = band[octave] + 1e-3
+        lo = np.searchsorted(yr[right], yl[left] - reach)
+        counts = np.searchsorted(yr[right], yl[left] + reach, side="right") - lo
+        lis.append(np.repeat(left, counts))
+        ris.append(right[np.arange(counts.sum()) + np.repeat(lo - (np.cumsum(counts) - counts), counts)])
+    return np.concatenate(lis), np.concatenate(ris)
 
 
 def _sad_refine(left, right, xl, yl, ur, w=5, L=5):
@@ -204,20 +212,18 @@ def stereo_depth(kps_left, desc_left, kps_right, desc_right, left, right, *, fx,
         return depth
     xl, yl, ol = (np.asarray(a) for a in (kps_left.x, kps_left.y, kps_left.octave))
     xr, yr, orr = (np.asarray(a) for a in (kps_right.x, kps_right.y, kps_right.octave))
-    # Candidate pairs: right keypoints sorted by row, those within the widest band a right
-    # octave allowed for this left one can have (octave + 1), then the exact rules.
-    order = np.argsort(yr, kind="stable")
-    band = 2.0 * scale_factor ** np.arange(max(int(orr.max()), int(ol.max())) + 2)
-    li, pos = _band_pairs(yl, band[np.minimum(ol + 1, max(int(orr.max()), 0))], yr[order])
-    ri = order[pos]
-    dy, disp, do = yl[li] - yr[ri], xl[li] - xr[ri], ol[li] - orr[ri]
-    ok = (np.abs(dy) <= band[orr][ri]) & (disp >= 0) & (disp <= fx) & (np.abs(do) <= 1)
+    band = 2.0 * scale_factor ** np.arange(max(int(orr.max()), 0) + 1)
+    li, ri = _candidates(yl, ol, yr, orr, band)
+    disp = xl[li] - xr[ri]
+    ok = (np.abs(yl[li] - yr[ri]) <= band[orr[ri]]) & (disp >= 0) & (disp <= fx)
     li, ri = li[ok], ri[ok]
     dist = hamming_pairs(np.asarray(desc_left)[li], np.asarray(desc_right)[ri])
-    # Best per left keypoint: the smallest distance, then the lowest right index.
-    best = _best_per_group(li, dist.astype(np.int64) * (len(xr) + 1) + ri)
-    keep = dist[best] < max_distance
-    good, best_r = li[best][keep], ri[best][keep]
+    # Best per left keypoint: the smallest distance, then the lowest right index (one key).
+    width = len(xr) + 1
+    best = np.full(n, np.iinfo(np.int64).max)
+    np.minimum.at(best, li, dist.astype(np.int64) * width + ri)
+    good = np.flatnonzero(best < max_distance * width)
+    best_r = best[good] % width
     if len(good) == 0:
         return depth
     inside, ur_refined, keep, best_sad = _sad_refine(left, right, xl[good], yl[good],
@@ -231,5 +237,5 @@ def stereo_depth(kps_left, desc_left, kps_right, desc_right, left, right, *, fx,
     return depth
 
 
-__all__ = ["ROW_BUCKET", "nearest_both_ways", "nearest_both_ways_warp", "mutual_pairs",
+__all__ = ["ROW_BUCKET", "add_match_node", "nearest_both_ways", "nearest_both_ways_warp", "mutual_pairs",
            "hamming_pairs", "stereo_depth"]
