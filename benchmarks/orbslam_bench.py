@@ -40,6 +40,7 @@ import statistics
 import sys
 import tempfile
 import time
+import traceback
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -233,26 +234,41 @@ def main(argv=None):
     mono_frames = [{"image": im} for im in left]
     stereo_frames = [{"image": a, "right": b} for a, b in zip(left, right)]
     images = replay(left, n)
-    report["extract_match"] = bench_extract_match(images, backend, primitive=False)
-    progress("extraction+matching (match node) FPS", f"{report['extract_match']['fps']:.1f}")
-    report["extract_match_primitive"] = bench_extract_match(images, backend, primitive=True)
-    progress("extraction+matching (match_hamming primitive) FPS",
-             f"{report['extract_match_primitive']['fps']:.1f}")
-    report["frontend_mono"], _ = bench_frontend(replay(mono_frames, n), mono, backend, out, "mono")
-    progress("front end mono FPS", f"{report['frontend_mono']['fps']:.1f}")
-    report["frontend_stereo"], _ = bench_frontend(replay(stereo_frames, n), stereo, backend, out, "stereo")
-    progress("front end stereo FPS", f"{report['frontend_stereo']['fps']:.1f}")
+    failed = {"fps": float("nan"), "stages_ms": {}, "track_ms_median": float("nan"), "plan": None}
+
+    def attempt(what, fn, fallback):
+        """``fn()``; on an error its traceback, and ``fallback`` with the error, so one broken
+        section does not cost the other numbers of the (single) GPU run."""
+        try:
+            return fn()
+        except Exception as exc:  # noqa: BLE001 - reported in the table and the JSON
+            traceback.print_exc()
+            progress(f"{what} FAILED", exc)
+            return dict(fallback, error=f"{type(exc).__name__}: {exc}")
+
+    for key, primitive, what in (("extract_match", False, "match node"),
+                                 ("extract_match_primitive", True, "match_hamming primitive")):
+        report[key] = attempt(what, lambda: bench_extract_match(images, backend, primitive=primitive), failed)
+        progress(f"extraction+matching ({what}) FPS", f"{report[key]['fps']:.1f}")
+    for key, frames, camera, name in (("frontend_mono", mono_frames, mono, "mono"),
+                                      ("frontend_stereo", stereo_frames, stereo, "stereo")):
+        report[key] = attempt(name, lambda: bench_frontend(replay(frames, n), camera, backend, out, name)[0],
+                              failed)
+        progress(f"front end {name} FPS", f"{report[key]['fps']:.1f}")
     report["opencv_baseline"] = bench_opencv(replay(left, min(n, 200)), K)
     progress("opencv", report["opencv_baseline"])
     # Accuracy on the rendered sequence itself (no replay), and on castle_simu when present.
-    est_m = np.array([f.pose for f in o.track_frames(mono_frames, mono, backend=backend)])
-    est_s = np.array([f.pose for f in o.track_frames(stereo_frames, stereo, backend=backend)])
-    report["accuracy"] = {"rendered: warpvx_mono (Sim3)": accuracy(est_m, gt, True),
-                          "rendered: warpvx_stereo (SE3)": accuracy(est_s, gt, False),
-                          "rendered: opencv_baseline (Sim3)": accuracy(o.opencv_baseline(left, K), gt, True)}
+    nan = {"ate_m": float("nan"), "rpe1_t_m": float("nan"), "rpe1_r_deg": float("nan")}
+    report["accuracy"] = {
+        "rendered: warpvx_mono (Sim3)": attempt("accuracy mono", lambda: accuracy(np.array(
+            [f.pose for f in o.track_frames(mono_frames, mono, backend=backend)]), gt, True), nan),
+        "rendered: warpvx_stereo (SE3)": attempt("accuracy stereo", lambda: accuracy(np.array(
+            [f.pose for f in o.track_frames(stereo_frames, stereo, backend=backend)]), gt, False), nan),
+        "rendered: opencv_baseline (Sim3)": accuracy(o.opencv_baseline(left, K), gt, True)}
     if os.path.isdir(args.castle):
-        for k, v in castle_accuracy(args.castle, backend).items():
-            report["accuracy"][f"castle_simu: {k}"] = v
+        for k, v in attempt("castle", lambda: castle_accuracy(args.castle, backend), {}).items():
+            if k != "error":
+                report["accuracy"][f"castle_simu: {k}"] = v
     progress("accuracy", "done")
 
     base = report["opencv_baseline"]["thread_pool_fps"]
@@ -264,7 +280,8 @@ def main(argv=None):
              f"# ORB-SLAM front end at {size[0]}x{size[1]} ({backend}, {n} frames, "
              f"{os.cpu_count()} CPU threads)", "",
              "| what | FPS | vs OpenCV (thread pool) |", "| --- | --- | --- |"]
-    lines += [f"| {label} | {report[k]['fps']:.1f} | {report[k]['fps'] / base:.1f}x |" for label, k in rows]
+    lines += [f"| {label}" + (f" (FAILED: {report[k]['error']})" if "error" in report[k] else "")
+              + f" | {report[k]['fps']:.1f} | {report[k]['fps'] / base:.1f}x |" for label, k in rows]
     lines += [f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | |",
               f"| OpenCV baseline, thread-pool extraction | {base:.1f} | 1.0x |",
               f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | |",
@@ -278,6 +295,9 @@ def main(argv=None):
         lines.append(f"| {k} | {v['ate_m']:.4f} | {v['rpe1_t_m']:.4f} | {v['rpe1_r_deg']:.3f} |")
     for k in ("frontend_mono", "frontend_stereo"):
         s = report[k]["plan"]
+        if s is None:
+            lines += ["", f"{k}: FAILED ({report[k].get('error')})"]
+            continue
         measured = s["measured_makespan_ms"]
         lines += ["", f"{k}: placement {s['placement']}; predicted makespan "
                       f"{s['predicted_makespan_ms']:.2f} ms, measured (median frame latency, "

@@ -103,7 +103,7 @@ def test_graph_places_extraction_on_the_gpu_role(stereo_seq):
     gt = te.read_kitti(stereo_seq / "poses.txt")[:4]
     assert te.ate(np.array([f.pose for f in frames]), gt, with_scale=False)["rmse"] < 0.01
     placement = plans[0].placement
-    assert placement["orb"] == "gpu" and placement["orb_right"] == "gpu"
+    assert placement["orb"] == "gpu" and placement["orb_right"] == "gpu" and placement["match"] == "gpu"
     assert placement["track"] != "gpu" and placement["stereo"] != "gpu"
 
 

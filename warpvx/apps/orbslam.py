@@ -3,15 +3,20 @@
 Per frame (``image``, and ``right`` for a stereo sequence)::
 
     image -> orb (ORB-SLAM2 extractor, GPU role) -> keypoints, descriptors
-    descriptors, descriptors[-1] (a delay) -> match_hamming (cross-check / ratio) -> pairs
+    descriptors, padded[-1] (a delay) -> match (GPU role: nearest rows both ways) -> padded,
+        nearest [, or with a ratio test: match_hamming -> pairs]
     right -> orb_right -> stereo (CPU: ComputeStereoMatches) -> depth per left keypoint
-    state[-1] (a delay), keypoints, pairs [, depth] -> track (CPU) -> state, pose, stats
+    state[-1] (a delay), keypoints, nearest [, depth] -> track (CPU) -> state, pose, stats
+
+The matching and stereo code is in :mod:`warpvx.apps.orbslam_match`; ``track`` keeps the
+mutual best pairs (cross-check) of ``match``'s outputs.
 
 ``track`` filters the matches (Hamming distance, ORB-SLAM2's rotation-consistency histogram),
 falls back to the last keyframe when the previous frame gives too few, and estimates the motion
 from the reference frame: PnP with RANSAC on the reference's stereo 3-D points (metric, the
 constant-velocity motion model as the initial guess, ``useExtrinsicGuess``), or for monocular
-sequences the essential matrix by RANSAC with the cheirality check (``cv2.recoverPose``). A
+sequences the essential matrix by MAGSAC++ (OpenCV's USAC) with the cheirality check (as
+``cv2.recoverPose``; its four-way choice vectorised). A
 monocular camera cannot observe scale: the first step has unit length and later steps take
 their length from the depths triangulated at the step before (the median ratio over the points
 seen in both), so the trajectory is right up to one global scale -- evaluate it after a Sim(3)

@@ -44,6 +44,8 @@ def _pad_rows(desc, rows: int):
     N repeat rows 0, 1, ... (device copies, doubling; zeros when N = 0)."""
     import warp as wp
 
+    if not desc.is_contiguous:
+        desc = desc.contiguous()
     n, width = desc.shape
     out = wp.empty((rows, width), dtype=wp.uint8, device=desc.device)
     if n == 0:
@@ -103,7 +105,8 @@ def add_match_node(g, desc, *, target=None):
     descriptors go through a delay). Returns the data objects (nearest, distance, back) that
     :func:`mutual_pairs` turns into pairs; ``target`` pins the node (``"gpu"``)."""
     padded = g.virtual("desc_padded")
-    previous = g.delay(padded, init=np.zeros((0, 32), np.uint8))[-1]
+    # Before the first frame: zero rows (never paired: the tracker has no previous frame).
+    previous = g.delay(padded, init=np.zeros((ROW_BUCKET, 32), np.uint8))[-1]
     _, *nearest = g.user(nearest_both_ways, [desc, previous], [padded, "nearest", "distance", "back"],
                          warp_fn=nearest_both_ways_warp, name="match", target=target)
     return nearest
