@@ -43,7 +43,6 @@ import numpy as np
 
 from ..errors import WarpvxValueError
 from .orbslam_match import add_match_node, mutual_pairs, stereo_depth
-from .placement import schedule
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
 # ORB-SLAM2's ORBmatcher thresholds (Hamming distance, 256-bit descriptors).
@@ -403,6 +402,39 @@ def track_nearest(state: TrackState, kps, desc, nearest, distance, back, depth=N
 
 
 # --------------------------------------------------------------------------- the graph
+
+
+def spread_cpu_nodes(dag):
+    """Scheduling policy for pipelined frames: ``best`` (HEFT/XEFT), then, when there are at
+    least as many CPU workers as CPU nodes, each CPU node on a worker of its own (same
+    predicted times: CPU workers share memory and costs). A single-frame schedule stacks
+    dependent CPU nodes (``stereo`` -> ``track``) on one worker; in a stream that worker then
+    runs both for every frame, where two workers run ``stereo`` of frame t+1 beside ``track``
+    of frame t. Falls back to ``best``'s schedule if the spread one is not feasible."""
+    from .. import sched
+    from ..errors import ScheduleError
+
+    best = sched.schedule(dag, "best")
+    cpus = [p for p in best.processors if p.startswith("cpu")]
+    on_cpu = sorted((t for t in best.tasks.values() if t.processor in cpus), key=lambda t: t.start)
+    if len(on_cpu) < 2 or len(on_cpu) > len(cpus):
+        return best
+    tasks = dict(best.tasks)
+    for t, cpu in zip(on_cpu, cpus):
+        tasks[t.task] = sched.ScheduledTask(t.task, cpu, t.start, t.finish)
+    spread = sched.Schedule(tasks, best.processors, "spread", best.priority,
+                            dict(best.info, chosen=f"{best.info.get('chosen', 'best')}, spread"))
+    try:
+        sched.validate_schedule(dag, spread)
+    except ScheduleError:
+        return best
+    return spread
+
+
+def schedule(graph, backend="cpu"):
+    """Place the front-end graph (:func:`spread_cpu_nodes` on CPU workers, plus the Warp
+    device unless ``backend`` is ``"cpu"``); returns the plan."""
+    return graph.schedule(spread_cpu_nodes, gpu=False if backend == "cpu" else backend)
 
 
 def build_graph(camera: Camera, config: TrackerConfig = TrackerConfig(), *, backend="cpu"):
