@@ -206,3 +206,15 @@ def test_pipelined_placement_spreads_cpu_nodes_and_changes_no_pose(stereo_seq):
             assert plan.placement["stereo"] == plan.placement["track"] == "cpu0"
     for key, value in poses.items():
         np.testing.assert_array_equal(value, poses["best", 4], err_msg=str(key))
+
+
+def test_ratio_test_config_matches_with_the_primitive(stereo_seq):
+    """With a ratio test the graph's ``match`` is the match_hamming primitive (the padded
+    nearest-both-ways node keeps cross-check pairs only); tracking still holds."""
+    seq = open_source(stereo_seq, max_frames=4)
+    config = o.TrackerConfig(ratio=0.9)
+    assert o.build_graph(seq.camera, config).node("match").kind == "match_hamming"
+    assert o.build_graph(seq.camera).node("match").kind == "user"
+    frames = list(o.track_frames(seq, seq.camera, config))
+    gt = te.read_kitti(stereo_seq / "poses.txt")[:4]
+    assert te.ate(np.array([f.pose for f in frames]), gt, with_scale=False)["rmse"] < 0.01
