@@ -88,8 +88,9 @@ def bench_extract_match(images, backend, primitive, depth=3):
         pairs, _ = g.match_hamming(desc, g.delay(desc)[-1], cross_check=True, name="match", target=pin)
     else:
         count = g.virtual("count")
-        _, pairs = g.user(_pairs_node, [g.delay(count, init=0)[-1], kps, *add_match_node(g, desc, target=pin)],
-                          [count, "pairs"], name="pairs")
+        nearest = add_match_node(g, desc, target=pin)
+        _, pairs = g.user(_pairs_node, [g.delay(count, init=0)[-1], kps, *nearest], [count, "pairs"],
+                          name="pairs")
     g.output("pairs", pairs)
     g.verify([{"image": images[0]}, {"image": images[1]}])
     plan = g.schedule("best", gpu=False if backend == "cpu" else backend)
@@ -208,7 +209,8 @@ def main(argv=None):
     size = tuple(int(v) for v in args.size.lower().split("x"))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    command = "PYTHONPATH=. python3 benchmarks/orbslam_bench.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = " ".join(["PYTHONPATH=. python3 benchmarks/orbslam_bench.py",
+                        *(argv if argv is not None else sys.argv[1:])])
     report = {"command": command, "backend": backend, "size": size, "frames_timed": n,
               "frames_rendered": n_unique, "cpu_count": os.cpu_count(), "opencv": cv2.__version__}
     started = time.perf_counter()
@@ -289,7 +291,8 @@ def main(argv=None):
               f"stereo {report['frontend_stereo']['track_ms_median']:.2f} ms.", "",
               "Per node, median ms over the last frames (in a pipelined run a node's interval",
               "includes waiting for the GIL and for copies):", ""]
-    lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono", "frontend_stereo"])
+    lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono",
+                                   "frontend_stereo"])
     lines += ["", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
     for k, v in report["accuracy"].items():
         lines.append(f"| {k} | {v['ate_m']:.4f} | {v['rpe1_t_m']:.4f} | {v['rpe1_r_deg']:.3f} |")

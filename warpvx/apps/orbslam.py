@@ -569,6 +569,6 @@ def opencv_baseline(images, K):
 
 __all__ = [
     "TrackerConfig", "Camera", "TrackState", "FrameRecord", "TrackedFrame", "three_maxima",
-    "rotation_consistent", "filter_matches", "stereo_depth", "track", "track_nearest", "build_graph", "schedule",
-    "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
+    "rotation_consistent", "filter_matches", "stereo_depth", "track", "track_nearest", "build_graph",
+    "spread_cpu_nodes", "schedule", "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
 ]
