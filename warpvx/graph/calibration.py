@@ -391,18 +391,20 @@ def measure_dispatch(gpu_backend, transfer: TransferModel | None = None, *, n_no
 def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats: int = 9) -> dict:
     """How much the graph's own nodes slow each other down when run together (ms).
 
-    The heaviest CPU node is timed alone and then while every other host thread of a plan
-    with ``n_cpus`` workers is busy (``n_cpus - 1`` threads looping the same CPU call, one
-    looping the heaviest GPU node's call, as the GPU host thread would); the heaviest GPU
-    node's host call likewise while ``n_cpus`` threads loop the CPU node. Contention for
-    the GIL, the cores and memory bandwidth shows up in every placement, but a placement
-    that keeps the workers idle (all on the GPU) does not reveal it; this probe does.
+    The heaviest CPU node is timed alone, then while the other ``n_cpus - 1`` CPU workers
+    loop the same call, then while one thread loops the heaviest GPU node's call (as the
+    GPU host thread would); the heaviest GPU node's host call alone and while ``n_cpus``
+    threads loop the CPU node. Contention for the GIL, the cores and memory bandwidth shows
+    up in every placement, but a placement that keeps the workers idle (all on the GPU)
+    does not reveal it, and one kind of busy neighbour does not tell the other's cost;
+    this probe does.
 
     Returns
     -------
     dict
-        ``"cpu"``/``"gpu"`` -> ``(node, alone_ms, loaded_ms, busy_threads)``; a kind is
-        absent when no node has that implementation.
+        ``(victim kind, loader kind)`` -> ``(node, alone_ms, loaded_ms, busy_cpus,
+        busy_gpus)``, for ``("cpu", "cpu")``, ``("cpu", "gpu")`` and ``("gpu", "cpu")``;
+        a pair is absent when a kind has no node (or ``n_cpus`` is 1 for ``("cpu", "cpu")``).
     """
     from ..backend import init_warp, resolve_backend
 
@@ -453,14 +455,15 @@ def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats:
                 th.join()
 
     out = {}
-    for kind, victim in (("cpu", cpu_node), ("gpu", gpu_node)):
-        if victim is None:
+    victims = {"cpu": cpu_node, "gpu": gpu_node}
+    loads = {("cpu", "cpu"): n_cpus - 1, ("cpu", "gpu"): 1, ("gpu", "cpu"): n_cpus}
+    for (kind, loader), n in loads.items():
+        if victims[kind] is None or loader not in calls or n < 1:
             continue
-        loaders = (["cpu"] * (n_cpus - 1) + (["gpu"] if "gpu" in calls else [])
-                   if kind == "cpu" else ["cpu"] * n_cpus if "cpu" in calls else [])
-        if not loaders:
-            continue
-        out[kind] = (victim, timed(kind, []), timed(kind, loaders), len(loaders))
+        alone = timed(kind, [])
+        loaded = timed(kind, [loader] * n)
+        out[(kind, loader)] = (victims[kind], alone, loaded,
+                               n if loader == "cpu" else 0, n if loader == "gpu" else 0)
     return out
 
 
