@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import statistics
+import time
 
 import numpy as np
 import pytest
@@ -166,4 +167,48 @@ def test_model_fits_one_placement_and_predicts_others_out_of_sample(frames):
     fig = best.gantt()
     assert "prediction error" in fig._suptitle.get_text()
     assert "time (ms)" in fig.axes[0].get_xlabel()
+    g.close()
+
+
+def _slow_on_cpu(x):
+    time.sleep(0.03)
+    return x
+
+
+def _fast_on_gpu(x):
+    return x
+
+
+def test_best_trial_keeps_the_measured_winner_when_the_model_is_wrong():
+    # One node, 30 ms on a CPU worker and fast on the GPU role; the model is told the
+    # opposite, so it predicts the CPU placement fastest. The trial runs both candidates
+    # and keeps the one that measured fastest: the GPU placement.
+    g = warpvx.Graph("trial")
+    x = g.input("x", shape=(4,), dtype=np.float32)
+    g.output("y", g.user(_slow_on_cpu, [x], warp_fn=_fast_on_gpu, name="work"))
+    frame = {"x": np.arange(4, dtype=np.float32)}
+    g.verify(frame)
+    plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
+    runs = []
+    for _ in range(3):
+        g.process(frame)
+        runs.append(plan.last_run[-1])
+    model = g.fit_model(plan, runs=runs)
+    model.alone["work"] = {"cpu": 0.001, "gpu": 50.0, "device": 0.0}  # wrong on purpose
+    untried = g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model)
+    assert untried.placement["work"] == "cpu0"  # the model's (wrong) pick
+    tried = g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame],
+                       trial_frames=3, trial_margin=1e6)
+    trial = tried.schedule.info["trial_ms"]
+    assert len(trial) == 2
+    assert tried.placement["work"] == "gpu"
+    assert trial[tried.schedule.info["chosen"]] == min(trial.values())
+    assert max(trial.values()) > 25.0  # the CPU candidate really ran its 30 ms sleep
+    assert g.plan is tried
+    np.testing.assert_array_equal(g.process(frame)["y"], frame["x"])
+    with pytest.raises(warpvx.GraphError, match="trial_frames"):
+        g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame],
+                   trial_frames=0, trial_margin=1e6)
+    with pytest.raises(warpvx.GraphError, match="trial_inputs"):
+        g.schedule("heft", n_cpus=1, gpu="warp-cpu", trial_inputs=[frame])
     g.close()

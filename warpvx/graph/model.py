@@ -528,8 +528,8 @@ def in_frame_dag(model: ContentionModel, pes: dict, n_cpus: int):
     return cpu_gpu_dag(tasks, edges, n_cpus)
 
 
-def choose(model: ContentionModel, dags: dict, policies=("baseline", "heft", "xeft")) -> tuple:
-    """The schedule ``model`` predicts fastest among ``policies`` run on each of ``dags``.
+def choose(model: ContentionModel, dags: dict, policies=("baseline", "heft", "xeft")) -> list:
+    """Every candidate schedule of ``policies`` on each of ``dags``, fastest predicted first.
 
     Parameters
     ----------
@@ -538,26 +538,30 @@ def choose(model: ContentionModel, dags: dict, policies=("baseline", "heft", "xe
 
     Returns
     -------
-    (Schedule, task DAG, predicted Schedule)
-        The winner (``info["chosen"]`` names its policy and DAG, ``info["candidates"]``
-        maps each candidate to its predicted makespan in ms), the DAG it was scheduled on,
-        and its simulation.
+    list of (name, Schedule, task DAG, predicted Schedule)
+        ``name``: ``"<policy>"`` or ``"<policy> (<label>)"``; a schedule with the same
+        placement and per-processor order as a faster one is left out (it would run the
+        same). Each Schedule's ``info["candidates"]`` maps every candidate's name to its
+        predicted makespan (ms).
     """
     from .. import sched
 
-    best, found = None, {}
+    found, seen, out = {}, set(), []
     for label, dag in dags.items():
         for policy in policies:
             sch = sched.schedule(dag, policy)
             pred = simulate(model, sch)
             name = f"{policy} ({label})" if label else policy
             found[name] = pred.makespan
-            if best is None or pred.makespan < best[2].makespan:
-                best = (sch, dag, pred, name)
-    sch, dag, pred, name = best
-    sch.info = {**sch.info, "chosen": name, "candidates": found}
-    sch.policy = "best"
-    return sch, dag, pred
+            order = tuple(sorted(sch.tasks, key=lambda v: (sch.tasks[v].processor, sch.tasks[v].start)))
+            key = (tuple(sch.tasks[v].processor for v in order), order)
+            if key not in seen:
+                seen.add(key)
+                out.append((name, sch, dag, pred))
+    out.sort(key=lambda c: c[3].makespan)
+    for _, sch, _, _ in out:
+        sch.info = {**sch.info, "candidates": found}
+    return out
 
 
 __all__ = [
