@@ -89,3 +89,38 @@ def test_graph_bench_quick_runs(tmp_path):
                          for o in mixed)
     md = (tmp_path / "graph_bench.md").read_text()
     assert "| best" in md and "out of sample" in md and "graph_bench.py --quick" in md
+
+
+def test_gantt_labels_rows_names_and_error_on_warp_cpu(frames, tmp_path):
+    # A mixed placement on Warp's CPU device: both rows name that GPU role "gpu (warp-cpu)",
+    # every node is named on both charts (in its bar or in the numbered list under the
+    # axis), time is in ms and the title gives the prediction's error.
+    import matplotlib
+
+    matplotlib.use("Agg")
+    g = warpvx.Graph("gantt")
+    frame = g.input("frame", shape=frames[0].shape, dtype=np.uint8)
+    gray = g.color_convert(frame, code="BGR2GRAY", name="gray", target="gpu")
+    blur = g.gaussian_blur(gray, ksize=(5, 5), sigma=1.2, name="blur", target="cpu")
+    g.output("kps", g.fast_corners(blur, threshold=20, name="fast", target="gpu"))
+    g.output("mean", g.user(lambda x: np.array([x.mean()]), [gray], "m", name="mean"))
+    g.verify({"frame": frames[0]})
+    plan = g.schedule("heft", n_cpus=1, gpu="warp-cpu")
+    runs = []
+    for f in frames:
+        g.process({"frame": f})
+        runs.append(plan.last_run[-1])
+    plan.prediction = g.fit_model(plan, runs=runs[:2]).predict(plan)
+    fig = plan.gantt(tmp_path / "gantt.png")
+    assert (tmp_path / "gantt.png").stat().st_size > 0
+    title = fig._suptitle.get_text()
+    predicted, measured = plan.predicted_makespan, plan.measured_makespans()[-1]
+    assert f"predicted {predicted:.3f} ms" in title
+    assert f"{100 * (predicted - measured) / measured:+.1f}%" in title
+    for ax in fig.axes[:2]:
+        rows = [t.get_text() for t in ax.get_yticklabels()]
+        assert "gpu (warp-cpu)" in rows and "gpu" not in rows and "cpu0" in rows
+        assert ax.get_xlabel().startswith("time (ms)")
+        shown = " ".join([t.get_text() for t in ax.texts] + [ax.get_xlabel()])
+        for node in g.nodes:
+            assert node in shown, (node, shown)
