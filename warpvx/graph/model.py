@@ -264,6 +264,9 @@ class ContentionModel:
         The GPU role is a CUDA device (host enqueue and device run apart).
     trained_on : str
         The policy whose frames the model learnt from, and how many.
+    copy_scale : dict
+        ``"cpu"``/``"gpu"`` -> median of measured over modelled copy time in the training
+        frames (a frame's pageable arrays copy slower than calibration's buffers).
     """
 
     slowdown: dict
@@ -273,15 +276,20 @@ class ContentionModel:
     transfer: object
     cuda: bool
     trained_on: str = ""
+    copy_scale: dict = field(default_factory=dict)
 
     def work(self, node: str, pe: str, copied: int = 0) -> float:
-        """``node``'s alone work on ``pe`` plus its copies of ``copied`` bytes (ms)."""
+        """``node``'s time on ``pe`` in a frame with no busy neighbour, its copies of
+        ``copied`` bytes included (ms)."""
         alone = self.alone[node][pe]
         if alone is None:
             raise GraphError(f"node {node!r}: no {pe.upper()} implementation to predict")
-        if copied:
-            alone += self.transfer.upload(copied) if pe == "gpu" else self.transfer.download(copied)
-        return alone
+        return self.slowdown[pe].in_frame(node, alone) + self.copy_time(pe, copied)
+
+    def copy_time(self, pe: str, nbytes: int) -> float:
+        """The copies a task on ``pe`` makes of ``nbytes`` (uploads on the GPU thread,
+        downloads on a CPU worker): the transfer model scaled by ``copy_scale``."""
+        return self.copy_scale.get(pe, 1.0) * _copy_ms(self.transfer, pe, nbytes)
 
     def predict(self, plan_or_schedule, processors=None) -> Schedule:
         """The predicted timeline of one frame of a plan (or of a Schedule's orders):
@@ -301,6 +309,7 @@ class ContentionModel:
                              "samples": s.samples, "rms_log": s.rms_log}
                          for k, s in self.slowdown.items()},
             "latency_us": {k: v * 1e3 for k, v in self.latency.items()},
+            "copy_scale": dict(self.copy_scale),
         }
 
 
@@ -365,18 +374,21 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     alone = alone_costs(calibration)
     cuda = bool(calibration.gpu) and calibration.gpu.startswith("cuda")
     samples = {"cpu": [], "gpu": []}
+    copies = {"cpu": [], "gpu": []}
     waits = {k: [] for k in LATENCIES}
     for run in runs:
         hosts = host_intervals(run)
         for task, (proc, s, f) in hosts.items():
             pe = pe_of(proc)
-            a = alone[task][pe]
-            if a is not None:
-                a += _copy_ms(calibration.transfer, pe, run.copied.get(task, 0))
-                busy = [busy_overlap((s, f), [(b0, b1) for p, b0, b1 in hosts.values()
-                                              if p != proc and pe_of(p) == kind])
-                        for kind in ("cpu", "gpu")]
-                samples[pe].append((task, a, f - s, *busy))
+            copy_ms = run.transfers.get(task, 0.0)
+            modelled = _copy_ms(calibration.transfer, pe, run.copied.get(task, 0))
+            busy = [busy_overlap((s, f), [(b0, b1) for p, b0, b1 in hosts.values()
+                                          if p != proc and pe_of(p) == kind])
+                    for kind in ("cpu", "gpu")]
+            if copy_ms > 0 and modelled > 0:
+                copies[pe].append((copy_ms / modelled, *busy))
+            if alone[task][pe] is not None:
+                samples[pe].append((task, alone[task][pe], f - s - copy_ms, *busy))
             cls, ready = _ready_parts(run, task, reads, placement, hosts)
             waits[cls].append(max(0.0, s - ready))
     probes = {"cpu": [], "gpu": []}
@@ -388,8 +400,13 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
                 "gpu_same": d.get("gpu_gap", 0.0), "cpu_from_cpu": d.get("cpu_gap", 0.0),
                 "cpu_from_gpu": d.get("handoff", 0.0), "gpu_from_cpu": d.get("handoff", 0.0)}
     latency = {k: statistics.median(v) if v else fallback[k] for k, v in waits.items()}
+    # Copies slow down with busy neighbours like the rest of the task (the simulation
+    # applies the same speed to the whole task), so their scale is taken without that.
+    copy_scale = {pe: statistics.median(r / slow[pe].speed_divisor(c, g) for r, c, g in v)
+                  for pe, v in copies.items() if v}
     return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
-                           f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames")
+                           f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames",
+                           copy_scale)
 
 
 def _copy_ms(transfer, pe, n):
@@ -458,7 +475,7 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
             if t <= now + 1e-12:
                 task = queues[p][pos[p]]
                 pe = pe_of(p)
-                work = model.slowdown[pe].in_frame(task, model.work(task, pe, copied.get(task, 0)))
+                work = model.work(task, pe, copied.get(task, 0))
                 running[p] = [task, work, now]
         if not running:
             if not starts:
@@ -516,7 +533,7 @@ def in_frame_dag(model: ContentionModel, pes: dict, n_cpus: int):
             if pe not in allowed or model.alone[node][pe] is None:
                 times.append(None)
                 continue
-            t = model.slowdown[pe].in_frame(node, model.work(node, pe))
+            t = model.work(node, pe)
             times.append(max(t, model.alone[node]["device"]) if pe == "gpu" else t)
         tasks[node] = tuple(times)
     handoff = 0.5 * (model.latency["cpu_from_gpu"] + model.latency["gpu_from_cpu"])
