@@ -305,8 +305,8 @@ class ContentionModel:
         """JSON-friendly parameters."""
         return {
             "trained_on": self.trained_on,
-            "slowdown": {k: {"ratio": s.ratio, "per_cpu": s.per_cpu, "per_gpu": s.per_gpu,
-                             "samples": s.samples, "rms_log": s.rms_log}
+            "slowdown": {k: {"ratio": s.ratio, "overhead_us": s.overhead * 1e3, "per_cpu": s.per_cpu,
+                             "per_gpu": s.per_gpu, "samples": s.samples, "rms_log": s.rms_log}
                          for k, s in self.slowdown.items()},
             "latency_us": {k: v * 1e3 for k, v in self.latency.items()},
             "copy_scale": dict(self.copy_scale),
