@@ -19,22 +19,30 @@ Steps, per graph and camera size (default 1280x720 and 1920x1080):
 2. baseline, heft and xeft (calibrated costs) each run ``--frames`` frames one at a time,
    then pipelined (``--depth`` in flight, FPS);
 3. the contention model (:mod:`warpvx.graph.model`) is fitted on the first ``--fit-frames``
-   frames of ``--train`` (baseline), and ``best`` is the schedule it predicts fastest of the
-   baseline, HEFT and XEFT candidates; it runs too;
+   frames of ``--train`` (baseline); ``best`` takes its candidates (baseline, HEFT and XEFT
+   on the calibrated and on the model's costs), runs ``--trial-frames`` frames of each one
+   predicted within 20% of the fastest (the model's error) and keeps the measured fastest;
+   it runs too;
 4. per policy: predicted in sample (its own model on its own first frames) and out of sample
    (the training model on the later frames), errors, and whether best is within 5% of the
    fastest measured; Gantt charts of the prediction over a measured frame
-   (``gantt_<graph>_<size>_<policy>.png``) and of 3 pipelined frames (``..._pipelined.png``);
+   (``gantt_<graph>_<size>_<policy>.png``) and of 3 pipelined frames (``..._pipelined.png``),
+   packed into ``gantt.tar`` (each graph's best chart also beside it: results come back from
+   the GPU machine as at most 8 files);
 5. the executor's per-node overhead with trivial nodes (CPU-only, GPU-only, alternating
    chains) and, with ``--soak N``, N frames pipelined with memory at start and end.
 
-Writes ``graph_bench.json`` and ``graph_bench.md`` (its first line is the command).
+Writes ``graph_bench.json`` and ``graph_bench.md`` (its first line is the command). The JSON
+keeps each policy's fit frames (``fit_frames_data``), per-frame makespans and the contention
+probe, so ``--replay graph_bench.json`` refits the model offline and predicts every policy
+again (no frames run; older results without frames are replayed from node medians).
 
 Usage::
 
     PYTHONPATH=. python benchmarks/graph_bench.py --gpu cuda --out $OUT/graph   # GPU machine
     python benchmarks/graph_bench.py --quick         # anywhere: warp-cpu, 160x120, few frames
     python benchmarks/graph_bench.py --overhead-only # the overhead section alone: overhead.md
+    PYTHONPATH=. python benchmarks/graph_bench.py --replay benchmarks/results/graph/h100-2026-11-24/graph_bench.json
 """
 
 from __future__ import annotations

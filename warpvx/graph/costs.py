@@ -176,9 +176,9 @@ class CostModel:
             A fitted model (:meth:`fit_model`): the plan's prediction becomes its simulation
             of the schedule (``plan.prediction``), and ``"best"`` keeps, of the baseline,
             HEFT and XEFT schedules of the task DAG and of the model's in-frame costs
-            (:func:`~warpvx.graph.model.candidate_dags`), the one the model predicts
-            fastest, so a mixed placement that loses to the all-GPU one in reality loses in
-            the prediction too.
+            (:func:`~warpvx.graph.model.choose`), the one the model predicts fastest, so a
+            mixed placement that loses to the all-GPU one in reality loses in the prediction
+            too; with ``trial_inputs``, the measured fastest of those it cannot tell apart.
         trial_inputs : dict or list of dict, optional
             With ``policy="best"`` and a ``model``: frames to try the candidates on. Every
             distinct candidate predicted within ``trial_margin`` (a fraction) of the fastest
