@@ -150,3 +150,41 @@ def test_gantt_labels_rows_names_and_error_on_warp_cpu(frames, tmp_path):
         shown = " ".join([t.get_text() for t in ax.texts] + [ax.get_xlabel()])
         for node in g.nodes:
             assert node in shown, (node, shown)
+
+
+def test_gantt_sliver_numbers_do_not_overlap():
+    # Thirteen slivers in three tight groups around two wide bars: every sliver's number
+    # is shown once (alone or in a range such as "1-5"), no two labels overlap, and the
+    # list under the axis names each number.
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from warpvx.sched.gantt import plot_gantt
+    from warpvx.sched.schedule import Schedule, ScheduledTask
+
+    names = [f"n{i}" for i in range(15)]
+    tasks, t = {}, 0.0
+    for i, n in enumerate(names):
+        t += 1.5 if i == 5 else 0.0
+        d = 4.0 if i in (10, 11) else 0.05
+        tasks[n] = ScheduledTask(n, "cpu0", t, t + d)
+        t += d
+    tasks["long"] = ScheduledTask("long", "gpu", 0.0, 50.0)
+    fig, ax = plt.subplots(figsize=(11, 2.3))
+    plot_gantt(Schedule(tasks, ["cpu0", "gpu"]), ax=ax, unit="ms")
+    fig.canvas.draw()
+    labels = [x for x in ax.texts if x.get_text()[0].isdigit()]
+    shown = []
+    for x in labels:
+        a, _, b = x.get_text().partition("-")
+        shown += list(range(int(a), int(b or a) + 1))
+    assert sorted(shown) == list(range(1, 14))
+    boxes = [x.get_window_extent() for x in labels]
+    for i, b1 in enumerate(boxes):
+        for b2 in boxes[i + 1:]:
+            assert not b1.overlaps(b2)
+    key = ax.get_xlabel()
+    assert all(f"{k} n" in key for k in range(1, 14))
+    plt.close(fig)
