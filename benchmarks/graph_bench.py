@@ -839,7 +839,11 @@ def replay_main(args):
     lines += [f"| {r['tag']} | {r['policy']} | {r['pred_ms']:.3f} | {r['measured_ms']:.3f} | "
               f"{r['error_pct']:+.1f}% | {r['pooled_ms']:.3f} | {r['pooled_error_pct']:+.1f}% |"
               for r in rows]
-    print("\n".join(lines))
+    text = "\n".join(lines)
+    print(text)
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "replay.md").write_text(f"Regenerate: `{args.command}`\n\n{text}\n")
     return rows
 
 
