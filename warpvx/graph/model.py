@@ -126,7 +126,8 @@ class Slowdown:
     kind (the alone-time-weighted median of the seen nodes'); ``per_cpu``/``per_gpu``: extra
     slowdown per busy CPU worker / while the GPU host thread is busy; ``node``: node -> its
     own in-frame ratio over ``ratio`` (``e``); ``samples``: how many samples the fit used;
-    ``rms_log``: the fit's rms residual of ``log(measured / predicted)``.
+    ``rms_log``: the fit's rms residual of ``log(measured / predicted)``; ``overhead``: the
+    fixed in-frame cost of a task (ms).
     """
 
     ratio: float = 1.0
@@ -172,9 +173,12 @@ def fit_slowdown(samples, probes=(), *, per_node: bool = True) -> Slowdown:
         factor fitted with them would absorb each node's usual contention, and a node
         moved to a busier or quieter place would be mispredicted): ``a``, ``b`` and
         ``overhead`` on :data:`SLOWDOWN_GRID`/:data:`OVERHEAD_GRID`, ``ratio`` the
-        alone-time-weighted median for each, the triple with the least absolute deviation
-        of the logs kept (medians: a frame the machine hiccupped in does not move the fit).
-        A kind of neighbour never busy in the samples cannot be identified and stays 0.
+        alone-time-weighted median for each; kept: the triple with the least absolute
+        deviation of the logs, summed over all samples under the one law plus within each
+        node (its samples about their mean: how one node's time moved with its neighbours)
+        -- absolute deviations and medians, so a frame the machine hiccupped in does not
+        move the fit. A kind of neighbour never busy in the samples (nor in a probe) cannot
+        be identified and stays 0.
     """
     rows = [r for r in samples if r[1] > 0 and r[2] > 0]
     if not rows:
