@@ -60,11 +60,14 @@ import cv2
 import numpy as np
 import warp as wp
 
-import warpvx
-from warpvx.backend import init_warp
-from warpvx.graph import default_n_cpus
-from warpvx.graph.diagnostics import executor_overhead, soak
-from warpvx.runtime import executor
+# This checkout's warpvx, with or without PYTHONPATH=. (an installed one may be older).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import warpvx  # noqa: E402
+from warpvx.backend import init_warp  # noqa: E402
+from warpvx.graph import default_n_cpus  # noqa: E402
+from warpvx.graph.diagnostics import executor_overhead, soak  # noqa: E402
+from warpvx.runtime import executor  # noqa: E402
 
 POLICIES = ("baseline", "heft", "xeft", "best")
 #: Gantt PNGs go to this folder of --out, packed into gantt.tar at the end (results come
