@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from .. import features, pyramid
-from .._orb_spec import PATCH_SIZE, features_per_level, level_scales
+from .._orb_spec import PATCH_SIZE, features_per_level
 from .._pyramid_sizes import scale_pyramid_sizes
 from ..arrays import is_warp_array, to_numpy
 from ..keypoints import Keypoints
@@ -31,6 +31,14 @@ _HARRIS_BLOCK = 7
 _HARRIS_K = 0.04
 # FAST reads a radius-3 circle: a level smaller than 7x7 has no corner.
 _FAST_MIN_SIDE = 7
+
+
+def layer_scales(scale_factor: float, n_levels: int) -> np.ndarray:
+    """float32 [n_levels]: OpenCV's ORB level scales, ``(float)pow((double)f, l)`` with
+    ``f = (float)scale_factor`` (``ORB_create`` takes a C float; the ORB-SLAM2 product of
+    :func:`warpvx._orb_spec.level_scales` can differ in the last bit)."""
+    f = float(np.float32(scale_factor))
+    return np.array([f ** level for level in range(n_levels)], np.float32)
 
 
 def retain_best(response: np.ndarray, n: int) -> np.ndarray:
@@ -46,9 +54,11 @@ def retain_best(response: np.ndarray, n: int) -> np.ndarray:
 
 
 def _mask_levels(mask, sizes) -> list:
-    """OpenCV's mask pyramid: each level resized INTER_LINEAR_EXACT from the previous one,
-    then only 255 kept (``threshold(.., 254, 0, THRESH_TOZERO)``); level 0 is ``mask``."""
-    levels = [mask]
+    """OpenCV 5.0's mask pyramid: the mask made binary (nonzero -> 255), each level resized
+    INTER_LINEAR_EXACT from the previous one and only 255 kept (``threshold(.., 254, 0,
+    THRESH_TOZERO)``): a level keeps the points whose whole neighbourhood is inside. Measured
+    against cv2 (a mask of 1s is all-pass there too); host arrays (a mask is a host input)."""
+    levels = [np.where(mask != 0, 255, 0).astype(np.uint8)]
     for w, h in sizes[1:]:
         m = cv2.resize(levels[-1], (w, h), interpolation=cv2.INTER_LINEAR_EXACT)
         levels.append(np.where(m > 254, m, 0).astype(np.uint8))
@@ -111,7 +121,7 @@ def detect(gray, nfeatures: int, scale_factor: float, nlevels: int, edge: int,
     levels = pyramid.scale_pyramid(gray, used, scale_factor, backend=backend)
     masks = _mask_levels(mask, sizes[:used]) if mask is not None else [None] * used
     wanted = features_per_level(nfeatures, scale_factor, nlevels)
-    scales = level_scales(scale_factor, nlevels)
+    scales = layer_scales(scale_factor, nlevels)
     fields = {k: [] for k in ("x", "y", "response", "size", "angle", "octave")}
     for level, (img, m) in enumerate(zip(levels, masks)):
         x, y, score = _level_points(img, m, edge, fast_threshold, backend)
@@ -134,4 +144,4 @@ def detect(gray, nfeatures: int, scale_factor: float, nlevels: int, edge: int,
     return Keypoints(**{k: np.concatenate(v) for k, v in fields.items()})
 
 
-__all__ = ["HARRIS_SCORE", "FAST_SCORE", "detect", "retain_best"]
+__all__ = ["HARRIS_SCORE", "FAST_SCORE", "detect", "layer_scales", "retain_best"]
