@@ -3,10 +3,11 @@
 What :class:`warpvx.cv.ORB` detects with, so that code tuned on ``cv2.ORB_create`` gets cv2's
 keypoints: per pyramid level, FAST at ``fastThreshold``, the ``edgeThreshold`` border, the best
 by FAST score, then the best by Harris score, intensity-centroid angles. The image work runs on
-the backend (:func:`warpvx.scale_pyramid`, :func:`warpvx.fast_corners`,
-:func:`warpvx.harris_response`); the ranking (a sort of a few thousand scores) and the angles
-(integral images) on the host. Descriptors are :func:`warpvx.orb_compute`'s (rotated BRIEF on
-the 7x7, sigma 2 blurred level, as OpenCV's with ``WTA_K=2``, ``patchSize=31``).
+the backend (OpenCV's INTER_LINEAR_EXACT pyramid, :mod:`warpvx.cv._pyramid_exact`;
+:func:`warpvx.fast_corners`, :func:`warpvx.harris_response`); the ranking (a sort of a few
+thousand scores) and the angles (integral images) on the host. Descriptors are
+:func:`warpvx.orb_compute`'s (rotated BRIEF on the 7x7, sigma 2 blurred level, as OpenCV's
+with ``WTA_K=2``, ``patchSize=31``).
 
 Reference: OpenCV ``features2d/src/orb.cpp`` (``computeKeyPoints``, ``HarrisResponses``,
 ``ICAngles``) and ``keypoint.cpp`` (``KeyPointsFilter::retainBest``, ``runByImageBorder``).
@@ -17,12 +18,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .. import features, pyramid
+from .. import features
 from .._orb_spec import PATCH_SIZE, features_per_level
-from .._pyramid_sizes import scale_pyramid_sizes
-from ..arrays import is_warp_array, to_numpy
+from ..arrays import to_numpy, to_warp
+from ..backend import resolve_backend
 from ..keypoints import Keypoints
 from ..kernels_cpu.orb import compute_orientation
+from ._pyramid_exact import exact_pyramid
 
 HARRIS_SCORE = 0
 FAST_SCORE = 1
@@ -34,11 +36,17 @@ _FAST_MIN_SIDE = 7
 
 
 def layer_scales(scale_factor: float, n_levels: int) -> np.ndarray:
-    """float32 [n_levels]: OpenCV's ORB level scales, ``(float)pow((double)f, l)`` with
-    ``f = (float)scale_factor`` (``ORB_create`` takes a C float; the ORB-SLAM2 product of
-    :func:`warpvx._orb_spec.level_scales` can differ in the last bit)."""
-    f = float(np.float32(scale_factor))
-    return np.array([f ** level for level in range(n_levels)], np.float32)
+    """float32 [n_levels]: OpenCV's ORB level scales, ``(float)pow(scale_factor, l)`` (in
+    double; the float product of :func:`warpvx._orb_spec.level_scales` can differ in the
+    last bit)."""
+    return np.array([float(scale_factor) ** level for level in range(n_levels)], np.float32)
+
+
+def level_sizes(width: int, height: int, scales: np.ndarray) -> list:
+    """(w, h) of each level as OpenCV's ORB: ``cvRound(cols * (1.0f / scale))`` in float32."""
+    inv = np.float32(1.0) / scales
+    return [(int(np.rint(np.float32(width) * i)), int(np.rint(np.float32(height) * i)))
+            for i in inv]
 
 
 def retain_best(response: np.ndarray, n: int) -> np.ndarray:
@@ -95,8 +103,8 @@ def detect(gray, nfeatures: int, scale_factor: float, nlevels: int, edge: int,
            score_type: int, fast_threshold: int, mask=None, *, backend=None) -> Keypoints:
     """OpenCV's ORB keypoints of a gray uint8 HxW image (NumPy or device array).
 
-    Level l: the image resized from level l-1 (:func:`warpvx.scale_pyramid`, scale
-    ``scale_factor^l``); FAST-9/16 with non-max suppression at ``fast_threshold``; those within
+    Level l: the image resized INTER_LINEAR_EXACT from level l-1 (scale ``scale_factor^l``,
+    :func:`layer_scales`, sizes :func:`level_sizes`); FAST-9/16 with non-max suppression at ``fast_threshold``; those within
     ``edge`` px of the level's border dropped; with a uint8 HxW ``mask``, those where its level
     (OpenCV's mask pyramid) is zero dropped; ``retainBest`` by FAST score to 2 n_l (Harris
     score) or n_l (FAST score), n_l = ORB's features per level (``nfeatures`` split
@@ -113,29 +121,29 @@ def detect(gray, nfeatures: int, scale_factor: float, nlevels: int, edge: int,
         coordinates times s_l, float32), response (Harris or FAST score), size
         ``31 s_l``, angle in degrees [0, 360), octave = level.
     """
-    h, w = int(gray.shape[0]), int(gray.shape[1])
-    sizes = scale_pyramid_sizes(w, h, nlevels, scale_factor)
+    scales = layer_scales(scale_factor, nlevels)
+    sizes = level_sizes(int(gray.shape[1]), int(gray.shape[0]), scales)
     used = _used_levels(sizes, edge)
     if used == 0:
         return Keypoints.empty()
-    levels = pyramid.scale_pyramid(gray, used, scale_factor, backend=backend)
+    be = resolve_backend(backend, like=gray)
+    src = to_numpy(gray) if be.kind == "cpu" else to_warp(gray, be.device)
+    levels = exact_pyramid(src, sizes[:used])
     masks = _mask_levels(mask, sizes[:used]) if mask is not None else [None] * used
     wanted = features_per_level(nfeatures, scale_factor, nlevels)
-    scales = layer_scales(scale_factor, nlevels)
     fields = {k: [] for k in ("x", "y", "response", "size", "angle", "octave")}
     for level, (img, m) in enumerate(zip(levels, masks)):
-        x, y, score = _level_points(img, m, edge, fast_threshold, backend)
+        x, y, score = _level_points(img, m, edge, fast_threshold, be)
         harris = score_type == HARRIS_SCORE
         keep = retain_best(score, 2 * wanted[level] if harris else wanted[level])
         x, y, score = x[keep], y[keep], score[keep]
         if harris and x.size:
             resp = to_numpy(features.harris_response(img, _HARRIS_BLOCK, 3, _HARRIS_K,
-                                                     backend=backend))
+                                                     backend=be))
             score = resp.reshape(resp.shape[:2])[y, x]
             keep = retain_best(score, wanted[level])
             x, y, score = x[keep], y[keep], score[keep]
-        host = to_numpy(img) if is_warp_array(img) else img
-        fields["angle"].append(compute_orientation(host, x, y))
+        fields["angle"].append(compute_orientation(to_numpy(img), x, y))
         fields["x"].append(x.astype(np.float32) * scales[level])
         fields["y"].append(y.astype(np.float32) * scales[level])
         fields["response"].append(score.astype(np.float32))
@@ -144,4 +152,4 @@ def detect(gray, nfeatures: int, scale_factor: float, nlevels: int, edge: int,
     return Keypoints(**{k: np.concatenate(v) for k, v in fields.items()})
 
 
-__all__ = ["HARRIS_SCORE", "FAST_SCORE", "detect", "layer_scales", "retain_best"]
+__all__ = ["HARRIS_SCORE", "FAST_SCORE", "detect", "layer_scales", "level_sizes", "retain_best"]

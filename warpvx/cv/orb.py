@@ -56,7 +56,8 @@ class ORB:
                  firstLevel=0, WTA_K=2, scoreType=ORB_HARRIS_SCORE, patchSize=31,
                  fastThreshold=20, *, backend=None):
         self.setMaxFeatures(nfeatures)
-        self.setScaleFactor(scaleFactor)
+        # cv2.ORB_create takes scaleFactor as a C float (setScaleFactor as a double).
+        self.setScaleFactor(float(np.float32(check_float(scaleFactor, "scaleFactor"))))
         self.setNLevels(nlevels)
         self.setEdgeThreshold(edgeThreshold)
         self.setFirstLevel(firstLevel)
@@ -196,12 +197,15 @@ class ORB:
         """A cv2.ORB with these parameters (what calls warpvx does not accelerate run on)."""
         import cv2
 
-        # ORB_create, as the caller would have: it takes scaleFactor as a C float.
-        return cv2.ORB_create(*(getattr(self, "get" + p)() for p in self._PARAMS))
+        twin = cv2.ORB_create()
+        self._set_all(twin, into=twin)
+        return twin
 
-    def _set_all(self, other):
+    def _set_all(self, other, *, into=None):
+        """Copy every parameter from ``other`` (into self), or from self into ``into``."""
+        src, dst = (self, into) if into is not None else (other, self)
         for p in self._PARAMS:
-            getattr(self, "set" + p)(getattr(other, "get" + p)())
+            getattr(dst, "set" + p)(getattr(src, "get" + p)())
 
     def _check_accelerated(self):
         for name, value, accelerated in (("WTA_K", self._wta_k, 2), ("firstLevel", self._first, 0),
