@@ -15,7 +15,6 @@ Reference: OpenCV ``features2d/src/orb.cpp`` (``computeKeyPoints``, ``HarrisResp
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from .. import features
@@ -24,7 +23,7 @@ from ..arrays import to_numpy, to_warp
 from ..backend import resolve_backend
 from ..keypoints import Keypoints
 from ..kernels_cpu.orb import compute_orientation
-from ._pyramid_exact import exact_pyramid
+from ._pyramid_exact import exact_pyramid, resize_exact
 
 HARRIS_SCORE = 0
 FAST_SCORE = 1
@@ -67,8 +66,8 @@ def _mask_levels(mask, sizes) -> list:
     THRESH_TOZERO)``): a level keeps the points whose whole neighbourhood is inside. Measured
     against cv2 (a mask of 1s is all-pass there too); host arrays (a mask is a host input)."""
     levels = [np.where(mask != 0, 255, 0).astype(np.uint8)]
-    for w, h in sizes[1:]:
-        m = cv2.resize(levels[-1], (w, h), interpolation=cv2.INTER_LINEAR_EXACT)
+    for size in sizes[1:]:
+        m = resize_exact(levels[-1], size)
         levels.append(np.where(m > 254, m, 0).astype(np.uint8))
     return levels
 

@@ -39,13 +39,13 @@ class ORB:
     the best ``n_l`` by FAST score), n_l = ``nfeatures`` split over ``nlevels`` by
     ``scaleFactor``; angle by intensity centroid; rotated BRIEF (``WTA_K`` 2) on the blurred
     level (:func:`warpvx.orb_compute`). Against cv2 (OpenCV 5.0, measured on real photos):
-    the same number of keypoints, 95-98% at the same position, level and angle, 98.5%+ of
-    descriptor bits equal; the rest comes from the pyramid, resized INTER_LINEAR here
-    (:func:`warpvx.scale_pyramid`) and INTER_LINEAR_EXACT in OpenCV (pixels differ by at most
-    1 on levels >= 1), and the blur (OpenCV 5.0's ORB blurs in floating point, here bit-exact
-    fixed point: a bit or two of a third of the descriptors). As cv2, ties at the cut-off
-    score are all kept, so a level may hold a few more than n_l; keypoints come level by
-    level, each level in raster order (cv2: the order ``nth_element`` leaves).
+    the same keypoints (position, level, angle, size; response to float rounding), and
+    98.8%+ of the descriptor bits equal: :func:`warpvx.orb_compute` describes on ORB-SLAM2's
+    INTER_LINEAR pyramid blurred in fixed point, OpenCV 5.0 on its INTER_LINEAR_EXACT one
+    blurred in floating point (pixels differ by at most 1, flipping a comparison now and
+    then). As cv2, ties at the cut-off score are all kept, so a level may hold a few more
+    than n_l; keypoints come level by level, each level in raster order (cv2: the order
+    ``nth_element`` leaves).
 
     ``WTA_K`` other than 2, ``firstLevel`` other than 0, ``patchSize`` other than 31 and
     ``cv2.UMat`` images run on cv2's ORB with the same parameters
