@@ -1,10 +1,11 @@
 """warpvx.cv.ORB_create against cv2.ORB_create on real photos: OpenCV's algorithm (FAST per
 level, edge border, best by FAST then Harris score, intensity-centroid angle, BRIEF).
 
-Bars, and why: the pyramid (INTER_LINEAR_EXACT), FAST, the border, the rankings and the angle
-are OpenCV's arithmetic, so the keypoints must be cv2's: the same count (within 1) and 99%+ of
-cv2's keypoints with one of ours at exactly its position, level and angle (measured 100%; the
-Harris sums are float here and integer in OpenCV, which could swap a tie at the cut-off).
+Bars, and why: the pyramid (INTER_LINEAR_EXACT), FAST, the border, the Harris score, the
+rankings and the angle are OpenCV's arithmetic, so the keypoints must be cv2's: the same count
+(within 1) and 99.5%+ of cv2's keypoints with one of ours at exactly its position, level,
+angle, size and response (measured 100%; the margin is for a FAST corner a backend might
+score differently).
 Descriptors come from :func:`warpvx.orb_compute` (ORB-SLAM2's INTER_LINEAR pyramid, blurred in
 bit-exact fixed point; OpenCV 5.0's ORB blurs its INTER_LINEAR_EXACT levels in floating point):
 pixels that differ by 1 flip a comparison now and then, so 98%+ of the bits of those pairs
@@ -50,9 +51,9 @@ def _bits_equal(d_ours, d_ref, pairs) -> float:
 def _assert_like_cv2(ours, d_ours, ref, d_ref):
     assert abs(len(ours) - len(ref)) <= 1, (len(ours), len(ref))
     pairs = _pairs(ours, ref)
-    assert len(pairs) >= 0.99 * len(ref), f"{len(pairs)} of {len(ref)} as cv2's"
+    assert len(pairs) >= 0.995 * len(ref), f"{len(pairs)} of {len(ref)} as cv2's"
     resp = np.float32([[ref[i].response, ours[j].response] for i, j in pairs])
-    np.testing.assert_allclose(resp[:, 1], resp[:, 0], rtol=1e-4)
+    np.testing.assert_array_equal(resp[:, 1], resp[:, 0])
     assert {k.octave: k.size for k in ours} == {k.octave: k.size for k in ref}
     assert _bits_equal(d_ours, d_ref, pairs) >= 0.98
 
@@ -75,7 +76,8 @@ def test_orb_keypoints_and_descriptors_like_cv2(backend, name, n):
     dict(edgeThreshold=15, fastThreshold=10),
     dict(scoreType=cv2.ORB_FAST_SCORE, fastThreshold=30),
     dict(nfeatures=2000, nlevels=3),
-], ids=["scale1.5", "edge15-fast10", "fast-score", "2000x3"])
+    dict(edgeThreshold=3),
+], ids=["scale1.5", "edge15-fast10", "fast-score", "2000x3", "edge3-reflected-border"])
 def test_orb_parameters_like_cv2(backend, setting):
     img = _photo("box_in_scene.png")
     ours, d_ours = wcv.ORB_create(**setting, backend=backend).detectAndCompute(img, None)
@@ -142,6 +144,18 @@ def test_resize_exact_is_cv2s_inter_linear_exact(backend, size):
     np.testing.assert_array_equal(
         to_numpy(resize_exact(src, size)),
         cv2.resize(img, size, interpolation=cv2.INTER_LINEAR_EXACT))
+
+
+def test_harris_at_is_corner_harris_at_the_points():
+    """OpenCV ORB's per-point Harris (integer sums) against cv2.cornerHarris (block 7, Sobel
+    3, k 0.04: the same formula and scaling, float sums) where the window and its Sobel stay
+    inside (nearer the edge ORB reflects the image, cornerHarris the gradients)."""
+    img = _photo("leuvenA.jpg")
+    ref = cv2.cornerHarris(img, 7, 3, 0.04)
+    ys, xs = np.mgrid[4:img.shape[0] - 4:37, 4:img.shape[1] - 4:29]
+    x, y = xs.ravel().astype(np.int32), ys.ravel().astype(np.int32)
+    got = _orb_detect.harris_at(img, x, y)
+    np.testing.assert_allclose(got, ref[y, x], rtol=1e-4, atol=1e-4 * np.abs(ref).max())
 
 
 def retain(score, n):

@@ -3,11 +3,13 @@
 What :class:`warpvx.cv.ORB` detects with, so that code tuned on ``cv2.ORB_create`` gets cv2's
 keypoints: per pyramid level, FAST at ``fastThreshold``, the ``edgeThreshold`` border, the best
 by FAST score, then the best by Harris score, intensity-centroid angles. The image work runs on
-the backend (OpenCV's INTER_LINEAR_EXACT pyramid, :mod:`warpvx.cv._pyramid_exact`;
-:func:`warpvx.fast_corners`, :func:`warpvx.harris_response`); the ranking (a sort of a few
-thousand scores) and the angles (integral images) on the host. Descriptors are
-:func:`warpvx.orb_compute`'s (rotated BRIEF on the 7x7, sigma 2 blurred level, as OpenCV's
-with ``WTA_K=2``, ``patchSize=31``).
+the backend (OpenCV's INTER_LINEAR_EXACT pyramid, :mod:`warpvx.cv._pyramid_exact`, and
+:func:`warpvx.fast_corners`); the per-point work on the host, on the downloaded level, as
+OpenCV computes it per point: Harris at the (at most 2 n_l) FAST corners in OpenCV's integer
+arithmetic (a full :func:`warpvx.harris_response` map cost 5x more and rounds differently),
+the ranking, the angles (integral images). Descriptors are :func:`warpvx.orb_compute`'s
+(rotated BRIEF on the 7x7, sigma 2 blurred level, as OpenCV's with ``WTA_K=2``,
+``patchSize=31``).
 
 Reference: OpenCV ``features2d/src/orb.cpp`` (``computeKeyPoints``, ``HarrisResponses``,
 ``ICAngles``) and ``keypoint.cpp`` (``KeyPointsFilter::retainBest``, ``runByImageBorder``).
@@ -22,14 +24,14 @@ from .._orb_spec import PATCH_SIZE, features_per_level
 from ..arrays import to_numpy, to_warp
 from ..backend import resolve_backend
 from ..keypoints import Keypoints
-from ..kernels_cpu.orb import compute_orientation
+from ..kernels_cpu.orb import compute_orientation, padded_centres
 from ._pyramid_exact import exact_pyramid, resize_exact
 
 HARRIS_SCORE = 0
 FAST_SCORE = 1
 # OpenCV's HarrisResponses: 7x7 window, Sobel 3x3, k = 0.04 (orb.cpp HARRIS_K).
 _HARRIS_BLOCK = 7
-_HARRIS_K = 0.04
+_HARRIS_K = np.float32(0.04)
 # FAST reads a radius-3 circle: a level smaller than 7x7 has no corner.
 _FAST_MIN_SIDE = 7
 
@@ -58,6 +60,30 @@ def retain_best(response: np.ndarray, n: int) -> np.ndarray:
         return np.zeros(response.size, bool)
     nth = np.partition(response, response.size - n)[response.size - n]
     return response >= nth
+
+
+def harris_at(level: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """float32 [N]: OpenCV ORB's ``HarrisResponses`` at integer points of a uint8 level.
+
+    Over the 7x7 window centred at (x, y): Sobel 3x3 ``Ix``, ``Iy`` (integers), ``a = S Ix^2``,
+    ``b = S Iy^2``, ``c = S Ix Iy`` (exact int sums), then in float32 as OpenCV
+    ``R = (a b - c^2 - k (a + b)^2) / (4 * 7 * 255)^4``, k = 0.04 (cv2.cornerHarris's
+    scaling, block 7). Reads past the level reflect (BORDER_REFLECT_101, OpenCV's bordered
+    pyramid).
+    """
+    r = _HARRIS_BLOCK // 2 + 1  # the window plus the Sobel's 1 px
+    padded, cx, cy = padded_centres(level, x, y, r)
+    off = np.arange(-r, r + 1)
+    p = padded[(cy[:, None] + off)[:, :, None], (cx[:, None] + off)[:, None, :]].astype(np.int32)
+    dx = p[:, :, 2:] - p[:, :, :-2]
+    dy = p[:, 2:, :] - p[:, :-2, :]
+    ix = dx[:, :-2] + 2 * dx[:, 1:-1] + dx[:, 2:]
+    iy = dy[:, :, :-2] + 2 * dy[:, :, 1:-1] + dy[:, :, 2:]
+    a = (ix * ix).sum((1, 2)).astype(np.float32)
+    b = (iy * iy).sum((1, 2)).astype(np.float32)
+    c = (ix * iy).sum((1, 2)).astype(np.float32)
+    scale = np.float32(1.0) / np.float32(4 * _HARRIS_BLOCK * 255)
+    return (a * b - c * c - _HARRIS_K * (a + b) * (a + b)) * (scale * scale * scale * scale)
 
 
 def _mask_levels(mask, sizes) -> list:
@@ -103,14 +129,14 @@ def detect(gray, nfeatures: int, scale_factor: float, nlevels: int, edge: int,
     """OpenCV's ORB keypoints of a gray uint8 HxW image (NumPy or device array).
 
     Level l: the image resized INTER_LINEAR_EXACT from level l-1 (scale ``scale_factor^l``,
-    :func:`layer_scales`, sizes :func:`level_sizes`); FAST-9/16 with non-max suppression at ``fast_threshold``; those within
-    ``edge`` px of the level's border dropped; with a uint8 HxW ``mask``, those where its level
-    (OpenCV's mask pyramid) is zero dropped; ``retainBest`` by FAST score to 2 n_l (Harris
-    score) or n_l (FAST score), n_l = ORB's features per level (``nfeatures`` split
-    geometrically, the last level the remainder); for the Harris score, the Harris response
-    (7x7 window, Sobel 3x3, k 0.04, cv2.cornerHarris's scaling) at each point and
-    ``retainBest`` to n_l; the intensity-centroid angle over the radius-15 disc of the
-    unblurred level (``patchSize`` 31) (``fastAtan2(m01, m10)``, degrees).
+    :func:`layer_scales`; sizes :func:`level_sizes`); FAST-9/16 with non-max suppression at
+    ``fast_threshold``; those within ``edge`` px of the level's border dropped; with a uint8
+    HxW ``mask``, those where its level (:func:`_mask_levels`) is zero dropped; ``retainBest``
+    by FAST score to 2 n_l (Harris score) or n_l (FAST score), n_l = ORB's features per level
+    (``nfeatures`` split geometrically, the last level the remainder); for the Harris score,
+    :func:`harris_at` each point and ``retainBest`` to n_l; the intensity-centroid angle over
+    the radius-15 disc of the unblurred level (``patchSize`` 31; ``fastAtan2(m01, m10)``,
+    degrees).
 
     Returns
     -------
@@ -136,13 +162,12 @@ def detect(gray, nfeatures: int, scale_factor: float, nlevels: int, edge: int,
         harris = score_type == HARRIS_SCORE
         keep = retain_best(score, 2 * wanted[level] if harris else wanted[level])
         x, y, score = x[keep], y[keep], score[keep]
+        host = to_numpy(img)
         if harris and x.size:
-            resp = to_numpy(features.harris_response(img, _HARRIS_BLOCK, 3, _HARRIS_K,
-                                                     backend=be))
-            score = resp.reshape(resp.shape[:2])[y, x]
+            score = harris_at(host, x, y)
             keep = retain_best(score, wanted[level])
             x, y, score = x[keep], y[keep], score[keep]
-        fields["angle"].append(compute_orientation(to_numpy(img), x, y))
+        fields["angle"].append(compute_orientation(host, x, y))
         fields["x"].append(x.astype(np.float32) * scales[level])
         fields["y"].append(y.astype(np.float32) * scales[level])
         fields["response"].append(score.astype(np.float32))
