@@ -41,9 +41,10 @@ class ORB:
     level (:func:`warpvx.orb_compute`). Against cv2 (OpenCV 5.0, measured on real photos):
     the same keypoints (position, level, angle, size; response to float rounding), and
     98.8%+ of the descriptor bits equal: :func:`warpvx.orb_compute` describes on ORB-SLAM2's
-    INTER_LINEAR pyramid blurred in fixed point, OpenCV 5.0 on its INTER_LINEAR_EXACT one
-    blurred in floating point (pixels differ by at most 1, flipping a comparison now and
-    then). As cv2, ties at the cut-off score are all kept, so a level may hold a few more
+    INTER_LINEAR pyramid blurred in fixed point (cv2.GaussianBlur's bit-exact path), OpenCV
+    on its INTER_LINEAR_EXACT one blurred in floating point (GaussianBlur of an ROI of its
+    bordered pyramid buffer takes the separable float path); pixels differ by at most 1,
+    flipping a comparison now and then. As cv2, ties at the cut-off score are all kept, so a level may hold a few more
     than n_l; keypoints come level by level, each level in raster order (cv2: the order
     ``nth_element`` leaves).
 
