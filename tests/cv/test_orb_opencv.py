@@ -2,14 +2,13 @@
 level, edge border, best by FAST then Harris score, intensity-centroid angle, BRIEF).
 
 Bars, and why: the pyramid (INTER_LINEAR_EXACT), FAST, the border, the Harris score, the
-rankings and the angle are OpenCV's arithmetic, so the keypoints must be cv2's: the same count
-(within 1) and 99.5%+ of cv2's keypoints with one of ours at exactly its position, level,
-angle, size and response (measured 100%; the margin is for a FAST corner a backend might
-score differently).
-Descriptors come from :func:`warpvx.orb_compute` (ORB-SLAM2's INTER_LINEAR pyramid, blurred in
-bit-exact fixed point; OpenCV 5.0's ORB blurs its INTER_LINEAR_EXACT levels in floating point):
-pixels that differ by 1 flip a comparison now and then, so 98%+ of the bits of those pairs
-must be equal (measured 98.8-99.5%).
+rankings, the angle, the blur and the BRIEF tests are OpenCV's arithmetic, so the keypoints must
+be cv2's: the same count (within 1) and 99.5%+ of cv2's keypoints with one of ours at exactly
+its position, level, angle, size and response (measured 100%; the margin is for a FAST corner a
+backend might score differently). Their descriptors: 99.99%+ of the bits equal on ``cpu``
+(cv2's own separable float blur; measured on 7 photos x 2 sizes: one bit of one descriptor of
+12,000 differed, a float cos/sin rounding a pattern point the other way), 99.9%+ on Warp, whose
+float32 blur may also round a pixel the other way (2 pixels of 420000 on one photo).
 """
 
 from __future__ import annotations
@@ -26,7 +25,7 @@ from warpvx import cv as wcv
 from warpvx.arrays import to_numpy, to_warp
 from warpvx.backend import resolve_backend
 from warpvx.cv import _orb_detect
-from warpvx.cv._pyramid_exact import resize_exact
+from warpvx.cv._orb_levels import resize_exact
 
 DATA = Path(__file__).resolve().parent.parent / "data"
 
@@ -48,14 +47,14 @@ def _bits_equal(d_ours, d_ref, pairs) -> float:
     return 1.0 - np.unpackbits(d_ref[i] ^ d_ours[j]).mean()
 
 
-def _assert_like_cv2(ours, d_ours, ref, d_ref):
+def _assert_like_cv2(ours, d_ours, ref, d_ref, backend):
     assert abs(len(ours) - len(ref)) <= 1, (len(ours), len(ref))
     pairs = _pairs(ours, ref)
     assert len(pairs) >= 0.995 * len(ref), f"{len(pairs)} of {len(ref)} as cv2's"
     resp = np.float32([[ref[i].response, ours[j].response] for i, j in pairs])
     np.testing.assert_array_equal(resp[:, 1], resp[:, 0])
     assert {k.octave: k.size for k in ours} == {k.octave: k.size for k in ref}
-    assert _bits_equal(d_ours, d_ref, pairs) >= 0.98
+    assert _bits_equal(d_ours, d_ref, pairs) >= (0.9999 if backend == "cpu" else 0.999)
 
 
 # --- OpenCV parity ---------------------------------------------------------------------------
@@ -68,7 +67,7 @@ def test_orb_keypoints_and_descriptors_like_cv2(backend, name, n):
     img = _photo(name)
     ours, d_ours = wcv.ORB_create(n, backend=backend).detectAndCompute(img, None)
     ref, d_ref = cv2.ORB_create(n).detectAndCompute(img, None)
-    _assert_like_cv2(ours, d_ours, ref, d_ref)
+    _assert_like_cv2(ours, d_ours, ref, d_ref, backend)
 
 
 @pytest.mark.parametrize("setting", [
@@ -82,7 +81,7 @@ def test_orb_parameters_like_cv2(backend, setting):
     img = _photo("box_in_scene.png")
     ours, d_ours = wcv.ORB_create(**setting, backend=backend).detectAndCompute(img, None)
     ref, d_ref = cv2.ORB_create(**setting).detectAndCompute(img, None)
-    _assert_like_cv2(ours, d_ours, ref, d_ref)
+    _assert_like_cv2(ours, d_ours, ref, d_ref, backend)
 
 
 def test_orb_setters_change_detection_like_cv2(backend):
@@ -97,7 +96,7 @@ def test_orb_setters_change_detection_like_cv2(backend):
         o.setScoreType(cv2.ORB_HARRIS_SCORE)
     k, d = ours.detectAndCompute(img, None)
     k_ref, d_ref = ref.detectAndCompute(img, None)
-    _assert_like_cv2(k, d, k_ref, d_ref)
+    _assert_like_cv2(k, d, k_ref, d_ref, backend)
     assert max(k.octave for k in k) == 5
     assert min(min(p.pt) for p in k if p.octave == 0) >= 20
 
@@ -120,9 +119,23 @@ def test_orb_mask_like_cv2(backend):
     orb = wcv.ORB_create(500, backend=backend)
     ours, d_ours = orb.detectAndCompute(img, mask)
     ref, d_ref = cv2.ORB_create(500).detectAndCompute(img, mask)
-    _assert_like_cv2(ours, d_ours, ref, d_ref)
+    _assert_like_cv2(ours, d_ours, ref, d_ref, backend)
     assert all(mask[int(k.pt[1] + 0.5), int(k.pt[0] + 0.5)] for k in ours)
     assert [k.pt for k in orb.detect(img, mask)] == [k.pt for k in ours]
+
+
+@pytest.mark.parametrize("edge", [31, 5])
+def test_orb_compute_like_cv2(backend, edge):
+    """compute(): the keypoints cv2 keeps (edgeThreshold border) and their descriptors, on
+    cv2's ORB keypoints and on FAST corners near the border (octave 0, reflected reads)."""
+    img = _photo("basketball1.png")
+    fast = cv2.FastFeatureDetector_create(30).detect(img)
+    for kps in (cv2.ORB_create(800).detect(img), fast):
+        ours, d_ours = wcv.ORB_create(edgeThreshold=edge, backend=backend).compute(img, kps)
+        ref, d_ref = cv2.ORB_create(edgeThreshold=edge).compute(img, kps)
+        assert [k.pt for k in ours] == [k.pt for k in ref]
+        pairs = list(zip(range(len(ref)), range(len(ref))))
+        assert _bits_equal(d_ours, d_ref, pairs) >= (0.9999 if backend == "cpu" else 0.999)
 
 
 # --- pieces ----------------------------------------------------------------------------------
@@ -189,3 +202,12 @@ def test_orb_bad_mask_names_the_argument(backend):
     img = _photo("box.png")
     with pytest.raises(ShapeError, match="mask"):
         wcv.ORB_create(backend=backend).detectAndCompute(img, np.zeros((10, 10), np.uint8))
+
+
+def test_orb_compute_octave_without_a_level_names_keypoints(backend):
+    img = _photo("box.png")
+    kp = cv2.KeyPoint(100.0, 100.0, 31.0, 0.0, 0.0, 31)  # level 31 at scale 2: empty
+    with pytest.raises(cv2.error):
+        cv2.ORB_create(scaleFactor=2).compute(img, [kp])
+    with pytest.raises(ShapeError, match="keypoints"):
+        wcv.ORB_create(scaleFactor=2, backend=backend).compute(img, [kp])

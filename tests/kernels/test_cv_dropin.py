@@ -69,7 +69,9 @@ def test_script_with_drop_in_recovers_a_homography(tmp_path, backend):
     corners = np.float32([[0, 0], [639, 0], [639, 426], [0, 426]])[:, None]
     got = wcv.perspectiveTransform(corners, h)
     want = cv2.perspectiveTransform(corners, h_true)
-    assert np.abs(got - want).max() < 2.0
+    # cv2's own ORB features, listed in 20 other orders, put the corners 0.25-2.5 px off
+    # here: RANSAC's samples depend on the order (warpvx.cv.ORB lists cv2's set in its own).
+    assert np.abs(got - want).max() < 3.0
 
 
 # --- strided views in, strided dst out -------------------------------------------------------

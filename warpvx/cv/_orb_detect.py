@@ -1,15 +1,13 @@
-"""OpenCV's ORB keypoint detection (``ORB_Impl::detectAndCompute``) on warpvx primitives.
+"""OpenCV's ORB (``ORB_Impl::detectAndCompute``) on warpvx primitives: detection and description.
 
 What :class:`warpvx.cv.ORB` detects with, so that code tuned on ``cv2.ORB_create`` gets cv2's
 keypoints: per pyramid level, FAST at ``fastThreshold``, the ``edgeThreshold`` border, the best
 by FAST score, then the best by Harris score, intensity-centroid angles. The image work runs on
-the backend (OpenCV's INTER_LINEAR_EXACT pyramid, :mod:`warpvx.cv._pyramid_exact`, and
-:func:`warpvx.fast_corners`); the per-point work on the host, on the downloaded level, as
-OpenCV computes it per point: Harris at the (at most 2 n_l) FAST corners in OpenCV's integer
-arithmetic (a full :func:`warpvx.harris_response` map cost 5x more and rounds differently),
-the ranking, the angles (integral images). Descriptors are :func:`warpvx.orb_compute`'s
-(rotated BRIEF on the 7x7, sigma 2 blurred level, as OpenCV's with ``WTA_K=2``,
-``patchSize=31``).
+the backend (OpenCV's INTER_LINEAR_EXACT pyramid and float blur, :mod:`warpvx.cv._orb_levels`;
+:func:`warpvx.fast_corners`; rotated BRIEF); the per-point work on the host, on the downloaded
+level, as OpenCV computes it per point: Harris at the (at most 2 n_l) FAST corners in OpenCV's
+integer arithmetic (a full :func:`warpvx.harris_response` map cost 5x more and rounds
+differently), the ranking, the angles (integral images). ``WTA_K`` 2, ``patchSize`` 31.
 
 Reference: OpenCV ``features2d/src/orb.cpp`` (``computeKeyPoints``, ``HarrisResponses``,
 ``ICAngles``) and ``keypoint.cpp`` (``KeyPointsFilter::retainBest``, ``runByImageBorder``).
@@ -25,7 +23,7 @@ from ..arrays import to_numpy, to_warp
 from ..backend import resolve_backend
 from ..keypoints import Keypoints
 from ..kernels_cpu.orb import compute_orientation, padded_centres
-from ._pyramid_exact import exact_pyramid, resize_exact
+from ._orb_levels import blur_level, describe, exact_pyramid, resize_exact
 
 HARRIS_SCORE = 0
 FAST_SCORE = 1
@@ -125,7 +123,7 @@ def _level_points(img, mask, edge: int, fast_threshold: int, backend) -> tuple:
 
 
 def detect(gray, nfeatures: int, scale_factor: float, nlevels: int, edge: int,
-           score_type: int, fast_threshold: int, mask=None, *, backend=None) -> Keypoints:
+           score_type: int, fast_threshold: int, mask=None, *, backend=None) -> tuple:
     """OpenCV's ORB keypoints of a gray uint8 HxW image (NumPy or device array).
 
     Level l: the image resized INTER_LINEAR_EXACT from level l-1 (scale ``scale_factor^l``,
@@ -140,7 +138,10 @@ def detect(gray, nfeatures: int, scale_factor: float, nlevels: int, edge: int,
 
     Returns
     -------
-    Keypoints
+    levels : list of arrays
+        The pyramid levels used (NumPy, or ``wp.array`` on the backend's device), for
+        :func:`describe_keypoints`.
+    keypoints : Keypoints
         Host arrays, level by level, each level in raster order (cv2 leaves ``retainBest``'s
         ``nth_element`` order: the same set, another order): x, y at level 0 (level
         coordinates times s_l, float32), response (Harris or FAST score), size
@@ -150,10 +151,9 @@ def detect(gray, nfeatures: int, scale_factor: float, nlevels: int, edge: int,
     sizes = level_sizes(int(gray.shape[1]), int(gray.shape[0]), scales)
     used = _used_levels(sizes, edge)
     if used == 0:
-        return Keypoints.empty()
+        return [], Keypoints.empty()
     be = resolve_backend(backend, like=gray)
-    src = to_numpy(gray) if be.kind == "cpu" else to_warp(gray, be.device)
-    levels = exact_pyramid(src, sizes[:used])
+    levels = exact_pyramid(on_backend(gray, be), sizes[:used])
     masks = _mask_levels(mask, sizes[:used]) if mask is not None else [None] * used
     wanted = features_per_level(nfeatures, scale_factor, nlevels)
     fields = {k: [] for k in ("x", "y", "response", "size", "angle", "octave")}
@@ -173,7 +173,30 @@ def detect(gray, nfeatures: int, scale_factor: float, nlevels: int, edge: int,
         fields["response"].append(score.astype(np.float32))
         fields["size"].append(np.full(x.size, PATCH_SIZE * scales[level], np.float32))
         fields["octave"].append(np.full(x.size, level, np.int32))
-    return Keypoints(**{k: np.concatenate(v) for k, v in fields.items()})
+    return levels, Keypoints(**{k: np.concatenate(v) for k, v in fields.items()})
 
 
-__all__ = ["HARRIS_SCORE", "FAST_SCORE", "detect", "layer_scales", "level_sizes", "retain_best"]
+def on_backend(gray, be):
+    """``gray`` where backend ``be`` computes: NumPy for ``cpu``, else on its Warp device."""
+    return to_numpy(gray) if be.kind == "cpu" else to_warp(gray, be.device)
+
+
+def describe_keypoints(levels: list, kps: Keypoints, scale_factor: float) -> np.ndarray:
+    """uint8 [N, 32] (host): OpenCV's ORB descriptors of host ``kps`` on ``levels``.
+
+    Keypoint i is described on level ``octave`` blurred (:func:`~warpvx.cv._orb_levels.
+    blur_level`), centred at ``cvRound(p * (1 / s_octave))`` (float32, OpenCV's), with its own
+    ``angle``; every octave must have a level.
+    """
+    desc = np.zeros((len(kps), 32), np.uint8)
+    inv = np.float32(1.0) / layer_scales(scale_factor, len(levels))
+    for level in np.unique(kps.octave):
+        idx = np.flatnonzero(kps.octave == level)
+        cx = np.rint(kps.x[idx] * inv[level]).astype(np.int32)
+        cy = np.rint(kps.y[idx] * inv[level]).astype(np.int32)
+        desc[idx] = describe(blur_level(levels[level]), cx, cy, kps.angle[idx])
+    return desc
+
+
+__all__ = ["HARRIS_SCORE", "FAST_SCORE", "describe_keypoints", "detect", "harris_at",
+           "layer_scales", "level_sizes", "on_backend", "retain_best"]

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import matching, orb_extractor
+from .. import matching
+from ..backend import resolve_backend
 from ..check import check_float, check_int
-from ..errors import UnsupportedError, WarpvxTypeError, WarpvxValueError
-from ..keypoints import Keypoints
-from . import _orb_detect
+from ..errors import ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
+from ..keypoints import Keypoints, check_keypoints
+from ..orb_extractor import MAX_LEVELS
+from . import _orb_detect, _orb_levels
 from ._arrays import contiguous
 from ._fallback import method
 from .features2d import _host_mask, _to_gray
@@ -37,16 +39,15 @@ class ORB:
     those where the level's ``mask`` is zero dropped, the best ``2 n_l`` by FAST score kept,
     then the best ``n_l`` by Harris score (``scoreType`` ORB_HARRIS_SCORE; ORB_FAST_SCORE keeps
     the best ``n_l`` by FAST score), n_l = ``nfeatures`` split over ``nlevels`` by
-    ``scaleFactor``; angle by intensity centroid; rotated BRIEF (``WTA_K`` 2) on the blurred
-    level (:func:`warpvx.orb_compute`). Against cv2 (OpenCV 5.0, measured on real photos):
-    the same keypoints (position, level, angle, size; response to float rounding), and
-    98.8%+ of the descriptor bits equal: :func:`warpvx.orb_compute` describes on ORB-SLAM2's
-    INTER_LINEAR pyramid blurred in fixed point (cv2.GaussianBlur's bit-exact path), OpenCV
-    on its INTER_LINEAR_EXACT one blurred in floating point (GaussianBlur of an ROI of its
-    bordered pyramid buffer takes the separable float path); pixels differ by at most 1,
-    flipping a comparison now and then. As cv2, ties at the cut-off score are all kept, so a level may hold a few more
+    ``scaleFactor``; angle by intensity centroid; rotated BRIEF (``WTA_K`` 2) on the level
+    blurred 7x7, sigma 2 (:mod:`warpvx.cv._orb_levels`). OpenCV's arithmetic throughout
+    (INTER_LINEAR_EXACT pyramid, integer Harris, float separable blur): keypoints equal cv2's
+    (OpenCV 5.0; 7 real photos x 2 sizes, 12,000 keypoints) and so do descriptors, but for a
+    float rounding now and then (cos/sin of the angle on ``cpu``: one bit of 12,000
+    descriptors; on Warp also the float32 blur: a few pixels of a photo, 3 descriptors). As cv2, ties at the cut-off score are all kept, so a level may hold a few more
     than n_l; keypoints come level by level, each level in raster order (cv2: the order
-    ``nth_element`` leaves).
+    ``nth_element`` leaves). ``compute`` describes given keypoints the same way, on as many
+    levels as their largest ``octave`` needs.
 
     ``WTA_K`` other than 2, ``firstLevel`` other than 0, ``patchSize`` other than 31 and
     ``cv2.UMat`` images run on cv2's ORB with the same parameters
@@ -73,7 +74,7 @@ class ORB:
     @method
     def detect(self, image, mask=None):
         """Keypoints (tuple of cv2.KeyPoint); a colour image is converted BGR2GRAY as cv2."""
-        return tuple(self._detect(image, mask)[1].to_cv())
+        return tuple(self._detect(image, mask)[2].to_cv())
 
     @method
     def compute(self, image, keypoints, descriptors=None):
@@ -88,8 +89,15 @@ class ORB:
         kept = self._inside_border(gray, () if keypoints is None else keypoints)
         if not kept:
             return (), None
-        desc = orb_extractor.orb_compute(gray, Keypoints.from_cv(kept), self._scale,
-                                         backend=self.backend)
+        kps = check_keypoints(Keypoints.from_cv(kept), n_levels=MAX_LEVELS)
+        scales = _orb_detect.layer_scales(self._scale, int(kps.octave.max()) + 1)
+        sizes = _orb_detect.level_sizes(int(gray.shape[1]), int(gray.shape[0]), scales)
+        if min(min(s) for s in sizes) < 1:
+            raise ShapeError(f"keypoints: octave {len(sizes) - 1} has no pyramid level in an "
+                             f"image of {gray.shape[1]}x{gray.shape[0]} (WxH)")
+        be = resolve_backend(self.backend, like=gray)
+        levels = _orb_levels.exact_pyramid(_orb_detect.on_backend(gray, be), sizes)
+        desc = _orb_detect.describe_keypoints(levels, kps, self._scale)
         return tuple(kept), self._host(desc, descriptors)
 
     @method
@@ -98,10 +106,10 @@ class ORB:
         None; as cv2, each pyramid level is masked by its resized copy (only 255 kept)."""
         if useProvidedKeypoints:
             raise UnsupportedError("useProvidedKeypoints: use compute(image, keypoints) instead")
-        gray, kps = self._detect(image, mask)
+        _, levels, kps = self._detect(image, mask)
         if len(kps) == 0:
             return (), None
-        desc = orb_extractor.orb_compute(gray, kps, self._scale, backend=self.backend)
+        desc = _orb_detect.describe_keypoints(levels, kps, self._scale)
         return tuple(kps.to_cv()), self._host(desc, descriptors)
 
     def write(self, fs, name=None):
@@ -215,12 +223,14 @@ class ORB:
                 raise UnsupportedError(f"{name}: only {accelerated} is accelerated, got {value}")
 
     def _detect(self, image, mask):
-        """(gray image, host Keypoints): OpenCV's ORB detection with these parameters."""
+        """(gray image, pyramid levels, host Keypoints): OpenCV's ORB detection with these
+        parameters."""
         self._check_accelerated()
         gray = _to_gray(image, self.backend)
-        return gray, _orb_detect.detect(gray, self._nfeatures, self._scale, self._nlevels,
-                                        self._edge, self._score_type, self._fast,
-                                        _host_mask(mask, gray.shape), backend=self.backend)
+        levels, kps = _orb_detect.detect(gray, self._nfeatures, self._scale, self._nlevels,
+                                         self._edge, self._score_type, self._fast,
+                                         _host_mask(mask, gray.shape), backend=self.backend)
+        return gray, levels, kps
 
     def _inside_border(self, gray, keypoints) -> list:
         kps = list(keypoints)
