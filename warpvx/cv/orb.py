@@ -43,11 +43,11 @@ class ORB:
     blurred 7x7, sigma 2 (:mod:`warpvx.cv._orb_levels`). OpenCV's arithmetic throughout
     (INTER_LINEAR_EXACT pyramid, integer Harris, float separable blur): keypoints equal cv2's
     (OpenCV 5.0; 7 real photos x 2 sizes, 12,000 keypoints) and so do descriptors, but for a
-    float rounding now and then (cos/sin of the angle on ``cpu``: one bit of 12,000
-    descriptors; on Warp also the float32 blur: a few pixels of a photo, 3 descriptors). As cv2, ties at the cut-off score are all kept, so a level may hold a few more
-    than n_l; keypoints come level by level, each level in raster order (cv2: the order
-    ``nth_element`` leaves). ``compute`` describes given keypoints the same way, on as many
-    levels as their largest ``octave`` needs.
+    float rounding now and then (cos/sin of the angle on ``cpu``: one bit of 12,000 descriptors;
+    on Warp also the float32 blur: a few pixels of a photo, 3 descriptors). As cv2, ties at the
+    cut-off score are all kept, so a level may hold a few more than n_l; keypoints come level by
+    level, each level in raster order (cv2: the order ``nth_element`` leaves). ``compute``
+    describes given keypoints the same way, on as many levels as their largest ``octave`` needs.
 
     ``WTA_K`` other than 2, ``firstLevel`` other than 0, ``patchSize`` other than 31 and
     ``cv2.UMat`` images run on cv2's ORB with the same parameters
