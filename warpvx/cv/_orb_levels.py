@@ -106,12 +106,14 @@ def blur_level(level):
         out[MARGIN:MARGIN + h, MARGIN:MARGIN + w] = cv2.sepFilter2D(
             level, -1, k, k, borderType=cv2.BORDER_REFLECT_101)
         return out
-    from ._orb_kernels import blur_gaussian7
+    from ._orb_kernels import blur_columns7, blur_rows7
 
     wp = init_warp()
+    k = _on_device(str(level.device), "gaussian7")
+    rows = _launch(blur_rows7, (h, w), [level, k],
+                   wp.empty((h, w), dtype=wp.float32, device=level.device))
     out = wp.empty((h + 2 * MARGIN, w + 2 * MARGIN), dtype=wp.uint8, device=level.device)
-    return _launch(blur_gaussian7, out.shape,
-                   [level, _on_device(str(level.device), "gaussian7"), MARGIN], out)
+    return _launch(blur_columns7, out.shape, [level, rows, k, MARGIN], out)
 
 
 def _reflected(img: np.ndarray, r: int) -> np.ndarray:
