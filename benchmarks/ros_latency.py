@@ -241,14 +241,16 @@ HEADER = ("| size | encoding | MB/msg | round trip ms (median / p90) | graph alo
 
 
 def markdown(report) -> str:
-    m, ros = report["machine"], report["ros"]
+    m, ros, load = report["machine"], report["ros"], report["load_average_1min"]
     gpu = ", ".join(g["name"] for g in m["gpus"]) or "no GPU"
     lines = [f"Regenerate: `{report['command']}`", "",
              f"# ROS 1 round trip of a graph node: backend {report['backend']}", "",
              f"{m['cpu_model']} ({m['cpu_cores']} cores), {gpu}; Python {m['python']}, "
              f"warpvx {m['versions']['warpvx']}, warp {m['versions'].get('warp', '-')}, "
              f"OpenCV {m['versions']['opencv']}; rospy from `{ros['rospy']}`, master "
-             f"`{ros['roscore']}`; {report['frames']} frames per case; {report['date']}.", "",
+             f"`{ros['roscore']}`; {report['frames']} frames per case; {report['date']}; load "
+             f"average (1 min) at start / end {load[0]:.1f} / {load[1]:.1f} (on {m['cpu_cores']} "
+             f"cores: above that, other processes shared them).", "",
              HEADER, "| --- " * 8 + "|"]
     for r in report["rows"]:
         lines.append(f"| {r['size']} | {r['encoding']} | {r['mb_per_msg']:.2f} | "
@@ -292,6 +294,7 @@ def main(argv=None):
     out = args.out or str(fresh_results_dir("ros_latency"))
     os.makedirs(out, exist_ok=True)
     photo, source = load_photo_with_source()
+    load_start = os.getloadavg()[0]
     home = tempfile.mkdtemp(prefix="ros_latency_home")
     core, roscore = start_master(home)
     print(f"rospy {rospy.__file__}, master {roscore} at {os.environ['ROS_MASTER_URI']}, "
@@ -312,7 +315,7 @@ def main(argv=None):
         shutil.rmtree(home, ignore_errors=True)
     report = {"command": command(argv), "backend": args.backend, "frames": args.frames,
               "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "photo": source,
-              "machine": machine_info(),
+              "machine": machine_info(), "load_average_1min": [load_start, os.getloadavg()[0]],
               "ros": {"rospy": os.path.dirname(rospy.__file__), "roscore": roscore,
                       "bundle": os.environ.get("WARPVX_ROS_PYTHONPATH")},
               "rows": rows}
