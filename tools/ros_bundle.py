@@ -113,6 +113,7 @@ ENV_SH = '''\
 # Source me (bash or zsh): ROS 1's Python side from this bundle, for warpvx.ros and rosmaster/roscore.
 # Built by warpvx's tools/ros_bundle.py from Debian packages: {packages}.
 ROSBUNDLE="$(cd "$(dirname "${{BASH_SOURCE[0]:-$0}}")" && pwd)"
+chmod +x "$ROSBUNDLE"/bin/* 2>/dev/null || true  # a copy that lost the mode bits
 export WARPVX_ROS_PYTHONPATH="$ROSBUNDLE/python"
 export ROS_ETC_DIR="$ROSBUNDLE/etc/ros"
 export ROS_VERSION=1 ROS_PYTHON_VERSION=3 ROS_DISTRO="${{ROS_DISTRO:-debian}}"
