@@ -86,12 +86,15 @@ def start_master(home: str):
     import rosgraph
 
     deadline = time.monotonic() + WAIT
-    while not rosgraph.is_master_online():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            stop_master(proc)
-            with open(os.path.join(home, "roscore.log")) as f:
-                raise SystemExit(f"{roscore} did not start on port {port}:\n{f.read()[-2000:]}")
-        time.sleep(0.1)
+    try:
+        while not rosgraph.is_master_online():
+            if proc.poll() is not None or time.monotonic() > deadline:
+                with open(os.path.join(home, "roscore.log")) as f:
+                    raise SystemExit(f"{roscore} did not start on port {port}:\n{f.read()[-2000:]}")
+            time.sleep(0.1)
+    except BaseException:  # includes SIGTERM's SystemExit: leave no master behind
+        stop_master(proc)
+        raise
     return proc, roscore
 
 
@@ -296,6 +299,8 @@ def main(argv=None):
     photo, source = load_photo_with_source()
     load_start = os.getloadavg()[0]
     home = tempfile.mkdtemp(prefix="ros_latency_home")
+    # `timeout` sends SIGTERM: exit through the handlers that stop the master
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit("ros_latency: terminated"))
     core, roscore = start_master(home)
     print(f"rospy {rospy.__file__}, master {roscore} at {os.environ['ROS_MASTER_URI']}, "
           f"backend {args.backend}", flush=True)
