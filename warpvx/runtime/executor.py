@@ -65,7 +65,7 @@ K frames in flight
     ``(task, f)``, f < K) is run cyclically: frame *i* takes slot ``f = i mod K``, so frames
     0..K-1 run with the K-frame schedule's placement, K..2K-1 again with the same one. Each
     processor's queue is the K-frame schedule's order of ``(task, f)`` entries and runs on a
-    :class:`_Batch`, consecutive frames of one cycle: an entry waits until its frame is
+    :class:`~.cycles.Batch`, consecutive frames of one cycle: an entry waits until its frame is
     submitted, or is skipped once the batch is closed without it (a cycle is closed when its
     K frames are in, when the caller waits for one of its frames, or on abort), so a run that
     is not a multiple of K frames, one :meth:`Executor.wait` at a time, never waits for
@@ -94,6 +94,7 @@ import networkx as nx
 from ..errors import NodeExecutionError, ScheduleError, WarpvxValueError
 from ..sched.schedule import Schedule
 from .capture import NotCapturable, SegmentRunner, segments, signature
+from .cycles import Batch, frames_of
 from .native_copy import record_event, synchronize_event, warp
 from .program import ExecTask, InputRef, Program, data_graph
 from .slots import DEVICE, HOST, Slot
@@ -111,54 +112,6 @@ TIMED_COPY_MIN_BYTES = 1 << 16
 
 def _is_gpu_processor(name: str) -> bool:
     return name.startswith("gpu")
-
-
-def _frames_of(schedule: Schedule):
-    """K and scheduled key -> ``(task, slot)``: a schedule of an unrolled DAG names every task
-    ``(task, f)`` with an int ``f`` (K = the largest ``f`` + 1); any other is one frame."""
-    keys = list(schedule.tasks)
-    if keys and all(isinstance(k, tuple) and len(k) == 2 and isinstance(k[1], int)
-                    and not isinstance(k[1], bool) and k[1] >= 0 for k in keys):
-        return max(f for _, f in keys) + 1, {k: k for k in keys}
-    return 1, {k: (k, 0) for k in keys}
-
-
-class _Batch:
-    """Consecutive frames of one cycle of a K-frame schedule, slots ``first``.. ``last``: what
-    the processors run their ``(task, slot)`` queues over together (see the module
-    docstring). Closed, it takes no more frames and its missing slots are skipped."""
-
-    def __init__(self, cycle: int, first: int, k: int):
-        self.cycle = cycle
-        self.first = first
-        self.last = first - 1
-        self.closed = False
-        self._frames = [None] * k
-        self._cond = threading.Condition()
-
-    def add(self, slot: int, frame: Frame):
-        with self._cond:
-            self._frames[slot] = frame
-            self.last = slot
-            self._cond.notify_all()
-
-    def close(self):
-        with self._cond:
-            self.closed = True
-            self._cond.notify_all()
-
-    def __contains__(self, frame) -> bool:
-        return any(f is frame for f in self._frames)
-
-    def frame(self, slot: int, closing: threading.Event) -> Frame | None:
-        """The frame of ``slot``, waiting for its submission; None once the batch closed
-        without it (or the executor is closing)."""
-        with self._cond:
-            while self._frames[slot] is None:
-                if self.closed or slot < self.first or closing.is_set():
-                    return None
-                self._cond.wait(WAIT_SLICE)
-            return self._frames[slot]
 
 
 class _GpuState:
@@ -222,7 +175,7 @@ class Executor(SegmentRunner):
         self.gpu_device = gpu_device
         self.cuda = bool(gpu_device) and str(gpu_device).startswith("cuda")
         #: K: frames of the schedule's cycle (1 for a one-frame schedule).
-        self.frames, keys = _frames_of(schedule)
+        self.frames, keys = frames_of(schedule)
         unknown = [k for k, (t, _) in keys.items() if t not in program.tasks]
         if unknown:
             raise ScheduleError(f"schedule: places unknown task {unknown[0]!r}")
@@ -246,7 +199,7 @@ class Executor(SegmentRunner):
         self._slot_procs = [sum(any(f == s for _, f in self.entries[p]) for p in self._active)
                             for s in range(self.frames)]
         self._last = {p: {f: i for i, (_, f) in enumerate(self.entries[p])} for p in self._active}
-        self._batch: _Batch | None = None  # the open batch (K > 1)
+        self._batch: Batch | None = None  # the open batch (K > 1)
         self._inbox = {p: queue.SimpleQueue() for p in self._active}
         self._threads: dict[str, threading.Thread] = {}
         self._closing = threading.Event()
@@ -397,8 +350,8 @@ class Executor(SegmentRunner):
                 self._run_item(proc, item)
 
     def _run_item(self, proc: str, item):
-        """Run ``proc``'s part of a frame (its queue) or of a :class:`_Batch` (K frames)."""
-        if isinstance(item, _Batch):
+        """Run ``proc``'s part of a frame (its queue) or of a :class:`Batch` (K frames)."""
+        if isinstance(item, Batch):
             self._run_batch(proc, item)
         else:
             self._one_frame(proc, item, self._run_gpu_tasks if _is_gpu_processor(proc)
@@ -413,7 +366,7 @@ class Executor(SegmentRunner):
         finally:
             frame.processor_done()
 
-    def _run_batch(self, proc: str, batch: _Batch):
+    def _run_batch(self, proc: str, batch: Batch):
         """``proc``'s ``(task, slot)`` entries for the frames of ``batch``, in the K-frame
         schedule's order; a frame is done on ``proc`` after its slot's last entry there."""
         gpu = _is_gpu_processor(proc)
@@ -772,7 +725,7 @@ class Executor(SegmentRunner):
                 self._inbox[p].put(batch)
         return frame
 
-    def _join_batch(self, frame: Frame) -> _Batch | None:
+    def _join_batch(self, frame: Frame) -> Batch | None:
         """Put ``frame`` in the open batch of its cycle, or in a new one (returned, for the
         processors' inboxes; None when it joined the open one). Call with the lock held."""
         k = self.frames
@@ -781,7 +734,7 @@ class Executor(SegmentRunner):
         if batch is None or batch.closed or batch.cycle != cycle or batch.last >= slot:
             if batch is not None:
                 batch.close()
-            batch = new = self._batch = _Batch(cycle, slot, k)
+            batch = new = self._batch = Batch(cycle, slot, k)
         batch.add(slot, frame)
         if slot == k - 1:  # the cycle is complete
             batch.close()
