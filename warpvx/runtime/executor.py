@@ -381,29 +381,21 @@ class Executor(SegmentRunner):
             try:
                 if frame.cancel.is_set():
                     continue
-                if gpu:
-                    if frame is not current:
-                        # A fresh start event: the last end event is another frame's (pooled
-                        # with it) and the stream ran that frame's work in between.
-                        state.prev_end, current = None, frame
-                    self._guarded(proc, frame, task.name, self._run_gpu_task, frame, task, state)
-                else:
-                    self._guarded(proc, frame, task.name, self._run_cpu_task, proc, frame, task, io)
+                if not gpu:
+                    self._run_cpu_task(proc, frame, task, io)
+                    continue
+                if frame is not current:
+                    # A fresh start event: the last end event is another frame's (pooled with
+                    # it) and the stream ran that frame's work in between.
+                    state.prev_end, current = None, frame
+                self._run_gpu_task(frame, task, state)
+            except Cancelled:
+                pass
+            except BaseException as exc:  # noqa: BLE001 - reported to the caller
+                self._fail(frame, task.name, proc, exc)
             finally:
                 if i == last[slot]:
                     frame.processor_done()
-
-    def _guarded(self, proc: str, frame: Frame, name: str, run, *args) -> bool:
-        """``run(*args)``, task ``name`` of ``frame``: False when the frame was cancelled
-        meanwhile or the task failed (reported, see :meth:`_fail`)."""
-        try:
-            run(*args)
-            return True
-        except Cancelled:
-            return False
-        except BaseException as exc:  # noqa: BLE001 - reported to the caller
-            self._fail(frame, name, proc, exc)
-            return False
 
     def _gpu_frames(self, proc: str, item, inbox) -> bool:
         """Run ``item`` (a frame or a batch) and those queued behind it in one device/stream
@@ -452,33 +444,40 @@ class Executor(SegmentRunner):
     def _run_cpu(self, proc: str, frame: Frame):
         io = self._io()
         for task in self.queues[proc]:
-            if frame.cancel.is_set() or \
-                    not self._guarded(proc, frame, task.name, self._run_cpu_task, proc, frame, task, io):
+            if frame.cancel.is_set() or not self._run_cpu_task(proc, frame, task, io):
                 return
 
-    def _run_cpu_task(self, proc: str, frame: Frame, task: ExecTask, io: Transfers):
-        """One CPU task: waits for its inputs, downloads device ones, calls, publishes."""
-        slots, _ = self._ready_inputs(frame, task)
-        remote = [s for s in slots if s.where == DEVICE]
-        if self.cuda:
-            for s in remote:
-                ev = s.event
-                if ev is not None:
-                    synchronize_event(ev)
-        t0 = time.perf_counter()
-        t_mid = None
-        if remote:
-            before = io.moved
-            values = [s.host(io, ready=True) for s in slots]
-            t_mid = time.perf_counter()
-            if io.moved > before:
-                frame.copied[task.name] = io.moved - before
-        else:
-            values = [s.value for s in slots]
-        result = task.cpu(*values)
-        t1 = time.perf_counter()
-        self._publish(frame, task, result, HOST)
+    def _run_cpu_task(self, proc: str, frame: Frame, task: ExecTask, io: Transfers) -> bool:
+        """One CPU task: waits for its inputs, downloads device ones, calls, publishes.
+        False when the frame was cancelled meanwhile or the task failed (reported)."""
+        try:
+            slots, _ = self._ready_inputs(frame, task)
+            remote = [s for s in slots if s.where == DEVICE]
+            if self.cuda:
+                for s in remote:
+                    ev = s.event
+                    if ev is not None:
+                        synchronize_event(ev)
+            t0 = time.perf_counter()
+            t_mid = None
+            if remote:
+                before = io.moved
+                values = [s.host(io, ready=True) for s in slots]
+                t_mid = time.perf_counter()
+                if io.moved > before:
+                    frame.copied[task.name] = io.moved - before
+            else:
+                values = [s.value for s in slots]
+            result = task.cpu(*values)
+            t1 = time.perf_counter()
+            self._publish(frame, task, result, HOST)
+        except Cancelled:
+            return False
+        except BaseException as exc:  # noqa: BLE001 - reported to the caller
+            self._fail(frame, task.name, proc, exc)
+            return False
         frame.trace[task.name] = (proc, t0, t1, t_mid)
+        return True
 
     def _run_gpu_tasks(self, proc: str, frame: Frame):
         state = _GpuState(proc, self._io())
