@@ -58,6 +58,7 @@ MOTIONS = ("homography", "similarity", "translation")
 MODES = ("causal", "centered")
 DETECTORS = ("harris", "fast")
 BACKENDS = ("cpu", "warp-cpu", "cuda")
+ENGINES = ("auto", "graph", "device")
 
 # Fewest matched points that determine each motion model.
 _MIN_POINTS = {"homography": 4, "similarity": 2, "translation": 1}
@@ -505,15 +506,29 @@ def _chain_first(first, rest):
 
 
 def stabilize(frames, config: StabilizerConfig = StabilizerConfig(), *, backend="cpu",
-              depth: int = 2):
-    """Stabilize a video with the warpvx graph; a generator of :class:`StabilizedFrame`.
+              depth: int = 2, engine: str = "auto"):
+    """Stabilize a video with warpvx; a generator of :class:`StabilizedFrame`.
 
     ``frames``: an iterable of BGR uint8 HxWx3 frames of one size. ``backend``: ``"cpu"``,
-    ``"warp-cpu"`` or ``"cuda"`` (see :func:`build_graph`); ``depth`` frames in flight.
+    ``"warp-cpu"`` or ``"cuda"``; ``depth`` frames in flight. ``engine``: ``"graph"`` (the
+    warpvx graph, :func:`build_graph`), ``"device"`` (every step on the Warp device, replayed
+    per frame: :mod:`warpvx.apps.stabilize_device`; Warp backends, homography + Harris, no
+    undistortion) or ``"auto"`` (the device engine where it applies, else the graph).
     """
     from ..check import check_choice
 
     check_choice(backend, "backend", BACKENDS)
+    check_choice(engine, "engine", ENGINES)
+    if engine != "graph" and backend != "cpu":
+        from .stabilize_device import run_device, supports
+
+        reason = supports(config)
+        if reason is None:
+            return _drive(frames, config, run_device(backend, config, max(depth, 1)))
+        if engine == "device":
+            raise WarpvxValueError(f"engine: the device engine does not run {reason}; use 'graph'")
+    elif engine == "device":
+        raise WarpvxValueError("engine: the device engine needs a Warp backend (warp-cpu, cuda)")
 
     def run(feed, size):
         g = build_graph(size, config, backend=backend)
@@ -583,5 +598,5 @@ __all__ = [
     "StabilizerConfig", "StabilizedFrame", "build_graph", "schedule", "stabilize", "stabilize_model",
     "estimate_motion", "follow_motion", "as_motion", "park_lost", "refresh_points", "accumulate", "smooth_transform", "truncate_transform",
     "undistort_maps", "demo_clip", "VideoSource", "open_writer",
-    "MOTIONS", "MODES", "DETECTORS", "BACKENDS",
+    "MOTIONS", "MODES", "DETECTORS", "BACKENDS", "ENGINES",
 ]
