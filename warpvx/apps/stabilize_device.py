@@ -62,8 +62,8 @@ class DevicePlan:
     """Buffers, streams and programs of the device path for frames of ``size`` (w, h).
 
     ``device``: a Warp device (``"cpu"`` or ``"cuda:N"``); ``depth`` >= 1 frames in flight;
-    ``use_graph``: capture each slot's program as a CUDA graph (CUDA only; None: when
-    available). :meth:`run` consumes feed dicts ({"frame": uint8 HxWx3, "live": uint8 [1]})
+    ``use_graph``: capture each slot's program once and replay it (None: on CUDA; a CPU
+    capture replays the same launches, which the tests use to check the captured program). :meth:`run` consumes feed dicts ({"frame": uint8 HxWx3, "live": uint8 [1]})
     and yields, per step, a dict of ``stabilized`` (uint8 HxWx3, the frame ``lag`` steps back)
     and float64 3x3 ``motion``, ``trajectory``, ``transform``, ``warp`` (as the graph's
     outputs).
@@ -146,7 +146,7 @@ class DevicePlan:
         self.warps = [km.warp_by_device_matrix(self.frames[(s - self.lag) % R], self.sampling_matrix,
                                                self.outs[s]) for s in range(R)]
 
-        self.use_graph = dev.is_cuda if use_graph is None else bool(use_graph) and dev.is_cuda
+        self.use_graph = dev.is_cuda if use_graph is None else bool(use_graph)
         self.graphs = [None] * R
         self.steps = 0
         self._streams(wp)
@@ -155,6 +155,7 @@ class DevicePlan:
         """Pinned host rings and the copy streams (CUDA), or host views of the device rings
         (CPU: the device memory is host memory)."""
         dev, h, w = self.device, self.h, self.w
+        self.compute = wp.get_stream(dev) if dev.is_cuda else None
         if dev.is_cpu:
             self.host_in = [f.numpy() for f in self.frames]
             self.host_out = [o.numpy() for o in self.outs]
@@ -167,7 +168,6 @@ class DevicePlan:
         self.host_in = [a.numpy() for a in self.pin_in]
         self.host_out = [a.numpy() for a in self.pin_out]
         self.host_rec = [a.numpy() for a in self.pin_rec]
-        self.compute = wp.get_stream(dev)
         self.upload, self.download = wp.Stream(dev), wp.Stream(dev)
         self.uploaded = [wp.Event(dev) for _ in range(self.depth)]
         self.downloaded = [wp.Event(dev) for _ in range(self.depth)]
