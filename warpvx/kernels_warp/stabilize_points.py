@@ -33,7 +33,9 @@ from . import harris_corners as hc
 from ._launch import Recorded, workspace
 from .harris_response import corner_response
 
-wp.set_module_options({"enable_backward": False})
+# No FMA contraction: merge_fresh squares distances as NumPy does, and sample_first inlines
+# find_homography's draw_hypothesis, which must round as it does there.
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 BLOCK = 256  # lanes of the one-block compaction kernels
 OFF_IMAGE = wp.constant(wp.float32(-1.0e4))  # refresh_points' padding (x and y, px)
