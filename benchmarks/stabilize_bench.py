@@ -136,6 +136,58 @@ def bench_device(frames, config, backend, depth, n, seconds):
             "slots": plan.slots}
 
 
+def profile_device(frames, config, backend, n):
+    """Mean device time per frame of each stage of the device engine (``{stage: ms}``), from
+    ``n`` eager frames with events between the stages (a CUDA graph replays the same
+    launches with less launch overhead), plus ``re-detections per frame`` over those frames
+    and the detection alone (``detect (when it runs)``); {} on error."""
+    import warp as wp
+
+    from warpvx.apps.stabilize_device import DevicePlan
+
+    try:
+        plan = DevicePlan(frames[0].shape[1::-1], config, "cpu" if backend == "warp-cpu" else backend,
+                          depth=1, use_graph=False)
+        cuda = plan.device.is_cuda
+        marks = []
+
+        def stamp():
+            if not cuda:
+                return time.perf_counter()
+            ev = wp.Event(plan.device, enable_timing=True)
+            plan.compute.record_event(ev)
+            return ev
+
+        def elapsed_ms(a, b):
+            return wp.get_event_elapsed_time(a, b) if cuda else 1e3 * (b - a)
+
+        feed = ({"frame": f, "live": LIVE} for f in itertools.cycle(frames))
+        list(itertools.islice(plan.run(feed, copy=False), 10))  # warm-up
+        refills = []
+        refill = plan._refill
+        plan._refill = lambda gray: (refills.append(1), refill(gray))
+        plan.mark = lambda stage: marks.append((stage, stamp()))
+        list(itertools.islice(plan.run(feed, copy=False), n))
+        plan.mark = None
+        gray = plan.pyramids[0][0]
+        detect = []
+        for _ in range(max(3, n // 10)):
+            a = stamp()
+            plan.corners.launch(gray)
+            detect.append((a, stamp()))
+        wp.synchronize_device(plan.device)
+    except Exception as exc:  # noqa: BLE001 - profiling is extra: report and go on
+        print(f"device profile failed: {exc!r}", flush=True)
+        return {}
+    stages = {}
+    for (_, a), (stage, b) in zip(marks, marks[1:]):
+        if stage != "start":
+            stages[stage] = stages.get(stage, 0.0) + elapsed_ms(a, b) / n
+    stages["re-detections per frame"] = len(refills) / n
+    stages["detect (when it runs)"] = float(np.mean([elapsed_ms(a, b) for a, b in detect]))
+    return stages
+
+
 def bench_codec(frames, n):
     """(encode FPS, decode FPS) of OpenCV's mp4v writer and reader on ``n`` frames."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -161,6 +213,8 @@ def main(argv=None):
     p.add_argument("--frames", type=int, default=600, help="timed frames per measurement at most")
     p.add_argument("--device-frames", type=int, default=5000,
                    help="timed frames per device-engine measurement at most")
+    p.add_argument("--profile-frames", type=int, default=100,
+                   help="eager frames timed stage by stage for the device engine's breakdown")
     p.add_argument("--seconds", type=float, default=8.0, help="time per measurement at most")
     p.add_argument("--depth", type=int, default=4, help="frames in flight in the graph")
     p.add_argument("--motion", default="homography", choices=st.MOTIONS)
@@ -181,6 +235,7 @@ def main(argv=None):
                             os.path.join(args.out, f"gantt_{text}.png"))
         device = bench_device(frames, config, args.backend, args.depth, args.device_frames,
                               args.seconds)
+        device["stages_ms"] = profile_device(frames, config, args.backend, args.profile_frames)
         dev_fps = device["fps"]
         row = {"size": text, "model_fps": model, "graph_fps": graph["fps"],
                "ratio": graph["fps"] / model, "decode_fps": dec, "encode_fps": enc,
@@ -239,6 +294,15 @@ def render(report, argv):
                      f"{d.get('graphs', '-')} | {r['decode_fps']:.0f} | {r['encode_fps']:.0f} | "
                      f"{r['graph_with_decode_fps']:.1f} | {num(r.get('device_with_decode_fps'), '.1f')} | "
                      f"{g['predicted_makespan_ms']:.2f} | {'-' if meas is None else f'{meas:.2f}'} |")
+    stages = [st for st in report["rows"][0].get("device", {}).get("stages_ms", {})]
+    if stages:
+        lines += ["", "Device engine, per stage (eager launches, events between stages; mean ms "
+                  "per frame; detection counted in refresh on the frames that re-detect):", "",
+                  "| stage | " + " | ".join(r["size"] for r in report["rows"]) + " |",
+                  "|---|" + "---|" * len(report["rows"])]
+        for stage in stages:
+            lines.append(f"| {stage} | " + " | ".join(
+                num(r["device"].get("stages_ms", {}).get(stage), ".3f") for r in report["rows"]) + " |")
     errors = [f"{r['size']}: {r['device']['error']}" for r in report["rows"] if r.get("device", {}).get("error")]
     if errors:
         lines += ["", "Device engine errors: " + "; ".join(errors)]

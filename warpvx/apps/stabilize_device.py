@@ -148,6 +148,9 @@ class DevicePlan:
 
         self.use_graph = dev.is_cuda if use_graph is None else bool(use_graph)
         self.graphs = [None] * R
+        # mark(stage) is called after each stage of an eager program (profiling: the
+        # benchmark records events there); None in normal runs.
+        self.mark = None
         self.steps = 0
         self._streams(wp)
 
@@ -184,19 +187,27 @@ class DevicePlan:
         from ..kernels_warp.gaussian_pyramid import gaussian_pyramid
         from ..kernels_warp.optical_flow_pyr_lk import optical_flow_pyr_lk
 
+        mark = self.mark or (lambda stage: None)
         pyr, prev = self.pyramids[s], self.pyramids[(s - 1) % self.slots]
+        mark("start")
         color_convert(self.frames[s], GRAY_CODE, out=pyr[0])
         gaussian_pyramid(pyr[0], len(pyr), out=pyr)
+        mark("gray + pyramid")
         levels = self.lk_levels + 1
         optical_flow_pyr_lk(prev[:levels], pyr[:levels], self.points, None, self.win,
                             self.lk_levels, LK_ITERS, LK_EPS, LK_MIN_EIG, out=self.lk_out)
+        mark("LK")
         self.park.launch()
         self.ransac.launch()
+        mark("park_lost + RANSAC")
         self.keep.launch()
         wp.capture_if(self.detect, on_true=self._refill, gray=pyr[0])
         self.pad.launch()
+        mark("refresh (+ detect when flagged)")
         self.follow[s].launch()
+        mark("3x3 chain")
         self.warps[s].launch()
+        mark("warp")
 
     def _refill(self, gray):
         self.corners.launch(gray)
