@@ -40,6 +40,13 @@ the lost points are parked far off the image on the device (``park_lost``) and t
 primitive runs on the device too (``ransac``), so the frame and the points stay there; only the
 3x3 matrix comes back for the ``motion`` node (:func:`as_motion`). The graph on ``cpu`` calls the
 primitive's CPU backend, the model ``cv2.findHomography``: the same OpenCV call.
+
+Engines (:func:`stabilize`'s ``engine``): the graph above, the reference, on every backend;
+and on the Warp backends the device engine (:mod:`warpvx.apps.stabilize_device`), the same
+algorithm with the point set, re-detection, RANSAC and the 3x3 chain on the device too,
+replayed per frame as one CUDA graph with frames in flight (1 upload and 1 download per
+frame). It gives the graph's frames (bit for bit on warp-cpu on the bundled clip); ``auto``
+picks it where it applies (homography, Harris, no undistortion).
 """
 
 from __future__ import annotations

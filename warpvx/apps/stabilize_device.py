@@ -39,7 +39,7 @@ import numpy as np
 from ..errors import WarpvxValueError
 from .stabilize import StabilizerConfig, _crop_matrix, _park_lost_kernel
 
-__all__ = ["DevicePlan", "supports", "run_device"]
+__all__ = ["DevicePlan", "make_chain", "supports", "run_device"]
 
 GRAY_CODE = 6  # cv2.COLOR_BGR2GRAY
 LK_ITERS, LK_EPS, LK_MIN_EIG = 30, 0.01, 1e-4  # optical_flow_pyr_lk's defaults (the graph's)
@@ -56,6 +56,21 @@ def supports(config: StabilizerConfig) -> str | None:
     if config.camera_matrix is not None:
         return "undistortion"
     return None
+
+
+def make_chain(config: StabilizerConfig, size, device):
+    """The :class:`~warpvx.kernels_warp.stabilize_motion.Chain` constants of ``config`` for
+    frames of ``size`` (w, h) on ``device``."""
+    import warp as wp
+
+    from ..kernels_warp.stabilize_motion import Chain
+
+    chain = Chain()
+    chain.weights = wp.array(config.weights(), dtype=wp.float64, device=device)
+    chain.lag, chain.crop = config.lag, float(config.crop)
+    chain.crop_matrix = wp.mat33d(*_crop_matrix(size, config.crop).ravel())
+    chain.width, chain.height = float(size[0]), float(size[1])
+    return chain
 
 
 class DevicePlan:
@@ -121,11 +136,7 @@ class DevicePlan:
                                 device=dev)
         self.sampling_matrix = empty(1, wp.mat33)
 
-        chain = km.Chain()
-        chain.weights = wp.array(weights, dtype=wp.float64, device=dev)
-        chain.lag, chain.crop = self.lag, float(c.crop)
-        chain.crop_matrix = wp.mat33d(*_crop_matrix((w, h), c.crop).ravel())
-        chain.width, chain.height = float(w), float(h)
+        chain = make_chain(c, (w, h), dev)
         self.park = Recorded(_park_lost_kernel(), P, dev, pts=self.lk_out[0], status=self.lk_out[1],
                              out=self.parked)
         self.ransac = kp.DeviceRansac(self.points, self.parked, self.count, c.ransac_threshold,
