@@ -164,6 +164,9 @@ class DevicePlan:
         self.mark = None
         self.steps = 0
         self._streams(wp)
+        # The buffers were allocated and filled on the compute stream; the copy streams use
+        # them from the first frame on.
+        wp.synchronize_device(dev)
 
     def _streams(self, wp):
         """Pinned host rings and the copy streams (CUDA), or host views of the device rings
