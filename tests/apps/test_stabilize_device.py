@@ -47,6 +47,16 @@ def test_device_engine_gives_the_graph_frames(warp_backend, mode, window, n):
     _assert_same_frames(graph, device, warp_backend)
 
 
+def test_device_engine_undistorts_as_the_graph(warp_backend, bikes):
+    K = np.array([[300.0, 0, 160], [0, 300, 68], [0, 0, 1]])
+    cfg = st.StabilizerConfig(window=5, camera_matrix=K, dist_coeffs=np.array([-0.2, 0.05, 0, 0]))
+    graph = list(st.stabilize(bikes[:8], cfg, backend=warp_backend, engine="graph"))
+    device = list(st.stabilize(bikes[:8], cfg, backend=warp_backend, engine="device"))
+    _assert_same_frames(graph, device, warp_backend)
+    plain = list(st.stabilize(bikes[:8], st.StabilizerConfig(window=5), backend=warp_backend))
+    assert np.abs(plain[-1].image.astype(int) - device[-1].image).mean() > 1  # it did undistort
+
+
 def test_captured_program_replays_the_eager_one(warp_backend):
     """Each ring slot's program captured once and replayed (a CPU capture on warp-cpu, a CUDA
     graph with a conditional node on cuda) gives the eager launches' frames."""

@@ -46,7 +46,7 @@ and on the Warp backends the device engine (:mod:`warpvx.apps.stabilize_device`)
 algorithm with the point set, re-detection, RANSAC and the 3x3 chain on the device too,
 replayed per frame as one CUDA graph with frames in flight (1 upload and 1 download per
 frame). It gives the graph's frames (bit for bit on warp-cpu on the bundled clip); ``auto``
-picks it where it applies (homography, Harris, no undistortion).
+picks it where it applies (homography motion, Harris detector).
 """
 
 from __future__ import annotations
@@ -513,14 +513,15 @@ def _chain_first(first, rest):
 
 
 def stabilize(frames, config: StabilizerConfig = StabilizerConfig(), *, backend="cpu",
-              depth: int = 2, engine: str = "auto"):
+              depth: int | None = None, engine: str = "auto"):
     """Stabilize a video with warpvx; a generator of :class:`StabilizedFrame`.
 
     ``frames``: an iterable of BGR uint8 HxWx3 frames of one size. ``backend``: ``"cpu"``,
-    ``"warp-cpu"`` or ``"cuda"``; ``depth`` frames in flight. ``engine``: ``"graph"`` (the
+    ``"warp-cpu"`` or ``"cuda"``; ``depth`` frames in flight (default 2 in the graph, 3 in the
+    device engine). ``engine``: ``"graph"`` (the
     warpvx graph, :func:`build_graph`), ``"device"`` (every step on the Warp device, replayed
-    per frame: :mod:`warpvx.apps.stabilize_device`; Warp backends, homography + Harris, no
-    undistortion) or ``"auto"`` (the device engine where it applies, else the graph).
+    per frame: :mod:`warpvx.apps.stabilize_device`; Warp backends, homography + Harris) or
+    ``"auto"`` (the device engine where it applies, else the graph).
     """
     from ..check import check_choice
 
@@ -531,7 +532,7 @@ def stabilize(frames, config: StabilizerConfig = StabilizerConfig(), *, backend=
 
         reason = supports(config)
         if reason is None:
-            return _drive(frames, config, run_device(backend, config, max(depth, 1)))
+            return _drive(frames, config, run_device(backend, config, 3 if depth is None else depth))
         if engine == "device":
             raise WarpvxValueError(f"engine: the device engine does not run {reason}; use 'graph'")
     elif engine == "device":
@@ -541,7 +542,7 @@ def stabilize(frames, config: StabilizerConfig = StabilizerConfig(), *, backend=
         g = build_graph(size, config, backend=backend)
         schedule(g, backend)
         with g:
-            yield from g.stream(feed, depth=depth)
+            yield from g.stream(feed, depth=2 if depth is None else depth)
 
     return _drive(frames, config, run)
 

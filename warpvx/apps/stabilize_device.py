@@ -4,7 +4,7 @@
 host (5 device->host and 3 host->device copies and a serial round trip per frame). Here every
 step runs on the device, in one fixed sequence of launches per frame (:meth:`DevicePlan.program`):
 
-    frame (ring slot s) -> gray -> pyramid -> LK from slot s-1's pyramid -> park_lost ->
+    frame (ring slot s) -> [undistort: remap] -> gray -> pyramid -> LK from slot s-1's pyramid -> park_lost ->
     RANSAC (first ``count`` points) -> keep_tracked -> [if the device's flag says so:
     detect + merge_fresh] -> pad -> follow_motion (H, T, smoothing, truncation) ->
     warp of slot s - lag -> output slot s
@@ -12,7 +12,8 @@ step runs on the device, in one fixed sequence of launches per frame (:meth:`Dev
 (:mod:`warpvx.kernels_warp.stabilize_points`, :mod:`warpvx.kernels_warp.stabilize_motion`).
 Re-detection is decided on the device and run in a conditional node (``wp.capture_if``):
 detecting every frame would cost a full-resolution Harris map, a sort over every pixel and
-the selection rounds each frame, where a clip re-detects once in several frames; a
+the selection rounds each frame, where re-detection is rare (the bundled hand-held clip: 10 of
+46 frames, most in the first 12; the benchmark's shaken photo: once in 70 frames); a cheaper
 low-resolution detector would give other points than the graph path. On CUDA each ring slot's
 program is captured once as a CUDA graph (``wp.ScopedCapture``) and replayed
 (``wp.capture_launch``); where capture is unavailable (no conditional nodes, or inside a
@@ -25,8 +26,8 @@ events: with ``depth`` frames in flight the upload of frame t+1 and the download
 overlap the compute of frame t. The device ring holds ``lag + depth + 1`` frames (the centred
 window warps frame t - lag at step t).
 
-Supported: the homography motion with the Harris detector, no undistortion (the defaults;
-:func:`supports`); other configurations take the graph path. Same frames as the graph path on
+Supported: the homography motion with the Harris detector (the defaults; :func:`supports`),
+with or without undistortion; other configurations take the graph path. Same frames as the graph path on
 ``warp-cpu`` (tests/apps/test_stabilize_device.py states the tolerance).
 """
 
@@ -37,13 +38,12 @@ from collections import deque
 import numpy as np
 
 from ..errors import WarpvxValueError
-from .stabilize import StabilizerConfig, _crop_matrix, _park_lost_kernel
+from .stabilize import _NO_POINTS, StabilizerConfig, _crop_matrix, _park_lost_kernel, undistort_maps
 
 __all__ = ["DevicePlan", "make_chain", "supports", "run_device"]
 
 GRAY_CODE = 6  # cv2.COLOR_BGR2GRAY
 LK_ITERS, LK_EPS, LK_MIN_EIG = 30, 0.01, 1e-4  # optical_flow_pyr_lk's defaults (the graph's)
-_NO_POINTS = np.full((4, 2), -1e4, np.float32)  # the graph path's initial point set
 
 
 def supports(config: StabilizerConfig) -> str | None:
@@ -53,8 +53,6 @@ def supports(config: StabilizerConfig) -> str | None:
         return f"motion {config.motion!r}"
     if config.detector != "harris":
         return f"detector {config.detector!r}"
-    if config.camera_matrix is not None:
-        return "undistortion"
     return None
 
 
@@ -112,6 +110,11 @@ class DevicePlan:
             return wp.empty(shape, dtype=dtype, device=dev)
 
         self.frames = [wp.zeros((h, w, 3), dtype=wp.uint8, device=dev) for _ in range(R)]
+        self.maps = None  # undistortion: remap maps, and the undistorted frames' ring
+        self.sources = self.frames
+        if c.camera_matrix is not None:
+            self.maps = [wp.array(m, dtype=wp.float32, device=dev) for m in undistort_maps(c, (w, h))]
+            self.sources = [wp.zeros((h, w, 3), dtype=wp.uint8, device=dev) for _ in range(R)]
         self.outs = [empty((h, w, 3)) for _ in range(R)]
         self.records = [empty(4, wp.mat33d) for _ in range(R)]
         self.pyramids = []
@@ -154,7 +157,7 @@ class DevicePlan:
         self.follow = [Recorded(km.follow_motion, 1, dev, homography=self.homography, live=self.live,
                                 chain=chain, history=self.history, record=rec,
                                 sampling_matrix=self.sampling_matrix) for rec in self.records]
-        self.warps = [km.warp_by_device_matrix(self.frames[(s - self.lag) % R], self.sampling_matrix,
+        self.warps = [km.warp_by_device_matrix(self.sources[(s - self.lag) % R], self.sampling_matrix,
                                                self.outs[s]) for s in range(R)]
 
         self.use_graph = dev.is_cuda if use_graph is None else bool(use_graph)
@@ -199,12 +202,18 @@ class DevicePlan:
 
         from ..kernels_warp.color_convert import color_convert
         from ..kernels_warp.gaussian_pyramid import gaussian_pyramid
+        from ..geometry import _border_value
         from ..kernels_warp.optical_flow_pyr_lk import optical_flow_pyr_lk
+        from ..kernels_warp.remap import remap
+        from ..modes import BORDER_CONSTANT, INTER_LINEAR
 
         mark = self.mark or (lambda stage: None)
         pyr, prev = self.pyramids[s], self.pyramids[(s - 1) % self.slots]
         mark("start")
-        color_convert(self.frames[s], GRAY_CODE, out=pyr[0])
+        if self.maps is not None:  # the graph's undistort node: linear, constant border 0
+            remap(self.frames[s], *self.maps, INTER_LINEAR, BORDER_CONSTANT, _border_value(0),
+                  out=self.sources[s])
+        color_convert(self.sources[s], GRAY_CODE, out=pyr[0])
         gaussian_pyramid(pyr[0], len(pyr), out=pyr)
         mark("gray + pyramid")
         levels = self.lk_levels + 1
