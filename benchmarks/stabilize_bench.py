@@ -133,7 +133,7 @@ def bench_device(frames, config, backend, depth, n, seconds):
         return {"fps": None, "error": repr(exc)}
     return {"fps": done / s, "frames": done, "seconds": s, "setup_s": setup_s,
             "graphs": plan.use_graph and all(g is not None for g in plan.graphs),
-            "slots": plan.slots}
+            "capture_error": plan.capture_error, "slots": plan.slots}
 
 
 def profile_device(frames, config, backend, n):
@@ -303,7 +303,9 @@ def render(report, argv):
         for stage in stages:
             lines.append(f"| {stage} | " + " | ".join(
                 num(r["device"].get("stages_ms", {}).get(stage), ".3f") for r in report["rows"]) + " |")
-    errors = [f"{r['size']}: {r['device']['error']}" for r in report["rows"] if r.get("device", {}).get("error")]
+    errors = [f"{r['size']}: {r['device'].get('error') or 'capture: ' + r['device']['capture_error']}"
+              for r in report["rows"]
+              if r.get("device", {}).get("error") or r.get("device", {}).get("capture_error")]
     if errors:
         lines += ["", "Device engine errors: " + "; ".join(errors)]
     last = report["rows"][-1]["graph"]["placement"]

@@ -165,6 +165,7 @@ class DevicePlan:
         # mark(stage) is called after each stage of an eager program (profiling: the
         # benchmark records events there); None in normal runs.
         self.mark = None
+        self.capture_error = None  # why capture failed, when it did (then: eager launches)
         self.steps = 0
         self._streams(wp)
         # The buffers were allocated and filled on the compute stream; the copy streams use
@@ -246,8 +247,9 @@ class DevicePlan:
             try:
                 with wp.ScopedCapture(device=self.device, stream=self.compute) as capture:
                     self.program(s)
-            except Exception:  # noqa: BLE001 - no conditional nodes, or a caller's capture
+            except Exception as exc:  # noqa: BLE001 - no conditional nodes, or a caller's capture
                 self.use_graph = False
+                self.capture_error = repr(exc)
             else:
                 self.graphs[s] = capture.graph
                 wp.capture_launch(capture.graph)
