@@ -95,6 +95,28 @@ def test_device_corners_equal_harris_corners(warp_backend, image, max_corners, q
         np.testing.assert_array_equal(det.points.numpy()[:n], want)
 
 
+def test_device_corners_with_few_round_counters(warp_backend, monkeypatch):
+    """Batches of 1 round and 3 round counters: on cuda the rounds run out of counters and
+    start them again on the device (``capture_while``); on warp-cpu one round decides every
+    candidate (its threads run in rank order), so there it checks the one-round batches.
+    Either way: harris_corners' points."""
+    import warp as wp
+
+    from warpvx import harris_corners
+    from warpvx.kernels_warp import harris_corners as hc
+    from warpvx.kernels_warp import stabilize_points as kp
+
+    src = wp.array(np.ascontiguousarray(gray("rocket")[:211, :301]), dtype=wp.uint8,
+                   device=_device(warp_backend))  # a size no other test uses: a fresh workspace
+    want = harris_corners(src, 400, 0.001, 8.0).numpy()
+    monkeypatch.setattr(hc, "MAX_ROUNDS", 3)
+    monkeypatch.setattr(kp, "ROUND_BATCH", 1)
+    det = kp.DeviceCorners(src.shape, src.device, 400, 0.001, 8.0)
+    det.launch(src)
+    n = int(det.result.numpy()[0])
+    np.testing.assert_array_equal(det.points.numpy()[:n], want)
+
+
 def _refresh_on_device(device, next_pts, status, detections, min_tracked, max_corners, min_distance):
     """keep_tracked, merge_fresh (when flagged), pad_points on a P-row buffer; returns the
     first ``count`` rows and the rows after them."""

@@ -17,9 +17,11 @@ as duplicates. The steps mirror :func:`warpvx.apps.stabilize.refresh_points`:
 
 :class:`DeviceCorners` reuses the kernels of :mod:`.harris_corners` and gives its points
 exactly (tests/apps/test_stabilize_device.py): the candidates are sorted over the whole
-capacity with sentinel keys after the count, and all :data:`~.harris_corners.MAX_ROUNDS`
-selection rounds are launched (a round after the last useful one returns at once), looping
-on the device (``wp.capture_while``) in the rare case they did not decide every candidate.
+capacity with sentinel keys after the count; the selection rounds run in batches of
+:data:`ROUND_BATCH`, each batch in a conditional node on the previous batch's last
+"undecided" counter (nested ``wp.capture_if``), up to :data:`~.harris_corners.MAX_ROUNDS`,
+looping on the device (``wp.capture_while``) in the rare case they did not decide every
+candidate (the counters start again, as ``harris_corners`` does).
 """
 
 from __future__ import annotations
@@ -38,6 +40,9 @@ from .harris_response import corner_response
 wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 BLOCK = 256  # lanes of the one-block compaction kernels
+# Selection rounds launched per conditional batch: real frames need a few to a dozen rounds;
+# launching all MAX_ROUNDS (each a launch over every pixel's candidate slot) would cost more.
+ROUND_BATCH = 8
 OFF_IMAGE = wp.constant(wp.float32(-1.0e4))  # refresh_points' padding (x and y, px)
 
 
@@ -192,10 +197,15 @@ class DeviceCorners:
         # The condition of the device loop: candidates left undecided after all the rounds.
         self.undecided_left = ws.result[1:2]
 
-    def _rounds(self):
-        for r in range(1, hc.MAX_ROUNDS):
+    def _rounds(self, first: int = 1):
+        """Rounds ``first`` .. in batches of :data:`ROUND_BATCH`, each batch after the first
+        only when the previous one left candidates undecided (a nested conditional on its
+        last counter)."""
+        last = min(first + ROUND_BATCH, hc.MAX_ROUNDS) - 1
+        for r in range(first, last + 1):
             self.ws.run_round(r)
-        self.ws.select_cmd.launch()
+        if last < hc.MAX_ROUNDS - 1:
+            wp.capture_if(self.ws.undecided[last:last + 1], on_true=self._rounds, first=last + 1)
 
     def _restart(self):
         # Out of round counters: start them again (every decision so far stays), as
@@ -203,6 +213,7 @@ class DeviceCorners:
         self.ws.undecided.zero_()
         self.ws.undecided[0:1].fill_(1)
         self._rounds()
+        self.ws.select_cmd.launch()
 
     def launch(self, gray):
         """Detect in ``gray`` (uint8 HxW ``wp.array`` of the constructed shape)."""
@@ -218,6 +229,7 @@ class DeviceCorners:
         if self.suppress:
             ws.find()
             self._rounds()
+            ws.select_cmd.launch()
             wp.capture_while(self.undecided_left, self._restart)
         else:
             ws.select_cmd.launch()
