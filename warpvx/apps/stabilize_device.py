@@ -167,6 +167,7 @@ class DevicePlan:
         self.mark = None
         self.capture_error = None  # why capture failed, when it did (then: eager launches)
         self.steps = 0
+        self._wp = wp
         self._streams(wp)
         # The buffers were allocated and filled on the compute stream; the copy streams use
         # them from the first frame on.
@@ -238,12 +239,13 @@ class DevicePlan:
         self.merge.launch()
 
     def _launch(self, s: int):
-        import warp as wp
-
+        """Slot ``s``'s program: its graph, captured on first use after the first step (which
+        loads the modules and reserves scratch), or eager launches."""
+        wp = self._wp
         if self.graphs[s] is not None:
             wp.capture_launch(self.graphs[s])
             return
-        if self.use_graph and self.steps > 0:  # the first step loads modules, reserves scratch
+        if self.use_graph and self.steps > 0:
             try:
                 with wp.ScopedCapture(device=self.device, stream=self.compute) as capture:
                     self.program(s)
@@ -259,46 +261,54 @@ class DevicePlan:
     # -- the frame loop -------------------------------------------------------------------
 
     def submit(self, frame, live: bool):
-        """Enqueue step ``self.steps`` (no wait for the device, except for a free pinned slot)."""
+        """Enqueue step ``self.steps`` (no wait for the device, except for a free pinned
+        slot); returns the step's index."""
         t, s, p = self.steps, self.steps % self.slots, self.steps % self.depth
         cuda = self.device.is_cuda
-        if live:
-            if cuda and t >= self.depth:
-                import warp as wp
-
-                wp.synchronize_event(self.uploaded[p])  # the pinned slot's last upload is done
-            np.copyto(self.host_in[p if cuda else s], frame)
-            if cuda:
-                import warp as wp
-
-                free = t - self.slots + max(self.lag, 1)  # last step reading device slot s
-                if free >= 0:
-                    self.upload.wait_event(self.done[free % self.slots])
-                wp.copy(self.frames[s], self.pin_in[p], stream=self.upload)
-                self.upload.record_event(self.uploaded[p])
-                self.compute.wait_event(self.uploaded[p])
+        if not live:
+            self.live.fill_(0)  # a padding step flushing the centred window: nothing to upload
+        elif cuda:
+            self._upload(t, s, p, frame)
         else:
-            self.live.fill_(0)
+            np.copyto(self.host_in[s], frame)  # Warp's CPU device: its memory is host memory
         self._launch(s)
         if cuda:
-            import warp as wp
-
-            self.compute.record_event(self.done[s])
-            self.download.wait_event(self.done[s])
-            wp.copy(self.pin_out[p], self.outs[s], stream=self.download)
-            wp.copy(self.pin_rec[p], self.records[s], stream=self.download)
-            self.download.record_event(self.downloaded[p])
+            self._download(s, p)
         self.steps += 1
         return t
+
+    def _upload(self, t: int, s: int, p: int, frame):
+        """``frame`` into pinned slot ``p``, then to device slot ``s`` on the upload stream
+        once no step still reads it; the compute stream waits for the copy."""
+        from ..runtime.native_copy import to_device
+
+        wp = self._wp
+        if t >= self.depth:
+            wp.synchronize_event(self.uploaded[p])  # the pinned slot's last upload is done
+        np.copyto(self.host_in[p], frame)
+        free = t - self.slots + max(self.lag, 1)  # the last step that read device slot s
+        if free >= 0:
+            self.upload.wait_event(self.done[free % self.slots])
+        to_device(self.frames[s], self.pin_in[p], self.upload)
+        self.upload.record_event(self.uploaded[p])
+        self.compute.wait_event(self.uploaded[p])
+
+    def _download(self, s: int, p: int):
+        """Output slot ``s`` (image and matrices) into pinned slot ``p`` on the download
+        stream, after the step's compute."""
+        wp = self._wp
+        self.compute.record_event(self.done[s])
+        self.download.wait_event(self.done[s])
+        wp.copy(self.pin_out[p], self.outs[s], stream=self.download)
+        wp.copy(self.pin_rec[p], self.records[s], stream=self.download)
+        self.download.record_event(self.downloaded[p])
 
     def result(self, t: int, copy: bool = True) -> dict:
         """The outputs of step ``t`` (waits for its download). With ``copy`` False the image
         is a view of the pinned ring, valid until the next :meth:`submit`."""
         if self.device.is_cuda:
-            import warp as wp
-
             p = t % self.depth
-            wp.synchronize_event(self.downloaded[p])
+            self._wp.synchronize_event(self.downloaded[p])
             image, rec = self.host_out[p], self.host_rec[p]
         else:
             image, rec = self.host_out[t % self.slots], self.host_rec[t % self.slots]
