@@ -283,3 +283,20 @@ def test_auto_engine_on_warp_is_the_device_engine(bikes, monkeypatch):
     list(st.stabilize(bikes[:4], cfg, backend="warp-cpu", engine="graph"))
     list(st.stabilize(bikes[:4], cfg, backend="cpu"))
     assert len(made) == 1
+
+
+def test_cli_engine_option(tmp_path, capsys):
+    import cv2
+
+    from tests.apps.conftest import CLIP
+    from warpvx import cli
+
+    out = tmp_path / "out.mp4"
+    assert cli.main(["stabilize", CLIP, str(out), "--backend", "warp-cpu", "--engine", "device",
+                     "--max-frames", "6", "--window", "3", "--quiet"]) == 0
+    assert int(cv2.VideoCapture(str(out)).get(cv2.CAP_PROP_FRAME_COUNT)) == 6
+    capsys.readouterr()
+    assert cli.main(["stabilize", CLIP, str(out), "--backend", "warp-cpu", "--engine", "device",
+                     "--motion", "similarity", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "engine" in err and "similarity" in err
