@@ -32,7 +32,7 @@ import warp as wp
 
 from . import find_homography as fh
 from . import harris_corners as hc
-from ._launch import Recorded, workspace
+from ._launch import Recorded
 from .harris_response import corner_response
 
 # No FMA contraction: merge_fresh squares distances as NumPy does, and sample_first inlines
@@ -178,10 +178,10 @@ class DeviceCorners:
     def __init__(self, shape, device, max_corners: int, quality_level: float,
                  min_distance: float, block_size: int = 3, k: float = 0.04):
         h, w = shape
-        # A private workspace (not the shared one of harris_corners): its launches are sized
-        # for the whole capacity once.
-        self.ws = ws = workspace("stabilize_corners", (h, w), device,
-                                 lambda: hc._CornersWorkspace(h, w, device))
+        # A workspace of its own (not the cache's, shared by harris_corners calls and other
+        # plans): its launches are sized for the whole capacity once and write into
+        # ``self.points``.
+        self.ws = ws = hc._CornersWorkspace(h, w, device)
         ws.resize(ws.capacity)
         self.block_size, self.k = int(block_size), float(k)
         self.quality_level = float(quality_level)
