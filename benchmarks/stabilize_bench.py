@@ -139,8 +139,10 @@ def bench_device(frames, config, backend, depth, n, seconds):
 def profile_device(frames, config, backend, n):
     """Mean device time per frame of each stage of the device engine (``{stage: ms}``), from
     ``n`` eager frames with events between the stages (a CUDA graph replays the same
-    launches with less launch overhead), plus ``re-detections per frame`` over those frames
-    and the detection alone (``detect (when it runs)``); {} on error."""
+    launches with less launch overhead), plus ``re-detections per frame`` over those frames,
+    the detection alone (``detect (when it runs)``), the host's copy of a frame into the
+    ring and (CUDA) the upload and download of one frame, which the pipeline overlaps with
+    the compute; {} on error."""
     import warp as wp
 
     from warpvx.apps.stabilize_device import DevicePlan
@@ -175,6 +177,18 @@ def profile_device(frames, config, backend, n):
             a = stamp()
             plan.corners.launch(gray)
             detect.append((a, stamp()))
+        copies = []  # (host->device, device->host) of one frame, CUDA only
+        host_copy = []  # a frame into a pinned (CUDA) / device (CPU) ring slot, host time
+        for k in range(max(3, n // 10)):
+            t = time.perf_counter()
+            np.copyto(plan.host_in[0], frames[k % len(frames)])
+            host_copy.append(1e3 * (time.perf_counter() - t))
+            if cuda:
+                a = stamp()
+                wp.copy(plan.frames[0], plan.pin_in[0], stream=plan.compute)
+                b = stamp()
+                wp.copy(plan.pin_out[0], plan.outs[0], stream=plan.compute)
+                copies.append((a, b, stamp()))
         wp.synchronize_device(plan.device)
     except Exception as exc:  # noqa: BLE001 - profiling is extra: report and go on
         print(f"device profile failed: {exc!r}", flush=True)
@@ -185,6 +199,10 @@ def profile_device(frames, config, backend, n):
             stages[stage] = stages.get(stage, 0.0) + elapsed_ms(a, b) / n
     stages["re-detections per frame"] = len(refills) / n
     stages["detect (when it runs)"] = float(np.mean([elapsed_ms(a, b) for a, b in detect]))
+    stages["frame into the ring (host ms)"] = float(np.median(host_copy))
+    if copies:
+        stages["upload (host->device)"] = float(np.median([elapsed_ms(a, b) for a, b, _ in copies]))
+        stages["download (device->host)"] = float(np.median([elapsed_ms(b, c) for _, b, c in copies]))
     return stages
 
 
