@@ -153,8 +153,9 @@ def _refresh_on_device(device, next_pts, status, detections, min_tracked, max_co
             "selected": np.int32([len(detections), 0, 0])}.items()}
     points = wp.array(np.full((P, 2), 7.0, np.float32), device=device)
     tracked, count, detect = (wp.zeros(1, dtype=wp.int32, device=device) for _ in range(3))
-    wp.launch_tiled(kp.keep_tracked, dim=[1], inputs=[arr["nxt"], arr["stat"], min_tracked, max_corners, points,
-                                           tracked, count, detect], block_dim=kp.BLOCK, device=device)
+    wp.launch_tiled(kp.keep_tracked, dim=[1], inputs=[arr["nxt"], arr["stat"], min_tracked,
+                                                      max_corners, points, tracked, count, detect],
+                    block_dim=kp.BLOCK, device=device)
     if detect.numpy()[0]:
         wp.launch_tiled(kp.merge_fresh, dim=[1], inputs=[arr["fresh"], arr["selected"], tracked,
                                                float(min_distance) ** 2, max_corners, points, count],

@@ -76,10 +76,10 @@ class DevicePlan:
 
     ``device``: a Warp device (``"cpu"`` or ``"cuda:N"``); ``depth`` >= 1 frames in flight;
     ``use_graph``: capture each slot's program once and replay it (None: on CUDA; a CPU
-    capture replays the same launches, which the tests use to check the captured program). :meth:`run` consumes feed dicts ({"frame": uint8 HxWx3, "live": uint8 [1]})
-    and yields, per step, a dict of ``stabilized`` (uint8 HxWx3, the frame ``lag`` steps back)
-    and float64 3x3 ``motion``, ``trajectory``, ``transform``, ``warp`` (as the graph's
-    outputs).
+    capture replays the same launches, which the tests use to check the captured program).
+    :meth:`run` consumes feed dicts ({"frame": uint8 HxWx3, "live": uint8 [1]}) and yields,
+    per step, a dict of ``stabilized`` (uint8 HxWx3, the frame ``lag`` steps back) and
+    float64 3x3 ``motion``, ``trajectory``, ``transform``, ``warp`` (as the graph's outputs).
     """
 
     def __init__(self, size, config: StabilizerConfig, device, *, depth: int = 3,

@@ -16,7 +16,9 @@ from __future__ import annotations
 import warp as wp
 
 from ._launch import Recorded
-from ._sampling import INTER_LINEAR, SAMPLERS, Sampling, SourceImage, store_pixel, store_quad
+from ._sampling import (BORDER_CONSTANT, INTER_LINEAR, SAMPLERS, Sampling, SourceImage, sampling,
+                        source_image, store_pixel, store_quad)
+from .remap import output_plan
 from .warp_perspective import project
 
 # Forward-only; no FMA contraction, so the chain rounds as NumPy's elementwise arithmetic.
@@ -150,7 +152,7 @@ def follow_motion(homography: wp.array2d(dtype=wp.float64), live: wp.array(dtype
     sampling_matrix[0] = wp.mat33(wp.inverse(warp))
 
 
-_sample_nearest, sample_linear = SAMPLERS[3]
+sample_linear = SAMPLERS[3][1]
 
 
 @wp.func
@@ -184,13 +186,10 @@ def warp_by_device_matrix(src, matrix, out) -> Recorded:
     """A recorded launch warping BGR uint8 ``src`` (HxWx3 ``wp.array``) into ``out`` (same
     size) through ``matrix[0]`` (``wp.array`` of one ``wp.mat33``, dst->src), bilinear,
     constant border 0; replay it with ``.launch()``."""
-    from ._sampling import sampling, source_image
-    from .remap import output_plan
-
     quads, dim, dst = output_plan(out)
     kernel = warp_by_device_matrix_quads if quads else warp_by_device_matrix_pixels
     return Recorded(kernel, dim, src.device, src=source_image(src), matrix=matrix,
-                    how=sampling(INTER_LINEAR, 0, (0.0, 0.0, 0.0, 0.0)), dst=dst())
+                    how=sampling(INTER_LINEAR, BORDER_CONSTANT, (0.0, 0.0, 0.0, 0.0)), dst=dst())
 
 
 __all__ = ["Chain", "follow_motion", "warp_by_device_matrix"]

@@ -172,8 +172,9 @@ class DeviceRansac:
 
 class DeviceCorners:
     """``harris_corners(gray, max_corners, quality_level, min_distance, block_size, k)`` on
-    gray images of ``shape`` (h, w) with no host sync: strongest-first float32 points into ``points`` ([max_corners, 2]) and their
-    number into ``result[0]`` (int32 [3], as ``write_selected``)."""
+    gray images of ``shape`` (h, w) with no host sync: strongest-first float32 points into
+    ``points`` ([max_corners, 2]) and their number into ``result[0]`` (int32 [3], as
+    ``write_selected``)."""
 
     def __init__(self, shape, device, max_corners: int, quality_level: float,
                  min_distance: float, block_size: int = 3, k: float = 0.04):
