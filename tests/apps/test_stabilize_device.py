@@ -260,6 +260,22 @@ def test_ransac_on_the_first_count_points_equals_find_homography(warp_backend):
     np.testing.assert_allclose(out.numpy(), want.numpy(), rtol=1e-12, atol=1e-12)
 
 
+def test_device_engine_with_under_four_points_finds_no_model(bikes):
+    """min_tracked 2: the kept set may fall under the 4 points a homography needs (the graph
+    path refuses it in find_homography); the device engine takes no model (identity) there
+    instead of drawing a sample that cannot exist."""
+    import warp as wp
+
+    from warpvx.kernels_warp.stabilize_points import DeviceRansac
+
+    pts = wp.array(np.float32([[10, 10], [50, 12], [30, 40], [np.nan, np.nan]]), device="cpu")
+    out = wp.array(np.ones((3, 3)), dtype=wp.float64, device="cpu")
+    DeviceRansac(pts, pts, wp.array([3], dtype=wp.int32, device="cpu"), 3.0, 50, 0, out).launch()
+    assert (out.numpy() == 0).all()
+    cfg = st.StabilizerConfig(window=3, min_tracked=2, max_corners=3)
+    assert len(list(st.stabilize(bikes[:4], cfg, backend="warp-cpu", engine="device"))) == 4
+
+
 @pytest.mark.parametrize("kwargs, backend, match", [
     ({"engine": "fastest"}, "warp-cpu", "engine"),
     ({"engine": "device"}, "cpu", "engine"),  # the device engine needs a Warp backend

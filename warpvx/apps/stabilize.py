@@ -518,10 +518,10 @@ def stabilize(frames, config: StabilizerConfig = StabilizerConfig(), *, backend=
 
     ``frames``: an iterable of BGR uint8 HxWx3 frames of one size. ``backend``: ``"cpu"``,
     ``"warp-cpu"`` or ``"cuda"``; ``depth`` frames in flight (default 2 in the graph, 3 in the
-    device engine). ``engine``: ``"graph"`` (the
-    warpvx graph, :func:`build_graph`), ``"device"`` (every step on the Warp device, replayed
-    per frame: :mod:`warpvx.apps.stabilize_device`; Warp backends, homography + Harris) or
-    ``"auto"`` (the device engine where it applies, else the graph).
+    device engine). ``engine``: ``"graph"`` (the warpvx graph, :func:`build_graph`),
+    ``"device"`` (every step on the Warp device, replayed per frame:
+    :mod:`warpvx.apps.stabilize_device`; Warp backends, homography + Harris) or ``"auto"``
+    (the device engine where it applies, else the graph).
     """
     from ..check import check_choice
 

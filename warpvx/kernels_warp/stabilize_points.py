@@ -132,9 +132,15 @@ def sample_first(src_pts: wp.array(dtype=wp.vec2d), dst_pts: wp.array(dtype=wp.v
                  count: wp.array(dtype=wp.int32), seed: int,
                  hypotheses: wp.array(dtype=wp.mat33d)):
     """``sample_hypotheses`` over the first ``count[0]`` points: the samples
-    :func:`warpvx.find_homography` draws from those points alone."""
+    :func:`warpvx.find_homography` draws from those points alone; zeros (no model) under 4
+    points (possible only with ``min_tracked`` < 4), where the 4 distinct indices of a
+    sample do not exist."""
     h = wp.tid()
-    hypotheses[h] = fh.draw_hypothesis(src_pts, dst_pts, count[0], seed, h)
+    n = count[0]
+    model = wp.mat33d()
+    if n >= 4:
+        model = fh.draw_hypothesis(src_pts, dst_pts, n, seed, h)
+    hypotheses[h] = model
 
 
 @wp.kernel
