@@ -65,24 +65,32 @@ from .plan import OrbPlan, acquire, release
 
 
 def orb(src, n_features: int, scale_factor: float, n_levels: int, ini_th_fast: int,
-        min_th_fast: int, *, out=None) -> tuple:
-    """ORB-SLAM2's extractor on ``src.device``: (Keypoints of device arrays, uint8 [N, 32]).
+        min_th_fast: int, *, out=None):
+    """ORB-SLAM2's extractor on the device of ``src``: (Keypoints of device arrays,
+    uint8 [N, 32]); for a batch (a uint8 [B, H, W] array or a list of B equal-sized HxW
+    images, one device) a list of B such pairs, each what the image alone gives.
 
-    Every stage, the quadtree included, runs on the device (on CUDA as one captured graph per
-    size and parameter set, cached); the host syncs once to read the keypoint count. ``out``
-    must be None (UnsupportedError otherwise: the count is data-dependent).
+    Every stage, the quadtree included, runs on the device for the whole batch at once (on
+    CUDA as one captured graph per device, size, parameters and batch size, cached); the host
+    syncs once to read the keypoint counts. ``out`` must be None (UnsupportedError otherwise:
+    the count is data-dependent).
     """
     spec.refuse_out(out)
-    device = src.device
-    h, w = int(src.shape[0]), int(src.shape[1])
+    batched = isinstance(src, (list, tuple)) or src.ndim == 3
+    first = src[0] if isinstance(src, (list, tuple)) else src
+    batch = (len(src) if isinstance(src, (list, tuple)) else int(src.shape[0])) if batched else 1
+    device = first.device
+    h, w = int(first.shape[-2]), int(first.shape[-1])
     key = (str(device), h, w, int(n_features), float(scale_factor), int(n_levels),
-           int(ini_th_fast), int(min_th_fast))
+           int(ini_th_fast), int(min_th_fast), batch)
     plan = acquire(key, lambda: OrbPlan(device, h, w, int(n_features), float(scale_factor),
-                                      int(n_levels), int(ini_th_fast), int(min_th_fast)))
+                                      int(n_levels), int(ini_th_fast), int(min_th_fast),
+                                      batch=batch))
     try:
-        return plan.run(src)
+        results = plan.run(src)
     finally:
         release(key, plan)
+    return results if batched else results[0]
 
 
 def orb_compute(src, keypoints: Keypoints, scale_factor: float, n_levels: int, *, out=None):

@@ -4,30 +4,73 @@ from __future__ import annotations
 
 import warp as wp
 
+from .._filtering import round_shift, taps16i
 from .._sampling import read_reflect101
 from ..fast_corners import fast_score
 from .funcs import (C_CAND, C_CAND_R, C_FINAL, C_NODES, C_OVER, C_SURV_R, HALF_PATCH,
                     KEY_CELL_SHIFT, KEY_LEVEL_SHIFT, KEY_X_SHIFT, KEY_Y_SHIFT, MODE_EMPTY,
                     MODE_FULL, MODE_PARTIAL, MODE_PASSES, N_DEPTHS, N_RANK_CHUNKS, N_STRIPES,
                     PATH_DEPTH, PATH_LEVEL_SHIFT, PATH_ROOT_SHIFT, STRIPES, UMAX, Division,
-                    LevelInfo, candidate_key, depth_counts, describe_byte, fast_atan2,
-                    flipped_prefix, key_field, level_holding, level_image, node_before, node_index,
+                    LevelInfo, batch_key, batch_level_image, batch_pad, candidate_key, depth_counts, describe_byte, fast_atan2,
+                    flipped_prefix, key_field, level_holding, node_before, node_index,
                     quadrant, quadtree_path, run_start, shared_depth)
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
 
+# Radius of the 7x7 Gaussian ORB describes on.
+BLUR_RADIUS = wp.constant(3)
+
 # --------------------------------------------------------------------------------------------
-# Kernels of the one-graph extractor (all levels per launch)
+# Kernels of the one-graph extractor (all levels per launch, all images of a batch)
+#
+# Each kernel runs over (image, ...) of a batch of equal-sized images: its first thread index
+# is the image b. Per-image buffers carry the image as their first index and each kernel takes
+# its image's part first (``counters = counters[b]``: a view, no copy), so the body reads as
+# for one image and every index stored in a buffer is one of the image's own. The pyramids
+# are flat and level-major (:func:`.funcs.batch_level_image`); the two radix sorts sort the
+# whole batch at once, the image above each key (:func:`.funcs.batch_key`).
 # --------------------------------------------------------------------------------------------
 
 
 @wp.kernel
-def score_pixels(pyr: wp.uint64, levels: wp.array(dtype=LevelInfo), n_levels: int,
+def blur_pixels(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
+                kx: taps16i, ky: taps16i, shift: int, blurred: wp.uint64):
+    """The 7x7 Gaussian (BORDER_REFLECT_101) of every pixel of every level and image, from the
+    quantised taps of ``_filtering.blur_taps``: exact integer row sums, weighted column sum,
+    one rounding shift, the integers OpenCV's 8-bit GaussianBlur computes (so bit-exact)."""
+    b, i = wp.tid()
+    level = level_holding(i, levels, n_levels, False)
+    info = levels[level]
+    r = i - info.pix
+    y = r // info.width
+    x = r - y * info.width
+    img = batch_level_image(pyr, levels, level, batch, b)
+    acc = int(0)
+    for dy in range(-BLUR_RADIUS, BLUR_RADIUS + 1):
+        row = int(0)
+        for dx in range(-BLUR_RADIUS, BLUR_RADIUS + 1):
+            row += kx[wp.abs(dx)] * read_reflect101(img, y + dy, x + dx)
+        acc += ky[wp.abs(dy)] * row
+    out = batch_level_image(blurred, levels, level, batch, b)
+    out[y, x] = round_shift(acc, shift)
+
+
+@wp.kernel
+def gather_heads(counters: wp.array2d(dtype=wp.int32), heads: wp.array2d(dtype=wp.int32)):
+    """heads[b, j] = counters[b, j]: each image's leading counters in one block (one copy to
+    the host)."""
+    b, j = wp.tid()
+    heads[b, j] = counters[b, j]
+
+
+@wp.kernel
+def score_pixels(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
                  row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int32),
-                 threshold: int, scores: wp.array(dtype=wp.uint8)):
+                 threshold: int, scores: wp.array2d(dtype=wp.uint8)):
     """FAST score at ``threshold`` of each pixel a cell owns (>= 19 px inside), 0 elsewhere."""
-    i = wp.tid()
+    b, i = wp.tid()
+    scores = scores[b]
     level = level_holding(i, levels, n_levels, False)
     info = levels[level]
     w = info.width
@@ -36,18 +79,21 @@ def score_pixels(pyr: wp.uint64, levels: wp.array(dtype=LevelInfo), n_levels: in
     x = r - y * w
     s = int(0)
     if row_of_y[info.row + y] >= 0 and col_of_x[info.col + x] >= 0:
-        s = fast_score(level_image(pyr, levels, level), y, x, threshold)
+        s = fast_score(batch_level_image(pyr, levels, level, batch, b), y, x, threshold)
     scores[i] = wp.uint8(s)
 
 
 @wp.kernel
 def suppress_pixels(levels: wp.array(dtype=LevelInfo), n_levels: int,
                     row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int32),
-                    scores: wp.array(dtype=wp.uint8), ini_th: int, cells_at: int, region: int,
-                    counters: wp.array(dtype=wp.int32), survivors: wp.array(dtype=wp.int64)):
+                    scores: wp.array2d(dtype=wp.uint8), ini_th: int, cells_at: int, region: int,
+                    counters: wp.array2d(dtype=wp.int32), survivors: wp.array2d(dtype=wp.int64)):
     """OpenCV's strict 3x3 maximum within the cell: append the survivors (candidate keys) to
     the region of stripe i % N_STRIPES, and count those >= ``ini_th`` per cell."""
-    i = wp.tid()
+    b, i = wp.tid()
+    scores = scores[b]
+    counters = counters[b]
+    survivors = survivors[b]
     s = int(scores[i])
     if s == 0:
         return
@@ -79,17 +125,23 @@ def suppress_pixels(levels: wp.array(dtype=LevelInfo), n_levels: int,
 
 
 @wp.kernel
-def select_candidates(survivors: wp.array(dtype=wp.int64), surv_region: int,
+def select_candidates(survivors: wp.array2d(dtype=wp.int64), surv_region: int,
                       levels: wp.array(dtype=LevelInfo),
                       roots: wp.array(dtype=wp.int32), ini_th: int, min_th: int, cells_at: int,
-                      cand_region: int, digits: int, root_bits: int,
-                      counters: wp.array(dtype=wp.int32), cand: wp.array(dtype=wp.int64),
-                      paths: wp.array(dtype=wp.int64), sort_keys: wp.array(dtype=wp.int64),
-                      order: wp.array(dtype=wp.int32)):
+                      cand_region: int, digits: int, root_bits: int, key_bits: int,
+                      counters: wp.array2d(dtype=wp.int32), cand: wp.array2d(dtype=wp.int64),
+                      paths: wp.array2d(dtype=wp.int64), sort_keys: wp.array2d(dtype=wp.int64),
+                      order: wp.array2d(dtype=wp.int32)):
     """Keep a survivor when its score reaches its cell's threshold; write its candidate key,
     its quadtree path, the path's sort key (level | root | first ``digits`` quadrants) and its
     slot (the sort's value) into the region of stripe j % N_STRIPES."""
-    j = wp.tid()
+    b, j = wp.tid()
+    survivors = survivors[b]
+    counters = counters[b]
+    cand = cand[b]
+    paths = paths[b]
+    sort_keys = sort_keys[b]
+    order = order[b]
     r = j // surv_region
     if j - r * surv_region >= wp.min(counters[C_SURV_R + r], surv_region):
         return
@@ -112,20 +164,22 @@ def select_candidates(survivors: wp.array(dtype=wp.int64), surv_region: int,
         paths[at] = path
         root = (path >> wp.int64(PATH_ROOT_SHIFT)) & wp.int64(511)
         kept = (path & wp.int64(0xFFFFFFFF)) >> wp.int64(2 * (PATH_DEPTH - digits))
-        sort_keys[at] = ((((wp.int64(level) << wp.int64(root_bits)) | root)
-                          << wp.int64(2 * digits)) | kept)
+        sort_keys[at] = batch_key(b, key_bits, (((wp.int64(level) << wp.int64(root_bits)) | root)
+                                                << wp.int64(2 * digits)) | kept)
         order[at] = at
 
 
 @wp.kernel
-def pad_paths(counters: wp.array(dtype=wp.int32), surv_region: int, cand_region: int,
-              pad: wp.int64, sort_keys: wp.array(dtype=wp.int64)):
+def pad_paths(counters: wp.array2d(dtype=wp.int32), surv_region: int, cand_region: int,
+              key_bits: int, sort_keys: wp.array2d(dtype=wp.int64)):
     """Pad the candidate regions' unused slots (a fixed-size sort puts them last); thread 0
     writes the candidate total and whether a region overflowed."""
-    i = wp.tid()
+    b, i = wp.tid()
+    counters = counters[b]
+    sort_keys = sort_keys[b]
     r = i // cand_region
     if i - r * cand_region >= counters[C_CAND_R + r]:
-        sort_keys[i] = pad
+        sort_keys[i] = batch_pad(b, key_bits)
     if i == 0:
         total = int(0)
         over = int(0)
@@ -139,31 +193,40 @@ def pad_paths(counters: wp.array(dtype=wp.int32), surv_region: int, cand_region:
 
 
 @wp.kernel
-def pad_keys(counters: wp.array(dtype=wp.int32), which: int, pad: wp.int64,
-             keys: wp.array(dtype=wp.int64)):
-    """keys[i] = pad past the count (so a fixed-size sort puts them last)."""
-    i = wp.tid()
+def pad_keys(counters: wp.array2d(dtype=wp.int32), which: int, key_bits: int,
+             keys: wp.array2d(dtype=wp.int64)):
+    """keys[i] = the image's padding key past the count (a fixed-size sort puts them last)."""
+    b, i = wp.tid()
+    counters = counters[b]
+    keys = keys[b]
     if i >= counters[which]:
-        keys[i] = pad
+        keys[i] = batch_pad(b, key_bits)
 
 
 @wp.kernel
-def gather_paths(order: wp.array(dtype=wp.int32), counters: wp.array(dtype=wp.int32),
-                 paths: wp.array(dtype=wp.int64), sorted_paths: wp.array(dtype=wp.int64)):
+def gather_paths(order: wp.array2d(dtype=wp.int32), counters: wp.array2d(dtype=wp.int32),
+                 paths: wp.array2d(dtype=wp.int64), sorted_paths: wp.array2d(dtype=wp.int64)):
     """The full paths in sorted order."""
-    i = wp.tid()
+    b, i = wp.tid()
+    order = order[b]
+    counters = counters[b]
+    paths = paths[b]
+    sorted_paths = sorted_paths[b]
     if i < counters[C_CAND]:
         sorted_paths[i] = paths[order[i]]
 
 
 @wp.kernel
-def count_depths(paths: wp.array(dtype=wp.int64), counters: wp.array(dtype=wp.int32), n_cap: int,
-                 digits: int, singles_at: int, multis_at: int, lcp: wp.array(dtype=wp.int32)):
+def count_depths(paths: wp.array2d(dtype=wp.int64), counters: wp.array2d(dtype=wp.int32), n_cap: int,
+                 digits: int, singles_at: int, multis_at: int, lcp: wp.array2d(dtype=wp.int32)):
     """lcp[i]: the digits sorted point i shares with point i - 1 (-1: another root). Point i
     is alone from depth max(lcp[i], lcp[i+1]) + 1 on (one single-point node there); it starts
     a node of several points at each depth in (lcp[i], lcp[i+1]]. Two points sharing all the
     sorted ``digits`` (the plan's bound says they cannot) flag the frame for the host path."""
-    i = wp.tid()
+    b, i = wp.tid()
+    paths = paths[b]
+    counters = counters[b]
+    lcp = lcp[b]
     n = wp.min(counters[C_CAND], n_cap)
     if i >= n:
         return
@@ -185,10 +248,12 @@ def count_depths(paths: wp.array(dtype=wp.int64), counters: wp.array(dtype=wp.in
 
 
 @wp.kernel
-def sum_depth_counts(counters: wp.array(dtype=wp.int32), singles_at: int, multis_at: int,
-                     totals: wp.array3d(dtype=wp.int32)):
+def sum_depth_counts(counters: wp.array2d(dtype=wp.int32), singles_at: int, multis_at: int,
+                     totals: wp.array4d(dtype=wp.int32)):
     """totals[level, 0 | 1, depth]: single- | multi-point nodes, summed over the stripes."""
-    level, which, g = wp.tid()
+    b, level, which, g = wp.tid()
+    counters = counters[b]
+    totals = totals[b]
     base = singles_at
     if which == 1:
         base = multis_at
@@ -199,8 +264,8 @@ def sum_depth_counts(counters: wp.array(dtype=wp.int32), singles_at: int, multis
 
 
 @wp.kernel
-def plan_divisions(levels: wp.array(dtype=LevelInfo), totals: wp.array3d(dtype=wp.int32),
-                   divisions: wp.array(dtype=Division)):
+def plan_divisions(levels: wp.array(dtype=LevelInfo), totals: wp.array4d(dtype=wp.int32),
+                   divisions: wp.array2d(dtype=Division)):
     """DistributeOctTree's control flow from node counts (one thread per level).
 
     With S_g, M_g the single- and multi-point nodes created at depth g (a node is created when
@@ -210,7 +275,9 @@ def plan_divisions(levels: wp.array(dtype=LevelInfo), totals: wp.array3d(dtype=w
     second loop divides the multi-point nodes of one depth g, adding A_{g+1} - M_g nodes; the
     last round is the one reaching n (MODE_PARTIAL) or adding nothing (MODE_FULL).
     """
-    level = wp.tid()
+    b, level = wp.tid()
+    totals = totals[b]
+    divisions = divisions[b]
     n = levels[level].want
     singles = depth_counts(totals, level, 0)
     multis = depth_counts(totals, level, 1)
@@ -256,17 +323,27 @@ def plan_divisions(levels: wp.array(dtype=LevelInfo), totals: wp.array3d(dtype=w
 
 
 @wp.kernel
-def alloc_nodes(paths: wp.array(dtype=wp.int64), lcp: wp.array(dtype=wp.int32),
-                counters: wp.array(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
-                divisions: wp.array(dtype=Division), groups_at: int,
-                node_base: wp.array(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
-                node_depth: wp.array(dtype=wp.int32), node_count: wp.array(dtype=wp.int32),
-                node_growth: wp.array(dtype=wp.int32), groups: wp.array3d(dtype=wp.int32)):
+def alloc_nodes(paths: wp.array2d(dtype=wp.int64), lcp: wp.array2d(dtype=wp.int32),
+                counters: wp.array2d(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
+                divisions: wp.array2d(dtype=Division), groups_at: int,
+                node_base: wp.array2d(dtype=wp.int32), node_start: wp.array2d(dtype=wp.int32),
+                node_depth: wp.array2d(dtype=wp.int32), node_count: wp.array2d(dtype=wp.int32),
+                node_growth: wp.array2d(dtype=wp.int32), groups: wp.array4d(dtype=wp.int32)):
     """The multi-point nodes the second loop orders (depths K..g*), from the point starting
     them: consecutive entries of the level's pool, one per depth; their size and the nodes a
     division adds (children - 1, the points inside sharing exactly ``depth`` digits). Each is
     also listed in groups[level, depth] (the nodes rank_nodes compares)."""
-    s = wp.tid()
+    b, s = wp.tid()
+    paths = paths[b]
+    lcp = lcp[b]
+    counters = counters[b]
+    divisions = divisions[b]
+    node_base = node_base[b]
+    node_start = node_start[b]
+    node_depth = node_depth[b]
+    node_count = node_count[b]
+    node_growth = node_growth[b]
+    groups = groups[b]
     n = wp.min(counters[C_CAND], n_cap)
     if s >= n:
         return
@@ -318,12 +395,19 @@ def live_node_level(v: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
 
 
 @wp.kernel
-def link_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.array(dtype=wp.int32),
-               divisions: wp.array(dtype=Division), lcp: wp.array(dtype=wp.int32),
-               node_base: wp.array(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
-               node_depth: wp.array(dtype=wp.int32), node_parent: wp.array(dtype=wp.int32)):
+def link_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.array2d(dtype=wp.int32),
+               divisions: wp.array2d(dtype=Division), lcp: wp.array2d(dtype=wp.int32),
+               node_base: wp.array2d(dtype=wp.int32), node_start: wp.array2d(dtype=wp.int32),
+               node_depth: wp.array2d(dtype=wp.int32), node_parent: wp.array2d(dtype=wp.int32)):
     """Each ordered node's parent (a node of the previous round), -1 at depth K."""
-    v = wp.tid()
+    b, v = wp.tid()
+    counters = counters[b]
+    divisions = divisions[b]
+    lcp = lcp[b]
+    node_base = node_base[b]
+    node_start = node_start[b]
+    node_depth = node_depth[b]
+    node_parent = node_parent[b]
     level = live_node_level(v, levels, n_levels, counters)
     if level < 0:
         return
@@ -337,16 +421,27 @@ def link_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.ar
 
 
 @wp.kernel
-def rank_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.array(dtype=wp.int32),
-               divisions: wp.array(dtype=Division), paths: wp.array(dtype=wp.int64), groups_at: int,
-               groups: wp.array3d(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
-               node_depth: wp.array(dtype=wp.int32), node_count: wp.array(dtype=wp.int32),
-               node_growth: wp.array(dtype=wp.int32), node_parent: wp.array(dtype=wp.int32),
-               node_rank: wp.array(dtype=wp.int32), node_grown: wp.array(dtype=wp.int32)):
+def rank_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.array2d(dtype=wp.int32),
+               divisions: wp.array2d(dtype=Division), paths: wp.array2d(dtype=wp.int64), groups_at: int,
+               groups: wp.array4d(dtype=wp.int32), node_start: wp.array2d(dtype=wp.int32),
+               node_depth: wp.array2d(dtype=wp.int32), node_count: wp.array2d(dtype=wp.int32),
+               node_growth: wp.array2d(dtype=wp.int32), node_parent: wp.array2d(dtype=wp.int32),
+               node_rank: wp.array2d(dtype=wp.int32), node_grown: wp.array2d(dtype=wp.int32)):
     """A node's place in its round's division order (the nodes of its group divided before
     it), and the nodes those divisions add; thread c of a node compares every
     N_RANK_CHUNKS-th member of its group (both arrays zeroed first, sums by atomics)."""
-    v, c = wp.tid()
+    b, v, c = wp.tid()
+    counters = counters[b]
+    divisions = divisions[b]
+    paths = paths[b]
+    groups = groups[b]
+    node_start = node_start[b]
+    node_depth = node_depth[b]
+    node_count = node_count[b]
+    node_growth = node_growth[b]
+    node_parent = node_parent[b]
+    node_rank = node_rank[b]
+    node_grown = node_grown[b]
     level = live_node_level(v, levels, n_levels, counters)
     if level < 0:
         return
@@ -369,13 +464,13 @@ def rank_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.ar
 
 
 @wp.kernel
-def emit_finals(paths: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32),
-                lcp: wp.array(dtype=wp.int32), cand: wp.array(dtype=wp.int64),
-                counters: wp.array(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
-                divisions: wp.array(dtype=Division), node_base: wp.array(dtype=wp.int32),
-                node_rank: wp.array(dtype=wp.int32), node_grown: wp.array(dtype=wp.int32),
-                place_bits: int, final_keys: wp.array(dtype=wp.int64),
-                final_values: wp.array(dtype=wp.int32)):
+def emit_finals(paths: wp.array2d(dtype=wp.int64), order: wp.array2d(dtype=wp.int32),
+                lcp: wp.array2d(dtype=wp.int32), cand: wp.array2d(dtype=wp.int64),
+                counters: wp.array2d(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
+                divisions: wp.array2d(dtype=Division), node_base: wp.array2d(dtype=wp.int32),
+                node_rank: wp.array2d(dtype=wp.int32), node_grown: wp.array2d(dtype=wp.int32),
+                place_bits: int, key_bits: int, final_keys: wp.array2d(dtype=wp.int64),
+                final_values: wp.array2d(dtype=wp.int32)):
     """For each node of the final list (from the point starting it): its strongest point and
     its list position key.
 
@@ -386,7 +481,18 @@ def emit_finals(paths: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32)
     by its parent's division order (reversed) and quadrant (reversed), a node of the first
     loop by ``flipped_prefix``.
     """
-    s = wp.tid()
+    b, s = wp.tid()
+    paths = paths[b]
+    order = order[b]
+    lcp = lcp[b]
+    cand = cand[b]
+    counters = counters[b]
+    divisions = divisions[b]
+    node_base = node_base[b]
+    node_rank = node_rank[b]
+    node_grown = node_grown[b]
+    final_keys = final_keys[b]
+    final_values = final_values[b]
     n = wp.min(counters[C_CAND], n_cap)
     if s >= n:
         return
@@ -445,25 +551,29 @@ def emit_finals(paths: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32)
                  | wp.int64(3 - quadrant(path, depth)))
     slot = wp.atomic_add(counters, C_FINAL, 1)
     if slot < final_keys.shape[0]:
-        final_keys[slot] = ((((wp.int64(level) << wp.int64(5)) | wp.int64(31 - depth))
-                             << wp.int64(place_bits)) | place)
+        segment = (wp.int64(level) << wp.int64(5)) | wp.int64(31 - depth)
+        final_keys[slot] = batch_key(b, key_bits, (segment << wp.int64(place_bits)) | place)
         final_values[slot] = best
 
 
 @wp.kernel
-def accumulate_moments(pyr: wp.uint64, levels: wp.array(dtype=LevelInfo),
-                       counters: wp.array(dtype=wp.int32), final_values: wp.array(dtype=wp.int32),
-                       cand: wp.array(dtype=wp.int64), moments: wp.array2d(dtype=wp.int32)):
+def accumulate_moments(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo),
+                       counters: wp.array2d(dtype=wp.int32), final_values: wp.array2d(dtype=wp.int32),
+                       cand: wp.array2d(dtype=wp.int64), moments: wp.array3d(dtype=wp.int32)):
     """IC_Angle's moments of keypoint i, one disc row v per thread: m10 += sum u I,
     m01 += v sum I (integer sums: the order of the atomics does not matter)."""
-    i, r = wp.tid()
+    b, i, r = wp.tid()
+    counters = counters[b]
+    final_values = final_values[b]
+    cand = cand[b]
+    moments = moments[b]
     if i >= wp.min(counters[C_FINAL], moments.shape[0]):
         return
     key = cand[final_values[i]]
     level = key_field(key, KEY_LEVEL_SHIFT, 31)
     cx = key_field(key, KEY_X_SHIFT, 0xFFFF)
     cy = key_field(key, KEY_Y_SHIFT, 0xFFFF)
-    img = level_image(pyr, levels, level)
+    img = batch_level_image(pyr, levels, level, batch, b)
     v = r - HALF_PATCH
     d = UMAX[wp.abs(v)]
     row = int(0)
@@ -477,16 +587,23 @@ def accumulate_moments(pyr: wp.uint64, levels: wp.array(dtype=LevelInfo),
 
 
 @wp.kernel
-def describe_levels(blurred: wp.uint64, levels: wp.array(dtype=LevelInfo),
-                    counters: wp.array(dtype=wp.int32),
-                    final_values: wp.array(dtype=wp.int32), cand: wp.array(dtype=wp.int64),
-                    moments: wp.array2d(dtype=wp.int32), pattern: wp.array2d(dtype=wp.int32),
-                    kp_fields: wp.array(dtype=wp.float32), kp_octave: wp.array(dtype=wp.int32),
-                    desc: wp.array2d(dtype=wp.uint8)):
+def describe_levels(blurred: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo),
+                    counters: wp.array2d(dtype=wp.int32),
+                    final_values: wp.array2d(dtype=wp.int32), cand: wp.array2d(dtype=wp.int64),
+                    moments: wp.array3d(dtype=wp.int32), pattern: wp.array2d(dtype=wp.int32),
+                    kp_fields: wp.array2d(dtype=wp.float32), kp_octave: wp.array2d(dtype=wp.int32),
+                    desc: wp.array3d(dtype=wp.uint8)):
     """Descriptor byte j of keypoint i on its blurred level; thread j = 0 also writes the
     keypoint's level-0 fields. ``kp_fields`` holds x, y, response, size, angle as a (5, n)
     block, n the keypoint count, so one contiguous copy takes them out."""
-    i, j = wp.tid()
+    b, i, j = wp.tid()
+    counters = counters[b]
+    final_values = final_values[b]
+    cand = cand[b]
+    moments = moments[b]
+    kp_fields = kp_fields[b]
+    kp_octave = kp_octave[b]
+    desc = desc[b]
     n = wp.min(counters[C_FINAL], desc.shape[0])
     if i >= n:
         return
@@ -495,7 +612,7 @@ def describe_levels(blurred: wp.uint64, levels: wp.array(dtype=LevelInfo),
     x = key_field(key, KEY_X_SHIFT, 0xFFFF)
     y = key_field(key, KEY_Y_SHIFT, 0xFFFF)
     angle = fast_atan2(float(moments[i, 1]), float(moments[i, 0]))
-    img = level_image(blurred, levels, level)
+    img = batch_level_image(blurred, levels, level, batch, b)
     desc[i, j] = wp.uint8(describe_byte(img, y, x, angle, pattern, j))
     if j == 0:
         s = levels[level].scale
