@@ -135,13 +135,16 @@ def test_castle_sequence_batch_equals_single(backend):
     assert_batch_equals_single(images, backend, np.stack(images))
 
 
-def test_batch_parameters_apply_to_every_image(backend):
-    """Non-default parameters reach every image of the batch (500 features, 4 levels)."""
-    images = _video(2)
-    results = warpvx.orb(images, 500, 1.3, 4, 25, 9, backend=backend)
+@pytest.mark.parametrize("params", [(500, 1.3, 4, 25, 9), (800, 2.0, 3, 20, 7)])
+def test_batch_parameters_apply_to_every_image(backend, params):
+    """Non-default parameters reach every image of the batch; at scale 2 on 512x384 each
+    level is exactly half the last (OpenCV's 2x INTER_AREA edge rule: resized image by
+    image)."""
+    images = _photos()[:2]
+    results = warpvx.orb(images, *params, backend=backend)
     for img, got in zip(images, results):
-        assert_identical(got, warpvx.orb(img, 500, 1.3, 4, 25, 9, backend=backend))
-        assert _host(got)[0].octave.max() == 3
+        assert_identical(got, warpvx.orb(img, *params, backend=backend))
+        assert _host(got)[0].octave.max() == params[2] - 1
 
 
 # --- bad batches ---------------------------------------------------------------------------

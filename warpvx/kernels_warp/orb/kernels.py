@@ -34,17 +34,20 @@ BLUR_RADIUS = wp.constant(3)
 
 
 @wp.kernel
-def blur_pixels(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
-                kx: taps16i, ky: taps16i, shift: int, blurred: wp.uint64):
-    """The 7x7 Gaussian (BORDER_REFLECT_101) of every pixel of every level and image, from the
-    quantised taps of ``_filtering.blur_taps``: exact integer row sums, weighted column sum,
-    one rounding shift, the integers OpenCV's 8-bit GaussianBlur computes (so bit-exact)."""
-    b, i = wp.tid()
-    level = level_holding(i, levels, n_levels, False)
+def blur_edge_rows(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo),
+                   kx: taps16i, ky: taps16i, shift: int, blurred: wp.uint64):
+    """The 7x7 Gaussian (BORDER_REFLECT_101) of the BLUR_RADIUS rows at the top and bottom
+    of every level of every image, from the quantised taps of ``_filtering.blur_taps``: exact
+    integer row sums, weighted column sum, one rounding shift, the integers of OpenCV's 8-bit
+    GaussianBlur (so bit-exact). The batch's levels are blurred as [batch * h, w] blocks, where
+    these rows read the neighbouring image instead of reflecting: this redoes them."""
+    b, level, e, x = wp.tid()
     info = levels[level]
-    r = i - info.pix
-    y = r // info.width
-    x = r - y * info.width
+    if x >= info.width:
+        return
+    y = e
+    if e >= BLUR_RADIUS:
+        y = info.height - 2 * BLUR_RADIUS + e
     img = batch_level_image(pyr, levels, level, batch, b)
     acc = int(0)
     for dy in range(-BLUR_RADIUS, BLUR_RADIUS + 1):

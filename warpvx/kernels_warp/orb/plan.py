@@ -17,11 +17,11 @@ from ... import _orb_spec as spec
 from ..._pyramid_sizes import resize_scales, scale_pyramid_sizes
 from ...keypoints import Keypoints
 from ...modes import BORDER_REFLECT_101
-from .._filtering import blur_taps, fit_block
+from .._filtering import blur_taps, fit_block, launch_filter
 from ..scale_pyramid import RESIZE_ROWS, linear_taps, resize, resize_kernel, resize_tables
 from .funcs import (C_FINAL, C_NODES, C_OVER, DEPTHS, RANK_CHUNKS, STRIPES, Division, LevelInfo)
-from .host import _capacity, _pattern_on, blur_levels, extract_host
-from .kernels import (accumulate_moments, alloc_nodes, blur_pixels, count_depths,
+from .host import _capacity, _pattern_on, extract_host
+from .kernels import (BLUR_RADIUS, accumulate_moments, alloc_nodes, blur_edge_rows, count_depths,
                       describe_levels, emit_finals, gather_heads, gather_paths, link_nodes,
                       pad_keys, pad_paths, plan_divisions, rank_nodes, score_pixels,
                       select_candidates, sum_depth_counts, suppress_pixels)
@@ -167,6 +167,10 @@ class OrbPlan:
         self.inputs = _view(self.pyr, 0, (batch, height, width), wp.uint8)
         blocks = [_view(self.pyr, batch * info.pix, (batch * info.height, info.width), wp.uint8)
                   for info in infos]
+        self.blocks = blocks
+        self.blurred_blocks = [_view(self.blurred, batch * info.pix,
+                                     (batch * info.height, info.width), wp.uint8)
+                               for info in infos]
         self.resizes = [(level, blocks[level - 1], blocks[level],
                          _batch_resize(sizes[level - 1], sizes[level], batch, dev))
                         for level in range(1, n_levels)]
@@ -230,17 +234,20 @@ class OrbPlan:
                       device=self.device)
 
     def stage_blur(self):
-        """The 7x7 Gaussian of every level: for one image, per level with the shared fused
-        filter (``kernels_warp.gaussian_blur``); for a batch, one launch over every level of
-        every image (:func:`.kernels.blur_pixels`); the same bytes."""
-        if self.batch == 1:
-            blur_levels(self.images[0], out=self.blurred_images[0])
-            return
+        """The 7x7 Gaussian of every level (``_filtering``'s fused filter, as
+        ``kernels_warp.gaussian_blur``): one launch per level for the whole batch, over the
+        level's [batch * h, w] block; then, for a batch, one launch redoes the rows within the
+        filter's reach of each image's top and bottom (:func:`.kernels.blur_edge_rows`), which
+        the block filter took from the neighbouring image."""
         taps = self.blur_taps
-        wp.launch(blur_pixels, dim=(self.batch, self.n_pixels),
-                  inputs=[wp.uint64(self.pyr.ptr), self.batch, self.level_info, self.n_levels,
-                          taps.kx, taps.ky, taps.shift, wp.uint64(self.blurred.ptr)],
-                  device=self.device)
+        for src, dst in zip(self.blocks, self.blurred_blocks):
+            launch_filter(src, taps, dst, cache=True)
+        if self.batch > 1:
+            wp.launch(blur_edge_rows,
+                      dim=(self.batch, self.n_levels, 2 * int(BLUR_RADIUS), self.level_sizes[0][0]),
+                      inputs=[wp.uint64(self.pyr.ptr), self.batch, self.level_info, taps.kx,
+                              taps.ky, taps.shift, wp.uint64(self.blurred.ptr)],
+                      device=self.device)
 
     def stage_detect(self):
         dev = self.device
