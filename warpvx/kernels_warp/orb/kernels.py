@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from ... import _orb_spec as spec
 from .._filtering import round_shift, taps16i
 from .._sampling import read_reflect101
 from ..fast_corners import fast_score
@@ -18,6 +19,7 @@ from .funcs import (C_CAND, C_CAND_R, C_FINAL, C_NODES, C_OVER, C_SURV_R, HALF_P
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
 
+DESCRIPTOR_BYTES = wp.constant(spec.DESCRIPTOR_BYTES)
 # Radius of the 7x7 Gaussian ORB describes on.
 BLUR_RADIUS = wp.constant(3)
 
@@ -627,3 +629,22 @@ def describe_levels(blurred: wp.uint64, batch: int, levels: wp.array(dtype=Level
         kp_octave[i] = level
 
 
+
+
+@wp.kernel
+def pack_outputs(starts: wp.array(dtype=wp.int32), kp_fields: wp.array2d(dtype=wp.float32),
+                 kp_octave: wp.array2d(dtype=wp.int32), desc: wp.array3d(dtype=wp.uint8),
+                 fields: wp.array2d(dtype=wp.float32), octave: wp.array(dtype=wp.int32),
+                 packed: wp.array2d(dtype=wp.uint8)):
+    """Keypoint i of image b (describe_levels' per-image rows) to row starts[b] + i of the
+    batch's packed outputs: its descriptor, its five fields (a (5, N) block) and octave."""
+    b, i = wp.tid()
+    at = starts[b]
+    n = starts[b + 1] - at
+    if i >= n:
+        return
+    for j in range(DESCRIPTOR_BYTES):
+        packed[at + i, j] = desc[b, i, j]
+    for f in range(5):
+        fields[f, at + i] = kp_fields[b, f * n + i]
+    octave[at + i] = kp_octave[b, i]

@@ -22,7 +22,7 @@ from ..scale_pyramid import RESIZE_ROWS, linear_taps, resize, resize_kernel, res
 from .funcs import (C_FINAL, C_NODES, C_OVER, DEPTHS, RANK_CHUNKS, STRIPES, Division, LevelInfo)
 from .host import _capacity, _pattern_on, extract_host
 from .kernels import (BLUR_RADIUS, accumulate_moments, alloc_nodes, blur_edge_rows, count_depths,
-                      describe_levels, emit_finals, gather_heads, gather_paths, link_nodes,
+                      describe_levels, emit_finals, gather_heads, gather_paths, link_nodes, pack_outputs,
                       pad_keys, pad_paths, plan_divisions, rank_nodes, score_pixels,
                       select_candidates, sum_depth_counts, suppress_pixels)
 
@@ -425,28 +425,41 @@ class OrbPlan:
         self.launch()
         self.runs += 1
         heads = self.read_head()
+        over = [self.overflowed(head) for head in heads]
+        counts = [0 if o else int(head[C_FINAL]) for o, head in zip(over, heads)]
+        results = self.take_outputs(counts)
         n_features, scale_factor, _, ini_th, min_th = self.params
-        return [extract_host(self.images[b], n_features, scale_factor, ini_th, min_th,
-                             blurred=self.blurred_images[b])
-                if self.overflowed(head) else self.take_outputs(b, int(head[C_FINAL]))
-                for b, head in enumerate(heads)]
+        for b in np.flatnonzero(over):
+            results[b] = extract_host(self.images[b], n_features, scale_factor, ini_th, min_th,
+                                      blurred=self.blurred_images[b])
+        return results
 
-    def take_outputs(self, b: int, n: int):
-        """Fresh arrays holding image b's n keypoints (the plan's buffers are reused)."""
+    def take_outputs(self, counts: list) -> list:
+        """Fresh arrays holding each image's keypoints (``counts[b]`` of image b; the plan's
+        buffers are reused): one allocation per field for the batch, one packing launch, then
+        each image's results are views of its rows."""
         dev = self.device
-        octave = wp.empty(n, dtype=wp.int32, device=dev)
-        desc = wp.empty((n, spec.DESCRIPTOR_BYTES), dtype=wp.uint8, device=dev)
-        if n == 0:
-            rows = [wp.empty(0, dtype=wp.float32, device=dev) for _ in range(5)]
-            return Keypoints(*rows, octave), desc
-        fc = self.final_cap
-        fields = wp.empty((5, n), dtype=wp.float32, device=dev)
-        wp.copy(fields, self.kp_fields, src_offset=b * 5 * fc, count=5 * n)
-        wp.copy(octave, self.kp_octave, src_offset=b * fc, count=n)
-        row = spec.DESCRIPTOR_BYTES
-        wp.copy(desc, self.desc, src_offset=b * fc * row, count=n * row)
-        return Keypoints(x=fields[0], y=fields[1], response=fields[2], size=fields[3],
-                         angle=fields[4], octave=octave), desc
+        starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+        total = int(starts[-1])
+        fields = wp.empty((5, total), dtype=wp.float32, device=dev)
+        octave = wp.empty(total, dtype=wp.int32, device=dev)
+        desc = wp.empty((total, spec.DESCRIPTOR_BYTES), dtype=wp.uint8, device=dev)
+        if total:
+            wp.launch(pack_outputs, dim=(self.batch, max(counts)),
+                      inputs=[wp.array(starts, dtype=wp.int32, device=dev), self.kp_fields,
+                              self.kp_octave, self.desc],
+                      outputs=[fields, octave, desc], device=dev)
+        results = []
+        for a, b in zip(starts[:-1].tolist(), starts[1:].tolist()):
+            if a == b:  # Warp has no empty slices
+                rows = [wp.empty(0, dtype=wp.float32, device=dev) for _ in range(5)]
+                results.append((Keypoints(*rows, wp.empty(0, dtype=wp.int32, device=dev)),
+                                wp.empty((0, spec.DESCRIPTOR_BYTES), dtype=wp.uint8,
+                                         device=dev)))
+            else:
+                kps = Keypoints(*(fields[f, a:b] for f in range(5)), octave[a:b])
+                results.append((kps, desc[a:b]))
+        return results
 
 
 _plans: OrderedDict = OrderedDict()  # key -> idle plans, least recently used first
