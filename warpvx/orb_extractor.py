@@ -41,8 +41,9 @@ def _gray(src, name: str = "src"):
 
 def _gray_batch(src):
     """``(src, h, w)``: one gray HxW image (HxWx1 viewed as HxW), a list of them or a uint8
-    [B, H, W] array, validated, and the image size. Every image of a list is checked as ``src[i]``: gray uint8, the
-    size of ``src[0]``, of the same kind (all NumPy, or all Warp arrays on one device)."""
+    [B, H, W] array, validated, and the image size. Every image of a list is checked as
+    ``src[i]``: gray uint8, the size of ``src[0]``, of the same kind (all NumPy, or all Warp
+    arrays on one device)."""
     if isinstance(src, (list, tuple)):
         if not src:
             raise WarpvxValueError("src: an empty batch (expected at least one image)")

@@ -12,9 +12,10 @@ from .funcs import (C_CAND, C_CAND_R, C_FINAL, C_NODES, C_OVER, C_SURV_R, HALF_P
                     KEY_CELL_SHIFT, KEY_LEVEL_SHIFT, KEY_X_SHIFT, KEY_Y_SHIFT, MODE_EMPTY,
                     MODE_FULL, MODE_PARTIAL, MODE_PASSES, N_DEPTHS, N_RANK_CHUNKS, N_STRIPES,
                     PATH_DEPTH, PATH_LEVEL_SHIFT, PATH_ROOT_SHIFT, STRIPES, UMAX, Division,
-                    LevelInfo, batch_key, batch_level_image, batch_pad, candidate_key, depth_counts, describe_byte, fast_atan2,
-                    flipped_prefix, key_field, level_holding, node_before, node_index,
-                    quadrant, quadtree_path, run_start, shared_depth)
+                    LevelInfo, batch_key, batch_level_image, batch_pad, candidate_key,
+                    depth_counts, describe_byte, fast_atan2, flipped_prefix, key_field,
+                    level_holding, node_before, node_index, quadrant, quadtree_path, run_start,
+                    shared_depth)
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
@@ -222,7 +223,8 @@ def gather_paths(order: wp.array2d(dtype=wp.int32), counters: wp.array2d(dtype=w
 
 
 @wp.kernel
-def count_depths(paths: wp.array2d(dtype=wp.int64), counters: wp.array2d(dtype=wp.int32), n_cap: int,
+def count_depths(paths: wp.array2d(dtype=wp.int64), counters: wp.array2d(dtype=wp.int32),
+                 n_cap: int,
                  digits: int, singles_at: int, multis_at: int, lcp: wp.array2d(dtype=wp.int32)):
     """lcp[i]: the digits sorted point i shares with point i - 1 (-1: another root). Point i
     is alone from depth max(lcp[i], lcp[i+1]) + 1 on (one single-point node there); it starts
@@ -563,7 +565,8 @@ def emit_finals(paths: wp.array2d(dtype=wp.int64), order: wp.array2d(dtype=wp.in
 
 @wp.kernel
 def accumulate_moments(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo),
-                       counters: wp.array2d(dtype=wp.int32), final_values: wp.array2d(dtype=wp.int32),
+                       counters: wp.array2d(dtype=wp.int32),
+                       final_values: wp.array2d(dtype=wp.int32),
                        cand: wp.array2d(dtype=wp.int64), moments: wp.array3d(dtype=wp.int32)):
     """IC_Angle's moments of keypoint i, one disc row v per thread: m10 += sum u I,
     m01 += v sum I (integer sums: the order of the atomics does not matter)."""

@@ -1,7 +1,9 @@
 """Plans of the one-graph ORB extractor: buffers, the launch sequence, CUDA-graph capture.
 
-A :class:`OrbPlan` holds everything one (device, image size, parameters) needs; the pool
-(:func:`acquire`, :func:`release`) hands each call a plan no other call is using.
+A :class:`OrbPlan` holds everything one (device, image size, parameters, batch size) needs;
+the pool (:func:`acquire`, :func:`release`) hands each call a plan no other call is using.
+A batch of B images runs the same launches as one image, each over B images (the kernels'
+first thread index; see :mod:`.kernels`), one captured graph for the batch.
 """
 
 from __future__ import annotations
@@ -21,10 +23,11 @@ from .._filtering import blur_taps, fit_block, launch_filter
 from ..scale_pyramid import RESIZE_ROWS, linear_taps, resize, resize_kernel, resize_tables
 from .funcs import (C_FINAL, C_NODES, C_OVER, DEPTHS, RANK_CHUNKS, STRIPES, Division, LevelInfo)
 from .host import _capacity, _pattern_on, extract_host
-from .kernels import (BLUR_RADIUS, accumulate_moments, alloc_nodes, blur_edge_rows, count_depths,
-                      describe_levels, emit_finals, gather_heads, gather_paths, link_nodes, pack_outputs,
-                      pad_keys, pad_paths, plan_divisions, rank_nodes, score_pixels,
-                      select_candidates, sum_depth_counts, suppress_pixels)
+from .kernels import (BLUR_RADIUS, accumulate_moments, alloc_nodes, blur_edge_rows,
+                      count_depths, describe_levels, emit_finals, gather_heads, gather_paths,
+                      link_nodes, pack_outputs, pad_keys, pad_paths, plan_divisions,
+                      rank_nodes, score_pixels, select_candidates, sum_depth_counts,
+                      suppress_pixels)
 
 # --------------------------------------------------------------------------------------------
 # The one-graph extractor: plans
@@ -145,7 +148,7 @@ class OrbPlan:
 
         # The batch's images in the sort keys' top bits (see kernels.batch_key).
         self.batch_bits = (batch - 1).bit_length()
-        n_heads = int(C_NODES) + n_levels  # what the host reads: candidates, finals, overflow, nodes
+        n_heads = int(C_NODES) + n_levels  # read by the host: candidates, finals, overflow, nodes
 
         dev = self.device
         self.level_info = wp.array(infos, dtype=LevelInfo, device=dev)
