@@ -19,12 +19,17 @@ import numbers
 import numpy as np
 
 from .backend import resolve_backend
+from .callmemo import CallMemo
 from .check import (check_array, check_float, check_image, check_matrix, check_out,
                     check_size)
 from .errors import ShapeError, WarpvxTypeError, WarpvxValueError
 from .modes import SAMPLER_BORDERS, SAMPLER_INTERPOLATIONS, mode_code
 from .registry import dispatch
 
+
+# Frame after frame with the same arguments: validated once (see warpvx.callmemo).
+_remap_memo = CallMemo("remap")
+_warp_perspective_memo = CallMemo("warp_perspective")
 
 
 def remap(src, map_x, map_y, interpolation="linear", border="constant", border_value=0, *, out=None,
@@ -73,6 +78,11 @@ def remap(src, map_x, map_y, interpolation="linear", border="constant", border_v
     of OpenCV >= 4.11 exactly (both compute in float32); older OpenCV's 1/32-px fixed-point
     path differs by at most 1 on under 1% of pixels.
     """
+    key = _remap_memo.key((src, map_x, map_y), (interpolation, border, border_value), out, backend,
+                          stream)
+    done = _remap_memo.replay(key, out)
+    if done is not None:
+        return done
     be = resolve_backend(backend, like=src)
     src = _as_hw(check_image(src, "src", dtypes=(np.uint8,), channels=(1, 3, 4)))
     map_x = check_array(map_x, "map_x", ndim=2, dtypes=(np.float32,))
@@ -86,7 +96,9 @@ def remap(src, map_x, map_y, interpolation="linear", border="constant", border_v
     h, w = map_x.shape
     check_out(out, (h, w) if channels == 1 else (h, w, channels),
               inputs=(("src", src), ("map_x", map_x), ("map_y", map_y)))
-    return dispatch("remap", be, src, map_x, map_y, interp, bmode, bval, out=out, stream=stream)
+    return _remap_memo.run(
+        key, lambda: dispatch("remap", be, src, map_x, map_y, interp, bmode, bval, out=out, stream=stream),
+        out)
 
 
 def warp_perspective(src, M, dsize, interpolation="linear", inverse_map=False, border="constant",
@@ -142,6 +154,11 @@ def warp_perspective(src, M, dsize, interpolation="linear", inverse_map=False, b
     is OpenCV itself, except for matrices whose coordinates reach a horizon (W near 0) or
     beyond the bounds above, which it samples as the Warp backends through :func:`remap`.
     """
+    key = _warp_perspective_memo.key((src,), (M, dsize, interpolation, inverse_map, border,
+                                             border_value), out, backend, stream)
+    done = _warp_perspective_memo.replay(key, out)
+    if done is not None:
+        return done
     be = resolve_backend(backend, like=src)
     src = _as_hw(check_image(src, "src", dtypes=(np.uint8,), channels=(1, 3, 4)))
     m = check_matrix(M, "M", (3, 3), invertible=True)
@@ -154,8 +171,9 @@ def warp_perspective(src, M, dsize, interpolation="linear", inverse_map=False, b
     bval = _border_value(border_value)
     check_out(out, (h, w) if channels == 1 else (h, w, channels), inputs=(("src", src),))
     coeffs = _dst_to_src(m, bool(inverse_map))
-    return dispatch("warp_perspective", be, src, coeffs, (w, h), interp, bmode, bval, out=out,
-                    stream=stream)
+    return _warp_perspective_memo.run(
+        key, lambda: dispatch("warp_perspective", be, src, coeffs, (w, h), interp, bmode, bval,
+                              out=out, stream=stream), out)
 
 
 def _as_hw(src):
