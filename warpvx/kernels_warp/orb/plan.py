@@ -23,11 +23,11 @@ from .._filtering import blur_taps, fit_block, launch_filter
 from ..scale_pyramid import RESIZE_ROWS, linear_taps, resize, resize_kernel, resize_tables
 from .funcs import (C_FINAL, C_NODES, C_OVER, DEPTHS, RANK_CHUNKS, STRIPES, Division, LevelInfo)
 from .host import _capacity, _pattern_on, extract_host
-from .kernels import (BLUR_RADIUS, accumulate_moments, alloc_nodes, blur_edge_rows,
-                      count_depths, describe_levels, emit_finals, gather_heads, gather_paths,
-                      link_nodes, pack_outputs, pad_keys, pad_paths, plan_divisions,
-                      rank_nodes, score_pixels, select_candidates, sum_depth_counts,
-                      suppress_pixels)
+from .kernels import (BLUR_RADIUS, accumulate_moments, blur_edge_rows, describe_levels,
+                      gather_heads, gather_paths, pack_outputs, pad_keys, pad_paths, score_pixels,
+                      select_candidates, suppress_pixels)
+from .quadtree import (alloc_nodes, count_depths, emit_finals, link_nodes, plan_divisions,
+                       rank_nodes, sum_depth_counts)
 
 # --------------------------------------------------------------------------------------------
 # The one-graph extractor: plans
