@@ -384,3 +384,12 @@ def depth_counts(totals: wp.array3d(dtype=wp.int32), level: int, which: int) -> 
     return v
 
 
+
+
+@wp.func
+def batch_image(t: int, batch: int, n: int) -> int:
+    """The image of item ``t`` of a batch's flat range (``batch`` runs of ``n``): t // n,
+    without the division for one image (it costs every thread on the CPU device)."""
+    if batch == 1:
+        return 0
+    return t // n

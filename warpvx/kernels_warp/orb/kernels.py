@@ -12,8 +12,8 @@ from .._sampling import read_reflect101
 from ..fast_corners import fast_score
 from .funcs import (C_CAND, C_CAND_R, C_FINAL, C_OVER, C_SURV_R, HALF_PATCH, KEY_CELL_SHIFT,
                     KEY_LEVEL_SHIFT, KEY_X_SHIFT, KEY_Y_SHIFT, N_STRIPES, PATH_DEPTH,
-                    PATH_ROOT_SHIFT, STRIPES, UMAX, LevelInfo, batch_key, batch_level_image,
-                    batch_pad, candidate_key, describe_byte, fast_atan2, key_field,
+                    PATH_ROOT_SHIFT, STRIPES, UMAX, LevelInfo, batch_image, batch_key,
+                    batch_level_image, batch_pad, candidate_key, describe_byte, fast_atan2, key_field,
                     level_holding, quadtree_path)
 
 # Forward-only kernels: no adjoint code to generate and compile.
@@ -28,8 +28,9 @@ BLUR_RADIUS = wp.constant(3)
 #
 # Each kernel runs over (image, ...) of a batch of equal-sized images: its first thread index
 # is the image b. Per-image buffers carry the image as their first index and each kernel takes
-# its image's part first (``counters = counters[b]``: a view, no copy), so the body reads as
-# for one image and every index stored in a buffer is one of the image's own. The pyramids
+# its image's part (``counters = counters[b]``: a view, no copy), so the body reads as for one
+# image and every index stored in a buffer is one of the image's own. Threads with nothing to
+# do return before taking the views (on the CPU device a view costs each thread time). The pyramids
 # are flat and level-major (:func:`.funcs.batch_level_image`); the two radix sorts sort the
 # whole batch at once, the image above each key (:func:`.funcs.batch_key`).
 # --------------------------------------------------------------------------------------------
@@ -72,10 +73,13 @@ def gather_heads(counters: wp.array2d(dtype=wp.int32), heads: wp.array2d(dtype=w
 @wp.kernel
 def score_pixels(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
                  row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int32),
-                 threshold: int, scores: wp.array2d(dtype=wp.uint8)):
-    """FAST score at ``threshold`` of each pixel a cell owns (>= 19 px inside), 0 elsewhere."""
-    b, i = wp.tid()
-    scores = scores[b]
+                 threshold: int, n_pixels: int, scores: wp.array(dtype=wp.uint8)):
+    """FAST score at ``threshold`` of each pixel a cell owns (>= 19 px inside), 0 elsewhere:
+    scores[t] of pixel i of image b, t = b * n_pixels + i (a 1-D launch: on the CPU device a
+    2-D one costs every thread an index split, and so do views; same on a GPU)."""
+    t = wp.tid()
+    b = batch_image(t, batch, n_pixels)
+    i = t - b * n_pixels
     level = level_holding(i, levels, n_levels, False)
     info = levels[level]
     w = info.width
@@ -85,23 +89,25 @@ def score_pixels(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo), 
     s = int(0)
     if row_of_y[info.row + y] >= 0 and col_of_x[info.col + x] >= 0:
         s = fast_score(batch_level_image(pyr, levels, level, batch, b), y, x, threshold)
-    scores[i] = wp.uint8(s)
+    scores[t] = wp.uint8(s)
 
 
 @wp.kernel
 def suppress_pixels(levels: wp.array(dtype=LevelInfo), n_levels: int,
                     row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int32),
-                    scores: wp.array2d(dtype=wp.uint8), ini_th: int, cells_at: int, region: int,
-                    counters: wp.array2d(dtype=wp.int32), survivors: wp.array2d(dtype=wp.int64)):
+                    batch: int, n_pixels: int, scores: wp.array(dtype=wp.uint8), ini_th: int,
+                    cells_at: int,
+                    region: int, counters: wp.array2d(dtype=wp.int32),
+                    survivors: wp.array2d(dtype=wp.int64)):
     """OpenCV's strict 3x3 maximum within the cell: append the survivors (candidate keys) to
-    the region of stripe i % N_STRIPES, and count those >= ``ini_th`` per cell."""
-    b, i = wp.tid()
-    scores = scores[b]
-    counters = counters[b]
-    survivors = survivors[b]
-    s = int(scores[i])
+    the region of stripe i % N_STRIPES, and count those >= ``ini_th`` per cell. Pixels as in
+    ``score_pixels``; most score 0 and return first."""
+    t = wp.tid()
+    s = int(scores[t])
     if s == 0:
         return
+    b = batch_image(t, batch, n_pixels)
+    i = t - b * n_pixels
     level = level_holding(i, levels, n_levels, False)
     info = levels[level]
     w = info.width
@@ -117,16 +123,16 @@ def suppress_pixels(levels: wp.array(dtype=LevelInfo), n_levels: int,
         for dx in range(-1, 2):
             if dy != 0 or dx != 0:
                 if row_of_y[ro + y + dy] == cr and col_of_x[co + x + dx] == cc:
-                    if int(scores[i + dy * w + dx]) >= s:
+                    if int(scores[t + dy * w + dx]) >= s:
                         return
     cell = cr * info.n_cols + cc
     if s >= ini_th:
-        wp.atomic_add(counters, cells_at + info.cell + cell, 1)
+        wp.atomic_add(counters, b, cells_at + info.cell + cell, 1)
     stripe = i % N_STRIPES
-    slot = wp.atomic_add(counters, C_SURV_R + stripe, 1)
+    slot = wp.atomic_add(counters, b, C_SURV_R + stripe, 1)
     # Past the capacity the count still grows: pad_paths flags it, the frame takes extract_host.
     if slot < region:
-        survivors[stripe * region + slot] = candidate_key(level, cell, y, x, s)
+        survivors[b, stripe * region + slot] = candidate_key(level, cell, y, x, s)
 
 
 @wp.kernel
@@ -141,15 +147,15 @@ def select_candidates(survivors: wp.array2d(dtype=wp.int64), surv_region: int,
     its quadtree path, the path's sort key (level | root | first ``digits`` quadrants) and its
     slot (the sort's value) into the region of stripe j % N_STRIPES."""
     b, j = wp.tid()
+    r = j // surv_region
+    if j - r * surv_region >= wp.min(counters[b, C_SURV_R + r], surv_region):
+        return
     survivors = survivors[b]
     counters = counters[b]
     cand = cand[b]
     paths = paths[b]
     sort_keys = sort_keys[b]
     order = order[b]
-    r = j // surv_region
-    if j - r * surv_region >= wp.min(counters[C_SURV_R + r], surv_region):
-        return
     key = survivors[j]
     level = key_field(key, KEY_LEVEL_SHIFT, 31)
     cell = key_field(key, KEY_CELL_SHIFT, 0x3FFFF)
@@ -180,12 +186,11 @@ def pad_paths(counters: wp.array2d(dtype=wp.int32), surv_region: int, cand_regio
     """Pad the candidate regions' unused slots (a fixed-size sort puts them last); thread 0
     writes the candidate total and whether a region overflowed."""
     b, i = wp.tid()
-    counters = counters[b]
-    sort_keys = sort_keys[b]
     r = i // cand_region
-    if i - r * cand_region >= counters[C_CAND_R + r]:
-        sort_keys[i] = batch_pad(b, key_bits)
+    if i - r * cand_region >= counters[b, C_CAND_R + r]:
+        sort_keys[b, i] = batch_pad(b, key_bits)
     if i == 0:
+        counters = counters[b]
         total = int(0)
         over = int(0)
         for k in range(STRIPES):
@@ -202,10 +207,8 @@ def pad_keys(counters: wp.array2d(dtype=wp.int32), which: int, key_bits: int,
              keys: wp.array2d(dtype=wp.int64)):
     """keys[i] = the image's padding key past the count (a fixed-size sort puts them last)."""
     b, i = wp.tid()
-    counters = counters[b]
-    keys = keys[b]
-    if i >= counters[which]:
-        keys[i] = batch_pad(b, key_bits)
+    if i >= counters[b, which]:
+        keys[b, i] = batch_pad(b, key_bits)
 
 
 @wp.kernel
@@ -213,12 +216,8 @@ def gather_paths(order: wp.array2d(dtype=wp.int32), counters: wp.array2d(dtype=w
                  paths: wp.array2d(dtype=wp.int64), sorted_paths: wp.array2d(dtype=wp.int64)):
     """The full paths in sorted order."""
     b, i = wp.tid()
-    order = order[b]
-    counters = counters[b]
-    paths = paths[b]
-    sorted_paths = sorted_paths[b]
-    if i < counters[C_CAND]:
-        sorted_paths[i] = paths[order[i]]
+    if i < counters[b, C_CAND]:
+        sorted_paths[b, i] = paths[b, order[b, i]]
 
 
 @wp.kernel
@@ -229,12 +228,11 @@ def accumulate_moments(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelI
     """IC_Angle's moments of keypoint i, one disc row v per thread: m10 += sum u I,
     m01 += v sum I (integer sums: the order of the atomics does not matter)."""
     b, i, r = wp.tid()
-    counters = counters[b]
+    if i >= wp.min(counters[b, C_FINAL], moments.shape[1]):
+        return
     final_values = final_values[b]
     cand = cand[b]
     moments = moments[b]
-    if i >= wp.min(counters[C_FINAL], moments.shape[0]):
-        return
     key = cand[final_values[i]]
     level = key_field(key, KEY_LEVEL_SHIFT, 31)
     cx = key_field(key, KEY_X_SHIFT, 0xFFFF)
@@ -263,16 +261,15 @@ def describe_levels(blurred: wp.uint64, batch: int, levels: wp.array(dtype=Level
     keypoint's level-0 fields. ``kp_fields`` holds x, y, response, size, angle as a (5, n)
     block, n the keypoint count, so one contiguous copy takes them out."""
     b, i, j = wp.tid()
-    counters = counters[b]
+    n = wp.min(counters[b, C_FINAL], desc.shape[1])
+    if i >= n:
+        return
     final_values = final_values[b]
     cand = cand[b]
     moments = moments[b]
     kp_fields = kp_fields[b]
     kp_octave = kp_octave[b]
     desc = desc[b]
-    n = wp.min(counters[C_FINAL], desc.shape[0])
-    if i >= n:
-        return
     key = cand[final_values[i]]
     level = key_field(key, KEY_LEVEL_SHIFT, 31)
     x = key_field(key, KEY_X_SHIFT, 0xFFFF)

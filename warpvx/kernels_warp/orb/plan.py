@@ -178,7 +178,7 @@ class OrbPlan:
                          _batch_resize(sizes[level - 1], sizes[level], batch, dev))
                         for level in range(1, n_levels)]
         self.blur_taps = blur_taps(7, 7, 2.0, 2.0, int(BORDER_REFLECT_101))
-        self.scores = wp.empty((batch, pix), dtype=wp.uint8, device=dev)
+        self.scores = wp.empty(batch * pix, dtype=wp.uint8, device=dev)  # image-major
         self.counters = wp.zeros((batch, n_counters), dtype=wp.int32, device=dev)
         cap = self.cand_cap
         self.survivors = wp.empty((batch, self.surv_cap), dtype=wp.int64, device=dev)
@@ -257,13 +257,13 @@ class OrbPlan:
         _, _, n_levels, ini_th, min_th = self.params
         batch = self.batch
         self.counters.zero_()
-        wp.launch(score_pixels, dim=(batch, self.n_pixels),
+        wp.launch(score_pixels, dim=batch * self.n_pixels,
                   inputs=[wp.uint64(self.pyr.ptr), batch, self.level_info, n_levels,
-                          self.row_of_y, self.col_of_x, min(ini_th, min_th)],
+                          self.row_of_y, self.col_of_x, min(ini_th, min_th), self.n_pixels],
                   outputs=[self.scores], device=dev)
-        wp.launch(suppress_pixels, dim=(batch, self.n_pixels),
-                  inputs=[self.level_info, n_levels, self.row_of_y, self.col_of_x, self.scores,
-                          ini_th, self.cells_at, self.surv_region],
+        wp.launch(suppress_pixels, dim=batch * self.n_pixels,
+                  inputs=[self.level_info, n_levels, self.row_of_y, self.col_of_x, batch,
+                          self.n_pixels, self.scores, ini_th, self.cells_at, self.surv_region],
                   outputs=[self.counters, self.survivors], device=dev)
         wp.launch(select_candidates, dim=(batch, self.surv_cap),
                   inputs=[self.survivors, self.surv_region, self.level_info, self.roots, ini_th,

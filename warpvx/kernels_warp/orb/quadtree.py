@@ -23,12 +23,12 @@ def count_depths(paths: wp.array2d(dtype=wp.int64), counters: wp.array2d(dtype=w
     a node of several points at each depth in (lcp[i], lcp[i+1]]. Two points sharing all the
     sorted ``digits`` (the plan's bound says they cannot) flag the frame for the host path."""
     b, i = wp.tid()
+    n = wp.min(counters[b, C_CAND], n_cap)
+    if i >= n:
+        return
     paths = paths[b]
     counters = counters[b]
     lcp = lcp[b]
-    n = wp.min(counters[C_CAND], n_cap)
-    if i >= n:
-        return
     a = paths[i]
     lo = int(-1)
     if i > 0:
@@ -133,6 +133,9 @@ def alloc_nodes(paths: wp.array2d(dtype=wp.int64), lcp: wp.array2d(dtype=wp.int3
     division adds (children - 1, the points inside sharing exactly ``depth`` digits). Each is
     also listed in groups[level, depth] (the nodes rank_nodes compares)."""
     b, s = wp.tid()
+    n = wp.min(counters[b, C_CAND], n_cap)
+    if s >= n:
+        return
     paths = paths[b]
     lcp = lcp[b]
     counters = counters[b]
@@ -143,9 +146,6 @@ def alloc_nodes(paths: wp.array2d(dtype=wp.int64), lcp: wp.array2d(dtype=wp.int3
     node_count = node_count[b]
     node_growth = node_growth[b]
     groups = groups[b]
-    n = wp.min(counters[C_CAND], n_cap)
-    if s >= n:
-        return
     level = int(paths[s] >> wp.int64(PATH_LEVEL_SHIFT))
     mode = divisions[level].mode
     node_base[s] = -1
@@ -183,11 +183,12 @@ def alloc_nodes(paths: wp.array2d(dtype=wp.int64), lcp: wp.array2d(dtype=wp.int3
 
 @wp.func
 def live_node_level(v: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
-                    counters: wp.array(dtype=wp.int32)) -> int:
-    """The level of node slot ``v``, or -1 when the slot holds no node: past the level's used
-    nodes, or the level overflowed its capacity (its frame is then redone on the host)."""
+                    counters: wp.array2d(dtype=wp.int32), b: int) -> int:
+    """The level of image b's node slot ``v``, or -1 when the slot holds no node: past the
+    level's used nodes, or the level overflowed its capacity (its frame is then redone on the
+    host)."""
     level = level_holding(v, levels, n_levels, True)
-    used = counters[C_NODES + level]
+    used = counters[b, C_NODES + level]
     if v - levels[level].node >= used or used > levels[level].node_cap:
         return -1
     return level
@@ -200,16 +201,15 @@ def link_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.ar
                node_depth: wp.array2d(dtype=wp.int32), node_parent: wp.array2d(dtype=wp.int32)):
     """Each ordered node's parent (a node of the previous round), -1 at depth K."""
     b, v = wp.tid()
-    counters = counters[b]
+    level = live_node_level(v, levels, n_levels, counters, b)
+    if level < 0:
+        return
     divisions = divisions[b]
     lcp = lcp[b]
     node_base = node_base[b]
     node_start = node_start[b]
     node_depth = node_depth[b]
     node_parent = node_parent[b]
-    level = live_node_level(v, levels, n_levels, counters)
-    if level < 0:
-        return
     g = node_depth[v]
     k = divisions[level].k
     if g == k:
@@ -230,8 +230,13 @@ def rank_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.ar
     it), and the nodes those divisions add; thread c of a node compares every
     N_RANK_CHUNKS-th member of its group (both arrays zeroed first, sums by atomics)."""
     b, v, c = wp.tid()
-    counters = counters[b]
-    divisions = divisions[b]
+    level = live_node_level(v, levels, n_levels, counters, b)
+    if level < 0:
+        return
+    g = node_depth[b, v]
+    members = counters[b, groups_at + level * N_DEPTHS + g]
+    if c >= members:
+        return
     paths = paths[b]
     groups = groups[b]
     node_start = node_start[b]
@@ -239,15 +244,8 @@ def rank_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.ar
     node_count = node_count[b]
     node_growth = node_growth[b]
     node_parent = node_parent[b]
-    node_rank = node_rank[b]
-    node_grown = node_grown[b]
-    level = live_node_level(v, levels, n_levels, counters)
-    if level < 0:
-        return
-    g = node_depth[v]
-    k = divisions[level].k
+    k = divisions[b, level].k
     n_ini = levels[level].n_ini
-    members = counters[groups_at + level * N_DEPTHS + g]
     rank = int(0)
     grown = int(0)
     for j in range(c, members, N_RANK_CHUNKS):
@@ -258,8 +256,8 @@ def rank_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.ar
                 rank += 1
                 grown += node_growth[u]
     if rank > 0:
-        wp.atomic_add(node_rank, v, rank)
-        wp.atomic_add(node_grown, v, grown)
+        wp.atomic_add(node_rank, b, v, rank)
+        wp.atomic_add(node_grown, b, v, grown)
 
 
 @wp.kernel
@@ -281,6 +279,9 @@ def emit_finals(paths: wp.array2d(dtype=wp.int64), order: wp.array2d(dtype=wp.in
     loop by ``flipped_prefix``.
     """
     b, s = wp.tid()
+    n = wp.min(counters[b, C_CAND], n_cap)
+    if s >= n:
+        return
     paths = paths[b]
     order = order[b]
     lcp = lcp[b]
@@ -292,9 +293,6 @@ def emit_finals(paths: wp.array2d(dtype=wp.int64), order: wp.array2d(dtype=wp.in
     node_grown = node_grown[b]
     final_keys = final_keys[b]
     final_values = final_values[b]
-    n = wp.min(counters[C_CAND], n_cap)
-    if s >= n:
-        return
     path = paths[s]
     level = int(path >> wp.int64(PATH_LEVEL_SHIFT))
     mode = divisions[level].mode
