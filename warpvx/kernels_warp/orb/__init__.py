@@ -6,7 +6,7 @@ of them so concurrent calls never share one). The one host sync reads the keypoi
 All levels go through each kernel together: the pyramid and its blurred copy live in two flat
 buffers, a per-level table gives each level's offset, size and cell grid. So do all images of a
 batch (equal-sized frames, e.g. a multi-camera rig): every kernel's first thread index is the
-image, per-image buffers have a leading batch index, the pyramids are level-major (level l of
+image (the per-pixel ones run over the batch's pixels, image by image), per-image buffers have a leading batch index, the pyramids are level-major (level l of
 every image in one [B * h_l, w_l] block, resized and blurred in one launch), the two radix sorts
 sort the whole batch with the image above each key, and the host reads all images' counts in
 one copy; each image's result is bit for bit what it gives alone.

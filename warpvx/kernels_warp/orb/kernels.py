@@ -13,8 +13,8 @@ from ..fast_corners import fast_score
 from .funcs import (C_CAND, C_CAND_R, C_FINAL, C_OVER, C_SURV_R, HALF_PATCH, KEY_CELL_SHIFT,
                     KEY_LEVEL_SHIFT, KEY_X_SHIFT, KEY_Y_SHIFT, N_STRIPES, PATH_DEPTH,
                     PATH_ROOT_SHIFT, STRIPES, UMAX, LevelInfo, batch_image, batch_key,
-                    batch_level_image, batch_pad, candidate_key, describe_byte, fast_atan2, key_field,
-                    level_holding, quadtree_path)
+                    batch_level_image, batch_pad, candidate_key, describe_byte, fast_atan2,
+                    key_field, level_holding, quadtree_path)
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
@@ -27,7 +27,7 @@ BLUR_RADIUS = wp.constant(3)
 # Kernels of the one-graph extractor (all levels per launch, all images of a batch)
 #
 # Each kernel runs over (image, ...) of a batch of equal-sized images: its first thread index
-# is the image b. Per-image buffers carry the image as their first index and each kernel takes
+# is the image b (the per-pixel kernels run 1-D over the batch's pixels, t = b * pixels + i). Per-image buffers carry the image as their first index and each kernel takes
 # its image's part (``counters = counters[b]``: a view, no copy), so the body reads as for one
 # image and every index stored in a buffer is one of the image's own. Threads with nothing to
 # do return before taking the views (on the CPU device a view costs each thread time). The pyramids
@@ -96,8 +96,7 @@ def score_pixels(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo), 
 def suppress_pixels(levels: wp.array(dtype=LevelInfo), n_levels: int,
                     row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int32),
                     batch: int, n_pixels: int, scores: wp.array(dtype=wp.uint8), ini_th: int,
-                    cells_at: int,
-                    region: int, counters: wp.array2d(dtype=wp.int32),
+                    cells_at: int, region: int, counters: wp.array2d(dtype=wp.int32),
                     survivors: wp.array2d(dtype=wp.int64)):
     """OpenCV's strict 3x3 maximum within the cell: append the survivors (candidate keys) to
     the region of stripe i % N_STRIPES, and count those >= ``ini_th`` per cell. Pixels as in
