@@ -56,6 +56,10 @@ class Primitive:
         True when the public function takes ``out=`` and returns one array whose shape and
         dtype follow from its inputs' shapes and its constant arguments, never from pixel
         values: a graph may then allocate that array once and reuse it frame after frame.
+    capturable : bool
+        True when the Warp implementation, given ``out=``, only enqueues work on the current
+        stream (no allocation, host synchronisation or read-back once its caches are warm):
+        a graph may then capture it into a CUDA graph (:mod:`warpvx.runtime.capture`).
     """
 
     name: str
@@ -64,6 +68,7 @@ class Primitive:
     bench: str | None = None
     outputs: tuple = ("out",)
     sized_by_inputs: bool = False
+    capturable: bool = False
     _loaded: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def implementation(self, kind: str) -> Callable:
@@ -101,7 +106,7 @@ REGISTRY: dict[str, Primitive] = {}
 
 
 def register(name, *, public, cpu=None, warp=None, bench=None, outputs=("out",),
-             sized_by_inputs=False) -> Primitive:
+             sized_by_inputs=False, capturable=False) -> Primitive:
     """Register (or replace) a primitive; implementations are ``"module:function"`` strings.
     See :class:`Primitive` for the other attributes."""
     impls = {}
@@ -110,7 +115,7 @@ def register(name, *, public, cpu=None, warp=None, bench=None, outputs=("out",),
     if warp:
         impls["warp"] = warp
     prim = Primitive(name=name, public=public, impls=impls, bench=bench, outputs=tuple(outputs),
-                     sized_by_inputs=sized_by_inputs)
+                     sized_by_inputs=sized_by_inputs, capturable=capturable)
     REGISTRY[name] = prim
     return prim
 
@@ -136,12 +141,14 @@ def _std(name, public_module, **attrs):
 
 
 # The built-in primitives: public module (by domain, as kornia), kernel modules by name.
-_std("color_convert", "color", sized_by_inputs=True)
-_std("remap", "geometry", sized_by_inputs=True)
-_std("warp_perspective", "geometry", sized_by_inputs=True)
+# capturable: launches only, given out= (harris_response allocates its products outside the
+# fused 3x3 path; pyramids, corners, flow, ORB, matching allocate or read counts back).
+_std("color_convert", "color", sized_by_inputs=True, capturable=True)
+_std("remap", "geometry", sized_by_inputs=True, capturable=True)
+_std("warp_perspective", "geometry", sized_by_inputs=True, capturable=True)
 _std("gaussian_pyramid", "pyramid")
 _std("scale_pyramid", "pyramid")
-_std("gaussian_blur", "filters", sized_by_inputs=True)
+_std("gaussian_blur", "filters", sized_by_inputs=True, capturable=True)
 _std("fast_corners", "features")
 _std("harris_response", "features", sized_by_inputs=True)
 _std("harris_corners", "features")
@@ -151,7 +158,7 @@ _std("match_hamming", "matching", outputs=("pairs", "distances"))
 _std("find_homography", "homography", outputs=("H", "mask"))
 # Primitives with no bench case of their own: resize shares the scale pyramid's kernel modules;
 # orb_compute and knn_match_hamming are timed through orb and match_hamming.
-register("resize", public="warpvx.pyramid:resize", sized_by_inputs=True,
+register("resize", public="warpvx.pyramid:resize", sized_by_inputs=True, capturable=True,
          cpu="warpvx.kernels_cpu.scale_pyramid:resize", warp="warpvx.kernels_warp.scale_pyramid:resize")
 register("orb_compute", public="warpvx.orb_extractor:orb_compute",
          cpu="warpvx.kernels_cpu.orb:orb_compute", warp="warpvx.kernels_warp.orb:orb_compute")

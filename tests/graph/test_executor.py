@@ -299,3 +299,63 @@ def test_frame_result_reports_transfers_copies_and_host_times():
     for t in ("a", "d"):
         h0, h1 = res.host[t]
         assert 0 <= h0 <= h1
+
+
+def _blur_program():
+    """x (host uint8 16x16) -> a = blur(x), b = blur(a) on the GPU role (one capturable
+    segment) -> c = b + 1 on a CPU worker; d reads a one frame late (a delay)."""
+    import warp as wp
+
+    import warpvx
+    from warpvx.backend import resolve_backend
+
+    be = resolve_backend("warp-cpu")
+
+    def blur(v, out=None):
+        return warpvx.gaussian_blur(v, ksize=(3, 3), sigma=0.8, out=out, backend=be)
+
+    def buffer():
+        return wp.empty((16, 16), dtype=wp.uint8, device="cpu")
+
+    tasks = {
+        "a": ExecTask("a", (InputRef("x"),), ("a",), gpu=blur, gpu_out=buffer, capture=True),
+        "b": ExecTask("b", (InputRef("a"),), ("b",), gpu=blur, gpu_out=buffer, capture=True),
+        "c": ExecTask("c", (InputRef("b"),), ("c",), cpu=lambda b: b.astype(np.int32) + 1),
+        "d": ExecTask("d", (InputRef("a", -1),), ("d",), cpu=lambda p: p.copy()),
+    }
+    rings = {"a": Ring(1, np.zeros((16, 16), np.uint8))}
+    return Program(tasks, ("x",), {"c": "c", "d": "d"}, rings=rings)
+
+
+@pytest.mark.parametrize("depth", [1, 3])
+def test_captured_segment_equals_eager_with_cpu_reader_and_delay(depth):
+    """A captured segment's fixed buffers are shared by the frames in flight: what leaves
+    it (to a CPU task, to a delay) must be each frame's own copy."""
+    import cv2
+
+    rng = np.random.default_rng(3)
+    frames = [rng.integers(0, 256, (16, 16), dtype=np.uint8) for _ in range(10)]
+    placement = {"a": "gpu", "b": "gpu", "c": "cpu0", "d": "cpu1"}
+    results = {}
+    for capture in (False, True):
+        ex = Executor(sched(placement, ["a", "b", "c", "d"]), _blur_program(), gpu_device="cpu",
+                      capture=capture)
+        assert [len(s.tasks) for s in ex._segments] == [2]
+        pending, got = [], []
+        for i, f in enumerate(frames):
+            pending.append(ex.submit(i, {"x": (f, HOST)}))
+            if len(pending) >= depth:
+                got.append(ex.wait(pending.pop(0)))
+        got += [ex.wait(f) for f in pending]
+        assert ex.captures == (1 if capture else 0)
+        ex.close()
+        results[capture] = got
+    for i, (e, c) in enumerate(zip(results[False], results[True])):
+        a = cv2.GaussianBlur(frames[i], (3, 3), 0.8)
+        np.testing.assert_array_equal(c.outputs["c"], cv2.GaussianBlur(a, (3, 3), 0.8) + 1)
+        np.testing.assert_array_equal(c.outputs["d"], e.outputs["d"])
+        prev = cv2.GaussianBlur(frames[i - 1], (3, 3), 0.8) if i else np.zeros((16, 16), np.uint8)
+        np.testing.assert_array_equal(c.outputs["d"], prev)
+        # Captured tasks share their replay's interval, in order.
+        ta, tb = c.timeline["a"], c.timeline["b"]
+        assert ta.start <= ta.finish <= tb.start + 1e-9 <= tb.finish + 1e-9

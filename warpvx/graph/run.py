@@ -56,11 +56,14 @@ def program(graph, gpu_name: str | None) -> Program:
         pes = node.processing_elements
         on_gpu = "gpu" in pes and gpu_be is not None
         out_factory = getattr(node, "out_factory", None)
+        gpu_out = out_factory(gpu_be) if on_gpu and out_factory is not None else None
+        primitive = getattr(node, "primitive", None)
         tasks[node.name] = ExecTask(
             node.name, refs, tuple(d.name for d in node.outputs.values()),
             cpu=bind(node, "cpu", cpu_be) if "cpu" in pes else None,
             gpu=bind(node, "gpu", gpu_be) if on_gpu else None,
-            gpu_out=out_factory(gpu_be) if on_gpu and out_factory is not None else None,
+            gpu_out=gpu_out,
+            capture=gpu_out is not None and getattr(primitive, "capturable", False),
         )
     return Program(tasks, tuple(graph.inputs), {n: d.name for n, d in graph.outputs.items()},
                    {d.data.name: d for d in graph.delays})
@@ -203,7 +206,7 @@ class Runner:
         for name, value in result.outputs.items():
             self.outputs[name]._store(value)
 
-    def process(self, inputs=None, *, host: bool | None = None) -> dict:
+    def process(self, inputs=None, *, host: bool | None = None, capture: bool | None = None) -> dict:
         """Run one frame; return ``{output name: value}``.
 
         ``inputs`` maps input names to arrays (a bare array for a one-input graph); missing
@@ -211,6 +214,13 @@ class Runner:
         first when needed. Outputs are host data when the inputs were, else left where they
         were produced (``host`` forces either). A non-contiguous input array (a strided view)
         is copied once to a contiguous one, as the nodes take contiguous arrays.
+
+        ``capture``: replay runs of consecutive capturable GPU nodes from CUDA graphs
+        (:mod:`warpvx.runtime.capture`; captured on the second frame). None (default): on
+        CUDA; False: never; True: also on Warp's CPU device. Where a capture fails (a node
+        synchronising, a caller's own capture, inputs of another shape than verification's,
+        for which the nodes' output buffers are not sized) those nodes run eagerly, never
+        an error.
 
         Raises
         ------
@@ -228,7 +238,7 @@ class Runner:
             ex = plan.executor()
             feed, all_host = self._frame_inputs(inputs, ex.gpu_device)
             ex.reanchor(max_age=5.0)
-            frame = ex.submit(self._next_frame(), feed)
+            frame = ex.submit(self._next_frame(), feed, capture=capture)
             try:
                 result = ex.wait(frame, host=all_host if host is None else host)
             except NodeExecutionError:
@@ -239,7 +249,8 @@ class Runner:
             self._publish(result)
             return result.outputs
 
-    def stream(self, frames, *, depth: int = 2, host: bool | None = None):
+    def stream(self, frames, *, depth: int = 2, host: bool | None = None,
+               capture: bool | None = None):
         """Run many frames pipelined; a generator of output dicts, in frame order.
 
         ``frames`` is an iterable of frames, each what :meth:`process` takes. Up to ``depth``
@@ -249,6 +260,7 @@ class Runner:
         after it are cancelled. If ``frames`` itself raises (or a frame is refused: a wrong
         shape, a missing input), the frames submitted before it are still yielded, then that
         exception is raised. Closing the generator early cancels what is in flight.
+        ``capture`` as in :meth:`process`.
 
         While the generator is live (started, not exhausted, closed or garbage-collected) it
         holds the graph: this thread's calls that run or change the graph raise
@@ -269,9 +281,9 @@ class Runner:
         except TypeError:
             raise GraphError(f"frames: expected an iterable of frames (input dicts or arrays), "
                              f"got {type(frames).__name__}; use process() for one frame") from None
-        return self._stream(frames, int(depth), host)
+        return self._stream(frames, int(depth), host, capture)
 
-    def _stream(self, frames, depth, host):
+    def _stream(self, frames, depth, host, capture):
         lock = self._run_lock
         lock.start_stream(f"the stream() generator of graph {self.name!r} (started in thread "
                           f"{threading.current_thread().name!r})")
@@ -290,7 +302,7 @@ class Runner:
                         ex.reanchor()
                         plan.last_run.clear()
                     feed, all_host = self._frame_inputs(item, ex.gpu_device)
-                    pending.append((ex.submit(self._next_frame(), feed), all_host))
+                    pending.append((ex.submit(self._next_frame(), feed, capture=capture), all_host))
                 except StopIteration:
                     break
                 except Exception as exc:  # noqa: BLE001 - raised after the frames submitted

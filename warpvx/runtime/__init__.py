@@ -9,6 +9,7 @@ worker threads beside one GPU queue (SPEC §7). It knows nothing of graphs: the 
 - :mod:`.timeline`: :class:`Frame`, :class:`FrameResult`: what a frame measured.
 - :mod:`.transfers`: :class:`Transfers` (host <-> device copies of whole values) and
   :func:`tree_map` (the flatten protocol for user data types).
+- :mod:`.capture`: runs of consecutive GPU tasks captured as one CUDA graph and replayed.
 - :mod:`.native_copy`: the copies through Warp's native entry points, with a public-API fallback.
 """
 

@@ -41,6 +41,15 @@ Buffers
     Uploads on CUDA work the same way: each host value a GPU task reads is copied into a
     device buffer from a pool of that edge (allocating a ``wp.array`` costs more host time
     than a small copy), returned under the same rules (:meth:`Executor._reuse_rule`).
+Capture
+    The GPU queue is cut into segments (:func:`~warpvx.runtime.capture.segments`): runs of
+    consecutive capturable tasks between CPU hand-offs, and single eager tasks. With capture
+    on (CUDA by default; ``capture=`` per executor or per frame), each segment is captured
+    as one graph per input signature on its second frame of that signature and replayed
+    after: its inputs copied into fixed buffers, one launch, the values read outside it
+    copied out into the frame's buffers, one pair of timing events around it (its tasks
+    share the interval in proportion to their scheduled durations). A segment that cannot
+    be captured runs eagerly; capture is never an error.
 CPU threads
     Calibration times each CPU implementation alone; OpenCV's own thread pool then competes
     with the workers when they run together, so predictions hold best with
@@ -66,12 +75,14 @@ import functools
 import queue
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Mapping
 
 import networkx as nx
 
 from ..errors import NodeExecutionError, ScheduleError, WarpvxValueError
 from ..sched.schedule import Schedule
+from .capture import NotCapturable, SegmentRunner, segments, signature
 from .native_copy import record_event, synchronize_event, warp
 from .program import ExecTask, InputRef, Program, data_graph
 from .slots import DEVICE, HOST, Slot
@@ -91,7 +102,20 @@ def _is_gpu_processor(name: str) -> bool:
     return name.startswith("gpu")
 
 
-class Executor:
+class _GpuState:
+    """The GPU thread's state through one frame."""
+
+    __slots__ = ("proc", "io", "prev_end", "waited", "task")
+
+    def __init__(self, proc: str, io: Transfers):
+        self.proc = proc
+        self.io = io
+        self.prev_end = None  # the last task's end event while the thread has not waited since
+        self.waited = False
+        self.task = "<executor>"  # the task running, for error reports
+
+
+class Executor(SegmentRunner):
     """Run ``program`` according to ``schedule`` on CPU worker threads and a GPU host thread.
 
     Parameters
@@ -109,6 +133,10 @@ class Executor:
         Seconds a thread polls for an input (yielding the GIL) before it blocks on it
         (default :data:`SPIN_SECONDS`): a short poll saves the thread wake-up of a
         hand-off, at the price of GIL traffic while it polls.
+    capture : bool, optional
+        Replay GPU segments from captured graphs (:mod:`.capture`) by default: None (the
+        default) on CUDA only; True also on Warp's CPU device; False never.
+        :meth:`submit` can turn it off (or on) per frame.
 
     Raises
     ------
@@ -120,9 +148,11 @@ class Executor:
 
     #: Device buffers kept per pooled upload edge (a few frames in flight, several leaves).
     UPLOAD_POOL = 16
+    #: Output buffers kept per pooled GPU task (a few frames in flight).
+    OUT_POOL = 16
 
     def __init__(self, schedule: Schedule, program: Program, *, gpu_device: str | None = None,
-                 name: str = "graph", spin: float | None = None):
+                 name: str = "graph", spin: float | None = None, capture: bool | None = None):
         self.spin = SPIN_SECONDS if spin is None else float(spin)
         self.schedule = schedule
         self.program = program
@@ -165,6 +195,24 @@ class Executor:
         self._up_pools: dict[str, list] = {k: [] for k, rule in self._upload_rule.items()
                                            if rule != "never"}
         self._up_lock = threading.Lock()  # the GPU thread leases, wait() returns
+        gpu_queue = [t.name for p in self.processors if _is_gpu_processor(p) for t in self.queues[p]]
+        self._segments = segments(program, gpu_queue)
+        self._shares = self._segment_shares()
+        self.capture = bool(gpu_device) and (self.cuda if capture is None else bool(capture))
+        self.captures = 0  # segments captured so far (each signature's once)
+        self._captured: OrderedDict = OrderedDict()  # input signature -> per-segment state
+        # Held while capturing and while recording on the legacy stream (submit): that
+        # stream synchronises with ours, which a capture forbids.
+        self._capture_lock = threading.Lock()
+        for seg in self._segments:  # copy-out buffers of captured segments: pooled per key
+            for key in seg.outputs:
+                rule = self._upload_rule[key] = self._copy_rule(seg, key)
+                if rule != "never":
+                    self._up_pools.setdefault(key, [])
+                else:
+                    self._up_pools.pop(key, None)
+        self._null_stream = None  # the device's legacy stream (CUDA), looked up once
+        self._task_keys = [k for t in program.tasks.values() for k in t.outputs]
 
     # ------------------------------------------------------------------ checks
 
@@ -292,18 +340,17 @@ class Executor:
     def _publish(self, frame: Frame, task: ExecTask, result, where, event=None):
         n = len(task.outputs)
         if n == 1:
-            values = (result,)
-        else:
-            if not isinstance(result, (tuple, list)) or len(result) != n:
-                raise TypeError(f"expected {n} outputs {task.outputs}, got "
-                                f"{type(result).__name__}")
-            values = tuple(result)
-        for key, value in zip(task.outputs, values):
+            frame.slots[task.outputs[0]].set(result, where, event)
+            return
+        if not isinstance(result, (tuple, list)) or len(result) != n:
+            raise TypeError(f"expected {n} outputs {task.outputs}, got {type(result).__name__}")
+        for key, value in zip(task.outputs, result):
             frame.slots[key].set(value, where, event)
 
     def _ready_inputs(self, frame: Frame, task: ExecTask):
         """``task``'s input slots once all are set, and whether any had to be waited for."""
-        slots = [self._slot(frame, ref) for ref in task.inputs]
+        fs = frame.slots
+        slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref) for ref in task.inputs]
         waited = False
         for s in slots:
             if not s.done.is_set():
@@ -345,67 +392,92 @@ class Executor:
             frame.trace[task.name] = (proc, t0, t1, t_mid)
 
     def _run_gpu_tasks(self, proc: str, frame: Frame):
-        io = self._io()
-        cuda = self.cuda
-        stream = self._stream
-        pool = self._events
-        prev_end = None  # the last task's end event while the thread has not waited since
-        for task in self.queues[proc]:
+        state = _GpuState(proc, self._io())
+        captures = self._captures_of(frame) if frame.capture else None
+        for i, seg in enumerate(self._segments):
             if frame.cancel.is_set():
                 return
             try:
-                slots, waited = self._ready_inputs(frame, task)
-                if waited:
-                    prev_end = None  # the stream may idle while we waited: a fresh start event
-                h0 = time.perf_counter()
-                if cuda:
-                    for s in slots:
-                        if s.external and s.event is not None:
-                            stream.wait_event(s.event)
-                            prev_end = None
-                    if prev_end is None:
-                        ev0 = pool.get()
-                        frame.events.append(ev0)
-                        record_event(stream, ev0)
-                    else:
-                        ev0 = prev_end
-                before = io.moved
-                values = [s.value if s.where == DEVICE else
-                          s.device(io, self._upload_into(frame, ref))
-                          for ref, s in zip(task.inputs, slots)]
-                mid = None
-                moved = io.moved - before
-                if moved:
-                    frame.copied[task.name] = moved
-                    if not cuda:
-                        mid = time.perf_counter()
-                    elif moved >= TIMED_COPY_MIN_BYTES:
-                        mid = pool.get()
-                        frame.events.append(mid)
-                        record_event(stream, mid)
-                if task.name in self._out_pools:
-                    result = task.gpu(*values, out=self._lease(frame, task))
-                else:
-                    result = task.gpu(*values)
-                if cuda:
-                    ev1 = pool.get()
-                    frame.events.append(ev1)
-                    record_event(stream, ev1)
-                    h1 = time.perf_counter()
-                    frame.gpu_last_event = ev1
-                    self._publish(frame, task, result, DEVICE, ev1)
-                    frame.trace[task.name] = (proc, ev0, ev1, mid)
-                    prev_end = ev1
-                else:
-                    h1 = time.perf_counter()
-                    self._publish(frame, task, result, DEVICE)
-                    frame.trace[task.name] = (proc, h0, h1, mid)
-                frame.host_trace[task.name] = (h0, h1)
+                sg = self._segment_graph(captures, i, seg, frame, state) if captures is not None \
+                    and seg.captured else None
+                if sg is not None:
+                    try:
+                        self._run_segment(frame, seg, sg, state)
+                        continue
+                    except NotCapturable:  # an input unlike the captured one: eagerly from now
+                        captures[i] = None
+                for task in seg.tasks:
+                    if frame.cancel.is_set():
+                        return
+                    self._run_gpu_task(frame, task, state)
             except Cancelled:
                 return
             except BaseException as exc:  # noqa: BLE001 - reported to the caller
-                self._fail(frame, task.name, proc, exc)
+                self._fail(frame, state.task, proc, exc)
                 return
+
+    def _start_event(self, frame: Frame, state: "_GpuState", slots, waited: bool):
+        """The timing event a GPU task (or segment) starts at, after making the stream wait
+        for the caller's device inputs among ``slots`` (CUDA)."""
+        if waited:
+            state.prev_end = None  # the stream may idle while we waited: a fresh start event
+        stream = self._stream
+        for s in slots:
+            if s.external and s.event is not None:
+                stream.wait_event(s.event)
+                state.prev_end = None
+        if state.prev_end is not None:
+            return state.prev_end
+        ev0 = self._events.get()
+        frame.events.append(ev0)
+        record_event(stream, ev0)
+        return ev0
+
+    def _end_event(self, frame: Frame):
+        ev1 = self._events.get()
+        frame.events.append(ev1)
+        record_event(self._stream, ev1)
+        frame.gpu_last_event = ev1
+        return ev1
+
+    def _run_gpu_task(self, frame: Frame, task: ExecTask, state: "_GpuState"):
+        """One GPU task, enqueued eagerly: uploads, the call (into a pooled output buffer
+        where it has one), timing events (CUDA) and its outputs published."""
+        state.task = task.name
+        cuda = self.cuda
+        io = state.io
+        slots, waited = self._ready_inputs(frame, task)
+        h0 = time.perf_counter()
+        ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
+        before = io.moved
+        values = [s.value if s.where == DEVICE else
+                  s.device(io, self._upload_into(frame, ref))
+                  for ref, s in zip(task.inputs, slots)]
+        mid = None
+        moved = io.moved - before
+        if moved:
+            frame.copied[task.name] = moved
+            if not cuda:
+                mid = time.perf_counter()
+            elif moved >= TIMED_COPY_MIN_BYTES:
+                mid = self._events.get()
+                frame.events.append(mid)
+                record_event(self._stream, mid)
+        if task.name in self._out_pools:
+            result = task.gpu(*values, out=self._lease(frame, task))
+        else:
+            result = task.gpu(*values)
+        if cuda:
+            ev1 = self._end_event(frame)
+            h1 = time.perf_counter()
+            self._publish(frame, task, result, DEVICE, ev1)
+            frame.trace[task.name] = (state.proc, ev0, ev1, mid)
+            state.prev_end = ev1
+        else:
+            h1 = time.perf_counter()
+            self._publish(frame, task, result, DEVICE)
+            frame.trace[task.name] = (state.proc, h0, h1, mid)
+        frame.host_trace[task.name] = (h0, h1)
 
     def _lease(self, frame: Frame, task: ExecTask):
         pool = self._out_pools[task.name]
@@ -425,7 +497,11 @@ class Executor:
         return functools.partial(self._lease_upload, frame, ref.key)
 
     def _lease_upload(self, frame: Frame, key: str, shape, dtype):
-        pool = self._up_pools[key]
+        """A device buffer for value ``key`` of ``frame`` (an upload or a captured segment's
+        copy-out): from the key's pool when it has one, else fresh."""
+        pool = self._up_pools.get(key)
+        if pool is None:
+            return warp().empty(shape, dtype=dtype, device=self.gpu_device)
         buf = None
         with self._up_lock:
             for i in range(len(pool) - 1, -1, -1):  # the newest first
@@ -483,7 +559,7 @@ class Executor:
             if self._pool_rule[task.name] == "host" and not host:
                 continue
             pool = self._out_pools[task.name]
-            if len(pool) < 16:
+            if len(pool) < self.OUT_POOL:
                 pool.append(buf)
         frame.leases = []
         if frame.uploads:
@@ -510,10 +586,12 @@ class Executor:
 
     # ------------------------------------------------------------------ API
 
-    def submit(self, frame_index: int, inputs: Mapping) -> Frame:
+    def submit(self, frame_index: int, inputs: Mapping, *, capture: bool | None = None) -> Frame:
         """Start frame ``frame_index`` with ``inputs``: key -> ``(value, "host" | "device")``.
 
-        Returns at once; the processors pick the frame up after the frames before it.
+        ``capture``: replay captured GPU segments in this frame (None: the executor's
+        :attr:`capture`; True where the GPU role's device can capture). Returns at once; the
+        processors pick the frame up after the frames before it.
         """
         if self._closing.is_set():
             raise RuntimeError(f"executor {self.name!r} is closed")
@@ -529,16 +607,20 @@ class Executor:
             if where == DEVICE and self.cuda:
                 # The caller's device data may still be in flight on any stream: an event on
                 # the legacy default stream completes after all work queued so far.
-                wp = warp()
+                if self._null_stream is None:
+                    self._null_stream = warp().get_device(self.gpu_device).null_stream
                 slot.event = self._events.get()
                 events.append(slot.event)
-                wp.get_device(self.gpu_device).null_stream.record_event(slot.event)
+                with self._capture_lock:
+                    self._null_stream.record_event(slot.event)
                 slot.external = True
-        for task in self.program.tasks.values():
-            for key in task.outputs:
-                slots[key] = Slot()
+        for key in self._task_keys:
+            slots[key] = Slot()
         frame = Frame(frame_index, slots, len(self._active))
         frame.events.extend(events)
+        frame.capture = bool(self.gpu_device) and (self.capture if capture is None else bool(capture))
+        if frame.capture:
+            frame.signature = signature(inputs)
         for key, ring in self.program.rings.items():
             ring.reserve(frame_index, slots[key])
         with self._lock:
@@ -580,7 +662,7 @@ class Executor:
                     f"{frame.cancelled_by} failed"
                 )
             if self.cuda and frame.gpu_last_event is not None:
-                warp().synchronize_event(frame.gpu_last_event)
+                synchronize_event(frame.gpu_last_event)
             io = self._io()
             outputs = {}
             for name, key in self.program.outputs.items():
@@ -607,7 +689,7 @@ class Executor:
         for slot in frame.slots.values():
             if slot.event is not None and id(slot.event) in mine:
                 if slot.external:  # the caller's copy, which no task of the frame may have awaited
-                    warp().synchronize_event(slot.event)
+                    synchronize_event(slot.event)
                 slot.event = None
                 slot.external = False
         self._events.put(frame.events)

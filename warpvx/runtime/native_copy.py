@@ -51,6 +51,7 @@ def native_entry_points():
             core = ctx.runtime.core
             _NATIVE = SimpleNamespace(
                 h2d=core.wp_memcpy_h2d, d2h=core.wp_memcpy_d2h, h2h=core.wp_memcpy_h2h,
+                d2d=core.wp_memcpy_d2d,
                 stream_sync=core.wp_cuda_stream_synchronize,
                 event_record=core.wp_cuda_event_record,
                 event_sync=core.wp_cuda_event_synchronize)
@@ -142,6 +143,27 @@ def to_device(dst, src, stream=None, *, native: bool = True):
         raise RuntimeError(f"upload of {n} bytes failed")
 
 
+def copy_device(dst, src, stream=None, *, native: bool = True):
+    """Copy ``wp.array`` ``src`` into ``dst`` on the same device (same shape and dtype, both
+    contiguous). On CUDA the copy is queued on ``stream`` (the device's current one when
+    None); on Warp's CPU device it is done on return. ``native=False`` takes ``wp.copy``."""
+    fast = _fast(native, dst)
+    n = dst.capacity
+    dev = dst.device
+    if fast is None or not src.is_contiguous:
+        warp().copy(dst, src, stream=stream if dev.is_cuda else None)
+        return
+    if not n:
+        return
+    if dev.is_cuda:
+        s = stream if stream is not None else dev.stream
+        ok = fast.d2d(dev.context, dst.ptr, src.ptr, n, s.cuda_stream)
+    else:
+        ok = fast.h2h(dst.ptr, src.ptr, n)
+    if not ok:
+        raise RuntimeError(f"device copy of {n} bytes failed")
+
+
 def record_event(stream, event):
     """``stream.record_event(event)`` (a timing event) without Warp's Python checks."""
     fast = native_entry_points()
@@ -152,12 +174,14 @@ def record_event(stream, event):
 
 
 def synchronize_event(event):
-    """``wp.synchronize_event(event)`` without Warp's capture checks (the runtime never
-    captures while it waits)."""
+    """``wp.synchronize_event(event)`` without Warp's capture checks: the executor's GPU
+    thread may be capturing a CUDA graph on its own stream while another thread waits for an
+    event of an earlier frame, which Warp's check would refuse (the capture is thread-local:
+    the wait is legal)."""
     fast = native_entry_points()
     if fast is None or not fast.event_sync(event.cuda_event):
         warp().synchronize_event(event)  # the checked path, which also reports errors
 
 
 __all__ = ["warp", "is_warp_array", "native_entry_points", "numpy_dtype", "to_host", "to_device",
-           "record_event", "synchronize_event"]
+           "copy_device", "record_event", "synchronize_event"]

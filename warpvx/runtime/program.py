@@ -24,7 +24,9 @@ class ExecTask:
     ``cpu(*host_values)`` and ``gpu(*device_values)`` return one value per output (a tuple
     when there are several); ``None`` marks a missing implementation. ``gpu_out``, when
     given, makes a fresh output buffer for the GPU callable, which then takes it as
-    ``gpu(*device_values, out=buffer)`` (buffers are pooled across frames).
+    ``gpu(*device_values, out=buffer)`` (buffers are pooled across frames). ``capture``: the
+    GPU callable, given ``out=``, only enqueues work on the current stream, so it may be
+    captured into a CUDA graph with its neighbours (:mod:`.capture`); needs ``gpu_out``.
     """
 
     name: str
@@ -33,6 +35,7 @@ class ExecTask:
     cpu: Callable | None = None
     gpu: Callable | None = None
     gpu_out: Callable | None = None
+    capture: bool = False
 
 
 @dataclass

@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from .transfers import Transfers
 
+_GUARD_INIT = threading.Lock()  # makes the first Slot._lock of a slot, once
+
 #: Where a slot's value lives: host memory (NumPy) or the GPU role's device (``wp.array``).
 HOST = "host"
 DEVICE = "device"
@@ -67,7 +69,7 @@ class Slot:
         self.done = Flag()
         self._host = None
         self._device = None
-        self._lock = threading.Lock()
+        self._lock = None  # made on the first copy (most values are never copied)
 
     @classmethod
     def ready(cls, value, where=HOST) -> "Slot":
@@ -87,7 +89,7 @@ class Slot:
         """
         if self.where == HOST:
             return self.value
-        with self._lock:
+        with self._guard():
             if self._host is None:
                 self._host = (io.download(self.value, None if ready else self.event),)
             return self._host[0]
@@ -100,10 +102,19 @@ class Slot:
         """
         if self.where == DEVICE:
             return self.value
-        with self._lock:
+        with self._guard():
             if self._device is None:
                 self._device = (io.upload(self.value, into),)
             return self._device[0]
+
+    def _guard(self) -> threading.Lock:
+        lock = self._lock
+        if lock is None:
+            with _GUARD_INIT:
+                lock = self._lock
+                if lock is None:
+                    lock = self._lock = threading.Lock()
+        return lock
 
     def get(self, where, io):
         return self.host(io) if where == HOST else self.device(io)

@@ -71,6 +71,9 @@ class Frame:
         self.events = []  # pooled CUDA events this frame recorded
         self.leases = []  # (task, buffer) output buffers taken from the pools
         self.uploads = []  # (key, buffer) upload buffers taken from the pools
+        self.capture = False  # replay captured GPU segments
+        self.signature = None  # the capture key of its inputs' shapes and dtypes
+        self.shares = {}  # captured task -> (start, end) fractions of its segment's interval
         self._remaining = n_procs
         self._lock = threading.Lock()
         if n_procs == 0:
@@ -135,10 +138,14 @@ def frame_result(frame: Frame, outputs: dict, to_host=None) -> FrameResult:
     """
     timeline, transfers, host = {}, {}, {}
     t0 = frame.t0
+    shares = frame.shares
     for task, (proc, a, b, mid) in frame.trace.items():
         if to_host is not None and proc.startswith("gpu"):
             a, b = to_host(a), to_host(b)
             mid = None if mid is None else to_host(mid)
+        share = shares.get(task)
+        if share is not None:  # a task of a captured segment: its part of the replay
+            a, b = a + share[0] * (b - a), a + share[1] * (b - a)
         timeline[task] = ScheduledTask(task, proc, (a - t0) * 1e3, (b - t0) * 1e3)
         if mid is not None:
             transfers[task] = (mid - a) * 1e3

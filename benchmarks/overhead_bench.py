@@ -1,0 +1,242 @@
+"""Executor overhead per node and pipelined frame rate, captured GPU segments against eager.
+
+1. Trivial chains (identity user nodes, :func:`warpvx.graph.diagnostics.executor_overhead`):
+   CPU-only, GPU-only, alternating CPU/GPU; per node: wall time per frame minus the nodes'
+   own time, over the nodes. User nodes are never captured.
+2. A GPU-only chain of primitive nodes (3x3 Gaussian blurs of a 16x16 gray image, which the
+   runtime may capture), eager and captured: per node = the difference of the frame times of
+   a long and a short chain over the difference of their lengths (what one more node costs:
+   its kernel call on the host eagerly, its share of one graph launch when captured).
+3. The 16-node two-camera graph of ``benchmarks/graph_bench.py`` (its builder and frames), at
+   1280x720, baseline placement, pipelined with 3 and 8 frames in flight, eager and captured.
+
+On Warp's CPU device (``--gpu warp-cpu``) "captured" rows replay Warp's CPU graphs (Warp 1.19
+captures there too, ``capture=True``); on CUDA they are CUDA graphs (the default there).
+
+Usage::
+
+    PYTHONPATH=. python3 benchmarks/overhead_bench.py --gpu cuda --out $OUT/overhead   # GPU
+    PYTHONPATH=. python benchmarks/overhead_bench.py --gpu warp-cpu --quick            # anywhere
+
+Writes ``overhead_bench.md`` (its first line is the command) and ``overhead_bench.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent
+sys.path.insert(0, str(ROOT))
+
+import graph_bench  # noqa: E402 - the two-camera graph's builder and frames, next to this file
+
+import warpvx  # noqa: E402
+from warpvx.backend import init_warp  # noqa: E402
+from warpvx.graph.diagnostics import executor_overhead  # noqa: E402
+
+MODES = {"eager": False, "captured": True}
+
+
+def _chains(args) -> list:
+    """Section 1: the identity chains (rows as executor_overhead returns them)."""
+    n, frames = args.nodes, args.frames
+    rows = [executor_overhead(n, frames),
+            executor_overhead(n, frames, chain="gpu", gpu=args.gpu),
+            executor_overhead(n // 2, frames, chain="mixed", gpu=args.gpu)]
+    for r in rows:
+        print(f"  {r['chain']:5s} chain, {r['n_nodes']} identity nodes: "
+              f"{r['per_node_us']:.1f} us/node process, {r['per_node_us_stream']:.1f} stream",
+              flush=True)
+    return rows
+
+
+def _blur_chain(n: int, gpu: str) -> warpvx.Graph:
+    g = warpvx.Graph(f"blur-chain-{n}")
+    v = g.input("x", shape=(16, 16), dtype=np.uint8)
+    for i in range(n):
+        v = g.gaussian_blur(v, ksize=(3, 3), sigma=0.8, name=f"b{i}", target="gpu")
+    g.output("y", v)
+    g.verify({"x": np.zeros((16, 16), np.uint8)})
+    g.schedule("baseline", n_cpus=1, gpu=gpu)
+    return g
+
+
+def _frame_seconds(g, x, frames: int, capture: bool, depth: int) -> tuple:
+    """Median seconds per frame one at a time, and mean seconds per frame pipelined."""
+    for _ in range(3):  # threads, kernels, the capture (second frame)
+        g.process({"x": x}, capture=capture)
+    wall = []
+    for _ in range(frames):
+        t0 = time.perf_counter()
+        g.process({"x": x}, capture=capture)
+        wall.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    for _ in g.stream(({"x": x} for _ in range(frames)), depth=depth, capture=capture):
+        pass
+    return statistics.median(wall), (time.perf_counter() - t0) / frames
+
+
+def _primitive_chain(args) -> list:
+    """Section 2: per-node cost of a GPU-only blur chain, eager and captured."""
+    short, long_ = 2, args.nodes // 2
+    x = (np.arange(256, dtype=np.uint32).reshape(16, 16) * 37 % 251).astype(np.uint8)
+    graphs = {n: _blur_chain(n, args.gpu) for n in (short, long_)}
+    rows = []
+    try:
+        for mode, capture in MODES.items():
+            t = {n: _frame_seconds(g, x, args.frames, capture, 4) for n, g in graphs.items()}
+            captures = graphs[long_].plan.executor().captures
+            row = {"mode": mode, "nodes": [short, long_], "captures": captures,
+                   "per_node_us": (t[long_][0] - t[short][0]) / (long_ - short) * 1e6,
+                   "per_node_us_stream": (t[long_][1] - t[short][1]) / (long_ - short) * 1e6,
+                   "frame_us": t[long_][0] * 1e6}
+            rows.append(row)
+            print(f"  blur chain {mode}: {row['per_node_us']:.1f} us/node process, "
+                  f"{row['per_node_us_stream']:.1f} stream ({captures} captures)", flush=True)
+    finally:
+        for g in graphs.values():
+            g.close()
+    return rows
+
+
+def _two_cameras(args) -> list:
+    """Section 3: the 16-node graph pipelined, eager and captured, at each depth."""
+    size = args.size
+    frames = graph_bench.make_frames(size, 16)
+    g = graph_bench.build_graph(size, max_corners=200 if args.quick else 500)
+    g.verify(frames[:2])
+    t0 = time.perf_counter()
+    g.schedule("baseline", n_cpus=args.n_cpus, gpu=args.gpu)
+    print(f"  two-cameras {size[0]}x{size[1]}: scheduled in {time.perf_counter() - t0:.1f} s",
+          flush=True)
+    ex = g.plan.executor()
+    segs = [[t.name for t in s.tasks] for s in ex._segments if s.captured]
+    rows = []
+    n = args.graph_frames
+    try:
+        for depth in (3, 8):
+            for mode, capture in MODES.items():
+                g.reset()
+                feed = (frames[i % len(frames)] for i in range(n + 2 * depth))
+                stream = g.stream(feed, depth=depth, capture=capture)
+                for _ in range(2 * depth):  # warm: threads, pools, the capture
+                    next(stream)
+                t0 = time.perf_counter()
+                done = sum(1 for _ in stream)
+                seconds = time.perf_counter() - t0
+                spans = [r.makespan for r in list(g.plan.last_run)[-min(done, 32):]]
+                row = {"depth": depth, "mode": mode, "frames": done, "fps": done / seconds,
+                       "frame_ms_median": statistics.median(spans), "captures": ex.captures}
+                rows.append(row)
+                print(f"  depth {depth} {mode}: {row['fps']:.1f} FPS ({done} frames), median "
+                      f"frame {row['frame_ms_median']:.2f} ms, captures so far {ex.captures}",
+                      flush=True)
+    finally:
+        g.close()
+    return [{"size": list(size), "segments": segs, "rows": rows}]
+
+
+def markdown(report) -> str:
+    cpu_note = " (Warp CPU graphs)" if report["gpu"] == "warp-cpu" else ""
+    lines = [report["command"], "",
+             f"# Executor overhead and pipelined FPS, captured vs eager ({report['machine']})", "",
+             f"GPU role: {report['gpu']}; {report['n_cpus']} CPU workers; Python "
+             f"{report['python']}, Warp {report['warp']}; OpenCV threads 1; "
+             f"{report['seconds']:.0f} s.", "",
+             "## Identity chains (user nodes, never captured)", "",
+             "| chain | nodes | us/node (process) | us/node (stream, 4 in flight) |",
+             "|---|---|---|---|"]
+    for r in report["chains"]:
+        lines.append(f"| {r['chain']} | {r['n_nodes']} | {r['per_node_us']:.1f} | "
+                     f"{r['per_node_us_stream']:.1f} |")
+    n0, n1 = report["primitive_chain"][0]["nodes"] if report["primitive_chain"] else ("?", "?")
+    lines += ["", f"## GPU-only chain of 3x3 blurs (16x16 uint8): cost of one more node "
+                  f"(chains of {n0} and {n1})", "",
+              "| mode | us/node (process) | us/node (stream, 4 in flight) | frame of the long "
+              "chain (us) | captures |", "|---|---|---|---|---|"]
+    for r in report["primitive_chain"]:
+        mode = r["mode"] + (cpu_note if r["mode"] == "captured" else "")
+        lines.append(f"| {mode} | {r['per_node_us']:.1f} | {r['per_node_us_stream']:.1f} | "
+                     f"{r['frame_us']:.0f} | {r['captures']} |")
+    for e in report["two_cameras"]:
+        w, h = e["size"]
+        lines += ["", f"## Two-camera graph (16 nodes), {w}x{h}, baseline placement, pipelined", "",
+                  "Captured segments: " + ("; ".join(" + ".join(s) for s in e["segments"])
+                                           or "none") + ".", "",
+                  "| frames in flight | mode | FPS | median frame (ms) | frames timed |",
+                  "|---|---|---|---|---|"]
+        for r in e["rows"]:
+            mode = r["mode"] + (cpu_note if r["mode"] == "captured" else "")
+            lines.append(f"| {r['depth']} | {mode} | {r['fps']:.1f} | {r['frame_ms_median']:.2f} | "
+                         f"{r['frames']} |")
+    for key, err in report["errors"].items():
+        lines += ["", f"**{key} failed**: {err}"]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--gpu", default=None, help="cuda, cuda:N or warp-cpu (default: cuda if present)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="results folder (default ./warpvx-results/overhead-<time>)")
+    p.add_argument("--quick", action="store_true", help="few frames, 160x120 camera frames")
+    p.add_argument("--size", default=None, help="camera size WxH (default 1280x720; quick 160x120)")
+    p.add_argument("--nodes", type=int, default=None, help="chain length (default 64; quick 16)")
+    p.add_argument("--frames", type=int, default=None, help="frames per chain (default 200; quick 20)")
+    p.add_argument("--graph-frames", type=int, default=None,
+                   help="timed frames per two-camera row (default 300; quick 16)")
+    p.add_argument("--n-cpus", type=int, default=None, help="CPU workers (default: cores - 1, max 4)")
+    args = p.parse_args(argv)
+    command = "PYTHONPATH=. python3 benchmarks/overhead_bench.py " + " ".join(
+        argv if argv is not None else sys.argv[1:])
+    init_warp()
+    args.gpu = args.gpu or ("cuda" if warpvx.cuda_available() else "warp-cpu")
+    args.size = tuple(int(v) for v in (args.size or ("160x120" if args.quick else "1280x720")).split("x"))
+    args.nodes = args.nodes or (16 if args.quick else 64)
+    args.frames = args.frames or (20 if args.quick else 200)
+    args.graph_frames = args.graph_frames or (16 if args.quick else 300)
+    if args.n_cpus is None:
+        args.n_cpus = warpvx.graph.default_n_cpus()
+    out_dir = args.out or Path("warpvx-results") / time.strftime("overhead-%Y%m%d-%H%M%S")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # one core per CPU worker, as the graph benchmark
+    t_start = time.perf_counter()
+    sections, errors = {}, {}
+    try:
+        for key, title, run in (("chains", "identity chains", _chains),
+                                ("primitive_chain", "primitive chain", _primitive_chain),
+                                ("two_cameras", "two-camera graph", _two_cameras)):
+            print(title, flush=True)
+            try:
+                sections[key] = run(args)
+            except Exception as exc:  # noqa: BLE001 - the other sections still run and report
+                errors[key] = f"{type(exc).__name__}: {exc}"
+                sections[key] = []
+                traceback.print_exc()
+    finally:
+        cv2.setNumThreads(threads)
+    wp = init_warp()
+    report = {"command": command, "machine": f"{platform.node()}|{graph_bench._gpu_name(args.gpu)}",
+              "platform": platform.platform(), "python": sys.version.split()[0],
+              "warp": wp.config.version, "gpu": args.gpu, "n_cpus": args.n_cpus, **sections,
+              "errors": errors, "seconds": time.perf_counter() - t_start}
+    (out_dir / "overhead_bench.json").write_text(json.dumps(report, indent=1, default=str))
+    (out_dir / "overhead_bench.md").write_text(markdown(report))
+    print(f"wrote {out_dir / 'overhead_bench.md'} in {report['seconds']:.1f} s", flush=True)
+    return report
+
+
+if __name__ == "__main__":
+    main()

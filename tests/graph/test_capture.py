@@ -1,0 +1,307 @@
+"""Captured GPU segments (warpvx.runtime.capture): the segmenter's rule on hand-built
+programs, and captured runs against eager runs on real frames.
+
+Warp 1.19 captures on its CPU device too, so every run test runs on warp-cpu with
+``capture=True`` (the default there is off) and, where CUDA is present, on cuda with the
+default (on).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+
+import numpy as np
+import pytest
+
+import warpvx
+from warpvx.runtime import ExecTask, InputRef, Program, Ring
+from warpvx.runtime.capture import segments
+from tests.isolated import run_python
+
+pytestmark = pytest.mark.timeout(300)
+
+BENCH = os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks", "graph_bench.py")
+
+
+# --------------------------------------------------------------------------- the segmenter
+
+
+def _task(name, inputs, *, capture=True, out=True):
+    refs = tuple(r if isinstance(r, InputRef) else InputRef(r) for r in inputs)
+    return ExecTask(name, refs, (name,), cpu=None, gpu=lambda *v, out=None: v[0],
+                    gpu_out=(lambda: None) if out else None, capture=capture)
+
+
+def _program(tasks, outputs=(), rings=()):
+    return Program({t.name: t for t in tasks}, ("x",), {k: k for k in outputs},
+                   {k: Ring(1, None) for k in rings})
+
+
+def _shape(segs):
+    return [([t.name for t in s.tasks], s.captured) for s in segs]
+
+
+def test_segments_gpu_chain_is_one_segment():
+    p = _program([_task("a", ["x"]), _task("b", ["a"]), _task("c", ["b"])], outputs=["c"])
+    (seg,) = segments(p, ["a", "b", "c"])
+    assert _shape([seg]) == [(["a", "b", "c"], True)]
+    assert seg.inputs == (InputRef("x"),)
+    assert seg.outputs == ("c",)  # a and b stay inside
+
+
+def test_segments_uncapturable_task_runs_alone_and_cuts():
+    p = _program([_task("a", ["x"]), _task("b", ["a"], capture=False), _task("c", ["b"]),
+                  _task("d", ["c"], out=False), _task("e", ["d"])], outputs=["e"])
+    segs = segments(p, ["a", "b", "c", "d", "e"])
+    assert _shape(segs) == [(["a"], True), (["b"], False), (["c"], True), (["d"], False),
+                            (["e"], True)]
+    assert segs[0].outputs == ("a",)  # read by the eager task b
+    assert segs[2].inputs == (InputRef("b"),)
+
+
+def test_segments_cut_at_cpu_hand_offs():
+    cpu = ExecTask("h", (InputRef("a"),), ("h",), cpu=lambda v: v)
+    # c reads the CPU task's output (a hand-off): a new segment; d reads it a frame late:
+    # also a hand-off.
+    p = _program([_task("a", ["x"]), _task("b", ["a"]), cpu, _task("c", ["b", "h"]),
+                  _task("d", ["c", InputRef("h", -1)])], outputs=["d"], rings=["h"])
+    segs = segments(p, ["a", "b", "c", "d"])
+    assert _shape(segs) == [(["a", "b"], True), (["c"], True), (["d"], True)]
+    assert segs[0].outputs == ("a", "b")  # a goes to the CPU task, b to the next segment
+    assert segs[1].inputs == (InputRef("b"), InputRef("h"))
+    assert segs[2].inputs == (InputRef("c"), InputRef("h", -1))
+
+
+def test_segments_delayed_and_output_values_leave_the_segment():
+    p = _program([_task("a", ["x"]), _task("b", ["a", InputRef("b", -1)]), _task("c", ["b"])],
+                 outputs=["a"], rings=["b"])
+    (seg,) = segments(p, ["a", "b", "c"])
+    assert seg.inputs == (InputRef("x"), InputRef("b", -1))
+    assert seg.outputs == ("a", "b")  # a graph output and a delayed value; c is read by nobody
+
+
+# --------------------------------------------------------------------------- runs
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("graph_bench", BENCH)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _capture_arg(gpu):
+    """warp-cpu captures only when asked; cuda by default."""
+    return True if gpu == "warp-cpu" else None
+
+
+def _same(a, b):
+    flat = getattr(a, "__warpvx_flatten__", None)
+    if flat is not None:
+        (xa, _), (xb, _) = flat(), b.__warpvx_flatten__()
+        return all(_same(u, v) for u, v in zip(xa, xb))
+    ha = a.numpy() if hasattr(a, "numpy") and not isinstance(a, np.ndarray) else np.asarray(a)
+    hb = b.numpy() if hasattr(b, "numpy") and not isinstance(b, np.ndarray) else np.asarray(b)
+    return ha.shape == hb.shape and ha.dtype == hb.dtype and np.array_equal(ha, hb)
+
+
+def _camera_frames(frames):
+    """Two-camera frames from the real photo: the right camera sees it mirrored."""
+    return [{"frameL": f, "frameR": np.ascontiguousarray(f[:, ::-1])} for f in frames]
+
+
+def _two_cameras(frames, gpu):
+    bench = _bench()
+    h, w = frames[0].shape[:2]
+    g = bench.build_graph((w, h), max_corners=100)
+    g.verify(_camera_frames(frames)[:2])
+    g.schedule("baseline", n_cpus=2, gpu=gpu)
+    return g
+
+
+def test_two_cameras_captured_equals_eager(frames, warp_backend):
+    """The 16-node graph on real frames: captured segments give the eager run's outputs,
+    each segment is captured once (second frame) and replayed after."""
+    cams = _camera_frames(frames) * 2
+    g = _two_cameras(frames, warp_backend)
+    try:
+        eager = [g.process(f, capture=False) for f in cams]
+        assert g.plan.executor().captures == 0
+        g.reset()
+        ex = g.plan.executor()
+        captured_segments = sum(s.captured for s in ex._segments)
+        assert captured_segments >= 2  # the grays and the blurs
+        got = []
+        for i, f in enumerate(cams):
+            got.append(g.process(f, capture=_capture_arg(warp_backend)))
+            assert ex.captures == (0 if i == 0 else captured_segments)  # no recapture
+        for e, c in zip(eager, got):
+            assert e.keys() == c.keys()
+            for k in e:
+                assert _same(e[k], c[k]), k
+        # Timelines still name every node, captured ones inside their replay's interval.
+        assert set(g.plan.last_run[-1].timeline) == set(g.nodes)
+    finally:
+        g.close()
+
+
+def test_two_cameras_pipelined_captured_equals_eager(frames, warp_backend):
+    cams = _camera_frames(frames) * 2
+    g = _two_cameras(frames, warp_backend)
+    try:
+        eager = list(g.stream(cams, depth=3, capture=False))
+        g.reset()
+        got = list(g.stream(cams, depth=3, capture=_capture_arg(warp_backend)))
+        assert g.plan.executor().captures > 0
+        for e, c in zip(eager, got):
+            for k in e:
+                assert _same(e[k], c[k]), k
+    finally:
+        g.close()
+
+
+def _blur_chain(frames, gpu, shape=None):
+    """gray -> blur -> blur on the GPU role (one segment), any frame size (None dims)."""
+    g = warpvx.Graph("chain")
+    f = g.input("frame", shape=(None, None, 3), dtype=np.uint8)
+    gray = g.color_convert(f, code="BGR2GRAY", name="gray", target="gpu")
+    b1 = g.gaussian_blur(gray, ksize=(5, 5), sigma=1.2, name="b1", target="gpu")
+    b2 = g.gaussian_blur(b1, ksize=(3, 3), sigma=0.8, name="b2", target="gpu")
+    g.output("out", b2)
+    g.verify({"frame": frames[0]})
+    g.schedule("baseline", n_cpus=1, gpu=gpu)
+    return g
+
+
+def _blur_reference(frame):
+    import cv2
+
+    gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    return cv2.GaussianBlur(cv2.GaussianBlur(gray, (5, 5), 1.2), (3, 3), 0.8)
+
+
+def test_other_shape_runs_eagerly_then_replays(frames, warp_backend):
+    """Another frame size is another signature: its nodes' out= buffers are sized by
+    verification, so they run eagerly (correct, no error); back at the first size the
+    first capture replays without a new one."""
+    g = _blur_chain(frames, warp_backend)
+    cap = _capture_arg(warp_backend)
+    small = [np.ascontiguousarray(f[: f.shape[0] // 2, : f.shape[1] // 2]) for f in frames]
+    try:
+        ex = g.plan.executor()
+        for f in frames[:3]:
+            np.testing.assert_array_equal(g.process(f, capture=cap)["out"], _blur_reference(f))
+        assert ex.captures == 1
+        for f in small * 2:
+            np.testing.assert_array_equal(g.process(f, capture=cap)["out"], _blur_reference(f))
+        assert ex.captures == 1
+        for f in frames:
+            np.testing.assert_array_equal(g.process(f, capture=cap)["out"], _blur_reference(f))
+        assert ex.captures == 1
+    finally:
+        g.close()
+
+
+def test_capture_is_off_by_default_on_warp_cpu(frames):
+    g = _blur_chain(frames, "warp-cpu")
+    try:
+        for f in frames:
+            np.testing.assert_array_equal(g.process(f)["out"], _blur_reference(f))
+        assert g.plan.executor().captures == 0
+    finally:
+        g.close()
+
+
+def test_capture_inside_a_callers_capture_falls_back(frames):
+    """A frame run while Warp is already capturing on the device: the executor's capture
+    fails (nested) and its segments run eagerly: no error, right outputs."""
+    wp = warpvx.backend.init_warp()
+    g = _blur_chain(frames, "warp-cpu")
+    try:
+        ex = g.plan.executor()
+        g.process(frames[0], capture=True)  # the eager first sighting
+        with wp.ScopedCapture(device="cpu"):
+            # The GPU thread's capture is refused (one capture at a time on Warp's CPU
+            # device); the frame's kernels are recorded into the caller's capture instead.
+            g.process(frames[1], capture=True)
+        assert ex.captures == 0
+    finally:
+        g.close()
+
+
+def test_cancelled_stream_then_captured_frames(frames, warp_backend):
+    """Closing a stream with captured frames in flight cancels them without a hang; the
+    graph runs (and replays) correctly after."""
+    g = _blur_chain(frames, warp_backend)
+    cap = _capture_arg(warp_backend)
+    try:
+        s = g.stream(frames * 3, depth=4, capture=cap)
+        np.testing.assert_array_equal(next(s)["out"], _blur_reference(frames[0]))
+        next(s)
+        s.close()
+        assert g.plan.executor().in_flight == 0
+        for f in frames:
+            np.testing.assert_array_equal(g.process(f, capture=cap)["out"], _blur_reference(f))
+        assert g.plan.executor().captures == 1
+    finally:
+        g.close()
+
+
+ERROR_SNIPPET = """
+import numpy as np, warpvx
+from tests.images import bgr
+from warpvx.errors import NodeExecutionError
+frame = np.ascontiguousarray(bgr("astronaut")[:96, :128])
+calls, armed = [], []
+def check(b):
+    calls.append(1)
+    if armed and len(calls) == 4:
+        raise ValueError("boom in a CPU node")
+    return float(b.mean())
+g = warpvx.Graph("err")
+f = g.input("frame", shape=frame.shape, dtype=np.uint8)
+gray = g.color_convert(f, code="BGR2GRAY", name="gray", target="gpu")
+blur = g.gaussian_blur(gray, ksize=(5, 5), sigma=1.2, name="blur", target="gpu")
+g.output("m", g.user(check, [blur], "m", name="check"))
+g.verify({"frame": frame})
+g.schedule("baseline", n_cpus=1, gpu=GPU)
+calls.clear()
+armed.append(True)
+try:
+    for _ in g.stream([frame] * 8, depth=3, capture=CAPTURE):
+        pass
+except NodeExecutionError as e:
+    assert isinstance(e.__cause__, ValueError), e
+    print("raised", g.plan.executor().captures)
+out = g.process(frame, capture=CAPTURE)["m"]
+print("after", out == float(warpvx.gaussian_blur(warpvx.color_convert(frame, code="BGR2GRAY"),
+                                                 ksize=(5, 5), sigma=1.2).mean()))
+g.close()
+"""
+
+
+def test_error_in_cpu_node_reaches_caller_without_hang(warp_backend):
+    code = ERROR_SNIPPET.replace("GPU", repr(warp_backend)).replace(
+        "CAPTURE", repr(_capture_arg(warp_backend)))
+    res = run_python(code, timeout=240)
+    assert res.returncode == 0, res.stderr[-3000:]
+    lines = res.stdout.split("\n")
+    assert "raised 1" in lines, res.stdout  # the gray+blur segment was captured, then the error
+    assert "after True" in lines, res.stdout
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_copy_device_copies_the_bytes(warp_backend, native):
+    """The copy a captured segment uses in and out of its fixed buffers: native entry point
+    and Warp's public fallback give the source's bytes."""
+    from warpvx.backend import resolve_backend
+    from warpvx.runtime.native_copy import copy_device
+
+    wp = warpvx.backend.init_warp()
+    device = resolve_backend(warp_backend).device
+    host = np.random.default_rng(5).random((7, 9)).astype(np.float32)
+    src = wp.array(host, device=device)
+    dst = wp.zeros_like(src)
+    copy_device(dst, src, native=native)
+    np.testing.assert_array_equal(dst.numpy(), host)

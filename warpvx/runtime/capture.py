@@ -1,0 +1,320 @@
+"""CUDA-graph capture of GPU segments: consecutive GPU tasks enqueued as one graph launch.
+
+A *segment* is a run of consecutive tasks of the GPU queue (schedule order) that may be
+captured (:attr:`ExecTask.capture`: given ``out=``, the task only enqueues work on the
+current stream), cut wherever a task reads a value a CPU task produces (a CPU hand-off: the
+segment is replayed once all its inputs are there, so a hand-off inside it would hold the
+earlier tasks back). Every other GPU task is a segment of its own, run eagerly.
+:func:`segments` is the pure rule; :class:`SegmentGraph` is one segment captured for one
+input signature (the shapes and dtypes of a frame's inputs): fixed buffers and the graph.
+
+Buffers are static, as a CUDA graph holds pointers: each input the segment reads from
+outside (a graph input, a CPU task's output, an eager GPU task's, a delay's) is copied into
+a fixed device buffer before the replay, each task writes a fixed output buffer
+(``gpu_out``), and each value read outside the segment (by another task, as a graph output,
+by a delay) is copied out into a buffer of the frame's after it, as frames in flight share
+the fixed buffers. Copies and replay run on the executor's stream, in frame order.
+
+Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
+code runs there when asked (``capture=True``), which is how it is tested without a GPU.
+
+Limits: Warp's current stream belongs to the device, not the thread, so Warp work another
+thread enqueues on the GPU role's device while a segment is being captured (once per
+segment and signature, on the GPU thread) would land in the graph; the executor's own
+threads enqueue none then (their copies use their own streams and Warp's native entry
+points, and the legacy-stream event of a device input waits for the capture to end). On
+Warp's CPU device a capture is process-wide, hence opt-in there.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .native_copy import copy_device, is_warp_array, to_device, warp
+from .program import InputRef, Program
+from .slots import DEVICE, Slot
+from .timeline import Frame
+
+#: Input signatures (shapes and dtypes of a frame's inputs) whose captures an executor keeps.
+MAX_SIGNATURES = 4
+
+
+class NotCapturable(Exception):
+    """A segment cannot be captured (a value is no single array, a task allocated its result
+    or a capture failed); the executor runs it eagerly."""
+
+
+@dataclass(frozen=True)
+class Segment:
+    """GPU tasks run together.
+
+    Attributes
+    ----------
+    tasks : tuple of ExecTask
+        In GPU queue order.
+    captured : bool
+        A capture candidate; False: one task, run eagerly.
+    inputs : tuple of InputRef
+        What its tasks read from outside it, each once, in order of first use.
+    outputs : tuple of str
+        Keys it produces that are read outside it (by other tasks, as graph outputs, by
+        delays): copied out of the fixed buffers each frame.
+    """
+
+    tasks: tuple
+    captured: bool
+    inputs: tuple = ()
+    outputs: tuple = ()
+
+
+def segments(program: Program, gpu_order) -> list:
+    """Split the GPU queue ``gpu_order`` (task names in schedule order) into :class:`Segment`s.
+
+    A task with ``capture`` joins the current segment unless it reads (at any frame offset)
+    a key produced by a task outside the GPU queue (a CPU hand-off), which starts a new one;
+    a task without ``capture`` is an eager segment of its own and ends the current one.
+    """
+    on_gpu = set(gpu_order)
+    cpu_keys = {k for t in program.tasks.values() if t.name not in on_gpu for k in t.outputs}
+    groups, current = [], []
+    for name in gpu_order:
+        task = program.tasks[name]
+        if not (task.capture and task.gpu_out is not None and len(task.outputs) == 1):
+            if current:
+                groups.append(current)
+                current = []
+            groups.append([task])
+            continue
+        if current and any(r.key in cpu_keys for r in task.inputs):
+            groups.append(current)
+            current = []
+        current.append(task)
+    if current:
+        groups.append(current)
+    return [_segment(program, g) for g in groups]
+
+
+def _segment(program: Program, tasks: list) -> Segment:
+    first = tasks[0]
+    if not (first.capture and first.gpu_out is not None and len(first.outputs) == 1):
+        return Segment((first,), False)
+    names = {t.name for t in tasks}
+    made = {k for t in tasks for k in t.outputs}
+    inputs = []
+    for t in tasks:
+        for r in t.inputs:
+            if (r.offset or r.key not in made) and r not in inputs:
+                inputs.append(r)
+    outside = {r.key for t in program.tasks.values() if t.name not in names for r in t.inputs}
+    outside |= set(program.outputs.values()) | set(program.rings)
+    outputs = tuple(k for t in tasks for k in t.outputs if k in outside)
+    return Segment(tuple(tasks), True, tuple(inputs), outputs)
+
+
+def signature(inputs) -> tuple:
+    """The capture key of a frame's inputs (key -> ``(value, where)``): shapes and dtypes."""
+    return tuple((k, getattr(v, "shape", None), str(getattr(v, "dtype", type(v))))
+                 for k, (v, _) in inputs.items())
+
+
+def _workspaces() -> list:
+    """The kernels' cached scratch state (buffers, recorded launches) alive now. A graph holds
+    the raw pointers its kernels were captured with, so it keeps these alive: the kernels'
+    cache may drop them (least recently used) while the graph still replays."""
+    from ..kernels_warp import _launch
+
+    with _launch._workspaces_lock:
+        return list(_launch._WORKSPACES.values())
+
+
+def _single_array(value):
+    if not (isinstance(value, np.ndarray) or is_warp_array(value)):
+        raise NotCapturable(f"a segment input is a {type(value).__name__}, not one array")
+    return value
+
+
+class SegmentGraph:
+    """A :class:`Segment` captured for one input signature: fixed buffers and its graph.
+
+    Parameters
+    ----------
+    segment : Segment
+    values : list
+        The current frame's values of ``segment.inputs`` (arrays: host or device), which
+        fix the input buffers' shapes and dtypes.
+    device : str
+        Warp device of the GPU role.
+    """
+
+    def __init__(self, segment: Segment, values, device: str):
+        wp = warp()
+        self.segment = segment
+        self.inputs = {}
+        for ref, v in zip(segment.inputs, values):
+            v = _single_array(v)
+            dtype = v.dtype if is_warp_array(v) else wp.dtype_from_numpy(v.dtype)
+            self.inputs[ref] = wp.empty(v.shape, dtype=dtype, device=device)
+        self.outputs = {t.outputs[0]: t.gpu_out() for t in segment.tasks}
+        self.graph = None
+        self.scratch = ()
+
+    def value(self, ref: InputRef):
+        """The fixed buffer a task of the segment reads for ``ref``."""
+        if ref.offset == 0 and ref.key in self.outputs:
+            return self.outputs[ref.key]
+        return self.inputs[ref]
+
+    def capture(self, device: str, stream):
+        """Capture the segment's tasks writing the fixed buffers (``stream``: CUDA only).
+
+        Raises
+        ------
+        NotCapturable
+            A task did not return its ``out=`` buffer (it allocated), or Warp refused or
+            failed the capture (a host sync or read-back inside, a caller's capture).
+        """
+        wp = warp()
+        try:
+            with wp.ScopedCapture(device=device, stream=stream) as cap:
+                for task in self.segment.tasks:
+                    out = self.outputs[task.outputs[0]]
+                    if task.gpu(*[self.value(r) for r in task.inputs], out=out) is not out:
+                        raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
+        except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
+            raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
+        if cap.graph is None:
+            raise NotCapturable("the capture produced no graph")
+        self.graph = cap.graph
+        self.scratch = _workspaces()
+
+
+    def fill(self, ref: InputRef, value, io, stream):
+        """Copy this frame's ``value`` of ``ref`` into its fixed buffer (on ``stream``)."""
+        buf = self.inputs[ref]
+        _single_array(value)
+        if tuple(value.shape) != tuple(buf.shape):
+            raise NotCapturable(f"input {ref.key!r}: shape {value.shape} != {buf.shape}")
+        if is_warp_array(value) and value.device != buf.device:
+            value = value.numpy()
+        if is_warp_array(value):
+            copy_device(buf, value, stream)
+        elif buf.device.is_cuda:
+            io.upload(value, lambda shape, dtype: buf)
+        else:  # Warp's CPU device: uploads alias host data; the buffer must be written
+            to_device(buf, np.ascontiguousarray(value))
+            io.moved += value.nbytes
+
+    def launch(self, stream):
+        warp().capture_launch(self.graph, stream=stream)
+
+
+class SegmentRunner:
+    """The executor's captured segments: a mixin of :class:`~warpvx.runtime.Executor`, whose
+    frames' slots, timing events, buffer pools and stream it uses."""
+
+    def _captures_of(self, frame: Frame) -> list:
+        """The capture states of ``frame``'s input signature, one per segment: 0 unseen, 1
+        run eagerly once (caches warm), a :class:`SegmentGraph`, or None (not capturable)."""
+        states = self._captured.get(frame.signature)
+        if states is None:
+            states = self._captured[frame.signature] = [0] * len(self._segments)
+            while len(self._captured) > MAX_SIGNATURES:
+                self._captured.popitem(last=False)
+        else:
+            self._captured.move_to_end(frame.signature)
+        return states
+
+    def _segment_graph(self, states: list, i: int, seg: Segment, frame: Frame, state):
+        """Segment ``i``'s graph for this frame's signature, captured on its second sighting
+        (the first, eager, loads the kernels and fills the primitives' caches, so nothing
+        allocates inside the capture); None: run it eagerly."""
+        sg = states[i]
+        if sg is None or isinstance(sg, SegmentGraph):
+            return sg
+        if sg == 0:
+            states[i] = 1
+            return None
+        slots = [self._wait(frame, self._slot(frame, r), state) for r in seg.inputs]
+        try:
+            sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
+            with self._capture_lock:
+                sg.capture(self.gpu_device, self._stream)
+        except NotCapturable:
+            states[i] = None
+            return None
+        self.captures += 1
+        states[i] = sg
+        state.prev_end = None  # the stream idled while the host captured
+        return sg
+
+    def _wait(self, frame: Frame, slot: Slot, state) -> Slot:
+        if not slot.done.is_set():
+            state.waited = True
+            frame.wait_slot(slot, self._closing, self.spin)
+        return slot
+
+    def _run_segment(self, frame: Frame, seg: Segment, sg: SegmentGraph, state):
+        """Replay ``sg``: inputs copied into its fixed buffers, one graph launch, the values
+        read outside it copied out into the frame's buffers; one timing interval, shared by
+        its tasks in proportion to their scheduled durations."""
+        state.task = seg.tasks[0].name
+        cuda = self.cuda
+        io = state.io
+        state.waited = False
+        slots = [self._wait(frame, self._slot(frame, r), state) for r in seg.inputs]
+        h0 = time.perf_counter()
+        ev0 = self._start_event(frame, state, slots, state.waited) if cuda else h0
+        before = io.moved
+        for ref, s in zip(seg.inputs, slots):
+            sg.fill(ref, s.value, io, self._stream)
+        if io.moved > before:
+            frame.copied[seg.tasks[0].name] = io.moved - before
+        sg.launch(self._stream)
+        outs = dict(sg.outputs)
+        for key in seg.outputs:
+            fixed = sg.outputs[key]
+            outs[key] = self._lease_upload(frame, key, fixed.shape, fixed.dtype)
+            copy_device(outs[key], fixed, self._stream)
+        ev1 = self._end_event(frame) if cuda else None
+        h1 = time.perf_counter()
+        for task in seg.tasks:
+            key = task.outputs[0]
+            frame.slots[key].set(outs[key], DEVICE, ev1)
+            lo, hi = frame.shares[task.name] = self._shares[task.name]
+            frame.trace[task.name] = (state.proc, ev0, ev1, None) if cuda else \
+                (state.proc, h0, h1, None)
+            frame.host_trace[task.name] = (h0 + lo * (h1 - h0), h0 + hi * (h1 - h0))
+        state.prev_end = ev1
+
+    def _copy_rule(self, seg: Segment, key: str) -> str:
+        """When the copy of ``key`` a captured segment makes for its frame may be reused
+        (:meth:`_reuse_rule` over the tasks outside ``seg`` that read it)."""
+        inside = {t.name for t in seg.tasks}
+        readers = [t.name for t in self.program.tasks.values() if t.name not in inside
+                   and any(r.key == key for r in t.inputs)]
+        return self._reuse_rule(self._data, readers, [key])
+
+    def _segment_shares(self) -> dict:
+        """task -> (start, end) fractions of its captured segment's measured interval, in
+        proportion to the schedule's durations (a replay is timed as a whole)."""
+        shares = {}
+        for seg in self._segments:
+            if not seg.captured:
+                continue
+            spans = [max(0.0, self.schedule.tasks[t.name].finish - self.schedule.tasks[t.name].start)
+                     for t in seg.tasks]
+            total = sum(spans)
+            spans = spans if total > 0 else [1.0] * len(spans)
+            total = sum(spans)
+            at = 0.0
+            for task, span in zip(seg.tasks, spans):
+                shares[task.name] = (at / total, (at + span) / total)
+                at += span
+        return shares
+
+
+__all__ = ["MAX_SIGNATURES", "NotCapturable", "Segment", "SegmentGraph", "SegmentRunner", "segments",
+           "signature"]
