@@ -96,17 +96,20 @@ def score_pixels(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo), 
 def suppress_pixels(levels: wp.array(dtype=LevelInfo), n_levels: int,
                     row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int32),
                     batch: int, n_pixels: int, scores: wp.array(dtype=wp.uint8), ini_th: int,
-                    cells_at: int, region: int, counters: wp.array2d(dtype=wp.int32),
-                    survivors: wp.array2d(dtype=wp.int64)):
+                    cells_at: int, region: int, counters: wp.array(dtype=wp.int32),
+                    survivors: wp.array(dtype=wp.int64)):
     """OpenCV's strict 3x3 maximum within the cell: append the survivors (candidate keys) to
     the region of stripe i % N_STRIPES, and count those >= ``ini_th`` per cell. Pixels as in
-    ``score_pixels``; most score 0 and return first."""
+    ``score_pixels``; most score 0 and return first. ``counters`` and ``survivors`` are the
+    batch's [B, n] buffers seen flat (1-D arrays only: Warp's CPU device then runs the kernel
+    with constant strides, 2x faster here)."""
     t = wp.tid()
     s = int(scores[t])
     if s == 0:
         return
     b = batch_image(t, batch, n_pixels)
     i = t - b * n_pixels
+    n_counters = counters.shape[0] // batch
     level = level_holding(i, levels, n_levels, False)
     info = levels[level]
     w = info.width
@@ -126,12 +129,12 @@ def suppress_pixels(levels: wp.array(dtype=LevelInfo), n_levels: int,
                         return
     cell = cr * info.n_cols + cc
     if s >= ini_th:
-        wp.atomic_add(counters, b, cells_at + info.cell + cell, 1)
+        wp.atomic_add(counters, b * n_counters + cells_at + info.cell + cell, 1)
     stripe = i % N_STRIPES
-    slot = wp.atomic_add(counters, b, C_SURV_R + stripe, 1)
+    slot = wp.atomic_add(counters, b * n_counters + C_SURV_R + stripe, 1)
     # Past the capacity the count still grows: pad_paths flags it, the frame takes extract_host.
     if slot < region:
-        survivors[b, stripe * region + slot] = candidate_key(level, cell, y, x, s)
+        survivors[(b * N_STRIPES + stripe) * region + slot] = candidate_key(level, cell, y, x, s)
 
 
 @wp.kernel

@@ -182,6 +182,9 @@ class OrbPlan:
         self.counters = wp.zeros((batch, n_counters), dtype=wp.int32, device=dev)
         cap = self.cand_cap
         self.survivors = wp.empty((batch, self.surv_cap), dtype=wp.int64, device=dev)
+        # Flat views for suppress_pixels (see there).
+        self.counters_flat = self.counters.flatten()
+        self.survivors_flat = self.survivors.flatten()
         self.cand = wp.empty((batch, cap), dtype=wp.int64, device=dev)
         self.paths = wp.empty((batch, cap), dtype=wp.int64, device=dev)
         # The radix sorts take flat arrays of twice the count; the kernels see the first half
@@ -264,7 +267,7 @@ class OrbPlan:
         wp.launch(suppress_pixels, dim=batch * self.n_pixels,
                   inputs=[self.level_info, n_levels, self.row_of_y, self.col_of_x, batch,
                           self.n_pixels, self.scores, ini_th, self.cells_at, self.surv_region],
-                  outputs=[self.counters, self.survivors], device=dev)
+                  outputs=[self.counters_flat, self.survivors_flat], device=dev)
         wp.launch(select_candidates, dim=(batch, self.surv_cap),
                   inputs=[self.survivors, self.surv_region, self.level_info, self.roots, ini_th,
                           min_th, self.cells_at, self.cand_region, self.digits, self.root_bits,
