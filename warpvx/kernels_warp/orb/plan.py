@@ -159,21 +159,21 @@ class OrbPlan:
         # Flat level-major pyramids (funcs.batch_level_image): level l of image b at
         # batch * pix_l + b * w_l * h_l. Views: per image and level (the input, the host path),
         # per level over the whole batch (the resize).
+        def per_image(buf):
+            return [[_view(buf, batch * info.pix + b * info.width * info.height,
+                           (info.height, info.width), wp.uint8) for info in infos]
+                    for b in range(batch)]
+
+        def per_level(buf):
+            return [_view(buf, batch * info.pix, (batch * info.height, info.width), wp.uint8)
+                    for info in infos]
+
         self.pyr = wp.empty(batch * pix, dtype=wp.uint8, device=dev)
         self.blurred = wp.empty(batch * pix, dtype=wp.uint8, device=dev)
-        self.images = [[_view(self.pyr, batch * info.pix + b * info.width * info.height,
-                              (info.height, info.width), wp.uint8) for info in infos]
-                       for b in range(batch)]
-        self.blurred_images = [[_view(self.blurred, batch * info.pix + b * info.width * info.height,
-                                      (info.height, info.width), wp.uint8) for info in infos]
-                               for b in range(batch)]
+        self.images, self.blurred_images = per_image(self.pyr), per_image(self.blurred)
+        self.blocks, self.blurred_blocks = per_level(self.pyr), per_level(self.blurred)
         self.inputs = _view(self.pyr, 0, (batch, height, width), wp.uint8)
-        blocks = [_view(self.pyr, batch * info.pix, (batch * info.height, info.width), wp.uint8)
-                  for info in infos]
-        self.blocks = blocks
-        self.blurred_blocks = [_view(self.blurred, batch * info.pix,
-                                     (batch * info.height, info.width), wp.uint8)
-                               for info in infos]
+        blocks = self.blocks
         self.resizes = [(level, blocks[level - 1], blocks[level],
                          _batch_resize(sizes[level - 1], sizes[level], batch, dev))
                         for level in range(1, n_levels)]
