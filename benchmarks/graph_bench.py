@@ -19,22 +19,30 @@ Steps, per graph and camera size (default 1280x720 and 1920x1080):
 2. baseline, heft and xeft (calibrated costs) each run ``--frames`` frames one at a time,
    then pipelined (``--depth`` in flight, FPS);
 3. the contention model (:mod:`warpvx.graph.model`) is fitted on the first ``--fit-frames``
-   frames of ``--train`` (baseline), and ``best`` is the schedule it predicts fastest of the
-   baseline, HEFT and XEFT candidates; it runs too;
+   frames of ``--train`` (baseline); ``best`` takes its candidates (baseline, HEFT and XEFT
+   on the calibrated and on the model's costs), runs ``--trial-frames`` frames of each one
+   predicted within 20% of the fastest (the model's error) and keeps the measured fastest;
+   it runs too;
 4. per policy: predicted in sample (its own model on its own first frames) and out of sample
    (the training model on the later frames), errors, and whether best is within 5% of the
    fastest measured; Gantt charts of the prediction over a measured frame
-   (``gantt_<graph>_<size>_<policy>.png``) and of 3 pipelined frames (``..._pipelined.png``);
+   (``gantt_<graph>_<size>_<policy>.png``) and of 3 pipelined frames (``..._pipelined.png``),
+   packed into ``gantt.tar`` (each graph's best chart also beside it: results come back from
+   the GPU machine as at most 8 files);
 5. the executor's per-node overhead with trivial nodes (CPU-only, GPU-only, alternating
    chains) and, with ``--soak N``, N frames pipelined with memory at start and end.
 
-Writes ``graph_bench.json`` and ``graph_bench.md`` (its first line is the command).
+Writes ``graph_bench.json`` and ``graph_bench.md`` (its first line is the command). The JSON
+keeps each policy's fit frames (``fit_frames_data``), per-frame makespans and the contention
+probe, so ``--replay graph_bench.json`` refits the model offline and predicts every policy
+again (no frames run; older results without frames are replayed from node medians).
 
 Usage::
 
     PYTHONPATH=. python benchmarks/graph_bench.py --gpu cuda --out $OUT/graph   # GPU machine
     python benchmarks/graph_bench.py --quick         # anywhere: warp-cpu, 160x120, few frames
     python benchmarks/graph_bench.py --overhead-only # the overhead section alone: overhead.md
+    PYTHONPATH=. python benchmarks/graph_bench.py --replay benchmarks/results/graph/h100-2026-11-24/graph_bench.json
 """
 
 from __future__ import annotations
@@ -52,13 +60,19 @@ import cv2
 import numpy as np
 import warp as wp
 
-import warpvx
-from warpvx.backend import init_warp
-from warpvx.graph import default_n_cpus
-from warpvx.graph.diagnostics import executor_overhead, soak
-from warpvx.runtime import executor
+# This checkout's warpvx, with or without PYTHONPATH=. (an installed one may be older).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import warpvx  # noqa: E402
+from warpvx.backend import init_warp  # noqa: E402
+from warpvx.graph import default_n_cpus  # noqa: E402
+from warpvx.graph.diagnostics import executor_overhead, soak  # noqa: E402
+from warpvx.runtime import executor  # noqa: E402
 
 POLICIES = ("baseline", "heft", "xeft", "best")
+#: Gantt PNGs go to this folder of --out, packed into gantt.tar at the end (results come
+#: back from the GPU machine as at most 8 files); each graph's best chart stays beside it.
+GANTT_DIR = "gantt"
 ROOT = Path(__file__).resolve().parent
 DETECTOR_ITERS = 8
 
@@ -298,7 +312,10 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     for policy in ("baseline", "heft", "xeft"):
         run(policy)
     model = g.fit_model(plans[args.train], runs=seq[args.train][:fit_n])
-    run("best", model=model)
+    # best: the model's candidates; those it cannot tell apart are tried on a few frames.
+    trial = {"trial_inputs": frames[:args.trial_frames + 1],
+             "trial_frames": args.trial_frames} if args.trial_frames else {}
+    run("best", model=model, **trial)
     rows = []
     for policy in POLICIES:
         plan, runs = plans[policy], seq[policy]
@@ -320,6 +337,10 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
             "placement": plan.placement,
             "metrics": {k: v for k, v in plan.metrics.items() if k != "idle_per_processor"},
             "nodes": node_table(plan, runs[fit_n:]),
+            "fit_nodes": node_table(plan, runs[:fit_n]),
+            "fit_frames_data": [frame_record(r) for r in runs[:fit_n]],
+            "makespans": [r.makespan for r in runs],
+            "trial_ms": plan.schedule.info.get("trial_ms"),
             "copies": copies(runs[fit_n:]),
             "edges": device_edges(plan),
             "own_model": own.summary(),
@@ -328,10 +349,12 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
         plan.prediction = model.predict(plan)
         plan.last_run.clear()
         plan.last_run.extend(runs[fit_n:])
-        plan.gantt(out_dir / f"gantt_{tag}_{policy}.png", title=tag)
+        charts = out_dir / GANTT_DIR
+        charts.mkdir(exist_ok=True)
+        plan.gantt(charts / f"gantt_{tag}_{policy}.png", title=tag)
         plan.last_run.clear()
         plan.last_run.extend(piped[policy])
-        plan.gantt(out_dir / f"gantt_{tag}_{policy}_pipelined.png", frames=3,
+        plan.gantt(charts / f"gantt_{tag}_{policy}_pipelined.png", frames=3,
                    title=f"{tag} (depth {args.depth})")
         r = rows[-1]
         print(f"{tag} {policy:9s} in sample {r['pred_in_ms']:8.3f} vs {r['measured_in_ms']:8.3f} ms "
@@ -347,6 +370,9 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
         "fastest": fastest["policy"],
         "best_vs_fastest_pct": _err(best["measured_out_ms"], fastest["measured_out_ms"]),
         "calibration": plans["baseline"].calibration.nodes,
+        "probe": [[list(k), list(v)] for k, v in
+                  plans[args.train].calibration.contention.get(args.n_cpus, {}).items()],
+        "model_pick": min(best["candidates"], key=best["candidates"].get),
     }
 
 
@@ -404,16 +430,21 @@ def markdown(report) -> str:
         f"pipelined (depth {report['depth']}); OpenCV threads {report['cv_threads']}; GIL "
         f"switch interval {si['chosen'] * 1e3:g} ms; executor spin {si['spin_chosen'] * 1e6:g} us.",
         "",
-        "The contention model (`warpvx.graph.model`): each node's calibrated cost alone plus "
-        "its copies, times an in-frame ratio and a per-node correction, slowed down by "
-        "`1 + a * (other host threads busy)`, with the measured waits between tasks, played "
-        "through a simulation of the executor. *In sample*: each policy's own model, fitted on "
-        "its first frames, against those frames. *Out of sample*: the model fitted on the "
-        "first frames of the training policy only, against the later frames of every policy "
-        "(target: within 20%). *scheduler*: the makespan the policy's own schedule claims "
-        "(isolated calibration). `best` is the schedule the out-of-sample model predicts "
-        "fastest among baseline, HEFT and XEFT on the calibrated DAG and on the model's "
-        "in-frame costs.",
+        "The contention model (`warpvx.graph.model`): each node's calibrated cost alone (a "
+        "GPU node: its host call) times an in-frame ratio plus a fixed cost per task, times a "
+        "per-node correction, plus its copies (the transfer model scaled by what the training "
+        "frames' copies took), slowed down by `1 + a * (other CPU workers busy) + b * (GPU "
+        "host thread busy)`, with the measured waits between tasks by kind of edge, played "
+        "through a simulation of the executor; `a`, `b` from all nodes at once and from a "
+        "contention probe (mixes of the graph's nodes run beside each other). *In sample*: "
+        "each policy's own model, fitted on its first frames, against those frames. *Out of "
+        "sample*: the model fitted on the first frames of the training policy only, against "
+        "the later frames of every policy (target: within 20%). *scheduler*: the makespan the "
+        "policy's own schedule claims (isolated calibration). `best`: the model's candidates "
+        "(baseline, HEFT and XEFT on the calibrated DAG and on the model's in-frame costs); "
+        "those predicted within 20% of the fastest (closer than the model can tell apart) run "
+        f"{report.get('trial_frames', 0)} frames each (after a warm-up frame) and the measured "
+        "fastest is kept.",
         "",
     ]
     for e in report["experiments"]:
@@ -422,11 +453,14 @@ def markdown(report) -> str:
         lines += [
             f"## {e['tag']} ({e['nodes']} nodes)", "",
             f"Trained on {m['trained_on']}; fit frames 1-{e['fit_frames']}, out of sample "
-            f"frames {e['fit_frames'] + 1}-{e['frames']}. Fitted: CPU worker ratio "
-            f"{sd['cpu']['ratio']:.2f}, slowdown per busy thread {sd['cpu']['per_thread']:.2f}; "
-            f"GPU host ratio {sd['gpu']['ratio']:.2f}, slowdown per busy thread "
-            f"{sd['gpu']['per_thread']:.2f}; waits (us) "
-            + ", ".join(f"{k} {v:.1f}" for k, v in m["latency_us"].items()) + ".", "",
+            f"frames {e['fit_frames'] + 1}-{e['frames']}. Fitted: "
+            + "; ".join(f"{pe} ratio {sd[pe]['ratio']:.2f}, fixed {sd[pe].get('overhead_us', 0):.0f} "
+                        f"us, slowdown per busy CPU worker {sd[pe].get('per_cpu', 0):.2f}, while "
+                        f"the GPU host thread is busy {sd[pe].get('per_gpu', 0):.2f}"
+                        for pe in ("cpu", "gpu"))
+            + "; copies x " + ", ".join(f"{k} {v:.2f}" for k, v in m.get("copy_scale", {}).items())
+            + "; waits (us) " + ", ".join(f"{k} {v:.1f}" for k, v in m["latency_us"].items())
+            + ".", "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
             "of sample | measured | error | p90 ms | sequential FPS | pipelined FPS | GPU nodes |",
             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
@@ -441,10 +475,14 @@ def markdown(report) -> str:
                 f"{r['pipelined_fps']:.1f} | {len(r['gpu_nodes'])}: {', '.join(r['gpu_nodes'])} |")
         best = e["policies"][-1]
         within = abs(e["best_vs_fastest_pct"]) <= 5.0
+        trial = best.get("trial_ms")
         lines += ["", f"Fastest measured: {e['fastest']}; best measured "
                       f"{e['best_vs_fastest_pct']:+.1f}% from it ({'within' if within else 'NOT within'} "
                       f"5%). Best's candidates, predicted ms: "
-                      + ", ".join(f"{k} {v:.3f}" for k, v in (best["candidates"] or {}).items()) + ".", ""]
+                      + ", ".join(f"{k} {v:.3f}" for k, v in (best["candidates"] or {}).items())
+                      + f". The model alone would pick {e.get('model_pick', '-')}"
+                      + ("; trial (median ms): " + ", ".join(f"{k} {v:.3f}" for k, v in trial.items())
+                         if trial else "; no trial (one candidate within the margin)") + ".", ""]
         lines += ["Per node (out-of-sample frames of each policy): calibrated alone vs measured in "
                   "the frames (interval without transfers; GPU: device interval), ms:", ""]
         for r in e["policies"]:
@@ -564,6 +602,11 @@ def main(argv=None):
     p.add_argument("--graphs", default="two-cameras,two-cameras-cv",
                    help="two-cameras (16 nodes) and/or two-cameras-cv (more CPU-only OpenCV nodes)")
     p.add_argument("--depth", type=int, default=3, help="frames in flight when pipelined")
+    p.add_argument("--trial-frames", type=int, default=5,
+                   help="frames best runs each candidate the model cannot tell apart (0: no trial)")
+    p.add_argument("--replay", type=Path, default=None,
+                   help="refit the model on a graph_bench.json's recorded per-node medians and "
+                        "print each policy's predicted vs measured makespan (no frames run)")
     p.add_argument("--soak", type=int, default=0, help="also run N frames pipelined, report memory")
     p.add_argument("--soak-seconds", type=float, default=None,
                    help="stop the soak after this long (it reports the frames it ran)")
@@ -588,6 +631,8 @@ def main(argv=None):
     spin_before = executor.SPIN_SECONDS
     cv2.setNumThreads(args.cv_threads)
     try:
+        if args.replay:
+            return replay_main(args)
         return overhead_only(args) if args.overhead_only else _run(args)
     finally:
         cv2.setNumThreads(cv_threads_before)
@@ -652,6 +697,7 @@ def _run(args):
         g.close()
     report = _report(args, cal, n_frames, switch, experiments, overhead, soak_report, t_start)
     _write(out_dir, report)
+    pack_charts(out_dir)
     print(f"wrote {out_dir} in {report['seconds']:.1f} s")
     return report
 
@@ -669,6 +715,7 @@ def _report(args, cal, n_frames, switch, experiments, overhead, soak_report, t_s
         "n_cpus": args.n_cpus,
         "frames": n_frames,
         "depth": args.depth,
+        "trial_frames": args.trial_frames,
         "cv_threads": args.cv_threads,
         "switch_interval": switch,
         "experiments": experiments,
@@ -681,9 +728,146 @@ def _report(args, cal, n_frames, switch, experiments, overhead, soak_report, t_s
     }
 
 
+# --------------------------------------------------------------------------- replay
+
+#: Fields of a task in a recorded frame (graph_bench.json's ``fit_frames_data``).
+FRAME_FIELDS = ("processor", "start_ms", "finish_ms", "transfer_ms", "copied_bytes",
+                "host_start_ms", "host_finish_ms")
+
+
+def frame_record(run) -> dict:
+    """A FrameResult's timeline as JSON: task -> :data:`FRAME_FIELDS` (what the contention
+    model's fit reads), so the fit can be replayed offline."""
+    out = {}
+    for task, t in run.timeline.items():
+        h = run.host.get(task, (None, None))
+        out[task] = [t.processor, t.start, t.finish, run.transfers.get(task, 0.0),
+                     run.copied.get(task, 0), h[0], h[1]]
+    return out
+
+
+def recorded_frame(record: dict):
+    """:func:`frame_record` back to a FrameResult."""
+    from warpvx.runtime.timeline import FrameResult
+    from warpvx.sched.schedule import ScheduledTask
+
+    timeline, transfers, copied, host = {}, {}, {}, {}
+    for task, (proc, s, f, tr, nb, h0, h1) in record.items():
+        timeline[task] = ScheduledTask(task, proc, s, f)
+        transfers[task], copied[task] = tr, nb
+        if h0 is not None:
+            host[task] = (h0, h1)
+    return FrameResult(0, {}, timeline, 0.0, transfers, copied, host)
+
+
+
+def replay_frame(table: dict):
+    """A FrameResult rebuilt from a policy's recorded per-node medians (``nodes`` of
+    graph_bench.json): each node's interval from its median start, its median measured
+    time plus transfers; a GPU node's host call from the same start for its median host
+    time (no copied bytes: the caller works them out)."""
+    record = {}
+    for n, t in table.items():
+        s, host = t["start_ms"], t["host_ms"]
+        record[n] = [t["pe"], s, s + t["measured_ms"] + t["transfer_ms"], t["transfer_ms"], 0,
+                     None if host is None else s, None if host is None else s + host]
+    return recorded_frame(record)
+
+
+def replay(report: dict, train: str = "baseline") -> list:
+    """Refit the contention model offline on ``train``'s recorded fit frames
+    (``fit_frames_data`` and the contention ``probe``; results older than those: one frame
+    rebuilt from its later frames' node medians, no probe) and predict every policy's
+    recorded plan. Rows: tag, policy, predicted ms, measured ms (later frames), error %, and
+    ``pooled``: the error against the mean measured makespan of every policy that ran the
+    same schedule (identical plans measured in separate runs differ by up to 25% on the
+    H100, a noise floor no model can beat per run)."""
+    import types
+
+    from warpvx.graph.calibration import TransferModel
+    from warpvx.graph.model import copied_bytes, fit, graph_reads
+    from warpvx.sched.schedule import Schedule, ScheduledTask
+
+    tm = report["transfer"]
+    transfer = TransferModel(tm["h2d_latency_ms"], 1e-6 / tm["h2d_gbps"],
+                             tm["d2h_latency_ms"], 1e-6 / tm["d2h_gbps"])
+    procs = ["gpu"] + [f"cpu{i}" for i in range(report["n_cpus"])]
+    rows = []
+    for e in report["experiments"]:
+        w, h = (int(v) for v in e["tag"].rsplit("_", 1)[1].split("x"))
+        g = build_graph((w, h), max_corners=200 if report["mode"] == "quick" else 500,
+                        cpu_heavy=e["graph"] == "two-cameras-cv")
+        g.verify(make_frames((w, h), 2))
+        reads = graph_reads(g)
+        cal = types.SimpleNamespace(nodes=e["calibration"], gpu=report["gpu"], transfer=transfer,
+                                    dispatch=report["dispatch"])
+        src = next(p for p in e["policies"] if p["policy"] == train)
+        placement = src["placement"]
+        if src.get("fit_frames_data"):
+            frames = [recorded_frame(r) for r in src["fit_frames_data"]]
+        else:  # older results: one frame rebuilt from the node medians
+            table = src["nodes"]
+            frames = [replay_frame(table)]
+            frames[0].copied.update(copied_bytes(
+                reads, placement, sorted(table, key=lambda n: table[n]["start_ms"])))
+        probe = {tuple(k): tuple(v) for k, v in e.get("probe") or []}
+        model = fit(cal, reads, frames, placement, policy=train, probe=probe)
+        same = defaultdict(list)
+        for p in e["policies"]:
+            same[_plan_key(p)].append(p["measured_out_ms"])
+        for p in e["policies"]:
+            sch = Schedule({n: ScheduledTask(n, t["pe"], t["planned_start_ms"],
+                                             t["planned_start_ms"] + t["planned_ms"])
+                            for n, t in p["nodes"].items()}, procs)
+            pred = model.makespan(sch)
+            pooled = statistics.mean(same[_plan_key(p)])
+            rows.append({"tag": e["tag"], "policy": p["policy"], "pred_ms": pred,
+                         "measured_ms": p["measured_out_ms"],
+                         "error_pct": _err(pred, p["measured_out_ms"]),
+                         "pooled_ms": pooled, "pooled_error_pct": _err(pred, pooled)})
+    return rows
+
+
+def _plan_key(p) -> tuple:
+    """A policy's placement and per-processor order (identical plans share it)."""
+    return tuple(sorted((t["pe"], t["planned_start_ms"], n) for n, t in p["nodes"].items()))
+
+
+def replay_main(args):
+    report = json.loads(args.replay.read_text())
+    rows = replay(report, args.train)
+    lines = [f"Replay of {args.replay} (trained on {args.train}'s recorded node medians)", "",
+             "| experiment | policy | predicted ms | measured ms | error | same plan, mean of runs | error |",
+             "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
+    lines += [f"| {r['tag']} | {r['policy']} | {r['pred_ms']:.3f} | {r['measured_ms']:.3f} | "
+              f"{r['error_pct']:+.1f}% | {r['pooled_ms']:.3f} | {r['pooled_error_pct']:+.1f}% |"
+              for r in rows]
+    text = "\n".join(lines)
+    print(text)
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "replay.md").write_text(f"Regenerate: `{args.command}`\n\n{text}\n")
+    return rows
+
+
 def _write(out_dir, report):
     (out_dir / "graph_bench.json").write_text(json.dumps(report, indent=1, default=str))
     (out_dir / "graph_bench.md").write_text(markdown(report))
+
+
+def pack_charts(out_dir):
+    """Pack the Gantt folder into gantt.tar; each experiment's best chart stays beside it."""
+    import shutil
+    import tarfile
+
+    charts = out_dir / GANTT_DIR
+    if not charts.is_dir():
+        return
+    for png in charts.glob("gantt_*_best.png"):
+        shutil.copy(png, out_dir / png.name)
+    with tarfile.open(out_dir / "gantt.tar", "w") as tar:
+        tar.add(charts, arcname=GANTT_DIR)
+    shutil.rmtree(charts)
 
 
 if __name__ == "__main__":

@@ -5,22 +5,30 @@ poses; KITTI-like camera, stereo baseline 0.54 m), so no data set is needed; its
 replayed forward and back to make long runs with continuous motion. Frames are in host memory;
 reading PNGs is timed separately. Measured, side by side in one run:
 
-1. extraction + matching: the graph ``orb -> match_hamming(descriptors, previous descriptors)``
-   pipelined (``stream(depth=3)``) on the backend (target 1000+ FPS on an H100);
-2. the front end end to end (warpvx.apps.orbslam, monocular and stereo), pipelined;
+1. extraction + matching pipelined (``stream(depth=3)``) on the backend (target 1000+ FPS on an
+   H100), two ways: the front end's ``match`` node (nearest rows both ways on the device, rows
+   padded so the matcher's buffers are reused, no host sync; the mutual pairs kept by a CPU
+   node) and, as before, the ``match_hamming`` primitive with cross-check (one host sync per
+   frame for the match count);
+2. the front end end to end (warpvx.apps.orbslam, monocular and stereo), pipelined, with the
+   median time of each node (ms, from the executor's timelines: compute, transfers, and the
+   GPU thread's host time per GPU node);
 3. the OpenCV-only monocular baseline (``cv2.ORB_create(2000, 1.2, 8)``, ``BFMatcher`` with
    cross-check, ``findEssentialMat`` + ``recoverPose``) with OpenCV on all cores, serial, and
    with extraction spread over a thread pool of all cores (matching and pose in order);
 4. accuracy (ATE, RPE) of each on the rendered sequence, the scheduler's placement and
    predicted vs measured makespan, and a Gantt chart of 3 pipelined frames.
 
-Writes ``orbslam_bench.json``, ``orbslam_bench.md``, ``gantt_mono.png``, ``gantt_stereo.png``
-into ``$OUT`` (or ``--out``).
+Accuracy also on ViSP's castle_simu (monocular, warpvx vs the baseline) when
+``../shared/data/real/castle_simu`` (or ``--castle``) exists.
+
+Writes ``orbslam_bench.json``, ``orbslam_bench.md`` (the command that regenerates it at its
+top), ``gantt_mono.png``, ``gantt_stereo.png`` into ``--out`` (default ``$OUT/orbslam``).
 
 Usage::
 
-    PYTHONPATH=. python benchmarks/orbslam_bench.py                  # GPU machine (cuda), < 4 min
-    PYTHONPATH=. python benchmarks/orbslam_bench.py --quick          # anywhere: warp-cpu, few frames
+    PYTHONPATH=. python benchmarks/orbslam_bench.py --out $OUT/orbslam   # GPU machine (cuda), < 3 min
+    PYTHONPATH=. python benchmarks/orbslam_bench.py --quick              # anywhere: warp-cpu, few frames
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ import statistics
 import sys
 import tempfile
 import time
+import traceback
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -43,7 +52,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import warpvx  # noqa: E402
 from warpvx.apps import orbslam as o  # noqa: E402
 from warpvx.apps import trajectory_eval as te  # noqa: E402
+from warpvx.apps.orbslam_match import add_match_node, mutual_pairs  # noqa: E402
 from warpvx.apps.orbslam_synth import render_sequence  # noqa: E402
+
+# ../shared/data next to the repository (the main checkout), else the dev machine's copy.
+CASTLE = next((p for p in (Path(__file__).resolve().parents[2] / "shared", Path("/work/shared"))
+               if (p / "data" / "real" / "castle_simu").is_dir()), Path("/work/shared")) \
+    / "data" / "real" / "castle_simu"
 
 
 def replay(frames, n):
@@ -56,13 +71,26 @@ def fps(n, seconds):
     return n / seconds if seconds > 0 else float("inf")
 
 
-def bench_extract_match(images, backend, depth=3):
+def _pairs_node(prev_n, kps, nearest, distance, back):
+    """The CPU side of the ``match`` node's matching: (this frame's keypoint count, pairs)."""
+    n = len(kps)
+    return n, mutual_pairs(nearest, distance, back, n, prev_n)[0]
+
+
+def bench_extract_match(images, backend, primitive, depth=3):
+    """Pipelined FPS of ORB + frame-to-frame matching (pairs on the host each frame)."""
     g = warpvx.Graph("orb_match")
     h, w = images[0].shape
     image = g.input("image", shape=(h, w), dtype=np.uint8)
     pin = None if backend == "cpu" else "gpu"
     kps, desc = g.orb(image, name="orb", target=pin)
-    pairs, _ = g.match_hamming(desc, g.delay(desc)[-1], cross_check=True, name="match", target=pin)
+    if primitive:
+        pairs, _ = g.match_hamming(desc, g.delay(desc)[-1], cross_check=True, name="match", target=pin)
+    else:
+        count = g.virtual("count")
+        nearest = add_match_node(g, desc, target=pin)
+        _, pairs = g.user(_pairs_node, [g.delay(count, init=0)[-1], kps, *nearest], [count, "pairs"],
+                          name="pairs")
     g.output("pairs", pairs)
     g.verify([{"image": images[0]}, {"image": images[1]}])
     plan = g.schedule("best", gpu=False if backend == "cpu" else backend)
@@ -71,7 +99,21 @@ def bench_extract_match(images, backend, depth=3):
         t = time.perf_counter()
         n = sum(1 for _ in g.stream(({"image": im} for im in images), depth=depth))
         dt = time.perf_counter() - t
-    return {"fps": fps(n, dt), "frames": n, "placement": plan.placement}
+    return {"fps": fps(n, dt), "frames": n, "placement": plan.placement, "stages_ms": stage_ms(plan)}
+
+
+def stage_ms(plan) -> dict:
+    """Median per node over the plan's last frames (ms): its interval, the copies in it, and
+    for GPU nodes the GPU thread's host time (enqueue plus syncs)."""
+    runs = list(plan.last_run)
+    out = {}
+    for task in runs[0].timeline if runs else ():
+        row = {"ms": statistics.median(r.timeline[task].finish - r.timeline[task].start for r in runs),
+               "transfer_ms": statistics.median(r.transfers.get(task, 0.0) for r in runs)}
+        if all(task in r.host for r in runs):
+            row["host_ms"] = statistics.median(r.host[task][1] - r.host[task][0] for r in runs)
+        out[task] = {k: round(v, 3) for k, v in row.items()}
+    return out
 
 
 def bench_frontend(frames, camera, backend, out, name, depth=3):
@@ -88,7 +130,7 @@ def bench_frontend(frames, camera, backend, out, name, depth=3):
         summary["gantt_error"] = str(exc)
     track_ms = statistics.median(f.stats["track_ms"] for f in res)
     return {"fps": fps(len(res), dt), "frames": len(res), "track_ms_median": track_ms,
-            "plan": summary}, np.array([f.pose for f in res])
+            "stages_ms": stage_ms(plan), "plan": summary}, np.array([f.pose for f in res])
 
 
 def bench_opencv(images, K):
@@ -123,6 +165,34 @@ def accuracy(est, gt, with_scale):
             "rpe1_r_deg": r["rpe"]["delta_1"]["rot_rmse_deg"]}
 
 
+def castle_accuracy(folder, backend):
+    """Monocular accuracy on castle_simu (KITTI layout): warpvx and the OpenCV baseline."""
+    from warpvx.apps.orbslam_sources import open_source
+
+    seq = open_source(folder)
+    frames = list(seq)
+    gt = te.read_kitti(Path(folder) / "poses.txt")[:len(frames)]
+    est = np.array([f.pose for f in o.track_frames(frames, seq.camera, backend=backend)])
+    base = o.opencv_baseline([f["image"] for f in frames], seq.camera.K)
+    return {"warpvx_mono (Sim3)": accuracy(est, gt, True), "opencv_baseline (Sim3)": accuracy(base, gt, True)}
+
+
+def _stage_table(report, keys):
+    """Markdown rows: per node, median ms (copies, GPU-thread host time) of each run."""
+    tasks = []
+    for k in keys:
+        tasks += [t for t in report[k]["stages_ms"] if t not in tasks]
+    lines = ["| node | " + " | ".join(keys) + " |", "| --- |" + " --- |" * len(keys)]
+    for t in tasks:
+        cells = []
+        for k in keys:
+            v = report[k]["stages_ms"].get(t)
+            cells.append("" if v is None else f"{v['ms']:.2f} (copies {v['transfer_ms']:.2f}"
+                         + (f", host {v['host_ms']:.2f})" if "host_ms" in v else ")"))
+        lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="warp-cpu, 12 unique frames, 30 timed")
@@ -130,15 +200,23 @@ def main(argv=None):
     p.add_argument("--frames", type=int, default=600, help="frames timed (replayed)")
     p.add_argument("--unique", type=int, default=60, help="frames rendered")
     p.add_argument("--size", default="1241x376")
-    p.add_argument("--out", default=os.environ.get("OUT") or "orbslam-bench")
+    p.add_argument("--castle", default=str(CASTLE), help="castle_simu folder (skipped if absent)")
+    p.add_argument("--out", default=os.path.join(os.environ.get("OUT") or ".", "orbslam"),
+                   help="output folder (default: $OUT/orbslam)")
     args = p.parse_args(argv)
     backend = args.backend or ("warp-cpu" if args.quick else "cuda")
     n_unique, n = (12, 30) if args.quick else (args.unique, args.frames)
     size = tuple(int(v) for v in args.size.lower().split("x"))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    report = {"backend": backend, "size": size, "frames_timed": n, "frames_rendered": n_unique,
-              "cpu_count": os.cpu_count(), "opencv": cv2.__version__}
+    command = " ".join(["PYTHONPATH=. python3 benchmarks/orbslam_bench.py",
+                        *(argv if argv is not None else sys.argv[1:])])
+    report = {"command": command, "backend": backend, "size": size, "frames_timed": n,
+              "frames_rendered": n_unique, "cpu_count": os.cpu_count(), "opencv": cv2.__version__}
+    started = time.perf_counter()
+
+    def progress(what, value):
+        print(f"[{time.perf_counter() - started:6.1f} s] {what}: {value}", flush=True)
 
     t = time.perf_counter()
     left, right, K, gt = render_sequence(n_unique, size, baseline=0.54, step=0.25, supersample=1)
@@ -151,48 +229,86 @@ def main(argv=None):
         for path in paths:
             cv2.imread(path, cv2.IMREAD_GRAYSCALE)
         report["png_read_ms_per_frame"] = 1e3 * (time.perf_counter() - t) / n_unique
+    progress("rendered", f"{n_unique} frames in {report['render_s']:.1f} s")
 
     mono = o.Camera(K, size)
     stereo = o.Camera(K, size, 0.54)
     mono_frames = [{"image": im} for im in left]
     stereo_frames = [{"image": a, "right": b} for a, b in zip(left, right)]
-    report["extract_match"] = bench_extract_match(replay(left, n), backend)
-    print("extraction+matching", report["extract_match"]["fps"], "FPS", flush=True)
-    report["frontend_mono"], _ = bench_frontend(replay(mono_frames, n), mono, backend, out, "mono")
-    print("front end mono", report["frontend_mono"]["fps"], "FPS", flush=True)
-    report["frontend_stereo"], _ = bench_frontend(replay(stereo_frames, n), stereo, backend, out, "stereo")
-    print("front end stereo", report["frontend_stereo"]["fps"], "FPS", flush=True)
+    images = replay(left, n)
+    failed = {"fps": float("nan"), "stages_ms": {}, "track_ms_median": float("nan"), "plan": None}
+
+    def attempt(what, fn, fallback):
+        """``fn()``; on an error its traceback, and ``fallback`` with the error, so one broken
+        section does not cost the other numbers of the (single) GPU run."""
+        try:
+            return fn()
+        except Exception as exc:  # noqa: BLE001 - reported in the table and the JSON
+            traceback.print_exc()
+            progress(f"{what} FAILED", exc)
+            return dict(fallback, error=f"{type(exc).__name__}: {exc}")
+
+    for key, primitive, what in (("extract_match", False, "match node"),
+                                 ("extract_match_primitive", True, "match_hamming primitive")):
+        report[key] = attempt(what, lambda: bench_extract_match(images, backend, primitive=primitive), failed)
+        progress(f"extraction+matching ({what}) FPS", f"{report[key]['fps']:.1f}")
+    for key, frames, camera, name in (("frontend_mono", mono_frames, mono, "mono"),
+                                      ("frontend_stereo", stereo_frames, stereo, "stereo")):
+        report[key] = attempt(name, lambda: bench_frontend(replay(frames, n), camera, backend, out, name)[0],
+                              failed)
+        progress(f"front end {name} FPS", f"{report[key]['fps']:.1f}")
     report["opencv_baseline"] = bench_opencv(replay(left, min(n, 200)), K)
-    print("opencv", report["opencv_baseline"], flush=True)
-    # Accuracy on the rendered sequence itself (no replay).
-    est_m = np.array([f.pose for f in o.track_frames(mono_frames, mono, backend=backend)])
-    est_s = np.array([f.pose for f in o.track_frames(stereo_frames, stereo, backend=backend)])
-    report["accuracy"] = {"warpvx_mono (Sim3)": accuracy(est_m, gt, True),
-                          "warpvx_stereo (SE3)": accuracy(est_s, gt, False),
-                          "opencv_baseline (Sim3)": accuracy(o.opencv_baseline(left, K), gt, True)}
+    progress("opencv", report["opencv_baseline"])
+    # Accuracy on the rendered sequence itself (no replay), and on castle_simu when present.
+    nan = {"ate_m": float("nan"), "rpe1_t_m": float("nan"), "rpe1_r_deg": float("nan")}
+    report["accuracy"] = {
+        "rendered: warpvx_mono (Sim3)": attempt("accuracy mono", lambda: accuracy(np.array(
+            [f.pose for f in o.track_frames(mono_frames, mono, backend=backend)]), gt, True), nan),
+        "rendered: warpvx_stereo (SE3)": attempt("accuracy stereo", lambda: accuracy(np.array(
+            [f.pose for f in o.track_frames(stereo_frames, stereo, backend=backend)]), gt, False), nan),
+        "rendered: opencv_baseline (Sim3)": accuracy(o.opencv_baseline(left, K), gt, True)}
+    if os.path.isdir(args.castle):
+        for k, v in attempt("castle", lambda: castle_accuracy(args.castle, backend), {}).items():
+            if k != "error":
+                report["accuracy"][f"castle_simu: {k}"] = v
+    progress("accuracy", "done")
+
     base = report["opencv_baseline"]["thread_pool_fps"]
-    lines = [f"# ORB-SLAM front end at {size[0]}x{size[1]} ({backend}, {n} frames, "
+    rows = [("extraction + matching, pipelined (match node)", "extract_match"),
+            ("extraction + matching, pipelined (match_hamming primitive, before)", "extract_match_primitive"),
+            ("front end mono, end to end", "frontend_mono"),
+            ("front end stereo, end to end", "frontend_stereo")]
+    lines = [f"<!-- {command}   (OUT=$OUT) -->",
+             f"# ORB-SLAM front end at {size[0]}x{size[1]} ({backend}, {n} frames, "
              f"{os.cpu_count()} CPU threads)", "",
-             "| what | FPS | vs OpenCV (thread pool) |", "| --- | --- | --- |",
-             f"| extraction + matching, pipelined | {report['extract_match']['fps']:.1f} | "
-             f"{report['extract_match']['fps'] / base:.1f}x |",
-             f"| front end mono, end to end | {report['frontend_mono']['fps']:.1f} | "
-             f"{report['frontend_mono']['fps'] / base:.1f}x |",
-             f"| front end stereo, end to end | {report['frontend_stereo']['fps']:.1f} | "
-             f"{report['frontend_stereo']['fps'] / base:.1f}x |",
-             f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | |",
-             f"| OpenCV baseline, thread-pool extraction | {base:.1f} | 1.0x |",
-             f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | |",
-             "", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
+             "| what | FPS | vs OpenCV (thread pool) |", "| --- | --- | --- |"]
+    lines += [f"| {label}" + (f" (FAILED: {report[k]['error']})" if "error" in report[k] else "")
+              + f" | {report[k]['fps']:.1f} | {report[k]['fps'] / base:.1f}x |" for label, k in rows]
+    lines += [f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | |",
+              f"| OpenCV baseline, thread-pool extraction | {base:.1f} | 1.0x |",
+              f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | |",
+              "", f"Tracking node alone, median: mono {report['frontend_mono']['track_ms_median']:.2f} ms, "
+              f"stereo {report['frontend_stereo']['track_ms_median']:.2f} ms.", "",
+              "Per node, median ms over the last frames (in a pipelined run a node's interval",
+              "includes waiting for the GIL and for copies):", ""]
+    lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono",
+                                   "frontend_stereo"])
+    lines += ["", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
     for k, v in report["accuracy"].items():
         lines.append(f"| {k} | {v['ate_m']:.4f} | {v['rpe1_t_m']:.4f} | {v['rpe1_r_deg']:.3f} |")
     for k in ("frontend_mono", "frontend_stereo"):
         s = report[k]["plan"]
+        if s is None:
+            lines += ["", f"{k}: FAILED ({report[k].get('error')})"]
+            continue
+        measured = s["measured_makespan_ms"]
         lines += ["", f"{k}: placement {s['placement']}; predicted makespan "
-                      f"{s['predicted_makespan_ms']:.2f} ms, measured {s['measured_makespan_ms']} ms"]
+                      f"{s['predicted_makespan_ms']:.2f} ms, measured (median frame latency, "
+                      f"pipelined) {measured:.2f} ms" if measured is not None else "n/a"]
     (out / "orbslam_bench.md").write_text("\n".join(lines) + "\n")
     (out / "orbslam_bench.json").write_text(json.dumps(report, indent=2, default=str))
     print("\n".join(lines))
+    progress("total", "done")
     return 0
 
 

@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 import pytest
 
+from warpvx import sched
 from warpvx.apps import orbslam as o
 from warpvx.apps import orbslam_cli
 from warpvx.apps.orbslam_sources import open_source
@@ -103,7 +104,7 @@ def test_graph_places_extraction_on_the_gpu_role(stereo_seq):
     gt = te.read_kitti(stereo_seq / "poses.txt")[:4]
     assert te.ate(np.array([f.pose for f in frames]), gt, with_scale=False)["rmse"] < 0.01
     placement = plans[0].placement
-    assert placement["orb"] == "gpu" and placement["orb_right"] == "gpu"
+    assert placement["orb"] == "gpu" and placement["orb_right"] == "gpu" and placement["match"] == "gpu"
     assert placement["track"] != "gpu" and placement["stereo"] != "gpu"
 
 
@@ -182,3 +183,38 @@ def test_script_and_warpvx_command_report_one_line(tmp_path):
                              cwd=tmp_path, timeout=60)
         assert res.returncode == 2
         assert res.stderr.count("\n") == 1 and "no such file or folder" in res.stderr
+
+
+def test_pipelined_placement_spreads_cpu_nodes_and_changes_no_pose(stereo_seq):
+    """spread_cpu_nodes: stereo and track on workers of their own (with enough workers), the
+    predicted schedule kept feasible, and the poses those of the stacked placement."""
+    seq = open_source(stereo_seq, max_frames=3)
+    frames = list(seq)
+    poses = {}
+    for policy, n_cpus in (("best", 4), (o.spread_cpu_nodes, 4), (o.spread_cpu_nodes, 1)):
+        g = o.build_graph(seq.camera, backend="warp-cpu")
+        g.verify(frames[:2])
+        plan = g.schedule(policy, gpu="warp-cpu", n_cpus=n_cpus)
+        with g:
+            poses[policy, n_cpus] = np.array([out["pose"] for out in g.stream(frames)])
+        if policy == "best":
+            continue
+        if n_cpus == 4:
+            assert plan.placement["stereo"] != plan.placement["track"]
+            assert plan.predicted_makespan == pytest.approx(sched.schedule(plan.dag, "best").makespan)
+        else:  # one worker: nothing to spread
+            assert plan.placement["stereo"] == plan.placement["track"] == "cpu0"
+    for key, value in poses.items():
+        np.testing.assert_array_equal(value, poses["best", 4], err_msg=str(key))
+
+
+def test_ratio_test_config_matches_with_the_primitive(stereo_seq):
+    """With a ratio test the graph's ``match`` is the match_hamming primitive (the padded
+    nearest-both-ways node keeps cross-check pairs only); tracking still holds."""
+    seq = open_source(stereo_seq, max_frames=4)
+    config = o.TrackerConfig(ratio=0.9)
+    assert o.build_graph(seq.camera, config).node("match").kind == "match_hamming"
+    assert o.build_graph(seq.camera).node("match").kind == "user"
+    frames = list(o.track_frames(seq, seq.camera, config))
+    gt = te.read_kitti(stereo_seq / "poses.txt")[:4]
+    assert te.ate(np.array([f.pose for f in frames]), gt, with_scale=False)["rmse"] < 0.01

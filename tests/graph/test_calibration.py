@@ -213,3 +213,29 @@ def test_two_verification_frames_give_temporal_nodes_real_motion(fresh_cache, fr
     with pytest.raises(warpvx.GraphError, match="inputs"):
         g.verify([{"frame": frames[0]}] * 3)
     g.close()
+
+
+def test_contention_probe_times_mixes_of_plausible_nodes(fresh_cache, frames):
+    # The CPU mix holds the nodes a scheduler might put on a CPU worker (CPU-only ones and
+    # those within PROBE_SPREAD of their GPU time); each pair says who was busy beside it.
+    g = warpvx.Graph("probe")
+    frame = g.input("frame", shape=frames[0].shape, dtype=np.uint8)
+    gray = g.color_convert(frame, code="BGR2GRAY", name="gray")
+    g.output("blur", g.gaussian_blur(gray, ksize=(5, 5), sigma=1.2, name="blur"))
+    g.output("mean", g.user(lambda x: np.array([x.mean()]), [gray], "m", name="mean"))
+    cal = g.calibrate({"frame": frames[0]}, gpu="warp-cpu", repeats=3)
+    from warpvx.backend import resolve_backend
+
+    probe = cal_mod.measure_contention(g, cal, resolve_backend("warp-cpu"), 2, repeats=3)
+    assert set(probe) == {("cpu", "cpu"), ("cpu", "gpu"), ("gpu", "cpu")}
+    spread = cal_mod.PROBE_SPREAD
+    want_cpu = sorted(n for n, t in cal.nodes.items()
+                      if t["cpu"] and (not t["gpu"] or t["cpu"] <= spread * t["gpu"]))
+    assert probe[("cpu", "cpu")][0].split(",") == want_cpu and "mean" in want_cpu
+    assert probe[("gpu", "cpu")][0].split(",") == ["blur", "gray"]
+    for (victim, loader), (_, alone, loaded, cpus, gpus) in probe.items():
+        assert alone > 0 and loaded > 0
+        assert (cpus, gpus) == ({"cpu": 1 if victim == "cpu" else 2, "gpu": 0}[loader],
+                                1 if loader == "gpu" else 0)
+    # One alone time per victim kind, shared by its pairs.
+    assert probe[("cpu", "cpu")][1] == probe[("cpu", "gpu")][1]

@@ -3,15 +3,20 @@
 Per frame (``image``, and ``right`` for a stereo sequence)::
 
     image -> orb (ORB-SLAM2 extractor, GPU role) -> keypoints, descriptors
-    descriptors, descriptors[-1] (a delay) -> match_hamming (cross-check / ratio) -> pairs
+    descriptors, padded[-1] (a delay) -> match (GPU role: nearest rows both ways) -> padded,
+        nearest [, or with a ratio test: match_hamming -> pairs]
     right -> orb_right -> stereo (CPU: ComputeStereoMatches) -> depth per left keypoint
-    state[-1] (a delay), keypoints, pairs [, depth] -> track (CPU) -> state, pose, stats
+    state[-1] (a delay), keypoints, nearest [, depth] -> track (CPU) -> state, pose, stats
+
+The matching and stereo code is in :mod:`warpvx.apps.orbslam_match`; ``track`` keeps the
+mutual best pairs (cross-check) of ``match``'s outputs.
 
 ``track`` filters the matches (Hamming distance, ORB-SLAM2's rotation-consistency histogram),
 falls back to the last keyframe when the previous frame gives too few, and estimates the motion
 from the reference frame: PnP with RANSAC on the reference's stereo 3-D points (metric, the
 constant-velocity motion model as the initial guess, ``useExtrinsicGuess``), or for monocular
-sequences the essential matrix by RANSAC with the cheirality check (``cv2.recoverPose``). A
+sequences the essential matrix by MAGSAC++ (OpenCV's USAC) with the cheirality check (as
+``cv2.recoverPose``; its four-way choice vectorised). A
 monocular camera cannot observe scale: the first step has unit length and later steps take
 their length from the depths triangulated at the step before (the median ratio over the points
 seen in both), so the trajectory is right up to one global scale -- evaluate it after a Sim(3)
@@ -37,14 +42,14 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
-from .placement import schedule
+from .orbslam_match import add_match_node, mutual_pairs, stereo_depth
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
 # ORB-SLAM2's ORBmatcher thresholds (Hamming distance, 256-bit descriptors).
 TH_HIGH, TH_LOW = 100, 50
 REF_PREVIOUS, REF_KEYFRAME, REF_LOST = 0, 1, 2
-# Set bits of each byte value: Hamming distances of descriptor bytes by table look-up.
-_POPCOUNT = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).sum(1).astype(np.int32)
+# Depth (in units of the baseline) beyond which cv2.recoverPose does not count a point.
+_FAR = 50.0
 STATS = ("n_keypoints", "n_matches", "n_inliers", "keyframe", "reference", "track_ms")
 
 
@@ -174,88 +179,6 @@ def filter_matches(pairs, distances, angles_q, angles_t, config: TrackerConfig) 
     return pairs
 
 
-def stereo_depth(kps_left, desc_left, kps_right, desc_right, left, right, *, fx, baseline,
-                 config: TrackerConfig = TrackerConfig()) -> np.ndarray:
-    """Depth (m) of each left keypoint from ORB matches along the epipolar rows, float32 [N]
-    (NaN where unmatched), after ORB-SLAM2's ``Frame::ComputeStereoMatches``:
-
-    a right keypoint is a candidate when its row is within 2 s of the left one (s = the right
-    keypoint's octave scale), its octave within one of the left one's, and its disparity in
-    [0, fx]; the best Hamming distance wins if under ``stereo_max_distance``; the column is
-    refined by the SAD of 11x11 patches over +-5 px and a parabola through the three best
-    (dropped when the vertex moves more than 1 px); depth = fx baseline / disparity; matches
-    whose SAD exceeds 1.5 x 1.4 x the median are dropped. Patches are taken on the level-0
-    images (ORB-SLAM2 uses the keypoint's pyramid level).
-    """
-    n = len(kps_left)
-    depth = np.full(n, np.nan, np.float32)
-    if n == 0 or len(kps_right) == 0:
-        return depth
-    xl, yl, ol = (np.asarray(a) for a in (kps_left.x, kps_left.y, kps_left.octave))
-    xr, yr, orr = (np.asarray(a) for a in (kps_right.x, kps_right.y, kps_right.octave))
-    # Candidate pairs: right keypoints sorted by row, those within the widest band of each
-    # left row, then the exact rules (band of the right octave, octave, disparity range).
-    order = np.argsort(yr, kind="stable")
-    ys = yr[order]
-    reach = 2.0 * config.scale_factor ** max(int(orr.max()), 0)
-    lo, hi = np.searchsorted(ys, yl - reach), np.searchsorted(ys, yl + reach, side="right")
-    counts = hi - lo
-    li = np.repeat(np.arange(n), counts)
-    ri = order[np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + np.repeat(lo, counts)]
-    disp = xl[li] - xr[ri]
-    ok = ((np.abs(yl[li] - yr[ri]) <= 2.0 * config.scale_factor ** orr[ri]) & (disp >= 0)
-          & (disp <= fx) & (np.abs(ol[li] - orr[ri]) <= 1))
-    li, ri = li[ok], ri[ok]
-    dist = _POPCOUNT[np.asarray(desc_left)[li] ^ np.asarray(desc_right)[ri]].sum(1)
-    # Best (smallest distance, then lowest right index) per left keypoint.
-    first = np.lexsort((ri, dist, li))
-    li, ri, dist = li[first], ri[first], dist[first]
-    head = np.r_[True, li[1:] != li[:-1]] if len(li) else np.zeros(0, bool)
-    li, ri, dist = li[head], ri[head], dist[head]
-    keep = dist < config.stereo_max_distance
-    good, best_r = li[keep], ri[keep]
-    if len(good) == 0:
-        return depth
-    ur = xr[best_r].astype(np.float64)
-    # SAD refinement: 11x11 patches, right patch shifted by -5..5 px around the matched column.
-    w, L = 5, 5
-    pad = w + L + 1
-    lp = np.pad(left.astype(np.int32), pad, mode="edge")
-    rp = np.pad(right.astype(np.int32), pad, mode="edge")
-    cx = np.rint(xl[good]).astype(np.int64) + pad
-    cy = np.rint(yl[good]).astype(np.int64) + pad
-    cr = np.rint(ur).astype(np.int64) + pad
-    h, wd = rp.shape
-    inside = (cr - w - L >= 0) & (cr + w + L < wd) & (cy - w >= 0) & (cy + w < h)
-    good, ur, cx, cy, cr = good[inside], ur[inside], cx[inside], cy[inside], cr[inside]
-    off = np.arange(-w, w + 1)
-    shifts = np.arange(-L, L + 1)
-    rows = cy[:, None, None] + off[None, :, None]
-    pl = lp[rows, cx[:, None, None] + off[None, None, :]]
-    pl = pl - pl[:, w:w + 1, w:w + 1]  # ORB-SLAM2 subtracts the centre value (illumination)
-    cols = cr[:, None, None, None] + shifts[None, :, None, None] + off[None, None, None, :]
-    pr = rp[rows[:, None], cols]
-    pr = pr - pr[:, :, w:w + 1, w:w + 1]
-    sad = np.abs(pl[:, None] - pr).sum(axis=(2, 3)).astype(np.float64)
-    k = np.argmin(sad, axis=1)
-    interior = (k > 0) & (k < 2 * L)
-    i = np.arange(len(k))
-    kc = np.clip(k, 1, 2 * L - 1)
-    d1, d2, d3 = sad[i, kc - 1], sad[i, kc], sad[i, kc + 1]
-    denom = 2.0 * (d1 + d3 - 2.0 * d2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        delta = np.where(denom != 0, (d1 - d3) / denom, 0.0)
-    keep = interior & (np.abs(delta) <= 1.0)
-    ur_refined = np.rint(ur) + shifts[k] + delta
-    disparity = xl[good] - ur_refined
-    keep &= disparity > 0
-    best_sad = sad[i, k]
-    if keep.any():
-        keep &= best_sad <= 1.5 * 1.4 * np.median(best_sad[keep])
-    depth[good[keep]] = (fx * baseline / disparity[keep]).astype(np.float32)
-    return depth
-
-
 # --------------------------------------------------------------------------- tracking
 
 
@@ -323,31 +246,68 @@ def _pose_pnp(ref, cur_pts, pairs, K, guess, config):
     return _rt(cv2.Rodrigues(rvec)[0], tvec), len(inliers), None
 
 
+def _ray_depths(x1, x2, R, t):
+    """Depths (z1, z2), float64 [M] each, of the points whose normalised rays are ``x1`` in the
+    reference camera and ``x2`` in the current one (float64 [M, 3], z = 1), for the motion
+    X_cur = R X_ref + t: the least-squares solution of z2 x2 = z1 R x1 + t (midpoint
+    triangulation); z2 is the current depth of the point on the reference ray. NaN when the
+    rays are parallel."""
+    a = x1 @ R.T
+    aa, bb, ab = (a * a).sum(1), (x2 * x2).sum(1), (a * x2).sum(1)
+    at, bt = a @ t, x2 @ t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z1 = (ab * bt - bb * at) / (aa * bb - ab * ab)
+    return z1, z1 * a[:, 2] + t[2]
+
+
+def _cheirality(E, x1, x2):
+    """(R, t) of the four motions that decompose ``E``: the one with the most points in front
+    of both cameras, as ``cv2.recoverPose`` chooses (depth in (0, ``_FAR``) in both, unit
+    baseline; midpoint depths, vectorised, instead of its four DLT triangulations)."""
+    import cv2
+
+    R1, R2, t = cv2.decomposeEssentialMat(E)
+    best = None
+    for R, tt in ((R1, t), (R2, t), (R1, -t), (R2, -t)):
+        tt = tt.reshape(3)
+        z1, z2 = _ray_depths(x1, x2, R, tt)
+        front = np.count_nonzero((z1 > 0) & (z1 < _FAR) & (z2 > 0) & (z2 < _FAR))
+        if best is None or front > best[0]:
+            best = front, R, tt
+    return best[1:]
+
+
 def _pose_essential(ref, cur_pts, pairs, K, step, config):
-    """T_cur_ref from the essential matrix (RANSAC, cheirality), the translation scaled by the
-    reference's depths (or ``step`` when none are shared); returns (T, inliers, depth of the
-    inliers in the current frame as (cur indices, z)) or None."""
+    """T_cur_ref from the essential matrix (MAGSAC++ RANSAC, cheirality), the translation
+    scaled by the reference's depths (or ``step`` when none are shared); returns (T, inliers,
+    depth of the inliers in the current frame as (cur indices, z)) or None."""
     import cv2
 
     p1, p2 = ref.pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
     if np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
         return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]])
-    E, mask = cv2.findEssentialMat(p1, p2, K, cv2.RANSAC, 0.999, config.ransac_threshold)
+    # MAGSAC++ (OpenCV's USAC): ~10x fewer hypotheses than plain RANSAC at this threshold,
+    # and more accurate (its inlier scoring is not a hard 0/1 at the threshold).
+    E, mask = cv2.findEssentialMat(p1, p2, K, cv2.USAC_MAGSAC, 0.999, config.ransac_threshold)
     if E is None or E.shape != (3, 3):
         return None
-    n, R, t, mask = cv2.recoverPose(E, p1, p2, K, mask=mask)
-    inl = mask.reshape(-1) > 0
-    if n < 8:
-        return None
-    X = cv2.triangulatePoints(K @ np.eye(3, 4), K @ np.hstack([R, t]), p1[inl].T, p2[inl].T)
+    inl = np.flatnonzero(mask.reshape(-1))
+    Kinv = np.linalg.inv(K)
+    x1 = np.c_[p1[inl], np.ones(len(inl))] @ Kinv.T
+    x2 = np.c_[p2[inl], np.ones(len(inl))] @ Kinv.T
+    R, t = _cheirality(E, x1, x2)
+    # The points in front, as recoverPose counts them: DLT triangulation, depth in (0, 50).
+    X = cv2.triangulatePoints(np.eye(3, 4), np.c_[R, t], x1[:, :2].T, x2[:, :2].T)
     X = (X[:3] / X[3]).T
-    z_ref = X[:, 2]
+    z_ref, z_cur = X[:, 2], X @ R[2] + t[2]
+    front = (z_ref > 0) & (z_ref < _FAR) & (z_cur > 0) & (z_cur < _FAR)
+    if front.sum() < 8:
+        return None
+    inl, z_ref, z_cur = inl[front], z_ref[front], z_cur[front]
     prior = ref.depth[pairs[inl, 1]]
-    common = np.isfinite(prior) & (prior > 0) & (z_ref > 0)
+    common = np.isfinite(prior) & (prior > 0)
     scale = float(np.median(prior[common] / z_ref[common])) if common.sum() >= 5 else step
-    z_cur = (X @ R.T + t.reshape(1, 3))[:, 2] * scale
-    z_cur = np.where((z_ref > 0) & (z_cur > 0), z_cur, np.nan)
-    return _rt(R, scale * t), int(inl.sum()), (pairs[inl, 0], z_cur)
+    return _rt(R, scale * t), len(inl), (pairs[inl, 0], z_cur * scale)
 
 
 def _record(kps, desc, depth, pose, index):
@@ -384,7 +344,8 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     t0 = time.perf_counter()
     import warpvx
 
-    K = np.asarray(K, np.float64)
+    # Contiguous: OpenCV's USAC estimators return no model for a strided K (a view of P0).
+    K = np.ascontiguousarray(K, np.float64)
     n = len(kps)
     stereo = depth is not None
     cur_depth = np.asarray(depth, np.float64) if stereo else np.full(n, np.nan)
@@ -431,7 +392,49 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     return new, pose, stats
 
 
+def track_nearest(state: TrackState, kps, desc, nearest, distance, back, depth=None, *, K,
+                  config: TrackerConfig = TrackerConfig()):
+    """:func:`track` fed by the ``match`` node's nearest rows both ways (see
+    :func:`~warpvx.apps.orbslam_match.mutual_pairs`) instead of the pairs."""
+    n_prev = 0 if state.previous is None else len(state.previous.pts)
+    pairs, distances = mutual_pairs(nearest, distance, back, len(kps), n_prev)
+    return track(state, kps, desc, pairs, distances, depth, K=K, config=config)
+
+
 # --------------------------------------------------------------------------- the graph
+
+
+def spread_cpu_nodes(dag):
+    """Scheduling policy for pipelined frames: ``best`` (HEFT/XEFT), then, when there are at
+    least as many CPU workers as CPU nodes, each CPU node on a worker of its own (same
+    predicted times: CPU workers share memory and costs). A single-frame schedule stacks
+    dependent CPU nodes (``stereo`` -> ``track``) on one worker; in a stream that worker then
+    runs both for every frame, where two workers run ``stereo`` of frame t+1 beside ``track``
+    of frame t. Falls back to ``best``'s schedule if the spread one is not feasible."""
+    from .. import sched
+    from ..errors import ScheduleError
+
+    best = sched.schedule(dag, "best")
+    cpus = [p for p in best.processors if p.startswith("cpu")]
+    on_cpu = sorted((t for t in best.tasks.values() if t.processor in cpus), key=lambda t: t.start)
+    if len(on_cpu) < 2 or len(on_cpu) > len(cpus):
+        return best
+    tasks = dict(best.tasks)
+    for t, cpu in zip(on_cpu, cpus):
+        tasks[t.task] = sched.ScheduledTask(t.task, cpu, t.start, t.finish)
+    spread = sched.Schedule(tasks, best.processors, "spread", best.priority,
+                            dict(best.info, chosen=f"{best.info.get('chosen', 'best')}, spread"))
+    try:
+        sched.validate_schedule(dag, spread)
+    except ScheduleError:
+        return best
+    return spread
+
+
+def schedule(graph, backend="cpu"):
+    """Place the front-end graph (:func:`spread_cpu_nodes` on CPU workers, plus the Warp
+    device unless ``backend`` is ``"cpu"``); returns the plan."""
+    return graph.schedule(spread_cpu_nodes, gpu=False if backend == "cpu" else backend)
 
 
 def build_graph(camera: Camera, config: TrackerConfig = TrackerConfig(), *, backend="cpu"):
@@ -441,7 +444,9 @@ def build_graph(camera: Camera, config: TrackerConfig = TrackerConfig(), *, back
     (float64 4x4, camera to world) and ``stats`` (float64 [6], see :func:`track`).
     ``backend``: ``"cpu"`` runs every node on CPU workers; ``"warp-cpu"``/``"cuda"`` pins the
     extractors and the matcher to the Warp device (the GPU role); ``stereo`` and ``track``
-    are CPU user nodes.
+    are CPU user nodes. With ``cross_check`` and no ``ratio`` (the defaults) the ``match``
+    node finds the nearest rows both ways and ``track`` keeps the mutual best pairs (no host
+    sync on the device); otherwise it is the ``match_hamming`` primitive.
     """
     from ..check import check_choice
     from ..graph import Graph
@@ -452,19 +457,27 @@ def build_graph(camera: Camera, config: TrackerConfig = TrackerConfig(), *, back
     g = Graph("orbslam")
     image = g.input("image", shape=(h, w), dtype=np.uint8)
     kps, desc = g.orb(image, **config.orb_args(), name="orb", target=pin)
-    pairs, dists = g.match_hamming(desc, g.delay(desc)[-1], cross_check=config.cross_check,
-                                   ratio=config.ratio, name="match", target=pin)
+    if config.cross_check and config.ratio is None:
+        # Mutual best pairs from the nearest rows both ways (no host sync, see orbslam_match).
+        nearest = add_match_node(g, desc, target=pin)
+        track_fn = track_nearest
+    else:
+        nearest = g.match_hamming(desc, g.delay(desc)[-1], cross_check=config.cross_check,
+                                  ratio=config.ratio, name="match", target=pin)
+        track_fn = track
     extra = []
     if camera.stereo:
         right = g.input("right", shape=(h, w), dtype=np.uint8)
         kps_r, desc_r = g.orb(right, **config.orb_args(), name="orb_right", target=pin)
         extra = [g.user(functools.partial(stereo_depth, fx=float(camera.K[0, 0]),
-                                          baseline=float(camera.baseline), config=config),
+                                          baseline=float(camera.baseline),
+                                          scale_factor=config.scale_factor,
+                                          max_distance=config.stereo_max_distance),
                         [kps, desc, kps_r, desc_r, image, right], name="stereo")]
     state = g.virtual("state")
     previous = g.delay(state, init=TrackState())[-1]
-    _, pose, stats = g.user(functools.partial(track, K=camera.K, config=config),
-                            [previous, kps, desc, pairs, dists] + extra, [state, "pose", "stats"],
+    _, pose, stats = g.user(functools.partial(track_fn, K=camera.K, config=config),
+                            [previous, kps, desc, *nearest] + extra, [state, "pose", "stats"],
                             name="track")
     g.output("pose", pose)
     g.output("stats", stats)
@@ -556,6 +569,6 @@ def opencv_baseline(images, K):
 
 __all__ = [
     "TrackerConfig", "Camera", "TrackState", "FrameRecord", "TrackedFrame", "three_maxima",
-    "rotation_consistent", "filter_matches", "stereo_depth", "track", "build_graph", "schedule",
-    "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
+    "rotation_consistent", "filter_matches", "stereo_depth", "track", "track_nearest", "build_graph",
+    "spread_cpu_nodes", "schedule", "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
 ]

@@ -388,45 +388,66 @@ def measure_dispatch(gpu_backend, transfer: TransferModel | None = None, *, n_no
     return out
 
 
+#: :func:`measure_contention`'s CPU mix: nodes whose CPU time is at most this many times
+#: their GPU time (a scheduler would not put a slower one on a CPU worker).
+PROBE_SPREAD = 4.0
+
+
 def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats: int = 9) -> dict:
     """How much the graph's own nodes slow each other down when run together (ms).
 
-    The heaviest CPU node is timed alone and then while every other host thread of a plan
-    with ``n_cpus`` workers is busy (``n_cpus - 1`` threads looping the same CPU call, one
-    looping the heaviest GPU node's call, as the GPU host thread would); the heaviest GPU
-    node's host call likewise while ``n_cpus`` threads loop the CPU node. Contention for
-    the GIL, the cores and memory bandwidth shows up in every placement, but a placement
-    that keeps the workers idle (all on the GPU) does not reveal it; this probe does.
+    A *CPU mix* (every node a scheduler might put on a CPU worker: no GPU implementation,
+    or a CPU time within :data:`PROBE_SPREAD` times its GPU time, called in turn) is timed
+    alone, then while the other ``n_cpus - 1`` CPU workers loop the same mix, then while
+    one thread loops the *GPU mix* (every node with a GPU implementation, its host calls in
+    turn, as the GPU host thread makes them); the GPU mix alone and while ``n_cpus``
+    threads loop the CPU mix. Mixes, not one heavy node: contention is mostly for the GIL,
+    so what matters is how much Python a typical task runs (a long OpenCV call that
+    releases the GIL hides it). A placement that keeps the workers idle (all on the GPU)
+    does not reveal contention, and one kind of busy neighbour does not tell the other's
+    cost; this probe does.
 
     Returns
     -------
     dict
-        ``"cpu"``/``"gpu"`` -> ``(node, alone_ms, loaded_ms, busy_threads)``; a kind is
-        absent when no node has that implementation.
+        ``(victim kind, loader kind)`` -> ``(mix, alone_ms, loaded_ms, busy_cpus,
+        busy_gpus)``, for ``("cpu", "cpu")``, ``("cpu", "gpu")`` and ``("gpu", "cpu")``
+        (``mix``: its nodes, comma-separated); a pair is absent when a kind has no node (or
+        ``n_cpus`` is 1 for ``("cpu", "cpu")``).
     """
     from ..backend import init_warp, resolve_backend
 
-    def heaviest(pe):
-        cands = [(t[pe], n) for n, t in calibration.nodes.items() if t.get(pe)]
-        return max(cands)[1] if cands else None
+    def plausible_on_cpu(t):
+        return t.get("cpu") and (not t.get("gpu") or t["cpu"] <= PROBE_SPREAD * t["gpu"])
 
-    cpu_node, gpu_node = heaviest("cpu"), heaviest("gpu") if gpu_backend is not None else None
+    mixes = {"cpu": sorted(n for n, t in calibration.nodes.items() if plausible_on_cpu(t)),
+             "gpu": sorted(n for n, t in calibration.nodes.items() if t.get("gpu"))
+             if gpu_backend is not None else []}
     calls = {}
-    if cpu_node is not None:
-        node = graph.nodes[cpu_node]
-        fn, values = node.callable("cpu", resolve_backend("cpu")), input_values(graph, node)
-        calls["cpu"] = (lambda: fn(*values), None)
+    if mixes["cpu"]:
+        cpu = resolve_backend("cpu")
+        cpu_calls = [(graph.nodes[n].callable("cpu", cpu), input_values(graph, graph.nodes[n]))
+                     for n in mixes["cpu"]]
+
+        def cpu_call():
+            for fn, values in cpu_calls:
+                fn(*values)
+
+        calls["cpu"] = (cpu_call, None)
     wp = stream = None
-    if gpu_node is not None:
+    if mixes["gpu"]:
         wp = init_warp()
-        node = graph.nodes[gpu_node]
-        gfn = node.callable("gpu", gpu_backend)
-        with wp.ScopedDevice(gpu_backend.device):
-            dvals = Transfers(gpu_backend.device).upload(list(input_values(graph, node)))
+        gpu_calls = []
+        for n in mixes["gpu"]:
+            node = graph.nodes[n]
+            with wp.ScopedDevice(gpu_backend.device):
+                dvals = Transfers(gpu_backend.device).upload(list(input_values(graph, node)))
+            gpu_calls.append((node.callable("gpu", gpu_backend), dvals))
         stream = wp.Stream(gpu_backend.device) if gpu_backend.is_cuda else None
 
         def gpu_call():
-            gfn(*dvals)
+            for fn, values in gpu_calls:
+                fn(*values)
             if stream is not None:
                 wp.synchronize_stream(stream)  # the queue stays short, as in a frame
 
@@ -452,15 +473,15 @@ def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats:
             for th in threads:
                 th.join()
 
-    out = {}
-    for kind, victim in (("cpu", cpu_node), ("gpu", gpu_node)):
-        if victim is None:
+    out, alone = {}, {}
+    loads = {("cpu", "cpu"): n_cpus - 1, ("cpu", "gpu"): 1, ("gpu", "cpu"): n_cpus}
+    for (kind, loader), n in loads.items():
+        if kind not in calls or loader not in calls or n < 1:
             continue
-        loaders = (["cpu"] * (n_cpus - 1) + (["gpu"] if "gpu" in calls else [])
-                   if kind == "cpu" else ["cpu"] * n_cpus if "cpu" in calls else [])
-        if not loaders:
-            continue
-        out[kind] = (victim, timed(kind, []), timed(kind, loaders), len(loaders))
+        if kind not in alone:
+            alone[kind] = timed(kind, [])
+        out[(kind, loader)] = (",".join(mixes[kind]), alone[kind], timed(kind, [loader] * n),
+                               n if loader == "cpu" else 0, n if loader == "gpu" else 0)
     return out
 
 

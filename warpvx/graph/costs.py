@@ -20,6 +20,12 @@ def default_n_cpus() -> int:
     return max(1, min(4, (os.cpu_count() or 2) - 1))
 
 
+#: ``schedule("best", model=..., trial_inputs=...)`` tries every candidate predicted
+#: within this fraction of the fastest: the contention model's out-of-sample error (about
+#: 20%, ``benchmarks/graph_bench.py``) is larger than most gaps between candidates.
+TRIAL_MARGIN = 0.2
+
+
 class NoCudaWarning(UserWarning):
     """The GPU role fell back to Warp's CPU device (no CUDA): "gpu" nodes run on the CPU."""
 
@@ -149,7 +155,8 @@ class CostModel:
         return cpu_gpu_dag(tasks, edges, n_cpus)
 
     def schedule(self, policy="best", *, n_cpus: int | None = None, gpu=None,
-                 recalibrate: bool = False, costs: str = "calibrated", model=None):
+                 recalibrate: bool = False, costs: str = "calibrated", model=None,
+                 trial_inputs=None, trial_frames: int = 5, trial_margin: float = TRIAL_MARGIN):
         """Calibrate (cached), schedule with ``policy`` and make the result the current plan.
 
         Parameters
@@ -169,9 +176,18 @@ class CostModel:
             A fitted model (:meth:`fit_model`): the plan's prediction becomes its simulation
             of the schedule (``plan.prediction``), and ``"best"`` keeps, of the baseline,
             HEFT and XEFT schedules of the task DAG and of the model's in-frame costs
-            (:func:`~warpvx.graph.model.candidate_dags`), the one the model predicts
-            fastest, so a mixed placement that loses to the all-GPU one in reality loses in
-            the prediction too.
+            (:func:`~warpvx.graph.model.choose`), the one the model predicts fastest, so a
+            mixed placement that loses to the all-GPU one in reality loses in the prediction
+            too; with ``trial_inputs``, the measured fastest of those it cannot tell apart.
+        trial_inputs : dict or list of dict, optional
+            With ``policy="best"`` and a ``model``: frames to try the candidates on. Every
+            distinct candidate predicted within ``trial_margin`` (a fraction) of the fastest
+            prediction -- closer than the model can tell apart -- runs one warm-up frame
+            and ``trial_frames`` frames through :meth:`process` (frames cycle through
+            ``trial_inputs``), and the one with the least median measured makespan is kept:
+            the measured winner, not the predicted one. ``plan.schedule.info["trial_ms"]``
+            gives each tried candidate's median (ms). These are real frames: outputs are
+            published and delays advance. With one candidate in the margin nothing runs.
 
         Returns
         -------
@@ -190,27 +206,68 @@ class CostModel:
                 cal = self.calibrate(gpu=be.name if be else False, recalibrate=recalibrate)
             dag = self.to_task_dag(n_cpus, gpu=be.name if be else False, calibration=cal,
                                    costs=costs)
-            prediction = None
+            name = policy if isinstance(policy, str) else getattr(policy, "__name__", "custom")
+
+            def make_plan(sch, dag, prediction):
+                sched.validate_schedule(dag, sch)
+                if model is not None and prediction is None:
+                    prediction = model.predict(sch)
+                plan = Plan(weakref.ref(self), sch, dag, sched.metrics(dag, sch), name, n_cpus,
+                            be.name if be else None, cal, costs=costs, prediction=prediction)
+                self._invalidate_plan()
+                self._plan = plan
+                self._plan_box[0] = plan
+                return plan
+
+            if trial_inputs is not None and (model is None or policy != "best"):
+                raise GraphError("trial_inputs: a trial needs policy='best' and a model= "
+                                 "(g.fit_model()) to choose its candidates")
             if model is not None and policy == "best":
                 from .model import choose
 
-                sch, dag, prediction = choose(model, self._candidate_dags(dag, model, n_cpus))
+                cands = choose(model, self._candidate_dags(dag, model, n_cpus))
+                top = [c for c in cands if c[3].makespan <= cands[0][3].makespan * (1 + trial_margin)]
+                chosen, trial = cands[0], None
+                if trial_inputs is not None and len(top) > 1:
+                    chosen, trial = self._trial(top, trial_inputs, trial_frames, make_plan)
+                label, sch, dag, prediction = chosen
+                sch.info = {**sch.info, "chosen": label}
+                if trial is not None:
+                    sch.info["trial_ms"] = trial
+                sch.policy = "best"
+                plan = self._plan if trial is not None and self._plan.schedule is sch else \
+                    make_plan(sch, dag, prediction)
             else:
-                sch = sched.schedule(dag, policy)
-            sched.validate_schedule(dag, sch)
-            if model is not None and prediction is None:
-                prediction = model.predict(sch)
-            plan = Plan(weakref.ref(self), sch, dag, sched.metrics(dag, sch),
-                        policy if isinstance(policy, str) else getattr(policy, "__name__", "custom"),
-                        n_cpus, be.name if be else None, cal, costs=costs, prediction=prediction)
-            self._invalidate_plan()
-            self._plan = plan
-            self._plan_box[0] = plan
+                plan = make_plan(sched.schedule(dag, policy), dag, None)
         if gpu is None and be is not None and be.device == "cpu":
             on_gpu = [n for n, p in plan.placement.items() if p == "gpu"]
             if on_gpu:
                 warn_no_cuda(self.name, on_gpu)
         return plan
+
+    def _trial(self, candidates, inputs, frames: int, make_plan) -> tuple:
+        """Run each candidate (``(name, Schedule, dag, prediction)``) as the current plan
+        for one warm-up frame and ``frames`` measured ones; (the fastest by median
+        measured makespan, name -> that median in ms)."""
+        import statistics
+
+        if isinstance(inputs, dict):
+            inputs = [inputs]
+        inputs = list(inputs)
+        if not inputs:
+            raise GraphError("trial_inputs: expected a dict of inputs or a non-empty list of them")
+        if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+            raise GraphError(f"trial_frames: expected an int >= 1, got {frames!r}")
+        measured = {}
+        for name, sch, dag, prediction in candidates:
+            plan = make_plan(sch, dag, prediction)
+            spans = []
+            for i in range(frames + 1):  # the first warms the executor's threads and pools
+                self.process(inputs[i % len(inputs)])
+                if i:
+                    spans.append(plan.last_run[-1].makespan)
+            measured[name] = statistics.median(spans)
+        return min(candidates, key=lambda c: measured[c[0]]), measured
 
     def _candidate_dags(self, dag, model, n_cpus) -> dict:
         """name -> task DAG: the schedule's own and one with the model's in-frame costs."""
@@ -262,4 +319,4 @@ class CostModel:
         return self._plan
 
 
-__all__ = ["CostModel", "NoCudaWarning", "default_n_cpus", "gpu_backend", "warn_no_cuda"]
+__all__ = ["CostModel", "NoCudaWarning", "TRIAL_MARGIN", "default_n_cpus", "gpu_backend", "warn_no_cuda"]

@@ -7,20 +7,25 @@ the more other host threads are busy beside it; copies and hand-offs between thr
 time the isolated calibration never sees; and the makespan is a function of placement *and*
 overlap. So the model is
 
-    work(node, pe) = r_pe * e_node,pe * (alone(node, pe) + copies(node, pe))
-    speed(t)       = 1 / (1 + a_pe * c(t))
+    work(node, pe) = e_node,pe * (r_pe * (alone(node, pe) + copies(node, pe)) + d_pe)
+    speed(t)       = 1 / (1 + a_pe * cpus(t) + b_pe * gpus(t))
 
 where ``alone`` is the calibrated time (:mod:`warpvx.graph.calibration`; for a GPU node the
-host side of the call), ``copies`` the transfer model's time for the bytes the executor
-copies for the task, ``c(t)`` the number of *other* host threads busy at time ``t`` (CPU
-workers running a task, the GPU host thread inside a call), ``r_pe`` the in-frame over alone
-ratio and ``a_pe`` the slowdown per busy neighbour of each kind of processing element
+host side of the call, its enqueue: the GPU nodes of a frame are host-bound), ``copies``
+the transfer model's time for the bytes the executor copies for the task, ``cpus(t)`` the
+number of *other* CPU workers running a task at ``t`` and ``gpus(t)`` whether the GPU host
+thread is inside a call (for a CPU task), ``r_pe`` the in-frame over alone ratio, ``d_pe``
+a fixed in-frame cost per task (the executor's work inside the interval), ``a_pe``/``b_pe``
+the slowdown per busy CPU worker / busy GPU host thread of each kind of processing element
 (``"cpu"``, ``"gpu"`` for the GPU host thread), and ``e`` a per-node correction, 1 for a
-node never seen on that ``pe``. The fit (:func:`fit_slowdown`) is least squares on
-``log(measured / alone)``. On CUDA the device runs a GPU node's kernels for its calibrated
-device time, not before the host started enqueuing them and not ending before the host
-call ended. Waits between tasks (a thread taking its next task, a hand-off between threads,
-the start of a frame) are the medians measured in the training frames.
+node never seen on that ``pe``. The fit (:func:`fit_slowdown`) takes ``r, d, a, b`` from
+all nodes at once (least absolute deviations of the logs), then ``e`` as each node's median
+residual, so a node's own usual contention is not mistaken for its own slowness. On CUDA
+the device runs a GPU node's kernels for its calibrated device time, not before the host
+started enqueuing them and not ending before the host call ended. Waits between tasks (a
+thread taking its next task, a hand-off between threads by kind of edge: CPU after GPU,
+GPU after CPU, CPU after CPU; the start of a frame) are the medians measured in the
+training frames.
 
 :func:`simulate` runs a schedule's per-processor orders through this model, event by event
 (every busy thread advances at its current speed), and returns the predicted timeline; its
@@ -40,9 +45,6 @@ import numpy as np
 from ..errors import GraphError
 from ..sched.schedule import Schedule, ScheduledTask
 from .data import INPUT, Data, DelayRef, nbytes
-
-#: Grid of slowdowns per busy neighbour tried by :func:`fit_slowdown`.
-SLOWDOWN_GRID = np.linspace(0.0, 4.0, 401)
 
 #: Latency classes: what a task waited for last before it started.
 LATENCIES = ("start", "cpu_same", "gpu_same", "cpu_from_cpu", "cpu_from_gpu", "gpu_from_cpu")
@@ -103,70 +105,126 @@ def copied_bytes(reads: dict, placement: dict, order: list) -> dict:
 
 # --------------------------------------------------------------------------- fitting
 
+#: Grid of slowdowns per busy neighbour tried by :func:`fit_slowdown` (per kind of
+#: neighbour: busy CPU workers, the busy GPU host thread).
+SLOWDOWN_GRID = np.linspace(0.0, 2.0, 21)
+
+#: Grid of fixed in-frame costs per task (ms: the executor's bookkeeping inside a task's
+#: interval, what makes a 3 us node take 20 us) tried by :func:`fit_slowdown`.
+OVERHEAD_GRID = np.linspace(0.0, 0.1, 11)
+
+#: Weight of a contention probe (:func:`~warpvx.graph.calibration.measure_contention`)
+#: measurement in the fit, in training samples.
+PROBE_WEIGHT = 8
+
 
 @dataclass
 class Slowdown:
     """The fitted contention law of one kind of processing element.
 
-    ``ratio``: in-frame over alone time with no busy neighbour; ``per_thread``: extra
-    slowdown per busy neighbour (``a``); ``node``: node -> its correction factor ``e``;
-    ``samples``: how many samples the fit used; ``rms_log``: the fit's rms residual of
-    ``log(measured / predicted)``.
+    ``ratio``: in-frame over alone time with no busy neighbour, for a node not seen on this
+    kind (the alone-time-weighted median of the seen nodes'); ``per_cpu``/``per_gpu``: extra
+    slowdown per busy CPU worker / while the GPU host thread is busy; ``node``: node -> its
+    own in-frame ratio over ``ratio`` (``e``); ``samples``: how many samples the fit used;
+    ``rms_log``: the fit's rms residual of ``log(measured / predicted)``; ``overhead``: the
+    fixed in-frame cost of a task (ms).
     """
 
     ratio: float = 1.0
-    per_thread: float = 0.0
+    per_cpu: float = 0.0
+    per_gpu: float = 0.0
     node: dict = field(default_factory=dict)
     samples: int = 0
     rms_log: float = 0.0
+    overhead: float = 0.0
 
-    def factor(self, node: str, busy: float) -> float:
-        """Measured over alone time of ``node`` with ``busy`` other threads busy throughout."""
-        return self.ratio * self.node.get(node, 1.0) * (1.0 + self.per_thread * busy)
+    def in_frame(self, node: str, alone: float) -> float:
+        """``node``'s time (ms) in a frame with no busy neighbour, ``alone`` ms alone."""
+        return (self.ratio * alone + self.overhead) * self.node.get(node, 1.0)
+
+    def speed_divisor(self, cpus: float, gpus: float) -> float:
+        """``1 + per_cpu * cpus + per_gpu * gpus``: how much slower than with none busy."""
+        return 1.0 + self.per_cpu * cpus + self.per_gpu * gpus
 
 
-def fit_slowdown(samples, *, per_node: bool = True) -> Slowdown:
-    """Fit ``measured = ratio * e_node * alone * (1 + a * busy)`` to ``samples``.
+def fit_slowdown(samples, probes=(), *, per_node: bool = True) -> Slowdown:
+    """Fit ``measured = (ratio * alone + overhead) * (1 + a * cpus + b * gpus) * e_node``.
 
     Parameters
     ----------
-    samples : iterable of (node, alone_ms, measured_ms, busy)
-        ``busy``: the mean number of other host threads busy during the measured interval.
-        Samples with a non-positive time are skipped.
+    samples : iterable of (node, alone_ms, measured_ms, cpus, gpus)
+        ``cpus``/``gpus``: the mean number of other CPU workers / GPU host threads busy
+        during the measured interval. Samples with a non-positive time are skipped.
+    probes : iterable of (alone_ms, loaded_ms, cpus, gpus)
+        A call timed alone and with that many threads of each kind busy beside it
+        (:func:`~warpvx.graph.calibration.measure_contention`): each adds
+        :data:`PROBE_WEIGHT` times its ``|log(loaded / alone) - log(1 + a cpus + b gpus)|``
+        to the cost, so ``a`` and ``b`` are known even when the frames kept the other
+        threads idle; they do not enter ``ratio`` or ``overhead``.
     per_node : bool
-        Fit the per-node corrections ``e`` (geometric mean 1 over the nodes); without them
-        every node shares ``ratio``.
+        Also fit each node's correction ``e`` (the median of its samples' residuals,
+        after the shared law), else ``e = 1``.
 
     Returns
     -------
     Slowdown
-        ``a`` is the best of :data:`SLOWDOWN_GRID` (least squares on the logs, ``ratio`` and
-        ``e`` solved exactly for each ``a``).
+        The shared law first, over every node at once, so that ``a`` and ``b`` come from
+        how nodes that ran beside busy threads differ from nodes that did not (a per-node
+        factor fitted with them would absorb each node's usual contention, and a node
+        moved to a busier or quieter place would be mispredicted): ``a``, ``b`` and
+        ``overhead`` on :data:`SLOWDOWN_GRID`/:data:`OVERHEAD_GRID`, ``ratio`` the
+        alone-time-weighted median for each; kept: the triple with the least absolute
+        deviation of the logs, summed over all samples under the one law plus within each
+        node (its samples about their mean: how one node's time moved with its neighbours)
+        -- absolute deviations and medians, so a frame the machine hiccupped in does not
+        move the fit. A kind of neighbour never busy in the samples (nor in a probe) cannot
+        be identified and stays 0.
     """
-    rows = [(n, a, m, c) for n, a, m, c in samples if a > 0 and m > 0]
+    rows = [r for r in samples if r[1] > 0 and r[2] > 0]
     if not rows:
         return Slowdown()
+    alone = np.array([r[1] for r in rows])
+    meas = np.array([r[2] for r in rows])
+    cpus = np.array([r[3] for r in rows], np.float64)
+    gpus = np.array([r[4] for r in rows], np.float64)
+    probes = np.array([p for p in probes if p[0] > 0 and p[1] > 0], np.float64).reshape(-1, 4)
+    p_log = np.log(probes[:, 1] / probes[:, 0])
     names = sorted({r[0] for r in rows})
     idx = np.array([names.index(r[0]) for r in rows])
-    y = np.log(np.array([r[2] / r[1] for r in rows]))
-    busy = np.array([r[3] for r in rows], np.float64)
+    groups = [np.flatnonzero(idx == i) for i in range(len(names))]
+    counts = np.bincount(idx, minlength=len(names))
     best = None
-    for a in SLOWDOWN_GRID:
-        z = y - np.log1p(a * busy)
-        if per_node:
-            means = np.bincount(idx, z, len(names)) / np.bincount(idx, minlength=len(names))
-            resid = z - means[idx]
-        else:
-            means = np.full(len(names), z.mean())
-            resid = z - z.mean()
-        sse = float(resid @ resid)
-        if best is None or sse < best[0] - 1e-12:
-            best = (sse, a, means)
-    sse, a, means = best
-    # ratio: the samples' mean (a node seen often weighs more); e: each node's offset from it.
-    log_ratio = float(np.mean(means[idx]))
-    node = {n: math.exp(m - log_ratio) for n, m in zip(names, means)} if per_node else {}
-    return Slowdown(math.exp(log_ratio), float(a), node, len(rows), math.sqrt(sse / len(rows)))
+    for a in SLOWDOWN_GRID if np.ptp(cpus) > 0 or probes[:, 2].any() else (0.0,):
+        for b in SLOWDOWN_GRID if np.ptp(gpus) > 0 or probes[:, 3].any() else (0.0,):
+            plain = meas / (1.0 + a * cpus + b * gpus)
+            probe_cost = PROBE_WEIGHT * float(
+                np.abs(p_log - np.log1p(a * probes[:, 2] + b * probes[:, 3])).sum())
+            for d in OVERHEAD_GRID:
+                ratio = _weighted_median((plain - d) / alone, alone)
+                if ratio <= 0:
+                    continue
+                z = np.log(plain / (ratio * alone + d))
+                within = z - (np.bincount(idx, z, len(names)) / counts)[idx]
+                cost = float(np.abs(z).sum() + np.abs(within).sum()) + probe_cost
+                if best is None or cost < best[0] - 1e-12:
+                    best = (cost, a, b, d, ratio)
+    if best is None:
+        return Slowdown()
+    _, a, b, d, ratio = best
+    z = np.log(meas / ((ratio * alone + d) * (1.0 + a * cpus + b * gpus)))
+    node = {}
+    if per_node:
+        meds = np.array([np.median(z[g]) for g in groups])
+        node = {n: math.exp(float(m)) for n, m in zip(names, meds)}
+        z = z - meds[idx]
+    return Slowdown(float(ratio), float(a), float(b), node, len(rows),
+                    math.sqrt(float(z @ z) / len(rows)), float(d))
+
+
+def _weighted_median(values, weights) -> float:
+    order = np.argsort(values)
+    cum = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
 def busy_overlap(interval, others) -> float:
@@ -210,6 +268,9 @@ class ContentionModel:
         The GPU role is a CUDA device (host enqueue and device run apart).
     trained_on : str
         The policy whose frames the model learnt from, and how many.
+    copy_scale : dict
+        ``"cpu"``/``"gpu"`` -> median of measured over modelled copy time in the training
+        frames (a frame's pageable arrays copy slower than calibration's buffers).
     """
 
     slowdown: dict
@@ -219,15 +280,20 @@ class ContentionModel:
     transfer: object
     cuda: bool
     trained_on: str = ""
+    copy_scale: dict = field(default_factory=dict)
 
     def work(self, node: str, pe: str, copied: int = 0) -> float:
-        """``node``'s alone work on ``pe`` plus its copies of ``copied`` bytes (ms)."""
+        """``node``'s time on ``pe`` in a frame with no busy neighbour, its copies of
+        ``copied`` bytes included (ms)."""
         alone = self.alone[node][pe]
         if alone is None:
             raise GraphError(f"node {node!r}: no {pe.upper()} implementation to predict")
-        if copied:
-            alone += self.transfer.upload(copied) if pe == "gpu" else self.transfer.download(copied)
-        return alone
+        return self.slowdown[pe].in_frame(node, alone) + self.copy_time(pe, copied)
+
+    def copy_time(self, pe: str, nbytes: int) -> float:
+        """The copies a task on ``pe`` makes of ``nbytes`` (uploads on the GPU thread,
+        downloads on a CPU worker): the transfer model scaled by ``copy_scale``."""
+        return self.copy_scale.get(pe, 1.0) * _copy_ms(self.transfer, pe, nbytes)
 
     def predict(self, plan_or_schedule, processors=None) -> Schedule:
         """The predicted timeline of one frame of a plan (or of a Schedule's orders):
@@ -243,9 +309,11 @@ class ContentionModel:
         """JSON-friendly parameters."""
         return {
             "trained_on": self.trained_on,
-            "slowdown": {k: {"ratio": s.ratio, "per_thread": s.per_thread, "samples": s.samples,
-                             "rms_log": s.rms_log} for k, s in self.slowdown.items()},
+            "slowdown": {k: {"ratio": s.ratio, "overhead_us": s.overhead * 1e3, "per_cpu": s.per_cpu,
+                             "per_gpu": s.per_gpu, "samples": s.samples, "rms_log": s.rms_log}
+                         for k, s in self.slowdown.items()},
             "latency_us": {k: v * 1e3 for k, v in self.latency.items()},
+            "copy_scale": dict(self.copy_scale),
         }
 
 
@@ -284,11 +352,6 @@ def _ready_parts(run, task, reads, placement, hosts):
     return cls, ready
 
 
-#: Weight of a contention probe (:func:`~warpvx.graph.calibration.measure_contention`)
-#: measurement in the fit, in training samples.
-PROBE_WEIGHT = 8
-
-
 def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
         probe: dict | None = None) -> ContentionModel:
     """Learn a :class:`ContentionModel` from frames run with one plan.
@@ -304,11 +367,10 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     placement : dict
         node -> processor of the plan that ran.
     probe : dict, optional
-        :func:`~warpvx.graph.calibration.measure_contention`'s ``kind -> (node, alone,
-        loaded, busy)``: a node timed alone and with ``busy`` other host threads busy, so
-        the slowdown per busy thread is known even when the training placement keeps the
-        other threads idle. It enters the fit as :data:`PROBE_WEIGHT` pairs of samples
-        under a name of its own (its in-frame correction stays apart).
+        :func:`~warpvx.graph.calibration.measure_contention`'s ``(victim, loader) ->
+        (node, alone, loaded, busy_cpus, busy_gpus)``: a node timed alone and with other
+        host threads busy, so the slowdown per busy thread of each kind is known even when
+        the training placement keeps the other threads idle (see :func:`fit_slowdown`).
     """
     runs = [r for r in runs if r.timeline]
     if not runs:
@@ -316,29 +378,39 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     alone = alone_costs(calibration)
     cuda = bool(calibration.gpu) and calibration.gpu.startswith("cuda")
     samples = {"cpu": [], "gpu": []}
+    copies = {"cpu": [], "gpu": []}
     waits = {k: [] for k in LATENCIES}
     for run in runs:
         hosts = host_intervals(run)
         for task, (proc, s, f) in hosts.items():
             pe = pe_of(proc)
-            others = [(a, b) for t, (p, a, b) in hosts.items() if p != proc]
-            a = alone[task][pe]
-            if a is not None:
-                a += _copy_ms(calibration.transfer, pe, run.copied.get(task, 0))
-                samples[pe].append((task, a, f - s, busy_overlap((s, f), others)))
+            copy_ms = run.transfers.get(task, 0.0)
+            modelled = _copy_ms(calibration.transfer, pe, run.copied.get(task, 0))
+            busy = [busy_overlap((s, f), [(b0, b1) for p, b0, b1 in hosts.values()
+                                          if p != proc and pe_of(p) == kind])
+                    for kind in ("cpu", "gpu")]
+            if copy_ms > 0 and modelled > 0:
+                copies[pe].append((copy_ms / modelled, *busy))
+            if alone[task][pe] is not None:
+                samples[pe].append((task, alone[task][pe], f - s - copy_ms, *busy))
             cls, ready = _ready_parts(run, task, reads, placement, hosts)
             waits[cls].append(max(0.0, s - ready))
-    for pe, (node, alone_ms, loaded, busy) in (probe or {}).items():
-        samples[pe] += [(f"{node} (probe)", alone_ms, alone_ms, 0.0),
-                        (f"{node} (probe)", alone_ms, loaded, float(busy))] * PROBE_WEIGHT
-    slow = {pe: fit_slowdown(s) for pe, s in samples.items()}
+    probes = {"cpu": [], "gpu": []}
+    for (pe, _), (_node, alone_ms, loaded, cpus, gpus) in (probe or {}).items():
+        probes[pe].append((alone_ms, loaded, cpus, gpus))
+    slow = {pe: fit_slowdown(s, probes[pe]) for pe, s in samples.items()}
     d = calibration.dispatch or {}
     fallback = {"start": d.get("start", 0.0), "cpu_same": d.get("cpu_gap", 0.0),
                 "gpu_same": d.get("gpu_gap", 0.0), "cpu_from_cpu": d.get("cpu_gap", 0.0),
                 "cpu_from_gpu": d.get("handoff", 0.0), "gpu_from_cpu": d.get("handoff", 0.0)}
     latency = {k: statistics.median(v) if v else fallback[k] for k, v in waits.items()}
+    # Copies slow down with busy neighbours like the rest of the task (the simulation
+    # applies the same speed to the whole task), so their scale is taken without that.
+    copy_scale = {pe: statistics.median(r / slow[pe].speed_divisor(c, g) for r, c, g in v)
+                  for pe, v in copies.items() if v}
     return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
-                           f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames")
+                           f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames",
+                           copy_scale)
 
 
 def _copy_ms(transfer, pe, n):
@@ -407,8 +479,7 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
             if t <= now + 1e-12:
                 task = queues[p][pos[p]]
                 pe = pe_of(p)
-                work = model.work(task, pe, copied.get(task, 0)) * \
-                    model.slowdown[pe].factor(task, 0.0)
+                work = model.work(task, pe, copied.get(task, 0))
                 running[p] = [task, work, now]
         if not running:
             if not starts:
@@ -416,8 +487,12 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
             now = min(t for t, _ in starts)
             continue
         # Advance to the next start or end at the current speeds.
-        n_busy = len(running)
-        speed = {p: 1.0 / (1.0 + model.slowdown[pe_of(p)].per_thread * (n_busy - 1)) for p in running}
+        kinds = [pe_of(p) for p in running]
+        speed = {}
+        for p in running:
+            me = pe_of(p)
+            cpus, gpus = kinds.count("cpu") - (me == "cpu"), kinds.count("gpu") - (me == "gpu")
+            speed[p] = 1.0 / model.slowdown[me].speed_divisor(cpus, gpus)
         dt_end = min(r[1] / speed[p] for p, r in running.items())
         pending = [t for t, p in starts if p not in running and t > now]
         dt = min([dt_end] + [t - now for t in pending])
@@ -462,7 +537,7 @@ def in_frame_dag(model: ContentionModel, pes: dict, n_cpus: int):
             if pe not in allowed or model.alone[node][pe] is None:
                 times.append(None)
                 continue
-            t = model.work(node, pe) * model.slowdown[pe].factor(node, 0.0)
+            t = model.work(node, pe)
             times.append(max(t, model.alone[node]["device"]) if pe == "gpu" else t)
         tasks[node] = tuple(times)
     handoff = 0.5 * (model.latency["cpu_from_gpu"] + model.latency["gpu_from_cpu"])
@@ -474,8 +549,8 @@ def in_frame_dag(model: ContentionModel, pes: dict, n_cpus: int):
     return cpu_gpu_dag(tasks, edges, n_cpus)
 
 
-def choose(model: ContentionModel, dags: dict, policies=("baseline", "heft", "xeft")) -> tuple:
-    """The schedule ``model`` predicts fastest among ``policies`` run on each of ``dags``.
+def choose(model: ContentionModel, dags: dict, policies=("baseline", "heft", "xeft")) -> list:
+    """Every candidate schedule of ``policies`` on each of ``dags``, fastest predicted first.
 
     Parameters
     ----------
@@ -484,26 +559,30 @@ def choose(model: ContentionModel, dags: dict, policies=("baseline", "heft", "xe
 
     Returns
     -------
-    (Schedule, task DAG, predicted Schedule)
-        The winner (``info["chosen"]`` names its policy and DAG, ``info["candidates"]``
-        maps each candidate to its predicted makespan in ms), the DAG it was scheduled on,
-        and its simulation.
+    list of (name, Schedule, task DAG, predicted Schedule)
+        ``name``: ``"<policy>"`` or ``"<policy> (<label>)"``; a schedule with the same
+        placement and per-processor order as a faster one is left out (it would run the
+        same). Each Schedule's ``info["candidates"]`` maps every candidate's name to its
+        predicted makespan (ms).
     """
     from .. import sched
 
-    best, found = None, {}
+    found, seen, out = {}, set(), []
     for label, dag in dags.items():
         for policy in policies:
             sch = sched.schedule(dag, policy)
             pred = simulate(model, sch)
             name = f"{policy} ({label})" if label else policy
             found[name] = pred.makespan
-            if best is None or pred.makespan < best[2].makespan:
-                best = (sch, dag, pred, name)
-    sch, dag, pred, name = best
-    sch.info = {**sch.info, "chosen": name, "candidates": found}
-    sch.policy = "best"
-    return sch, dag, pred
+            order = tuple(sorted(sch.tasks, key=lambda v: (sch.tasks[v].processor, sch.tasks[v].start)))
+            key = (tuple(sch.tasks[v].processor for v in order), order)
+            if key not in seen:
+                seen.add(key)
+                out.append((name, sch, dag, pred))
+    out.sort(key=lambda c: c[3].makespan)
+    for _, sch, _, _ in out:
+        sch.info = {**sch.info, "candidates": found}
+    return out
 
 
 __all__ = [

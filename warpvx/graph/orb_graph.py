@@ -5,15 +5,16 @@ level l, the nodes of SPEC §6:
 
 - ``Scale[l]``: level l resized INTER_LINEAR from level l-1 (the ``resize`` primitive: cpu
   and Warp); level 0 is the camera's input;
-- ``FAST[l]``: FAST-9/16 per 30x30 cell at the lower threshold (CPU, OpenCV's detector);
+- ``FAST[l]``: FAST-9/16 per 30x30 cell at the lower threshold;
 - ``Grid[l]``: the per-cell threshold (a cell keeps its points >= ``ini_th_fast`` when it has
-  any, else >= ``min_th_fast``; CPU);
-- ``Quadtree[l]``: ORB-SLAM2's sequential ``DistributeOctTree`` (CPU-exclusive, as in the
-  thesis);
-- ``Angle[l]``: intensity-centroid orientation (CPU);
-- ``Blur[l]``: the 7x7, sigma 2 Gaussian (the ``gaussian_blur`` primitive: cpu and Warp);
-- ``Descriptor[l]``: rotated BRIEF (CPU);
-- ``ScaleBack[l]``: coordinates to level 0 and the keypoint fields (CPU);
+  any, else >= ``min_th_fast``);
+- ``Quadtree[l]``: ORB-SLAM2's ``DistributeOctTree``: sequential on a CPU worker, the fused
+  extractor's parallel quadtree on the GPU role (``gpu_quadtree=False``: CPU-exclusive, as
+  in the thesis);
+- ``Angle[l]``: intensity-centroid orientation;
+- ``Blur[l]``: the 7x7, sigma 2 Gaussian (the ``gaussian_blur`` primitive);
+- ``Descriptor[l]``: rotated BRIEF;
+- ``ScaleBack[l]``: coordinates to level 0 and the keypoint fields;
 
 and one ``Handoff`` per camera joining the levels into the outputs ``cam{i}.x``, ``.y``,
 ``.response``, ``.size``, ``.angle``, ``.octave`` (float32 / int32 [N]) and ``.descriptors``
@@ -21,10 +22,11 @@ and one ``Handoff`` per camera joining the levels into the outputs ``cam{i}.x``,
 after camera 0's input does real GPU work for that long (:func:`dl_workload`): the thesis'
 deep-learning node.
 
-The stages reuse the extractor's own per-level functions (:mod:`warpvx.kernels_cpu.orb`), so
-the graph computes ORB-SLAM2's features exactly; the fused Warp extractor (``warpvx.orb`` on
-the warp backend, the parallel quadtree included) works on the whole pyramid at once and is
-not split into these nodes.
+Every stage has a CPU implementation (the CPU extractor's own per-level functions,
+:mod:`warpvx.kernels_cpu.orb`) and a Warp one (:mod:`warpvx.kernels_warp.orb_stages`, the
+quadtree being the fused Warp extractor's device quadtree run on one level); both compute
+ORB-SLAM2's features exactly, so the outputs equal ``warpvx.orb`` whichever side each node is
+placed on. The DL node is GPU-only; with ``gpu_quadtree=False`` the quadtree is CPU-only.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ KEYPOINT_FIELDS = ("x", "y", "response", "size", "angle", "octave")
 
 def orb_graph(cameras: int = 1, levels: int = 8, dl_node_ms=None, *, width: int = 1241,
               height: int = 376, n_features: int = 2000, scale_factor: float = 1.2,
-              ini_th_fast: int = 20, min_th_fast: int = 7) -> Graph:
+              ini_th_fast: int = 20, min_th_fast: int = 7, gpu_quadtree: bool = True) -> Graph:
     """The ORB extraction DAG of thesis Table 5.1 as a graph of per-level stage nodes.
 
     Parameters
@@ -64,6 +66,10 @@ def orb_graph(cameras: int = 1, levels: int = 8, dl_node_ms=None, *, width: int 
         Camera image size (KITTI: 1241x376).
     n_features, scale_factor, ini_th_fast, min_th_fast
         As :func:`warpvx.orb`.
+    gpu_quadtree : bool
+        True: ``Quadtree`` nodes have both implementations, the sequential one on a CPU worker
+        and the fused extractor's parallel one on the GPU role. False: CPU-exclusive, the
+        sequential quadtree only (the thesis' Table 5.1 setting).
 
     Returns
     -------
@@ -101,17 +107,22 @@ def orb_graph(cameras: int = 1, levels: int = 8, dl_node_ms=None, *, width: int 
             tag = f"{cam}.{lvl}"
             img = prev if lvl == 0 else g.resize(prev, dsize=sizes[lvl], name=f"Scale{tag}")
             prev = img
-            x, y, s = g.user(_fast(ths), [img], 3, name=f"FAST{tag}")
-            x, y, s = g.user(_grid(ths), [img, x, y, s], 3, name=f"Grid{tag}")
-            x, y, s = g.user(_quadtree(wanted[lvl]), [img, x, y, s], 3, name=f"Quadtree{tag}")
-            angle = g.user(orb_cpu.compute_orientation, [img, x, y], name=f"Angle{tag}")
+            fast, fast_warp = _fast(min(ths))
+            x, y, s = g.user(fast, [img], 3, warp_fn=fast_warp, name=f"FAST{tag}")
+            grid, grid_warp = _grid(ths)
+            x, y, s = g.user(grid, [img, x, y, s], 3, warp_fn=grid_warp, name=f"Grid{tag}")
+            tree, tree_warp = _quadtree(wanted[lvl], scale_factor, gpu_quadtree)
+            x, y, s = g.user(tree, [img, x, y, s], 3, warp_fn=tree_warp, name=f"Quadtree{tag}")
+            angle = g.user(orb_cpu.compute_orientation, [img, x, y], warp_fn=_warp("angle"),
+                           name=f"Angle{tag}")
             blurred = g.gaussian_blur(img, 7, 2.0, name=f"Blur{tag}")
             desc = g.user(orb_cpu.compute_descriptors, [blurred, x, y, angle],
-                          name=f"Descriptor{tag}")
-            back = g.user(_scale_back(lvl, scale_factor, levels), [x, y, s, angle], 6,
-                          name=f"ScaleBack{tag}")
+                          warp_fn=_warp("describe"), name=f"Descriptor{tag}")
+            back, back_warp = _scale_back(lvl, scale_factor, levels)
+            back = g.user(back, [x, y, s, angle], 6, warp_fn=back_warp, name=f"ScaleBack{tag}")
             parts.append((*back, desc))
         joined = g.user(_handoff, [d for part in parts for d in part], len(KEYPOINT_FIELDS) + 1,
+                        warp_fn=_warp("handoff", n_fields=len(KEYPOINT_FIELDS) + 1),
                         name=f"Handoff{cam}")
         for field, data in zip(KEYPOINT_FIELDS + ("descriptors",), joined):
             g.output(f"cam{cam}.{field}", data)
@@ -119,29 +130,48 @@ def orb_graph(cameras: int = 1, levels: int = 8, dl_node_ms=None, *, width: int 
 
 
 # ------------------------------------------------------------------------ stage callables
-# Each returns a plain function of the node's inputs (user nodes take positional arrays);
-# parameters are bound by closure so one graph can hold levels with different settings.
+# Each factory returns the node's (fn, warp_fn): plain functions of the node's inputs (user
+# nodes take positional arrays), parameters bound by closure so one graph can hold levels with
+# different settings. The qualified names carry the parameters: calibration caches a node's
+# costs under its callables' names and input sizes.
 
 
-def _fast(ths):
+def _named(fn, label: str):
+    fn.__qualname__ = label
+    return fn
+
+
+def _warp(stage: str, *args, **kwargs):
+    """``kernels_warp.orb_stages.<stage>(*inputs, *args, **kwargs)``, imported at the first
+    call (building the graph loads no Warp)."""
+    def run(*inputs):
+        from ..kernels_warp import orb_stages
+
+        return getattr(orb_stages, stage)(*inputs, *args, **kwargs)
+    params = ",".join(map(str, args + tuple(kwargs.values())))
+    return _named(run, f"orb_stages.{stage}[{params}]")
+
+
+def _fast(th):
     def fast(level):
-        return orb_cpu.detect_cells(level, min(ths))
-    return fast
+        return orb_cpu.detect_cells(level, th)
+    return _named(fast, f"fast[{th}]"), _warp("fast", th)
 
 
 def _grid(ths):
     def grid(level, x, y, s):
         keep = orb_cpu.select_cells(x, y, s, cell_grid(level.shape[1], level.shape[0]), *ths)
         return x[keep], y[keep], s[keep]
-    return grid
+    return _named(grid, f"grid[{ths}]"), _warp("grid", *ths)
 
 
-def _quadtree(n_wanted):
+def _quadtree(n_wanted, scale_factor, on_gpu):
     def quadtree(level, x, y, s):
         kept = orb_cpu.distribute_octtree(x, y, s, cell_grid(level.shape[1], level.shape[0]),
                                           n_wanted)
         return x[kept], y[kept], s[kept]
-    return quadtree
+    return (_named(quadtree, f"quadtree[{n_wanted}]"),
+            _warp("quadtree", n_wanted, scale_factor) if on_gpu else None)
 
 
 def _scale_back(lvl, scale_factor, levels):
@@ -152,7 +182,8 @@ def _scale_back(lvl, scale_factor, levels):
         sx, sy = orb_cpu.scale_back(x, y, octave, scale_factor, levels)
         return (sx, sy, s.astype(np.float32), np.full(x.size, size, np.float32),
                 np.asarray(angle, np.float32), octave)
-    return scale_back
+    return (_named(scale_back, f"scale_back[{lvl},{scale_factor},{levels}]"),
+            _warp("scale_back", lvl, scale_factor, levels))
 
 
 def _handoff(*parts):
@@ -246,4 +277,5 @@ def dl_workload(ms: float):
         device = str(src.device)
         return _run_dl(dl_iterations(ms, device), device)
 
-    return dl
+    # Calibration caches costs by callable name and input sizes: one name per duration.
+    return _named(dl, f"dl_workload[{ms:g}ms]")

@@ -121,10 +121,7 @@ def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title
         else:
             narrow.append((t, y))
     numbered = sorted(narrow, key=lambda ty: (ty[1], ty[0].start))
-    for i, (t, y) in enumerate(numbered, 1):
-        # Staggered above the bar so neighbouring slivers' numbers do not collide.
-        ax.text((t.start + t.finish) / 2, y - 0.31 - 0.13 * (i % 3), str(i), ha="center",
-                va="bottom", fontsize=6, zorder=3, clip_on=True)
+    _number_slivers(ax, numbered, span)
     ax.set_yticks(range(len(procs)))
     ax.set_yticklabels(procs)
     ax.set_ylim(len(procs) - 0.5, -0.85)  # room above the top row for sliver numbers
@@ -150,11 +147,40 @@ def plot_gantt(schedule: Schedule, ax=None, dag: nx.DiGraph | None = None, title
     return ax
 
 
+def _number_slivers(ax, numbered, span: float, fontsize: float = 6):
+    """Number the bars too narrow for their name (``numbered``: (task, row) in order, 1 up)
+    above their row. Slivers closer together than a number is wide share one label
+    ("3-9"); labels near each other go on different levels (4 at most) so none overlap."""
+    clusters = []  # [row, first number, last number, first x, last x]
+    for i, (t, y) in enumerate(numbered, 1):
+        x = (t.start + t.finish) / 2
+        c = clusters[-1] if clusters else None
+        if c and c[0] == y and x - c[3] < _text_width(ax, f"{c[1]}-{i}", span, fontsize):
+            c[2], c[4] = i, x
+        else:
+            clusters.append([y, i, i, x, x])
+    placed = []  # (row, level, x, half width)
+    for y, a, b, x0, x1 in clusters:
+        text = str(a) if a == b else f"{a}-{b}"
+        half = _text_width(ax, text, span, fontsize) / 2
+        x = min(max((x0 + x1) / 2, half), span * 1.02 - half)  # inside the axis
+        busy = {lv for row, lv, px, ph in placed if row == y and abs(px - x) < half + ph}
+        level = next((lv for lv in range(4) if lv not in busy), a % 4)
+        placed.append((y, level, x, half))
+        ax.text(x, y - 0.31 - 0.13 * level, text, ha="center", va="bottom", fontsize=fontsize,
+                zorder=3, clip_on=True)
+
+
 def _fits(ax, text: str, width: float, span: float, fontsize: float = 7) -> bool:
     """Whether ``text`` fits inside a bar ``width`` long on an axis about ``span`` wide."""
-    dpi = ax.figure.dpi
-    bar_px = ax.bbox.width * width / (span * 1.02)
-    return bar_px > (0.62 * fontsize * len(text) + 6) * dpi / 72
+    return width > _text_width(ax, text, span, fontsize)
+
+
+def _text_width(ax, text: str, span: float, fontsize: float) -> float:
+    """About how long ``text`` is, with a little margin, in time units of an axis about
+    ``span`` wide."""
+    px = (0.62 * fontsize * len(text) + 6) * ax.figure.dpi / 72
+    return px * span * 1.02 / ax.bbox.width
 
 
 def _figsize(schedule):
