@@ -354,8 +354,11 @@ class OrbPlan:
                   inputs=[wp.uint64(self.blurred.ptr), batch, self.level_info, self.counters,
                           self.final_values_b, self.cand, self.moments, self.pattern],
                   outputs=[self.kp_fields, self.kp_octave, self.desc], device=dev)
+
+    def stage_heads(self):
+        """Each image's counters the host reads, into one block (:meth:`read_head`)."""
         wp.launch(gather_heads, dim=self.heads.shape, inputs=[self.counters],
-                  outputs=[self.heads], device=dev)
+                  outputs=[self.heads], device=self.device)
 
     def program(self):
         """Every device stage, fixed shapes: what the graph holds. On CUDA the blur runs on a
@@ -373,6 +376,7 @@ class OrbPlan:
             self.stage_quadtree()
             main.wait_stream(self.side)
         self.stage_describe()
+        self.stage_heads()
 
     def launch(self):
         """Run the program: eagerly the first time (loads the modules), then from a graph."""
@@ -396,7 +400,8 @@ class OrbPlan:
 
     def read_head(self) -> np.ndarray:
         """int32 [batch, C_NODES + n_levels]: per image the counters the host needs
-        (candidates, finals, overflow, nodes); one copy, one sync."""
+        (candidates, finals, overflow, nodes) as :meth:`stage_heads` left them; one copy, one
+        sync."""
         wp.copy(self.head, self.heads)
         if self.device.is_cuda:
             wp.synchronize_stream(wp.get_stream(self.device))
