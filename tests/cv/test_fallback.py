@@ -100,26 +100,6 @@ def test_fast_mask_like_cv2(backend):
     assert [k.pt for k in got] == [k.pt for k in ref]
 
 
-def test_orb_mask_keeps_keypoints_inside(backend):
-    img = gray("coffee")
-    mask = _mask(img)
-    orb = wcv.ORB_create(1000, backend=backend)
-    kps, desc = orb.detectAndCompute(img, mask)
-    all_kps, all_desc = orb.detectAndCompute(img, None)
-    inside = [i for i, k in enumerate(all_kps) if mask[int(k.pt[1] + 0.5), int(k.pt[0] + 0.5)]]
-    assert 0 < len(kps) == len(inside) < len(all_kps)
-    assert np.array_equal(desc, all_desc[inside])
-
-
-def test_orb_small_image_like_cv2(backend):
-    for h, w in ((8, 13), (40, 45), (64, 69)):
-        img = np.ascontiguousarray(gray("camera")[:h, :w])
-        got = wcv.ORB_create(backend=backend).detectAndCompute(img, None)
-        ref = cv2.ORB_create().detectAndCompute(img, None)
-        assert len(got[0]) == len(ref[0])
-        assert (got[1] is None) == (ref[1] is None)
-
-
 def test_orb_setters_getters_and_write_read():
     orb = wcv.ORB_create()
     orb.setMaxFeatures(200)

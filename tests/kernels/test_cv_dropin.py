@@ -1,6 +1,6 @@
 """warpvx.cv as a drop-in for real scripts: names it does not accelerate are cv2's own, arrays
 are taken as cv2 takes them (strided views, strided dst, fixed-point remap maps), and ORB
-returns what cv2.ORB returns (at most nfeatures; empty compute)."""
+returns what cv2.ORB returns (cv2's count; empty compute)."""
 
 from __future__ import annotations
 
@@ -69,7 +69,9 @@ def test_script_with_drop_in_recovers_a_homography(tmp_path, backend):
     corners = np.float32([[0, 0], [639, 0], [639, 426], [0, 426]])[:, None]
     got = wcv.perspectiveTransform(corners, h)
     want = cv2.perspectiveTransform(corners, h_true)
-    assert np.abs(got - want).max() < 2.0
+    # cv2's own ORB features, listed in 20 other orders, put the corners 0.25-2.5 px off
+    # here: RANSAC's samples depend on the order (warpvx.cv.ORB lists cv2's set in its own).
+    assert np.abs(got - want).max() < 3.0
 
 
 # --- strided views in, strided dst out -------------------------------------------------------
@@ -231,30 +233,22 @@ def test_remap_on_warp_arrays_interleaved_and_fixed(warp_backend):
         wcv.remap(src, wp.array(m1, dtype=wp.int16, device=dev), None, wcv.INTER_LINEAR)
 
 
-# --- ORB: at most nfeatures; compute with no keypoints --------------------------------------
+# --- ORB: cv2's count; compute with no keypoints -------------------------------------------
 
 
 @pytest.mark.parametrize("name,n", [("camera", 500), ("astronaut", 2000), ("coffee", 100),
                                     ("chelsea", 500)])
-def test_orb_returns_at_most_nfeatures_like_cv2(backend, name, n):
+def test_orb_returns_cv2s_count(backend, name, n):
+    """As many keypoints as cv2 (nfeatures where the photo has that many corners), with a
+    descriptor row each; detect gives detectAndCompute's keypoints (their positions against
+    cv2's: tests/cv/test_orb_opencv.py)."""
     img = gray(name)
-    full_kps, full_desc = warpvx.orb(img, n, backend=backend)
-    full_kps = full_kps.to("host")
-    full_desc = full_desc if isinstance(full_desc, np.ndarray) else full_desc.numpy()
-    assert len(full_kps) > n  # ORB-SLAM2's over-shoot, which warpvx.orb keeps
-    assert len(cv2.ORB_create(n).detect(img)) <= n  # cv2's promise
+    ref = cv2.ORB_create(n).detect(img)
     orb = wcv.ORB_create(n, backend=backend)
     kps, desc = orb.detectAndCompute(img, None)
-    assert len(kps) == n and desc.shape == (n, 32)
+    assert abs(len(kps) - len(ref)) <= max(1, 0.01 * len(ref)) and len(kps) <= n
+    assert desc.shape == (len(kps), 32) and desc.dtype == np.uint8
     assert [k.pt for k in orb.detect(img)] == [k.pt for k in kps]
-    # the strongest n by response, in warpvx.orb's order, with their own descriptor rows
-    pos = {(float(x), float(y), int(o)): i for i, (x, y, o) in
-           enumerate(zip(full_kps.x, full_kps.y, full_kps.octave))}
-    idx = np.array([pos[(k.pt[0], k.pt[1], k.octave)] for k in kps])
-    assert (np.diff(idx) > 0).all()
-    dropped = np.setdiff1d(np.arange(len(full_kps)), idx)
-    assert full_kps.response[idx].min() >= full_kps.response[dropped].max()
-    np.testing.assert_array_equal(desc, full_desc[idx])
 
 
 @pytest.mark.parametrize("keypoints", [None, [], ()], ids=["None", "list", "tuple"])

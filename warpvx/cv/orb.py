@@ -1,55 +1,65 @@
 """warpvx.cv.orb: ORB_create and a Hamming BFMatcher (see warpvx.cv).
 
 Same names, arguments and return values as ``cv2``; the factories also take ``backend=`` as a
-keyword. Strided views are copied once (see :mod:`warpvx.cv`). The ORB detector extracts
-ORB-SLAM2's way (:func:`warpvx.orb`), not OpenCV's, but returns at most ``nfeatures`` as cv2.
+keyword. Strided views are copied once (see :mod:`warpvx.cv`). The ORB detector is OpenCV's
+algorithm (Harris-ranked FAST per level, :mod:`warpvx.cv._orb_detect`) on warpvx primitives;
+ORB-SLAM2's extractor stays :func:`warpvx.orb`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .. import matching, orb_extractor
+from .. import matching
+from ..backend import resolve_backend
 from ..check import check_float, check_int
 from ..errors import ShapeError, UnsupportedError, WarpvxTypeError, WarpvxValueError
-from ..keypoints import Keypoints
+from ..keypoints import Keypoints, check_keypoints
+from ..orb_extractor import MAX_LEVELS
+from . import _orb_detect, _orb_levels
 from ._arrays import contiguous
 from ._fallback import method
-from .features2d import _to_gray, keep_in_mask
+from .features2d import _host_mask, _to_gray
 
 NORM_HAMMING = 6
 NORM_HAMMING2 = 7
-ORB_HARRIS_SCORE = 0
-ORB_FAST_SCORE = 1
+ORB_HARRIS_SCORE = _orb_detect.HARRIS_SCORE
+ORB_FAST_SCORE = _orb_detect.FAST_SCORE
 ORB_kHarrisScore = ORB_HARRIS_SCORE
 ORB_kFastScore = ORB_FAST_SCORE
 
 _CV_8U = 0
-# ORB-SLAM2's per-cell fallback FAST threshold.
-_MIN_TH_FAST = 7
 
 
 class ORB:
-    """cv2.ORB look-alike over :func:`warpvx.orb` (ORB-SLAM2's extractor).
+    """cv2.ORB look-alike: OpenCV's ORB algorithm on warpvx primitives.
 
-    Differences from cv2's ORB, by design: keypoints come from ORB-SLAM2's extractor (FAST per
-    30x30 cell at ``fastThreshold``, falling back to threshold 7 in a cell that has no corner,
-    then the quadtree spread); keypoints are ranked by FAST score whatever ``scoreType``. As
-    cv2, ``detect``/``detectAndCompute`` return at most ``nfeatures``: where ORB-SLAM2's
-    quadtree over-shoots (:func:`warpvx.orb` may return a few more), the strongest by
-    ``response`` are kept, in extraction order (ties keep the earlier one). ``edgeThreshold``
-    only sets the border ``compute`` drops keypoints within (detection keeps ORB-SLAM2's
-    19 px). A ``mask`` keeps the keypoints where it is nonzero (after the ``nfeatures`` cut,
-    so fewer may come back; cv2 masks each pyramid level before it). ``WTA_K`` other than 2,
-    ``firstLevel`` other than 0, ``patchSize`` other than 31 and ``cv2.UMat`` images run on
-    cv2's ORB with the same parameters (:class:`warpvx.cv.CvFallbackWarning`, once).
+    Detection is OpenCV's (:func:`warpvx.cv._orb_detect.detect`): per level, FAST at
+    ``fastThreshold``, keypoints within ``edgeThreshold`` px of the level's border dropped,
+    those where the level's ``mask`` is zero dropped, the best ``2 n_l`` by FAST score kept,
+    then the best ``n_l`` by Harris score (``scoreType`` ORB_HARRIS_SCORE; ORB_FAST_SCORE keeps
+    the best ``n_l`` by FAST score), n_l = ``nfeatures`` split over ``nlevels`` by
+    ``scaleFactor``; angle by intensity centroid; rotated BRIEF (``WTA_K`` 2) on the level
+    blurred 7x7, sigma 2 (:mod:`warpvx.cv._orb_levels`). OpenCV's arithmetic throughout
+    (INTER_LINEAR_EXACT pyramid, integer Harris, float separable blur): keypoints equal cv2's
+    (OpenCV 5.0; 7 real photos x 2 sizes, 12,000 keypoints) and so do descriptors, but for a
+    float rounding now and then (cos/sin of the angle on ``cpu``: one bit of 12,000 descriptors;
+    on Warp also the float32 blur: a few pixels of a photo, 3 descriptors). As cv2, ties at the
+    cut-off score are all kept, so a level may hold a few more than n_l; keypoints come level by
+    level, each level in raster order (cv2: the order ``nth_element`` leaves). ``compute``
+    describes given keypoints the same way, on as many levels as their largest ``octave`` needs.
+
+    ``WTA_K`` other than 2, ``firstLevel`` other than 0, ``patchSize`` other than 31 and
+    ``cv2.UMat`` images run on cv2's ORB with the same parameters
+    (:class:`warpvx.cv.CvFallbackWarning`, once).
     """
 
     def __init__(self, nfeatures=500, scaleFactor=1.2, nlevels=8, edgeThreshold=31,
                  firstLevel=0, WTA_K=2, scoreType=ORB_HARRIS_SCORE, patchSize=31,
                  fastThreshold=20, *, backend=None):
         self.setMaxFeatures(nfeatures)
-        self.setScaleFactor(scaleFactor)
+        # cv2.ORB_create takes scaleFactor as a C float (setScaleFactor as a double).
+        self.setScaleFactor(float(np.float32(check_float(scaleFactor, "scaleFactor"))))
         self.setNLevels(nlevels)
         self.setEdgeThreshold(edgeThreshold)
         self.setFirstLevel(firstLevel)
@@ -64,7 +74,7 @@ class ORB:
     @method
     def detect(self, image, mask=None):
         """Keypoints (tuple of cv2.KeyPoint); a colour image is converted BGR2GRAY as cv2."""
-        return self.detectAndCompute(image, mask)[0]
+        return tuple(self._detect(image, mask)[2].to_cv())
 
     @method
     def compute(self, image, keypoints, descriptors=None):
@@ -79,31 +89,28 @@ class ORB:
         kept = self._inside_border(gray, () if keypoints is None else keypoints)
         if not kept:
             return (), None
-        desc = orb_extractor.orb_compute(gray, Keypoints.from_cv(kept), self._scale,
-                                         backend=self.backend)
+        kps = check_keypoints(Keypoints.from_cv(kept), n_levels=MAX_LEVELS)
+        scales = _orb_detect.layer_scales(self._scale, int(kps.octave.max()) + 1)
+        sizes = _orb_detect.level_sizes(int(gray.shape[1]), int(gray.shape[0]), scales)
+        if min(min(s) for s in sizes) < 1:
+            raise ShapeError(f"keypoints: octave {len(sizes) - 1} has no pyramid level in an "
+                             f"image of {gray.shape[1]}x{gray.shape[0]} (WxH)")
+        be = resolve_backend(self.backend, like=gray)
+        levels = _orb_levels.exact_pyramid(_orb_detect.on_backend(gray, be), sizes)
+        desc = _orb_detect.describe_keypoints(levels, kps, self._scale)
         return tuple(kept), self._host(desc, descriptors)
 
     @method
     def detectAndCompute(self, image, mask, descriptors=None, useProvidedKeypoints=False):
-        """(tuple of cv2.KeyPoint, uint8 [N, 32] or None when none). An image too small for
-        every pyramid level runs on cv2's ORB (which finds what it can, often nothing)."""
+        """(tuple of cv2.KeyPoint, uint8 [N, 32] or None when none). ``mask``: uint8 HxW or
+        None; as cv2, each pyramid level is masked by its resized copy (only 255 kept)."""
         if useProvidedKeypoints:
             raise UnsupportedError("useProvidedKeypoints: use compute(image, keypoints) instead")
-        self._check_accelerated()
-        gray = _to_gray(image, self.backend)
-        try:
-            kps, desc = self._extract(gray)
-        except ShapeError as e:
-            raise UnsupportedError(f"image: {e}") from e
-        cv_kps = kps.to_cv()
-        if mask is not None:
-            kept = keep_in_mask(cv_kps, mask, gray.shape)
-            inside = set(map(id, kept))
-            desc = desc[[i for i, k in enumerate(cv_kps) if id(k) in inside]]
-            cv_kps = kept
-        if len(cv_kps) == 0:
+        _, levels, kps = self._detect(image, mask)
+        if len(kps) == 0:
             return (), None
-        return tuple(cv_kps), self._host(desc, descriptors)
+        desc = _orb_detect.describe_keypoints(levels, kps, self._scale)
+        return tuple(kps.to_cv()), self._host(desc, descriptors)
 
     def write(self, fs, name=None):
         """cv2's Algorithm.write (FileStorage), through an equivalent cv2.ORB."""
@@ -199,12 +206,15 @@ class ORB:
         """A cv2.ORB with these parameters (what calls warpvx does not accelerate run on)."""
         import cv2
 
-        # ORB_create, as the caller would have: it takes scaleFactor as a C float.
-        return cv2.ORB_create(*(getattr(self, "get" + p)() for p in self._PARAMS))
+        twin = cv2.ORB_create()
+        self._set_all(twin, into=twin)
+        return twin
 
-    def _set_all(self, other):
+    def _set_all(self, other, *, into=None):
+        """Copy every parameter from ``other`` (into self), or from self into ``into``."""
+        src, dst = (self, into) if into is not None else (other, self)
         for p in self._PARAMS:
-            getattr(self, "set" + p)(getattr(other, "get" + p)())
+            getattr(dst, "set" + p)(getattr(src, "get" + p)())
 
     def _check_accelerated(self):
         for name, value, accelerated in (("WTA_K", self._wta_k, 2), ("firstLevel", self._first, 0),
@@ -212,17 +222,15 @@ class ORB:
             if value != accelerated:
                 raise UnsupportedError(f"{name}: only {accelerated} is accelerated, got {value}")
 
-    def _extract(self, gray):
-        """Host keypoints and descriptors (NumPy uint8 [N, 32]) of a gray image, at most
-        ``nfeatures``."""
-        kps, desc = orb_extractor.orb(gray, self._nfeatures, self._scale, self._nlevels,
-                                      self._fast, _MIN_TH_FAST, backend=self.backend)
-        kps = kps.to("host")
-        desc = desc if isinstance(desc, np.ndarray) else desc.numpy()
-        if len(kps) > self._nfeatures:
-            keep = np.sort(np.argsort(-kps.response, kind="stable")[:self._nfeatures])
-            kps, desc = kps.take(keep), desc[keep]
-        return kps, desc
+    def _detect(self, image, mask):
+        """(gray image, pyramid levels, host Keypoints): OpenCV's ORB detection with these
+        parameters."""
+        self._check_accelerated()
+        gray = _to_gray(image, self.backend)
+        levels, kps = _orb_detect.detect(gray, self._nfeatures, self._scale, self._nlevels,
+                                         self._edge, self._score_type, self._fast,
+                                         _host_mask(mask, gray.shape), backend=self.backend)
+        return gray, levels, kps
 
     def _inside_border(self, gray, keypoints) -> list:
         kps = list(keypoints)
@@ -250,8 +258,7 @@ class ORB:
 def ORB_create(nfeatures=500, scaleFactor=1.2, nlevels=8, edgeThreshold=31, firstLevel=0,
                WTA_K=2, scoreType=ORB_HARRIS_SCORE, patchSize=31, fastThreshold=20, *,
                backend=None):
-    """cv2.ORB_create, extracting ORB-SLAM2's way (FAST threshold 7 as the per-cell fallback);
-    see :class:`ORB`."""
+    """cv2.ORB_create: OpenCV's ORB on warpvx primitives; see :class:`ORB`."""
     return ORB(nfeatures, scaleFactor, nlevels, edgeThreshold, firstLevel, WTA_K, scoreType,
                patchSize, fastThreshold, backend=backend)
 

@@ -9,6 +9,11 @@ without ``--system-site-packages``) finds them once that folder is on ``sys.path
 system site packages), and only when that fails *appends* the folder, so the interpreter's own
 packages (NumPy, OpenCV) keep precedence over the distribution's. Nothing else in warpvx touches
 ``sys.path``; importing :mod:`warpvx.ros` does not either, the first use of ROS does.
+
+``WARPVX_ROS_PYTHONPATH`` (folders separated by ``os.pathsep``) replaces that folder. It is how
+a machine without ROS uses a bundle made by ``tools/ros_bundle.py`` on one with it (pure-Python
+copies of those packages, any Python 3 version): ``source build/rosbundle/env.sh`` sets it to
+the bundle's ``python/`` and puts the bundle's ``rosmaster``/``roscore`` on ``PATH``.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ import sys
 from ..errors import UnsupportedError
 
 #: Where the distribution's ROS 1 Python packages live (``WARPVX_ROS_PYTHONPATH`` overrides:
-#: folders separated by ``os.pathsep``).
+#: folders separated by ``os.pathsep``, e.g. a bundle's ``python/``).
 DIST_PACKAGES = "/usr/lib/python3/dist-packages"
 
 INSTALL_HINT = ("apt-get install python3-rospy ros-core python3-sensor-msgs python3-geometry-msgs "
@@ -54,7 +59,8 @@ def import_rospy():
         raise UnsupportedError(
             f"ROS 1: rospy cannot be imported by {sys.executable} (Python "
             f"{sys.version_info.major}.{sys.version_info.minor}; searched {_ros_paths()}): {exc}; "
-            f"install it with `{INSTALL_HINT}`") from exc
+            f"install it with `{INSTALL_HINT}`, or source a bundle made by tools/ros_bundle.py "
+            f"(its env.sh sets WARPVX_ROS_PYTHONPATH)") from exc
 
 
 def msg(module: str, name: str):
