@@ -1,6 +1,6 @@
 """Speed of the video stabilizer: the warpvx graph beside the imperative OpenCV model.
 
-Usage (repository root; about 3 minutes on one H100, results into ``$OUT``):
+Usage (repository root; about 4 minutes on one H100, results into ``$OUT``):
 
     PYTHONPATH=. python benchmarks/stabilize_bench.py
     PYTHONPATH=. python benchmarks/stabilize_bench.py --backend warp-cpu --frames 10 --sizes 320x240
@@ -16,6 +16,12 @@ memory (NumPy in, NumPy out):
   user nodes on CPU workers), scheduled (policy best), run by ``Graph.stream`` with
   ``--depth`` frames in flight (uploads of large host arrays go through the runtime's pinned
   staging buffers); warmed up first (JIT, calibration, allocations untimed);
+* ``device``: the device engine (:mod:`warpvx.apps.stabilize_device`: points, detection,
+  RANSAC, the 3x3 chain and the warp on the device, one captured CUDA graph per ring slot
+  replayed per frame), ``--depth`` frames in flight: each frame copied into a pinned ring
+  slot, one host->device and one device->host copy (image + its 3x3 matrices) on copy
+  streams; the output read as a view of the pinned ring (no further copy); warmed up first.
+  Times ``--device-frames`` frames at most (it is fast: 600 frames would be under a second);
 * decode and encode (OpenCV, mp4v) of the same frames, timed apart, and the FPS of
   decode + graph as one serial loop would see it (1 / (1/decode + 1/graph)).
 
@@ -107,6 +113,99 @@ def bench_graph(frames, config, backend, depth, n, seconds, gantt_path=None):
             "gantt": os.path.basename(gantt_path) if gantt_path else None}
 
 
+def bench_device(frames, config, backend, depth, n, seconds):
+    """FPS of the device engine on ``frames`` cycled (errors are reported, not raised, so the
+    other rows still come out)."""
+    from warpvx.apps.stabilize_device import DevicePlan
+
+    size = frames[0].shape[1::-1]
+    try:
+        t = time.perf_counter()
+        plan = DevicePlan(size, config, "cpu" if backend == "warp-cpu" else backend, depth=depth)
+        feed = ({"frame": f, "live": LIVE} for f in itertools.cycle(frames))
+        stream = plan.run(feed, copy=False)
+        list(itertools.islice(stream, 3 * plan.slots + 5))  # warm-up: JIT, capture, scratch
+        setup_s = time.perf_counter() - t
+        done, s = timed(stream, n, seconds)
+        stream.close()
+    except Exception as exc:  # noqa: BLE001 - a failed row must not lose the others
+        print(f"device engine failed at {size[0]}x{size[1]}: {exc!r}", flush=True)
+        return {"fps": None, "error": repr(exc)}
+    return {"fps": done / s, "frames": done, "seconds": s, "setup_s": setup_s,
+            "graphs": plan.use_graph and all(g is not None for g in plan.graphs),
+            "capture_error": plan.capture_error, "slots": plan.slots}
+
+
+def profile_device(frames, config, backend, n):
+    """Mean device time per frame of each stage of the device engine (``{stage: ms}``), from
+    ``n`` eager frames with events between the stages (a CUDA graph replays the same
+    launches with less launch overhead), plus ``re-detections per frame`` over those frames,
+    the detection alone (``detect (when it runs)``), the host's copy of a frame into the
+    ring and (CUDA) the upload and download of one frame, which the pipeline overlaps with
+    the compute; {} on error."""
+    import warp as wp
+
+    from warpvx.apps.stabilize_device import DevicePlan
+
+    try:
+        plan = DevicePlan(frames[0].shape[1::-1], config, "cpu" if backend == "warp-cpu" else backend,
+                          depth=1, use_graph=False)
+        cuda = plan.device.is_cuda
+        marks = []
+
+        def stamp():
+            if not cuda:
+                return time.perf_counter()
+            ev = wp.Event(plan.device, enable_timing=True)
+            plan.compute.record_event(ev)
+            return ev
+
+        def elapsed_ms(a, b):
+            return wp.get_event_elapsed_time(a, b) if cuda else 1e3 * (b - a)
+
+        feed = ({"frame": f, "live": LIVE} for f in itertools.cycle(frames))
+        list(itertools.islice(plan.run(feed, copy=False), 10))  # warm-up
+        refills = []
+        refill = plan._refill
+        plan._refill = lambda gray: (refills.append(1), refill(gray))
+        plan.mark = lambda stage: marks.append((stage, stamp()))
+        list(itertools.islice(plan.run(feed, copy=False), n))
+        plan.mark = None
+        gray = plan.pyramids[0][0]
+        detect = []
+        for _ in range(max(3, n // 10)):
+            a = stamp()
+            plan.corners.launch(gray)
+            detect.append((a, stamp()))
+        copies = []  # (host->device, device->host) of one frame, CUDA only
+        host_copy = []  # a frame into a pinned (CUDA) / device (CPU) ring slot, host time
+        for k in range(max(3, n // 10)):
+            t = time.perf_counter()
+            np.copyto(plan.host_in[0], frames[k % len(frames)])
+            host_copy.append(1e3 * (time.perf_counter() - t))
+            if cuda:
+                a = stamp()
+                wp.copy(plan.frames[0], plan.pin_in[0], stream=plan.compute)
+                b = stamp()
+                wp.copy(plan.pin_out[0], plan.outs[0], stream=plan.compute)
+                copies.append((a, b, stamp()))
+        wp.synchronize_device(plan.device)
+    except Exception as exc:  # noqa: BLE001 - profiling is extra: report and go on
+        print(f"device profile failed: {exc!r}", flush=True)
+        return {}
+    stages = {}
+    for (_, a), (stage, b) in zip(marks, marks[1:]):
+        if stage != "start":
+            stages[stage] = stages.get(stage, 0.0) + elapsed_ms(a, b) / n
+    stages["re-detections per frame"] = len(refills) / n
+    stages["detect (when it runs)"] = float(np.mean([elapsed_ms(a, b) for a, b in detect]))
+    stages["frame into the ring (host ms)"] = float(np.median(host_copy))
+    if copies:
+        stages["upload (host->device)"] = float(np.median([elapsed_ms(a, b) for a, b, _ in copies]))
+        stages["download (device->host)"] = float(np.median([elapsed_ms(b, c) for _, b, c in copies]))
+    return stages
+
+
 def bench_codec(frames, n):
     """(encode FPS, decode FPS) of OpenCV's mp4v writer and reader on ``n`` frames."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -130,6 +229,10 @@ def main(argv=None):
     p.add_argument("--backend", default="cuda", choices=("cuda", "warp-cpu", "cpu"))
     p.add_argument("--sizes", default="1920x1080,1280x720,640x480")
     p.add_argument("--frames", type=int, default=600, help="timed frames per measurement at most")
+    p.add_argument("--device-frames", type=int, default=5000,
+                   help="timed frames per device-engine measurement at most")
+    p.add_argument("--profile-frames", type=int, default=100,
+                   help="eager frames timed stage by stage for the device engine's breakdown")
     p.add_argument("--seconds", type=float, default=8.0, help="time per measurement at most")
     p.add_argument("--depth", type=int, default=4, help="frames in flight in the graph")
     p.add_argument("--motion", default="homography", choices=st.MOTIONS)
@@ -148,12 +251,21 @@ def main(argv=None):
         model = bench_model(frames, config, args.frames, args.seconds)
         graph = bench_graph(frames, config, args.backend, args.depth, args.frames, args.seconds,
                             os.path.join(args.out, f"gantt_{text}.png"))
+        device = bench_device(frames, config, args.backend, args.depth, args.device_frames,
+                              args.seconds)
+        device["stages_ms"] = profile_device(frames, config, args.backend, args.profile_frames)
+        dev_fps = device["fps"]
         row = {"size": text, "model_fps": model, "graph_fps": graph["fps"],
                "ratio": graph["fps"] / model, "decode_fps": dec, "encode_fps": enc,
-               "graph_with_decode_fps": 1.0 / (1.0 / dec + 1.0 / graph["fps"]), "graph": graph}
+               "graph_with_decode_fps": 1.0 / (1.0 / dec + 1.0 / graph["fps"]), "graph": graph,
+               "device_fps": dev_fps, "device_ratio": dev_fps / model if dev_fps else None,
+               "device_with_decode_fps": 1.0 / (1.0 / dec + 1.0 / dev_fps) if dev_fps else None,
+               "device": device}
         rows.append(row)
+        dev_text = "failed" if dev_fps is None else f"{dev_fps:.1f} FPS (x{row['device_ratio']:.2f})"
         print(f"{text}: model {model:.1f} FPS, graph ({args.backend}) {graph['fps']:.1f} FPS "
-              f"(x{row['ratio']:.2f}), decode {dec:.0f} FPS, encode {enc:.0f} FPS", flush=True)
+              f"(x{row['ratio']:.2f}), device {dev_text}, decode {dec:.0f} FPS, "
+              f"encode {enc:.0f} FPS", flush=True)
     report = {"backend": args.backend, "depth": args.depth, "motion": args.motion,
               "window": args.window, "cpu_cores": os.cpu_count(), "machine": platform.platform(),
               "processor": platform.processor(), "opencv": cv2.__version__, "gpu": _gpu_name(args.backend),
@@ -178,20 +290,42 @@ def _gpu_name(backend):
 def render(report, argv):
     cmd = "PYTHONPATH=. python benchmarks/stabilize_bench.py " + " ".join(argv or sys.argv[1:])
     lines = [f"<!-- {cmd.strip()} -->",
-             f"# Stabilizer speed: graph on {report['backend']} ({report['gpu'] or 'no GPU'}) vs "
-             f"the OpenCV model on {report['cpu_cores']} cores", "",
+             f"# Stabilizer speed on {report['backend']} ({report['gpu'] or 'no GPU'}): device "
+             f"engine and graph vs the OpenCV model on {report['cpu_cores']} cores", "",
              f"{report['motion']}, window {report['window']}, depth {report['depth']}; frames from "
-             "and back to host memory; decode/encode (OpenCV mp4v) apart.", "",
-             "| size | OpenCV model FPS | graph FPS | graph / model | decode FPS | encode FPS | "
-             "decode + graph FPS | predicted ms/frame | measured ms/frame | nodes |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "and back to host memory; decode/encode (OpenCV mp4v) apart. device = every step on "
+             "the device, one CUDA graph per frame (captured: whether the graphs were captured; "
+             "else eager launches with a host read of the re-detection flag).", "",
+             "| size | OpenCV model FPS | graph FPS | graph / model | device FPS | device / model | "
+             "captured | decode FPS | encode FPS | decode + graph FPS | decode + device FPS | "
+             "graph predicted ms/frame | graph measured ms/frame |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+
+    def num(v, fmt):
+        return "failed" if v is None else format(v, fmt)
+
     for r in report["rows"]:
-        g = r["graph"]
+        g, d = r["graph"], r.get("device", {})
         meas = g["measured_makespan_ms"]
         lines.append(f"| {r['size']} | {r['model_fps']:.1f} | {r['graph_fps']:.1f} | {r['ratio']:.2f} | "
-                     f"{r['decode_fps']:.0f} | {r['encode_fps']:.0f} | {r['graph_with_decode_fps']:.1f} | "
-                     f"{g['predicted_makespan_ms']:.2f} | {'-' if meas is None else f'{meas:.2f}'} | "
-                     f"{g['nodes']} |")
+                     f"{num(r.get('device_fps'), '.1f')} | {num(r.get('device_ratio'), '.2f')} | "
+                     f"{d.get('graphs', '-')} | {r['decode_fps']:.0f} | {r['encode_fps']:.0f} | "
+                     f"{r['graph_with_decode_fps']:.1f} | {num(r.get('device_with_decode_fps'), '.1f')} | "
+                     f"{g['predicted_makespan_ms']:.2f} | {'-' if meas is None else f'{meas:.2f}'} |")
+    stages = [st for st in report["rows"][0].get("device", {}).get("stages_ms", {})]
+    if stages:
+        lines += ["", "Device engine, per stage (eager launches, events between stages; mean ms "
+                  "per frame; detection counted in refresh on the frames that re-detect):", "",
+                  "| stage | " + " | ".join(r["size"] for r in report["rows"]) + " |",
+                  "|---|" + "---|" * len(report["rows"])]
+        for stage in stages:
+            lines.append(f"| {stage} | " + " | ".join(
+                num(r["device"].get("stages_ms", {}).get(stage), ".3f") for r in report["rows"]) + " |")
+    errors = [f"{r['size']}: {r['device'].get('error') or 'capture: ' + r['device']['capture_error']}"
+              for r in report["rows"]
+              if r.get("device", {}).get("error") or r.get("device", {}).get("capture_error")]
+    if errors:
+        lines += ["", "Device engine errors: " + "; ".join(errors)]
     last = report["rows"][-1]["graph"]["placement"]
     lines += ["", "Placement (last size): " + ", ".join(f"{k}: {v}" for k, v in sorted(last.items()))]
     return "\n".join(lines) + "\n"

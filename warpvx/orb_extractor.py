@@ -13,7 +13,8 @@ import numpy as np
 
 from ._orb_spec import DESCRIPTOR_BYTES, MAX_SIDE, MIN_LEVEL_SIZE
 from .backend import resolve_backend
-from .check import check_float, check_image, check_int, check_out
+from .arrays import is_warp_array
+from .check import check_array, check_float, check_image, check_int, check_out
 from .errors import ShapeError, WarpvxTypeError, WarpvxValueError
 from .keypoints import Keypoints, check_keypoints
 from .pyramid import scale_pyramid_sizes
@@ -36,6 +37,38 @@ def _gray(src, name: str = "src"):
     if len(src.shape) == 3:
         src = src.reshape(tuple(src.shape[:2]))
     return src
+
+
+def _gray_batch(src):
+    """``(src, h, w)``: one gray HxW image (HxWx1 viewed as HxW), a list of them or a uint8
+    [B, H, W] array, validated, and the image size. Every image of a list is checked as
+    ``src[i]``: gray uint8, the size of ``src[0]``, of the same kind (all NumPy, or all Warp
+    arrays on one device)."""
+    if isinstance(src, (list, tuple)):
+        if not src:
+            raise WarpvxValueError("src: an empty batch (expected at least one image)")
+        images = [_gray(img, f"src[{i}]") for i, img in enumerate(src)]
+        first = images[0]
+        h, w = int(first.shape[0]), int(first.shape[1])
+        where = str(first.device) if is_warp_array(first) else None
+        for i, img in enumerate(images[1:], 1):
+            if (int(img.shape[0]), int(img.shape[1])) != (h, w):
+                raise ShapeError(f"src[{i}]: image of {img.shape[1]}x{img.shape[0]} (WxH), but "
+                                 f"src[0] is {w}x{h}: a batch holds images of one size")
+            if (str(img.device) if is_warp_array(img) else None) != where:
+                raise WarpvxTypeError(
+                    f"src[{i}]: on {str(img.device) if is_warp_array(img) else 'the host'}, but "
+                    f"src[0] is on {where or 'the host'}: a batch's images are all NumPy "
+                    f"arrays or all Warp arrays on one device")
+        return images, h, w
+    shape = tuple(getattr(src, "shape", ()))
+    if len(shape) == 3 and shape[2] not in (1, 3, 4):
+        stack = check_array(src, "src", dtypes=(np.uint8,), ndim=3)
+        if 0 in shape:
+            raise ShapeError(f"src: an empty batch of images (shape {shape})")
+        return stack, shape[1], shape[2]
+    src = _gray(src)
+    return src, int(src.shape[0]), int(src.shape[1])
 
 
 def orb(src, n_features: int = 2000, scale_factor: float = 1.2, n_levels: int = 8,
@@ -73,9 +106,12 @@ def orb(src, n_features: int = 2000, scale_factor: float = 1.2, n_levels: int = 
 
     Parameters
     ----------
-    src : uint8 HxW (or HxWx1)
+    src : uint8 HxW (or HxWx1), or a batch
         Gray image, NumPy or device array, at most 15000 px a side. Colour images are
-        refused: convert first.
+        refused: convert first. A batch is a list of equal-sized gray images (all NumPy, or
+        all device arrays on one device) or a uint8 [B, H, W] array (a 3-D array whose last
+        axis is not 1, 3 or 4); the Warp backend extracts from all of them in the same
+        launches (one plan, one CUDA graph), the CPU one image by image.
     n_features : int >= 1
         Features wanted over all levels (N).
     scale_factor : float > 1
@@ -95,11 +131,14 @@ def orb(src, n_features: int = 2000, scale_factor: float = 1.2, n_levels: int = 
         (float32), response = FAST score, size = int(31 s_l) (ORB-SLAM2's truncated
         PATCH_SIZE x scale), angle in degrees, octave = level.
     descriptors : uint8 [N, 32]
+        For a batch: a list of B (keypoints, descriptors) pairs, in the batch's order, each
+        equal to what the image alone gives.
 
     Raises
     ------
     ShapeError
-        ``src`` not a gray HxW image, or too small for ``n_levels`` levels.
+        ``src`` not a gray HxW image, or too small for ``n_levels`` levels; a batch that is
+        empty or whose images differ in size (naming ``src[i]``).
     DTypeError
         ``src`` not uint8.
     WarpvxTypeError, WarpvxValueError
@@ -113,14 +152,15 @@ def orb(src, n_features: int = 2000, scale_factor: float = 1.2, n_levels: int = 
     ``src/ORBextractor.cc`` (Mur-Artal and Tardos 2017); descriptors agree with
     ``cv2.ORB_create().compute`` on the same keypoints and angles.
     """
-    be = resolve_backend(backend, like=src)
-    src = _gray(src)
+    src, h, w = _gray_batch(src)
+    # A list is no array: its first image decides the backend and the results' kind.
+    first = src[0] if isinstance(src, list) else None
+    be = resolve_backend(backend, like=src if first is None else first)
     n_features = check_int(n_features, "n_features", min_value=1)
     scale_factor = check_float(scale_factor, "scale_factor", min_value=1.0, strict_min=True)
     n_levels = check_int(n_levels, "n_levels", min_value=1, max_value=MAX_LEVELS)
     ini_th_fast = check_int(ini_th_fast, "ini_th_fast", min_value=0, max_value=255)
     min_th_fast = check_int(min_th_fast, "min_th_fast", min_value=0, max_value=255)
-    h, w = int(src.shape[0]), int(src.shape[1])
     if max(h, w) > MAX_SIDE:
         raise ShapeError(f"src: image of {w}x{h} (WxH) is larger than {MAX_SIDE} px a side")
     lw, lh = _level_sizes(w, h, n_levels, scale_factor)[-1]
@@ -132,7 +172,7 @@ def orb(src, n_features: int = 2000, scale_factor: float = 1.2, n_levels: int = 
             f"use fewer levels or a larger image"
         )
     return dispatch("orb", be, src, n_features, scale_factor, n_levels, ini_th_fast,
-                    min_th_fast, stream=stream)
+                    min_th_fast, stream=stream, template=first)
 
 
 def orb_compute(src, keypoints, scale_factor: float = 1.2, *, out=None, backend=None,

@@ -467,32 +467,35 @@ def _decode(keys):
             keys & 0xFF)
 
 
-@pytest.mark.parametrize("name", ["coffee", "rocket"])
-def test_warp_internals_match_orbslam2_transcription(warp_backend, name):
+@pytest.mark.parametrize("name, batch", [("coffee", 1), ("rocket", 1), ("coffee", 2)])
+def test_warp_internals_match_orbslam2_transcription(warp_backend, name, batch):
     """The one-graph Warp extractor's intermediate buffers against the CPU transcription of
     ORB-SLAM2, level by level: the pyramid, which cells pass iniThFAST (the per-cell FAST
     threshold), the candidates after it, the quadtree's kept points in DistributeOctTree's
-    node order, and the IC_Angle orientations."""
+    node order, and the IC_Angle orientations. With a batch, those of its last image (the
+    first is the image flipped: other content in the same launches)."""
     wp = pytest.importorskip("warp")
     from warpvx.kernels_warp.orb import funcs
     from warpvx.kernels_warp.orb.plan import OrbPlan
 
     img = gray(name)
     dev = "cpu" if warp_backend == "warp-cpu" else warp_backend
-    plan = OrbPlan(dev, *img.shape, 2000, 1.2, 8, 20, 7)
-    plan.run(wp.array(img, dtype=wp.uint8, device=dev))
-    counters = plan.counters.numpy()
+    plan = OrbPlan(dev, *img.shape, 2000, 1.2, 8, 20, 7, batch=batch)
+    stack = np.stack([np.ascontiguousarray(img[::-1, ::-1])] * (batch - 1) + [img])
+    plan.run(wp.array(stack if batch > 1 else img, dtype=wp.uint8, device=dev))
+    b = batch - 1
+    counters = plan.counters.numpy()[b]
     assert counters[funcs.C_OVER] == 0  # the device quadtree ran, not the host fallback
     # Candidates: each stripe's region holds its count.
     per_stripe = counters[funcs.C_CAND_R:funcs.C_CAND_R + funcs.STRIPES]
-    cand = plan.cand.numpy().reshape(funcs.STRIPES, plan.cand_region)
+    cand = plan.cand.numpy()[b].reshape(funcs.STRIPES, plan.cand_region)
     keys = np.concatenate([cand[r, :c] for r, c in enumerate(per_stripe)])
     level_k, cell_k, y_k, x_k, s_k = _decode(keys)
     # Kept points, in the final list's order.
     n = int(counters[funcs.C_FINAL])
-    kept = plan.cand.numpy()[plan.final_values.numpy()[:n]]
+    kept = plan.cand.numpy()[b][plan.final_values_b.numpy()[b, :n]]
     level_f, _, y_f, x_f, s_f = _decode(kept)
-    angles = plan.kp_fields.numpy()[4 * n:5 * n]
+    angles = plan.kp_fields.numpy()[b, 4 * n:5 * n]
     assert np.all(np.diff(level_f) >= 0)  # level by level
 
     levels = cpu_orb.build_pyramid(img, 1.2, 8)
@@ -500,7 +503,7 @@ def test_warp_internals_match_orbslam2_transcription(warp_backend, name):
     cell_strong = counters[plan.cells_at:plan.groups_at]
     cell_at = 0
     for lv, level in enumerate(levels):
-        np.testing.assert_array_equal(plan.levels[lv].numpy(), level)
+        np.testing.assert_array_equal(plan.images[b][lv].numpy(), level)
         grid = _orb_spec.cell_grid(level.shape[1], level.shape[0])
         x, y, s = cpu_orb.detect_cells(level, 7)
         cell = grid.row_of_y[y].astype(np.int64) * grid.n_cols + grid.col_of_x[x]
@@ -540,8 +543,8 @@ def test_warp_overflow_takes_the_host_quadtree(warp_backend):
     img = gray("coffee")
     dev = "cpu" if warp_backend == "warp-cpu" else warp_backend
     plan = OrbPlan(dev, *img.shape, 2000, 1.2, 8, 20, 7, candidate_divisor=10 ** 6)
-    kw, dw = _host(*plan.run(wp.array(img, dtype=wp.uint8, device=dev)))
-    assert plan.counters.numpy()[funcs.C_OVER] == 1
+    (kw, dw), = [_host(*r) for r in plan.run(wp.array(img, dtype=wp.uint8, device=dev))]
+    assert plan.counters.numpy()[0, funcs.C_OVER] == 1
     kc, dc = warpvx.orb(img, backend="cpu")
     assert_same_extraction(kw, dw, kc, dc, warp_backend)
 

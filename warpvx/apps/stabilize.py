@@ -40,6 +40,13 @@ the lost points are parked far off the image on the device (``park_lost``) and t
 primitive runs on the device too (``ransac``), so the frame and the points stay there; only the
 3x3 matrix comes back for the ``motion`` node (:func:`as_motion`). The graph on ``cpu`` calls the
 primitive's CPU backend, the model ``cv2.findHomography``: the same OpenCV call.
+
+Engines (:func:`stabilize`'s ``engine``): the graph above, the reference, on every backend;
+and on the Warp backends the device engine (:mod:`warpvx.apps.stabilize_device`), the same
+algorithm with the point set, re-detection, RANSAC and the 3x3 chain on the device too,
+replayed per frame as one CUDA graph with frames in flight (1 upload and 1 download per
+frame). It gives the graph's frames (bit for bit on warp-cpu on the bundled clip); ``auto``
+picks it where it applies (homography motion, Harris detector).
 """
 
 from __future__ import annotations
@@ -58,6 +65,7 @@ MOTIONS = ("homography", "similarity", "translation")
 MODES = ("causal", "centered")
 DETECTORS = ("harris", "fast")
 BACKENDS = ("cpu", "warp-cpu", "cuda")
+ENGINES = ("auto", "graph", "device")
 
 # Fewest matched points that determine each motion model.
 _MIN_POINTS = {"homography": 4, "similarity": 2, "translation": 1}
@@ -505,21 +513,36 @@ def _chain_first(first, rest):
 
 
 def stabilize(frames, config: StabilizerConfig = StabilizerConfig(), *, backend="cpu",
-              depth: int = 2):
-    """Stabilize a video with the warpvx graph; a generator of :class:`StabilizedFrame`.
+              depth: int | None = None, engine: str = "auto"):
+    """Stabilize a video with warpvx; a generator of :class:`StabilizedFrame`.
 
     ``frames``: an iterable of BGR uint8 HxWx3 frames of one size. ``backend``: ``"cpu"``,
-    ``"warp-cpu"`` or ``"cuda"`` (see :func:`build_graph`); ``depth`` frames in flight.
+    ``"warp-cpu"`` or ``"cuda"``; ``depth`` frames in flight (default 2 in the graph, 3 in the
+    device engine). ``engine``: ``"graph"`` (the warpvx graph, :func:`build_graph`),
+    ``"device"`` (every step on the Warp device, replayed per frame:
+    :mod:`warpvx.apps.stabilize_device`; Warp backends, homography + Harris) or ``"auto"``
+    (the device engine where it applies, else the graph).
     """
     from ..check import check_choice
 
     check_choice(backend, "backend", BACKENDS)
+    check_choice(engine, "engine", ENGINES)
+    if engine != "graph" and backend != "cpu":
+        from .stabilize_device import run_device, supports
+
+        reason = supports(config)
+        if reason is None:
+            return _drive(frames, config, run_device(backend, config, 3 if depth is None else depth))
+        if engine == "device":
+            raise WarpvxValueError(f"engine: the device engine does not run {reason}; use 'graph'")
+    elif engine == "device":
+        raise WarpvxValueError("engine: the device engine needs a Warp backend (warp-cpu, cuda)")
 
     def run(feed, size):
         g = build_graph(size, config, backend=backend)
         schedule(g, backend)
         with g:
-            yield from g.stream(feed, depth=depth)
+            yield from g.stream(feed, depth=2 if depth is None else depth)
 
     return _drive(frames, config, run)
 
@@ -583,5 +606,5 @@ __all__ = [
     "StabilizerConfig", "StabilizedFrame", "build_graph", "schedule", "stabilize", "stabilize_model",
     "estimate_motion", "follow_motion", "as_motion", "park_lost", "refresh_points", "accumulate", "smooth_transform", "truncate_transform",
     "undistort_maps", "demo_clip", "VideoSource", "open_writer",
-    "MOTIONS", "MODES", "DETECTORS", "BACKENDS",
+    "MOTIONS", "MODES", "DETECTORS", "BACKENDS", "ENGINES",
 ]

@@ -62,6 +62,9 @@ def add_arguments(parser):
                              "stabilized.mp4 (input | output side by side), metrics.json and "
                              "trajectory.png (with matplotlib)")
     parser.add_argument("--backend", choices=app.BACKENDS, default="cpu")
+    parser.add_argument("--engine", choices=app.ENGINES, default="auto",
+                        help="graph (warpvx graph), device (every step on the Warp device, "
+                             "replayed per frame), auto (device where it applies)")
     parser.add_argument("--window", type=int, default=d.window, help="smoothing window N in frames")
     parser.add_argument("--mode", choices=app.MODES, default=d.mode,
                         help="centered: lags N//2 frames (thesis); causal: no look-ahead")
@@ -114,7 +117,8 @@ def run(args) -> int:
             yield f
 
     frames = (app.stabilize_model(tee(), config) if args.model
-              else app.stabilize(tee(), config, backend=args.backend))
+              else app.stabilize(tee(), config, backend=args.backend,
+                                 engine=getattr(args, "engine", "auto")))
     try:
         with tqdm(total=source.count, unit="frame", disable=args.quiet, desc="stabilize") as bar:
             for sf in frames:

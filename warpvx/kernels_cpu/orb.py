@@ -208,12 +208,16 @@ def extract_level(level: np.ndarray, n_wanted: int, ini_th: int, min_th: int) ->
 
 def orb(src: np.ndarray, n_features: int, scale_factor: float, n_levels: int,
         ini_th_fast: int, min_th_fast: int, *, out=None) -> tuple:
-    """ORB-SLAM2's extractor: (Keypoints at level 0, uint8 [N, 32] descriptors).
+    """ORB-SLAM2's extractor: (Keypoints at level 0, uint8 [N, 32] descriptors); for a batch
+    (a list of HxW images or a [B, H, W] array) a list of such pairs, image by image.
 
     Keypoints are listed level by level, each level in the quadtree's node order. ``out``
     must be None (UnsupportedError otherwise: the count is data-dependent).
     """
     refuse_out(out)
+    if isinstance(src, list) or src.ndim == 3:
+        return [orb(img, n_features, scale_factor, n_levels, ini_th_fast, min_th_fast)
+                for img in src]
     pyramid = build_pyramid(src, scale_factor, n_levels)
     wanted = features_per_level(n_features, scale_factor, n_levels)
     sizes = keypoint_sizes(scale_factor, n_levels)

@@ -277,12 +277,11 @@ for _dtype in (wp.float32, wp.float64):
     wp.overload(load_points, {"src": wp.array2d(dtype=_dtype), "dst": wp.array2d(dtype=_dtype)})
 
 
-@wp.kernel
-def sample_hypotheses(src_pts: wp.array(dtype=wp.vec2d), dst_pts: wp.array(dtype=wp.vec2d),
-                      seed: int, hypotheses: wp.array(dtype=wp.mat33d)):
-    """hypotheses[h]: the homography of a random valid 4-point sample, or zeros."""
-    h = wp.tid()
-    n = src_pts.shape[0]
+@wp.func
+def draw_hypothesis(src_pts: wp.array(dtype=wp.vec2d), dst_pts: wp.array(dtype=wp.vec2d),
+                    n: int, seed: int, h: int) -> wp.mat33d:
+    """Hypothesis ``h``: the homography of a random valid 4-point sample of the first ``n``
+    points (n >= 4), or zeros."""
     rng = wp.rand_init(seed, h)
     model = wp.mat33d()
     for _try in range(SAMPLE_TRIES):
@@ -301,7 +300,15 @@ def sample_hypotheses(src_pts: wp.array(dtype=wp.vec2d), dst_pts: wp.array(dtype
                            dst_pts[i0], dst_pts[i1], dst_pts[i2], dst_pts[i3])
         if model[2, 2] != wp.float64(0.0):
             break
-    hypotheses[h] = model
+    return model
+
+
+@wp.kernel
+def sample_hypotheses(src_pts: wp.array(dtype=wp.vec2d), dst_pts: wp.array(dtype=wp.vec2d),
+                      seed: int, hypotheses: wp.array(dtype=wp.mat33d)):
+    """hypotheses[h]: the homography of a random valid 4-point sample, or zeros."""
+    h = wp.tid()
+    hypotheses[h] = draw_hypothesis(src_pts, dst_pts, src_pts.shape[0], seed, h)
 
 
 @wp.kernel

@@ -280,10 +280,11 @@ def quadtree(level, x, y, score, n_wanted: int, scale_factor: float) -> tuple:
             wp.launch(seed_quadtree, dim=n,
                       inputs=[x, y, score, plan.level_info, plan.row_of_y, plan.col_of_x,
                               plan.roots, plan.digits, n],
-                      outputs=[plan.counters, plan.cand, plan.paths, plan.sort_keys, plan.order],
+                      outputs=[plan.counters[0], plan.cand[0], plan.paths[0], plan.sort_keys,
+                               plan.order],
                       device=device)
             wp.utils.radix_sort_pairs(plan.sort_keys, plan.order, n, 0, plan.sort_bits)
-            wp.launch(gather_paths, dim=n, inputs=[plan.order, plan.counters, plan.paths],
+            wp.launch(gather_paths, dim=(1, n), inputs=[plan.order_b, plan.counters, plan.paths],
                       outputs=[plan.sorted_paths], device=device)
             plan.stage_nodes()
             plan.stage_finals()
@@ -291,9 +292,10 @@ def quadtree(level, x, y, score, n_wanted: int, scale_factor: float) -> tuple:
             # reads the plan, so it can go back to the pool (another stream may take it).
             finals = _points(plan.final_cap, device)
             wp.launch(gather_finals, dim=plan.final_cap,
-                      inputs=[plan.counters, plan.final_values, x, y, score],
+                      inputs=[plan.counters[0], plan.final_values, x, y, score],
                       outputs=list(finals), device=device)
-            head = plan.read_head()
+            plan.stage_heads()
+            head = plan.read_head()[0]
             if not plan.overflowed(head):
                 m = int(head[C_FINAL])
                 kept = tuple(a[:m] for a in finals)

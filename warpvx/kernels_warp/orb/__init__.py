@@ -4,13 +4,20 @@
 one captured graph per image size and parameter set (a *plan*: buffers and graph cached, a pool
 of them so concurrent calls never share one). The one host sync reads the keypoint count.
 All levels go through each kernel together: the pyramid and its blurred copy live in two flat
-buffers, a per-level table gives each level's offset, size and cell grid.
+buffers, a per-level table gives each level's offset, size and cell grid. So do all images of a
+batch (equal-sized frames, e.g. a multi-camera rig): every kernel's first thread index is the
+image (the per-pixel ones run over the batch's pixels, image by image), per-image buffers have a leading batch index, the pyramids are level-major (level l of
+every image in one [B * h_l, w_l] block, resized and blurred in one launch), the two radix sorts
+sort the whole batch with the image above each key, and the host reads all images' counts in
+one copy; each image's result is bit for bit what it gives alone.
 
 Stages (one launch each unless said):
 
-``build_pyramid``, ``blur_levels``  ``kernels_warp.scale_pyramid`` and ``gaussian_blur`` (7x7,
-    sigma 2, BORDER_REFLECT_101) into the flat buffers, one launch per level; on CUDA the blur
-    runs on a side stream, beside detection and the quadtree.
+``stage_pyramid``, ``stage_blur``  ``kernels_warp.scale_pyramid``'s resize kernel (its row
+    taps offset per image) and the shared fused Gaussian filter (7x7, sigma 2,
+    BORDER_REFLECT_101) into the flat buffers, one launch per level; for a batch,
+    ``blur_edge_rows`` redoes the 3 rows at each image's top and bottom. On CUDA the blur runs
+    on a side stream, beside detection and the quadtree.
 ``score_pixels``  FAST-9/16 scores at the lower threshold on the pixels a 30x30 cell owns
     (``fast_corners.fast_score``).
 ``suppress_pixels``  OpenCV's strict 3x3 maximum *within the cell* (ORB-SLAM2 runs FAST per
@@ -34,7 +41,9 @@ Stages (one launch each unless said):
 ``emit_finals``  each node left in the final list, its strongest point (the first in ORB-SLAM2's
     candidate order on a tie) and a key giving the node's place in the list; radix sort.
 ``accumulate_moments``, ``describe_levels``  ``IC_Angle`` (a thread per disc row, integer
-    atomics), then rotated BRIEF and the level-0 fields.
+    atomics), then rotated BRIEF and the level-0 fields; ``gather_heads`` the counts the host
+    reads. After the sync, ``pack_outputs`` copies every image's keypoints into one array per
+    field, each image's results being views of its rows.
 
 Why the node list order has a closed form: a pass of the first loop puts the children of the
 nodes it divides in front, in reverse; so after pass k the nodes created at depth k come first,
@@ -65,24 +74,32 @@ from .plan import OrbPlan, acquire, release
 
 
 def orb(src, n_features: int, scale_factor: float, n_levels: int, ini_th_fast: int,
-        min_th_fast: int, *, out=None) -> tuple:
-    """ORB-SLAM2's extractor on ``src.device``: (Keypoints of device arrays, uint8 [N, 32]).
+        min_th_fast: int, *, out=None):
+    """ORB-SLAM2's extractor on the device of ``src``: (Keypoints of device arrays,
+    uint8 [N, 32]); for a batch (a uint8 [B, H, W] array or a list of B equal-sized HxW
+    images, one device) a list of B such pairs, each what the image alone gives.
 
-    Every stage, the quadtree included, runs on the device (on CUDA as one captured graph per
-    size and parameter set, cached); the host syncs once to read the keypoint count. ``out``
-    must be None (UnsupportedError otherwise: the count is data-dependent).
+    Every stage, the quadtree included, runs on the device for the whole batch at once (on
+    CUDA as one captured graph per device, size, parameters and batch size, cached); the host
+    syncs once to read the keypoint counts. ``out`` must be None (UnsupportedError otherwise:
+    the count is data-dependent).
     """
     spec.refuse_out(out)
-    device = src.device
-    h, w = int(src.shape[0]), int(src.shape[1])
+    batched = isinstance(src, (list, tuple)) or src.ndim == 3
+    first = src[0] if isinstance(src, (list, tuple)) else src
+    batch = (len(src) if isinstance(src, (list, tuple)) else int(src.shape[0])) if batched else 1
+    device = first.device
+    h, w = int(first.shape[-2]), int(first.shape[-1])
     key = (str(device), h, w, int(n_features), float(scale_factor), int(n_levels),
-           int(ini_th_fast), int(min_th_fast))
+           int(ini_th_fast), int(min_th_fast), batch)
     plan = acquire(key, lambda: OrbPlan(device, h, w, int(n_features), float(scale_factor),
-                                      int(n_levels), int(ini_th_fast), int(min_th_fast)))
+                                      int(n_levels), int(ini_th_fast), int(min_th_fast),
+                                      batch=batch))
     try:
-        return plan.run(src)
+        results = plan.run(src)
     finally:
         release(key, plan)
+    return results if batched else results[0]
 
 
 def orb_compute(src, keypoints: Keypoints, scale_factor: float, n_levels: int, *, out=None):

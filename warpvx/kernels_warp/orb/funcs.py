@@ -198,6 +198,35 @@ def level_image(base: wp.uint64, levels: wp.array(dtype=LevelInfo), level: int):
 
 
 @wp.func
+def batch_level_image(base: wp.uint64, levels: wp.array(dtype=LevelInfo), level: int,
+                      batch: int, b: int):
+    """Level ``level`` of image ``b`` of a batch of ``batch`` flat pyramids (a view, no copy).
+
+    The batch's pyramids are stored level-major: level l of every image, one after the other,
+    from ``batch * pix_l``, so level l of the whole batch is one [batch, h_l, w_l] block (one
+    resize or blur launch covers it). With ``batch`` 1 this is :func:`level_image`. In bounds
+    for the same reason: the buffer holds ``batch`` times the pyramid's pixels.
+    """
+    info = levels[level]
+    offset = batch * info.pix + b * info.width * info.height
+    return wp.array(ptr=base + wp.uint64(offset), shape=(info.height, info.width),
+                    dtype=wp.uint8)
+
+
+@wp.func
+def batch_key(b: int, bits: int, key: wp.int64) -> wp.int64:
+    """Sort key ``key`` (< 2^bits) of image ``b`` of a batch: the image above it, so one radix
+    sort of the whole batch leaves each image's keys in one run, images in order."""
+    return (wp.int64(b) << wp.int64(bits)) | key
+
+
+@wp.func
+def batch_pad(b: int, bits: int) -> wp.int64:
+    """The padding key of image ``b``: after its real keys (< 2^(bits-1)), before image b+1's."""
+    return batch_key(b, bits, (wp.int64(1) << wp.int64(bits)) - wp.int64(1))
+
+
+@wp.func
 def level_holding(i: int, levels: wp.array(dtype=LevelInfo), n_levels: int, node: bool) -> int:
     """The level whose range starts at or before ``i``: of flat pixels, or of quadtree node
     slots when ``node``."""
@@ -355,3 +384,12 @@ def depth_counts(totals: wp.array3d(dtype=wp.int32), level: int, which: int) -> 
     return v
 
 
+
+
+@wp.func
+def batch_image(t: int, batch: int, n: int) -> int:
+    """The image of item ``t`` of a batch's flat range (``batch`` runs of ``n``): t // n,
+    without the division for one image (it costs every thread on the CPU device)."""
+    if batch == 1:
+        return 0
+    return t // n

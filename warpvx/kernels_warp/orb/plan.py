@@ -1,7 +1,9 @@
 """Plans of the one-graph ORB extractor: buffers, the launch sequence, CUDA-graph capture.
 
-A :class:`OrbPlan` holds everything one (device, image size, parameters) needs; the pool
-(:func:`acquire`, :func:`release`) hands each call a plan no other call is using.
+A :class:`OrbPlan` holds everything one (device, image size, parameters, batch size) needs;
+the pool (:func:`acquire`, :func:`release`) hands each call a plan no other call is using.
+A batch of B images runs the same launches as one image, each over B images (the kernels'
+first thread index; see :mod:`.kernels`), one captured graph for the batch.
 """
 
 from __future__ import annotations
@@ -14,14 +16,18 @@ import numpy as np
 import warp as wp
 
 from ... import _orb_spec as spec
-from ..._pyramid_sizes import scale_pyramid_sizes
+from ..._pyramid_sizes import resize_scales, scale_pyramid_sizes
 from ...keypoints import Keypoints
-from ..scale_pyramid import scale_pyramid
+from ...modes import BORDER_REFLECT_101
+from .._filtering import blur_taps, fit_block, launch_filter
+from ..scale_pyramid import RESIZE_ROWS, linear_taps, resize, resize_kernel, resize_tables
 from .funcs import (C_FINAL, C_NODES, C_OVER, DEPTHS, RANK_CHUNKS, STRIPES, Division, LevelInfo)
-from .host import _capacity, _pattern_on, blur_levels, extract_host
-from .kernels import (accumulate_moments, alloc_nodes, count_depths, describe_levels, emit_finals,
-                      gather_paths, link_nodes, pad_keys, pad_paths, plan_divisions, rank_nodes,
-                      score_pixels, select_candidates, sum_depth_counts, suppress_pixels)
+from .host import _capacity, _pattern_on, extract_host
+from .kernels import (BLUR_RADIUS, accumulate_moments, blur_edge_rows, describe_levels,
+                      gather_heads, gather_paths, pack_outputs, pad_keys, pad_paths, score_pixels,
+                      select_candidates, suppress_pixels)
+from .quadtree import (alloc_nodes, count_depths, emit_finals, link_nodes, plan_divisions,
+                       rank_nodes, sum_depth_counts)
 
 # --------------------------------------------------------------------------------------------
 # The one-graph extractor: plans
@@ -39,8 +45,28 @@ def _view(buf, offset: int, shape: tuple, dtype):
                     device=buf.device)
 
 
+def _batch_resize(prev, dst, batch: int, device):
+    """The launch resizing level l-1 of every image of a batch into level l, or None where
+    OpenCV's 2x INTER_AREA edge rule applies (it reads the image's own height; then each
+    image is resized alone). ``prev``, ``dst``: the levels' [batch * h, w] blocks. One
+    ``scale_pyramid.resize_kernel`` launch over the block: its y taps, offset per image by
+    b * h_prev, keep every image's rows apart."""
+    (sw, sh), (dw, dh) = prev, dst
+    _, scales = resize_scales((sw, sh), (dw, dh))
+    if tuple(scales) == (2.0, 2.0):
+        return None
+    x_taps, _ = resize_tables((sw, sh), (dw, dh), tuple(scales), device)
+    y_taps = linear_taps(dh, sh, scales[1], False)
+    shift = np.repeat(np.arange(batch, dtype=np.int32) * sh, dh)[:, None] * np.array(
+        [1, 1, 0, 0], np.int32)
+    y_taps = wp.array(np.tile(y_taps, (batch, 1)) + shift, dtype=wp.vec4i, device=device)
+    rows, _ = fit_block(RESIZE_ROWS, 1, batch * dh, dw, device)
+    return resize_kernel(rows), ((batch * dh + rows - 1) // rows, dw), x_taps, y_taps
+
+
 class OrbPlan:
-    """Buffers, tables and (on CUDA) the captured graph of one (device, size, parameters).
+    """Buffers, tables and (on CUDA) the captured graph of one (device, size, parameters,
+    batch): ``batch`` equal-sized images go through every launch together.
 
     Capacities: non-maximum-suppression survivors, the pyramid's pixel count over
     ``survivor_divisor``, and candidates (what the quadtree sorts), over
@@ -50,9 +76,10 @@ class OrbPlan:
     """
 
     def __init__(self, device, height: int, width: int, n_features: int, scale_factor: float,
-                 n_levels: int, ini_th: int, min_th: int, *, survivor_divisor: int = 8,
-                 candidate_divisor: int = 20, graph: bool = True):
+                 n_levels: int, ini_th: int, min_th: int, *, batch: int = 1,
+                 survivor_divisor: int = 8, candidate_divisor: int = 20, graph: bool = True):
         self.device = wp.get_device(device)
+        self.batch = batch
         self.shape = (height, width)
         self.params = (n_features, scale_factor, n_levels, ini_th, min_th)
         self.n_levels = n_levels
@@ -119,51 +146,79 @@ class OrbPlan:
         self.groups_at = self.cells_at + cell
         n_counters = self.groups_at + n_levels * DEPTHS
 
+        # The batch's images in the sort keys' top bits (see kernels.batch_key).
+        self.batch_bits = (batch - 1).bit_length()
+        n_heads = int(C_NODES) + n_levels  # read by the host: candidates, finals, overflow, nodes
+
         dev = self.device
         self.level_info = wp.array(infos, dtype=LevelInfo, device=dev)
         self.row_of_y = wp.array(np.concatenate(rows).astype(np.int32), dtype=wp.int32, device=dev)
         self.col_of_x = wp.array(np.concatenate(cols).astype(np.int32), dtype=wp.int32, device=dev)
         self.roots = wp.array(np.concatenate(roots), dtype=wp.int32, device=dev)
         self.pattern = _pattern_on(str(dev))
-        # Flat pyramids: level l at offset LevelInfo.pix; per-level views for the resize and blur.
-        self.pyr = wp.empty(pix, dtype=wp.uint8, device=dev)
-        self.blurred = wp.empty(pix, dtype=wp.uint8, device=dev)
-        self.levels = [_view(self.pyr, info.pix, (info.height, info.width), wp.uint8)
-                       for info in infos]
-        self.blurred_levels = [_view(self.blurred, info.pix, (info.height, info.width),
-                                     wp.uint8) for info in infos]
-        self.scores = wp.empty(pix, dtype=wp.uint8, device=dev)
-        self.counters = wp.zeros(n_counters, dtype=wp.int32, device=dev)
+        # Flat level-major pyramids (funcs.batch_level_image): level l of image b at
+        # batch * pix_l + b * w_l * h_l. Views: per image and level (the input, the host path),
+        # per level over the whole batch (the resize).
+        def per_image(buf):
+            return [[_view(buf, batch * info.pix + b * info.width * info.height,
+                           (info.height, info.width), wp.uint8) for info in infos]
+                    for b in range(batch)]
+
+        def per_level(buf):
+            return [_view(buf, batch * info.pix, (batch * info.height, info.width), wp.uint8)
+                    for info in infos]
+
+        self.pyr = wp.empty(batch * pix, dtype=wp.uint8, device=dev)
+        self.blurred = wp.empty(batch * pix, dtype=wp.uint8, device=dev)
+        self.images, self.blurred_images = per_image(self.pyr), per_image(self.blurred)
+        self.blocks, self.blurred_blocks = per_level(self.pyr), per_level(self.blurred)
+        self.inputs = _view(self.pyr, 0, (batch, height, width), wp.uint8)
+        blocks = self.blocks
+        self.resizes = [(level, blocks[level - 1], blocks[level],
+                         _batch_resize(sizes[level - 1], sizes[level], batch, dev))
+                        for level in range(1, n_levels)]
+        self.blur_taps = blur_taps(7, 7, 2.0, 2.0, int(BORDER_REFLECT_101))
+        self.scores = wp.empty(batch * pix, dtype=wp.uint8, device=dev)  # image-major
+        self.counters = wp.zeros((batch, n_counters), dtype=wp.int32, device=dev)
         cap = self.cand_cap
-        self.survivors = wp.empty(self.surv_cap, dtype=wp.int64, device=dev)
-        self.cand = wp.empty(cap, dtype=wp.int64, device=dev)
-        self.paths = wp.empty(cap, dtype=wp.int64, device=dev)
-        self.sort_keys = wp.empty(2 * cap, dtype=wp.int64, device=dev)  # radix sort: 2x
-        self.order = wp.empty(2 * cap, dtype=wp.int32, device=dev)
-        self.sorted_paths = wp.empty(cap, dtype=wp.int64, device=dev)
-        self.totals = wp.empty((n_levels, 2, DEPTHS), dtype=wp.int32, device=dev)
-        self.lcp = wp.empty(cap, dtype=wp.int32, device=dev)
-        self.divisions = wp.zeros(n_levels, dtype=Division, device=dev)
-        self.node_base = wp.empty(cap, dtype=wp.int32, device=dev)
+        self.survivors = wp.empty((batch, self.surv_cap), dtype=wp.int64, device=dev)
+        # Flat views for suppress_pixels (see there).
+        self.counters_flat = self.counters.flatten()
+        self.survivors_flat = self.survivors.flatten()
+        self.cand = wp.empty((batch, cap), dtype=wp.int64, device=dev)
+        self.paths = wp.empty((batch, cap), dtype=wp.int64, device=dev)
+        # The radix sorts take flat arrays of twice the count; the kernels see the first half
+        # as one row per image.
+        self.sort_keys = wp.empty(2 * batch * cap, dtype=wp.int64, device=dev)
+        self.order = wp.empty(2 * batch * cap, dtype=wp.int32, device=dev)
+        self.sort_keys_b = _view(self.sort_keys, 0, (batch, cap), wp.int64)
+        self.order_b = _view(self.order, 0, (batch, cap), wp.int32)
+        self.sorted_paths = wp.empty((batch, cap), dtype=wp.int64, device=dev)
+        self.totals = wp.empty((batch, n_levels, 2, DEPTHS), dtype=wp.int32, device=dev)
+        self.lcp = wp.empty((batch, cap), dtype=wp.int32, device=dev)
+        self.divisions = wp.zeros((batch, n_levels), dtype=Division, device=dev)
+        self.node_base = wp.empty((batch, cap), dtype=wp.int32, device=dev)
         nc = self.node_cap
-        self.node_start = wp.empty(nc, dtype=wp.int32, device=dev)
-        self.node_depth = wp.empty(nc, dtype=wp.int32, device=dev)
-        self.node_count = wp.empty(nc, dtype=wp.int32, device=dev)
-        self.node_growth = wp.empty(nc, dtype=wp.int32, device=dev)
-        self.node_parent = wp.empty(nc, dtype=wp.int32, device=dev)
-        self.node_rank = wp.zeros(nc, dtype=wp.int32, device=dev)
-        self.node_grown = wp.zeros(nc, dtype=wp.int32, device=dev)
-        self.groups = wp.empty((n_levels, DEPTHS, int(self.node_caps.max())), dtype=wp.int32,
-                               device=dev)
+        self.node_start = wp.empty((batch, nc), dtype=wp.int32, device=dev)
+        self.node_depth = wp.empty((batch, nc), dtype=wp.int32, device=dev)
+        self.node_count = wp.empty((batch, nc), dtype=wp.int32, device=dev)
+        self.node_growth = wp.empty((batch, nc), dtype=wp.int32, device=dev)
+        self.node_parent = wp.empty((batch, nc), dtype=wp.int32, device=dev)
+        self.node_rank = wp.zeros((batch, nc), dtype=wp.int32, device=dev)
+        self.node_grown = wp.zeros((batch, nc), dtype=wp.int32, device=dev)
+        self.groups = wp.empty((batch, n_levels, DEPTHS, int(self.node_caps.max())),
+                               dtype=wp.int32, device=dev)
         fc = self.final_cap
-        self.final_keys = wp.empty(2 * fc, dtype=wp.int64, device=dev)
-        self.final_values = wp.empty(2 * fc, dtype=wp.int32, device=dev)
-        self.moments = wp.empty((fc, 2), dtype=wp.int32, device=dev)
-        self.kp_fields = wp.empty(5 * fc, dtype=wp.float32, device=dev)
-        self.kp_octave = wp.empty(fc, dtype=wp.int32, device=dev)
-        self.desc = wp.empty((fc, spec.DESCRIPTOR_BYTES), dtype=wp.uint8, device=dev)
-        self.head = (wp.empty(C_NODES + n_levels, dtype=wp.int32, device="cpu",
-                              pinned=dev.is_cuda))
+        self.final_keys = wp.empty(2 * batch * fc, dtype=wp.int64, device=dev)
+        self.final_values = wp.empty(2 * batch * fc, dtype=wp.int32, device=dev)
+        self.final_keys_b = _view(self.final_keys, 0, (batch, fc), wp.int64)
+        self.final_values_b = _view(self.final_values, 0, (batch, fc), wp.int32)
+        self.moments = wp.empty((batch, fc, 2), dtype=wp.int32, device=dev)
+        self.kp_fields = wp.empty((batch, 5 * fc), dtype=wp.float32, device=dev)
+        self.kp_octave = wp.empty((batch, fc), dtype=wp.int32, device=dev)
+        self.desc = wp.empty((batch, fc, spec.DESCRIPTOR_BYTES), dtype=wp.uint8, device=dev)
+        self.heads = wp.empty((batch, n_heads), dtype=wp.int32, device=dev)
+        self.head = wp.empty((batch, n_heads), dtype=wp.int32, device="cpu", pinned=dev.is_cuda)
         self.use_graph = bool(graph) and dev.is_cuda
         self.side = wp.Stream(dev) if dev.is_cuda else None
         self.graph = None
@@ -173,27 +228,51 @@ class OrbPlan:
     # -- the device program ---------------------------------------------------------------
 
     def stage_pyramid(self):
-        scale_pyramid(self.levels[0], self.n_levels, self.params[1], out=self.levels)
+        """Level l of every image from level l - 1: one launch per level for the batch."""
+        for level, prev, dst, launch in self.resizes:
+            if launch is None:  # OpenCV's 2x edge rule: image by image
+                w, h = self.level_sizes[level]
+                for images in self.images:
+                    resize(images[level - 1], (w, h), out=images[level])
+                continue
+            kernel, dim, x_taps, y_taps = launch
+            wp.launch(kernel, dim=dim, inputs=[prev, 1, x_taps, y_taps, 0], outputs=[dst],
+                      device=self.device)
 
     def stage_blur(self):
-        blur_levels(self.levels, out=self.blurred_levels)
+        """The 7x7 Gaussian of every level (``_filtering``'s fused filter, as
+        ``kernels_warp.gaussian_blur``): one launch per level for the whole batch, over the
+        level's [batch * h, w] block; then, for a batch, one launch redoes the rows within the
+        filter's reach of each image's top and bottom (:func:`.kernels.blur_edge_rows`), which
+        the block filter took from the neighbouring image."""
+        taps = self.blur_taps
+        for src, dst in zip(self.blocks, self.blurred_blocks):
+            launch_filter(src, taps, dst, cache=True)
+        if self.batch > 1:
+            wp.launch(blur_edge_rows,
+                      dim=(self.batch, self.n_levels, 2 * int(BLUR_RADIUS), self.level_sizes[0][0]),
+                      inputs=[wp.uint64(self.pyr.ptr), self.batch, self.level_info, taps.kx,
+                              taps.ky, taps.shift, wp.uint64(self.blurred.ptr)],
+                      device=self.device)
 
     def stage_detect(self):
         dev = self.device
         _, _, n_levels, ini_th, min_th = self.params
+        batch = self.batch
         self.counters.zero_()
-        wp.launch(score_pixels, dim=self.n_pixels,
-                  inputs=[wp.uint64(self.pyr.ptr), self.level_info, n_levels, self.row_of_y,
-                          self.col_of_x, min(ini_th, min_th)],
+        wp.launch(score_pixels, dim=batch * self.n_pixels,
+                  inputs=[wp.uint64(self.pyr.ptr), batch, self.level_info, n_levels,
+                          self.row_of_y, self.col_of_x, min(ini_th, min_th), self.n_pixels],
                   outputs=[self.scores], device=dev)
-        wp.launch(suppress_pixels, dim=self.n_pixels,
-                  inputs=[self.level_info, n_levels, self.row_of_y, self.col_of_x, self.scores,
-                          ini_th, self.cells_at, self.surv_region],
-                  outputs=[self.counters, self.survivors], device=dev)
-        wp.launch(select_candidates, dim=self.surv_cap,
+        wp.launch(suppress_pixels, dim=batch * self.n_pixels,
+                  inputs=[self.level_info, n_levels, self.row_of_y, self.col_of_x, batch,
+                          self.n_pixels, self.scores, ini_th, self.cells_at, self.surv_region],
+                  outputs=[self.counters_flat, self.survivors_flat], device=dev)
+        wp.launch(select_candidates, dim=(batch, self.surv_cap),
                   inputs=[self.survivors, self.surv_region, self.level_info, self.roots, ini_th,
-                          min_th, self.cells_at, self.cand_region, self.digits, self.root_bits],
-                  outputs=[self.counters, self.cand, self.paths, self.sort_keys, self.order],
+                          min_th, self.cells_at, self.cand_region, self.digits, self.root_bits,
+                          self.sort_bits],
+                  outputs=[self.counters, self.cand, self.paths, self.sort_keys_b, self.order_b],
                   device=dev)
 
     def stage_quadtree(self):
@@ -202,42 +281,46 @@ class OrbPlan:
         self.stage_finals()
 
     def stage_sort(self):
-        """Candidates sorted by quadtree path (fixed size: the padding goes last)."""
+        """Candidates sorted by quadtree path (fixed size: the padding goes last), the whole
+        batch in one sort (each image's run at its row)."""
         dev = self.device
-        wp.launch(pad_paths, dim=self.cand_cap,
-                  inputs=[self.counters, self.surv_region, self.cand_region,
-                          wp.int64((1 << self.sort_bits) - 1)],
-                  outputs=[self.sort_keys], device=dev)
-        wp.utils.radix_sort_pairs(self.sort_keys, self.order, self.cand_cap, 0, self.sort_bits)
-        wp.launch(gather_paths, dim=self.cand_cap, inputs=[self.order, self.counters, self.paths],
+        batch = self.batch
+        wp.launch(pad_paths, dim=(batch, self.cand_cap),
+                  inputs=[self.counters, self.surv_region, self.cand_region, self.sort_bits],
+                  outputs=[self.sort_keys_b], device=dev)
+        wp.utils.radix_sort_pairs(self.sort_keys, self.order, batch * self.cand_cap, 0,
+                                  self.sort_bits + self.batch_bits)
+        wp.launch(gather_paths, dim=(batch, self.cand_cap),
+                  inputs=[self.order_b, self.counters, self.paths],
                   outputs=[self.sorted_paths], device=dev)
 
     def stage_nodes(self):
         """Node counts per depth, DistributeOctTree's decisions, the second loop's order."""
         dev = self.device
+        batch = self.batch
         n_levels = self.n_levels
         cap = self.cand_cap
-        wp.launch(count_depths, dim=cap,
+        wp.launch(count_depths, dim=(batch, cap),
                   inputs=[self.sorted_paths, self.counters, cap, self.digits, self.singles_at,
                           self.multis_at],
                   outputs=[self.lcp], device=dev)
-        wp.launch(sum_depth_counts, dim=(n_levels, 2, DEPTHS),
+        wp.launch(sum_depth_counts, dim=(batch, n_levels, 2, DEPTHS),
                   inputs=[self.counters, self.singles_at, self.multis_at], outputs=[self.totals],
                   device=dev)
-        wp.launch(plan_divisions, dim=n_levels, inputs=[self.level_info, self.totals],
+        wp.launch(plan_divisions, dim=(batch, n_levels), inputs=[self.level_info, self.totals],
                   outputs=[self.divisions], device=dev)
-        wp.launch(alloc_nodes, dim=cap,
+        wp.launch(alloc_nodes, dim=(batch, cap),
                   inputs=[self.sorted_paths, self.lcp, self.counters, cap, self.level_info,
                           self.divisions, self.groups_at],
                   outputs=[self.node_base, self.node_start, self.node_depth, self.node_count,
                            self.node_growth, self.groups], device=dev)
-        wp.launch(link_nodes, dim=self.node_cap,
+        wp.launch(link_nodes, dim=(batch, self.node_cap),
                   inputs=[self.level_info, n_levels, self.counters, self.divisions, self.lcp,
                           self.node_base, self.node_start, self.node_depth],
                   outputs=[self.node_parent], device=dev)
         self.node_rank.zero_()
         self.node_grown.zero_()
-        wp.launch(rank_nodes, dim=(self.node_cap, RANK_CHUNKS),
+        wp.launch(rank_nodes, dim=(batch, self.node_cap, RANK_CHUNKS),
                   inputs=[self.level_info, n_levels, self.counters, self.divisions,
                           self.sorted_paths, self.groups_at, self.groups, self.node_start,
                           self.node_depth, self.node_count, self.node_growth, self.node_parent],
@@ -246,29 +329,36 @@ class OrbPlan:
     def stage_finals(self):
         """The final list's nodes, their strongest points, sorted into the list order."""
         dev = self.device
+        batch = self.batch
         cap = self.cand_cap
-        wp.launch(emit_finals, dim=cap,
-                  inputs=[self.sorted_paths, self.order, self.lcp, self.cand, self.counters, cap,
-                          self.level_info, self.divisions, self.node_base, self.node_rank,
-                          self.node_grown, self.place_bits],
-                  outputs=[self.final_keys, self.final_values], device=dev)
-        wp.launch(pad_keys, dim=self.final_cap,
-                  inputs=[self.counters, int(C_FINAL), wp.int64((1 << self.final_bits) - 1)],
-                  outputs=[self.final_keys], device=dev)
-        wp.utils.radix_sort_pairs(self.final_keys, self.final_values, self.final_cap, 0,
-                                  self.final_bits)
+        wp.launch(emit_finals, dim=(batch, cap),
+                  inputs=[self.sorted_paths, self.order_b, self.lcp, self.cand, self.counters,
+                          cap, self.level_info, self.divisions, self.node_base, self.node_rank,
+                          self.node_grown, self.place_bits, self.final_bits],
+                  outputs=[self.final_keys_b, self.final_values_b], device=dev)
+        wp.launch(pad_keys, dim=(batch, self.final_cap),
+                  inputs=[self.counters, int(C_FINAL), self.final_bits],
+                  outputs=[self.final_keys_b], device=dev)
+        wp.utils.radix_sort_pairs(self.final_keys, self.final_values, batch * self.final_cap, 0,
+                                  self.final_bits + self.batch_bits)
 
     def stage_describe(self):
         dev = self.device
+        batch = self.batch
         self.moments.zero_()
-        wp.launch(accumulate_moments, dim=(self.final_cap, spec.PATCH_SIZE),
-                  inputs=[wp.uint64(self.pyr.ptr), self.level_info, self.counters,
-                          self.final_values, self.cand],
+        wp.launch(accumulate_moments, dim=(batch, self.final_cap, spec.PATCH_SIZE),
+                  inputs=[wp.uint64(self.pyr.ptr), batch, self.level_info, self.counters,
+                          self.final_values_b, self.cand],
                   outputs=[self.moments], device=dev)
-        wp.launch(describe_levels, dim=(self.final_cap, spec.DESCRIPTOR_BYTES),
-                  inputs=[wp.uint64(self.blurred.ptr), self.level_info, self.counters,
-                          self.final_values, self.cand, self.moments, self.pattern],
+        wp.launch(describe_levels, dim=(batch, self.final_cap, spec.DESCRIPTOR_BYTES),
+                  inputs=[wp.uint64(self.blurred.ptr), batch, self.level_info, self.counters,
+                          self.final_values_b, self.cand, self.moments, self.pattern],
                   outputs=[self.kp_fields, self.kp_octave, self.desc], device=dev)
+
+    def stage_heads(self):
+        """Each image's counters the host reads, into one block (:meth:`read_head`)."""
+        wp.launch(gather_heads, dim=self.heads.shape, inputs=[self.counters],
+                  outputs=[self.heads], device=self.device)
 
     def program(self):
         """Every device stage, fixed shapes: what the graph holds. On CUDA the blur runs on a
@@ -286,6 +376,7 @@ class OrbPlan:
             self.stage_quadtree()
             main.wait_stream(self.side)
         self.stage_describe()
+        self.stage_heads()
 
     def launch(self):
         """Run the program: eagerly the first time (loads the modules), then from a graph."""
@@ -305,51 +396,81 @@ class OrbPlan:
             return
         self.program()
 
-    # -- one frame ------------------------------------------------------------------------
+    # -- one batch ------------------------------------------------------------------------
 
     def read_head(self) -> np.ndarray:
-        """The counters the host needs (one sync): candidates, finals, overflow, nodes."""
-        wp.copy(self.head, self.counters, count=self.head.shape[0])
+        """int32 [batch, C_NODES + n_levels]: per image the counters the host needs
+        (candidates, finals, overflow, nodes) as :meth:`stage_heads` left them; one copy, one
+        sync."""
+        wp.copy(self.head, self.heads)
         if self.device.is_cuda:
             wp.synchronize_stream(wp.get_stream(self.device))
         return self.head.numpy().copy()
 
     def overflowed(self, head: np.ndarray) -> bool:
+        """Whether the image of ``head`` (one row of :meth:`read_head`) exceeded a capacity."""
         return bool(head[C_OVER] != 0 or head[C_FINAL] > self.final_cap
                     or np.any(head[C_NODES:C_NODES + self.n_levels] > self.node_caps))
 
-    def run(self, src):
-        """Extract from ``src`` (uint8 HxW on the plan's device): (Keypoints, descriptors)."""
+    def load(self, src):
+        """Copy the input into level 0 of the pyramids: one uint8 HxW image (batch 1), a
+        [batch, H, W] array or a list of ``batch`` HxW images, on the plan's device."""
+        if isinstance(src, (list, tuple)):
+            for b, img in enumerate(src):
+                wp.copy(self.images[b][0], img)
+        elif src.ndim == 3:
+            wp.copy(self.inputs, src)
+        else:
+            wp.copy(self.images[0][0], src)
+
+    def run(self, src) -> list:
+        """Extract from every image of ``src`` (see :meth:`load`): [(Keypoints, descriptors)]
+        in the batch's order, each what the image alone gives."""
         if self.device.is_cuda:
-            # On another stream than the last frame, wait for that frame's output copies.
+            # On another stream than the last batch, wait for that batch's output copies.
             stream = wp.get_stream(self.device)
             if self.last_stream is not None and self.last_stream is not stream:
                 stream.wait_stream(self.last_stream)
             self.last_stream = stream
-        wp.copy(self.levels[0], src)
+        self.load(src)
         self.launch()
         self.runs += 1
-        head = self.read_head()
-        if self.overflowed(head):
-            n_features, scale_factor, _, ini_th, min_th = self.params
-            return extract_host(self.levels, n_features, scale_factor, ini_th, min_th,
-                                blurred=self.blurred_levels)
-        return self.take_outputs(int(head[C_FINAL]))
+        heads = self.read_head()
+        over = [self.overflowed(head) for head in heads]
+        counts = [0 if o else int(head[C_FINAL]) for o, head in zip(over, heads)]
+        results = self.take_outputs(counts)
+        n_features, scale_factor, _, ini_th, min_th = self.params
+        for b in np.flatnonzero(over):
+            results[b] = extract_host(self.images[b], n_features, scale_factor, ini_th, min_th,
+                                      blurred=self.blurred_images[b])
+        return results
 
-    def take_outputs(self, n: int):
-        """Fresh arrays holding the frame's n keypoints (the plan's buffers are reused)."""
+    def take_outputs(self, counts: list) -> list:
+        """Fresh arrays holding each image's keypoints (``counts[b]`` of image b; the plan's
+        buffers are reused): one allocation per field for the batch, one packing launch, then
+        each image's results are views of its rows."""
         dev = self.device
-        octave = wp.empty(n, dtype=wp.int32, device=dev)
-        desc = wp.empty((n, spec.DESCRIPTOR_BYTES), dtype=wp.uint8, device=dev)
-        if n == 0:
-            rows = [wp.empty(0, dtype=wp.float32, device=dev) for _ in range(5)]
-            return Keypoints(*rows, octave), desc
-        fields = wp.empty((5, n), dtype=wp.float32, device=dev)
-        wp.copy(fields, self.kp_fields, count=5 * n)
-        wp.copy(octave, self.kp_octave, count=n)
-        wp.copy(desc, self.desc, count=n * spec.DESCRIPTOR_BYTES)
-        return Keypoints(x=fields[0], y=fields[1], response=fields[2], size=fields[3],
-                         angle=fields[4], octave=octave), desc
+        starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+        total = int(starts[-1])
+        fields = wp.empty((5, total), dtype=wp.float32, device=dev)
+        octave = wp.empty(total, dtype=wp.int32, device=dev)
+        desc = wp.empty((total, spec.DESCRIPTOR_BYTES), dtype=wp.uint8, device=dev)
+        if total:
+            wp.launch(pack_outputs, dim=(self.batch, max(counts)),
+                      inputs=[wp.array(starts, dtype=wp.int32, device=dev), self.kp_fields,
+                              self.kp_octave, self.desc],
+                      outputs=[fields, octave, desc], device=dev)
+        results = []
+        for a, b in zip(starts[:-1].tolist(), starts[1:].tolist()):
+            if a == b:  # Warp has no empty slices
+                rows = [wp.empty(0, dtype=wp.float32, device=dev) for _ in range(5)]
+                results.append((Keypoints(*rows, wp.empty(0, dtype=wp.int32, device=dev)),
+                                wp.empty((0, spec.DESCRIPTOR_BYTES), dtype=wp.uint8,
+                                         device=dev)))
+            else:
+                kps = Keypoints(*(fields[f, a:b] for f in range(5)), octave[a:b])
+                results.append((kps, desc[a:b]))
+        return results
 
 
 _plans: OrderedDict = OrderedDict()  # key -> idle plans, least recently used first

@@ -1,0 +1,339 @@
+"""The stabilizer with the whole frame on the Warp device: one program per frame, replayed.
+
+:func:`warpvx.apps.stabilize.stabilize`'s graph keeps the point set and the 3x3 chain on the
+host (5 device->host and 3 host->device copies and a serial round trip per frame). Here every
+step runs on the device, in one fixed sequence of launches per frame (:meth:`DevicePlan.program`):
+
+    frame (ring slot s) -> [undistort: remap] -> gray -> pyramid -> LK from slot s-1's pyramid -> park_lost ->
+    RANSAC (first ``count`` points) -> keep_tracked -> [if the device's flag says so:
+    detect + merge_fresh] -> pad -> follow_motion (H, T, smoothing, truncation) ->
+    warp of slot s - lag -> output slot s
+
+(:mod:`warpvx.kernels_warp.stabilize_points`, :mod:`warpvx.kernels_warp.stabilize_motion`).
+Re-detection is decided on the device and run in a conditional node (``wp.capture_if``):
+detecting every frame would cost a full-resolution Harris map, a sort over every pixel and
+the selection rounds each frame, where re-detection is rare (the bundled hand-held clip: 10 of
+46 frames, most in the first 12; the benchmark's shaken photo: once in 70 frames); a cheaper
+low-resolution detector would give other points than the graph path. On CUDA each ring slot's
+program is captured once as a CUDA graph (``wp.ScopedCapture``) and replayed
+(``wp.capture_launch``); where capture is unavailable (no conditional nodes, or inside a
+caller's capture) it runs eagerly, and the conditional then reads the flag on the host.
+
+Per frame the host does one copy of the frame into a pinned ring slot, one host->device copy
+(upload stream), the graph launch (compute stream) and one device->host copy of the output
+image plus its four 3x3 matrices (download stream), each stream waiting on the others'
+events: with ``depth`` frames in flight the upload of frame t+1 and the download of frame t-1
+overlap the compute of frame t. The device ring holds ``lag + depth + 1`` frames (the centred
+window warps frame t - lag at step t).
+
+Supported: the homography motion with the Harris detector (the defaults; :func:`supports`),
+with or without undistortion; other configurations take the graph path. Same frames as the graph path on
+``warp-cpu`` (tests/apps/test_stabilize_device.py states the tolerance).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from ..errors import WarpvxValueError
+from .stabilize import _NO_POINTS, StabilizerConfig, _crop_matrix, _park_lost_kernel, undistort_maps
+
+__all__ = ["DevicePlan", "make_chain", "supports", "run_device"]
+
+GRAY_CODE = 6  # cv2.COLOR_BGR2GRAY
+LK_ITERS, LK_EPS, LK_MIN_EIG = 30, 0.01, 1e-4  # optical_flow_pyr_lk's defaults (the graph's)
+
+
+def supports(config: StabilizerConfig) -> str | None:
+    """Why ``config`` needs the graph path (a short reason), or None when the device path
+    runs it."""
+    if config.motion != "homography":
+        return f"motion {config.motion!r}"
+    if config.detector != "harris":
+        return f"detector {config.detector!r}"
+    return None
+
+
+def make_chain(config: StabilizerConfig, size, device):
+    """The :class:`~warpvx.kernels_warp.stabilize_motion.Chain` constants of ``config`` for
+    frames of ``size`` (w, h) on ``device``."""
+    import warp as wp
+
+    from ..kernels_warp.stabilize_motion import Chain
+
+    chain = Chain()
+    chain.weights = wp.array(config.weights(), dtype=wp.float64, device=device)
+    chain.lag, chain.crop = config.lag, float(config.crop)
+    chain.crop_matrix = wp.mat33d(*_crop_matrix(size, config.crop).ravel())
+    chain.width, chain.height = float(size[0]), float(size[1])
+    return chain
+
+
+class DevicePlan:
+    """Buffers, streams and programs of the device path for frames of ``size`` (w, h).
+
+    ``device``: a Warp device (``"cpu"`` or ``"cuda:N"``); ``depth`` >= 1 frames in flight;
+    ``use_graph``: capture each slot's program once and replay it (None: on CUDA; a CPU
+    capture replays the same launches, which the tests use to check the captured program).
+    :meth:`run` consumes feed dicts ({"frame": uint8 HxWx3, "live": uint8 [1]}) and yields,
+    per step, a dict of ``stabilized`` (uint8 HxWx3, the frame ``lag`` steps back) and
+    float64 3x3 ``motion``, ``trajectory``, ``transform``, ``warp`` (as the graph's outputs).
+    """
+
+    def __init__(self, size, config: StabilizerConfig, device, *, depth: int = 3,
+                 use_graph: bool | None = None):
+        import warp as wp
+
+        from ..check import check_int, check_size
+        from ..flow import _level_limit
+        from ..kernels_warp import stabilize_motion as km
+        from ..kernels_warp import stabilize_points as kp
+        from ..kernels_warp._launch import Recorded
+
+        reason = supports(config)
+        if reason is not None:
+            raise WarpvxValueError(f"config: the device path does not run {reason}; use the graph")
+        self.w, self.h = w, h = check_size(size, "size")
+        self.depth = check_int(depth, "depth", min_value=1)
+        self.device = dev = wp.get_device(device)
+        c = self.config = config
+        self.lag = c.lag
+        self.slots = R = self.lag + self.depth + 1
+        win = (c.lk_win, c.lk_win)
+        self.lk_levels = min(c.levels - 1, _level_limit((w, h), win, c.levels - 1))
+        self.win = win
+        P = max(c.max_corners, 4)
+
+        def empty(shape, dtype=wp.uint8):
+            return wp.empty(shape, dtype=dtype, device=dev)
+
+        self.frames = [wp.zeros((h, w, 3), dtype=wp.uint8, device=dev) for _ in range(R)]
+        self.maps = None  # undistortion: remap maps, and the undistorted frames' ring
+        self.sources = self.frames
+        if c.camera_matrix is not None:
+            self.maps = [wp.array(m, dtype=wp.float32, device=dev) for m in undistort_maps(c, (w, h))]
+            self.sources = [wp.zeros((h, w, 3), dtype=wp.uint8, device=dev) for _ in range(R)]
+        self.outs = [empty((h, w, 3)) for _ in range(R)]
+        self.records = [empty(4, wp.mat33d) for _ in range(R)]
+        self.pyramids = []
+        for _ in range(R):
+            pyr = [wp.zeros((h, w), dtype=wp.uint8, device=dev)]
+            for _lvl in range(1, c.levels):
+                ph, pw = pyr[-1].shape
+                pyr.append(wp.zeros(((ph + 1) // 2, (pw + 1) // 2), dtype=wp.uint8, device=dev))
+            self.pyramids.append(pyr)
+        init = np.full((P, 2), np.nan, np.float32)
+        init[:4] = _NO_POINTS
+        self.points = wp.array(init, dtype=wp.float32, device=dev)
+        self.count = wp.array([4], dtype=wp.int32, device=dev)
+        self.tracked = empty(1, wp.int32)
+        self.detect = empty(1, wp.int32)
+        self.live = wp.ones(1, dtype=wp.int32, device=dev)
+        self.lk_out = (empty((P, 2), wp.float32), empty(P), empty(P, wp.float32))
+        self.parked = empty((P, 2), wp.float32)
+        self.homography = empty((3, 3), wp.float64)
+        weights = c.weights()
+        self.history = wp.array(np.full((max(1, len(weights) - 1), 3, 3), np.nan), dtype=wp.mat33d,
+                                device=dev)
+        self.sampling_matrix = empty(1, wp.mat33)
+
+        chain = make_chain(c, (w, h), dev)
+        self.park = Recorded(_park_lost_kernel(), P, dev, pts=self.lk_out[0], status=self.lk_out[1],
+                             out=self.parked)
+        self.ransac = kp.DeviceRansac(self.points, self.parked, self.count, c.ransac_threshold,
+                                      c.ransac_iters, 0, self.homography)
+        self.keep = Recorded(kp.keep_tracked, [1], dev, block_dim=kp.BLOCK, next_pts=self.lk_out[0],
+                             status=self.lk_out[1], min_tracked=c.min_tracked,
+                             max_corners=c.max_corners, points=self.points, tracked=self.tracked,
+                             count=self.count, detect=self.detect)
+        self.corners = kp.DeviceCorners((h, w), dev, c.max_corners, c.quality_level, c.min_distance)
+        self.merge = Recorded(kp.merge_fresh, [1], dev, block_dim=kp.BLOCK, fresh=self.corners.points,
+                              selected=self.corners.result, tracked=self.tracked,
+                              min_dist_sq=float(c.min_distance) ** 2, max_corners=c.max_corners,
+                              points=self.points, count=self.count)
+        self.pad = Recorded(kp.pad_points, P, dev, count=self.count, points=self.points)
+        self.follow = [Recorded(km.follow_motion, 1, dev, homography=self.homography, live=self.live,
+                                chain=chain, history=self.history, record=rec,
+                                sampling_matrix=self.sampling_matrix) for rec in self.records]
+        self.warps = [km.warp_by_device_matrix(self.sources[(s - self.lag) % R], self.sampling_matrix,
+                                               self.outs[s]) for s in range(R)]
+
+        self.use_graph = dev.is_cuda if use_graph is None else bool(use_graph)
+        self.graphs = [None] * R
+        # mark(stage) is called after each stage of an eager program (profiling: the
+        # benchmark records events there); None in normal runs.
+        self.mark = None
+        self.capture_error = None  # why capture failed, when it did (then: eager launches)
+        self.steps = 0
+        self._wp = wp
+        self._streams(wp)
+        # The buffers were allocated and filled on the compute stream; the copy streams use
+        # them from the first frame on.
+        wp.synchronize_device(dev)
+
+    def _streams(self, wp):
+        """Pinned host rings and the copy streams (CUDA), or host views of the device rings
+        (CPU: the device memory is host memory)."""
+        dev, h, w = self.device, self.h, self.w
+        self.compute = wp.get_stream(dev) if dev.is_cuda else None
+        if dev.is_cpu:
+            self.host_in = [f.numpy() for f in self.frames]
+            self.host_out = [o.numpy() for o in self.outs]
+            self.host_rec = [r.numpy() for r in self.records]
+            return
+        pinned = {"device": "cpu", "pinned": True}
+        self.pin_in = [wp.empty((h, w, 3), dtype=wp.uint8, **pinned) for _ in range(self.depth)]
+        self.pin_out = [wp.empty((h, w, 3), dtype=wp.uint8, **pinned) for _ in range(self.depth)]
+        self.pin_rec = [wp.empty(4, dtype=wp.mat33d, **pinned) for _ in range(self.depth)]
+        self.host_in = [a.numpy() for a in self.pin_in]
+        self.host_out = [a.numpy() for a in self.pin_out]
+        self.host_rec = [a.numpy() for a in self.pin_rec]
+        self.upload, self.download = wp.Stream(dev), wp.Stream(dev)
+        self.uploaded = [wp.Event(dev) for _ in range(self.depth)]
+        self.downloaded = [wp.Event(dev) for _ in range(self.depth)]
+        self.done = [wp.Event(dev) for _ in range(self.slots)]
+
+    # -- the per-frame program ------------------------------------------------------------
+
+    def program(self, s: int):
+        """Every device step of a frame in ring slot ``s``: fixed shapes, no host sync (what a
+        captured graph holds)."""
+        import warp as wp
+
+        from ..kernels_warp.color_convert import color_convert
+        from ..kernels_warp.gaussian_pyramid import gaussian_pyramid
+        from ..geometry import _border_value
+        from ..kernels_warp.optical_flow_pyr_lk import optical_flow_pyr_lk
+        from ..kernels_warp.remap import remap
+        from ..modes import BORDER_CONSTANT, INTER_LINEAR
+
+        mark = self.mark or (lambda stage: None)
+        pyr, prev = self.pyramids[s], self.pyramids[(s - 1) % self.slots]
+        mark("start")
+        if self.maps is not None:  # the graph's undistort node: linear, constant border 0
+            remap(self.frames[s], *self.maps, INTER_LINEAR, BORDER_CONSTANT, _border_value(0),
+                  out=self.sources[s])
+        color_convert(self.sources[s], GRAY_CODE, out=pyr[0])
+        gaussian_pyramid(pyr[0], len(pyr), out=pyr)
+        mark("gray + pyramid")
+        levels = self.lk_levels + 1
+        optical_flow_pyr_lk(prev[:levels], pyr[:levels], self.points, None, self.win,
+                            self.lk_levels, LK_ITERS, LK_EPS, LK_MIN_EIG, out=self.lk_out)
+        mark("LK")
+        self.park.launch()
+        self.ransac.launch()
+        mark("park_lost + RANSAC")
+        self.keep.launch()
+        wp.capture_if(self.detect, on_true=self._refill, gray=pyr[0])
+        self.pad.launch()
+        mark("refresh (+ detect when flagged)")
+        self.follow[s].launch()
+        mark("3x3 chain")
+        self.warps[s].launch()
+        mark("warp")
+
+    def _refill(self, gray):
+        self.corners.launch(gray)
+        self.merge.launch()
+
+    def _launch(self, s: int):
+        """Slot ``s``'s program: its graph, captured on first use after the first step (which
+        loads the modules and reserves scratch), or eager launches."""
+        wp = self._wp
+        if self.graphs[s] is not None:
+            wp.capture_launch(self.graphs[s])
+            return
+        if self.use_graph and self.steps > 0:
+            try:
+                with wp.ScopedCapture(device=self.device, stream=self.compute) as capture:
+                    self.program(s)
+            except Exception as exc:  # noqa: BLE001 - no conditional nodes, or a caller's capture
+                self.use_graph = False
+                self.capture_error = repr(exc)
+            else:
+                self.graphs[s] = capture.graph
+                wp.capture_launch(capture.graph)
+                return
+        self.program(s)
+
+    # -- the frame loop -------------------------------------------------------------------
+
+    def submit(self, frame, live: bool):
+        """Enqueue step ``self.steps`` (no wait for the device, except for a free pinned
+        slot); returns the step's index."""
+        t, s, p = self.steps, self.steps % self.slots, self.steps % self.depth
+        cuda = self.device.is_cuda
+        if not live:
+            self.live.fill_(0)  # a padding step flushing the centred window: nothing to upload
+        elif cuda:
+            self._upload(t, s, p, frame)
+        else:
+            np.copyto(self.host_in[s], frame)  # Warp's CPU device: its memory is host memory
+        self._launch(s)
+        if cuda:
+            self._download(s, p)
+        self.steps += 1
+        return t
+
+    def _upload(self, t: int, s: int, p: int, frame):
+        """``frame`` into pinned slot ``p``, then to device slot ``s`` on the upload stream
+        once no step still reads it; the compute stream waits for the copy."""
+        from ..runtime.native_copy import to_device
+
+        wp = self._wp
+        if t >= self.depth:
+            wp.synchronize_event(self.uploaded[p])  # the pinned slot's last upload is done
+        np.copyto(self.host_in[p], frame)
+        free = t - self.slots + max(self.lag, 1)  # the last step that read device slot s
+        if free >= 0:
+            self.upload.wait_event(self.done[free % self.slots])
+        to_device(self.frames[s], self.pin_in[p], self.upload)
+        self.upload.record_event(self.uploaded[p])
+        self.compute.wait_event(self.uploaded[p])
+
+    def _download(self, s: int, p: int):
+        """Output slot ``s`` (image and matrices) into pinned slot ``p`` on the download
+        stream, after the step's compute."""
+        wp = self._wp
+        self.compute.record_event(self.done[s])
+        self.download.wait_event(self.done[s])
+        wp.copy(self.pin_out[p], self.outs[s], stream=self.download)
+        wp.copy(self.pin_rec[p], self.records[s], stream=self.download)
+        self.download.record_event(self.downloaded[p])
+
+    def result(self, t: int, copy: bool = True) -> dict:
+        """The outputs of step ``t`` (waits for its download). With ``copy`` False the image
+        is a view of the pinned ring, valid until the next :meth:`submit`."""
+        if self.device.is_cuda:
+            p = t % self.depth
+            self._wp.synchronize_event(self.downloaded[p])
+            image, rec = self.host_out[p], self.host_rec[p]
+        else:
+            image, rec = self.host_out[t % self.slots], self.host_rec[t % self.slots]
+        rec = np.array(rec, np.float64).reshape(4, 3, 3)
+        return {"stabilized": image.copy() if copy else image, "motion": rec[0],
+                "trajectory": rec[1], "transform": rec[2], "warp": rec[3]}
+
+    def run(self, feed, copy: bool = True):
+        """Outputs of every step of ``feed`` in order, ``depth`` steps in flight."""
+        pending = deque()
+        for item in feed:
+            pending.append(self.submit(item["frame"], bool(np.asarray(item["live"]).reshape(-1)[0])))
+            if len(pending) >= self.depth:
+                yield self.result(pending.popleft(), copy)
+        while pending:
+            yield self.result(pending.popleft(), copy)
+
+
+def run_device(backend: str, config: StabilizerConfig, depth: int, copy: bool = True):
+    """``run(feed, size)`` for :func:`warpvx.apps.stabilize._drive`: the device path on
+    ``backend`` (``"warp-cpu"`` or ``"cuda"``)."""
+    device = "cpu" if backend == "warp-cpu" else backend
+
+    def run(feed, size):
+        yield from DevicePlan(size, config, device, depth=depth).run(feed, copy)
+
+    return run
+
