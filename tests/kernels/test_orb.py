@@ -495,7 +495,10 @@ def test_warp_internals_match_orbslam2_transcription(warp_backend, name, batch):
     n = int(counters[funcs.C_FINAL])
     kept = plan.cand.numpy()[b][plan.final_values_b.numpy()[b, :n]]
     level_f, _, y_f, x_f, s_f = _decode(kept)
-    angles = plan.kp_fields.numpy()[b, 4 * n:5 * n]
+    # Orientations: image b's rows of the batch's packed (5, N) field block.
+    starts = plan.starts.numpy()
+    first, total = int(starts[b]), int(starts[batch])
+    angles = plan.kp_fields.numpy()[4 * total + first:4 * total + first + n]
     assert np.all(np.diff(level_f) >= 0)  # level by level
 
     levels = cpu_orb.build_pyramid(img, 1.2, 8)

@@ -1,12 +1,11 @@
 """Kernels of the one-graph ORB extractor but the quadtree's (:mod:`.quadtree`): pyramid edge
-rows, detection, the candidate sort's keys, orientation, descriptors and the batch's outputs;
-every level in each launch (see :mod:`.plan`)."""
+rows, detection, the candidate sort's keys, orientation, descriptors packed into the batch's
+outputs; every level in each launch (see :mod:`.plan`)."""
 
 from __future__ import annotations
 
 import warp as wp
 
-from ... import _orb_spec as spec
 from .._filtering import round_shift, taps16i
 from .._sampling import read_reflect101
 from ..fast_corners import fast_score
@@ -19,18 +18,21 @@ from .funcs import (C_CAND, C_CAND_R, C_FINAL, C_OVER, C_SURV_R, HALF_PATCH, KEY
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
 
-DESCRIPTOR_BYTES = wp.constant(spec.DESCRIPTOR_BYTES)
 # Radius of the 7x7 Gaussian ORB describes on.
 BLUR_RADIUS = wp.constant(3)
 
 # --------------------------------------------------------------------------------------------
 # Kernels of the one-graph extractor (all levels per launch, all images of a batch)
 #
-# Each kernel runs over (image, ...) of a batch of equal-sized images: its first thread index
-# is the image b (the per-pixel kernels run 1-D over the batch's pixels, t = b * pixels + i). Per-image buffers carry the image as their first index and each kernel takes
-# its image's part (``counters = counters[b]``: a view, no copy), so the body reads as for one
-# image and every index stored in a buffer is one of the image's own. Threads with nothing to
-# do return before taking the views (on the CPU device a view costs each thread time). The pyramids
+# Each kernel runs over the images of a batch of equal-sized images: its first thread index
+# t runs over the batch's items, image by image (t = b * n + i for n items an image: pixels,
+# survivor or candidate slots, keypoints), and ``funcs.batch_image`` finds b, without a
+# division for one image: a batch of one launches as the one-image extractor did (on the CPU
+# device a multi-dimensional index costs every thread a division). Per-image buffers carry
+# the image as their first index and each kernel takes its image's part
+# (``counters = counters[b]``: a view, no copy), so the body reads as for one image and every
+# index stored in a buffer is one of the image's own. Threads with nothing to do return before
+# taking the views (on the CPU device a view costs each thread time). The pyramids
 # are flat and level-major (:func:`.funcs.batch_level_image`); the two radix sorts sort the
 # whole batch at once, the image above each key (:func:`.funcs.batch_key`).
 # --------------------------------------------------------------------------------------------
@@ -63,11 +65,21 @@ def blur_edge_rows(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelInfo)
 
 
 @wp.kernel
-def gather_heads(counters: wp.array2d(dtype=wp.int32), heads: wp.array2d(dtype=wp.int32)):
+def gather_heads(counters: wp.array2d(dtype=wp.int32), final_cap: int,
+                 heads: wp.array2d(dtype=wp.int32), starts: wp.array(dtype=wp.int32)):
     """heads[b, j] = counters[b, j]: each image's leading counters in one block (one copy to
-    the host)."""
+    the host); thread (b, 0) also writes starts[b + 1], the keypoints of images 0..b (each
+    count capped at ``final_cap``: what the plan holds), starts[0] = 0: where
+    ``describe_levels`` packs each image's keypoints."""
     b, j = wp.tid()
     heads[b, j] = counters[b, j]
+    if j == 0:
+        total = int(0)
+        for c in range(b + 1):
+            total += wp.min(counters[c, C_FINAL], final_cap)
+        starts[b + 1] = total
+        if b == 0:
+            starts[0] = 0
 
 
 @wp.kernel
@@ -138,7 +150,7 @@ def suppress_pixels(levels: wp.array(dtype=LevelInfo), n_levels: int,
 
 
 @wp.kernel
-def select_candidates(survivors: wp.array2d(dtype=wp.int64), surv_region: int,
+def select_candidates(batch: int, survivors: wp.array2d(dtype=wp.int64), surv_region: int,
                       levels: wp.array(dtype=LevelInfo),
                       roots: wp.array(dtype=wp.int32), ini_th: int, min_th: int, cells_at: int,
                       cand_region: int, digits: int, root_bits: int, key_bits: int,
@@ -147,8 +159,11 @@ def select_candidates(survivors: wp.array2d(dtype=wp.int64), surv_region: int,
                       order: wp.array2d(dtype=wp.int32)):
     """Keep a survivor when its score reaches its cell's threshold; write its candidate key,
     its quadtree path, the path's sort key (level | root | first ``digits`` quadrants) and its
-    slot (the sort's value) into the region of stripe j % N_STRIPES."""
-    b, j = wp.tid()
+    slot (the sort's value) into the region of stripe j % N_STRIPES. A 1-D launch over the
+    batch's survivor slots (see ``score_pixels``)."""
+    t = wp.tid()
+    b = batch_image(t, batch, survivors.shape[1])
+    j = t - b * survivors.shape[1]
     r = j // surv_region
     if j - r * surv_region >= wp.min(counters[b, C_SURV_R + r], surv_region):
         return
@@ -183,11 +198,13 @@ def select_candidates(survivors: wp.array2d(dtype=wp.int64), surv_region: int,
 
 
 @wp.kernel
-def pad_paths(counters: wp.array2d(dtype=wp.int32), surv_region: int, cand_region: int,
-              key_bits: int, sort_keys: wp.array2d(dtype=wp.int64)):
+def pad_paths(batch: int, counters: wp.array2d(dtype=wp.int32), surv_region: int,
+              cand_region: int, key_bits: int, sort_keys: wp.array2d(dtype=wp.int64)):
     """Pad the candidate regions' unused slots (a fixed-size sort puts them last); thread 0
     writes the candidate total and whether a region overflowed."""
-    b, i = wp.tid()
+    t = wp.tid()
+    b = batch_image(t, batch, sort_keys.shape[1])
+    i = t - b * sort_keys.shape[1]
     r = i // cand_region
     if i - r * cand_region >= counters[b, C_CAND_R + r]:
         sort_keys[b, i] = batch_pad(b, key_bits)
@@ -205,19 +222,24 @@ def pad_paths(counters: wp.array2d(dtype=wp.int32), surv_region: int, cand_regio
 
 
 @wp.kernel
-def pad_keys(counters: wp.array2d(dtype=wp.int32), which: int, key_bits: int,
+def pad_keys(batch: int, counters: wp.array2d(dtype=wp.int32), which: int, key_bits: int,
              keys: wp.array2d(dtype=wp.int64)):
     """keys[i] = the image's padding key past the count (a fixed-size sort puts them last)."""
-    b, i = wp.tid()
+    t = wp.tid()
+    b = batch_image(t, batch, keys.shape[1])
+    i = t - b * keys.shape[1]
     if i >= counters[b, which]:
         keys[b, i] = batch_pad(b, key_bits)
 
 
 @wp.kernel
-def gather_paths(order: wp.array2d(dtype=wp.int32), counters: wp.array2d(dtype=wp.int32),
-                 paths: wp.array2d(dtype=wp.int64), sorted_paths: wp.array2d(dtype=wp.int64)):
+def gather_paths(batch: int, order: wp.array2d(dtype=wp.int32),
+                 counters: wp.array2d(dtype=wp.int32), paths: wp.array2d(dtype=wp.int64),
+                 sorted_paths: wp.array2d(dtype=wp.int64)):
     """The full paths in sorted order."""
-    b, i = wp.tid()
+    t = wp.tid()
+    b = batch_image(t, batch, sorted_paths.shape[1])
+    i = t - b * sorted_paths.shape[1]
     if i < counters[b, C_CAND]:
         sorted_paths[b, i] = paths[b, order[b, i]]
 
@@ -228,8 +250,11 @@ def accumulate_moments(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelI
                        final_values: wp.array2d(dtype=wp.int32),
                        cand: wp.array2d(dtype=wp.int64), moments: wp.array3d(dtype=wp.int32)):
     """IC_Angle's moments of keypoint i, one disc row v per thread: m10 += sum u I,
-    m01 += v sum I (integer sums: the order of the atomics does not matter)."""
-    b, i, r = wp.tid()
+    m01 += v sum I (integer sums: the order of the atomics does not matter). Keypoint i of
+    image b is thread row b * final_cap + i (2-D, as for one image: see ``score_pixels``)."""
+    t, r = wp.tid()
+    b = batch_image(t, batch, moments.shape[1])
+    i = t - b * moments.shape[1]
     if i >= wp.min(counters[b, C_FINAL], moments.shape[1]):
         return
     final_values = final_values[b]
@@ -257,54 +282,35 @@ def describe_levels(blurred: wp.uint64, batch: int, levels: wp.array(dtype=Level
                     counters: wp.array2d(dtype=wp.int32),
                     final_values: wp.array2d(dtype=wp.int32), cand: wp.array2d(dtype=wp.int64),
                     moments: wp.array3d(dtype=wp.int32), pattern: wp.array2d(dtype=wp.int32),
-                    kp_fields: wp.array2d(dtype=wp.float32), kp_octave: wp.array2d(dtype=wp.int32),
-                    desc: wp.array3d(dtype=wp.uint8)):
+                    starts: wp.array(dtype=wp.int32), kp_fields: wp.array(dtype=wp.float32),
+                    kp_octave: wp.array(dtype=wp.int32), desc: wp.array2d(dtype=wp.uint8)):
     """Descriptor byte j of keypoint i on its blurred level; thread j = 0 also writes the
-    keypoint's level-0 fields. ``kp_fields`` holds x, y, response, size, angle as a (5, n)
-    block, n the keypoint count, so one contiguous copy takes them out."""
-    b, i, j = wp.tid()
-    n = wp.min(counters[b, C_FINAL], desc.shape[1])
-    if i >= n:
+    keypoint's level-0 fields. Image b's keypoints go to rows starts[b] + i of the batch's
+    packed outputs (``gather_heads``), N = starts[batch] rows in all: ``kp_fields`` holds x,
+    y, response, size, angle as a (5, N) block, so one contiguous copy per output takes the
+    whole batch out. Threads as in ``accumulate_moments``."""
+    t, j = wp.tid()
+    b = batch_image(t, batch, moments.shape[1])
+    i = t - b * moments.shape[1]
+    if i >= wp.min(counters[b, C_FINAL], moments.shape[1]):
         return
     final_values = final_values[b]
     cand = cand[b]
     moments = moments[b]
-    kp_fields = kp_fields[b]
-    kp_octave = kp_octave[b]
-    desc = desc[b]
     key = cand[final_values[i]]
     level = key_field(key, KEY_LEVEL_SHIFT, 31)
     x = key_field(key, KEY_X_SHIFT, 0xFFFF)
     y = key_field(key, KEY_Y_SHIFT, 0xFFFF)
     angle = fast_atan2(float(moments[i, 1]), float(moments[i, 0]))
     img = batch_level_image(blurred, levels, level, batch, b)
-    desc[i, j] = wp.uint8(describe_byte(img, y, x, angle, pattern, j))
+    at = starts[b] + i
+    desc[at, j] = wp.uint8(describe_byte(img, y, x, angle, pattern, j))
     if j == 0:
+        n = starts[batch]
         s = levels[level].scale
-        kp_fields[i] = float(x) * s
-        kp_fields[n + i] = float(y) * s
-        kp_fields[2 * n + i] = float(key_field(key, 0, 0xFF))
-        kp_fields[3 * n + i] = levels[level].kp_size
-        kp_fields[4 * n + i] = angle
-        kp_octave[i] = level
-
-
-
-
-@wp.kernel
-def pack_outputs(starts: wp.array(dtype=wp.int32), kp_fields: wp.array2d(dtype=wp.float32),
-                 kp_octave: wp.array2d(dtype=wp.int32), desc: wp.array3d(dtype=wp.uint8),
-                 fields: wp.array2d(dtype=wp.float32), octave: wp.array(dtype=wp.int32),
-                 packed: wp.array2d(dtype=wp.uint8)):
-    """Keypoint i of image b (describe_levels' per-image rows) to row starts[b] + i of the
-    batch's packed outputs: its descriptor, its five fields (a (5, N) block) and octave."""
-    b, i = wp.tid()
-    at = starts[b]
-    n = starts[b + 1] - at
-    if i >= n:
-        return
-    for j in range(DESCRIPTOR_BYTES):
-        packed[at + i, j] = desc[b, i, j]
-    for f in range(5):
-        fields[f, at + i] = kp_fields[b, f * n + i]
-    octave[at + i] = kp_octave[b, i]
+        kp_fields[at] = float(x) * s
+        kp_fields[n + at] = float(y) * s
+        kp_fields[2 * n + at] = float(key_field(key, 0, 0xFF))
+        kp_fields[3 * n + at] = levels[level].kp_size
+        kp_fields[4 * n + at] = angle
+        kp_octave[at] = level

@@ -24,7 +24,7 @@ from ..scale_pyramid import RESIZE_ROWS, linear_taps, resize, resize_kernel, res
 from .funcs import (C_FINAL, C_NODES, C_OVER, DEPTHS, RANK_CHUNKS, STRIPES, Division, LevelInfo)
 from .host import _capacity, _pattern_on, extract_host
 from .kernels import (BLUR_RADIUS, accumulate_moments, blur_edge_rows, describe_levels,
-                      gather_heads, gather_paths, pack_outputs, pad_keys, pad_paths, score_pixels,
+                      gather_heads, gather_paths, pad_keys, pad_paths, score_pixels,
                       select_candidates, suppress_pixels)
 from .quadtree import (alloc_nodes, count_depths, emit_finals, link_nodes, plan_divisions,
                        rank_nodes, sum_depth_counts)
@@ -45,13 +45,15 @@ def _view(buf, offset: int, shape: tuple, dtype):
                     device=buf.device)
 
 
-def _batch_resize(prev, dst, batch: int, device):
-    """The launch resizing level l-1 of every image of a batch into level l, or None where
-    OpenCV's 2x INTER_AREA edge rule applies (it reads the image's own height; then each
-    image is resized alone). ``prev``, ``dst``: the levels' [batch * h, w] blocks. One
-    ``scale_pyramid.resize_kernel`` launch over the block: its y taps, offset per image by
-    b * h_prev, keep every image's rows apart."""
-    (sw, sh), (dw, dh) = prev, dst
+def _batch_resize(prev, dst, sizes, batch: int, device):
+    """The launch resizing level l-1 of every image of a batch into level l, recorded
+    (``wp.launch(..., record_cmd=True)``: replayed without packing its arguments again), or
+    None where OpenCV's 2x INTER_AREA edge rule applies (it reads the image's own height;
+    then each image is resized alone). ``prev``, ``dst``: the levels' [batch * h, w] blocks,
+    ``sizes`` their ((w, h) of l-1, (w, h) of l). One ``scale_pyramid.resize_kernel`` launch
+    over the block: its y taps, offset per image by b * h_prev, keep every image's rows
+    apart."""
+    (sw, sh), (dw, dh) = sizes
     _, scales = resize_scales((sw, sh), (dw, dh))
     if tuple(scales) == (2.0, 2.0):
         return None
@@ -61,7 +63,9 @@ def _batch_resize(prev, dst, batch: int, device):
         [1, 1, 0, 0], np.int32)
     y_taps = wp.array(np.tile(y_taps, (batch, 1)) + shift, dtype=wp.vec4i, device=device)
     rows, _ = fit_block(RESIZE_ROWS, 1, batch * dh, dw, device)
-    return resize_kernel(rows), ((batch * dh + rows - 1) // rows, dw), x_taps, y_taps
+    return wp.launch(resize_kernel(rows), dim=((batch * dh + rows - 1) // rows, dw),
+                     inputs=[prev, 1, x_taps, y_taps, 0], outputs=[dst], device=device,
+                     record_cmd=True)
 
 
 class OrbPlan:
@@ -174,9 +178,8 @@ class OrbPlan:
         self.blocks, self.blurred_blocks = per_level(self.pyr), per_level(self.blurred)
         self.inputs = _view(self.pyr, 0, (batch, height, width), wp.uint8)
         blocks = self.blocks
-        self.resizes = [(level, blocks[level - 1], blocks[level],
-                         _batch_resize(sizes[level - 1], sizes[level], batch, dev))
-                        for level in range(1, n_levels)]
+        self.resizes = [_batch_resize(blocks[level - 1], blocks[level], sizes[level - 1:level + 1],
+                                      batch, dev) for level in range(1, n_levels)]
         self.blur_taps = blur_taps(7, 7, 2.0, 2.0, int(BORDER_REFLECT_101))
         self.scores = wp.empty(batch * pix, dtype=wp.uint8, device=dev)  # image-major
         self.counters = wp.zeros((batch, n_counters), dtype=wp.int32, device=dev)
@@ -214,9 +217,12 @@ class OrbPlan:
         self.final_keys_b = _view(self.final_keys, 0, (batch, fc), wp.int64)
         self.final_values_b = _view(self.final_values, 0, (batch, fc), wp.int32)
         self.moments = wp.empty((batch, fc, 2), dtype=wp.int32, device=dev)
-        self.kp_fields = wp.empty((batch, 5 * fc), dtype=wp.float32, device=dev)
-        self.kp_octave = wp.empty((batch, fc), dtype=wp.int32, device=dev)
-        self.desc = wp.empty((batch, fc, spec.DESCRIPTOR_BYTES), dtype=wp.uint8, device=dev)
+        # The batch's keypoints packed image after image (kernels.describe_levels) at the
+        # starts kernels.gather_heads computes.
+        self.starts = wp.empty(batch + 1, dtype=wp.int32, device=dev)
+        self.kp_fields = wp.empty(5 * batch * fc, dtype=wp.float32, device=dev)
+        self.kp_octave = wp.empty(batch * fc, dtype=wp.int32, device=dev)
+        self.desc = wp.empty((batch * fc, spec.DESCRIPTOR_BYTES), dtype=wp.uint8, device=dev)
         self.heads = wp.empty((batch, n_heads), dtype=wp.int32, device=dev)
         self.head = wp.empty((batch, n_heads), dtype=wp.int32, device="cpu", pinned=dev.is_cuda)
         self.use_graph = bool(graph) and dev.is_cuda
@@ -228,16 +234,15 @@ class OrbPlan:
     # -- the device program ---------------------------------------------------------------
 
     def stage_pyramid(self):
-        """Level l of every image from level l - 1: one launch per level for the batch."""
-        for level, prev, dst, launch in self.resizes:
+        """Level l of every image from level l - 1: one recorded launch per level for the
+        batch (no argument packing per call: on the CPU device the plan runs eagerly)."""
+        for level, launch in enumerate(self.resizes, 1):
             if launch is None:  # OpenCV's 2x edge rule: image by image
                 w, h = self.level_sizes[level]
                 for images in self.images:
                     resize(images[level - 1], (w, h), out=images[level])
                 continue
-            kernel, dim, x_taps, y_taps = launch
-            wp.launch(kernel, dim=dim, inputs=[prev, 1, x_taps, y_taps, 0], outputs=[dst],
-                      device=self.device)
+            launch.launch()
 
     def stage_blur(self):
         """The 7x7 Gaussian of every level (``_filtering``'s fused filter, as
@@ -268,8 +273,8 @@ class OrbPlan:
                   inputs=[self.level_info, n_levels, self.row_of_y, self.col_of_x, batch,
                           self.n_pixels, self.scores, ini_th, self.cells_at, self.surv_region],
                   outputs=[self.counters_flat, self.survivors_flat], device=dev)
-        wp.launch(select_candidates, dim=(batch, self.surv_cap),
-                  inputs=[self.survivors, self.surv_region, self.level_info, self.roots, ini_th,
+        wp.launch(select_candidates, dim=batch * self.surv_cap,
+                  inputs=[batch, self.survivors, self.surv_region, self.level_info, self.roots, ini_th,
                           min_th, self.cells_at, self.cand_region, self.digits, self.root_bits,
                           self.sort_bits],
                   outputs=[self.counters, self.cand, self.paths, self.sort_keys_b, self.order_b],
@@ -285,13 +290,13 @@ class OrbPlan:
         batch in one sort (each image's run at its row)."""
         dev = self.device
         batch = self.batch
-        wp.launch(pad_paths, dim=(batch, self.cand_cap),
-                  inputs=[self.counters, self.surv_region, self.cand_region, self.sort_bits],
+        wp.launch(pad_paths, dim=batch * self.cand_cap,
+                  inputs=[batch, self.counters, self.surv_region, self.cand_region, self.sort_bits],
                   outputs=[self.sort_keys_b], device=dev)
         wp.utils.radix_sort_pairs(self.sort_keys, self.order, batch * self.cand_cap, 0,
                                   self.sort_bits + self.batch_bits)
-        wp.launch(gather_paths, dim=(batch, self.cand_cap),
-                  inputs=[self.order_b, self.counters, self.paths],
+        wp.launch(gather_paths, dim=batch * self.cand_cap,
+                  inputs=[batch, self.order_b, self.counters, self.paths],
                   outputs=[self.sorted_paths], device=dev)
 
     def stage_nodes(self):
@@ -300,8 +305,8 @@ class OrbPlan:
         batch = self.batch
         n_levels = self.n_levels
         cap = self.cand_cap
-        wp.launch(count_depths, dim=(batch, cap),
-                  inputs=[self.sorted_paths, self.counters, cap, self.digits, self.singles_at,
+        wp.launch(count_depths, dim=batch * cap,
+                  inputs=[batch, self.sorted_paths, self.counters, cap, self.digits, self.singles_at,
                           self.multis_at],
                   outputs=[self.lcp], device=dev)
         wp.launch(sum_depth_counts, dim=(batch, n_levels, 2, DEPTHS),
@@ -309,19 +314,19 @@ class OrbPlan:
                   device=dev)
         wp.launch(plan_divisions, dim=(batch, n_levels), inputs=[self.level_info, self.totals],
                   outputs=[self.divisions], device=dev)
-        wp.launch(alloc_nodes, dim=(batch, cap),
-                  inputs=[self.sorted_paths, self.lcp, self.counters, cap, self.level_info,
+        wp.launch(alloc_nodes, dim=batch * cap,
+                  inputs=[batch, self.sorted_paths, self.lcp, self.counters, cap, self.level_info,
                           self.divisions, self.groups_at],
                   outputs=[self.node_base, self.node_start, self.node_depth, self.node_count,
                            self.node_growth, self.groups], device=dev)
-        wp.launch(link_nodes, dim=(batch, self.node_cap),
-                  inputs=[self.level_info, n_levels, self.counters, self.divisions, self.lcp,
+        wp.launch(link_nodes, dim=batch * self.node_cap,
+                  inputs=[batch, self.level_info, n_levels, self.counters, self.divisions, self.lcp,
                           self.node_base, self.node_start, self.node_depth],
                   outputs=[self.node_parent], device=dev)
         self.node_rank.zero_()
         self.node_grown.zero_()
-        wp.launch(rank_nodes, dim=(batch, self.node_cap, RANK_CHUNKS),
-                  inputs=[self.level_info, n_levels, self.counters, self.divisions,
+        wp.launch(rank_nodes, dim=(batch * self.node_cap, RANK_CHUNKS),
+                  inputs=[batch, self.level_info, n_levels, self.counters, self.divisions,
                           self.sorted_paths, self.groups_at, self.groups, self.node_start,
                           self.node_depth, self.node_count, self.node_growth, self.node_parent],
                   outputs=[self.node_rank, self.node_grown], device=dev)
@@ -331,13 +336,13 @@ class OrbPlan:
         dev = self.device
         batch = self.batch
         cap = self.cand_cap
-        wp.launch(emit_finals, dim=(batch, cap),
-                  inputs=[self.sorted_paths, self.order_b, self.lcp, self.cand, self.counters,
+        wp.launch(emit_finals, dim=batch * cap,
+                  inputs=[batch, self.sorted_paths, self.order_b, self.lcp, self.cand, self.counters,
                           cap, self.level_info, self.divisions, self.node_base, self.node_rank,
                           self.node_grown, self.place_bits, self.final_bits],
                   outputs=[self.final_keys_b, self.final_values_b], device=dev)
-        wp.launch(pad_keys, dim=(batch, self.final_cap),
-                  inputs=[self.counters, int(C_FINAL), self.final_bits],
+        wp.launch(pad_keys, dim=batch * self.final_cap,
+                  inputs=[batch, self.counters, int(C_FINAL), self.final_bits],
                   outputs=[self.final_keys_b], device=dev)
         wp.utils.radix_sort_pairs(self.final_keys, self.final_values, batch * self.final_cap, 0,
                                   self.final_bits + self.batch_bits)
@@ -346,19 +351,21 @@ class OrbPlan:
         dev = self.device
         batch = self.batch
         self.moments.zero_()
-        wp.launch(accumulate_moments, dim=(batch, self.final_cap, spec.PATCH_SIZE),
+        wp.launch(accumulate_moments, dim=(batch * self.final_cap, spec.PATCH_SIZE),
                   inputs=[wp.uint64(self.pyr.ptr), batch, self.level_info, self.counters,
                           self.final_values_b, self.cand],
                   outputs=[self.moments], device=dev)
-        wp.launch(describe_levels, dim=(batch, self.final_cap, spec.DESCRIPTOR_BYTES),
+        wp.launch(describe_levels, dim=(batch * self.final_cap, spec.DESCRIPTOR_BYTES),
                   inputs=[wp.uint64(self.blurred.ptr), batch, self.level_info, self.counters,
-                          self.final_values_b, self.cand, self.moments, self.pattern],
+                          self.final_values_b, self.cand, self.moments, self.pattern,
+                          self.starts],
                   outputs=[self.kp_fields, self.kp_octave, self.desc], device=dev)
 
     def stage_heads(self):
-        """Each image's counters the host reads, into one block (:meth:`read_head`)."""
-        wp.launch(gather_heads, dim=self.heads.shape, inputs=[self.counters],
-                  outputs=[self.heads], device=self.device)
+        """Each image's counters the host reads, into one block (:meth:`read_head`), and where
+        each image's keypoints go in the packed outputs (:meth:`stage_describe`)."""
+        wp.launch(gather_heads, dim=self.heads.shape, inputs=[self.counters, self.final_cap],
+                  outputs=[self.heads, self.starts], device=self.device)
 
     def program(self):
         """Every device stage, fixed shapes: what the graph holds. On CUDA the blur runs on a
@@ -375,8 +382,8 @@ class OrbPlan:
             self.stage_detect()
             self.stage_quadtree()
             main.wait_stream(self.side)
-        self.stage_describe()
         self.stage_heads()
+        self.stage_describe()
 
     def launch(self):
         """Run the program: eagerly the first time (loads the modules), then from a graph."""
@@ -437,8 +444,7 @@ class OrbPlan:
         self.runs += 1
         heads = self.read_head()
         over = [self.overflowed(head) for head in heads]
-        counts = [0 if o else int(head[C_FINAL]) for o, head in zip(over, heads)]
-        results = self.take_outputs(counts)
+        results = self.take_outputs([min(int(head[C_FINAL]), self.final_cap) for head in heads])
         n_features, scale_factor, _, ini_th, min_th = self.params
         for b in np.flatnonzero(over):
             results[b] = extract_host(self.images[b], n_features, scale_factor, ini_th, min_th,
@@ -446,22 +452,23 @@ class OrbPlan:
         return results
 
     def take_outputs(self, counts: list) -> list:
-        """Fresh arrays holding each image's keypoints (``counts[b]`` of image b; the plan's
-        buffers are reused): one allocation per field for the batch, one packing launch, then
-        each image's results are views of its rows."""
+        """Fresh arrays holding each image's keypoints (the plan's buffers are reused):
+        ``counts[b]`` keypoints of image b, at most ``final_cap`` (the rows
+        ``kernels.describe_levels`` packed it into; an overflowed image's rows are skipped).
+        One allocation and one copy per output for the batch, as for one image; each image's
+        results are views of its rows."""
         dev = self.device
-        starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
-        total = int(starts[-1])
+        starts = np.concatenate([[0], np.cumsum(counts)]).tolist()
+        total = starts[-1]
         fields = wp.empty((5, total), dtype=wp.float32, device=dev)
         octave = wp.empty(total, dtype=wp.int32, device=dev)
         desc = wp.empty((total, spec.DESCRIPTOR_BYTES), dtype=wp.uint8, device=dev)
         if total:
-            wp.launch(pack_outputs, dim=(self.batch, max(counts)),
-                      inputs=[wp.array(starts, dtype=wp.int32, device=dev), self.kp_fields,
-                              self.kp_octave, self.desc],
-                      outputs=[fields, octave, desc], device=dev)
+            wp.copy(fields, self.kp_fields, count=5 * total)
+            wp.copy(octave, self.kp_octave, count=total)
+            wp.copy(desc, self.desc, count=total * spec.DESCRIPTOR_BYTES)
         results = []
-        for a, b in zip(starts[:-1].tolist(), starts[1:].tolist()):
+        for a, b in zip(starts[:-1], starts[1:]):
             if a == b:  # Warp has no empty slices
                 rows = [wp.empty(0, dtype=wp.float32, device=dev) for _ in range(5)]
                 results.append((Keypoints(*rows, wp.empty(0, dtype=wp.int32, device=dev)),

@@ -1,6 +1,6 @@
 """Kernels of the one-graph extractor's quadtree (``DistributeOctTree`` from node counts; see
 :mod:`warpvx.kernels_warp.orb`): every level in each launch, every image of a batch (the first
-thread index, as in :mod:`.kernels`)."""
+thread index, 1-D over the images' items, as in :mod:`.kernels`)."""
 
 from __future__ import annotations
 
@@ -8,21 +8,24 @@ import warp as wp
 
 from .funcs import (C_CAND, C_FINAL, C_NODES, C_OVER, MODE_EMPTY, MODE_FULL, MODE_PARTIAL,
                     MODE_PASSES, N_DEPTHS, N_RANK_CHUNKS, N_STRIPES, PATH_LEVEL_SHIFT, STRIPES,
-                    Division, LevelInfo, batch_key, depth_counts, flipped_prefix, key_field,
-                    level_holding, node_before, node_index, quadrant, run_start, shared_depth)
+                    Division, LevelInfo, batch_image, batch_key, depth_counts, flipped_prefix,
+                    key_field, level_holding, node_before, node_index, quadrant, run_start,
+                    shared_depth)
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
 
 @wp.kernel
-def count_depths(paths: wp.array2d(dtype=wp.int64), counters: wp.array2d(dtype=wp.int32),
-                 n_cap: int,
-                 digits: int, singles_at: int, multis_at: int, lcp: wp.array2d(dtype=wp.int32)):
+def count_depths(batch: int, paths: wp.array2d(dtype=wp.int64),
+                 counters: wp.array2d(dtype=wp.int32), n_cap: int, digits: int, singles_at: int,
+                 multis_at: int, lcp: wp.array2d(dtype=wp.int32)):
     """lcp[i]: the digits sorted point i shares with point i - 1 (-1: another root). Point i
     is alone from depth max(lcp[i], lcp[i+1]) + 1 on (one single-point node there); it starts
     a node of several points at each depth in (lcp[i], lcp[i+1]]. Two points sharing all the
     sorted ``digits`` (the plan's bound says they cannot) flag the frame for the host path."""
-    b, i = wp.tid()
+    t = wp.tid()
+    b = batch_image(t, batch, n_cap)
+    i = t - b * n_cap
     n = wp.min(counters[b, C_CAND], n_cap)
     if i >= n:
         return
@@ -122,7 +125,7 @@ def plan_divisions(levels: wp.array(dtype=LevelInfo), totals: wp.array4d(dtype=w
 
 
 @wp.kernel
-def alloc_nodes(paths: wp.array2d(dtype=wp.int64), lcp: wp.array2d(dtype=wp.int32),
+def alloc_nodes(batch: int, paths: wp.array2d(dtype=wp.int64), lcp: wp.array2d(dtype=wp.int32),
                 counters: wp.array2d(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
                 divisions: wp.array2d(dtype=Division), groups_at: int,
                 node_base: wp.array2d(dtype=wp.int32), node_start: wp.array2d(dtype=wp.int32),
@@ -132,7 +135,9 @@ def alloc_nodes(paths: wp.array2d(dtype=wp.int64), lcp: wp.array2d(dtype=wp.int3
     them: consecutive entries of the level's pool, one per depth; their size and the nodes a
     division adds (children - 1, the points inside sharing exactly ``depth`` digits). Each is
     also listed in groups[level, depth] (the nodes rank_nodes compares)."""
-    b, s = wp.tid()
+    t = wp.tid()
+    b = batch_image(t, batch, n_cap)
+    s = t - b * n_cap
     n = wp.min(counters[b, C_CAND], n_cap)
     if s >= n:
         return
@@ -195,12 +200,15 @@ def live_node_level(v: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
 
 
 @wp.kernel
-def link_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.array2d(dtype=wp.int32),
+def link_nodes(batch: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
+               counters: wp.array2d(dtype=wp.int32),
                divisions: wp.array2d(dtype=Division), lcp: wp.array2d(dtype=wp.int32),
                node_base: wp.array2d(dtype=wp.int32), node_start: wp.array2d(dtype=wp.int32),
                node_depth: wp.array2d(dtype=wp.int32), node_parent: wp.array2d(dtype=wp.int32)):
     """Each ordered node's parent (a node of the previous round), -1 at depth K."""
-    b, v = wp.tid()
+    t = wp.tid()
+    b = batch_image(t, batch, node_parent.shape[1])
+    v = t - b * node_parent.shape[1]
     level = live_node_level(v, levels, n_levels, counters, b)
     if level < 0:
         return
@@ -220,7 +228,8 @@ def link_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.ar
 
 
 @wp.kernel
-def rank_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.array2d(dtype=wp.int32),
+def rank_nodes(batch: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
+               counters: wp.array2d(dtype=wp.int32),
                divisions: wp.array2d(dtype=Division), paths: wp.array2d(dtype=wp.int64), groups_at: int,
                groups: wp.array4d(dtype=wp.int32), node_start: wp.array2d(dtype=wp.int32),
                node_depth: wp.array2d(dtype=wp.int32), node_count: wp.array2d(dtype=wp.int32),
@@ -228,8 +237,11 @@ def rank_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.ar
                node_rank: wp.array2d(dtype=wp.int32), node_grown: wp.array2d(dtype=wp.int32)):
     """A node's place in its round's division order (the nodes of its group divided before
     it), and the nodes those divisions add; thread c of a node compares every
-    N_RANK_CHUNKS-th member of its group (both arrays zeroed first, sums by atomics)."""
-    b, v, c = wp.tid()
+    N_RANK_CHUNKS-th member of its group (both arrays zeroed first, sums by atomics); node v
+    of image b is thread row b * node_cap + v."""
+    t, c = wp.tid()
+    b = batch_image(t, batch, node_rank.shape[1])
+    v = t - b * node_rank.shape[1]
     level = live_node_level(v, levels, n_levels, counters, b)
     if level < 0:
         return
@@ -261,7 +273,7 @@ def rank_nodes(levels: wp.array(dtype=LevelInfo), n_levels: int, counters: wp.ar
 
 
 @wp.kernel
-def emit_finals(paths: wp.array2d(dtype=wp.int64), order: wp.array2d(dtype=wp.int32),
+def emit_finals(batch: int, paths: wp.array2d(dtype=wp.int64), order: wp.array2d(dtype=wp.int32),
                 lcp: wp.array2d(dtype=wp.int32), cand: wp.array2d(dtype=wp.int64),
                 counters: wp.array2d(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
                 divisions: wp.array2d(dtype=Division), node_base: wp.array2d(dtype=wp.int32),
@@ -278,7 +290,9 @@ def emit_finals(paths: wp.array2d(dtype=wp.int64), order: wp.array2d(dtype=wp.in
     by its parent's division order (reversed) and quadrant (reversed), a node of the first
     loop by ``flipped_prefix``.
     """
-    b, s = wp.tid()
+    t = wp.tid()
+    b = batch_image(t, batch, n_cap)
+    s = t - b * n_cap
     n = wp.min(counters[b, C_CAND], n_cap)
     if s >= n:
         return
