@@ -284,8 +284,9 @@ def quadtree(level, x, y, score, n_wanted: int, scale_factor: float) -> tuple:
                                plan.order],
                       device=device)
             wp.utils.radix_sort_pairs(plan.sort_keys, plan.order, n, 0, plan.sort_bits)
-            wp.launch(gather_paths, dim=n, inputs=[1, plan.order_b, plan.counters, plan.paths],
-                      outputs=[plan.sorted_paths], device=device)
+            wp.launch(gather_paths, dim=n,
+                      inputs=[1, plan.order, plan.flat["counters"], plan.flat["paths"]],
+                      outputs=[plan.flat["sorted_paths"]], device=device)
             plan.stage_nodes()
             plan.stage_finals()
             # Gathered into fresh buffers before the one sync: once it returns, nothing queued

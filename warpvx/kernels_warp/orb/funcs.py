@@ -393,3 +393,13 @@ def batch_image(t: int, batch: int, n: int) -> int:
     if batch == 1:
         return 0
     return t // n
+
+
+@wp.func
+def batch_offset(b: int, size: int, batch: int) -> int:
+    """Where image ``b``'s part starts in a per-image buffer of ``size`` items seen flat (1-D
+    arrays only: Warp's CPU device runs such kernels with constant strides); no division for
+    image 0."""
+    if b == 0:
+        return 0
+    return b * (size // batch)

@@ -12,8 +12,8 @@ from ..fast_corners import fast_score
 from .funcs import (C_CAND, C_CAND_R, C_FINAL, C_OVER, C_SURV_R, HALF_PATCH, KEY_CELL_SHIFT,
                     KEY_LEVEL_SHIFT, KEY_X_SHIFT, KEY_Y_SHIFT, N_STRIPES, PATH_DEPTH,
                     PATH_ROOT_SHIFT, STRIPES, UMAX, LevelInfo, batch_image, batch_key,
-                    batch_level_image, batch_pad, candidate_key, describe_byte, fast_atan2,
-                    key_field, level_holding, quadtree_path)
+                    batch_level_image, batch_offset, batch_pad, candidate_key, describe_byte,
+                    fast_atan2, key_field, level_holding, quadtree_path)
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
@@ -150,98 +150,100 @@ def suppress_pixels(levels: wp.array(dtype=LevelInfo), n_levels: int,
 
 
 @wp.kernel
-def select_candidates(batch: int, survivors: wp.array2d(dtype=wp.int64), surv_region: int,
+def select_candidates(batch: int, survivors: wp.array(dtype=wp.int64), surv_region: int,
                       levels: wp.array(dtype=LevelInfo),
                       roots: wp.array(dtype=wp.int32), ini_th: int, min_th: int, cells_at: int,
                       cand_region: int, digits: int, root_bits: int, key_bits: int,
-                      counters: wp.array2d(dtype=wp.int32), cand: wp.array2d(dtype=wp.int64),
-                      paths: wp.array2d(dtype=wp.int64), sort_keys: wp.array2d(dtype=wp.int64),
-                      order: wp.array2d(dtype=wp.int32)):
+                      counters: wp.array(dtype=wp.int32), cand: wp.array(dtype=wp.int64),
+                      paths: wp.array(dtype=wp.int64), sort_keys: wp.array(dtype=wp.int64),
+                      order: wp.array(dtype=wp.int32)):
     """Keep a survivor when its score reaches its cell's threshold; write its candidate key,
     its quadtree path, the path's sort key (level | root | first ``digits`` quadrants) and its
     slot (the sort's value) into the region of stripe j % N_STRIPES. A 1-D launch over the
-    batch's survivor slots (see ``score_pixels``)."""
+    batch's survivor slots (see ``score_pixels``); the per-image buffers seen flat (see
+    ``suppress_pixels``)."""
     t = wp.tid()
-    b = batch_image(t, batch, survivors.shape[1])
-    j = t - b * survivors.shape[1]
+    n = N_STRIPES * surv_region
+    b = batch_image(t, batch, n)
+    j = t - b * n
+    cb = batch_offset(b, counters.shape[0], batch)
     r = j // surv_region
-    if j - r * surv_region >= wp.min(counters[b, C_SURV_R + r], surv_region):
+    if j - r * surv_region >= wp.min(counters[cb + C_SURV_R + r], surv_region):
         return
-    survivors = survivors[b]
-    counters = counters[b]
-    cand = cand[b]
-    paths = paths[b]
-    sort_keys = sort_keys[b]
-    order = order[b]
-    key = survivors[j]
+    key = survivors[t]
     level = key_field(key, KEY_LEVEL_SHIFT, 31)
     cell = key_field(key, KEY_CELL_SHIFT, 0x3FFFF)
     s = key_field(key, 0, 0xFF)
     th = min_th
-    if counters[cells_at + levels[level].cell + cell] > 0:
+    if counters[cb + cells_at + levels[level].cell + cell] > 0:
         th = ini_th
     if s < th:
         return
     stripe = j % N_STRIPES
-    slot = wp.atomic_add(counters, C_CAND_R + stripe, 1)
+    slot = wp.atomic_add(counters, cb + C_CAND_R + stripe, 1)
     if slot < cand_region:
         at = stripe * cand_region + slot
-        cand[at] = key
+        ib = b * N_STRIPES * cand_region + at
+        cand[ib] = key
         path = quadtree_path(level, key_field(key, KEY_X_SHIFT, 0xFFFF),
                              key_field(key, KEY_Y_SHIFT, 0xFFFF), levels, roots)
-        paths[at] = path
+        paths[ib] = path
         root = (path >> wp.int64(PATH_ROOT_SHIFT)) & wp.int64(511)
         kept = (path & wp.int64(0xFFFFFFFF)) >> wp.int64(2 * (PATH_DEPTH - digits))
-        sort_keys[at] = batch_key(b, key_bits, (((wp.int64(level) << wp.int64(root_bits)) | root)
+        sort_keys[ib] = batch_key(b, key_bits, (((wp.int64(level) << wp.int64(root_bits)) | root)
                                                 << wp.int64(2 * digits)) | kept)
-        order[at] = at
+        order[ib] = at
 
 
 @wp.kernel
-def pad_paths(batch: int, counters: wp.array2d(dtype=wp.int32), surv_region: int,
-              cand_region: int, key_bits: int, sort_keys: wp.array2d(dtype=wp.int64)):
+def pad_paths(batch: int, counters: wp.array(dtype=wp.int32), surv_region: int,
+              cand_region: int, key_bits: int, sort_keys: wp.array(dtype=wp.int64)):
     """Pad the candidate regions' unused slots (a fixed-size sort puts them last); thread 0
-    writes the candidate total and whether a region overflowed."""
+    writes the candidate total and whether a region overflowed. Buffers seen flat."""
     t = wp.tid()
-    b = batch_image(t, batch, sort_keys.shape[1])
-    i = t - b * sort_keys.shape[1]
+    n = N_STRIPES * cand_region
+    b = batch_image(t, batch, n)
+    i = t - b * n
+    cb = batch_offset(b, counters.shape[0], batch)
     r = i // cand_region
-    if i - r * cand_region >= counters[b, C_CAND_R + r]:
-        sort_keys[b, i] = batch_pad(b, key_bits)
+    if i - r * cand_region >= counters[cb + C_CAND_R + r]:
+        sort_keys[t] = batch_pad(b, key_bits)
     if i == 0:
-        counters = counters[b]
         total = int(0)
         over = int(0)
         for k in range(STRIPES):
-            c = counters[C_CAND_R + k]
+            c = counters[cb + C_CAND_R + k]
             total += wp.min(c, cand_region)
-            if c > cand_region or counters[C_SURV_R + k] > surv_region:
+            if c > cand_region or counters[cb + C_SURV_R + k] > surv_region:
                 over = 1
-        counters[C_CAND] = total
-        counters[C_OVER] = over
+        counters[cb + C_CAND] = total
+        counters[cb + C_OVER] = over
 
 
 @wp.kernel
-def pad_keys(batch: int, counters: wp.array2d(dtype=wp.int32), which: int, key_bits: int,
-             keys: wp.array2d(dtype=wp.int64)):
-    """keys[i] = the image's padding key past the count (a fixed-size sort puts them last)."""
+def pad_keys(batch: int, n: int, counters: wp.array(dtype=wp.int32), which: int,
+             key_bits: int, keys: wp.array(dtype=wp.int64)):
+    """keys[i] = the image's padding key past the count (a fixed-size sort puts them last);
+    ``n`` keys an image, buffers seen flat."""
     t = wp.tid()
-    b = batch_image(t, batch, keys.shape[1])
-    i = t - b * keys.shape[1]
-    if i >= counters[b, which]:
-        keys[b, i] = batch_pad(b, key_bits)
+    b = batch_image(t, batch, n)
+    if t - b * n >= counters[batch_offset(b, counters.shape[0], batch) + which]:
+        keys[t] = batch_pad(b, key_bits)
 
 
 @wp.kernel
-def gather_paths(batch: int, order: wp.array2d(dtype=wp.int32),
-                 counters: wp.array2d(dtype=wp.int32), paths: wp.array2d(dtype=wp.int64),
-                 sorted_paths: wp.array2d(dtype=wp.int64)):
-    """The full paths in sorted order."""
+def gather_paths(batch: int, order: wp.array(dtype=wp.int32),
+                 counters: wp.array(dtype=wp.int32), paths: wp.array(dtype=wp.int64),
+                 sorted_paths: wp.array(dtype=wp.int64)):
+    """The full paths in sorted order (``order``: each image's own slots); buffers seen
+    flat."""
     t = wp.tid()
-    b = batch_image(t, batch, sorted_paths.shape[1])
-    i = t - b * sorted_paths.shape[1]
-    if i < counters[b, C_CAND]:
-        sorted_paths[b, i] = paths[b, order[b, i]]
+    n = sorted_paths.shape[0]
+    if batch > 1:
+        n = n // batch
+    b = batch_image(t, batch, n)
+    if t - b * n < counters[batch_offset(b, counters.shape[0], batch) + C_CAND]:
+        sorted_paths[t] = paths[b * n + order[t]]
 
 
 @wp.kernel

@@ -185,9 +185,6 @@ class OrbPlan:
         self.counters = wp.zeros((batch, n_counters), dtype=wp.int32, device=dev)
         cap = self.cand_cap
         self.survivors = wp.empty((batch, self.surv_cap), dtype=wp.int64, device=dev)
-        # Flat views for suppress_pixels (see there).
-        self.counters_flat = self.counters.flatten()
-        self.survivors_flat = self.survivors.flatten()
         self.cand = wp.empty((batch, cap), dtype=wp.int64, device=dev)
         self.paths = wp.empty((batch, cap), dtype=wp.int64, device=dev)
         # The radix sorts take flat arrays of twice the count; the kernels see the first half
@@ -197,6 +194,9 @@ class OrbPlan:
         self.sort_keys_b = _view(self.sort_keys, 0, (batch, cap), wp.int64)
         self.order_b = _view(self.order, 0, (batch, cap), wp.int32)
         self.sorted_paths = wp.empty((batch, cap), dtype=wp.int64, device=dev)
+        # Flat views for the kernels taking 1-D arrays only (see kernels.suppress_pixels).
+        self.flat = {name: getattr(self, name).flatten()
+                     for name in ("counters", "survivors", "cand", "paths", "sorted_paths")}
         self.totals = wp.empty((batch, n_levels, 2, DEPTHS), dtype=wp.int32, device=dev)
         self.lcp = wp.empty((batch, cap), dtype=wp.int32, device=dev)
         self.divisions = wp.zeros((batch, n_levels), dtype=Division, device=dev)
@@ -264,6 +264,7 @@ class OrbPlan:
         dev = self.device
         _, _, n_levels, ini_th, min_th = self.params
         batch = self.batch
+        flat = self.flat
         self.counters.zero_()
         wp.launch(score_pixels, dim=batch * self.n_pixels,
                   inputs=[wp.uint64(self.pyr.ptr), batch, self.level_info, n_levels,
@@ -272,13 +273,13 @@ class OrbPlan:
         wp.launch(suppress_pixels, dim=batch * self.n_pixels,
                   inputs=[self.level_info, n_levels, self.row_of_y, self.col_of_x, batch,
                           self.n_pixels, self.scores, ini_th, self.cells_at, self.surv_region],
-                  outputs=[self.counters_flat, self.survivors_flat], device=dev)
+                  outputs=[flat["counters"], flat["survivors"]], device=dev)
         wp.launch(select_candidates, dim=batch * self.surv_cap,
-                  inputs=[batch, self.survivors, self.surv_region, self.level_info, self.roots, ini_th,
-                          min_th, self.cells_at, self.cand_region, self.digits, self.root_bits,
-                          self.sort_bits],
-                  outputs=[self.counters, self.cand, self.paths, self.sort_keys_b, self.order_b],
-                  device=dev)
+                  inputs=[batch, flat["survivors"], self.surv_region, self.level_info,
+                          self.roots, ini_th, min_th, self.cells_at, self.cand_region,
+                          self.digits, self.root_bits, self.sort_bits],
+                  outputs=[flat["counters"], flat["cand"], flat["paths"], self.sort_keys,
+                           self.order], device=dev)
 
     def stage_quadtree(self):
         self.stage_sort()
@@ -291,13 +292,14 @@ class OrbPlan:
         dev = self.device
         batch = self.batch
         wp.launch(pad_paths, dim=batch * self.cand_cap,
-                  inputs=[batch, self.counters, self.surv_region, self.cand_region, self.sort_bits],
-                  outputs=[self.sort_keys_b], device=dev)
+                  inputs=[batch, self.flat["counters"], self.surv_region, self.cand_region,
+                          self.sort_bits],
+                  outputs=[self.sort_keys], device=dev)
         wp.utils.radix_sort_pairs(self.sort_keys, self.order, batch * self.cand_cap, 0,
                                   self.sort_bits + self.batch_bits)
         wp.launch(gather_paths, dim=batch * self.cand_cap,
-                  inputs=[batch, self.order_b, self.counters, self.paths],
-                  outputs=[self.sorted_paths], device=dev)
+                  inputs=[batch, self.order, self.flat["counters"], self.flat["paths"]],
+                  outputs=[self.flat["sorted_paths"]], device=dev)
 
     def stage_nodes(self):
         """Node counts per depth, DistributeOctTree's decisions, the second loop's order."""
@@ -342,8 +344,9 @@ class OrbPlan:
                           self.node_grown, self.place_bits, self.final_bits],
                   outputs=[self.final_keys_b, self.final_values_b], device=dev)
         wp.launch(pad_keys, dim=batch * self.final_cap,
-                  inputs=[batch, self.counters, int(C_FINAL), self.final_bits],
-                  outputs=[self.final_keys_b], device=dev)
+                  inputs=[batch, self.final_cap, self.flat["counters"], int(C_FINAL),
+                          self.final_bits],
+                  outputs=[self.final_keys], device=dev)
         wp.utils.radix_sort_pairs(self.final_keys, self.final_values, batch * self.final_cap, 0,
                                   self.final_bits + self.batch_bits)
 
