@@ -6,6 +6,8 @@ the algorithm's own constants come from :mod:`warpvx._orb_spec`.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import warp as wp
 
@@ -393,6 +395,16 @@ def batch_image(t: int, batch: int, n: int) -> int:
     if batch == 1:
         return 0
     return t // n
+
+
+@wp.func
+def image_part(a: wp.array(dtype=Any), b: int, batch: int):
+    """Image ``b``'s part of a per-image buffer seen flat (``batch`` equal parts): a view,
+    no copy; no division for one image."""
+    n = a.shape[0]
+    if batch > 1:
+        n = n // batch
+    return a[b * n:(b + 1) * n]
 
 
 @wp.func

@@ -188,15 +188,10 @@ class OrbPlan:
         self.cand = wp.empty((batch, cap), dtype=wp.int64, device=dev)
         self.paths = wp.empty((batch, cap), dtype=wp.int64, device=dev)
         # The radix sorts take flat arrays of twice the count; the kernels see the first half
-        # as one row per image.
+        # (self.flat).
         self.sort_keys = wp.empty(2 * batch * cap, dtype=wp.int64, device=dev)
         self.order = wp.empty(2 * batch * cap, dtype=wp.int32, device=dev)
-        self.sort_keys_b = _view(self.sort_keys, 0, (batch, cap), wp.int64)
-        self.order_b = _view(self.order, 0, (batch, cap), wp.int32)
         self.sorted_paths = wp.empty((batch, cap), dtype=wp.int64, device=dev)
-        # Flat views for the kernels taking 1-D arrays only (see kernels.suppress_pixels).
-        self.flat = {name: getattr(self, name).flatten()
-                     for name in ("counters", "survivors", "cand", "paths", "sorted_paths")}
         self.totals = wp.empty((batch, n_levels, 2, DEPTHS), dtype=wp.int32, device=dev)
         self.lcp = wp.empty((batch, cap), dtype=wp.int32, device=dev)
         self.divisions = wp.zeros((batch, n_levels), dtype=Division, device=dev)
@@ -217,6 +212,15 @@ class OrbPlan:
         self.final_keys_b = _view(self.final_keys, 0, (batch, fc), wp.int64)
         self.final_values_b = _view(self.final_values, 0, (batch, fc), wp.int32)
         self.moments = wp.empty((batch, fc, 2), dtype=wp.int32, device=dev)
+        # Flat views for the kernels taking 1-D arrays only (see kernels.suppress_pixels; the
+        # radix sorts' buffers: their first halves).
+        self.flat = {name: getattr(self, name).flatten()
+                     for name in ("counters", "survivors", "cand", "paths", "sorted_paths", "lcp",
+                                  "divisions", "node_base", "node_start", "node_depth",
+                                  "node_count", "node_growth", "node_parent", "node_rank",
+                                  "node_grown")}
+        self.flat.update(order=self.order[:batch * cap], final_keys=self.final_keys[:batch * fc],
+                         final_values=self.final_values[:batch * fc])
         # The batch's keypoints packed image after image (kernels.describe_levels) at the
         # starts kernels.gather_heads computes.
         self.starts = wp.empty(batch + 1, dtype=wp.int32, device=dev)
@@ -298,7 +302,7 @@ class OrbPlan:
         wp.utils.radix_sort_pairs(self.sort_keys, self.order, batch * self.cand_cap, 0,
                                   self.sort_bits + self.batch_bits)
         wp.launch(gather_paths, dim=batch * self.cand_cap,
-                  inputs=[batch, self.order, self.flat["counters"], self.flat["paths"]],
+                  inputs=[batch, self.flat["order"], self.flat["counters"], self.flat["paths"]],
                   outputs=[self.flat["sorted_paths"]], device=dev)
 
     def stage_nodes(self):
@@ -307,46 +311,52 @@ class OrbPlan:
         batch = self.batch
         n_levels = self.n_levels
         cap = self.cand_cap
+        flat = self.flat
         wp.launch(count_depths, dim=batch * cap,
-                  inputs=[batch, self.sorted_paths, self.counters, cap, self.digits, self.singles_at,
-                          self.multis_at],
-                  outputs=[self.lcp], device=dev)
+                  inputs=[batch, flat["sorted_paths"], flat["counters"], cap, self.digits,
+                          self.singles_at, self.multis_at],
+                  outputs=[flat["lcp"]], device=dev)
         wp.launch(sum_depth_counts, dim=(batch, n_levels, 2, DEPTHS),
                   inputs=[self.counters, self.singles_at, self.multis_at], outputs=[self.totals],
                   device=dev)
         wp.launch(plan_divisions, dim=(batch, n_levels), inputs=[self.level_info, self.totals],
                   outputs=[self.divisions], device=dev)
         wp.launch(alloc_nodes, dim=batch * cap,
-                  inputs=[batch, self.sorted_paths, self.lcp, self.counters, cap, self.level_info,
-                          self.divisions, self.groups_at],
-                  outputs=[self.node_base, self.node_start, self.node_depth, self.node_count,
-                           self.node_growth, self.groups], device=dev)
-        wp.launch(link_nodes, dim=batch * self.node_cap,
-                  inputs=[batch, self.level_info, n_levels, self.counters, self.divisions, self.lcp,
-                          self.node_base, self.node_start, self.node_depth],
-                  outputs=[self.node_parent], device=dev)
+                  inputs=[batch, flat["sorted_paths"], flat["lcp"], flat["counters"], cap,
+                          self.level_info, flat["divisions"], self.groups_at],
+                  outputs=[flat["node_base"], flat["node_start"], flat["node_depth"],
+                           flat["node_count"], flat["node_growth"], self.groups], device=dev)
+        nc = self.node_cap
+        wp.launch(link_nodes, dim=batch * nc,
+                  inputs=[batch, nc, self.level_info, n_levels, flat["counters"],
+                          flat["divisions"], flat["lcp"], flat["node_base"], flat["node_start"],
+                          flat["node_depth"]],
+                  outputs=[flat["node_parent"]], device=dev)
         self.node_rank.zero_()
         self.node_grown.zero_()
-        wp.launch(rank_nodes, dim=(batch * self.node_cap, RANK_CHUNKS),
-                  inputs=[batch, self.level_info, n_levels, self.counters, self.divisions,
-                          self.sorted_paths, self.groups_at, self.groups, self.node_start,
-                          self.node_depth, self.node_count, self.node_growth, self.node_parent],
-                  outputs=[self.node_rank, self.node_grown], device=dev)
+        wp.launch(rank_nodes, dim=(batch * nc, RANK_CHUNKS),
+                  inputs=[batch, nc, self.level_info, n_levels, flat["counters"],
+                          flat["divisions"], flat["sorted_paths"], self.groups_at, self.groups,
+                          flat["node_start"], flat["node_depth"], flat["node_count"],
+                          flat["node_growth"], flat["node_parent"]],
+                  outputs=[flat["node_rank"], flat["node_grown"]], device=dev)
 
     def stage_finals(self):
         """The final list's nodes, their strongest points, sorted into the list order."""
         dev = self.device
         batch = self.batch
         cap = self.cand_cap
+        flat = self.flat
         wp.launch(emit_finals, dim=batch * cap,
-                  inputs=[batch, self.sorted_paths, self.order_b, self.lcp, self.cand, self.counters,
-                          cap, self.level_info, self.divisions, self.node_base, self.node_rank,
-                          self.node_grown, self.place_bits, self.final_bits],
-                  outputs=[self.final_keys_b, self.final_values_b], device=dev)
+                  inputs=[batch, flat["sorted_paths"], flat["order"], flat["lcp"], flat["cand"],
+                          flat["counters"], cap, self.level_info, flat["divisions"],
+                          flat["node_base"], flat["node_rank"], flat["node_grown"],
+                          self.place_bits, self.final_bits],
+                  outputs=[flat["final_keys"], flat["final_values"]], device=dev)
         wp.launch(pad_keys, dim=batch * self.final_cap,
-                  inputs=[batch, self.final_cap, self.flat["counters"], int(C_FINAL),
+                  inputs=[batch, self.final_cap, flat["counters"], int(C_FINAL),
                           self.final_bits],
-                  outputs=[self.final_keys], device=dev)
+                  outputs=[flat["final_keys"]], device=dev)
         wp.utils.radix_sort_pairs(self.final_keys, self.final_values, batch * self.final_cap, 0,
                                   self.final_bits + self.batch_bits)
 

@@ -8,17 +8,17 @@ import warp as wp
 
 from .funcs import (C_CAND, C_FINAL, C_NODES, C_OVER, MODE_EMPTY, MODE_FULL, MODE_PARTIAL,
                     MODE_PASSES, N_DEPTHS, N_RANK_CHUNKS, N_STRIPES, PATH_LEVEL_SHIFT, STRIPES,
-                    Division, LevelInfo, batch_image, batch_key, depth_counts, flipped_prefix,
-                    key_field, level_holding, node_before, node_index, quadrant, run_start,
-                    shared_depth)
+                    Division, LevelInfo, batch_image, batch_key, batch_offset, depth_counts,
+                    flipped_prefix, image_part, key_field, level_holding, node_before,
+                    node_index, quadrant, run_start, shared_depth)
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
 
 @wp.kernel
-def count_depths(batch: int, paths: wp.array2d(dtype=wp.int64),
-                 counters: wp.array2d(dtype=wp.int32), n_cap: int, digits: int, singles_at: int,
-                 multis_at: int, lcp: wp.array2d(dtype=wp.int32)):
+def count_depths(batch: int, paths: wp.array(dtype=wp.int64), counters: wp.array(dtype=wp.int32),
+                 n_cap: int, digits: int, singles_at: int, multis_at: int,
+                 lcp: wp.array(dtype=wp.int32)):
     """lcp[i]: the digits sorted point i shares with point i - 1 (-1: another root). Point i
     is alone from depth max(lcp[i], lcp[i+1]) + 1 on (one single-point node there); it starts
     a node of several points at each depth in (lcp[i], lcp[i+1]]. Two points sharing all the
@@ -26,12 +26,12 @@ def count_depths(batch: int, paths: wp.array2d(dtype=wp.int64),
     t = wp.tid()
     b = batch_image(t, batch, n_cap)
     i = t - b * n_cap
-    n = wp.min(counters[b, C_CAND], n_cap)
+    n = wp.min(counters[batch_offset(b, counters.shape[0], batch) + C_CAND], n_cap)
     if i >= n:
         return
-    paths = paths[b]
-    counters = counters[b]
-    lcp = lcp[b]
+    paths = image_part(paths, b, batch)
+    counters = image_part(counters, b, batch)
+    lcp = image_part(lcp, b, batch)
     a = paths[i]
     lo = int(-1)
     if i > 0:
@@ -125,12 +125,12 @@ def plan_divisions(levels: wp.array(dtype=LevelInfo), totals: wp.array4d(dtype=w
 
 
 @wp.kernel
-def alloc_nodes(batch: int, paths: wp.array2d(dtype=wp.int64), lcp: wp.array2d(dtype=wp.int32),
-                counters: wp.array2d(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
-                divisions: wp.array2d(dtype=Division), groups_at: int,
-                node_base: wp.array2d(dtype=wp.int32), node_start: wp.array2d(dtype=wp.int32),
-                node_depth: wp.array2d(dtype=wp.int32), node_count: wp.array2d(dtype=wp.int32),
-                node_growth: wp.array2d(dtype=wp.int32), groups: wp.array4d(dtype=wp.int32)):
+def alloc_nodes(batch: int, paths: wp.array(dtype=wp.int64), lcp: wp.array(dtype=wp.int32),
+                counters: wp.array(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
+                divisions: wp.array(dtype=Division), groups_at: int,
+                node_base: wp.array(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
+                node_depth: wp.array(dtype=wp.int32), node_count: wp.array(dtype=wp.int32),
+                node_growth: wp.array(dtype=wp.int32), groups: wp.array4d(dtype=wp.int32)):
     """The multi-point nodes the second loop orders (depths K..g*), from the point starting
     them: consecutive entries of the level's pool, one per depth; their size and the nodes a
     division adds (children - 1, the points inside sharing exactly ``depth`` digits). Each is
@@ -138,18 +138,18 @@ def alloc_nodes(batch: int, paths: wp.array2d(dtype=wp.int64), lcp: wp.array2d(d
     t = wp.tid()
     b = batch_image(t, batch, n_cap)
     s = t - b * n_cap
-    n = wp.min(counters[b, C_CAND], n_cap)
+    n = wp.min(counters[batch_offset(b, counters.shape[0], batch) + C_CAND], n_cap)
     if s >= n:
         return
-    paths = paths[b]
-    lcp = lcp[b]
-    counters = counters[b]
-    divisions = divisions[b]
-    node_base = node_base[b]
-    node_start = node_start[b]
-    node_depth = node_depth[b]
-    node_count = node_count[b]
-    node_growth = node_growth[b]
+    paths = image_part(paths, b, batch)
+    lcp = image_part(lcp, b, batch)
+    counters = image_part(counters, b, batch)
+    divisions = image_part(divisions, b, batch)
+    node_base = image_part(node_base, b, batch)
+    node_start = image_part(node_start, b, batch)
+    node_depth = image_part(node_depth, b, batch)
+    node_count = image_part(node_count, b, batch)
+    node_growth = image_part(node_growth, b, batch)
     groups = groups[b]
     level = int(paths[s] >> wp.int64(PATH_LEVEL_SHIFT))
     mode = divisions[level].mode
@@ -188,36 +188,36 @@ def alloc_nodes(batch: int, paths: wp.array2d(dtype=wp.int64), lcp: wp.array2d(d
 
 @wp.func
 def live_node_level(v: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
-                    counters: wp.array2d(dtype=wp.int32), b: int) -> int:
+                    counters: wp.array(dtype=wp.int32), b: int, batch: int) -> int:
     """The level of image b's node slot ``v``, or -1 when the slot holds no node: past the
     level's used nodes, or the level overflowed its capacity (its frame is then redone on the
     host)."""
     level = level_holding(v, levels, n_levels, True)
-    used = counters[b, C_NODES + level]
+    used = counters[batch_offset(b, counters.shape[0], batch) + C_NODES + level]
     if v - levels[level].node >= used or used > levels[level].node_cap:
         return -1
     return level
 
 
 @wp.kernel
-def link_nodes(batch: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
-               counters: wp.array2d(dtype=wp.int32),
-               divisions: wp.array2d(dtype=Division), lcp: wp.array2d(dtype=wp.int32),
-               node_base: wp.array2d(dtype=wp.int32), node_start: wp.array2d(dtype=wp.int32),
-               node_depth: wp.array2d(dtype=wp.int32), node_parent: wp.array2d(dtype=wp.int32)):
+def link_nodes(batch: int, node_cap: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
+               counters: wp.array(dtype=wp.int32),
+               divisions: wp.array(dtype=Division), lcp: wp.array(dtype=wp.int32),
+               node_base: wp.array(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
+               node_depth: wp.array(dtype=wp.int32), node_parent: wp.array(dtype=wp.int32)):
     """Each ordered node's parent (a node of the previous round), -1 at depth K."""
     t = wp.tid()
-    b = batch_image(t, batch, node_parent.shape[1])
-    v = t - b * node_parent.shape[1]
-    level = live_node_level(v, levels, n_levels, counters, b)
+    b = batch_image(t, batch, node_cap)
+    v = t - b * node_cap
+    level = live_node_level(v, levels, n_levels, counters, b, batch)
     if level < 0:
         return
-    divisions = divisions[b]
-    lcp = lcp[b]
-    node_base = node_base[b]
-    node_start = node_start[b]
-    node_depth = node_depth[b]
-    node_parent = node_parent[b]
+    divisions = image_part(divisions, b, batch)
+    lcp = image_part(lcp, b, batch)
+    node_base = image_part(node_base, b, batch)
+    node_start = image_part(node_start, b, batch)
+    node_depth = image_part(node_depth, b, batch)
+    node_parent = image_part(node_parent, b, batch)
     g = node_depth[v]
     k = divisions[level].k
     if g == k:
@@ -228,35 +228,35 @@ def link_nodes(batch: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
 
 
 @wp.kernel
-def rank_nodes(batch: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
-               counters: wp.array2d(dtype=wp.int32),
-               divisions: wp.array2d(dtype=Division), paths: wp.array2d(dtype=wp.int64), groups_at: int,
-               groups: wp.array4d(dtype=wp.int32), node_start: wp.array2d(dtype=wp.int32),
-               node_depth: wp.array2d(dtype=wp.int32), node_count: wp.array2d(dtype=wp.int32),
-               node_growth: wp.array2d(dtype=wp.int32), node_parent: wp.array2d(dtype=wp.int32),
-               node_rank: wp.array2d(dtype=wp.int32), node_grown: wp.array2d(dtype=wp.int32)):
+def rank_nodes(batch: int, node_cap: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
+               counters: wp.array(dtype=wp.int32),
+               divisions: wp.array(dtype=Division), paths: wp.array(dtype=wp.int64), groups_at: int,
+               groups: wp.array4d(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
+               node_depth: wp.array(dtype=wp.int32), node_count: wp.array(dtype=wp.int32),
+               node_growth: wp.array(dtype=wp.int32), node_parent: wp.array(dtype=wp.int32),
+               node_rank: wp.array(dtype=wp.int32), node_grown: wp.array(dtype=wp.int32)):
     """A node's place in its round's division order (the nodes of its group divided before
     it), and the nodes those divisions add; thread c of a node compares every
     N_RANK_CHUNKS-th member of its group (both arrays zeroed first, sums by atomics); node v
     of image b is thread row b * node_cap + v."""
     t, c = wp.tid()
-    b = batch_image(t, batch, node_rank.shape[1])
-    v = t - b * node_rank.shape[1]
-    level = live_node_level(v, levels, n_levels, counters, b)
+    b = batch_image(t, batch, node_cap)
+    v = t - b * node_cap
+    level = live_node_level(v, levels, n_levels, counters, b, batch)
     if level < 0:
         return
-    g = node_depth[b, v]
-    members = counters[b, groups_at + level * N_DEPTHS + g]
+    g = node_depth[b * node_cap + v]
+    members = counters[batch_offset(b, counters.shape[0], batch) + groups_at + level * N_DEPTHS + g]
     if c >= members:
         return
-    paths = paths[b]
+    paths = image_part(paths, b, batch)
     groups = groups[b]
-    node_start = node_start[b]
-    node_depth = node_depth[b]
-    node_count = node_count[b]
-    node_growth = node_growth[b]
-    node_parent = node_parent[b]
-    k = divisions[b, level].k
+    node_start = image_part(node_start, b, batch)
+    node_depth = image_part(node_depth, b, batch)
+    node_count = image_part(node_count, b, batch)
+    node_growth = image_part(node_growth, b, batch)
+    node_parent = image_part(node_parent, b, batch)
+    k = image_part(divisions, b, batch)[level].k
     n_ini = levels[level].n_ini
     rank = int(0)
     grown = int(0)
@@ -268,18 +268,18 @@ def rank_nodes(batch: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
                 rank += 1
                 grown += node_growth[u]
     if rank > 0:
-        wp.atomic_add(node_rank, b, v, rank)
-        wp.atomic_add(node_grown, b, v, grown)
+        wp.atomic_add(node_rank, b * node_cap + v, rank)
+        wp.atomic_add(node_grown, b * node_cap + v, grown)
 
 
 @wp.kernel
-def emit_finals(batch: int, paths: wp.array2d(dtype=wp.int64), order: wp.array2d(dtype=wp.int32),
-                lcp: wp.array2d(dtype=wp.int32), cand: wp.array2d(dtype=wp.int64),
-                counters: wp.array2d(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
-                divisions: wp.array2d(dtype=Division), node_base: wp.array2d(dtype=wp.int32),
-                node_rank: wp.array2d(dtype=wp.int32), node_grown: wp.array2d(dtype=wp.int32),
-                place_bits: int, key_bits: int, final_keys: wp.array2d(dtype=wp.int64),
-                final_values: wp.array2d(dtype=wp.int32)):
+def emit_finals(batch: int, paths: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32),
+                lcp: wp.array(dtype=wp.int32), cand: wp.array(dtype=wp.int64),
+                counters: wp.array(dtype=wp.int32), n_cap: int, levels: wp.array(dtype=LevelInfo),
+                divisions: wp.array(dtype=Division), node_base: wp.array(dtype=wp.int32),
+                node_rank: wp.array(dtype=wp.int32), node_grown: wp.array(dtype=wp.int32),
+                place_bits: int, key_bits: int, final_keys: wp.array(dtype=wp.int64),
+                final_values: wp.array(dtype=wp.int32)):
     """For each node of the final list (from the point starting it): its strongest point and
     its list position key.
 
@@ -293,20 +293,20 @@ def emit_finals(batch: int, paths: wp.array2d(dtype=wp.int64), order: wp.array2d
     t = wp.tid()
     b = batch_image(t, batch, n_cap)
     s = t - b * n_cap
-    n = wp.min(counters[b, C_CAND], n_cap)
+    n = wp.min(counters[batch_offset(b, counters.shape[0], batch) + C_CAND], n_cap)
     if s >= n:
         return
-    paths = paths[b]
-    order = order[b]
-    lcp = lcp[b]
-    cand = cand[b]
-    counters = counters[b]
-    divisions = divisions[b]
-    node_base = node_base[b]
-    node_rank = node_rank[b]
-    node_grown = node_grown[b]
-    final_keys = final_keys[b]
-    final_values = final_values[b]
+    paths = image_part(paths, b, batch)
+    order = image_part(order, b, batch)
+    lcp = image_part(lcp, b, batch)
+    cand = image_part(cand, b, batch)
+    counters = image_part(counters, b, batch)
+    divisions = image_part(divisions, b, batch)
+    node_base = image_part(node_base, b, batch)
+    node_rank = image_part(node_rank, b, batch)
+    node_grown = image_part(node_grown, b, batch)
+    final_keys = image_part(final_keys, b, batch)
+    final_values = image_part(final_values, b, batch)
     path = paths[s]
     level = int(path >> wp.int64(PATH_LEVEL_SHIFT))
     mode = divisions[level].mode
