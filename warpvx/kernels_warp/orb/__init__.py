@@ -5,11 +5,13 @@ one captured graph per image size and parameter set (a *plan*: buffers and graph
 of them so concurrent calls never share one). The one host sync reads the keypoint count.
 All levels go through each kernel together: the pyramid and its blurred copy live in two flat
 buffers, a per-level table gives each level's offset, size and cell grid. So do all images of a
-batch (equal-sized frames, e.g. a multi-camera rig): every kernel's first thread index is the
-image (the per-pixel ones run over the batch's pixels, image by image), per-image buffers have a leading batch index, the pyramids are level-major (level l of
+batch (equal-sized frames, e.g. a multi-camera rig): every kernel's first thread index runs
+over the batch's items image by image (a batch of one launches as the one-image extractor
+did), per-image buffers have a leading batch index, the pyramids are level-major (level l of
 every image in one [B * h_l, w_l] block, resized and blurred in one launch), the two radix sorts
-sort the whole batch with the image above each key, and the host reads all images' counts in
-one copy; each image's result is bit for bit what it gives alone.
+sort the whole batch with the image above each key, the host reads all images' counts in one
+copy and takes all images' keypoints out in one copy per output; each image's result is bit
+for bit what it gives alone.
 
 Stages (one launch each unless said):
 
@@ -40,10 +42,11 @@ Stages (one launch each unless said):
     decide where the last round stops.
 ``emit_finals``  each node left in the final list, its strongest point (the first in ORB-SLAM2's
     candidate order on a tie) and a key giving the node's place in the list; radix sort.
-``accumulate_moments``, ``describe_levels``  ``IC_Angle`` (a thread per disc row, integer
-    atomics), then rotated BRIEF and the level-0 fields; ``gather_heads`` the counts the host
-    reads. After the sync, ``pack_outputs`` copies every image's keypoints into one array per
-    field, each image's results being views of its rows.
+``gather_heads``, ``accumulate_moments``, ``describe_levels``  the counts the host reads and
+    where each image's keypoints start in the batch's packed outputs; ``IC_Angle`` (a thread
+    per disc row, integer atomics), then rotated BRIEF and the level-0 fields, packed image
+    after image. After the sync, one copy per output takes them out, each image's results
+    being views of its rows.
 
 Why the node list order has a closed form: a pass of the first loop puts the children of the
 nodes it divides in front, in reverse; so after pass k the nodes created at depth k come first,
