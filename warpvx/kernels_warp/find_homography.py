@@ -8,9 +8,9 @@
    ``checkSubset``; up to :data:`SAMPLE_TRIES` draws) and solves the 4-point DLT in
    normalised coordinates (8x8 Gaussian elimination with partial pivoting, ``H[2,2] = 1``);
    a hypothesis that finds no valid sample is the zero matrix;
-3. ``score_hypotheses`` (one block of :data:`SCORE_BLOCK` lanes per hypothesis) counts
+3. ``score_hypotheses`` (one block of :data:`BLOCK` lanes per hypothesis) counts
    inliers (squared reprojection error ``<= threshold^2``) and sums their errors;
-4.-6. ``refine_best`` (one block of :data:`REFINE_BLOCK` lanes) does the rest:
+4.-6. ``refine_best`` (one block of :data:`BLOCK` lanes) does the rest:
    4. the winner: the most inliers, then the smaller error sum, then the lower hypothesis
       index (a total order, so the block reduction's order cannot change it);
    5. refinement on the inliers of the winner (its mask kept fixed, as OpenCV's): Hartley
@@ -44,10 +44,10 @@ wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 SAMPLE_TRIES = 16  # draws per hypothesis before it is declared degenerate
 LM_ITERS = 10  # Levenberg-Marquardt iterations (OpenCV's refinement runs at most 10)
-# Lanes per block: scoring runs one block per hypothesis (a few hundred points each);
-# selection and refinement run in one block, whose lanes share the per-point sums.
-SCORE_BLOCK = 64
-REFINE_BLOCK = 256
+# Lanes per block of the tiled kernels: scoring runs one block per hypothesis, selection and
+# refinement one block. Warp's default block size for plain launches, so the module compiles
+# once per device.
+BLOCK = 256
 
 # |det| of a triangle of normalised points (mean distance sqrt(2) from the centroid) under
 # which three sample points count as collinear.
@@ -500,9 +500,9 @@ class _Workspace:
         self.threshold2 = threshold2
         self.seed = int(seed)
         self.thresholded = [  # launches that take the squared threshold
-            rec(score_hypotheses, [n_hyp], [hyps, *pts, thr2, count, cost], SCORE_BLOCK),
+            rec(score_hypotheses, [n_hyp], [hyps, *pts, thr2, count, cost], BLOCK),
             rec(refine_best, [1], [hyps, count, cost, *pts, thr2, empty(n, wp.uint8), h_out, mask_out],
-                REFINE_BLOCK),
+                BLOCK),
         ]
         self.ransac = [self.sample, *self.thresholded]
 
