@@ -354,6 +354,20 @@ def _gpu_name(backend):
     return wp.get_device(backend).name
 
 
+def _size_table(rows, key, corner, title):
+    """Markdown lines of a table: one row per entry of the device's ``key`` dict, one column
+    per size ([] when the first size has none)."""
+    names = list(rows[0].get("device", {}).get(key, {}))
+    if not names:
+        return []
+    lines = ["", title, "", f"| {corner} | " + " | ".join(r["size"] for r in rows) + " |",
+             "|---|" + "---|" * len(rows)]
+    for name in names:
+        values = [r["device"].get(key, {}).get(name) for r in rows]
+        lines.append(f"| {name} | " + " | ".join("failed" if v is None else f"{v:.3f}" for v in values) + " |")
+    return lines
+
+
 def render(report, argv):
     cmd = "PYTHONPATH=. python benchmarks/stabilize_bench.py " + " ".join(argv or sys.argv[1:])
     lines = [f"<!-- {cmd.strip()} -->",
@@ -379,26 +393,15 @@ def render(report, argv):
                      f"{d.get('graphs', '-')} | {r['decode_fps']:.0f} | {r['encode_fps']:.0f} | "
                      f"{r['graph_with_decode_fps']:.1f} | {num(r.get('device_with_decode_fps'), '.1f')} | "
                      f"{g['predicted_makespan_ms']:.2f} | {'-' if meas is None else f'{meas:.2f}'} |")
-    parts = [k for k in report["rows"][0].get("device", {}).get("breakdown_ms", {})]
-    if parts:
-        lines += ["", "Device engine, where a frame's time goes (medians, ms; device = the "
-                  "program as run, the captured graph on CUDA; host = Python per call: the frame "
-                  "interval is the larger of the device time and submit + stage + the wait "
-                  "left in result):", "",
-                  "| | " + " | ".join(r["size"] for r in report["rows"]) + " |",
-                  "|---|" + "---|" * len(report["rows"])]
-        for part in parts:
-            lines.append(f"| {part} | " + " | ".join(
-                num(r["device"].get("breakdown_ms", {}).get(part), ".3f") for r in report["rows"]) + " |")
-    stages = [st for st in report["rows"][0].get("device", {}).get("stages_ms", {})]
-    if stages:
-        lines += ["", "Device engine, per stage (eager launches, events between stages; mean ms "
-                  "per frame; detection counted in refresh on the frames that re-detect):", "",
-                  "| stage | " + " | ".join(r["size"] for r in report["rows"]) + " |",
-                  "|---|" + "---|" * len(report["rows"])]
-        for stage in stages:
-            lines.append(f"| {stage} | " + " | ".join(
-                num(r["device"].get("stages_ms", {}).get(stage), ".3f") for r in report["rows"]) + " |")
+    lines += _size_table(report["rows"], "breakdown_ms", "",
+                         "Device engine, where a frame's time goes (medians, ms; device = the "
+                         "program as run, the captured graph on CUDA; host = Python per call: the "
+                         "frame interval is the larger of the device time and submit + stage + "
+                         "the wait left in result):")
+    lines += _size_table(report["rows"], "stages_ms", "stage",
+                         "Device engine, per stage (eager launches, events between stages; "
+                         "mean ms per frame; detection counted in refresh on the frames that "
+                         "re-detect):")
     errors = [f"{r['size']}: {r['device'].get('error') or 'capture: ' + r['device']['capture_error']}"
               for r in report["rows"]
               if r.get("device", {}).get("error") or r.get("device", {}).get("capture_error")]
