@@ -428,7 +428,11 @@ def run_device(backend: str, config: StabilizerConfig, depth: int, copy: bool = 
     device = "cpu" if backend == "warp-cpu" else backend
 
     def run(feed, size):
-        yield from DevicePlan(size, config, device, depth=depth).run(feed, copy)
+        plan = DevicePlan(size, config, device, depth=depth)
+        try:
+            yield from plan.run(feed, copy)
+        finally:
+            plan.copier.close()  # its threads end now, not when the plan is collected
 
     return run
 
