@@ -312,11 +312,12 @@ def score_hypotheses(hypotheses: wp.array(dtype=wp.mat33d), src_pts: wp.array(dt
             if e <= threshold2:
                 n += 1
                 c += e
-    total_n = wp.tile_sum(wp.tile(n))
-    total_c = wp.tile_sum(wp.tile(c))
+    # every lane reaches the reductions (each holds a block barrier)
+    total_n = wp.tile_extract(wp.tile_sum(wp.tile(n)), 0)
+    total_c = wp.tile_extract(wp.tile_sum(wp.tile(c)), 0)
     if lane == 0:
-        count[h] = wp.tile_extract(total_n, 0)
-        cost[h] = wp.tile_extract(total_c, 0)
+        count[h] = total_n
+        cost[h] = total_c
 
 
 @wp.func
@@ -402,6 +403,7 @@ def refine_best(hypotheses: wp.array(dtype=wp.mat33d), count: wp.array(dtype=wp.
     for j in range(lane, hypotheses.shape[0], stride):
         best = pick_better(best, wp.vec3d(wp.float64(count[j]), cost[j], wp.float64(j)))
     best = wp.tile_extract(wp.tile_reduce(pick_better, wp.tile(best, preserve_type=True)), 0)
+    # found is the same in every lane: the block reductions under it are reached by all
     found = best[0] > wp.float64(0.0)
     m = wp.mat33d()
     if found:
