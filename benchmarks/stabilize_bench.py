@@ -19,9 +19,12 @@ memory (NumPy in, NumPy out):
 * ``device``: the device engine (:mod:`warpvx.apps.stabilize_device`: points, detection,
   RANSAC, the 3x3 chain and the warp on the device, one captured CUDA graph per ring slot
   replayed per frame), ``--depth`` frames in flight: each frame copied into a pinned ring
-  slot, one host->device and one device->host copy (image + its 3x3 matrices) on copy
-  streams; the output read as a view of the pinned ring (no further copy); warmed up first.
-  Times ``--device-frames`` frames at most (it is fast: 600 frames would be under a second);
+  slot (in row bands on a few threads, started before the engine waits for an older frame),
+  one host->device and one device->host copy (image + its 3x3 matrices) on copy streams; the
+  output read as a view of the pinned ring (no further copy); warmed up first. Times
+  ``--device-frames`` frames at most (it is fast: 600 frames would be under a second), then
+  splits a frame's time into the device time of its captured graph and the host time of the
+  engine's calls (a table of its own);
 * decode and encode (OpenCV, mp4v) of the same frames, timed apart, and the FPS of
   decode + graph as one serial loop would see it (1 / (1/decode + 1/graph)).
 
@@ -113,27 +116,91 @@ def bench_graph(frames, config, backend, depth, n, seconds, gantt_path=None):
             "gantt": os.path.basename(gantt_path) if gantt_path else None}
 
 
+class HostClock:
+    """Host milliseconds per call of some of an object's methods (instance attributes
+    wrapping them), to tell host work from waiting."""
+
+    def __init__(self, obj, names):
+        self.ms = {name: [] for name in names}
+        for name in names:
+            setattr(obj, name, self._wrap(getattr(obj, name), self.ms[name]))
+
+    @staticmethod
+    def _wrap(fn, out):
+        def timed_call(*args, **kwargs):
+            t = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                out.append(1e3 * (time.perf_counter() - t))
+        return timed_call
+
+    def clear(self):
+        for v in self.ms.values():
+            v.clear()
+
+    def medians(self):
+        return {name: float(np.median(v)) if v else None for name, v in self.ms.items()}
+
+
+def device_program_ms(plan, n=200):
+    """Median device milliseconds of one frame's program as the engine launches it (the
+    captured graph on CUDA, events around each launch, launches queued back to back so the
+    host does not pace them; Warp's CPU device: wall time of the synchronous launches)."""
+    import warp as wp
+
+    wp.synchronize_device(plan.device)
+    if not plan.device.is_cuda:
+        times = []
+        for k in range(n):
+            t = time.perf_counter()
+            plan._launch(k % plan.slots)
+            times.append(1e3 * (time.perf_counter() - t))
+        return float(np.median(times))
+    events = []
+    for k in range(n):
+        a, b = wp.Event(plan.device, enable_timing=True), wp.Event(plan.device, enable_timing=True)
+        plan.compute.record_event(a)
+        plan._launch(k % plan.slots)
+        plan.compute.record_event(b)
+        events.append((a, b))
+    wp.synchronize_device(plan.device)
+    return float(np.median([wp.get_event_elapsed_time(a, b) for a, b in events]))
+
+
 def bench_device(frames, config, backend, depth, n, seconds):
-    """FPS of the device engine on ``frames`` cycled (errors are reported, not raised, so the
-    other rows still come out)."""
+    """FPS of the device engine on ``frames`` cycled, and where a frame's time goes: host
+    milliseconds per call of ``submit`` (the frame into its pinned slot unless staged, the
+    upload, the graph launch, the download), ``stage`` (starting the next frame's copy) and
+    ``result`` (mostly waiting for the download), and the device milliseconds of one frame's
+    program (:func:`device_program_ms`). Errors are reported, not raised, so the other rows
+    still come out."""
     from warpvx.apps.stabilize_device import DevicePlan
 
     size = frames[0].shape[1::-1]
     try:
         t = time.perf_counter()
         plan = DevicePlan(size, config, "cpu" if backend == "warp-cpu" else backend, depth=depth)
+        clock = HostClock(plan, ("submit", "stage", "result"))
         feed = ({"frame": f, "live": LIVE} for f in itertools.cycle(frames))
         stream = plan.run(feed, copy=False)
         list(itertools.islice(stream, 3 * plan.slots + 5))  # warm-up: JIT, capture, scratch
         setup_s = time.perf_counter() - t
+        clock.clear()
         done, s = timed(stream, n, seconds)
         stream.close()
+        host = clock.medians()
+        program_ms = device_program_ms(plan)
     except Exception as exc:  # noqa: BLE001 - a failed row must not lose the others
         print(f"device engine failed at {size[0]}x{size[1]}: {exc!r}", flush=True)
         return {"fps": None, "error": repr(exc)}
     return {"fps": done / s, "frames": done, "seconds": s, "setup_s": setup_s,
             "graphs": plan.use_graph and all(g is not None for g in plan.graphs),
-            "capture_error": plan.capture_error, "slots": plan.slots}
+            "capture_error": plan.capture_error, "slots": plan.slots,
+            "breakdown_ms": {"frame interval (1 / FPS)": 1e3 * s / done,
+                             "device: one frame's program": program_ms,
+                             "host: submit": host["submit"], "host: stage next frame": host["stage"],
+                             "host: result (mostly waiting)": host["result"]}}
 
 
 def profile_device(frames, config, backend, n):
@@ -141,7 +208,7 @@ def profile_device(frames, config, backend, n):
     ``n`` eager frames with events between the stages (a CUDA graph replays the same
     launches with less launch overhead), plus ``re-detections per frame`` over those frames,
     the detection alone (``detect (when it runs)``), the host's copy of a frame into the
-    ring and (CUDA) the upload and download of one frame, which the pipeline overlaps with
+    ring (the engine's banded copy on its threads) and (CUDA) the upload and download of one frame, which the pipeline overlaps with
     the compute; {} on error."""
     import warp as wp
 
@@ -181,7 +248,7 @@ def profile_device(frames, config, backend, n):
         host_copy = []  # a frame into a pinned (CUDA) / device (CPU) ring slot, host time
         for k in range(max(3, n // 10)):
             t = time.perf_counter()
-            np.copyto(plan.host_in[0], frames[k % len(frames)])
+            plan.copier.wait(plan.copier.start(plan.host_in[0], frames[k % len(frames)]))
             host_copy.append(1e3 * (time.perf_counter() - t))
             if cuda:
                 a = stamp()
@@ -287,6 +354,20 @@ def _gpu_name(backend):
     return wp.get_device(backend).name
 
 
+def _size_table(rows, key, corner, title):
+    """Markdown lines of a table: one row per entry of the device's ``key`` dict, one column
+    per size ([] when the first size has none)."""
+    names = list(rows[0].get("device", {}).get(key, {}))
+    if not names:
+        return []
+    lines = ["", title, "", f"| {corner} | " + " | ".join(r["size"] for r in rows) + " |",
+             "|---|" + "---|" * len(rows)]
+    for name in names:
+        values = [r["device"].get(key, {}).get(name) for r in rows]
+        lines.append(f"| {name} | " + " | ".join("failed" if v is None else f"{v:.3f}" for v in values) + " |")
+    return lines
+
+
 def render(report, argv):
     cmd = "PYTHONPATH=. python benchmarks/stabilize_bench.py " + " ".join(argv or sys.argv[1:])
     lines = [f"<!-- {cmd.strip()} -->",
@@ -312,15 +393,15 @@ def render(report, argv):
                      f"{d.get('graphs', '-')} | {r['decode_fps']:.0f} | {r['encode_fps']:.0f} | "
                      f"{r['graph_with_decode_fps']:.1f} | {num(r.get('device_with_decode_fps'), '.1f')} | "
                      f"{g['predicted_makespan_ms']:.2f} | {'-' if meas is None else f'{meas:.2f}'} |")
-    stages = [st for st in report["rows"][0].get("device", {}).get("stages_ms", {})]
-    if stages:
-        lines += ["", "Device engine, per stage (eager launches, events between stages; mean ms "
-                  "per frame; detection counted in refresh on the frames that re-detect):", "",
-                  "| stage | " + " | ".join(r["size"] for r in report["rows"]) + " |",
-                  "|---|" + "---|" * len(report["rows"])]
-        for stage in stages:
-            lines.append(f"| {stage} | " + " | ".join(
-                num(r["device"].get("stages_ms", {}).get(stage), ".3f") for r in report["rows"]) + " |")
+    lines += _size_table(report["rows"], "breakdown_ms", "",
+                         "Device engine, where a frame's time goes (medians, ms; device = the "
+                         "program as run, the captured graph on CUDA; host = Python per call: the "
+                         "frame interval is the larger of the device time and submit + stage + "
+                         "the wait left in result):")
+    lines += _size_table(report["rows"], "stages_ms", "stage",
+                         "Device engine, per stage (eager launches, events between stages; "
+                         "mean ms per frame; detection counted in refresh on the frames that "
+                         "re-detect):")
     errors = [f"{r['size']}: {r['device'].get('error') or 'capture: ' + r['device']['capture_error']}"
               for r in report["rows"]
               if r.get("device", {}).get("error") or r.get("device", {}).get("capture_error")]

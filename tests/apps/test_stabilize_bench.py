@@ -27,5 +27,8 @@ def test_stabilize_bench_smoke(tmp_path):
     assert row["graph"]["frames"] == 3 and row["model_fps"] > 0 and row["graph_fps"] > 0
     assert row["graph"]["placement"]["ransac"] == "gpu"  # find_homography on the Warp device
     assert row["device"]["frames"] == 4 and row["device_fps"] > 0  # the device engine's row
-    assert "| 160x120 |" in (tmp_path / "stabilize_bench.md").read_text()
+    parts = row["device"]["breakdown_ms"]  # device time of a frame's program vs host calls
+    assert parts["device: one frame's program"] > 0 and parts["host: submit"] > 0
+    md = (tmp_path / "stabilize_bench.md").read_text()
+    assert "| 160x120 |" in md and "where a frame's time goes" in md
     assert (tmp_path / "gantt_160x120.png").stat().st_size > 0

@@ -24,7 +24,12 @@ Per frame the host does one copy of the frame into a pinned ring slot, one host-
 image plus its four 3x3 matrices (download stream), each stream waiting on the others'
 events: with ``depth`` frames in flight the upload of frame t+1 and the download of frame t-1
 overlap the compute of frame t. The device ring holds ``lag + depth + 1`` frames (the centred
-window warps frame t - lag at step t).
+window warps frame t - lag at step t). The host's copies run in row bands on a few threads
+(:class:`FrameCopier`; NumPy releases the GIL while copying), and :meth:`DevicePlan.run`
+starts copying frame t+1 into its pinned slot (:meth:`DevicePlan.stage`) before it waits for
+the download of frame t+1-depth, so the copy overlaps that wait and the caller's use of the
+output; a caller that decodes can also write straight into the slot
+(:meth:`DevicePlan.input_slot`).
 
 Supported: the homography motion with the Harris detector (the defaults; :func:`supports`),
 with or without undistortion; other configurations take the graph path. Same frames as the graph path on
@@ -34,16 +39,60 @@ with or without undistortion; other configurations take the graph path. Same fra
 from __future__ import annotations
 
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from ..errors import WarpvxValueError
 from .stabilize import _NO_POINTS, StabilizerConfig, _crop_matrix, _park_lost_kernel, undistort_maps
 
-__all__ = ["DevicePlan", "make_chain", "supports", "run_device"]
+__all__ = ["DevicePlan", "FrameCopier", "make_chain", "supports", "run_device"]
 
 GRAY_CODE = 6  # cv2.COLOR_BGR2GRAY
 LK_ITERS, LK_EPS, LK_MIN_EIG = 30, 0.01, 1e-4  # optical_flow_pyr_lk's defaults (the graph's)
+# Host threads copying a frame (one thread copies a 1080p frame, 6 MB, in about 0.8 ms: most
+# of a 1000 FPS budget); frames under BAND_BYTES per thread are copied on the calling thread.
+COPY_THREADS = 4
+BAND_BYTES = 1 << 19
+
+
+class FrameCopier:
+    """Copies of HxWxC arrays in row bands on ``threads`` threads.
+
+    :meth:`start` returns a handle for :meth:`wait`; the destination must not be read, nor
+    the source written, before that. NumPy releases the GIL while it copies, so the bands
+    run in parallel and beside the calling thread's Python work.
+    """
+
+    def __init__(self, threads: int = COPY_THREADS):
+        self.threads = threads
+        self.pool = ThreadPoolExecutor(threads, thread_name_prefix="warpvx-copy") if threads > 1 else None
+
+    def start(self, dst: np.ndarray, src: np.ndarray) -> list:
+        """Begin ``dst[...] = src`` (same shape); a handle for :meth:`wait`."""
+        if dst.shape != src.shape:
+            raise WarpvxValueError(f"frame: expected shape {dst.shape}, got {src.shape}")
+        bands = min(self.threads, dst.shape[0], max(1, dst.nbytes // BAND_BYTES))
+        if self.pool is None or bands <= 1:
+            np.copyto(dst, src)
+            return []
+        edges = np.linspace(0, dst.shape[0], bands + 1).astype(int)
+        return [self.pool.submit(np.copyto, dst[a:b], src[a:b]) for a, b in zip(edges, edges[1:])]
+
+    @staticmethod
+    def wait(handle: list) -> None:
+        for job in handle:
+            job.result()
+
+    def copy(self, src: np.ndarray) -> np.ndarray:
+        """A new array equal to ``src``."""
+        dst = np.empty_like(src)
+        self.wait(self.start(dst, src))
+        return dst
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True)
 
 
 def supports(config: StabilizerConfig) -> str | None:
@@ -76,14 +125,15 @@ class DevicePlan:
 
     ``device``: a Warp device (``"cpu"`` or ``"cuda:N"``); ``depth`` >= 1 frames in flight;
     ``use_graph``: capture each slot's program once and replay it (None: on CUDA; a CPU
-    capture replays the same launches, which the tests use to check the captured program).
+    capture replays the same launches, which the tests use to check the captured program);
+    ``copy_threads``: host threads of the frame copies (:class:`FrameCopier`; 1: none).
     :meth:`run` consumes feed dicts ({"frame": uint8 HxWx3, "live": uint8 [1]}) and yields,
     per step, a dict of ``stabilized`` (uint8 HxWx3, the frame ``lag`` steps back) and
     float64 3x3 ``motion``, ``trajectory``, ``transform``, ``warp`` (as the graph's outputs).
     """
 
     def __init__(self, size, config: StabilizerConfig, device, *, depth: int = 3,
-                 use_graph: bool | None = None):
+                 use_graph: bool | None = None, copy_threads: int = COPY_THREADS):
         import warp as wp
 
         from ..check import check_int, check_size
@@ -97,6 +147,8 @@ class DevicePlan:
             raise WarpvxValueError(f"config: the device path does not run {reason}; use the graph")
         self.w, self.h = w, h = check_size(size, "size")
         self.depth = check_int(depth, "depth", min_value=1)
+        self.copier = FrameCopier(check_int(copy_threads, "copy_threads", min_value=1))
+        self._staged = None  # (step, frame, copy handle) of the frame being staged
         self.device = dev = wp.get_device(device)
         c = self.config = config
         self.lag = c.lag
@@ -260,32 +312,65 @@ class DevicePlan:
 
     # -- the frame loop -------------------------------------------------------------------
 
+    def input_slot(self) -> np.ndarray:
+        """The host array (uint8 HxWx3) the next step reads its frame from: a pinned ring
+        slot on CUDA (once its last upload is done), the device ring slot on Warp's CPU
+        device (its memory is host memory). A decoder may write the frame there
+        (``cv2.VideoCapture.read(image=plan.input_slot())``) and pass the slot to
+        :meth:`submit`, which then copies nothing."""
+        t = self.steps
+        if self.device.is_cuda:
+            if t >= self.depth:
+                self._wp.synchronize_event(self.uploaded[t % self.depth])
+            return self.host_in[t % self.depth]
+        return self.host_in[t % self.slots]
+
+    def stage(self, frame) -> None:
+        """Begin copying ``frame`` into :meth:`input_slot` (on the copier's threads) and
+        return; the :meth:`submit` of the same array waits for that copy instead of
+        copying. ``frame`` must not change until then."""
+        self._wait_staged()
+        self._staged = (self.steps, frame, self.copier.start(self.input_slot(), frame))
+
+    def _wait_staged(self):
+        """The staged frame: (step, frame) once its copy is done, or None."""
+        staged, self._staged = self._staged, None
+        if staged is None:
+            return None
+        self.copier.wait(staged[2])
+        return staged[:2]
+
+    def _fill(self, t: int, frame) -> None:
+        """``frame`` into the host slot of step ``t`` (unless staged there, or the slot)."""
+        staged = self._wait_staged()
+        if staged is not None and staged[0] == t and staged[1] is frame:
+            return
+        slot = self.input_slot()
+        if frame is not slot:
+            self.copier.wait(self.copier.start(slot, frame))
+
     def submit(self, frame, live: bool):
         """Enqueue step ``self.steps`` (no wait for the device, except for a free pinned
         slot); returns the step's index."""
         t, s, p = self.steps, self.steps % self.slots, self.steps % self.depth
-        cuda = self.device.is_cuda
         if not live:
+            self._wait_staged()
             self.live.fill_(0)  # a padding step flushing the centred window: nothing to upload
-        elif cuda:
-            self._upload(t, s, p, frame)
         else:
-            np.copyto(self.host_in[s], frame)  # Warp's CPU device: its memory is host memory
+            self._fill(t, frame)
+            if self.device.is_cuda:
+                self._upload(t, s, p)
         self._launch(s)
-        if cuda:
+        if self.device.is_cuda:
             self._download(s, p)
         self.steps += 1
         return t
 
-    def _upload(self, t: int, s: int, p: int, frame):
-        """``frame`` into pinned slot ``p``, then to device slot ``s`` on the upload stream
-        once no step still reads it; the compute stream waits for the copy."""
+    def _upload(self, t: int, s: int, p: int):
+        """Pinned slot ``p`` (filled) to device slot ``s`` on the upload stream once no step
+        still reads it; the compute stream waits for the copy."""
         from ..runtime.native_copy import to_device
 
-        wp = self._wp
-        if t >= self.depth:
-            wp.synchronize_event(self.uploaded[p])  # the pinned slot's last upload is done
-        np.copyto(self.host_in[p], frame)
         free = t - self.slots + max(self.lag, 1)  # the last step that read device slot s
         if free >= 0:
             self.upload.wait_event(self.done[free % self.slots])
@@ -305,7 +390,7 @@ class DevicePlan:
 
     def result(self, t: int, copy: bool = True) -> dict:
         """The outputs of step ``t`` (waits for its download). With ``copy`` False the image
-        is a view of the pinned ring, valid until the next :meth:`submit`."""
+        is a view of the output ring (pinned on CUDA), valid until the next :meth:`submit`."""
         if self.device.is_cuda:
             p = t % self.depth
             self._wp.synchronize_event(self.downloaded[p])
@@ -313,18 +398,28 @@ class DevicePlan:
         else:
             image, rec = self.host_out[t % self.slots], self.host_rec[t % self.slots]
         rec = np.array(rec, np.float64).reshape(4, 3, 3)
-        return {"stabilized": image.copy() if copy else image, "motion": rec[0],
+        return {"stabilized": self.copier.copy(image) if copy else image, "motion": rec[0],
                 "trajectory": rec[1], "transform": rec[2], "warp": rec[3]}
 
     def run(self, feed, copy: bool = True):
-        """Outputs of every step of ``feed`` in order, ``depth`` steps in flight."""
+        """Outputs of every step of ``feed`` in order, ``depth`` steps in flight. The next
+        live frame is read from ``feed`` and staged before the oldest step is waited for."""
         pending = deque()
-        for item in feed:
-            pending.append(self.submit(item["frame"], bool(np.asarray(item["live"]).reshape(-1)[0])))
+        items = iter(feed)
+        item = next(items, None)
+        while item is not None:
+            pending.append(self.submit(item["frame"], _live(item)))
+            item = next(items, None)
+            if item is not None and _live(item):
+                self.stage(item["frame"])
             if len(pending) >= self.depth:
                 yield self.result(pending.popleft(), copy)
         while pending:
             yield self.result(pending.popleft(), copy)
+
+
+def _live(item) -> bool:
+    return bool(np.asarray(item["live"]).reshape(-1)[0])
 
 
 def run_device(backend: str, config: StabilizerConfig, depth: int, copy: bool = True):
@@ -333,7 +428,11 @@ def run_device(backend: str, config: StabilizerConfig, depth: int, copy: bool = 
     device = "cpu" if backend == "warp-cpu" else backend
 
     def run(feed, size):
-        yield from DevicePlan(size, config, device, depth=depth).run(feed, copy)
+        plan = DevicePlan(size, config, device, depth=depth)
+        try:
+            yield from plan.run(feed, copy)
+        finally:
+            plan.copier.close()  # its threads end now, not when the plan is collected
 
     return run
 

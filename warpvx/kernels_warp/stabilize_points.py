@@ -156,9 +156,8 @@ class DeviceRansac:
     (float32 [P, 2] device buffers): the find_homography workspace of P points with its
     sampling launch replaced by :func:`sample_first`; H into ``h_out`` (float64 3x3).
 
-    The inlier scores are summed in slices sized for P, not for the count, so the float64
-    error sums of two hypotheses with equal inlier counts may round differently from a call
-    on ``count`` points (a tie-break between near-equal hypotheses only)."""
+    The same H, bit for bit, as a call on the first ``count`` points: the rows after them
+    are never inliers, and every sum adds each lane's points in order, so they change none."""
 
     def __init__(self, src, dst, count, threshold: float, iters: int, seed: int, h_out):
         device = src.device
