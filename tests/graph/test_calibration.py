@@ -239,3 +239,23 @@ def test_contention_probe_times_mixes_of_plausible_nodes(fresh_cache, frames):
                                 1 if loader == "gpu" else 0)
     # One alone time per victim kind, shared by its pairs.
     assert probe[("cpu", "cpu")][1] == probe[("cpu", "gpu")][1]
+
+
+def test_learn_charges_each_frame_to_the_processor_that_ran_it(fresh_cache, frames):
+    """Under a K-frame plan a node may run on a CPU worker in one frame and on the GPU in the
+    next: each frame's time is learnt for the kind of processor its timeline names."""
+    from warpvx.runtime.timeline import FrameResult
+    from warpvx.sched.schedule import ScheduledTask
+
+    g = _graph(frames[0])
+    plan = g.schedule("heft", n_cpus=2, gpu="warp-cpu")
+    times = {"cpu0": [3.0, 5.0, 4.0], "gpu": [1.0, 2.0, 1.5]}
+    runs = []
+    for i in range(3):
+        for proc in ("cpu0", "gpu"):
+            t = times[proc][i]
+            runs.append(FrameResult(len(runs), {}, {"hist": ScheduledTask("hist", proc, 1.0, 1.0 + t)}, 0.0))
+    learnt = cal_mod.learn(plan.calibration, runs, {"hist": "cpu0"}, skip=0)
+    assert learnt["hist"] == pytest.approx({"cpu": 4.0, "gpu": 1.5})
+    assert plan.calibration.history["hist"]["gpu"] == pytest.approx(1.5)
+    assert plan.calibration.placement["hist"] == "cpu"  # the one-frame plan's kind

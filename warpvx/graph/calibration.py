@@ -658,7 +658,9 @@ def learn(calibration: Calibration, runs, placement: dict, *, skip: int = 1,
         ``calibration.transfer_scale`` (copies in a running frame compete for memory
         bandwidth and the GIL).
     placement : dict
-        node -> processor (``"cpu<i>"``/``"gpu"``) of the plan that ran.
+        node -> processor (``"cpu<i>"``/``"gpu"``) of the plan that ran (its one-frame
+        schedule). Each frame's time is learnt for the kind of processor its timeline says
+        ran the node, which differs from this under a K-frame plan.
 
     Returns
     -------
@@ -670,29 +672,33 @@ def learn(calibration: Calibration, runs, placement: dict, *, skip: int = 1,
     cpu_key = cpu_backend_key()
     update = {}
     for node, proc in placement.items():
-        pe = "gpu" if proc.startswith("gpu") else "cpu"
-        samples, copies = [], []
+        # Each frame's time goes to the kind of processor that ran it there: a K-frame plan
+        # may place a node on a CPU worker in one frame and on the GPU in the next.
+        by_kind = {}
         for r in runs:
-            if node not in r.timeline:
+            task = r.timeline.get(node)
+            if task is None:
                 continue
+            pe = "gpu" if task.processor.startswith("gpu") else "cpu"
             t = r.compute_ms(node)
             if pe == "gpu" and node in r.host:
                 h0, h1 = r.host[node]
                 t = max(t, h1 - h0 - r.transfers.get(node, 0.0))
+            samples, copies = by_kind.setdefault(pe, ([], []))
             samples.append(t)
             copies.append(r.transfers.get(node, 0.0))
-        if not samples:
-            continue
-        t, x = statistics.median(samples), statistics.median(copies)
-        entry = calibration.history.setdefault(node, {})
-        entry[pe], entry[f"{pe}_copies"] = t, x
-        learnt.setdefault(node, {})[pe] = t
-        calibration.placement[node] = pe
-        bname = cpu_key if pe == "cpu" else calibration.gpu
-        key = calibration.keys.get(node)
-        if bname and key:
-            update.setdefault(bname, {})[key] = t
-            update.setdefault(bname + "|copies", {})[key] = x
+        if by_kind:
+            calibration.placement[node] = "gpu" if proc.startswith("gpu") else "cpu"
+        for pe, (samples, copies) in by_kind.items():
+            t, x = statistics.median(samples), statistics.median(copies)
+            entry = calibration.history.setdefault(node, {})
+            entry[pe], entry[f"{pe}_copies"] = t, x
+            learnt.setdefault(node, {})[pe] = t
+            bname = cpu_key if pe == "cpu" else calibration.gpu
+            key = calibration.keys.get(node)
+            if bname and key:
+                update.setdefault(bname, {})[key] = t
+                update.setdefault(bname + "|copies", {})[key] = x
     scale = _transfer_scale(calibration.transfer, runs)
     if scale is not None:
         calibration.transfer_scale = scale
