@@ -47,10 +47,12 @@ class CallMemo:
                 return None
             sigs.append(_signature(a))
         try:
-            return (tuple(sigs), tuple(_value(s) for s in scalars), backend,
-                    _backend._default_backend)
-        except TypeError:  # an unhashable scalar: not memoised
+            key = (tuple(sigs), tuple(_value(s) for s in scalars), backend,
+                   _backend._default_backend)
+            hash(key)  # an unhashable backend= goes on to resolve_backend's error
+        except TypeError:  # an unhashable argument: not memoised
             return None
+        return key
 
     def replay(self, key, out):
         """``out`` after replaying the remembered call of ``key``, or None if there is none."""
@@ -78,10 +80,6 @@ class CallMemo:
                 while len(self._calls) > _MAX:
                     self._calls.popitem(last=False)
         return result
-
-    def clear(self) -> None:
-        with self._lock:
-            self._calls.clear()
 
 
 def _signature(a) -> tuple:

@@ -259,6 +259,17 @@ def _overlap(a, b) -> bool:
     return ra[0] == rb[0] and ra[1] < rb[2] and rb[1] < ra[2]
 
 
+def check_bool(v, name: str, *, allow_none: bool = False):
+    """``v`` as a bool (NumPy bools accepted; None too when ``allow_none``); 1 and "yes" are
+    refused rather than read as True."""
+    if v is None and allow_none:
+        return None
+    if not isinstance(v, (bool, np.bool_)):
+        what = "a bool or None" if allow_none else "a bool"
+        raise WarpvxTypeError(f"{name}: expected {what}, got {type(v).__name__} {v!r}")
+    return bool(v)
+
+
 def check_choice(v, name: str, choices):
     """``v`` must be one of ``choices`` (a dict maps accepted names to canonical values)."""
     if isinstance(choices, dict):

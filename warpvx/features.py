@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from .backend import resolve_backend
-from .check import check_choice, check_float, check_image, check_int, check_out
+from .check import check_bool, check_choice, check_float, check_image, check_int, check_out
 from .errors import WarpvxTypeError
 from .keypoints import Keypoints
 from .registry import dispatch
@@ -27,12 +27,6 @@ def _gray(src, name: str = "src"):
     if len(src.shape) == 3:
         src = src.reshape(tuple(src.shape[:2]))
     return src
-
-
-def _check_bool(v, name: str) -> bool:
-    if not isinstance(v, (bool, np.bool_)):
-        raise WarpvxTypeError(f"{name}: expected a bool, got {type(v).__name__} {v!r}")
-    return bool(v)
 
 
 def fast_corners(src, threshold: int = 10, nonmax: bool = True, *, backend=None,
@@ -80,7 +74,7 @@ def fast_corners(src, threshold: int = 10, nonmax: bool = True, *, backend=None,
     be = resolve_backend(backend, like=src)
     src = _gray(src)
     threshold = check_int(threshold, "threshold", min_value=0, max_value=255)
-    nonmax = _check_bool(nonmax, "nonmax")
+    nonmax = check_bool(nonmax, "nonmax")
     return dispatch("fast_corners", be, src, threshold, nonmax, stream=stream)
 
 

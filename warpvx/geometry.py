@@ -20,7 +20,7 @@ import numpy as np
 
 from .backend import resolve_backend
 from .callmemo import CallMemo
-from .check import (check_array, check_float, check_image, check_matrix, check_out,
+from .check import (check_array, check_bool, check_float, check_image, check_matrix, check_out,
                     check_size)
 from .errors import ShapeError, WarpvxTypeError, WarpvxValueError
 from .modes import SAMPLER_BORDERS, SAMPLER_INTERPOLATIONS, mode_code
@@ -163,8 +163,7 @@ def warp_perspective(src, M, dsize, interpolation="linear", inverse_map=False, b
     src = _as_hw(check_image(src, "src", dtypes=(np.uint8,), channels=(1, 3, 4)))
     m = check_matrix(M, "M", (3, 3), invertible=True)
     w, h = check_size(dsize, "dsize")
-    if not isinstance(inverse_map, (bool, np.bool_)):
-        raise WarpvxTypeError(f"inverse_map: expected a bool, got {type(inverse_map).__name__}")
+    check_bool(inverse_map, "inverse_map")
     interp = mode_code(interpolation, "interpolation", SAMPLER_INTERPOLATIONS)
     bmode = mode_code(border, "border", SAMPLER_BORDERS)
     channels = 1 if src.ndim == 2 else src.shape[2]

@@ -12,7 +12,7 @@ import numbers
 import numpy as np
 
 from .backend import resolve_backend
-from .check import check_array, check_float, check_int, check_outs
+from .check import check_array, check_bool, check_float, check_int, check_outs
 from .errors import ShapeError, UnsupportedError, WarpvxTypeError
 from .registry import dispatch
 
@@ -75,9 +75,7 @@ def match_hamming(desc1, desc2, cross_check: bool = False, ratio=None, *, backen
     """
     be = resolve_backend(backend, like=desc1)
     desc1, desc2 = _descriptors(desc1, desc2)
-    if not isinstance(cross_check, (bool, np.bool_)):
-        raise WarpvxTypeError(f"cross_check: expected a bool, got {type(cross_check).__name__} "
-                              f"{cross_check!r}")
+    check_bool(cross_check, "cross_check")
     if ratio is not None:
         if not isinstance(ratio, numbers.Real) or isinstance(ratio, bool):
             raise WarpvxTypeError(f"ratio: expected a number or None, got {type(ratio).__name__}")

@@ -355,6 +355,25 @@ def test_frame_copier_bad_shape_names_the_frame():
         sd.FrameCopier(2).start(np.zeros((4, 4, 3), np.uint8), np.zeros((4, 5, 3), np.uint8))
 
 
+@pytest.mark.parametrize("src", [np.zeros((4, 4, 3), np.uint16), np.zeros((4, 4, 3)), [[0]]],
+                         ids=["uint16", "float64", "list"])
+def test_frame_copier_bad_frame_is_a_warpvx_error(src):
+    """A frame of another dtype or not an array: refused, not cast or crashing in NumPy."""
+    with pytest.raises(WarpvxError, match="frame: expected uint8"):
+        sd.FrameCopier(2).start(np.zeros((4, 4, 3), np.uint8), src)
+
+
+def test_live_steps_after_padding_steps_are_live_again():
+    """A padding step (live=False) sets the device flag; the next live step restores it."""
+    frame = clip_frames(1)[0]
+    plan = sd.DevicePlan(frame.shape[1::-1], st.StabilizerConfig(window=5), "cpu", depth=2)
+    plan.submit(frame, live=True)
+    plan.submit(None, live=False)
+    assert plan.live.numpy()[0] == 0
+    plan.submit(frame, live=True)
+    assert plan.live.numpy()[0] == 1
+
+
 def test_staged_and_slot_frames_give_the_copied_frames(warp_backend, bikes):
     """Frames staged ahead (``run``), written straight into ``input_slot()``, or staged and
     then replaced by another frame at ``submit``: the same outputs as frames copied at

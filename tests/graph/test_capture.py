@@ -213,6 +213,19 @@ def test_capture_is_off_by_default_on_warp_cpu(frames):
         g.close()
 
 
+@pytest.mark.parametrize("bad", ["yes", 1, 0.0])
+def test_capture_must_be_a_bool_or_none(frames, bad):
+    g = _blur_chain(frames, "warp-cpu")
+    try:
+        with pytest.raises(warpvx.WarpvxTypeError, match="capture: expected a bool or None"):
+            g.process(frames[0], capture=bad)
+        with pytest.raises(warpvx.WarpvxTypeError, match="capture"):
+            list(g.stream(frames[:2], capture=bad))
+        np.testing.assert_array_equal(g.process(frames[0])["out"], _blur_reference(frames[0]))
+    finally:
+        g.close()
+
+
 def test_capture_inside_a_callers_capture_falls_back(frames):
     """A frame run while Warp is already capturing on the device: the executor's capture
     fails (nested) and its segments run eagerly: no error, right outputs."""

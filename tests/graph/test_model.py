@@ -216,6 +216,15 @@ def test_best_trial_keeps_the_measured_winner_when_the_model_is_wrong():
                    trial_frames=0, trial_margin=1e6)
     with pytest.raises(warpvx.GraphError, match="trial_inputs"):
         g.schedule("heft", n_cpus=1, gpu="warp-cpu", trial_inputs=[frame])
+    # Refused up front, even where no trial would have run (margin 0: one candidate).
+    with pytest.raises(warpvx.GraphError, match="trial_frames"):
+        g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame],
+                   trial_frames=0, trial_margin=0.0)
+    with pytest.raises(warpvx.GraphError, match="trial_inputs"):
+        g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[])
+    for bad in ("0.2", -0.1, float("nan")):
+        with pytest.raises((warpvx.WarpvxTypeError, warpvx.WarpvxValueError), match="trial_margin"):
+            g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_margin=bad)
     g.close()
 
 

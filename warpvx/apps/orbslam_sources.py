@@ -40,7 +40,7 @@ def parse_intrinsics(text) -> np.ndarray:
     else:
         calib = _read_calib(text, required=False)
         if "P0" in calib:
-            K = calib["P0"][:, :3]
+            K = np.ascontiguousarray(calib["P0"][:, :3])  # OpenCV's USAC refuses a strided K
         else:
             try:
                 values = [float(v) for v in open(text).read().replace(",", " ").split()[:4]]

@@ -70,8 +70,9 @@ class FrameCopier:
 
     def start(self, dst: np.ndarray, src: np.ndarray) -> list:
         """Begin ``dst[...] = src`` (same shape); a handle for :meth:`wait`."""
-        if dst.shape != src.shape:
-            raise WarpvxValueError(f"frame: expected shape {dst.shape}, got {src.shape}")
+        if getattr(src, "shape", None) != dst.shape or getattr(src, "dtype", None) != dst.dtype:
+            got = f"{getattr(src, 'dtype', type(src).__name__)} {np.shape(src)}"
+            raise WarpvxValueError(f"frame: expected {dst.dtype} {dst.shape}, got {got}")
         bands = min(self.threads, dst.shape[0], max(1, dst.nbytes // BAND_BYTES))
         if self.pool is None or bands <= 1:
             np.copyto(dst, src)
@@ -183,6 +184,7 @@ class DevicePlan:
         self.tracked = empty(1, wp.int32)
         self.detect = empty(1, wp.int32)
         self.live = wp.ones(1, dtype=wp.int32, device=dev)
+        self._live_flag = True  # what self.live holds (set on the device only when it changes)
         self.lk_out = (empty((P, 2), wp.float32), empty(P), empty(P, wp.float32))
         self.parked = empty((P, 2), wp.float32)
         self.homography = empty((3, 3), wp.float64)
@@ -353,9 +355,11 @@ class DevicePlan:
         """Enqueue step ``self.steps`` (no wait for the device, except for a free pinned
         slot); returns the step's index."""
         t, s, p = self.steps, self.steps % self.slots, self.steps % self.depth
+        if bool(live) != self._live_flag:  # padding steps flush the centred window
+            self._live_flag = bool(live)
+            self.live.fill_(int(self._live_flag))
         if not live:
-            self._wait_staged()
-            self.live.fill_(0)  # a padding step flushing the centred window: nothing to upload
+            self._wait_staged()  # a padding step: nothing to upload
         else:
             self._fill(t, frame)
             if self.device.is_cuda:

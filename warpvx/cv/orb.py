@@ -59,7 +59,10 @@ class ORB:
                  fastThreshold=20, *, backend=None):
         self.setMaxFeatures(nfeatures)
         # cv2.ORB_create takes scaleFactor as a C float (setScaleFactor as a double).
-        self.setScaleFactor(float(np.float32(check_float(scaleFactor, "scaleFactor"))))
+        # Checked before the cast, so the error quotes the value given.
+        scale = check_float(scaleFactor, "scaleFactor", min_value=1.0, strict_min=True,
+                            max_value=float(np.finfo(np.float32).max))
+        self.setScaleFactor(float(np.float32(scale)))
         self.setNLevels(nlevels)
         self.setEdgeThreshold(edgeThreshold)
         self.setFirstLevel(firstLevel)
@@ -207,14 +210,14 @@ class ORB:
         import cv2
 
         twin = cv2.ORB_create()
-        self._set_all(twin, into=twin)
+        for p in self._PARAMS:
+            getattr(twin, "set" + p)(getattr(self, "get" + p)())
         return twin
 
-    def _set_all(self, other, *, into=None):
-        """Copy every parameter from ``other`` (into self), or from self into ``into``."""
-        src, dst = (self, into) if into is not None else (other, self)
+    def _set_all(self, other):
+        """Copy every parameter from ``other`` (a cv2.ORB) into self."""
         for p in self._PARAMS:
-            getattr(dst, "set" + p)(getattr(src, "get" + p)())
+            getattr(self, "set" + p)(getattr(other, "get" + p)())
 
     def _check_accelerated(self):
         for name, value, accelerated in (("WTA_K", self._wta_k, 2), ("firstLevel", self._first, 0),

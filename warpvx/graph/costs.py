@@ -11,6 +11,7 @@ import os
 import warnings
 import weakref
 
+from ..check import check_float
 from ..errors import GraphError
 from .data import INPUT, Data, nbytes
 
@@ -197,6 +198,16 @@ class CostModel:
         from .plan import Plan
 
         n_cpus = default_n_cpus() if n_cpus is None else n_cpus
+        if trial_inputs is not None:  # checked before anything is calibrated
+            if model is None or policy != "best":
+                raise GraphError("trial_inputs: a trial needs policy='best' and a model= "
+                                 "(g.fit_model()) to choose its candidates")
+            trial_inputs = [trial_inputs] if isinstance(trial_inputs, dict) else list(trial_inputs)
+            if not trial_inputs:
+                raise GraphError("trial_inputs: expected a dict of inputs or a non-empty list of them")
+            if isinstance(trial_frames, bool) or not isinstance(trial_frames, int) or trial_frames < 1:
+                raise GraphError(f"trial_frames: expected an int >= 1, got {trial_frames!r}")
+        trial_margin = check_float(trial_margin, "trial_margin", min_value=0.0)
         be = gpu_backend(gpu)
         with self._run_lock:
             if not self.verified:
@@ -219,9 +230,6 @@ class CostModel:
                 self._plan_box[0] = plan
                 return plan
 
-            if trial_inputs is not None and (model is None or policy != "best"):
-                raise GraphError("trial_inputs: a trial needs policy='best' and a model= "
-                                 "(g.fit_model()) to choose its candidates")
             if model is not None and policy == "best":
                 from .model import choose
 
@@ -251,13 +259,6 @@ class CostModel:
         measured makespan, name -> that median in ms)."""
         import statistics
 
-        if isinstance(inputs, dict):
-            inputs = [inputs]
-        inputs = list(inputs)
-        if not inputs:
-            raise GraphError("trial_inputs: expected a dict of inputs or a non-empty list of them")
-        if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
-            raise GraphError(f"trial_frames: expected an int >= 1, got {frames!r}")
         measured = {}
         for name, sch, dag, prediction in candidates:
             plan = make_plan(sch, dag, prediction)

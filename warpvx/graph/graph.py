@@ -251,6 +251,7 @@ class Graph(CostModel, Runner):
                                         delays=self._delay_edges(plan.calibration))
                 sched.validate_schedule(ksched.info["dag"], ksched)
                 plan.frame_schedule = ksched
+                plan.close()  # a trial ("best") may have started one on the one-frame schedule
         return plan
 
     def _delay_edges(self, cal) -> dict:

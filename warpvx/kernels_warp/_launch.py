@@ -125,6 +125,9 @@ class _Plan:
 
 
 _capture_streams: dict = {}
+#: Held around every capture the package makes and around the executor's records on the
+#: legacy stream, which a capture in progress on a blocking stream forbids (CUDA error 906).
+capture_lock = threading.Lock()
 
 
 def _capture(cmds, device):
@@ -132,7 +135,7 @@ def _capture(cmds, device):
     a capture, or a driver that refuses)."""
     if device.is_capturing:
         return None  # try again on a later replay outside the caller's capture
-    with _recorded_lock:
+    with capture_lock:
         stream = _capture_streams.get(device.alias)
         if stream is None:
             stream = _capture_streams[device.alias] = wp.Stream(device)

@@ -35,7 +35,7 @@ import numpy as np
 
 from .native_copy import copy_device, is_warp_array, to_device, warp
 from .program import InputRef, Program
-from .slots import DEVICE, Slot
+from .slots import DEVICE
 from .timeline import Frame
 
 #: Input signatures (shapes and dtypes of a frame's inputs) whose captures an executor keeps.
@@ -237,7 +237,7 @@ class SegmentRunner:
         if sg == 0:
             states[i] = 1
             return None
-        slots = [self._wait(frame, self._slot(frame, r), state) for r in seg.inputs]
+        slots, _ = self._ready_inputs(frame, seg.inputs)
         try:
             sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
             with self._capture_lock:
@@ -250,12 +250,6 @@ class SegmentRunner:
         state.prev_end = None  # the stream idled while the host captured
         return sg
 
-    def _wait(self, frame: Frame, slot: Slot, state) -> Slot:
-        if not slot.done.is_set():
-            state.waited = True
-            frame.wait_slot(slot, self._closing, self.spin)
-        return slot
-
     def _run_segment(self, frame: Frame, seg: Segment, sg: SegmentGraph, state):
         """Replay ``sg``: inputs copied into its fixed buffers, one graph launch, the values
         read outside it copied out into the frame's buffers; one timing interval, shared by
@@ -263,10 +257,9 @@ class SegmentRunner:
         state.task = seg.tasks[0].name
         cuda = self.cuda
         io = state.io
-        state.waited = False
-        slots = [self._wait(frame, self._slot(frame, r), state) for r in seg.inputs]
+        slots, waited = self._ready_inputs(frame, seg.inputs)
         h0 = time.perf_counter()
-        ev0 = self._start_event(frame, state, slots, state.waited) if cuda else h0
+        ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved
         for ref, s in zip(seg.inputs, slots):
             sg.fill(ref, s.value, io, self._stream)

@@ -91,6 +91,7 @@ from collections.abc import Mapping
 
 import networkx as nx
 
+from ..check import check_bool
 from ..errors import NodeExecutionError, ScheduleError, WarpvxValueError
 from ..sched.schedule import Schedule
 from .capture import NotCapturable, SegmentRunner, segments, signature
@@ -117,13 +118,12 @@ def _is_gpu_processor(name: str) -> bool:
 class _GpuState:
     """The GPU thread's state through one frame."""
 
-    __slots__ = ("proc", "io", "prev_end", "waited", "task")
+    __slots__ = ("proc", "io", "prev_end", "task")
 
     def __init__(self, proc: str, io: Transfers):
         self.proc = proc
         self.io = io
         self.prev_end = None  # the last task's end event while the thread has not waited since
-        self.waited = False
         self.task = "<executor>"  # the task running, for error reports
 
 
@@ -225,13 +225,17 @@ class Executor(SegmentRunner):
         # frames on the GPU queue, so with K > 1 nothing is captured (every task runs eagerly).
         self._segments = segments(program, gpu_queue) if self.frames == 1 else []
         self._shares = self._segment_shares()
+        capture = check_bool(capture, "capture", allow_none=True)
         self.capture = bool(gpu_device) and self.frames == 1 and \
-            (self.cuda if capture is None else bool(capture))
+            (self.cuda if capture is None else capture)
         self.captures = 0  # segments captured so far (each signature's once)
         self._captured: OrderedDict = OrderedDict()  # input signature -> per-segment state
         # Held while capturing and while recording on the legacy stream (submit): that
-        # stream synchronises with ours, which a capture forbids.
-        self._capture_lock = threading.Lock()
+        # stream synchronises with ours, which a capture forbids. One lock for the process,
+        # shared with the recorded launches' own captures (kernels_warp._launch).
+        from ..kernels_warp._launch import capture_lock
+
+        self._capture_lock = capture_lock
         for seg in self._segments:  # copy-out buffers of captured segments: pooled per key
             for key in seg.outputs:
                 rule = self._upload_rule[key] = self._copy_rule(seg, key)
@@ -430,10 +434,11 @@ class Executor(SegmentRunner):
         for key, value in zip(task.outputs, result):
             frame.slots[key].set(value, where, event)
 
-    def _ready_inputs(self, frame: Frame, task: ExecTask):
-        """``task``'s input slots once all are set, and whether any had to be waited for."""
+    def _ready_inputs(self, frame: Frame, refs):
+        """The slots of input references ``refs`` (a task's or a captured segment's) once all
+        are set, and whether any had to be waited for."""
         fs = frame.slots
-        slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref) for ref in task.inputs]
+        slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref) for ref in refs]
         waited = False
         for s in slots:
             if not s.done.is_set():
@@ -451,7 +456,7 @@ class Executor(SegmentRunner):
         """One CPU task: waits for its inputs, downloads device ones, calls, publishes.
         False when the frame was cancelled meanwhile or the task failed (reported)."""
         try:
-            slots, _ = self._ready_inputs(frame, task)
+            slots, _ = self._ready_inputs(frame, task.inputs)
             remote = [s for s in slots if s.where == DEVICE]
             if self.cuda:
                 for s in remote:
@@ -534,7 +539,7 @@ class Executor(SegmentRunner):
         state.task = task.name
         cuda = self.cuda
         io = state.io
-        slots, waited = self._ready_inputs(frame, task)
+        slots, waited = self._ready_inputs(frame, task.inputs)
         h0 = time.perf_counter()
         ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved
@@ -706,8 +711,9 @@ class Executor(SegmentRunner):
             slots[key] = Slot()
         frame = Frame(frame_index, slots, self._slot_procs[frame_index % self.frames])
         frame.events.extend(events)
+        capture = check_bool(capture, "capture", allow_none=True)
         frame.capture = bool(self.gpu_device) and self.frames == 1 and \
-            (self.capture if capture is None else bool(capture))
+            (self.capture if capture is None else capture)
         if frame.capture:
             frame.signature = signature(inputs)
         for key, ring in self.program.rings.items():

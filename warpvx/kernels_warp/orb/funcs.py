@@ -57,7 +57,6 @@ RANK_CHUNKS = 32
 N_RANK_CHUNKS = wp.constant(RANK_CHUNKS)
 
 
-
 @wp.struct
 class LevelInfo:
     """One pyramid level of a plan: its place in the flat buffers, its cell grid and its
@@ -185,29 +184,19 @@ def describe_byte(img: wp.array2d(dtype=wp.uint8), cy: int, cx: int, angle_deg: 
 
 
 @wp.func
-def level_image(base: wp.uint64, levels: wp.array(dtype=LevelInfo), level: int):
-    """Level ``level`` of a flat pyramid buffer as a 2-D array (a view, no copy).
-
-    A raw pointer because the 2-D device functions (``fast_score``, ``read_reflect101``,
-    ``describe_byte``) take a 2-D array and Warp cannot reshape part of a typed 1-D array in a
-    kernel. In bounds: the view spans [pix, pix + width * height) of a buffer the plan
-    allocated as the sum of all level sizes, and every read through it is a pixel of the view
-    (FAST on owned pixels, >= 19 px inside the level; the other reads reflect into it).
-    """
-    info = levels[level]
-    return wp.array(ptr=base + wp.uint64(info.pix), shape=(info.height, info.width),
-                    dtype=wp.uint8)
-
-
-@wp.func
 def batch_level_image(base: wp.uint64, levels: wp.array(dtype=LevelInfo), level: int,
                       batch: int, b: int):
     """Level ``level`` of image ``b`` of a batch of ``batch`` flat pyramids (a view, no copy).
 
     The batch's pyramids are stored level-major: level l of every image, one after the other,
     from ``batch * pix_l``, so level l of the whole batch is one [batch, h_l, w_l] block (one
-    resize or blur launch covers it). With ``batch`` 1 this is :func:`level_image`. In bounds
-    for the same reason: the buffer holds ``batch`` times the pyramid's pixels.
+    resize or blur launch covers it). With ``batch`` 1: level l at ``pix_l``.
+
+    A raw pointer because the 2-D device functions (``fast_score``, ``read_reflect101``,
+    ``describe_byte``) take a 2-D array and Warp cannot reshape part of a typed 1-D array in a
+    kernel. In bounds: the view spans ``width * height`` pixels of a buffer the plan allocated
+    as ``batch`` times the sum of all level sizes, and every read through it is a pixel of the
+    view (FAST on owned pixels, >= 19 px inside the level; the other reads reflect into it).
     """
     info = levels[level]
     offset = batch * info.pix + b * info.width * info.height
@@ -384,8 +373,6 @@ def depth_counts(totals: wp.array3d(dtype=wp.int32), level: int, which: int) -> 
     for g in range(DEPTHS):
         v[g] = totals[level, which, g]
     return v
-
-
 
 
 @wp.func
