@@ -139,7 +139,7 @@ def test_sized_by_inputs_primitives_take_out():
     for name in sized:
         assert "out" in inspect.signature(registry.get_primitive(name).function()).parameters, name
     assert not sized & {"fast_corners", "harris_corners", "orb", "orb_compute", "match_hamming",
-                        "knn_match_hamming", "optical_flow_pyr_lk"}
+                        "knn_match_hamming"}
 
 
 def test_dispatch_output_kind_follows_input(backend, invert):

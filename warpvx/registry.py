@@ -53,9 +53,10 @@ class Primitive:
         Names of what the public function returns, in order: one name (default ``"out"``)
         for a single value, several for a tuple. A graph node's output ports.
     sized_by_inputs : bool
-        True when the public function takes ``out=`` and returns one array whose shape and
-        dtype follow from its inputs' shapes and its constant arguments, never from pixel
-        values: a graph may then allocate that array once and reuse it frame after frame.
+        True when the public function takes ``out=`` and its outputs' shapes and dtypes
+        follow from its inputs' shapes and its constant arguments, never from pixel values
+        (one array, a pyramid's list of levels, or one array per output): a graph may then
+        allocate them once and reuse them frame after frame.
     capturable : bool
         True when the Warp implementation, given ``out=``, only enqueues work on the current
         stream (no allocation, host synchronisation or read-back once its caches are warm):
@@ -142,17 +143,18 @@ def _std(name, public_module, **attrs):
 
 # The built-in primitives: public module (by domain, as kornia), kernel modules by name.
 # capturable: launches only, given out= (harris_response allocates its products outside the
-# fused 3x3 path; pyramids, corners, flow, ORB, matching allocate or read counts back).
+# fused 3x3 path; scale pyramids, corners, ORB, matching allocate or read counts back).
 _std("color_convert", "color", sized_by_inputs=True, capturable=True)
 _std("remap", "geometry", sized_by_inputs=True, capturable=True)
 _std("warp_perspective", "geometry", sized_by_inputs=True, capturable=True)
-_std("gaussian_pyramid", "pyramid")
+_std("gaussian_pyramid", "pyramid", sized_by_inputs=True, capturable=True)
 _std("scale_pyramid", "pyramid")
 _std("gaussian_blur", "filters", sized_by_inputs=True, capturable=True)
 _std("fast_corners", "features")
 _std("harris_response", "features", sized_by_inputs=True)
 _std("harris_corners", "features")
-_std("optical_flow_pyr_lk", "flow", outputs=("next_pts", "status", "err"))
+_std("optical_flow_pyr_lk", "flow", outputs=("next_pts", "status", "err"), sized_by_inputs=True,
+     capturable=True)
 _std("orb", "orb_extractor", outputs=("keypoints", "descriptors"))
 _std("match_hamming", "matching", outputs=("pairs", "distances"))
 _std("find_homography", "homography", outputs=("H", "mask"))

@@ -226,31 +226,45 @@ class PrimitiveNode(Node):
         return run
 
     def _input_shapes(self) -> tuple:
-        """Shapes of the array inputs as verification saw them (None: not an array)."""
+        """Shapes of the array inputs as verification saw them (None: not an array); a
+        delayed input's is the previous frame's value the node's output sample came from."""
         out = []
         for port in self.input_ports:
             ref = self.inputs[port]
-            sample = ref.data.sample if isinstance(ref, DelayRef) else ref.sample
+            sample = _delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
             out.append(tuple(sample.shape) if isinstance(sample, np.ndarray) else None)
         return tuple(out)
 
     def out_factory(self, backend):
-        """A maker of this node's output buffer on ``backend``'s device, for the executor's
-        buffer pools; None unless the registry says the primitive's one output array is sized
-        by its inputs (:attr:`~warpvx.registry.Primitive.sized_by_inputs`; verification's
-        sample then fixes shape and dtype)."""
+        """A maker of this node's output buffers on ``backend``'s device, for the executor's
+        buffer pools; None unless the registry says the primitive's outputs are sized by its
+        inputs (:attr:`~warpvx.registry.Primitive.sized_by_inputs`; verification's samples
+        then fix shapes and dtypes). One output: its buffer (an array, or a list of arrays
+        for a pyramid); several: a tuple, one per output. A sample leaf that is an input's
+        own sample (a pyramid's level 0 is its source) is None: the call fills it in."""
         if backend is None or backend.kind != "warp" or not self.primitive.sized_by_inputs:
             return None
-        sample = self.outputs[self.output_ports[0]].sample
-        if not isinstance(sample, np.ndarray) or sample.ndim == 0 or sample.dtype.kind not in "uif":
+        samples = [self.outputs[p].sample for p in self.output_ports]
+        inputs = [_delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
+                  for ref in self.inputs.values()]
+        specs = [_buffer_spec(s, inputs) for s in samples]
+        if any(s is None for s in specs):
             return None
-        shape, dtype, device = tuple(sample.shape), sample.dtype, backend.device
+        device = backend.device
 
         def make():
             from ..backend import init_warp
 
             wp = init_warp()
-            return wp.empty(shape, dtype=wp.dtype_from_numpy(dtype), device=device)
+
+            def build(spec):
+                if isinstance(spec, list):
+                    return [build(s) for s in spec]
+                return None if spec == "input" else \
+                    wp.empty(spec[0], dtype=wp.dtype_from_numpy(spec[1]), device=device)
+
+            bufs = [build(s) for s in specs]
+            return bufs[0] if len(bufs) == 1 else tuple(bufs)
 
         return make
 
@@ -259,6 +273,26 @@ class PrimitiveNode(Node):
 
     def cache_key(self) -> str:
         return self.kind + "|" + _const_text(self.constants())
+
+
+def _delayed_sample(ref):
+    """What a delayed input read in verification's last frame (its data's sample before
+    verification has run two frames)."""
+    previous = getattr(ref.delay, "sample_previous", None)
+    return ref.data.sample if previous is None else previous
+
+
+def _buffer_spec(sample, inputs):
+    """(shape, dtype) of an output buffer for ``sample``, a list of specs for a list of
+    arrays, "input" for an input's own sample; None when it has none (not numeric arrays)."""
+    if isinstance(sample, list) and sample:
+        specs = [_buffer_spec(s, inputs) for s in sample]
+        return None if any(s is None for s in specs) else specs
+    if any(sample is i for i in inputs):
+        return "input"
+    if not isinstance(sample, np.ndarray) or sample.ndim == 0 or sample.dtype.kind not in "uif":
+        return None
+    return tuple(sample.shape), sample.dtype
 
 
 class UserNode(Node):

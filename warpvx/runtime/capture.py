@@ -37,6 +37,7 @@ from .native_copy import copy_device, is_warp_array, to_device, warp
 from .program import InputRef, Program
 from .slots import DEVICE
 from .timeline import Frame
+from .transfers import tree_map
 
 #: Input signatures (shapes and dtypes of a frame's inputs) whose captures an executor keeps.
 MAX_SIGNATURES = 4
@@ -82,7 +83,7 @@ def segments(program: Program, gpu_order) -> list:
     groups, current = [], []
     for name in gpu_order:
         task = program.tasks[name]
-        if not (task.capture and task.gpu_out is not None and len(task.outputs) == 1):
+        if not _capturable(task):
             if current:
                 groups.append(current)
                 current = []
@@ -97,9 +98,13 @@ def segments(program: Program, gpu_order) -> list:
     return [_segment(program, g) for g in groups]
 
 
+def _capturable(task) -> bool:
+    return task.capture and task.gpu_out is not None
+
+
 def _segment(program: Program, tasks: list) -> Segment:
     first = tasks[0]
-    if not (first.capture and first.gpu_out is not None and len(first.outputs) == 1):
+    if not _capturable(first):
         return Segment((first,), False)
     names = {t.name for t in tasks}
     made = {k for t in tasks for k in t.outputs}
@@ -130,10 +135,23 @@ def _workspaces() -> list:
         return list(_launch._WORKSPACES.values())
 
 
-def _single_array(value):
-    if not (isinstance(value, np.ndarray) or is_warp_array(value)):
-        raise NotCapturable(f"a segment input is a {type(value).__name__}, not one array")
-    return value
+def _leaves(value) -> list:
+    """The array leaves of a value (an array, or a tree of them: :func:`.transfers.tree_map`)
+    in a fixed order; NotCapturable when it has none."""
+    leaves = []
+    tree_map(leaves.append, value)
+    if not leaves:
+        raise NotCapturable(f"a segment value is a {type(value).__name__} holding no array")
+    return leaves
+
+
+def _per_output(task, result) -> dict:
+    """A task's call result as output key -> value (a tuple when it has several outputs)."""
+    if len(task.outputs) == 1:
+        return {task.outputs[0]: result}
+    if not isinstance(result, (tuple, list)) or len(result) != len(task.outputs):
+        raise NotCapturable(f"task {task.name!r}: expected {len(task.outputs)} outputs")
+    return dict(zip(task.outputs, result))
 
 
 class SegmentGraph:
@@ -154,35 +172,43 @@ class SegmentGraph:
         self.segment = segment
         self.inputs = {}
         for ref, v in zip(segment.inputs, values):
-            v = _single_array(v)
-            dtype = v.dtype if is_warp_array(v) else wp.dtype_from_numpy(v.dtype)
-            self.inputs[ref] = wp.empty(v.shape, dtype=dtype, device=device)
-        self.outputs = {t.outputs[0]: t.gpu_out() for t in segment.tasks}
+            _leaves(v)
+            self.inputs[ref] = tree_map(lambda a: wp.empty(
+                a.shape, dtype=a.dtype if is_warp_array(a) else wp.dtype_from_numpy(a.dtype),
+                device=device), v)
+        self.outputs = {}  # key -> the value its task wrote in the capture (fixed buffers)
         self.graph = None
         self.scratch = ()
 
     def value(self, ref: InputRef):
-        """The fixed buffer a task of the segment reads for ``ref``."""
+        """The fixed buffer(s) a task of the segment reads for ``ref``."""
         if ref.offset == 0 and ref.key in self.outputs:
             return self.outputs[ref.key]
         return self.inputs[ref]
 
     def capture(self, device: str, stream):
-        """Capture the segment's tasks writing the fixed buffers (``stream``: CUDA only).
+        """Capture the segment's tasks writing fixed buffers (``stream``: CUDA only). Each
+        task writes a fresh ``gpu_out()``; its result may also hold a buffer it read (a
+        pyramid's level 0 is its source), but nothing else.
 
         Raises
         ------
         NotCapturable
-            A task did not return its ``out=`` buffer (it allocated), or Warp refused or
-            failed the capture (a host sync or read-back inside, a caller's capture).
+            A task returned memory it allocated, or Warp refused or failed the capture (a
+            host sync or read-back inside, a caller's capture).
         """
         wp = warp()
+        fixed = {a.ptr for v in self.inputs.values() for a in _leaves(v)}
         try:
             with wp.ScopedCapture(device=device, stream=stream) as cap:
                 for task in self.segment.tasks:
-                    out = self.outputs[task.outputs[0]]
-                    if task.gpu(*[self.value(r) for r in task.inputs], out=out) is not out:
+                    out = task.gpu_out()
+                    mine = {a.ptr for a in _leaves(out)}
+                    result = task.gpu(*[self.value(r) for r in task.inputs], out=out)
+                    if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
                         raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
+                    fixed |= mine
+                    self.outputs.update(_per_output(task, result))
         except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
             raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
         if cap.graph is None:
@@ -190,22 +216,24 @@ class SegmentGraph:
         self.graph = cap.graph
         self.scratch = _workspaces()
 
-
     def fill(self, ref: InputRef, value, io, stream):
-        """Copy this frame's ``value`` of ``ref`` into its fixed buffer (on ``stream``)."""
-        buf = self.inputs[ref]
-        _single_array(value)
-        if tuple(value.shape) != tuple(buf.shape):
-            raise NotCapturable(f"input {ref.key!r}: shape {value.shape} != {buf.shape}")
-        if is_warp_array(value) and value.device != buf.device:
-            value = value.numpy()
-        if is_warp_array(value):
-            copy_device(buf, value, stream)
-        elif buf.device.is_cuda:
-            io.upload(value, lambda shape, dtype: buf)
-        else:  # Warp's CPU device: uploads alias host data; the buffer must be written
-            to_device(buf, np.ascontiguousarray(value))
-            io.moved += value.nbytes
+        """Copy this frame's ``value`` of ``ref`` into its fixed buffers (on ``stream``)."""
+        bufs = _leaves(self.inputs[ref])
+        values = _leaves(value)
+        if len(values) != len(bufs):
+            raise NotCapturable(f"input {ref.key!r}: {len(values)} arrays, not {len(bufs)}")
+        for buf, v in zip(bufs, values):
+            if tuple(v.shape) != tuple(buf.shape):
+                raise NotCapturable(f"input {ref.key!r}: shape {v.shape} != {buf.shape}")
+            if is_warp_array(v) and v.device != buf.device:
+                v = v.numpy()
+            if is_warp_array(v):
+                copy_device(buf, v, stream)
+            elif buf.device.is_cuda:
+                io.upload(v, lambda shape, dtype, buf=buf: buf)
+            else:  # Warp's CPU device: uploads alias host data; the buffer must be written
+                to_device(buf, np.ascontiguousarray(v))
+                io.moved += v.nbytes
 
     def launch(self, stream):
         warp().capture_launch(self.graph, stream=stream)
@@ -216,11 +244,12 @@ class SegmentRunner:
     frames' slots, timing events, buffer pools and stream it uses."""
 
     def _captures_of(self, frame: Frame) -> list:
-        """The capture states of ``frame``'s input signature, one per segment: 0 unseen, 1
-        run eagerly once (caches warm), a :class:`SegmentGraph`, or None (not capturable)."""
+        """The capture states of ``frame``'s input signature, one per segment: a dict of
+        :meth:`_segment_graph`'s states by the shapes of the segment's own inputs, or None
+        (not capturable)."""
         states = self._captured.get(frame.signature)
         if states is None:
-            states = self._captured[frame.signature] = [0] * len(self._segments)
+            states = self._captured[frame.signature] = [{} for _ in self._segments]
             while len(self._captured) > MAX_SIGNATURES:
                 self._captured.popitem(last=False)
         else:
@@ -228,25 +257,38 @@ class SegmentRunner:
         return states
 
     def _segment_graph(self, states: list, i: int, seg: Segment, frame: Frame, state):
-        """Segment ``i``'s graph for this frame's signature, captured on its second sighting
-        (the first, eager, loads the kernels and fills the primitives' caches, so nothing
-        allocates inside the capture); None: run it eagerly."""
-        sg = states[i]
+        """Segment ``i``'s graph for this frame's signature and the shapes of the segment's
+        inputs (a value made inside the frame, such as a corner count, may change them),
+        captured on its second sighting (the first, eager, loads the kernels and fills the
+        primitives' caches, so nothing allocates inside the capture); None: run it eagerly.
+        Each state: 1 seen once, a :class:`SegmentGraph`, or None (not capturable with
+        these shapes); at most :data:`MAX_SIGNATURES` shapes per segment are kept."""
+        by_shape = states[i]
+        if by_shape is None:
+            return None
+        slots, _ = self._ready_inputs(frame, seg.inputs)
+        try:
+            key = tuple(tuple(tuple(a.shape) for a in _leaves(s.value)) for s in slots)
+        except NotCapturable:
+            states[i] = None
+            return None
+        sg = by_shape.get(key, 0)
         if sg is None or isinstance(sg, SegmentGraph):
             return sg
         if sg == 0:
-            states[i] = 1
+            by_shape[key] = 1
+            while len(by_shape) > MAX_SIGNATURES:
+                del by_shape[next(iter(by_shape))]
             return None
-        slots, _ = self._ready_inputs(frame, seg.inputs)
         try:
             sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
             with self._capture_lock:
                 sg.capture(self.gpu_device, self._stream)
-        except NotCapturable:
-            states[i] = None
+        except NotCapturable:  # e.g. out= buffers sized for other input shapes
+            by_shape[key] = None
             return None
         self.captures += 1
-        states[i] = sg
+        by_shape[key] = sg
         state.prev_end = None  # the stream idled while the host captured
         return sg
 
@@ -268,19 +310,24 @@ class SegmentRunner:
         sg.launch(self._stream)
         outs = dict(sg.outputs)
         for key in seg.outputs:
-            fixed = sg.outputs[key]
-            outs[key] = self._lease_upload(frame, key, fixed.shape, fixed.dtype)
-            copy_device(outs[key], fixed, self._stream)
+            outs[key] = tree_map(lambda fixed, key=key: self._copy_out(frame, key, fixed),
+                                 sg.outputs[key])
         ev1 = self._end_event(frame) if cuda else None
         h1 = time.perf_counter()
         for task in seg.tasks:
-            key = task.outputs[0]
-            frame.slots[key].set(outs[key], DEVICE, ev1)
+            for key in task.outputs:
+                frame.slots[key].set(outs[key], DEVICE, ev1)
             lo, hi = frame.shares[task.name] = self._shares[task.name]
             frame.trace[task.name] = (state.proc, ev0, ev1, None) if cuda else \
                 (state.proc, h0, h1, None)
             frame.host_trace[task.name] = (h0 + lo * (h1 - h0), h0 + hi * (h1 - h0))
         state.prev_end = ev1
+
+    def _copy_out(self, frame: Frame, key: str, fixed):
+        """A copy of fixed buffer ``fixed`` (of value ``key``) into a buffer of ``frame``'s."""
+        buf = self._lease_upload(frame, key, fixed.shape, fixed.dtype)
+        copy_device(buf, fixed, self._stream)
+        return buf
 
     def _copy_rule(self, seg: Segment, key: str) -> str:
         """When the copy of ``key`` a captured segment makes for its frame may be reused
