@@ -13,7 +13,8 @@ import numpy as np
 
 from .backend import resolve_backend
 from .check import check_bool, check_choice, check_float, check_image, check_int, check_out
-from .errors import WarpvxTypeError
+from ._counted import check_counted
+from .errors import UnsupportedError, WarpvxTypeError
 from .keypoints import Keypoints
 from .registry import dispatch
 
@@ -148,7 +149,7 @@ def _no_limit_distance(h: int, w: int) -> float:
 
 def harris_corners(src, max_corners: int = 1000, quality_level: float = 0.01,
                    min_distance: float = 10, block_size: int = 3, k: float = 0.04, *,
-                   ksize: int = 3, score: str = "harris", backend=None, stream=None):
+                   ksize: int = 3, score: str = "harris", out=None, backend=None, stream=None):
     """Strongest corners, as cv2.goodFeaturesToTrack(useHarrisDetector=True).
 
     The response (:func:`harris_response`, or the minimum eigenvalue with
@@ -179,12 +180,17 @@ def harris_corners(src, max_corners: int = 1000, quality_level: float = 0.01,
     ksize : {1, 3, 5, 7}
         Sobel aperture (OpenCV's ``gradientSize``).
     score : {"harris", "min_eigen"}
+    out : warpvx._counted.Counted, optional
+        Warp backends, device ``src``: float32 [max_corners, 2] rows and an int32 [1] count
+        (a graph's fixed buffers, so the call can be captured): the same corners written
+        there and their number, at most ``max_corners`` (the count is clamped to the rows),
+        with no host sync. Needs a limit (``0 < max_corners < H*W``).
 
     Returns
     -------
     float32 [N, 2]
         (x, y) per corner, strongest first, of the input's kind (cv2 returns [N, 1, 2] or
-        None; :func:`warpvx.cv.goodFeaturesToTrack` does too).
+        None; :func:`warpvx.cv.goodFeaturesToTrack` does too); ``out`` when given.
 
     Raises
     ------
@@ -212,8 +218,13 @@ def harris_corners(src, max_corners: int = 1000, quality_level: float = 0.01,
         # Every corner suppresses all weaker ones: the strongest alone, which is what
         # max_corners=1 without suppression gives on both backends and in OpenCV.
         max_corners, min_distance = 1, 0.0
+    if out is not None:
+        if be.kind == "cpu" or max_corners <= 0:
+            raise UnsupportedError("out: a Counted result needs a Warp backend and a corner "
+                                   "limit (0 < max_corners < H*W)")
+        check_counted(out, "out", (max_corners, 2), (np.float32,))
     return dispatch("harris_corners", be, src, max_corners, quality_level, min_distance,
-                    block_size, k, ksize=ksize, score=score, stream=stream)
+                    block_size, k, ksize=ksize, score=score, out=out, stream=stream)
 
 
 __all__ = [

@@ -22,6 +22,7 @@ from typing import Callable
 
 import numpy as np
 
+from ._counted import Counted
 from .arrays import _convert, is_warp_array, like_input
 from .backend import Backend, init_warp
 from .check import check_writable
@@ -61,6 +62,13 @@ class Primitive:
         True when the Warp implementation, given ``out=``, only enqueues work on the current
         stream (no allocation, host synchronisation or read-back once its caches are warm):
         a graph may then capture it into a CUDA graph (:mod:`warpvx.runtime.capture`).
+    counted_rows : str or None
+        For a data-dependent number of rows: the Warp implementation writes
+        :class:`~warpvx._counted.Counted` outputs (fixed rows, a device count) given them
+        as ``out=``, and this names where their capacity comes from: a constant argument
+        (``"max_corners"``) or an input whose rows the outputs follow (``"prev_pts"``;
+        when that input is itself Counted, with its capacity). A graph then allocates the
+        Counteds once (:meth:`warpvx.graph.nodes.PrimitiveNode.out_factory`).
     """
 
     name: str
@@ -70,6 +78,7 @@ class Primitive:
     outputs: tuple = ("out",)
     sized_by_inputs: bool = False
     capturable: bool = False
+    counted_rows: str | None = None
     _loaded: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def implementation(self, kind: str) -> Callable:
@@ -107,7 +116,7 @@ REGISTRY: dict[str, Primitive] = {}
 
 
 def register(name, *, public, cpu=None, warp=None, bench=None, outputs=("out",),
-             sized_by_inputs=False, capturable=False) -> Primitive:
+             sized_by_inputs=False, capturable=False, counted_rows=None) -> Primitive:
     """Register (or replace) a primitive; implementations are ``"module:function"`` strings.
     See :class:`Primitive` for the other attributes."""
     impls = {}
@@ -116,7 +125,8 @@ def register(name, *, public, cpu=None, warp=None, bench=None, outputs=("out",),
     if warp:
         impls["warp"] = warp
     prim = Primitive(name=name, public=public, impls=impls, bench=bench, outputs=tuple(outputs),
-                     sized_by_inputs=sized_by_inputs, capturable=capturable)
+                     sized_by_inputs=sized_by_inputs, capturable=capturable,
+                     counted_rows=counted_rows)
     REGISTRY[name] = prim
     return prim
 
@@ -143,7 +153,8 @@ def _std(name, public_module, **attrs):
 
 # The built-in primitives: public module (by domain, as kornia), kernel modules by name.
 # capturable: launches only, given out= (harris_response allocates its products outside the
-# fused 3x3 path; scale pyramids, corners, ORB, matching allocate or read counts back).
+# fused 3x3 path; scale pyramids, FAST, ORB, matching allocate or read counts back);
+# harris_corners and LK are captured with Counted outputs (counted_rows).
 _std("color_convert", "color", sized_by_inputs=True, capturable=True)
 _std("remap", "geometry", sized_by_inputs=True, capturable=True)
 _std("warp_perspective", "geometry", sized_by_inputs=True, capturable=True)
@@ -152,9 +163,9 @@ _std("scale_pyramid", "pyramid")
 _std("gaussian_blur", "filters", sized_by_inputs=True, capturable=True)
 _std("fast_corners", "features")
 _std("harris_response", "features", sized_by_inputs=True)
-_std("harris_corners", "features")
+_std("harris_corners", "features", capturable=True, counted_rows="max_corners")
 _std("optical_flow_pyr_lk", "flow", outputs=("next_pts", "status", "err"), sized_by_inputs=True,
-     capturable=True)
+     capturable=True, counted_rows="prev_pts")
 _std("orb", "orb_extractor", outputs=("keypoints", "descriptors"))
 _std("match_hamming", "matching", outputs=("pairs", "distances"))
 _std("find_homography", "homography", outputs=("H", "mask"))
@@ -197,7 +208,7 @@ def dispatch(name: str, backend: Backend, *args, out=None, stream=None, template
             else:
                 with _device_scope(backend, stream):
                     result = impl(*args, out=out, **kwargs)
-            if type(result) is _wp.array or not any(_is_array(a) for a in args):
+            if type(result) in (_wp.array, Counted) or not any(_is_array(a) for a in args):
                 return result
             return like_input(result, next(a for a in args if _is_array(a)))
     if out is not None:
@@ -251,6 +262,9 @@ def _on_device(values, device) -> bool:
         elif t is tuple or t is list:
             if not _on_device(v, device):
                 return False
+        elif t is Counted:
+            if not _on_device((v.rows, v.count), device):
+                return False
         else:
             return False
     return True
@@ -261,8 +275,10 @@ def _out_on_device(out, device) -> bool:
         return True
     if type(out) is _wp.array:
         return out.device is device
+    if type(out) is Counted:
+        return _on_device((out.rows, out.count), device)
     if isinstance(out, (list, tuple)):
-        return all(type(o) is _wp.array and o.device is device for o in out)
+        return all(type(o) in (_wp.array, Counted) and _out_on_device(o, device) for o in out)
     return False
 
 
@@ -271,6 +287,8 @@ def _is_native(out, backend: Backend) -> bool:
         return False
     if isinstance(out, (list, tuple)):
         return all(_is_native(o, backend) for o in out)
+    if type(out) is Counted:
+        return _is_native(out.rows, backend) and _is_native(out.count, backend)
     if backend.kind == "cpu":
         return isinstance(out, np.ndarray)
     return is_warp_array(out) and str(out.device) == backend.device

@@ -127,7 +127,7 @@ def test_device_corners_with_few_round_counters(warp_backend, monkeypatch):
     src = wp.array(gray("rocket"), dtype=wp.uint8, device=_device(warp_backend))
     want = harris_corners(src, 400, 0.001, 8.0).numpy()
     monkeypatch.setattr(hc, "MAX_ROUNDS", 3)
-    monkeypatch.setattr(kp, "ROUND_BATCH", 1)
+    monkeypatch.setattr(hc, "ROUND_BATCH", 1)
     det = kp.DeviceCorners(src.shape, src.device, 400, 0.001, 8.0)
     det.launch(src)
     n = int(det.result.numpy()[0])

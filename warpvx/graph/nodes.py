@@ -18,6 +18,7 @@ import weakref
 
 import numpy as np
 
+from .._counted import Counted, is_counted
 from ..errors import GraphError, WarpvxError
 from ..registry import REGISTRY, get_primitive
 from .data import Data, DelayRef
@@ -204,7 +205,8 @@ class PrimitiveNode(Node):
         shapes = self._input_shapes()
 
         def fits(values):
-            return all(s is None or tuple(getattr(v, "shape", ())) == s
+            # A Counted input has its producer's capacity, which sized the Counted out=.
+            return all(s is None or is_counted(v) or tuple(getattr(v, "shape", ())) == s
                        for v, s in zip(values, shapes))
 
         if simple:
@@ -242,8 +244,11 @@ class PrimitiveNode(Node):
         then fix shapes and dtypes). One output: its buffer (an array, or a list of arrays
         for a pyramid); several: a tuple, one per output. A sample leaf that is an input's
         own sample (a pyramid's level 0 is its source) is None: the call fills it in."""
-        if backend is None or backend.kind != "warp" or not self.primitive.sized_by_inputs:
+        if backend is None or backend.kind != "warp":
             return None
+        counted = self._counted_factory(backend.device)
+        if counted is not None or not self.primitive.sized_by_inputs:
+            return counted
         samples = [self.outputs[p].sample for p in self.output_ports]
         inputs = [_delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
                   for ref in self.inputs.values()]
@@ -264,6 +269,43 @@ class PrimitiveNode(Node):
                     wp.empty(spec[0], dtype=wp.dtype_from_numpy(spec[1]), device=device)
 
             bufs = [build(s) for s in specs]
+            return bufs[0] if len(bufs) == 1 else tuple(bufs)
+
+        return make
+
+    def row_capacity(self) -> int | None:
+        """Rows of this node's Counted outputs in a graph
+        (:attr:`~warpvx.registry.Primitive.counted_rows`): the constant argument it names
+        (given or default, when positive), or the capacity of the node producing the input
+        it names; None when there is none."""
+        source = self.primitive.counted_rows
+        if source is None:
+            return None
+        if source in self.inputs:
+            producer = self.inputs[source].data.producer \
+                if isinstance(self.inputs[source], DelayRef) else self.inputs[source].producer
+            return producer.row_capacity() if isinstance(producer, PrimitiveNode) else None
+        value = self.arguments.get(source, self.signature.parameters[source].default)
+        return int(value) if isinstance(value, (int, np.integer)) and value > 0 else None
+
+    def _counted_factory(self, device):
+        """A maker of this node's Counted outputs (one count buffer shared by them), or None
+        (no capacity, or outputs that are not numeric arrays in verification)."""
+        capacity = self.row_capacity()
+        samples = [self.outputs[p].sample for p in self.output_ports]
+        if capacity is None or not all(isinstance(s, np.ndarray) and s.ndim >= 1 and
+                                       s.dtype.kind in "uif" for s in samples):
+            return None
+        specs = [((capacity,) + s.shape[1:], s.dtype) for s in samples]
+
+        def make():
+            from ..backend import init_warp
+
+            wp = init_warp()
+            count = wp.zeros(1, dtype=wp.int32, device=device)
+            # Zeroed rows: what lies past the count stays finite for the kernels reading it.
+            bufs = [Counted(wp.zeros(shape, dtype=wp.dtype_from_numpy(dtype), device=device),
+                            count) for shape, dtype in specs]
             return bufs[0] if len(bufs) == 1 else tuple(bufs)
 
         return make

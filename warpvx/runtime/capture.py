@@ -173,7 +173,7 @@ class SegmentGraph:
         self.inputs = {}
         for ref, v in zip(segment.inputs, values):
             _leaves(v)
-            self.inputs[ref] = tree_map(lambda a: wp.empty(
+            self.inputs[ref] = tree_map(lambda a: wp.zeros(
                 a.shape, dtype=a.dtype if is_warp_array(a) else wp.dtype_from_numpy(a.dtype),
                 device=device), v)
         self.outputs = {}  # key -> the value its task wrote in the capture (fixed buffers)
@@ -189,7 +189,10 @@ class SegmentGraph:
     def capture(self, device: str, stream):
         """Capture the segment's tasks writing fixed buffers (``stream``: CUDA only). Each
         task writes a fresh ``gpu_out()``; its result may also hold a buffer it read (a
-        pyramid's level 0 is its source), but nothing else.
+        pyramid's level 0 is its source), but nothing else. The tasks first run once
+        uncaptured into the same buffers (on the zeroed inputs), so whatever a primitive
+        builds per set of buffers (workspaces, recorded launches) is built outside the
+        capture: nothing allocates inside it.
 
         Raises
         ------
@@ -198,23 +201,30 @@ class SegmentGraph:
             host sync or read-back inside, a caller's capture).
         """
         wp = warp()
-        fixed = {a.ptr for v in self.inputs.values() for a in _leaves(v)}
+        outs = {task.name: task.gpu_out() for task in self.segment.tasks}
         try:
+            self._run_tasks(outs)
             with wp.ScopedCapture(device=device, stream=stream) as cap:
-                for task in self.segment.tasks:
-                    out = task.gpu_out()
-                    mine = {a.ptr for a in _leaves(out)}
-                    result = task.gpu(*[self.value(r) for r in task.inputs], out=out)
-                    if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
-                        raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
-                    fixed |= mine
-                    self.outputs.update(_per_output(task, result))
+                self._run_tasks(outs)
         except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
             raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
         if cap.graph is None:
             raise NotCapturable("the capture produced no graph")
         self.graph = cap.graph
         self.scratch = _workspaces()
+
+    def _run_tasks(self, outs: dict):
+        """Enqueue the tasks, each into ``outs[name]``; their results become the outputs."""
+        fixed = {a.ptr for v in self.inputs.values() for a in _leaves(v)}
+        self.outputs = {}
+        for task in self.segment.tasks:
+            out = outs[task.name]
+            mine = {a.ptr for a in _leaves(out)}
+            result = task.gpu(*[self.value(r) for r in task.inputs], out=out)
+            if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
+                raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
+            fixed |= mine
+            self.outputs.update(_per_output(task, result))
 
     def fill(self, ref: InputRef, value, io, stream):
         """Copy this frame's ``value`` of ``ref`` into its fixed buffers (on ``stream``)."""
