@@ -133,7 +133,9 @@ def test_two_cameras_captured_equals_eager(frames, warp_backend):
         g.reset()
         ex = g.plan.executor()
         captured_segments = sum(s.captured for s in ex._segments)
-        assert captured_segments >= 2  # grays + pyramids + flow, and the blurs
+        in_captured = {t.name for s in ex._segments if s.captured for t in s.tasks}
+        assert in_captured >= {f"{n}{c}" for n in ("gray", "pyramid", "harris", "blur", "lk")
+                               for c in "LR"} | {"detectorL"}
         got = []
         for i, f in enumerate(cams):
             got.append(g.process(f, capture=_capture_arg(warp_backend)))

@@ -78,9 +78,12 @@ class Node:
     target : str or None
         ``"cpu"`` or ``"gpu"`` pins the node to that kind of processing element
         (``vxSetNodeTarget``); None lets the scheduler choose.
+    capturable : bool
+        Its GPU callable, given ``out=``, may be captured into a CUDA graph.
     """
 
     kind = "node"
+    capturable = False
 
     def __init__(self, graph, name: str):
         self._graph = weakref.ref(graph)
@@ -140,6 +143,24 @@ class Node:
 
     def __repr__(self):
         return f"{type(self).__name__}({self.name!r})"
+
+
+    def _fits(self):
+        """``fits(values)``: whether input values have the shapes verification saw, so the
+        node's ``out=`` buffers (sized from its samples) fit them."""
+        shapes = []
+        for port in self.input_ports:
+            ref = self.inputs[port]
+            # A delayed input's: the previous frame's value the output sample came from.
+            sample = _delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
+            shapes.append(tuple(sample.shape) if isinstance(sample, np.ndarray) else None)
+
+        def fits(values):
+            # A Counted input has its producer's capacity, which sized the Counted out=.
+            return all(s is None or is_counted(v) or tuple(getattr(v, "shape", ())) == s
+                       for v, s in zip(values, shapes))
+
+        return fits
 
 
 class PrimitiveNode(Node):
@@ -202,13 +223,7 @@ class PrimitiveNode(Node):
         simple = all(sig.parameters[p].kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD,
                                                 inspect.Parameter.KEYWORD_ONLY)
                      for p in base)
-        shapes = self._input_shapes()
-
-        def fits(values):
-            # A Counted input has its producer's capacity, which sized the Counted out=.
-            return all(s is None or is_counted(v) or tuple(getattr(v, "shape", ())) == s
-                       for v, s in zip(values, shapes))
-
+        fits = self._fits()
         if simple:
             # Hot path: keyword call, no BoundArguments per frame.
             def run(*values, out=None):
@@ -227,16 +242,6 @@ class PrimitiveNode(Node):
 
         return run
 
-    def _input_shapes(self) -> tuple:
-        """Shapes of the array inputs as verification saw them (None: not an array); a
-        delayed input's is the previous frame's value the node's output sample came from."""
-        out = []
-        for port in self.input_ports:
-            ref = self.inputs[port]
-            sample = _delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
-            out.append(tuple(sample.shape) if isinstance(sample, np.ndarray) else None)
-        return tuple(out)
-
     def out_factory(self, backend):
         """A maker of this node's output buffers on ``backend``'s device, for the executor's
         buffer pools; None unless the registry says the primitive's outputs are sized by its
@@ -249,29 +254,12 @@ class PrimitiveNode(Node):
         counted = self._counted_factory(backend.device)
         if counted is not None or not self.primitive.sized_by_inputs:
             return counted
-        samples = [self.outputs[p].sample for p in self.output_ports]
-        inputs = [_delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
-                  for ref in self.inputs.values()]
-        specs = [_buffer_spec(s, inputs) for s in samples]
-        if any(s is None for s in specs):
-            return None
-        device = backend.device
+        return _sized_factory(self, backend.device)
 
-        def make():
-            from ..backend import init_warp
-
-            wp = init_warp()
-
-            def build(spec):
-                if isinstance(spec, list):
-                    return [build(s) for s in spec]
-                return None if spec == "input" else \
-                    wp.empty(spec[0], dtype=wp.dtype_from_numpy(spec[1]), device=device)
-
-            bufs = [build(s) for s in specs]
-            return bufs[0] if len(bufs) == 1 else tuple(bufs)
-
-        return make
+    @property
+    def capturable(self) -> bool:
+        """The registry's :attr:`~warpvx.registry.Primitive.capturable`."""
+        return self.primitive.capturable
 
     def row_capacity(self) -> int | None:
         """Rows of this node's Counted outputs in a graph
@@ -317,6 +305,33 @@ class PrimitiveNode(Node):
         return self.kind + "|" + _const_text(self.constants())
 
 
+def _sized_factory(node, device):
+    """A maker of ``node``'s output buffers shaped as verification's samples (see
+    :meth:`PrimitiveNode.out_factory`), or None when a sample is no numeric array (list)."""
+    samples = [node.outputs[p].sample for p in node.output_ports]
+    inputs = [_delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
+              for ref in node.inputs.values()]
+    specs = [_buffer_spec(s, inputs) for s in samples]
+    if any(s is None for s in specs):
+        return None
+
+    def make():
+        from ..backend import init_warp
+
+        wp = init_warp()
+
+        def build(spec):
+            if isinstance(spec, list):
+                return [build(s) for s in spec]
+            return None if spec == "input" else \
+                wp.empty(spec[0], dtype=wp.dtype_from_numpy(spec[1]), device=device)
+
+        bufs = [build(s) for s in specs]
+        return bufs[0] if len(bufs) == 1 else tuple(bufs)
+
+    return make
+
+
 def _delayed_sample(ref):
     """What a delayed input read in verification's last frame (its data's sample before
     verification has run two frames)."""
@@ -348,7 +363,8 @@ class UserNode(Node):
 
     kind = "user"
 
-    def __init__(self, graph, name: str, fn, warp_fn, inputs: dict, n_outputs_ports: tuple):
+    def __init__(self, graph, name: str, fn, warp_fn, inputs: dict, n_outputs_ports: tuple, *,
+                 capturable: bool = False):
         super().__init__(graph, name)
         if fn is None and warp_fn is None:
             raise GraphError(f"node {name!r} (user): give fn, warp_fn or both")
@@ -358,6 +374,7 @@ class UserNode(Node):
                                  f"got {type(f).__name__}")
         self.fn = fn
         self.warp_fn = warp_fn
+        self.capturable = bool(capturable) and warp_fn is not None
         self.inputs = dict(inputs)
         self.input_ports = list(inputs)
         self.output_ports = tuple(n_outputs_ports)
@@ -373,7 +390,24 @@ class UserNode(Node):
 
     def callable(self, pe: str, backend):
         fn = self.fn if pe == "cpu" else self.warp_fn
-        return None if fn is None else _marked(self, fn)
+        if fn is None:
+            return None
+        fn = _marked(self, fn)
+        if pe == "cpu" or not self.capturable:
+            return fn
+        fits = self._fits()
+
+        def run(*values, out=None):
+            return fn(*values, out=out) if out is not None and fits(values) else fn(*values)
+
+        return run
+
+    def out_factory(self, backend):
+        """A capturable node's output buffers, shaped as verification's samples (see
+        :meth:`PrimitiveNode.out_factory`); None otherwise."""
+        if not self.capturable or backend is None or backend.kind != "warp":
+            return None
+        return _sized_factory(self, backend.device)
 
     def cache_key(self) -> str:
         parts = []
