@@ -26,7 +26,9 @@ OpenCV's ``goodFeaturesToTrack`` (``featureselect.cpp``), all on ``src.device``:
 
 Host syncs: two; the candidate count (to size the sort), and the accepted count together with
 the number of candidates still undecided after the batch (a further batch runs when it is not
-zero, which the batch size, learnt from the previous call, makes rare). Scratch buffers
+zero, which the batch size, learnt from the previous call, makes rare). With ``out=`` (a
+:class:`~warpvx._counted.Counted`: a graph's fixed buffers) none: :class:`DeviceCorners`
+sorts the whole capacity and decides the rounds on the device, so the call can be captured. Scratch buffers
 (response, keys, rank map) and recorded launches are reused between calls of one image size
 (:func:`._launch.workspace`); the rank map is kept at -1 between calls by clearing only
 the entries a call set.
