@@ -13,7 +13,7 @@ import numpy as np
 
 from .backend import resolve_backend
 from .check import check_bool, check_choice, check_float, check_image, check_int, check_out
-from ._counted import check_counted
+from ._counted import check_counted, check_counted_keypoints
 from .errors import UnsupportedError, WarpvxTypeError
 from .keypoints import Keypoints
 from .registry import dispatch
@@ -30,7 +30,7 @@ def _gray(src, name: str = "src"):
     return src
 
 
-def fast_corners(src, threshold: int = 10, nonmax: bool = True, *, backend=None,
+def fast_corners(src, threshold: int = 10, nonmax: bool = True, *, out=None, backend=None,
                  stream=None) -> Keypoints:
     """FAST-9/16 corners with OpenCV's score, strongest first.
 
@@ -49,6 +49,11 @@ def fast_corners(src, threshold: int = 10, nonmax: bool = True, *, backend=None,
         Intensity difference to the centre pixel.
     nonmax : bool
         3x3 non-maximum suppression on the score.
+    out : warpvx._counted.Counted, optional
+        Warp backends, device ``src``: Keypoints of
+        :func:`~warpvx.kernels_warp.fast_corners.max_fast_corners` rows (the most corners
+        the image can hold) and an int32 [1] count (a graph's fixed buffers, so the call can
+        be captured): the same keypoints written there and their number, with no host sync.
     backend, stream
         See :mod:`warpvx.backend`.
 
@@ -76,7 +81,13 @@ def fast_corners(src, threshold: int = 10, nonmax: bool = True, *, backend=None,
     src = _gray(src)
     threshold = check_int(threshold, "threshold", min_value=0, max_value=255)
     nonmax = check_bool(nonmax, "nonmax")
-    return dispatch("fast_corners", be, src, threshold, nonmax, stream=stream)
+    if out is not None:
+        if be.kind == "cpu":
+            raise UnsupportedError("out: a Counted result needs a Warp backend")
+        from .kernels_warp.fast_corners import max_fast_corners
+
+        check_counted_keypoints(out, "out", max_fast_corners(src.shape[0], src.shape[1], nonmax))
+    return dispatch("fast_corners", be, src, threshold, nonmax, out=out, stream=stream)
 
 
 def harris_response(src, block_size: int = 2, ksize: int = 3, k: float = 0.04, *,

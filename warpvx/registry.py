@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from ._counted import Counted
+from ._counted import Counted, row_arrays
 from .arrays import _convert, is_warp_array, like_input
 from .backend import Backend, init_warp
 from .check import check_writable
@@ -66,9 +66,11 @@ class Primitive:
         For a data-dependent number of rows: the Warp implementation writes
         :class:`~warpvx._counted.Counted` outputs (fixed rows, a device count) given them
         as ``out=``, and this names where their capacity comes from: a constant argument
-        (``"max_corners"``) or an input whose rows the outputs follow (``"prev_pts"``;
-        when that input is itself Counted, with its capacity). A graph then allocates the
-        Counteds once (:meth:`warpvx.graph.nodes.PrimitiveNode.out_factory`).
+        (``"max_corners"``), an input whose rows the outputs follow (``"prev_pts"``; when
+        that input is itself Counted, with its capacity), or a ``"module:function"`` called
+        with the public function's arguments (inputs as verification's samples, defaults
+        applied). A graph then allocates the Counteds once
+        (:meth:`warpvx.graph.nodes.PrimitiveNode.out_factory`).
     """
 
     name: str
@@ -153,7 +155,7 @@ def _std(name, public_module, **attrs):
 
 # The built-in primitives: public module (by domain, as kornia), kernel modules by name.
 # capturable: launches only, given out= (harris_response allocates its products outside the
-# fused 3x3 path; scale pyramids, FAST, ORB, matching allocate or read counts back);
+# fused 3x3 path; scale pyramids, ORB, matching allocate or read counts back); FAST,
 # harris_corners and LK are captured with Counted outputs (counted_rows).
 _std("color_convert", "color", sized_by_inputs=True, capturable=True)
 _std("remap", "geometry", sized_by_inputs=True, capturable=True)
@@ -161,7 +163,8 @@ _std("warp_perspective", "geometry", sized_by_inputs=True, capturable=True)
 _std("gaussian_pyramid", "pyramid", sized_by_inputs=True, capturable=True)
 _std("scale_pyramid", "pyramid")
 _std("gaussian_blur", "filters", sized_by_inputs=True, capturable=True)
-_std("fast_corners", "features")
+_std("fast_corners", "features", capturable=True,
+     counted_rows="warpvx.kernels_warp.fast_corners:counted_capacity")
 _std("harris_response", "features", sized_by_inputs=True)
 _std("harris_corners", "features", capturable=True, counted_rows="max_corners")
 _std("optical_flow_pyr_lk", "flow", outputs=("next_pts", "status", "err"), sized_by_inputs=True,
@@ -263,7 +266,7 @@ def _on_device(values, device) -> bool:
             if not _on_device(v, device):
                 return False
         elif t is Counted:
-            if not _on_device((v.rows, v.count), device):
+            if not _on_device(row_arrays(v.rows) + (v.count,), device):
                 return False
         else:
             return False
@@ -276,7 +279,7 @@ def _out_on_device(out, device) -> bool:
     if type(out) is _wp.array:
         return out.device is device
     if type(out) is Counted:
-        return _on_device((out.rows, out.count), device)
+        return _on_device(row_arrays(out.rows) + (out.count,), device)
     if isinstance(out, (list, tuple)):
         return all(type(o) in (_wp.array, Counted) and _out_on_device(o, device) for o in out)
     return False
@@ -288,7 +291,7 @@ def _is_native(out, backend: Backend) -> bool:
     if isinstance(out, (list, tuple)):
         return all(_is_native(o, backend) for o in out)
     if type(out) is Counted:
-        return _is_native(out.rows, backend) and _is_native(out.count, backend)
+        return all(_is_native(a, backend) for a in row_arrays(out.rows) + (out.count,))
     if backend.kind == "cpu":
         return isinstance(out, np.ndarray)
     return is_warp_array(out) and str(out.device) == backend.device

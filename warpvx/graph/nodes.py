@@ -11,6 +11,7 @@ implementation gets what it takes.
 from __future__ import annotations
 
 import functools
+import importlib
 import inspect
 import re
 import threading
@@ -18,7 +19,7 @@ import weakref
 
 import numpy as np
 
-from .._counted import Counted, is_counted
+from .._counted import Counted, is_counted, row_arrays
 from ..errors import GraphError, WarpvxError
 from ..registry import REGISTRY, get_primitive
 from .data import Data, DelayRef
@@ -264,11 +265,21 @@ class PrimitiveNode(Node):
     def row_capacity(self) -> int | None:
         """Rows of this node's Counted outputs in a graph
         (:attr:`~warpvx.registry.Primitive.counted_rows`): the constant argument it names
-        (given or default, when positive), or the capacity of the node producing the input
-        it names; None when there is none."""
+        (given or default, when positive), the capacity of the node producing the input it
+        names, or what the function it names gives for the node's arguments (inputs as
+        verification's samples); None when there is none."""
         source = self.primitive.counted_rows
         if source is None:
             return None
+        if ":" in source:
+            module, attr = source.split(":")
+            samples = {p: ref.data.sample if isinstance(ref, DelayRef) else ref.sample
+                       for p, ref in self.inputs.items()}
+            if any(v is None for v in samples.values()):
+                return None
+            bound = self.signature.bind_partial(**{**self.arguments, **samples})
+            bound.apply_defaults()
+            return int(getattr(importlib.import_module(module), attr)(**bound.arguments))
         if source in self.inputs:
             producer = self.inputs[source].data.producer \
                 if isinstance(self.inputs[source], DelayRef) else self.inputs[source].producer
@@ -281,19 +292,22 @@ class PrimitiveNode(Node):
         (no capacity, or outputs that are not numeric arrays in verification)."""
         capacity = self.row_capacity()
         samples = [self.outputs[p].sample for p in self.output_ports]
-        if capacity is None or not all(isinstance(s, np.ndarray) and s.ndim >= 1 and
-                                       s.dtype.kind in "uif" for s in samples):
+        arrays = [a for s in samples for a in row_arrays(s)]
+        if capacity is None or not arrays or not all(
+                isinstance(a, np.ndarray) and a.ndim >= 1 and a.dtype.kind in "uif"
+                for a in arrays):
             return None
-        specs = [((capacity,) + s.shape[1:], s.dtype) for s in samples]
 
         def make():
             from ..backend import init_warp
+            from ..runtime import tree_map
 
             wp = init_warp()
             count = wp.zeros(1, dtype=wp.int32, device=device)
             # Zeroed rows: what lies past the count stays finite for the kernels reading it.
-            bufs = [Counted(wp.zeros(shape, dtype=wp.dtype_from_numpy(dtype), device=device),
-                            count) for shape, dtype in specs]
+            bufs = [Counted(tree_map(lambda a: wp.zeros(
+                (capacity,) + a.shape[1:], dtype=wp.dtype_from_numpy(a.dtype), device=device),
+                s), count) for s in samples]
             return bufs[0] if len(bufs) == 1 else tuple(bufs)
 
         return make

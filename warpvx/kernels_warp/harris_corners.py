@@ -40,6 +40,7 @@ import math
 
 import warp as wp
 
+from .._counted import refuse_uncounted
 from ._launch import HostReadback, Recorded, drop_workspace, workspace
 from .harris_response import corner_response
 
@@ -554,6 +555,7 @@ def harris_corners(src, max_corners: int, quality_level: float, min_distance: fl
     no host sync and no allocation once warm (:class:`DeviceCorners`, cached per image
     size, parameters and buffers); returns ``out``.
     """
+    refuse_uncounted(out, "harris_corners")
     device = src.device
     h, w = src.shape
     if out is not None:

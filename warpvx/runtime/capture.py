@@ -139,7 +139,12 @@ def _leaves(value) -> list:
     """The array leaves of a value (an array, or a tree of them: :func:`.transfers.tree_map`)
     in a fixed order; NotCapturable when it has none."""
     leaves = []
-    tree_map(leaves.append, value)
+
+    def take(a):
+        leaves.append(a)
+        return a  # the tree is rebuilt around the leaves (Keypoints validate theirs)
+
+    tree_map(take, value)
     if not leaves:
         raise NotCapturable(f"a segment value is a {type(value).__name__} holding no array")
     return leaves
