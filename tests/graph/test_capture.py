@@ -133,9 +133,12 @@ def test_two_cameras_captured_equals_eager(frames, warp_backend):
         g.reset()
         ex = g.plan.executor()
         captured_segments = sum(s.captured for s in ex._segments)
+        # Every GPU node, data-dependent ones included (corners, keypoints: Counted outputs),
+        # and the detector user node that opts in.
         in_captured = {t.name for s in ex._segments if s.captured for t in s.tasks}
-        assert in_captured >= {f"{n}{c}" for n in ("gray", "pyramid", "harris", "blur", "lk")
-                               for c in "LR"} | {"detectorL"}
+        assert in_captured == {t.name for s in ex._segments for t in s.tasks} == \
+            {f"{n}{c}" for n in ("gray", "pyramid", "harris", "blur", "fast", "lk")
+             for c in "LR"} | {"detectorL"}
         got = []
         for i, f in enumerate(cams):
             got.append(g.process(f, capture=_capture_arg(warp_backend)))
