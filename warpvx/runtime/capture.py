@@ -13,7 +13,15 @@ outside (a graph input, a CPU task's output, an eager GPU task's, a delay's) is 
 a fixed device buffer before the replay, each task writes a fixed output buffer
 (``gpu_out``), and each value read outside the segment (by another task, as a graph output,
 by a delay) is copied out into a buffer of the frame's after it, as frames in flight share
-the fixed buffers. Copies and replay run on the executor's stream, in frame order.
+the fixed buffers. Copies and replay run on the executor's stream, in frame order. A value
+may be any tree of arrays (:func:`.transfers.tree_map`): a pyramid's list of levels, a task's
+several outputs, a :class:`~warpvx._counted.Counted` (corners, keypoints, tracked points:
+fixed rows and a device count, so data-dependent results need no host sync).
+
+A segment is captured per input signature and per shapes of its own inputs (a value made in
+an earlier frame, such as the previous frame's corners, may change them), on the second
+sighting of that pair; the capture first runs its tasks once uncaptured into the same buffers
+so that nothing allocates inside it.
 
 Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
 code runs there when asked (``capture=True``), which is how it is tested without a GPU.
@@ -281,7 +289,9 @@ class SegmentRunner:
         by_shape = states[i]
         if by_shape is None:
             return None
-        slots, _ = self._ready_inputs(frame, seg.inputs)
+        slots, waited = self._ready_inputs(frame, seg.inputs)
+        if waited:
+            state.prev_end = None  # the stream may idle while we waited: a fresh start event
         try:
             key = tuple(tuple(tuple(a.shape) for a in _leaves(s.value)) for s in slots)
         except NotCapturable:
