@@ -174,9 +174,14 @@ def _counted_keypoints(capacity, device):
 
 @pytest.mark.parametrize("name,threshold,nonmax", [("camera", 20, True), ("brick", 7, True),
                                                    ("coffee", 12, False)])
-def test_counted_out_parity(warp_backend, name, threshold, nonmax):
+@pytest.mark.parametrize("small", [None, 64])  # 64: the count overflows the short sort
+def test_counted_out_parity(warp_backend, monkeypatch, small, name, threshold, nonmax):
     """Into a Counted of the image's capacity: exactly the keypoints of the plain call (every
     field, in order), OpenCV's corners and scores, twice over the same buffers."""
+    if small is not None:
+        from warpvx.kernels_warp import _device_sort
+
+        monkeypatch.setattr(_device_sort, "SMALL", small)
     from warpvx.kernels_warp.fast_corners import max_fast_corners
 
     img = gray(name)

@@ -202,9 +202,15 @@ def _counted(capacity, device):
     ("astronaut", 500, 0.01, 7, "harris"), ("coffee", 300, 0.001, 8.0, "harris"),
     ("brick", 200, 0.01, 0.5, "harris"),  # no suppression
     ("camera", 400, 0.01, 8, "min_eigen")])
-def test_counted_out_parity(warp_backend, name, max_corners, quality, min_distance, score):
+@pytest.mark.parametrize("small", [None, 64])  # 64: the count overflows the short sort
+def test_counted_out_parity(warp_backend, monkeypatch, small, name, max_corners, quality,
+                            min_distance, score):
     """Into a Counted: OpenCV's corners (the parity bar), and exactly the points the call
     without out= returns, twice over the same buffers (the cached plan is reused)."""
+    if small is not None:
+        from warpvx.kernels_warp import _device_sort
+
+        monkeypatch.setattr(_device_sort, "SMALL", small)
     img = gray(name)
     src = _on_device(img, warp_backend)
     want = _host(warpvx.harris_corners(src, max_corners, quality, min_distance, score=score))

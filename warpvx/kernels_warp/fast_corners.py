@@ -27,6 +27,7 @@ import warp as wp
 
 from .._counted import refuse_uncounted
 from ..keypoints import Keypoints
+from ._device_sort import CountedSort
 from ._launch import HostReadback, Recorded, workspace
 
 # Forward-only kernels: no adjoint code to generate and compile.
@@ -341,14 +342,16 @@ class _FastWorkspace:
 
 class _IntoPlan:
     """The launches writing every corner of one workspace into a Counted's Keypoints: keys
-    padded with sentinels and sorted over the whole capacity, decoded into ``fields`` (then
-    copied into the Keypoints' arrays), the count."""
+    padded with sentinels and sorted (:class:`._device_sort.CountedSort`), decoded into
+    ``fields`` (then copied into the Keypoints' arrays), the count."""
 
     def __init__(self, ws, out, capacity: int):
         device = out.count.device
         self.fields = wp.zeros((5, capacity), dtype=wp.float32, device=device)
         self.sentinels = Recorded(fill_sentinels, capacity, device, corners=ws.corners,
                                   capacity=capacity)
+        c = ws.corners
+        self.sort = CountedSort(c.keys, ws.values, c.count, capacity, c.x_bits + c.y_bits + 8)
         self.decode = Recorded(decode_keypoints, capacity, device, corners=ws.corners, ranked=0,
                                rank=ws.rank, fields=self.fields, octave=out.rows.octave)
         self.count = Recorded(write_count, 1, device, corners=ws.corners, count=out.count)
@@ -362,8 +365,8 @@ def fast_corners(src, threshold: int, nonmax: bool, *, out=None) -> Keypoints:
 
     ``out``: a :class:`~warpvx._counted.Counted` of Keypoints with
     :func:`max_fast_corners` rows (a graph's fixed buffers): the same keypoints written there
-    with their count, with no host sync (the sort runs over the whole capacity, sentinel
-    keys after the corners); returns ``out``.
+    with their count, with no host sync (sentinel keys after the corners, sorted without
+    reading the count: :class:`._device_sort.CountedSort`); returns ``out``.
     """
     refuse_uncounted(out, "fast_corners")
     device = src.device
@@ -376,30 +379,35 @@ def fast_corners(src, threshold: int, nonmax: bool, *, out=None) -> Keypoints:
         return Keypoints.empty().to(str(device))
     ws = workspace("fast", (h, w, bool(nonmax)), device,
                    lambda: _FastWorkspace(src, nonmax, capacity))
+    # Made before the corners are collected: making it sorts the keys (CountedSort).
+    plan = None if out is None else _into_plan(ws, out, capacity)
     if nonmax:
         ws.score.launch(img=src, threshold=int(threshold))
         ws.collect.launch()
     else:
         ws.corners.count.zero_()
         ws.collect.launch(img=src, threshold=int(threshold))
-    if out is not None:
-        return _keypoints_into(ws, out, capacity)
+    if plan is not None:
+        return _keypoints_into(plan, out)
     n = min(int(ws.readback.read(ws.corners.count)[0]), capacity)  # the host sync: the length
     return _sorted_keypoints(ws, n, device, nonmax)
 
 
-def _keypoints_into(ws, out, capacity: int):
-    kps = out.rows
-    plan = workspace("fast_into", (capacity, out.count.ptr) + tuple(
-        a.ptr for a in kps.__warpvx_flatten__()[0]), out.count.device,
+def _into_plan(ws, out, capacity: int) -> _IntoPlan:
+    # Keyed by the workspace's buffers too: the plan sorts them.
+    return workspace("fast_into", (capacity, ws.corners.keys.ptr, out.count.ptr) + tuple(
+        a.ptr for a in out.rows.__warpvx_flatten__()[0]), out.count.device,
         lambda: _IntoPlan(ws, out, capacity))
-    c = ws.corners
-    plan.sentinels.launch(corners=c)
-    wp.utils.radix_sort_pairs(c.keys, ws.values, capacity, 0, c.x_bits + c.y_bits + 8)
-    plan.decode.launch(corners=c, rank=ws.rank)
+
+
+def _keypoints_into(plan: _IntoPlan, out):
+    kps = out.rows
+    plan.sentinels.launch()
+    plan.sort.launch()
+    plan.decode.launch()
     for i, field in enumerate((kps.x, kps.y, kps.response, kps.size, kps.angle)):
         wp.copy(field, plan.fields[i])
-    plan.count.launch(corners=c)
+    plan.count.launch()
     return out
 
 

@@ -41,6 +41,7 @@ import math
 import warp as wp
 
 from .._counted import refuse_uncounted
+from ._device_sort import CountedSort
 from ._launch import HostReadback, Recorded, drop_workspace, workspace
 from .harris_response import corner_response
 
@@ -473,8 +474,9 @@ class DeviceCorners:
     points into ``points`` ([max_corners, 2]; made when not given) and their number into
     ``result[0]`` (int32 [3], as ``write_selected``; at most ``max_corners``).
 
-    The candidates are sorted over the whole capacity with sentinel keys after the count; the
-    selection rounds run in batches of :data:`ROUND_BATCH`, each batch in a conditional node
+    The candidates are sorted with sentinel keys after the count, over the first
+    :data:`._device_sort.SMALL` keys when they hold them, else the whole capacity
+    (:class:`._device_sort.CountedSort`); the selection rounds run in batches of :data:`ROUND_BATCH`, each batch in a conditional node
     on the previous batch's last "undecided" counter (nested ``wp.capture_if``), up to
     :data:`MAX_ROUNDS`, looping on the device (``wp.capture_while``) in the rare case they
     did not decide every candidate (the counters start again, as :func:`harris_corners`
@@ -497,6 +499,8 @@ class DeviceCorners:
         self.suppress = min_distance >= 1
         self.sentinels = Recorded(fill_sentinels, ws.capacity, device, keys=ws.keys,
                                   capacity=ws.capacity)
+        self.sort = CountedSort(ws.keys.keys, ws.values, ws.keys.count, ws.capacity,
+                                32 + ws.keys.raster_bits)
         ws.select_cmd.set(points=self.points, last_round=MAX_ROUNDS - 1 if self.suppress else 0)
         if self.suppress:
             ws.set_spacing(int(math.ceil(min_distance)), int(round(min_distance)),
@@ -531,7 +535,7 @@ class DeviceCorners:
         ws.finish_cmd.launch()
         ws.collect_cmd.launch(quality_level=self.quality_level)
         self.sentinels.launch()
-        wp.utils.radix_sort_pairs(ws.keys.keys, ws.values, ws.capacity, 0, 32 + ws.keys.raster_bits)
+        self.sort.launch()
         ws.rank_cmd.launch(initial_state=UNDECIDED if self.suppress else ACCEPTED,
                            conflicts=ws.conflicts)
         if self.suppress:
