@@ -9,7 +9,8 @@
    its kernel call on the host eagerly, its share of one graph launch when captured).
 3. The 16-node two-camera graph of ``benchmarks/graph_bench.py`` (its builder and frames), at
    1280x720, baseline placement, pipelined with 3 and 8 frames in flight, eager and captured;
-   the report names the captured segments and the GPU nodes that still run eagerly.
+   the report names the captured segments and the GPU nodes that still run eagerly, and
+   first checks that captured frames give the eager outputs bit for bit (16 frames).
 
 On Warp's CPU device (``--gpu warp-cpu``) "captured" rows replay Warp's CPU graphs (Warp 1.19
 captures there too, ``capture=True``); on CUDA they are CUDA graphs (the default there).
