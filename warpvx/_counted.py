@@ -176,5 +176,5 @@ def _check_count(value, name: str, arrays) -> None:
         raise WarpvxValueError(f"{name}: rows and count on different devices")
 
 
-__all__ = ["Counted", "check_counted", "check_counted_keypoints", "is_counted", "map_counted", "refuse_uncounted",
-           "row_arrays", "trimmed"]
+__all__ = ["Counted", "check_counted", "check_counted_keypoints", "is_counted", "map_counted",
+           "refuse_uncounted", "row_arrays", "trimmed"]

@@ -280,7 +280,8 @@ def fill_sentinels(corners: CornerKeys, capacity: int):
     """Keys past the corner count sort after every corner (all key bits set)."""
     i = wp.tid()
     if i >= corners.count[0] and i < capacity:
-        corners.keys[i] = (wp.int64(1) << wp.int64(corners.x_bits + corners.y_bits + 8)) - wp.int64(1)
+        bits = corners.x_bits + corners.y_bits + 8
+        corners.keys[i] = (wp.int64(1) << wp.int64(bits)) - wp.int64(1)
 
 
 @wp.kernel

@@ -15,7 +15,7 @@ as duplicates. The steps mirror :func:`warpvx.apps.stabilize.refresh_points`:
    the host's off-image points);
 3. :func:`pad_points`: NaN after the count.
 
-:class:`DeviceCorners` (:mod:`.harris_corners`, which a graph's captured ``harris_corners``
+:class:`DeviceCorners` (:mod:`.harris_counted`, which a graph's captured ``harris_corners``
 node runs too) gives ``harris_corners``' points exactly (tests/apps/test_stabilize_device.py).
 """
 
@@ -25,7 +25,7 @@ import warp as wp
 
 from . import find_homography as fh
 from ._launch import Recorded
-from .harris_corners import DeviceCorners
+from .harris_counted import DeviceCorners
 
 # No FMA contraction: merge_fresh squares distances as NumPy does, and sample_first inlines
 # find_homography's draw_hypothesis, which must round as it does there.
