@@ -158,6 +158,26 @@ def _no_limit_distance(h: int, w: int) -> float:
     return float(math.ceil(math.hypot(w, h)))
 
 
+def _corner_limits(h: int, w: int, max_corners: int, min_distance: float) -> tuple:
+    """``(max_corners, min_distance)`` as computed for an HxW image: a limit of at least H*W
+    is none (0: no image has more corners than pixels); a ``min_distance`` from the diagonal
+    on keeps the strongest corner alone, which is what ``max_corners=1`` without suppression
+    gives on both backends and in OpenCV."""
+    if max_corners >= h * w:
+        max_corners = 0
+    if min_distance >= _no_limit_distance(h, w):
+        max_corners, min_distance = 1, 0.0
+    return max_corners, min_distance
+
+
+def harris_corners_capacity(src, max_corners, min_distance, **_) -> int | None:
+    """Rows of a graph node's Counted corners (:attr:`warpvx.registry.Primitive.counted_rows`):
+    the corner limit :func:`harris_corners` computes for ``src``'s size, None without one."""
+    limit, _ = _corner_limits(int(src.shape[0]), int(src.shape[1]), int(max_corners),
+                              float(min_distance))
+    return limit if limit > 0 else None
+
+
 def harris_corners(src, max_corners: int = 1000, quality_level: float = 0.01,
                    min_distance: float = 10, block_size: int = 3, k: float = 0.04, *,
                    ksize: int = 3, score: str = "harris", out=None, backend=None, stream=None):
@@ -223,12 +243,7 @@ def harris_corners(src, max_corners: int = 1000, quality_level: float = 0.01,
     # "No limit" values are clamped, never iterated over or passed on as they come: OpenCV
     # takes int32 counts and rounds min_distance to an int32 cell size (it crashes from
     # 2^31), and the Warp search window grows with min_distance.
-    if max_corners >= h * w:  # no image has more corners than pixels
-        max_corners = 0
-    if min_distance >= _no_limit_distance(h, w):
-        # Every corner suppresses all weaker ones: the strongest alone, which is what
-        # max_corners=1 without suppression gives on both backends and in OpenCV.
-        max_corners, min_distance = 1, 0.0
+    max_corners, min_distance = _corner_limits(h, w, max_corners, min_distance)
     if out is not None:
         if be.kind == "cpu" or max_corners <= 0:
             raise UnsupportedError("out: a Counted result needs a Warp backend and a corner "

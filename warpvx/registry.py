@@ -65,11 +65,11 @@ class Primitive:
     counted_rows : str or None
         For a data-dependent number of rows: the Warp implementation writes
         :class:`~warpvx._counted.Counted` outputs (fixed rows, a device count) given them
-        as ``out=``, and this names where their capacity comes from: a constant argument
-        (``"max_corners"``), an input whose rows the outputs follow (``"prev_pts"``; when
-        that input is itself Counted, with its capacity), or a ``"module:function"`` called
-        with the public function's arguments (inputs as verification's samples, defaults
-        applied). A graph then allocates the Counteds once
+        as ``out=``, and this names where their capacity comes from: an input whose rows
+        the outputs follow (``"prev_pts"``; when that input is itself Counted, with its
+        capacity), or a ``"module:function"`` called with the public function's arguments
+        (inputs as verification's samples, defaults applied) that returns it, None for
+        none. A graph then allocates the Counteds once
         (:meth:`warpvx.graph.nodes.PrimitiveNode.out_factory`).
     """
 
@@ -166,7 +166,8 @@ _std("gaussian_blur", "filters", sized_by_inputs=True, capturable=True)
 _std("fast_corners", "features", capturable=True,
      counted_rows="warpvx.kernels_warp.fast_corners:counted_capacity")
 _std("harris_response", "features", sized_by_inputs=True)
-_std("harris_corners", "features", capturable=True, counted_rows="max_corners")
+_std("harris_corners", "features", capturable=True,
+     counted_rows="warpvx.features:harris_corners_capacity")
 _std("optical_flow_pyr_lk", "flow", outputs=("next_pts", "status", "err"), sized_by_inputs=True,
      capturable=True, counted_rows="prev_pts")
 _std("orb", "orb_extractor", outputs=("keypoints", "descriptors"))

@@ -230,6 +230,35 @@ def test_segment_inputs_of_another_shape_run_eagerly_then_replay(frames, warp_ba
         g.close()
 
 
+@pytest.mark.parametrize("max_corners,min_distance,captured", [
+    (30, 5.0, True),
+    (10**9, 5.0, False),  # no limit (>= H*W): no capacity, the node runs eagerly
+    (50, 1e6, True),      # beyond the diagonal: the strongest corner alone (capacity 1)
+])
+def test_corners_node_capacity_follows_the_public_limits(frames, warp_backend, max_corners,
+                                                        min_distance, captured):
+    """A corners node's Counted capacity is the limit harris_corners computes: its outputs,
+    captured or not, are the public function's."""
+    g = warpvx.Graph("corners")
+    f = g.input("frame", shape=frames[0].shape, dtype=np.uint8)
+    gray = g.color_convert(f, code="BGR2GRAY", name="gray", target="gpu")
+    g.output("pts", g.harris_corners(gray, max_corners=max_corners, quality_level=0.01,
+                                     min_distance=min_distance, name="corners", target="gpu"))
+    g.verify({"frame": frames[0]})
+    g.schedule("baseline", n_cpus=1, gpu=warp_backend)
+    try:
+        for fr in frames:
+            want = warpvx.harris_corners(warpvx.color_convert(fr, code="BGR2GRAY"), max_corners,
+                                         0.01, min_distance)
+            np.testing.assert_array_equal(
+                g.process({"frame": fr}, capture=_capture_arg(warp_backend))["pts"], want)
+        ex = g.plan.executor()
+        assert [s.captured for s in ex._segments] == ([True] if captured else [True, False])
+        assert ex.captures == 1  # the gray alone when the corners run eagerly
+    finally:
+        g.close()
+
+
 def test_two_cameras_pipelined_captured_equals_eager(frames, warp_backend):
     cams = _camera_frames(frames) * 2
     g = _two_cameras(frames, warp_backend)

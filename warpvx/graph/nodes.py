@@ -264,10 +264,9 @@ class PrimitiveNode(Node):
 
     def row_capacity(self) -> int | None:
         """Rows of this node's Counted outputs in a graph
-        (:attr:`~warpvx.registry.Primitive.counted_rows`): the constant argument it names
-        (given or default, when positive), the capacity of the node producing the input it
-        names, or what the function it names gives for the node's arguments (inputs as
-        verification's samples); None when there is none."""
+        (:attr:`~warpvx.registry.Primitive.counted_rows`): the capacity of the node producing
+        the input it names, or what the function it names gives for the node's arguments
+        (inputs as verification's samples); None when there is none."""
         source = self.primitive.counted_rows
         if source is None:
             return None
@@ -279,13 +278,11 @@ class PrimitiveNode(Node):
                 return None
             bound = self.signature.bind_partial(**{**self.arguments, **samples})
             bound.apply_defaults()
-            return int(getattr(importlib.import_module(module), attr)(**bound.arguments))
-        if source in self.inputs:
-            producer = self.inputs[source].data.producer \
-                if isinstance(self.inputs[source], DelayRef) else self.inputs[source].producer
-            return producer.row_capacity() if isinstance(producer, PrimitiveNode) else None
-        value = self.arguments.get(source, self.signature.parameters[source].default)
-        return int(value) if isinstance(value, (int, np.integer)) and value > 0 else None
+            value = getattr(importlib.import_module(module), attr)(**bound.arguments)
+            return None if value is None else int(value)
+        ref = self.inputs[source]
+        producer = ref.data.producer if isinstance(ref, DelayRef) else ref.producer
+        return producer.row_capacity() if isinstance(producer, PrimitiveNode) else None
 
     def _counted_factory(self, device):
         """A maker of this node's Counted outputs (one count buffer shared by them), or None

@@ -304,7 +304,7 @@ def max_fast_corners(height: int, width: int, nonmax: bool) -> int:
     return inner_h * inner_w
 
 
-def counted_capacity(src, nonmax: bool = True, **_) -> int:
+def counted_capacity(src, nonmax: bool, **_) -> int:
     """Rows of a graph node's Counted keypoints: :func:`max_fast_corners` of its image
     (:attr:`warpvx.registry.Primitive.counted_rows`)."""
     return max_fast_corners(int(src.shape[0]), int(src.shape[1]), bool(nonmax))
