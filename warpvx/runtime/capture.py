@@ -20,8 +20,8 @@ fixed rows and a device count, so data-dependent results need no host sync).
 
 A segment is captured per input signature and per shapes of its own inputs (a value made in
 an earlier frame, such as the previous frame's corners, may change them), on the second
-sighting of that pair; the capture first runs its tasks once uncaptured into the same buffers
-so that nothing allocates inside it.
+sighting of that pair; its tasks first run once uncaptured into the same buffers
+(:meth:`SegmentGraph.warm`) so that nothing allocates inside the capture.
 
 Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
 code runs there when asked (``capture=True``), which is how it is tested without a GPU.
@@ -189,6 +189,7 @@ class SegmentGraph:
             self.inputs[ref] = tree_map(lambda a: wp.zeros(
                 a.shape, dtype=a.dtype if is_warp_array(a) else wp.dtype_from_numpy(a.dtype),
                 device=device), v)
+        self.outs = {task.name: task.gpu_out() for task in segment.tasks}
         self.outputs = {}  # key -> the value its task wrote in the capture (fixed buffers)
         self.graph = None
         self.scratch = ()
@@ -199,13 +200,26 @@ class SegmentGraph:
             return self.outputs[ref.key]
         return self.inputs[ref]
 
+    def warm(self):
+        """Run the tasks once uncaptured into the fixed buffers (on the zeroed inputs), so
+        whatever a primitive builds per set of buffers (workspaces, recorded launches, their
+        own small graphs, which take the process-wide capture lock: call this without it) is
+        built before :meth:`capture`: nothing allocates inside it.
+
+        Raises
+        ------
+        NotCapturable
+            A task failed or returned memory it allocated.
+        """
+        try:
+            self._run_tasks()
+        except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
+            raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
+
     def capture(self, device: str, stream):
-        """Capture the segment's tasks writing fixed buffers (``stream``: CUDA only). Each
-        task writes a fresh ``gpu_out()``; its result may also hold a buffer it read (a
-        pyramid's level 0 is its source), but nothing else. The tasks first run once
-        uncaptured into the same buffers (on the zeroed inputs), so whatever a primitive
-        builds per set of buffers (workspaces, recorded launches) is built outside the
-        capture: nothing allocates inside it.
+        """Capture the segment's tasks writing fixed buffers (``stream``: CUDA only), after
+        :meth:`warm`. Each task writes its ``gpu_out()`` buffers; its result may also hold a
+        buffer it read (a pyramid's level 0 is its source), but nothing else.
 
         Raises
         ------
@@ -214,11 +228,9 @@ class SegmentGraph:
             host sync or read-back inside, a caller's capture).
         """
         wp = warp()
-        outs = {task.name: task.gpu_out() for task in self.segment.tasks}
         try:
-            self._run_tasks(outs)
             with wp.ScopedCapture(device=device, stream=stream) as cap:
-                self._run_tasks(outs)
+                self._run_tasks()
         except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
             raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
         if cap.graph is None:
@@ -226,12 +238,13 @@ class SegmentGraph:
         self.graph = cap.graph
         self.scratch = _workspaces()
 
-    def _run_tasks(self, outs: dict):
-        """Enqueue the tasks, each into ``outs[name]``; their results become the outputs."""
+    def _run_tasks(self):
+        """Enqueue the tasks, each into its ``outs`` buffers; their results become the
+        outputs."""
         fixed = {a.ptr for v in self.inputs.values() for a in _leaves(v)}
         self.outputs = {}
         for task in self.segment.tasks:
-            out = outs[task.name]
+            out = self.outs[task.name]
             mine = {a.ptr for a in _leaves(out)}
             result = task.gpu(*[self.value(r) for r in task.inputs], out=out)
             if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
@@ -307,6 +320,7 @@ class SegmentRunner:
             return None
         try:
             sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
+            sg.warm()
             with self._capture_lock:
                 sg.capture(self.gpu_device, self._stream)
         except NotCapturable:  # e.g. out= buffers sized for other input shapes
