@@ -145,7 +145,6 @@ class Node:
     def __repr__(self):
         return f"{type(self).__name__}({self.name!r})"
 
-
     def _fits(self):
         """``fits(values)``: whether input values have the shapes verification saw, so the
         node's ``out=`` buffers (sized from its samples) fit them."""
@@ -272,7 +271,7 @@ class PrimitiveNode(Node):
             return None
         if ":" in source:
             module, attr = source.split(":")
-            samples = {p: ref.data.sample if isinstance(ref, DelayRef) else ref.sample
+            samples = {p: _delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
                        for p, ref in self.inputs.items()}
             if any(v is None for v in samples.values()):
                 return None
@@ -318,7 +317,8 @@ class PrimitiveNode(Node):
 
 def _sized_factory(node, device):
     """A maker of ``node``'s output buffers shaped as verification's samples (see
-    :meth:`PrimitiveNode.out_factory`), or None when a sample is no numeric array (list)."""
+    :meth:`PrimitiveNode.out_factory`), or None when a sample is not a numeric array or a
+    list of them."""
     samples = [node.outputs[p].sample for p in node.output_ports]
     inputs = [_delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
               for ref in node.inputs.values()]
