@@ -20,8 +20,10 @@ fixed rows and a device count, so data-dependent results need no host sync).
 
 A segment is captured per input signature and per shapes of its own inputs (a value made in
 an earlier frame, such as the previous frame's corners, may change them), on the second
-sighting of that pair; its tasks first run once uncaptured into the same buffers
-(:meth:`SegmentGraph.warm`) so that nothing allocates inside the capture.
+sighting of that pair; on the first, its tasks run uncaptured on the same fixed buffers
+(:meth:`SegmentGraph.run`), so values have the captured form from the first frame (a
+corner count changing between eager frames would otherwise change the next segment's input
+shapes) and nothing allocates inside the capture.
 
 Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
 code runs there when asked (``capture=True``), which is how it is tested without a GPU.
@@ -200,26 +202,23 @@ class SegmentGraph:
             return self.outputs[ref.key]
         return self.inputs[ref]
 
-    def warm(self):
-        """Run the tasks once uncaptured into the fixed buffers (on the zeroed inputs), so
-        whatever a primitive builds per set of buffers (workspaces, recorded launches, their
-        own small graphs, which take the process-wide capture lock: call this without it) is
-        built before :meth:`capture`: nothing allocates inside it.
+    def run(self):
+        """Run the tasks uncaptured on the fixed buffers (a first sighting: it also builds
+        whatever a primitive makes per set of buffers, workspaces, recorded launches, so
+        nothing allocates inside the capture that follows).
 
         Raises
         ------
         NotCapturable
-            A task failed or returned memory it allocated.
+            A task returned memory it allocated (its out= did not fit); a task's own error
+            propagates.
         """
-        try:
-            self._run_tasks()
-        except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
-            raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
+        self._run_tasks()
 
     def capture(self, device: str, stream):
-        """Capture the segment's tasks writing fixed buffers (``stream``: CUDA only), after
-        :meth:`warm`. Each task writes its ``gpu_out()`` buffers; its result may also hold a
-        buffer it read (a pyramid's level 0 is its source), but nothing else.
+        """Capture the segment's tasks writing fixed buffers (``stream``: CUDA only), once
+        :meth:`run` has run them. Each task writes its ``gpu_out()`` buffers; its result may
+        also hold a buffer it read (a pyramid's level 0 is its source), but nothing else.
 
         Raises
         ------
@@ -272,7 +271,12 @@ class SegmentGraph:
                 io.moved += v.nbytes
 
     def launch(self, stream):
-        warp().capture_launch(self.graph, stream=stream)
+        """Replay the captured graph on ``stream`` (or run the tasks uncaptured before it
+        is captured)."""
+        if self.graph is None:
+            self.run()
+        else:
+            warp().capture_launch(self.graph, stream=stream)
 
 
 class SegmentRunner:
@@ -293,12 +297,13 @@ class SegmentRunner:
         return states
 
     def _segment_graph(self, states: list, i: int, seg: Segment, frame: Frame, state):
-        """Segment ``i``'s graph for this frame's signature and the shapes of the segment's
-        inputs (a value made inside the frame, such as a corner count, may change them),
-        captured on its second sighting (the first, eager, loads the kernels and fills the
-        primitives' caches, so nothing allocates inside the capture); None: run it eagerly.
-        Each state: 1 seen once, a :class:`SegmentGraph`, or None (not capturable with
-        these shapes); at most :data:`MAX_SIGNATURES` shapes per segment are kept."""
+        """Segment ``i``'s :class:`SegmentGraph` for this frame's signature and the shapes of
+        the segment's inputs (a value made in an earlier frame, such as its corners, may
+        change them): made on the first sighting and run uncaptured on its fixed buffers (so
+        its values have the captured form from the start, Counted corners included, and the
+        primitives' caches are filled), captured on the second; None: run the tasks eagerly.
+        Each state: a SegmentGraph, or None (not capturable with these shapes); at most
+        :data:`MAX_SIGNATURES` shapes per segment are kept."""
         by_shape = states[i]
         if by_shape is None:
             return None
@@ -310,24 +315,25 @@ class SegmentRunner:
         except NotCapturable:
             states[i] = None
             return None
-        sg = by_shape.get(key, 0)
-        if sg is None or isinstance(sg, SegmentGraph):
-            return sg
-        if sg == 0:
-            by_shape[key] = 1
+        if key not in by_shape:
+            try:
+                sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
+            except NotCapturable:
+                sg = None
+            by_shape[key] = sg
             while len(by_shape) > MAX_SIGNATURES:
                 del by_shape[next(iter(by_shape))]
-            return None
+            return sg
+        sg = by_shape[key]
+        if sg is None or sg.graph is not None:
+            return sg
         try:
-            sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
-            sg.warm()
             with self._capture_lock:
                 sg.capture(self.gpu_device, self._stream)
-        except NotCapturable:  # e.g. out= buffers sized for other input shapes
+        except NotCapturable:  # a host sync or read-back inside, a caller's capture
             by_shape[key] = None
             return None
         self.captures += 1
-        by_shape[key] = sg
         state.prev_end = None  # the stream idled while the host captured
         return sg
 
@@ -346,7 +352,16 @@ class SegmentRunner:
             sg.fill(ref, s.value, io, self._stream)
         if io.moved > before:
             frame.copied[seg.tasks[0].name] = io.moved - before
-        sg.launch(self._stream)
+        try:
+            sg.launch(self._stream)
+        except NotCapturable:  # uncaptured first run: an out= did not fit these inputs
+            by_shape = self._captures_of(frame)[self._segments.index(seg)]
+            for key, value in list(by_shape.items()):
+                if value is sg:
+                    by_shape[key] = None
+            for task in seg.tasks:  # eagerly, as the executor runs an uncaptured segment
+                self._run_gpu_task(frame, task, state)
+            return
         outs = dict(sg.outputs)
         for key in seg.outputs:
             outs[key] = tree_map(lambda fixed, key=key: self._copy_out(frame, key, fixed),
