@@ -60,13 +60,42 @@ def test_match_node_keeps_what_cross_check_keeps(frames, backend, kind):
     np.testing.assert_array_equal(dist, want_dist)
 
 
+def test_batch_match_node_equals_cross_check_per_pair(frames, backend):
+    """nearest_batch[_warp]: frame i against frame i - 1 for B frames in one node call, each
+    pair's mutual pairs those of match_hamming(cross_check=True); the first output is the
+    last frame's descriptors (the next batch's ``prev``)."""
+    descs = [np.asarray(f[1]) for f in frames[2]]  # left 0, left 1, right 0: 3 sizes
+    prev = descs[-1][::2].copy()
+    chain = [prev] + descs
+    if backend == "cpu":
+        last, out = om.nearest_batch(descs, prev)
+    else:
+        import warp as wp
+
+        from warpvx.backend import resolve_backend
+
+        device = resolve_backend(backend).device
+        last, out = om.nearest_batch_warp([wp.array(d, device=device) for d in descs],
+                                          wp.array(prev, device=device))
+        last = last.numpy()[:len(descs[-1])]
+        out = [tuple(a.numpy() for a in o) for o in out]
+    np.testing.assert_array_equal(last, descs[-1])
+    assert len(out) == len(descs)
+    for i, (idx, dist, back) in enumerate(out):
+        want = warpvx.match_hamming(chain[i + 1], chain[i], cross_check=True, backend="cpu")
+        got = om.mutual_pairs(idx, dist, back, len(chain[i + 1]), len(chain[i]))
+        assert len(want[0]) > 10
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)
+
+
 def test_mutual_pairs_with_nothing_to_match():
     for n, n_prev in ((0, 5), (5, 0)):
         pairs, dist = om.mutual_pairs(np.zeros((n, 1), np.int32), np.zeros((n, 1), np.int32),
                                       np.zeros((n_prev, 1), np.int32), n, n_prev)
         assert pairs.shape == (0, 2) and dist.shape == (0,)
     _, idx, _, back = om.nearest_both_ways(np.zeros((0, 32), np.uint8), np.ones((4, 32), np.uint8))
-    assert idx.shape == (0, 1) and back.tolist() == [[-1]] * 4
+    assert idx.shape == (0,) and back.tolist() == [-1] * 4
 
 
 def _stereo_reference(kl, dl, kr, dr, left, right, fx, baseline, sf=1.2, max_distance=75):

@@ -26,17 +26,17 @@ _BITWISE_COUNT = getattr(np, "bitwise_count", None)
 
 
 def nearest_both_ways(desc, prev):
-    """The ``match`` node on CPU workers: (``desc``, nearest, back) for uint8 [N, 32] and
-    [Np, 32] descriptor arrays; see :func:`nearest_both_ways_warp` for the outputs."""
+    """The ``match`` node on CPU workers: (``desc``, nearest, distance, back) for uint8 [N, 32]
+    and [Np, 32] descriptor arrays; see :func:`nearest_both_ways_warp` for the outputs."""
     from .. import knn_match_hamming
 
     desc, prev = np.ascontiguousarray(desc), np.ascontiguousarray(prev)
     if len(desc) == 0 or len(prev) == 0:
-        return desc, np.full((len(desc), 1), -1, np.int32), np.zeros((len(desc), 1), np.int32), \
-            np.full((len(prev), 1), -1, np.int32)
+        return desc, np.full(len(desc), -1, np.int32), np.zeros(len(desc), np.int32), \
+            np.full(len(prev), -1, np.int32)
     idx, dist = knn_match_hamming(desc, prev, 1, backend="cpu")
     back, _ = knn_match_hamming(prev, desc, 1, backend="cpu")
-    return desc, idx, dist, back
+    return desc, idx[:, 0], dist[:, 0], back[:, 0]
 
 
 def _pad_rows(desc, rows: int):
@@ -75,28 +75,58 @@ def nearest_both_ways_warp(desc, prev):
     -------
     padded : uint8 [C, 32]
         ``desc`` padded to C = a multiple of :data:`ROW_BUCKET` (>= N).
-    nearest, distance : int32 [C, 1]
+    nearest, distance : int32 [C]
         Each row's nearest row of ``prev`` and its Hamming distance (-1 / 0 when ``prev`` is
         empty).
-    back : int32 [Cp, 1]
+    back : int32 [Cp]
         Each row of ``prev``'s nearest row of ``padded``.
     """
     import warp as wp
 
-    from .. import knn_match_hamming
+    # The primitive's scratch state: both sets packed into words once, then the nearest rows
+    # forward and (cross_check) backward (two knn_match_hamming calls packed each set twice).
+    from ..kernels_warp.match_hamming import _workspace
 
     rows = max(ROW_BUCKET, -(-desc.shape[0] // ROW_BUCKET) * ROW_BUCKET)
     padded = _pad_rows(desc, rows)
     device = desc.device
-    idx = wp.empty((rows, 1), dtype=wp.int32, device=device)
-    dist = wp.zeros((rows, 1), dtype=wp.int32, device=device)
-    back = wp.empty((prev.shape[0], 1), dtype=wp.int32, device=device)
+    idx = wp.empty(rows, dtype=wp.int32, device=device)
+    dist = wp.zeros(rows, dtype=wp.int32, device=device)
+    back = wp.empty(prev.shape[0], dtype=wp.int32, device=device)
     if prev.shape[0] == 0:
         idx.fill_(-1)
         return padded, idx, dist, back
-    knn_match_hamming(padded, prev, 1, out=(idx, dist))
-    knn_match_hamming(prev, padded, 1, out=(back, wp.empty_like(back)))
+    ws = _workspace(padded, prev)
+    forward = ws.nearest(padded, prev, cross_check=True)
+    # The workspace's buffers are reused by the next call of these sizes: copy the results out.
+    wp.copy(idx, forward.best_idx)
+    wp.copy(dist, forward.best_dist)
+    wp.copy(back, ws.backward.out.best_idx)
     return padded, idx, dist, back
+
+
+def nearest_batch(descs, prev):
+    """The ``match`` node over a batch of consecutive frames (CPU: NumPy arrays; device:
+    wp.arrays, see :func:`nearest_batch_warp`): ``descs`` a list of B uint8 [N_i, 32]
+    descriptor arrays, ``prev`` the descriptors before the first (padded or not). Returns
+    (the last frame's descriptors, a list of B (nearest, distance, back) triples, frame i
+    against frame i - 1, as :func:`nearest_both_ways`)."""
+    return _chain_pairs(nearest_both_ways, descs, prev)
+
+
+def nearest_batch_warp(descs, prev):
+    """:func:`nearest_batch` on the device: each frame padded once and matched both ways to
+    the one before (:func:`nearest_both_ways_warp`), no host sync; the first output is the
+    last frame's padded descriptors (the ``prev`` of the next batch)."""
+    return _chain_pairs(nearest_both_ways_warp, descs, prev)
+
+
+def _chain_pairs(both_ways, descs, prev):
+    out = []
+    for desc in descs:
+        prev, *nearest = both_ways(desc, prev)
+        out.append(tuple(nearest))
+    return prev, out
 
 
 def add_match_node(g, desc, *, target=None):
@@ -240,5 +270,6 @@ def stereo_depth(kps_left, desc_left, kps_right, desc_right, left, right, *, fx,
     return depth
 
 
-__all__ = ["ROW_BUCKET", "add_match_node", "nearest_both_ways", "nearest_both_ways_warp", "mutual_pairs",
+__all__ = ["ROW_BUCKET", "add_match_node", "nearest_both_ways", "nearest_both_ways_warp", "nearest_batch",
+           "nearest_batch_warp", "mutual_pairs",
            "hamming_pairs", "stereo_depth"]
