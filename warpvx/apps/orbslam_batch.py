@@ -270,7 +270,9 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
     cores; 0: none). A generator of :class:`~warpvx.apps.orbslam.TrackedFrame` in order; a
     frame's ``ms`` is its batch's interval divided by the batch's frames. ``depth`` batches in
     flight; ``on_finish(plan)`` as in ``track_frames``."""
-    batches = _batches(frames, batch, camera.stereo)
+    from ..check import check_int
+
+    batches = _batches(frames, check_int(batch, "batch", min_value=1), camera.stereo)
     first = next(batches, None)
     if first is None:
         raise WarpvxValueError("frames: the sequence has no frames")
