@@ -52,14 +52,15 @@ def _init_worker():
 
 
 def make_pool(workers: int | None = None):
-    """A process pool for :func:`pose_batch` (``workers`` processes, default: all cores;
-    0: none, the work runs in the calling thread). Close it with ``shutdown()``."""
+    """A process pool for :func:`pose_batch` (``workers`` processes, default: all cores but
+    one, which the calling process's GPU and tracking threads keep, and at least 2; 0: none,
+    the work runs in the calling thread). Close it with ``shutdown()``."""
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
     from ..check import check_int
 
-    workers = os.cpu_count() if workers is None else check_int(workers, "workers", min_value=0)
+    workers = max(2, os.cpu_count() - 1) if workers is None else check_int(workers, "workers", min_value=0)
     if workers == 0:
         return None
     # spawn: the parent holds a CUDA context and executor threads, which fork would copy. So
@@ -263,11 +264,11 @@ def _batches(frames, batch: int, stereo: bool):
 
 
 def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.TrackerConfig(), *,
-                         batch: int = 16, workers: int | None = None, backend="cpu", depth: int = 2,
-                         on_finish=None):
+                         batch: int = 16, workers: int | None = None, pool=None, backend="cpu",
+                         depth: int = 2, on_finish=None):
     """:func:`~warpvx.apps.orbslam.track_frames` in batches of ``batch`` frames
-    (:func:`build_batch_graph`), with ``workers`` processes for the pose work (default: all
-    cores; 0: none). A generator of :class:`~warpvx.apps.orbslam.TrackedFrame` in order; a
+    (:func:`build_batch_graph`), with ``workers`` processes for the pose work (default: see
+    :func:`make_pool`; 0: none), or an open ``pool`` (:func:`make_pool`'s, kept open). A generator of :class:`~warpvx.apps.orbslam.TrackedFrame` in order; a
     frame's ``ms`` is its batch's interval divided by the batch's frames. ``depth`` batches in
     flight; ``on_finish(plan)`` as in ``track_frames``."""
     from ..check import check_int
@@ -276,7 +277,9 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
     first = next(batches, None)
     if first is None:
         raise WarpvxValueError("frames: the sequence has no frames")
-    pool = make_pool(workers)
+    own = pool is None
+    if own:
+        pool = make_pool(workers)
     try:
         g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
         g.verify(first[0])
@@ -301,7 +304,7 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
             if on_finish is not None:
                 on_finish(plan)
     finally:
-        if pool is not None:
+        if own and pool is not None:
             pool.shutdown(cancel_futures=True)
 
 

@@ -32,7 +32,7 @@ def add_arguments(parser):
                              "the pose work over --pose-workers processes (warpvx.apps.orbslam_batch; same "
                              "poses, faster on long sequences; try 16 on a GPU); 1: frame by frame")
     parser.add_argument("--pose-workers", type=int, default=None, metavar="N",
-                        help="with --batch: processes for the pose work (default: all cores; 0: none)")
+                        help="with --batch: processes for the pose work (default: all cores but one; 0: none)")
     parser.add_argument("--baseline", action="store_true",
                         help="also run the OpenCV-only monocular baseline and score it (with --gt)")
     parser.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
