@@ -79,6 +79,31 @@ def test_essential_ahead_is_used_only_for_its_own_points(seq):
         np.testing.assert_array_equal(g, w)
 
 
+def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch):
+    """pose_batch works out every frame's essential matrix ahead (on 2 processes); chain then
+    tracks the batch with no essential_core call of its own and gives the sequential poses."""
+    frames, camera = _frames(seq, False)
+    config, K = o.TrackerConfig(), np.ascontiguousarray(seq[2], np.float64)
+    images = np.stack([f["image"] for f in frames])
+    feats = ob.orb_batch(images, config=config)
+    pad, nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=FRAMES)
+    np.testing.assert_array_equal(pad, feats[-1][1])
+    common = dict(K=K, config=config, baseline=None, frames=FRAMES)
+    pool = ob.make_pool(2)
+    try:
+        tail, ahead = ob.pose_batch(images, feats, nearest, (np.zeros((0, 2)), np.zeros(0)), pool=pool, **common)
+    finally:
+        pool.shutdown()
+    np.testing.assert_array_equal(tail[0], ob._pts(feats[-1][0]))
+    assert sum(a[2] is not None for a in ahead) >= FRAMES - 2  # frame 0 has no previous frame
+    calls = []
+    core = o.essential_core
+    monkeypatch.setattr(o, "essential_core", lambda *a: calls.append(1) or core(*a))
+    _, poses, stats = ob.chain(o.TrackState(), feats, ahead, **common)
+    assert calls == [] and stats.shape == (FRAMES, len(o.STATS))
+    np.testing.assert_allclose(poses, [f.pose for f in o.track_frames(frames, camera)], atol=1e-9)
+
+
 def test_cli_batch_flag_end_to_end(tmp_path, seq, capsys):
     left, right, K, poses = seq
     folder = write_kitti_sequence(tmp_path / "seq", left, K, poses)
