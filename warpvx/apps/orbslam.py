@@ -588,6 +588,7 @@ def opencv_baseline(images, K):
 
 __all__ = [
     "TrackerConfig", "Camera", "TrackState", "FrameRecord", "TrackedFrame", "three_maxima",
-    "rotation_consistent", "filter_matches", "stereo_depth", "essential_core", "track", "track_nearest", "build_graph",
+    "rotation_consistent", "filter_matches", "stereo_depth", "essential_core", "track", "track_nearest",
+    "build_graph",
     "spread_cpu_nodes", "schedule", "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
 ]

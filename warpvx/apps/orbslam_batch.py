@@ -109,10 +109,12 @@ def match_batch(feats, padded, *, frames):
 
 
 def match_batch_warp(feats, padded, *, frames):
+    """:func:`match_batch` on the device (no host sync)."""
     return nearest_batch_warp(_left(feats, frames), padded)
 
 
 def _pts(kps):
+    """Keypoint positions, float64 [N, 2] (as track's frame records hold them)."""
     return np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
 
 
@@ -154,10 +156,9 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
                 jobs.append((p1, p2, K, config))
         prev_pts, prev_angles = pts, angles
     if baseline is not None:
-        (h, w), fx = images.shape[1:], float(K[0, 0])
         left, right = feats[:frames], feats[frames:]
-        depths = _map(pool, functools.partial(_stereo_job, fx=fx, baseline=baseline, config=config),
-                      [(*left[i], *right[i], images[i], images[frames + i]) for i in range(frames)])
+        job = functools.partial(_stereo_job, fx=float(K[0, 0]), baseline=baseline, config=config)
+        depths = _map(pool, job, [(*left[i], *right[i], images[i], images[frames + i]) for i in range(frames)])
         ahead = [(p, d, z) for (p, d), z in zip(pairs, depths)]
     else:
         done = iter(_map(pool, o.essential_core, jobs))
@@ -268,7 +269,8 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
                          depth: int = 2, on_finish=None):
     """:func:`~warpvx.apps.orbslam.track_frames` in batches of ``batch`` frames
     (:func:`build_batch_graph`), with ``workers`` processes for the pose work (default: see
-    :func:`make_pool`; 0: none), or an open ``pool`` (:func:`make_pool`'s, kept open). A generator of :class:`~warpvx.apps.orbslam.TrackedFrame` in order; a
+    :func:`make_pool`; 0: none), or an open ``pool`` (:func:`make_pool`'s, kept open). A
+    generator of :class:`~warpvx.apps.orbslam.TrackedFrame` in order; a
     frame's ``ms`` is its batch's interval divided by the batch's frames. ``depth`` batches in
     flight; ``on_finish(plan)`` as in ``track_frames``."""
     from ..check import check_int
