@@ -19,8 +19,8 @@ reading PNGs is timed separately. Measured, side by side in one run:
 4. accuracy (ATE, RPE) of each on the rendered sequence, the scheduler's placement and
    predicted vs measured makespan, and a Gantt chart of 3 pipelined frames;
 5. the batched front end (warpvx.apps.orbslam_batch, ``--batch B`` frames per graph frame):
-   extraction + matching batched (``orb_batch`` + ``match_batch`` on the device, the mutual
-   pairs on the host), mono and stereo end to end with the pose work on a process pool of all
+   extraction + matching batched (``orb_batch`` + ``match_batch`` on the device: one launch
+   matches all consecutive pairs both ways; the mutual pairs on the host), mono and stereo end to end with the pose work on a process pool of all
    cores, the pool's speed-up on one batch's pose work (``pose_batch`` with no pool vs the
    pool), and its accuracy (the poses must be the sequential ones).
 
@@ -64,7 +64,7 @@ import warpvx  # noqa: E402
 from warpvx.apps import orbslam as o  # noqa: E402
 from warpvx.apps import orbslam_batch as ob  # noqa: E402
 from warpvx.apps import trajectory_eval as te  # noqa: E402
-from warpvx.apps.orbslam_match import ROW_BUCKET, add_match_node, mutual_pairs  # noqa: E402
+from warpvx.apps.orbslam_match import add_match_node, batch_pairs, mutual_pairs  # noqa: E402
 from warpvx.apps.orbslam_synth import render_sequence  # noqa: E402
 
 # ../shared/data next to the repository (the main checkout), else the dev machine's copy.
@@ -117,8 +117,8 @@ def bench_extract_match(images, backend, primitive, depth=3):
 def _pairs_batch(feats, nearest, tail):
     """The host side of batched matching: each frame's mutual pairs (and the last count)."""
     prev_n, pairs = tail, []
-    for (kps, _), (idx, dist, back) in zip(feats, nearest):
-        pairs.append(mutual_pairs(idx, dist, back, len(kps), prev_n)[0])
+    for f, (kps, _) in enumerate(feats, 1):
+        pairs.append(mutual_pairs(*batch_pairs(*nearest, f), len(kps), prev_n)[0])
         prev_n = len(kps)
     return prev_n, pairs
 
@@ -128,16 +128,10 @@ def bench_extract_match_batched(images, backend, batch, depth=3):
     front end, B frames per graph frame), the pairs on the host each frame."""
     g = warpvx.Graph("orb_match_batch")
     h, w = images[0].shape
-    pin = None if backend == "cpu" else "gpu"
-    config = o.TrackerConfig()
     x = g.input("images", shape=(batch, h, w), dtype=np.uint8)
-    feats = g.user(functools.partial(ob.orb_batch, config=config), [x], ["feats"],
-                   warp_fn=functools.partial(ob.orb_batch_warp, config=config), name="orb_batch", target=pin)
-    padded, count = g.virtual("padded"), g.virtual("count")
-    before = g.delay(padded, init=np.zeros((ROW_BUCKET, 32), np.uint8))[-1]
-    _, nearest = g.user(functools.partial(ob.match_batch, frames=batch), [feats, before], [padded, "nearest"],
-                        warp_fn=functools.partial(ob.match_batch_warp, frames=batch), name="match_batch",
-                        target=pin)
+    feats, nearest = ob.add_extract_match(g, x, batch, o.TrackerConfig(),
+                                          target=None if backend == "cpu" else "gpu")
+    count = g.virtual("count")
     _, pairs = g.user(_pairs_batch, [feats, nearest, g.delay(count, init=0)[-1]], [count, "pairs"],
                       name="pairs")
     g.output("pairs", pairs)

@@ -86,8 +86,8 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch):
     config, K = o.TrackerConfig(), np.ascontiguousarray(seq[2], np.float64)
     images = np.stack([f["image"] for f in frames])
     feats = ob.orb_batch(images, config=config)
-    pad, nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=FRAMES)
-    np.testing.assert_array_equal(pad, feats[-1][1])
+    last, nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=FRAMES)
+    np.testing.assert_array_equal(last, feats[-1][1])
     common = dict(K=K, config=config, baseline=None, frames=FRAMES)
     pool = ob.make_pool(2)
     try:

@@ -9,8 +9,9 @@ sequence, the stereo matching of frame t (:func:`~warpvx.apps.orbslam_match.ster
 ~10 ms) for a stereo one. The graph, one batch of B frames per graph frame::
 
     images [B (x2 stereo), H, W] -> orb_batch (GPU role) -> feats (B (or 2B) keypoints, descriptors)
-    feats, padded[-1] -> match_batch (GPU role) -> padded, nearest rows both ways for each
-        frame against the one before (:func:`~warpvx.apps.orbslam_match.nearest_batch_warp`)
+    feats, last_desc[-1] -> match_batch (GPU role) -> last_desc, nearest rows both ways between
+        consecutive frames, one launch for the batch
+        (:func:`~warpvx.apps.orbslam_match.nearest_batch_warp`)
     images, feats, nearest, tail[-1] -> pose_batch (CPU) -> tail, ahead: the mutual pairs and
         their filter on the host, then the essential cores (mono) or stereo depths of the B
         frames in parallel on a process pool
@@ -41,7 +42,7 @@ import numpy as np
 
 from ..errors import WarpvxValueError
 from . import orbslam as o
-from .orbslam_match import ROW_BUCKET, mutual_pairs, nearest_batch, nearest_batch_warp, stereo_depth
+from .orbslam_match import batch_pairs, mutual_pairs, nearest_batch, nearest_batch_warp, stereo_depth
 
 
 def _init_worker():
@@ -101,16 +102,16 @@ def _left(feats, frames):
     return [d for _, d in feats[:frames]]
 
 
-def match_batch(feats, padded, *, frames):
-    """Each of the ``frames`` left frames matched both ways to the one before (the first to
-    ``padded``, the previous batch's last): (last descriptors, list of (nearest, distance,
-    back))."""
-    return nearest_batch(_left(feats, frames), padded)
+def match_batch(feats, before, *, frames):
+    """The ``frames`` left frames' descriptors after ``before`` (the previous batch's last),
+    each matched both ways to the next: :func:`~warpvx.apps.orbslam_match.nearest_batch`'s
+    (last descriptors, (nearest, distance, starts))."""
+    return nearest_batch(_left(feats, frames), before)
 
 
-def match_batch_warp(feats, padded, *, frames):
+def match_batch_warp(feats, before, *, frames):
     """:func:`match_batch` on the device (no host sync)."""
-    return nearest_batch_warp(_left(feats, frames), padded)
+    return nearest_batch_warp(_left(feats, frames), before)
 
 
 def _pts(kps):
@@ -126,8 +127,8 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     images : uint8 [B', H, W]
         The batch (stereo: B left images, then B right ones).
     feats : list of B' (Keypoints, uint8 [N, 32])
-    nearest : list of B (nearest, distance, back)
-        :func:`match_batch`'s output.
+    nearest : (nearest, distance, starts)
+        :func:`match_batch`'s second output.
     tail : tuple (float64 [N, 2] points, float64 [N] angles)
         The previous batch's last frame (empty before the first batch).
 
@@ -142,7 +143,8 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     """
     prev_pts, prev_angles = tail
     pairs, jobs, cores = [], [], []
-    for (kps, _), (idx, dist, back) in zip(feats[:frames], nearest):
+    for f, (kps, _) in enumerate(feats[:frames], 1):
+        idx, dist, back = batch_pairs(*nearest, f)
         pts, angles = _pts(kps), np.asarray(kps.angle, np.float64)
         p, d = mutual_pairs(idx, dist, back, len(kps), len(prev_pts))
         pairs.append((p, d))
@@ -201,6 +203,22 @@ def chain(state, feats, ahead, *, K, config, baseline, frames):
 # --------------------------------------------------------------------------- the graph
 
 
+def add_extract_match(g, images, batch: int, config: o.TrackerConfig, *, target=None):
+    """Add ``orb_batch`` and ``match_batch`` to graph ``g`` for ``images`` (a data object of
+    uint8 [B', H, W], the first ``batch`` the left frames); returns the data objects (feats,
+    nearest). ``target`` pins both (``"gpu"``)."""
+    feats = g.user(functools.partial(orb_batch, config=config), [images], ["feats"],
+                   warp_fn=functools.partial(orb_batch_warp, config=config), name="orb_batch",
+                   target=target)
+    last_desc = g.virtual("last_desc")
+    # Before the first batch: no rows (pose_batch pairs nothing with them: its tail is empty).
+    before = g.delay(last_desc, init=np.zeros((0, 32), np.uint8))[-1]
+    _, nearest = g.user(functools.partial(match_batch, frames=batch), [feats, before], [last_desc, "nearest"],
+                        warp_fn=functools.partial(match_batch_warp, frames=batch), name="match_batch",
+                        target=target)
+    return feats, nearest
+
+
 def build_batch_graph(camera: o.Camera, batch: int, config: o.TrackerConfig = o.TrackerConfig(), *,
                       backend="cpu", pool=None):
     """The batched front-end graph for ``batch`` gray uint8 frames of ``camera.size`` per
@@ -225,14 +243,7 @@ def build_batch_graph(camera: o.Camera, batch: int, config: o.TrackerConfig = o.
                   frames=batch)
     g = Graph("orbslam_batch")
     images = g.input("images", shape=(batch * (2 if camera.stereo else 1), h, w), dtype=np.uint8)
-    feats = g.user(functools.partial(orb_batch, config=config), [images], ["feats"],
-                     warp_fn=functools.partial(orb_batch_warp, config=config), name="orb_batch",
-                     target=pin)
-    padded = g.virtual("padded")
-    before = g.delay(padded, init=np.zeros((ROW_BUCKET, 32), np.uint8))[-1]
-    _, nearest = g.user(functools.partial(match_batch, frames=batch), [feats, before], [padded, "nearest"],
-                        warp_fn=functools.partial(match_batch_warp, frames=batch), name="match_batch",
-                        target=pin)
+    feats, nearest = add_extract_match(g, images, batch, config, target=pin)
     tail = g.virtual("tail")
     last = g.delay(tail, init=(np.zeros((0, 2)), np.zeros(0)))[-1]
     _, ahead = g.user(functools.partial(pose_batch, pool=pool, **common), [images, feats, nearest, last],
@@ -310,5 +321,5 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
             pool.shutdown(cancel_futures=True)
 
 
-__all__ = ["make_pool", "orb_batch", "match_batch", "pose_batch", "chain", "build_batch_graph",
+__all__ = ["make_pool", "orb_batch", "match_batch", "pose_batch", "chain", "add_extract_match", "build_batch_graph",
            "track_frames_batched"]

@@ -106,27 +106,69 @@ def nearest_both_ways_warp(desc, prev):
 
 
 def nearest_batch(descs, prev):
-    """The ``match`` node over a batch of consecutive frames (CPU: NumPy arrays; device:
-    wp.arrays, see :func:`nearest_batch_warp`): ``descs`` a list of B uint8 [N_i, 32]
-    descriptor arrays, ``prev`` the descriptors before the first (padded or not). Returns
-    (the last frame's descriptors, a list of B (nearest, distance, back) triples, frame i
-    against frame i - 1, as :func:`nearest_both_ways`)."""
-    return _chain_pairs(nearest_both_ways, descs, prev)
+    """The ``match`` node over a batch of consecutive frames: each frame's nearest rows in the
+    frame before and after it, for ``descs`` a list of B uint8 [N_i, 32] descriptor arrays
+    after ``prev`` (the frame before the batch, uint8 [N_0, 32]). CPU: NumPy arrays in and
+    out; :func:`nearest_batch_warp` on the device.
+
+    Returns
+    -------
+    last : uint8 [N_B, 32]
+        The batch's last descriptors (the next batch's ``prev``).
+    (nearest, distance, starts) : int32 [2, T], int32 [2, T], int32 [B + 2]
+        Frames 0 (``prev``) to B one after the other, frame f on rows ``starts[f]:starts[f + 1]``
+        (T = ``starts[-1]``); row 0 of ``nearest``/``distance``: each row's nearest row (local
+        index) of the frame before and its Hamming distance, row 1: of the frame after (-1 /
+        0 where there is none). :func:`batch_pairs` slices them per frame.
+    """
+    frames = [np.ascontiguousarray(prev)] + [np.ascontiguousarray(d) for d in descs]
+    starts = np.cumsum([0] + [len(d) for d in frames]).astype(np.int32)
+    nearest = np.full((2, starts[-1]), -1, np.int32)
+    distance = np.zeros((2, starts[-1]), np.int32)
+    for f in range(1, len(frames)):
+        _, idx, dist, back = nearest_both_ways(frames[f], frames[f - 1])
+        nearest[0, starts[f]:starts[f + 1]], distance[0, starts[f]:starts[f + 1]] = idx, dist
+        nearest[1, starts[f - 1]:starts[f]] = back
+    return frames[-1], (nearest, distance, starts)
 
 
 def nearest_batch_warp(descs, prev):
-    """:func:`nearest_batch` on the device: each frame padded once and matched both ways to
-    the one before (:func:`nearest_both_ways_warp`), no host sync; the first output is the
-    last frame's padded descriptors (the ``prev`` of the next batch)."""
-    return _chain_pairs(nearest_both_ways_warp, descs, prev)
+    """:func:`nearest_batch` on the device (wp.arrays; no host sync): the frames' descriptors
+    gathered into one array (one copy for the batch when they are consecutive rows of one
+    buffer, as ``warpvx.orb`` returns a batch's), then one launch
+    (:func:`warpvx.kernels_warp.match_chain.nearest_chain`) for all pairs both ways."""
+    import warp as wp
+
+    from ..kernels_warp._launch import view
+    from ..kernels_warp.match_chain import nearest_chain
+
+    device = prev.device
+    counts = [prev.shape[0]] + [d.shape[0] for d in descs]
+    starts = np.cumsum([0] + counts).astype(np.int32)
+    rows = int(starts[-1])
+    gathered = wp.empty((rows, 32), dtype=wp.uint8, device=device)
+    pieces = [(prev, counts[0])]
+    nonempty = [d for d in descs if d.shape[0]]
+    if nonempty and all(b.ptr == a.ptr + a.shape[0] * 32 for a, b in zip(nonempty, nonempty[1:])):
+        # One buffer, frame after frame: one copy of all its rows.
+        pieces.append((view(nonempty[0], wp.uint8, (rows - counts[0], 32), (32, 1)), rows - counts[0]))
+    else:
+        pieces += [(d, d.shape[0]) for d in descs]
+    at = 0
+    for src, n in pieces:
+        if n:
+            wp.copy(gathered.flatten(), src.contiguous().flatten(), at * 32, 0, n * 32)
+        at += n
+    starts = wp.array(starts, dtype=wp.int32, device=device)
+    return descs[-1], (*nearest_chain(gathered, starts), starts)
 
 
-def _chain_pairs(both_ways, descs, prev):
-    out = []
-    for desc in descs:
-        prev, *nearest = both_ways(desc, prev)
-        out.append(tuple(nearest))
-    return prev, out
+def batch_pairs(nearest, distance, starts, f: int) -> tuple:
+    """(nearest, distance, back) of frame ``f`` (>= 1) of :func:`nearest_batch`'s outputs
+    (host arrays): its rows' nearest rows in frame f - 1 and frame f - 1's rows' nearest in
+    it, the inputs of :func:`mutual_pairs`."""
+    a, b, c = int(starts[f - 1]), int(starts[f]), int(starts[f + 1])
+    return nearest[0, b:c], distance[0, b:c], nearest[1, a:b]
 
 
 def add_match_node(g, desc, *, target=None):
@@ -271,5 +313,5 @@ def stereo_depth(kps_left, desc_left, kps_right, desc_right, left, right, *, fx,
 
 
 __all__ = ["ROW_BUCKET", "add_match_node", "nearest_both_ways", "nearest_both_ways_warp", "nearest_batch",
-           "nearest_batch_warp", "mutual_pairs",
+           "nearest_batch_warp", "batch_pairs", "mutual_pairs",
            "hamming_pairs", "stereo_depth"]
