@@ -206,16 +206,18 @@ def chain(state, feats, ahead, *, K, config, baseline, frames):
 def add_extract_match(g, images, batch: int, config: o.TrackerConfig, *, target=None):
     """Add ``orb_batch`` and ``match_batch`` to graph ``g`` for ``images`` (a data object of
     uint8 [B', H, W], the first ``batch`` the left frames); returns the data objects (feats,
-    nearest). ``target`` pins both (``"gpu"``)."""
-    feats = g.user(functools.partial(orb_batch, config=config), [images], ["feats"],
+    nearest). ``target="gpu"`` makes both GPU-only nodes (calibration then never times a
+    batch's extraction on the CPU); None: both implementations, placed by the scheduler."""
+    cpu = target is None
+    feats = g.user(functools.partial(orb_batch, config=config) if cpu else None, [images], ["feats"],
                    warp_fn=functools.partial(orb_batch_warp, config=config), name="orb_batch",
                    target=target)
     last_desc = g.virtual("last_desc")
     # Before the first batch: no rows (pose_batch pairs nothing with them: its tail is empty).
     before = g.delay(last_desc, init=np.zeros((0, 32), np.uint8))[-1]
-    _, nearest = g.user(functools.partial(match_batch, frames=batch), [feats, before], [last_desc, "nearest"],
-                        warp_fn=functools.partial(match_batch_warp, frames=batch), name="match_batch",
-                        target=target)
+    _, nearest = g.user(functools.partial(match_batch, frames=batch) if cpu else None, [feats, before],
+                        [last_desc, "nearest"], warp_fn=functools.partial(match_batch_warp, frames=batch),
+                        name="match_batch", target=target)
     return feats, nearest
 
 

@@ -8,7 +8,8 @@ pairs are kept on the host by :func:`mutual_pairs` -- what ``match_hamming(cross
 rows are padded to a multiple of :data:`ROW_BUCKET` so the matcher's scratch buffers and recorded
 launches are reused frame after frame (ORB's keypoint count changes every frame); padding rows
 repeat real rows of lower index, so a pad never wins a tie (ties go to the lowest index) and the
-kept pairs are exactly the unpadded ones.
+kept pairs are exactly the unpadded ones. The batched front end (:mod:`warpvx.apps.orbslam_batch`)
+matches all consecutive frames of a batch both ways in one launch instead (:func:`nearest_batch`).
 """
 
 from __future__ import annotations
