@@ -405,7 +405,8 @@ def main(argv=None):
              f"{os.cpu_count()} CPU threads; batched mode: {report['batch']['workers']} pose processes)", "",
              "| what | FPS (wall) | FPS (steady) | vs OpenCV (thread pool) |", "| --- | --- | --- | --- |"]
     lines += [f"| {label}" + (f" (FAILED: {report[k]['error']})" if "error" in report[k] else "")
-              + f" | {report[k]['fps']:.1f} | {report[k].get('steady_fps', float('nan')):.1f} "
+              + f" | {report[k]['fps']:.1f} | " + (f"{report[k]['steady_fps']:.1f}" if "steady_fps" in report[k] else "")
+              + f" "
               f"| {report[k]['fps'] / base:.1f}x |" for label, k in rows]
     lines += [f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | | |",
               f"| OpenCV baseline, thread-pool extraction | {base:.1f} | | 1.0x |",
