@@ -404,10 +404,11 @@ def main(argv=None):
              f"# ORB-SLAM front end at {size[0]}x{size[1]} ({backend}, {n} frames, "
              f"{os.cpu_count()} CPU threads; batched mode: {report['batch']['workers']} pose processes)", "",
              "| what | FPS (wall) | FPS (steady) | vs OpenCV (thread pool) |", "| --- | --- | --- | --- |"]
-    lines += [f"| {label}" + (f" (FAILED: {report[k]['error']})" if "error" in report[k] else "")
-              + f" | {report[k]['fps']:.1f} | " + (f"{report[k]['steady_fps']:.1f}" if "steady_fps" in report[k] else "")
-              + f" "
-              f"| {report[k]['fps'] / base:.1f}x |" for label, k in rows]
+    for label, k in rows:
+        r = report[k]
+        steady = f"{r['steady_fps']:.1f}" if "steady_fps" in r else ""
+        lines.append(f"| {label}" + (f" (FAILED: {r['error']})" if "error" in r else "")
+                     + f" | {r['fps']:.1f} | {steady} | {r['fps'] / base:.1f}x |")
     lines += [f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | | |",
               f"| OpenCV baseline, thread-pool extraction | {base:.1f} | | 1.0x |",
               f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | | |",
