@@ -189,7 +189,7 @@ def bench_pose_pool(frames, camera, batch, pool):
             ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)
         row[key] = 1e3 * (time.perf_counter() - t) / (3 * batch)
     row["speedup"] = row["no_pool_ms"] / row["pool_ms"]
-    row["workers"] = pool._max_workers if pool is not None else 0
+    row["workers"] = pool.workers if pool is not None else 0
     return row
 
 
@@ -346,7 +346,7 @@ def main(argv=None):
         progress(f"front end {name} FPS", f"{report[key]['fps']:.1f}")
     # The batched mode: one pool of pose processes for all its runs (opened before timing).
     pool = ob.make_pool(args.workers)
-    report["batch"] = {"batch": batch, "workers": 0 if pool is None else pool._max_workers}
+    report["batch"] = {"batch": batch, "workers": 0 if pool is None else pool.workers}
     progress("pose pool", f"{report['batch']['workers']} processes")
     try:
         for b in sorted({batch, args.match_batch if not args.quick else batch} - {0}):

@@ -132,3 +132,27 @@ def test_bad_input_names_the_argument(seq, tmp_path, capsys):
                              "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "batch" in err[0]
+
+
+def test_pool_in_an_unguarded_script(tmp_path):
+    """A script without ``if __name__ == "__main__"`` can open a pool: the spawned processes
+    do not re-run it (they would raise, and run its top level once per process)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    marker = tmp_path / "runs.txt"
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "import operator\n"
+        "from warpvx.apps import orbslam_batch as ob\n"
+        f"open({str(marker)!r}, 'a').write('run\\n')\n"
+        "pool = ob.make_pool(2)\n"
+        "print(pool.map(operator.add, [(1, 2), (3, 4)]))\n"
+        "pool.shutdown()\n")
+    root = Path(__file__).resolve().parents[2]
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                         cwd=root, env={**__import__("os").environ, "PYTHONPATH": str(root)})
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stdout.strip() == "[3, 7]"
+    assert marker.read_text() == "run\n"  # the script's top level ran once, in the parent

@@ -34,8 +34,10 @@ of the device matcher's ties, which match the CPU ones (see the tests).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
+import sys
 import time
 
 import numpy as np
@@ -52,32 +54,72 @@ def _init_worker():
     cv2.setNumThreads(1)
 
 
-def make_pool(workers: int | None = None):
-    """A process pool for :func:`pose_batch` (``workers`` processes, default: all cores but
-    one, which the calling process's GPU and tracking threads keep, and at least 2; 0: none,
-    the work runs in the calling thread). Close it with ``shutdown()``."""
-    from concurrent.futures import ProcessPoolExecutor
-    from multiprocessing import get_context
+@contextlib.contextmanager
+def _caller_script_hidden():
+    """While processes start, the caller's ``__main__`` looks like an interactive session:
+    a spawned process then does not re-run the caller's script (it only needs warpvx's
+    functions), so a script need not guard its entry point with ``if __name__ ==
+    "__main__"`` to use a pool."""
+    main = sys.modules.get("__main__")
+    saved = {k: main.__dict__[k] for k in ("__file__", "__spec__") if main is not None and k in main.__dict__}
+    try:
+        for k in saved:
+            if k == "__spec__":
+                main.__spec__ = None
+            else:
+                del main.__dict__[k]
+        yield
+    finally:
+        for k, v in saved.items():
+            setattr(main, k, v)
 
+
+class PosePool:
+    """Processes for :func:`pose_batch`, all started on construction (about a second each;
+    spawned, not forked: the parent holds a CUDA context and executor threads), each with
+    one OpenCV thread since the pool already spreads the work over the cores. ``workers``:
+    the number of processes. Close it with :meth:`shutdown` (or use it as a context manager)."""
+
+    def __init__(self, workers: int):
+        from multiprocessing import get_context
+
+        with _caller_script_hidden():
+            self._pool = get_context("spawn").Pool(workers, initializer=_init_worker)
+        self.workers = workers
+
+    def map(self, fn, jobs) -> list:
+        """``[fn(*job) for job in jobs]`` on the processes, one job per task."""
+        return self._pool.starmap(fn, jobs, chunksize=1)
+
+    def shutdown(self, cancel_futures: bool = False):
+        if cancel_futures:
+            self._pool.terminate()
+        else:
+            self._pool.close()
+        self._pool.join()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.shutdown(cancel_futures=exc[0] is not None)
+
+
+def make_pool(workers: int | None = None) -> PosePool | None:
+    """A :class:`PosePool` for :func:`pose_batch` (``workers`` processes, default: all cores
+    but one, which the calling process's GPU and tracking threads keep, and at least 2; 0:
+    None, the work runs in the calling thread)."""
     from ..check import check_int
 
     workers = max(2, os.cpu_count() - 1) if workers is None else check_int(workers, "workers", min_value=0)
-    if workers == 0:
-        return None
-    # spawn: the parent holds a CUDA context and executor threads, which fork would copy. So
-    # a script that tracks must guard its entry point (if __name__ == "__main__"), as any user
-    # of a spawned pool.
-    pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_init_worker)
-    # Start the processes now (about a second each), not inside the first batch.
-    list(pool.map(int, range(workers)))
-    return pool
+    return PosePool(workers) if workers else None
 
 
 def _map(pool, fn, jobs):
     """``[fn(*job) for job in jobs]``, on ``pool``'s processes when given."""
     if pool is None:
         return [fn(*job) for job in jobs]
-    return [f.result() for f in [pool.submit(fn, *job) for job in jobs]]
+    return pool.map(fn, jobs)
 
 
 # --------------------------------------------------------------------------- the nodes
@@ -323,5 +365,5 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
             pool.shutdown(cancel_futures=True)
 
 
-__all__ = ["make_pool", "orb_batch", "match_batch", "pose_batch", "chain", "add_extract_match", "build_batch_graph",
+__all__ = ["PosePool", "make_pool", "orb_batch", "match_batch", "pose_batch", "chain", "add_extract_match", "build_batch_graph",
            "track_frames_batched"]
