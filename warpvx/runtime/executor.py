@@ -81,12 +81,11 @@ Errors
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import queue
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Mapping
 
 import networkx as nx
@@ -125,6 +124,74 @@ class _GpuState:
         self.io = io
         self.prev_end = None  # the last task's end event while the thread has not waited since
         self.task = "<executor>"  # the task running, for error reports
+
+
+class _Scope:
+    """The GPU role's device, and on CUDA its stream, made current around a run of its units
+    on whichever thread runs them: ``wp.ScopedStream(stream, sync_enter=False)`` (the
+    stream's order is ours; the user's stream is no producer), or ``wp.ScopedDevice`` on
+    Warp's CPU device without saving the thread's CUDA context (~4 us a run, paid on each
+    hand-off of an alternating chain). Warp's current device and stream are the process's,
+    so one run at a time: the GPU role's token holder's."""
+
+    __slots__ = ("device", "stream", "saved")
+
+    def __init__(self, device, stream):
+        self.device = device
+        self.stream = stream
+        self.saved = None
+
+    def __enter__(self):
+        dev = self.device
+        runtime = dev.runtime
+        stream = self.stream
+        if stream is None:
+            self.saved = (runtime.default_device, None)
+        else:
+            dev.context_guard.__enter__()
+            self.saved = (runtime.default_device, dev.stream)
+            dev.set_stream(stream, sync=False)
+        runtime.default_device = dev
+
+    def __exit__(self, *exc):
+        dev = self.device
+        default, stream = self.saved
+        if stream is not None:
+            dev.set_stream(stream, sync=False)
+            dev.context_guard.__exit__(*exc)
+        dev.runtime.default_device = default
+
+
+class _Role:
+    """One processor's progress through its frames (one-frame schedules): the thread holding
+    ``token`` runs its next units, its own thread or another one inline (see
+    :meth:`Executor._drive`). ``units``: its queue (CPU tasks, or the GPU queue's segments as
+    ``(index, segment)``); ``refs``: each unit's input references (what makes it ready);
+    ``frames``: the frames it has still to run, oldest first, ``pos`` the next unit of the
+    oldest; ``signal``: released to wake its thread."""
+
+    __slots__ = ("proc", "gpu", "units", "refs", "frames", "pos", "token", "signal", "state",
+                 "captures", "readers")
+
+    def __init__(self, proc: str, units: list, refs: list, state: "_GpuState | None"):
+        self.proc = proc
+        self.gpu = state is not None
+        self.units = units
+        self.refs = refs
+        self.frames: deque = deque()
+        self.pos = 0
+        self.token = threading.Lock()
+        self.signal = threading.Lock()
+        self.signal.acquire()
+        self.state = state
+        self.captures = None  # the oldest frame's capture states (GPU role)
+        self.readers: dict = {}  # output key of a unit -> the other roles that read it
+
+    def wake(self):
+        try:
+            self.signal.release()
+        except RuntimeError:  # already awake
+            pass
 
 
 class Executor(SegmentRunner):
@@ -245,6 +312,8 @@ class Executor(SegmentRunner):
                     self._up_pools.pop(key, None)
         self._null_stream = None  # the device's legacy stream (CUDA), looked up once
         self._task_keys = [k for t in program.tasks.values() for k in t.outputs]
+        self._roles = self._make_roles() if self.frames == 1 else {}
+        self._scope: _Scope | None = None  # the GPU role's device/stream (set by _start)
 
     # ------------------------------------------------------------------ checks
 
@@ -300,6 +369,30 @@ class Executor(SegmentRunner):
             raise ScheduleError(f"schedule: processor orders contradict data dependencies "
                                 f"(would deadlock): {cyc}")
 
+    def _make_roles(self) -> dict:
+        """processor -> its :class:`_Role` (one-frame schedules), with the roles reading each
+        of its outputs."""
+        roles = {}
+        for p in self._active:
+            if _is_gpu_processor(p):
+                units = list(enumerate(self._segments))
+                refs = [seg.inputs if seg.captured else seg.tasks[0].inputs for seg in self._segments]
+                roles[p] = _Role(p, units, refs, _GpuState(p, Transfers(self.gpu_device)))
+            else:
+                units = self.queues[p]
+                roles[p] = _Role(p, units, [t.inputs for t in units], None)
+        reading: dict = {}
+        for role in roles.values():
+            for refs in role.refs:
+                for ref in refs:
+                    reading.setdefault(ref.key, []).append(role)
+        for role in roles.values():
+            tasks = [t for _, seg in role.units for t in seg.tasks] if role.gpu else role.units
+            for key in (k for t in tasks for k in t.outputs):
+                role.readers[key] = tuple({id(r): r for r in reading.get(key, ())
+                                           if r is not role}.values())
+        return roles
+
     # ------------------------------------------------------------------ threads
 
     def _io(self) -> Transfers:
@@ -311,12 +404,16 @@ class Executor(SegmentRunner):
     def _start(self):
         if self._threads:
             return
-        if self.cuda:
+        if self.gpu_device:
             wp = warp()
-            self._stream = wp.Stream(self.gpu_device)
-            self.reanchor()
+            device = wp.get_device(self.gpu_device)
+            if self.cuda:
+                self._stream = wp.Stream(device)
+                self.reanchor()
+            self._scope = _Scope(device, self._stream)
+        loop = self._role_loop if self._roles else self._loop
         for p in self._active:
-            th = threading.Thread(target=self._loop, args=(p,), name=f"warpvx-{self.name}-{p}",
+            th = threading.Thread(target=loop, args=(p,), name=f"warpvx-{self.name}-{p}",
                                   daemon=True)
             self._threads[p] = th
             th.start()
@@ -341,6 +438,7 @@ class Executor(SegmentRunner):
         self._anchor = (0.5 * (t_before + t_after), ev)
 
     def _loop(self, proc: str):
+        """A processor's thread with a K-frame schedule: batches from its inbox."""
         gpu = _is_gpu_processor(proc)
         inbox = self._inbox[proc]
         while True:
@@ -351,24 +449,158 @@ class Executor(SegmentRunner):
                 if self._gpu_frames(proc, item, inbox):
                     return
             else:
-                self._run_item(proc, item)
+                self._run_batch(proc, item)
 
-    def _run_item(self, proc: str, item):
-        """Run ``proc``'s part of a frame (its queue) or of a :class:`Batch` (K frames)."""
-        if isinstance(item, Batch):
-            self._run_batch(proc, item)
-        else:
-            self._one_frame(proc, item, self._run_gpu_tasks if _is_gpu_processor(proc)
-                            else self._run_cpu)
+    # One-frame schedules: roles. A role's units run on whichever thread holds its token. A
+    # thread runs its own role while the next unit is ready; when it is not, a unit whose
+    # output made another role's next unit ready and whose thread would otherwise be woken
+    # runs inline (a serial chain alternating CPU and GPU tasks then never wakes a thread).
+    # Nobody blocks on a value: a role's thread sleeps on its signal until a producer finds
+    # the role ready and not taken. No lost wake-up: a producer publishes before it looks at
+    # the token, and a token holder looks at readiness again after letting the token go.
 
-    def _one_frame(self, proc: str, frame: Frame, run):
+    def _role_loop(self, proc: str):
+        home = self._roles[proc]
+        closing = self._closing
+        spin = self.spin
+        while not closing.is_set():
+            if self._ready(home) and not home.token.locked():
+                try:
+                    self._drive(home)
+                except BaseException as exc:  # noqa: BLE001 - an executor bug must not kill the thread
+                    frame = home.frames[0] if home.frames else None
+                    if frame is None:
+                        raise
+                    self._fail(frame, "<executor>", proc, exc)
+                continue
+            if spin > 0:
+                deadline = time.perf_counter() + spin
+                while time.perf_counter() < deadline and not self._ready(home):
+                    time.sleep(0)  # lets the producer have the GIL
+            home.signal.acquire(timeout=WAIT_SLICE)
+
+    def _drive(self, home: _Role):
+        """Run ``home``'s ready units on this thread, then (while ``home`` waits) those of a
+        role that this thread's work made ready, inline; wake the roles it made ready and
+        does not run."""
+        role = home
+        while True:
+            touched: list = []
+            self._advance(role, home, touched)
+            if role is not home and self._ready(role):
+                role.wake()  # left for a ready home unit
+            role = None
+            if self._ready(home) and not home.token.locked():
+                role = home
+            for r in touched:
+                if r is role or r is home or r.token.locked() or not self._ready(r):
+                    continue
+                if role is None:
+                    role = r
+                else:
+                    r.wake()
+            if role is None:
+                return
+
+    def _ready(self, role: _Role) -> bool:
+        """``role`` has work: its next unit's inputs are all set, or its frame was cancelled.
+        Read without the token (a hint, checked again under it)."""
         try:
-            if not frame.cancel.is_set():
-                run(proc, frame)
-        except BaseException as exc:  # noqa: BLE001 - an executor bug must not kill the thread
-            self._fail(frame, "<executor>", proc, exc)
+            frame = role.frames[0]
+        except IndexError:
+            return False
+        if frame.cancel.is_set():
+            return True
+        fs = frame.slots
+        for ref in role.refs[role.pos]:
+            s = fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)
+            if not s.done.is_set():
+                return False
+        return True
+
+    def _advance(self, role: _Role, home: _Role, touched: list):
+        """Holding ``role``'s token (if free), run its units while they are ready (for a role
+        not ``home``, until ``home``'s next one is); append to ``touched`` the roles that read what they published."""
+        if not role.token.acquire(False):
+            return
+        scope = None
+        try:
+            frames = role.frames
+            if role.gpu:
+                role.state.prev_end = None  # the stream may have idled since the last unit
+            while frames:
+                frame = frames[0]
+                if frame.cancel.is_set():
+                    self._end_frame(role, frame)
+                    continue
+                # Checked again under the token: another thread may have run what made the
+                # caller come (and running a unit not ready would block holding the token).
+                if not self._ready(role) or (role is not home and self._ready(home)):
+                    break
+                if role.gpu and scope is None and self._scope is not None:
+                    scope = self._scope
+                    scope.__enter__()
+                outputs = self._run_unit(role, frame)
+                if role.pos + 1 == len(role.units):
+                    self._end_frame(role, frame)
+                else:
+                    role.pos += 1
+                readers = role.readers
+                for key in outputs:
+                    for r in readers[key]:
+                        if r is not home and r not in touched:
+                            touched.append(r)
         finally:
-            frame.processor_done()
+            if scope is not None:
+                scope.__exit__(None, None, None)
+            role.token.release()
+
+    def _end_frame(self, role: _Role, frame: Frame):
+        role.pos = 0
+        role.captures = None
+        role.frames.popleft()
+        frame.processor_done()
+
+    def _run_unit(self, role: _Role, frame: Frame):
+        """Run ``role``'s next unit of ``frame``; the keys it published (none when it failed:
+        the frame is cancelled)."""
+        if not role.gpu:
+            task = role.units[role.pos]
+            ok = self._run_cpu_task(role.proc, frame, task, self._io())
+            return task.outputs if ok else ()
+        i, seg = role.units[role.pos]
+        state = role.state
+        if role.pos == 0:
+            state.prev_end = None  # a fresh start event: the last end event is another frame's
+            role.captures = self._captures_of(frame) if frame.capture else None
+        try:
+            self._run_segment_or_tasks(frame, i, seg, state, role.captures)
+        except Cancelled:
+            return ()
+        except BaseException as exc:  # noqa: BLE001 - reported to the caller
+            self._fail(frame, state.task, role.proc, exc)
+            return ()
+        return [k for t in seg.tasks for k in t.outputs]
+
+    def _run_segment_or_tasks(self, frame: Frame, i: int, seg, state: "_GpuState", captures):
+        """GPU segment ``i`` of ``frame``: replayed from its captured graph where there is one
+        (``captures``: the frame's capture states, or None), else task by task."""
+        sg = self._segment_graph(captures, i, seg, frame, state) \
+            if captures is not None and seg.captured else None
+        if sg is not None:
+            try:
+                self._run_segment(frame, seg, sg, state)
+                return
+            except NotCapturable:  # an input unlike the captured one: eagerly from now
+                captures[i] = None
+        for task in seg.tasks:
+            if frame.cancel.is_set():
+                return
+            self._run_gpu_task(frame, task, state)
+
+    def _wake_all(self):
+        for role in self._roles.values():
+            role.wake()
 
     def _run_batch(self, proc: str, batch: Batch):
         """``proc``'s ``(task, slot)`` entries for the frames of ``batch``, in the K-frame
@@ -402,16 +634,12 @@ class Executor(SegmentRunner):
                     frame.processor_done()
 
     def _gpu_frames(self, proc: str, item, inbox) -> bool:
-        """Run ``item`` (a frame or a batch) and those queued behind it in one device/stream
+        """Run ``item`` (a batch) and those queued behind it in one device/stream
         scope (entering and leaving the scope per frame costs host time on the critical
         thread). Returns True when the stop sentinel came."""
-        wp = warp()
-        scope = (wp.ScopedStream(self._stream, sync_enter=False) if self.cuda
-                 # sync_enter=False: the stream's order is ours; the user's stream is not a producer.
-                 else contextlib.nullcontext())
-        with wp.ScopedDevice(self.gpu_device), scope:
+        with self._scope:
             while True:
-                self._run_item(proc, item)
+                self._run_batch(proc, item)
                 try:
                     item = inbox.get_nowait()
                 except queue.Empty:
@@ -446,12 +674,6 @@ class Executor(SegmentRunner):
                 frame.wait_slot(s, self._closing, self.spin)
         return slots, waited
 
-    def _run_cpu(self, proc: str, frame: Frame):
-        io = self._io()
-        for task in self.queues[proc]:
-            if frame.cancel.is_set() or not self._run_cpu_task(proc, frame, task, io):
-                return
-
     def _run_cpu_task(self, proc: str, frame: Frame, task: ExecTask, io: Transfers) -> bool:
         """One CPU task: waits for its inputs, downloads device ones, calls, publishes.
         False when the frame was cancelled meanwhile or the task failed (reported)."""
@@ -483,31 +705,6 @@ class Executor(SegmentRunner):
             return False
         frame.trace[task.name] = (proc, t0, t1, t_mid)
         return True
-
-    def _run_gpu_tasks(self, proc: str, frame: Frame):
-        state = _GpuState(proc, self._io())
-        captures = self._captures_of(frame) if frame.capture else None
-        for i, seg in enumerate(self._segments):
-            if frame.cancel.is_set():
-                return
-            try:
-                sg = self._segment_graph(captures, i, seg, frame, state) if captures is not None \
-                    and seg.captured else None
-                if sg is not None:
-                    try:
-                        self._run_segment(frame, seg, sg, state)
-                        continue
-                    except NotCapturable:  # an input unlike the captured one: eagerly from now
-                        captures[i] = None
-                for task in seg.tasks:
-                    if frame.cancel.is_set():
-                        return
-                    self._run_gpu_task(frame, task, state)
-            except Cancelled:
-                return
-            except BaseException as exc:  # noqa: BLE001 - reported to the caller
-                self._fail(frame, state.task, proc, exc)
-                return
 
     def _start_event(self, frame: Frame, state: "_GpuState", slots, waited: bool):
         """The timing event a GPU task (or segment) starts at, after making the stream wait
@@ -676,6 +873,7 @@ class Executor(SegmentRunner):
             if f is not frame and f.cancelled_by is None:
                 f.cancelled_by = frame.index
             f.cancel.set()
+        self._wake_all()  # their roles skip the cancelled frames
 
     # ------------------------------------------------------------------ API
 
@@ -721,10 +919,14 @@ class Executor(SegmentRunner):
         with self._lock:
             failed = [f.index for f in self._inflight if f.error is not None]
             self._inflight.append(frame)
-            batch = self._join_batch(frame) if self.frames > 1 else frame
+            batch = self._join_batch(frame) if self.frames > 1 else None
         if failed:
             frame.cancelled_by = failed[0]
             frame.cancel.set()
+        for role in self._roles.values():
+            role.frames.append(frame)
+            if self._ready(role):
+                role.wake()
         if batch is not None:
             for p in self._active:
                 self._inbox[p].put(batch)
@@ -825,6 +1027,7 @@ class Executor(SegmentRunner):
             frames = list(self._inflight)
         for f in frames:
             f.cancel.set()
+        self._wake_all()
         for f in frames:
             while not f.finished.wait(WAIT_SLICE):
                 if not any(th.is_alive() for th in self._threads.values()):
@@ -845,6 +1048,7 @@ class Executor(SegmentRunner):
             return
         self.abort()
         self._closing.set()
+        self._wake_all()
         for p in self._threads:
             self._inbox[p].put(None)
         for th in self._threads.values():

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from .transfers import Transfers
 
-_GUARD_INIT = threading.Lock()  # makes the first Slot._lock of a slot, once
+_GUARD_INIT = threading.Lock()  # makes a slot's copy lock, or a flag's, once
 
 #: Where a slot's value lives: host memory (NumPy) or the GPU role's device (``wp.array``).
 HOST = "host"
@@ -18,22 +18,25 @@ DEVICE = "device"
 
 
 class Flag:
-    """A one-shot ``threading.Event`` (``set``, ``is_set``, ``wait(timeout)``) made of one
-    lock: cheaper to create, set and wait on than an Event (a Condition per wait), and the
-    executor makes one per value per frame and waits on them on every cross-thread edge."""
+    """A one-shot ``threading.Event`` (``set``, ``is_set``, ``wait(timeout)``): a bool, and a
+    lock made only when a thread has to block on it. The executor makes one per value per
+    frame and, with one-frame schedules, never blocks on them (a task runs once its inputs
+    are set), so most flags never make their lock."""
 
     __slots__ = ("_lock", "_set")
 
     def __init__(self):
-        self._lock = threading.Lock()
-        self._lock.acquire()
+        self._lock = None
         self._set = False
 
     def set(self):
-        if not self._set:
-            self._set = True
+        if self._set:
+            return
+        self._set = True  # before looking at the lock: a waiter making it looks at _set after
+        lock = self._lock
+        if lock is not None:
             try:
-                self._lock.release()
+                lock.release()
             except RuntimeError:  # released by a concurrent set()
                 pass
 
@@ -43,9 +46,19 @@ class Flag:
     def wait(self, timeout: float | None = None) -> bool:
         if self._set:
             return True
-        if self._lock.acquire(timeout=-1 if timeout is None else timeout):
+        lock = self._lock
+        if lock is None:
+            with _GUARD_INIT:
+                lock = self._lock
+                if lock is None:
+                    lock = threading.Lock()
+                    lock.acquire()
+                    self._lock = lock
+        if self._set:
+            return True
+        if lock.acquire(timeout=-1 if timeout is None else timeout):
             try:
-                self._lock.release()  # let the other waiters through
+                lock.release()  # let the other waiters through
             except RuntimeError:
                 pass
             return True
