@@ -168,16 +168,18 @@ class _Role:
     :meth:`Executor._drive`). ``units``: its queue (CPU tasks, or the GPU queue's segments as
     ``(index, segment)``); ``refs``: each unit's input references (what makes it ready);
     ``frames``: the frames it has still to run, oldest first, ``pos`` the next unit of the
-    oldest; ``signal``: released to wake its thread."""
+    oldest; ``signal``: released to wake its thread; ``short``: which units may run inline
+    (:attr:`Executor.INLINE_MAX_MS`)."""
 
-    __slots__ = ("proc", "gpu", "units", "refs", "frames", "pos", "token", "signal", "state",
-                 "captures", "readers")
+    __slots__ = ("proc", "gpu", "units", "refs", "short", "frames", "pos", "token", "signal",
+                 "state", "captures", "readers")
 
-    def __init__(self, proc: str, units: list, refs: list, state: "_GpuState | None"):
+    def __init__(self, proc: str, units: list, refs: list, short: list, state: "_GpuState | None"):
         self.proc = proc
         self.gpu = state is not None
         self.units = units
         self.refs = refs
+        self.short = short  # per unit: short enough to run inline on another role's thread
         self.frames: deque = deque()
         self.pos = 0
         self.token = threading.Lock()
@@ -231,6 +233,11 @@ class Executor(SegmentRunner):
     UPLOAD_POOL = 16
     #: Output buffers kept per pooled GPU task (a few frames in flight).
     OUT_POOL = 16
+    #: A unit (a task, or a GPU segment) scheduled to take this long or less (ms) may run
+    #: inline on the thread of the role whose output it waited for, instead of waking its
+    #: own role's thread (a wake-up, 10-30 us, is worth saving on short units only: a long
+    #: one inline would hold that thread's own role back).
+    INLINE_MAX_MS = 0.1
 
     def __init__(self, schedule: Schedule, program: Program, *, gpu_device: str | None = None,
                  name: str = "graph", spin: float | None = None, capture: bool | None = None):
@@ -372,15 +379,21 @@ class Executor(SegmentRunner):
     def _make_roles(self) -> dict:
         """processor -> its :class:`_Role` (one-frame schedules), with the roles reading each
         of its outputs."""
+        def short(tasks) -> bool:
+            ms = sum(self.placed[t.name, 0].finish - self.placed[t.name, 0].start for t in tasks)
+            return ms <= self.INLINE_MAX_MS
+
         roles = {}
         for p in self._active:
             if _is_gpu_processor(p):
                 units = list(enumerate(self._segments))
                 refs = [seg.inputs if seg.captured else seg.tasks[0].inputs for seg in self._segments]
-                roles[p] = _Role(p, units, refs, _GpuState(p, Transfers(self.gpu_device)))
+                roles[p] = _Role(p, units, refs, [short(seg.tasks) for seg in self._segments],
+                                 _GpuState(p, Transfers(self.gpu_device)))
             else:
                 units = self.queues[p]
-                roles[p] = _Role(p, units, [t.inputs for t in units], None)
+                roles[p] = _Role(p, units, [t.inputs for t in units], [short([t]) for t in units],
+                                 None)
         reading: dict = {}
         for role in roles.values():
             for refs in role.refs:
@@ -488,14 +501,14 @@ class Executor(SegmentRunner):
             touched: list = []
             self._advance(role, home, touched)
             if role is not home and self._ready(role):
-                role.wake()  # left for a ready home unit
+                role.wake()  # left for a ready home unit, or a long one
             role = None
             if self._ready(home) and not home.token.locked():
                 role = home
             for r in touched:
                 if r is role or r is home or r.token.locked() or not self._ready(r):
                     continue
-                if role is None:
+                if role is None and r.short[r.pos]:
                     role = r
                 else:
                     r.wake()
@@ -535,7 +548,8 @@ class Executor(SegmentRunner):
                     continue
                 # Checked again under the token: another thread may have run what made the
                 # caller come (and running a unit not ready would block holding the token).
-                if not self._ready(role) or (role is not home and self._ready(home)):
+                if not self._ready(role) or (role is not home and (
+                        not role.short[role.pos] or self._ready(home))):
                     break
                 if role.gpu and scope is None and self._scope is not None:
                     scope = self._scope
