@@ -172,7 +172,7 @@ class _Role:
     (:attr:`Executor.INLINE_MAX_MS`)."""
 
     __slots__ = ("proc", "gpu", "units", "refs", "short", "frames", "pos", "token", "signal",
-                 "state", "captures", "readers")
+                 "state", "captures", "touch")
 
     def __init__(self, proc: str, units: list, refs: list, short: list, state: "_GpuState | None"):
         self.proc = proc
@@ -187,7 +187,7 @@ class _Role:
         self.signal.acquire()
         self.state = state
         self.captures = None  # the oldest frame's capture states (GPU role)
-        self.readers: dict = {}  # output key of a unit -> the other roles that read it
+        self.touch: list = []  # per unit: the other roles that read what it publishes
 
     def wake(self):
         try:
@@ -394,16 +394,16 @@ class Executor(SegmentRunner):
                 units = self.queues[p]
                 roles[p] = _Role(p, units, [t.inputs for t in units], [short([t]) for t in units],
                                  None)
-        reading: dict = {}
+        reading: dict = {}  # key -> roles with a unit reading it (at any frame offset)
         for role in roles.values():
             for refs in role.refs:
                 for ref in refs:
-                    reading.setdefault(ref.key, []).append(role)
+                    reading.setdefault(ref.key, {})[id(role)] = role
         for role in roles.values():
-            tasks = [t for _, seg in role.units for t in seg.tasks] if role.gpu else role.units
-            for key in (k for t in tasks for k in t.outputs):
-                role.readers[key] = tuple({id(r): r for r in reading.get(key, ())
-                                           if r is not role}.values())
+            for unit in role.units:
+                keys = [k for t in (unit[1].tasks if role.gpu else [unit]) for k in t.outputs]
+                touch = {id(r): r for k in keys for r in reading.get(k, {}).values() if r is not role}
+                role.touch.append(tuple(touch.values()))
         return roles
 
     # ------------------------------------------------------------------ threads
@@ -533,7 +533,8 @@ class Executor(SegmentRunner):
 
     def _advance(self, role: _Role, home: _Role, touched: list):
         """Holding ``role``'s token (if free), run its units while they are ready (for a role
-        not ``home``, until ``home``'s next one is); append to ``touched`` the roles that read what they published."""
+        not ``home``, until ``home``'s next one is); append to ``touched`` the roles that read
+        what they published."""
         if not role.token.acquire(False):
             return
         scope = None
@@ -554,14 +555,14 @@ class Executor(SegmentRunner):
                 if role.gpu and scope is None and self._scope is not None:
                     scope = self._scope
                     scope.__enter__()
-                outputs = self._run_unit(role, frame)
-                if role.pos + 1 == len(role.units):
+                pos = role.pos
+                ok = self._run_unit(role, frame)
+                if pos + 1 == len(role.units):
                     self._end_frame(role, frame)
                 else:
-                    role.pos += 1
-                readers = role.readers
-                for key in outputs:
-                    for r in readers[key]:
+                    role.pos = pos + 1
+                if ok:
+                    for r in role.touch[pos]:
                         if r is not home and r not in touched:
                             touched.append(r)
         finally:
@@ -575,32 +576,32 @@ class Executor(SegmentRunner):
         role.frames.popleft()
         frame.processor_done()
 
-    def _run_unit(self, role: _Role, frame: Frame):
-        """Run ``role``'s next unit of ``frame``; the keys it published (none when it failed:
-        the frame is cancelled)."""
+    def _run_unit(self, role: _Role, frame: Frame) -> bool:
+        """Run ``role``'s next unit of ``frame``; False when it failed (the frame is
+        cancelled)."""
         if not role.gpu:
-            task = role.units[role.pos]
-            ok = self._run_cpu_task(role.proc, frame, task, self._io())
-            return task.outputs if ok else ()
+            return self._run_cpu_task(role.proc, frame, role.units[role.pos], self._io())
         i, seg = role.units[role.pos]
         state = role.state
         if role.pos == 0:
             state.prev_end = None  # a fresh start event: the last end event is another frame's
             role.captures = self._captures_of(frame) if frame.capture else None
         try:
-            self._run_segment_or_tasks(frame, i, seg, state, role.captures)
+            if seg.captured:
+                self._run_segment_or_tasks(frame, i, seg, state, role.captures)
+            else:
+                self._run_gpu_task(frame, seg.tasks[0], state)
         except Cancelled:
-            return ()
+            return False
         except BaseException as exc:  # noqa: BLE001 - reported to the caller
             self._fail(frame, state.task, role.proc, exc)
-            return ()
-        return [k for t in seg.tasks for k in t.outputs]
+            return False
+        return True
 
     def _run_segment_or_tasks(self, frame: Frame, i: int, seg, state: "_GpuState", captures):
-        """GPU segment ``i`` of ``frame``: replayed from its captured graph where there is one
-        (``captures``: the frame's capture states, or None), else task by task."""
-        sg = self._segment_graph(captures, i, seg, frame, state) \
-            if captures is not None and seg.captured else None
+        """Capturable GPU segment ``i`` of ``frame``: replayed from its captured graph where
+        there is one (``captures``: the frame's capture states, or None), else task by task."""
+        sg = self._segment_graph(captures, i, seg, frame, state) if captures is not None else None
         if sg is not None:
             try:
                 self._run_segment(frame, seg, sg, state)
