@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 
+from warpvx.backend import cuda_available
 from warpvx.errors import NodeExecutionError, ScheduleError
 from warpvx.runtime import (
     DEVICE,
@@ -239,14 +240,15 @@ def _expected(x, n):
     return x
 
 
+@pytest.mark.parametrize("device", ["cpu"] + (["cuda:0"] if cuda_available() else []))
 @pytest.mark.parametrize("ms", [LONG, SHORT])
-def test_alternating_chain_runs_short_tasks_inline_and_long_ones_on_their_threads(ms):
+def test_alternating_chain_runs_short_tasks_inline_and_long_ones_on_their_threads(ms, device):
     """Short tasks of a CPU/GPU chain run on the thread whose output they wait for (no
     wake-up per hand-off); long ones on their own processor's thread; outputs and the order
-    of pipelined frames are the same either way."""
+    of pipelined frames are the same either way (on CUDA, through staged downloads)."""
     n = 8
     prog, placement, ran = _alternating(n)
-    ex = Executor(sched(placement, ms=ms), prog, gpu_device="cpu")
+    ex = Executor(sched(placement, ms=ms), prog, gpu_device=device)
     try:
         xs = [np.full(3, i, np.float32) for i in range(6)]
         frames = [ex.submit(i, {"x": (x, HOST)}) for i, x in enumerate(xs)]
@@ -255,6 +257,9 @@ def test_alternating_chain_runs_short_tasks_inline_and_long_ones_on_their_thread
             np.testing.assert_array_equal(res.outputs["y"], _expected(x, n))
             assert {t: s.processor for t, s in res.timeline.items()} == placement
         threads = {p: ex._threads[p] for p in ("cpu0", "gpu")}
+        if device != "cpu":  # every GPU -> CPU edge was staged, in a few reused buffers
+            staging = ex._roles["gpu"].state.io._unstaging
+            assert staging and all(len(ring) <= 2 * 4 for ring in staging.values())
     finally:
         ex.close()
     elsewhere = sum(th is not threads["cpu0" if kind == "cpu" else "gpu"] for kind, th in ran)

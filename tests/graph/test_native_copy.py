@@ -64,6 +64,44 @@ def test_native_and_public_copies_give_the_same_bytes(device, host):
 
 
 @pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("native", [True, False])
+def test_asynchronous_downloads_give_the_same_bytes(device, native):
+    wp = init_warp()
+    host = np.random.default_rng(3).integers(-1000, 1000, (67, 5), dtype=np.int32)
+    src = wp.array(host, dtype=wp.int32, device=device)
+    dst = wp.empty(host.shape, dtype=wp.int32, device="cpu", pinned=device != "cpu")
+    stream = _stream(wp, device)
+    nc.to_host_async(dst, src, stream, native=native)
+    if stream is not None:
+        wp.synchronize_event(stream.record_event())
+    np.testing.assert_array_equal(dst.numpy(), host)
+
+
+@pytest.mark.skipif(not cuda_available(), reason="CUDA staging and events")
+def test_staged_download_and_native_elapsed_time():
+    wp = init_warp()
+    host = np.arange(1000, dtype=np.float32) * 0.25
+    a = wp.array(host, dtype=wp.float32, device="cuda:0")
+    io = Transfers("cuda:0")
+    start, end = (wp.Event("cuda:0", enable_timing=True) for _ in range(2))
+    stream = wp.get_stream("cuda:0")
+    stream.record_event(start)
+    a.fill_(2.0)
+    stream.record_event(end)
+    stage = io.stage_download(a, end)  # waits for the fill on the device, not on the host
+    got = io.unstage(stage)
+    np.testing.assert_array_equal(got, np.full_like(host, 2.0))
+    assert not np.shares_memory(got, stage.view)
+    stage.free = True
+    assert io.stage_download(a, end) is stage  # reused once free and copied
+    io.unstage(stage)
+    wp.synchronize_event(end)
+    assert nc.elapsed_ms(start, end) == pytest.approx(wp.get_event_elapsed_time(start, end))
+    # Another kind of value (a vector dtype) downloads the usual way.
+    assert io.stage_download(wp.zeros(3, dtype=wp.vec2, device="cuda:0")) is None
+
+
+@pytest.mark.parametrize("device", DEVICES)
 def test_pinned_source_uploads_agree(device):
     wp = init_warp()
     host = np.arange(4096, dtype=np.float32) * 0.5

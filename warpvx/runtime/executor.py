@@ -172,7 +172,7 @@ class _Role:
     (:attr:`Executor.INLINE_MAX_MS`)."""
 
     __slots__ = ("proc", "gpu", "units", "refs", "short", "frames", "pos", "token", "signal",
-                 "state", "captures", "touch")
+                 "state", "captures", "touch", "stage")
 
     def __init__(self, proc: str, units: list, refs: list, short: list, state: "_GpuState | None"):
         self.proc = proc
@@ -188,6 +188,7 @@ class _Role:
         self.state = state
         self.captures = None  # the oldest frame's capture states (GPU role)
         self.touch: list = []  # per unit: the other roles that read what it publishes
+        self.stage: list = []  # per GPU unit: its output keys whose download starts at once
 
     def wake(self):
         try:
@@ -383,6 +384,7 @@ class Executor(SegmentRunner):
             ms = sum(self.placed[t.name, 0].finish - self.placed[t.name, 0].start for t in tasks)
             return ms <= self.INLINE_MAX_MS
 
+        staged = self._staged_keys()
         roles = {}
         for p in self._active:
             if _is_gpu_processor(p):
@@ -404,7 +406,18 @@ class Executor(SegmentRunner):
                 keys = [k for t in (unit[1].tasks if role.gpu else [unit]) for k in t.outputs]
                 touch = {id(r): r for k in keys for r in reading.get(k, {}).values() if r is not role}
                 role.touch.append(tuple(touch.values()))
+                role.stage.append(tuple(k for k in keys if k in staged))
         return roles
+
+    def _staged_keys(self) -> set:
+        """Keys whose download starts as soon as the GPU role publishes them (CUDA): read by
+        a CPU task of the same frame, and by no delay (a staging buffer is reused once its
+        frame is over)."""
+        if not self.cuda:
+            return set()
+        cpu_reads = {r.key for p in self._active if not _is_gpu_processor(p)
+                     for t in self.queues[p] for r in t.inputs if r.offset == 0}
+        return cpu_reads - set(self.program.rings)
 
     # ------------------------------------------------------------------ threads
 
@@ -591,12 +604,24 @@ class Executor(SegmentRunner):
                 self._run_segment_or_tasks(frame, i, seg, state, role.captures)
             else:
                 self._run_gpu_task(frame, seg.tasks[0], state)
+            for key in role.stage[role.pos]:
+                self._stage(frame, frame.slots[key], state.io)
         except Cancelled:
             return False
         except BaseException as exc:  # noqa: BLE001 - reported to the caller
             self._fail(frame, state.task, role.proc, exc)
             return False
         return True
+
+    def _stage(self, frame: Frame, slot: Slot, io: Transfers):
+        """Start the download of a GPU value a CPU task of the frame reads (CUDA): see
+        :meth:`Transfers.stage_download`."""
+        if slot.where != DEVICE or slot.staged is not None:
+            return
+        staged = io.stage_download(slot.value, slot.event)
+        if staged is not None:
+            slot.staged = staged
+            frame.staged.append(staged)
 
     def _run_segment_or_tasks(self, frame: Frame, i: int, seg, state: "_GpuState", captures):
         """Capturable GPU segment ``i`` of ``frame``: replayed from its captured graph where
@@ -695,16 +720,19 @@ class Executor(SegmentRunner):
         try:
             slots, _ = self._ready_inputs(frame, task.inputs)
             remote = [s for s in slots if s.where == DEVICE]
-            if self.cuda:
-                for s in remote:
-                    ev = s.event
-                    if ev is not None:
-                        synchronize_event(ev)
+            waited = [None] * len(slots)
+            if self.cuda and remote:
+                # Waiting for the producer (or its staged download) is not the task's time.
+                for i, s in enumerate(slots):
+                    if s.where == DEVICE:
+                        ev = waited[i] = s.ready_event()
+                        if ev is not None:
+                            synchronize_event(ev)
             t0 = time.perf_counter()
             t_mid = None
             if remote:
                 before = io.moved
-                values = [s.host(io, ready=True) for s in slots]
+                values = [s.host(io, waited=ev) for s, ev in zip(slots, waited)]
                 t_mid = time.perf_counter()
                 if io.moved > before:
                     frame.copied[task.name] = io.moved - before
@@ -1015,9 +1043,17 @@ class Executor(SegmentRunner):
                 ring.age(frame.index)
             return result
         finally:
+            self._unstage(frame)
             with self._lock:
                 if frame in self._inflight:
                     self._inflight.remove(frame)
+
+    @staticmethod
+    def _unstage(frame: Frame):
+        """Frame over: its staged downloads' buffers may be reused (once their copy is done)."""
+        for staged in frame.staged:
+            staged.free = True
+        frame.staged = []
 
     def _recycle(self, frame: Frame):
         """Every GPU task of the frame has completed: its events go back to the pool. Slots
@@ -1049,6 +1085,7 @@ class Executor(SegmentRunner):
                     break
             for ring in self.program.rings.values():
                 ring.discard_pending(f.index)
+            self._unstage(f)
         with self._lock:
             self._inflight = [f for f in self._inflight if f not in frames]
 

@@ -72,7 +72,8 @@ class Slot:
     device). ``done`` is set once the value may be read (after the CUDA ``event``, if any).
     """
 
-    __slots__ = ("value", "where", "event", "external", "done", "_host", "_device", "_lock")
+    __slots__ = ("value", "where", "event", "external", "done", "staged", "_host", "_device",
+                 "_lock")
 
     def __init__(self):
         self.value = None
@@ -80,6 +81,7 @@ class Slot:
         self.event = None
         self.external = False  # a device value made outside the executor's stream
         self.done = Flag()
+        self.staged = None  # a download already under way (Transfers.stage_download)
         self._host = None
         self._device = None
         self._lock = None  # made on the first copy (most values are never copied)
@@ -94,18 +96,29 @@ class Slot:
         self.value, self.where, self.event = value, where, event
         self.done.set()
 
-    def host(self, io: "Transfers", *, ready: bool = False):
+    def host(self, io: "Transfers", *, waited=None):
         """The value as host data, downloaded once (thread-safe).
 
-        ``ready``: the caller already waited for the producer's event on the host, so the
-        copy need not wait for it again.
+        ``waited``: the event (:meth:`ready_event`) the caller already waited for on the
+        host; the copy does not wait for it again.
         """
         if self.where == HOST:
             return self.value
         with self._guard():
             if self._host is None:
-                self._host = (io.download(self.value, None if ready else self.event),)
+                staged = self.staged
+                if staged is not None:
+                    self._host = (io.unstage(staged, ready=waited is staged.event),)
+                else:
+                    event = self.event
+                    self._host = (io.download(self.value, None if waited is event else event),)
             return self._host[0]
+
+    def ready_event(self):
+        """The CUDA event after which :meth:`host` copies without waiting: the staged
+        download's, else the producer's (None: nothing to wait for)."""
+        staged = self.staged
+        return self.event if staged is None else staged.event
 
     def device(self, io: "Transfers", into=None):
         """The value on the GPU role's device, uploaded once (call from the GPU thread).
