@@ -545,9 +545,11 @@ class Executor(SegmentRunner):
         return True
 
     def _advance(self, role: _Role, home: _Role, touched: list):
-        """Holding ``role``'s token (if free), run its units while they are ready (for a role
-        not ``home``, until ``home``'s next one is); append to ``touched`` the roles that read
-        what they published."""
+        """Holding ``role``'s token (if free), run its units while they may run here
+        (:meth:`_may_run`). After a unit, the roles that read what it published are woken
+        when this thread goes on with ``role`` (at once: a producer does not sit on a ready
+        consumer while it runs its next unit), else appended to ``touched`` (the caller may
+        run one of them inline)."""
         if not role.token.acquire(False):
             return
         scope = None
@@ -555,15 +557,16 @@ class Executor(SegmentRunner):
             frames = role.frames
             if role.gpu:
                 role.state.prev_end = None  # the stream may have idled since the last unit
+            go = None  # whether the next unit may run, when known already
             while frames:
                 frame = frames[0]
                 if frame.cancel.is_set():
                     self._end_frame(role, frame)
+                    go = None
                     continue
-                # Checked again under the token: another thread may have run what made the
-                # caller come (and running a unit not ready would block holding the token).
-                if not self._ready(role) or (role is not home and (
-                        not role.short[role.pos] or self._ready(home))):
+                # Checked under the token: another thread may have run what made the caller
+                # come (and running a unit not ready would block holding the token).
+                if not (self._may_run(role, home) if go is None else go):
                     break
                 if role.gpu and scope is None and self._scope is not None:
                     scope = self._scope
@@ -574,14 +577,27 @@ class Executor(SegmentRunner):
                     self._end_frame(role, frame)
                 else:
                     role.pos = pos + 1
-                if ok:
-                    for r in role.touch[pos]:
-                        if r is not home and r not in touched:
+                go = None
+                readers = role.touch[pos] if ok else ()
+                if readers:
+                    go = self._may_run(role, home)
+                    for r in readers:
+                        if r is home or r in touched:
+                            continue
+                        if not go:
                             touched.append(r)
+                        elif not r.token.locked() and self._ready(r):
+                            r.wake()
         finally:
             if scope is not None:
                 scope.__exit__(None, None, None)
             role.token.release()
+
+    def _may_run(self, role: _Role, home: _Role) -> bool:
+        """``role``'s next unit may run on the thread of ``home``: it is ready, and it is
+        ``home``'s, or short while ``home`` has nothing ready."""
+        return self._ready(role) and (role is home or (
+            role.short[role.pos] and not self._ready(home)))
 
     def _end_frame(self, role: _Role, frame: Frame):
         role.pos = 0
