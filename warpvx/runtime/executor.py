@@ -4,28 +4,38 @@ The executor is the runtime half of SPEC §7. It knows nothing of graphs: it run
 :class:`Program` (tasks with named inputs and outputs and one callable per processing
 element) according to a schedule, frame after frame.
 
-Threads
-    One thread per processor of the schedule. A CPU worker (``"cpu<i>"``) runs its tasks' CPU
-    callables in schedule order on host data (NumPy/OpenCV release the GIL, so workers
-    overlap). The GPU host thread (``"gpu"``) runs the GPU callables in schedule order with the
-    device's current stream set to the executor's ``wp.Stream``; on CUDA the calls only enqueue
-    kernels, so the thread runs ahead of the device.
+Roles and threads
+    Each processor of the schedule is a *role* with a thread of its own. A CPU worker
+    (``"cpu<i>"``) runs its tasks' CPU callables in schedule order on host data (NumPy/OpenCV
+    release the GIL, so workers overlap). The GPU role (``"gpu"``) runs the GPU callables in
+    schedule order with the device's current stream set to the executor's ``wp.Stream``; on
+    CUDA the calls only enqueue kernels, so its thread runs ahead of the device. With a
+    one-frame schedule a role's next unit (a task, or a GPU segment) runs on whichever thread
+    holds the role's token: its own thread while it has ready work, or *inline* on the
+    thread whose output made it ready when that thread's own role has nothing ready and the
+    unit is short (:attr:`Executor.INLINE_MAX_MS`): a serial chain alternating CPU and GPU
+    tasks then runs on one thread, with no thread wake-up per hand-off (10-30 us each under
+    the GIL). Nobody blocks on a value: a role's thread sleeps on its signal until a producer
+    finds the role ready and not taken; a producer going on with its own work wakes the
+    ready readers of what it published at once. With a K-frame schedule each thread runs its
+    own role and blocks on each value it needs.
 Cross-queue edges
-    Every (frame, value) pair is a :class:`Slot` with a ``threading.Event`` set when its
-    producer has finished (CPU) or enqueued (GPU). GPU -> CPU: the GPU thread records a CUDA
-    event after the producer; the CPU consumer waits for the slot, then for the event
-    (``wp.synchronize_event``), then downloads on its own copy stream. CPU -> GPU: the GPU
-    thread waits for the CPU producer's slot and uploads on the GPU stream (stream-ordered, so
-    the kernel after it sees the data; large arrays go through reusable pinned staging
-    buffers, so the copy is asynchronous and the GPU thread does not wait for the kernels
-    queued before it). Between two GPU tasks data stays on the device: one in-order stream
-    needs no synchronisation at all.
+    Every (frame, value) pair is a :class:`Slot`, set when its producer has finished (CPU) or
+    enqueued (GPU). GPU -> CPU: the producer's end event is recorded on the stream; on CUDA,
+    where a CPU task of the frame reads the value, the GPU role then starts its download at
+    once (:meth:`Transfers.stage_download`: a pinned buffer, its own copy stream after the
+    producer's event), so the reader waits for one event and copies out; otherwise the
+    reader waits for the producer's event and downloads on its thread's copy stream.
+    CPU -> GPU: the GPU role uploads on the GPU stream (stream-ordered, so the kernel after
+    it sees the data; large arrays go through reusable pinned staging buffers, so the copy is
+    asynchronous and the host does not wait for the kernels queued before it). Between two
+    GPU tasks data stays on the device: one in-order stream needs no synchronisation at all.
 Timing
     CPU tasks: host ``time.perf_counter`` before the task's downloads and after its call
     (waiting for a producer is not counted). GPU tasks on CUDA: timing events recorded on the
     stream before the task's uploads and after its kernels, mapped to the host clock through
     an anchor event recorded while the stream was idle (:meth:`Executor.reanchor`), so a GPU
-    interval is when the device ran it, not when the host enqueued it. When the GPU thread
+    interval is when the device ran it, not when the host enqueued it. When the GPU role
     did not have to wait between two tasks, the first one's end event is the second one's
     start (one event per task, not two). Events come from a pool and return to it once their
     frame has been waited for. The host-side time of each GPU call (enqueue plus any host
@@ -73,8 +83,8 @@ K frames in flight
     the queue, which a K-frame order interleaves: with K > 1 GPU tasks run eagerly.
 Errors
     A task that raises fails its frame: that frame and every later frame in flight are
-    cancelled (their waits see the cancel flag within :data:`WAIT_SLICE` seconds and their
-    remaining tasks are skipped), earlier frames complete, and :meth:`Executor.wait` raises
+    cancelled (the roles are woken and skip their remaining units; a K-frame schedule's waits
+    see the cancel flag within :data:`WAIT_SLICE` seconds), earlier frames complete, and :meth:`Executor.wait` raises
     :class:`~warpvx.errors.NodeExecutionError` with the task's exception as ``__cause__``. No
     wait is unbounded: each checks its frame's cancel flag and the executor's shutdown flag.
 """
@@ -115,7 +125,7 @@ def _is_gpu_processor(name: str) -> bool:
 
 
 class _GpuState:
-    """The GPU thread's state through one frame."""
+    """The GPU role's state through a frame (whichever thread runs it)."""
 
     __slots__ = ("proc", "io", "prev_end", "task")
 
@@ -294,7 +304,7 @@ class Executor(SegmentRunner):
         self._upload_rule = self._upload_rules() if self.cuda else {}
         self._up_pools: dict[str, list] = {k: [] for k, rule in self._upload_rule.items()
                                            if rule != "never"}
-        self._up_lock = threading.Lock()  # the GPU thread leases, wait() returns
+        self._up_lock = threading.Lock()  # the GPU role leases, wait() returns
         gpu_queue = [t.name for p in self.processors if _is_gpu_processor(p) for t in self.queues[p]]
         # A captured segment is one frame's consecutive GPU tasks; a K-frame order interleaves
         # frames on the GPU queue, so with K > 1 nothing is captured (every task runs eagerly).
