@@ -54,6 +54,7 @@ def native_entry_points():
                 d2d=core.wp_memcpy_d2d,
                 stream_sync=core.wp_cuda_stream_synchronize,
                 event_record=core.wp_cuda_event_record,
+                stream_wait_event=core.wp_cuda_stream_wait_event,
                 event_sync=core.wp_cuda_event_synchronize,
                 event_elapsed=core.wp_cuda_event_elapsed_time)
         except (ImportError, AttributeError):
@@ -194,6 +195,16 @@ def record_event(stream, event):
         fast.event_record(event.cuda_event, stream.cuda_stream, True)
 
 
+def wait_event(stream, event):
+    """``stream.wait_event(event)`` (the stream's later work waits for the event, on the
+    device) without Warp's Python checks."""
+    fast = native_entry_points()
+    if fast is None:
+        stream.wait_event(event)
+    else:
+        fast.stream_wait_event(stream.cuda_stream, event.cuda_event, False)
+
+
 def synchronize_event(event):
     """``wp.synchronize_event(event)`` without Warp's capture checks: the executor's GPU
     thread may be capturing a CUDA graph on its own stream while another thread waits for an
@@ -215,5 +226,5 @@ def elapsed_ms(start, end) -> float:
 
 
 __all__ = ["warp", "is_warp_array", "native_entry_points", "numpy_dtype", "to_host",
-           "to_host_async", "to_device", "copy_device", "record_event", "synchronize_event",
+           "to_host_async", "to_device", "copy_device", "record_event", "wait_event", "synchronize_event",
            "elapsed_ms"]

@@ -84,7 +84,7 @@ class Slot:
         self.staged = None  # a download already under way (Transfers.stage_download)
         self._host = None
         self._device = None
-        self._lock = None  # made on the first copy (most values are never copied)
+        self._lock = None  # made on the first download (most values are never downloaded)
 
     @classmethod
     def ready(cls, value, where=HOST) -> "Slot":
@@ -121,17 +121,17 @@ class Slot:
         return self.event if staged is None else staged.event
 
     def device(self, io: "Transfers", into=None):
-        """The value on the GPU role's device, uploaded once (call from the GPU thread).
+        """The value on the GPU role's device, uploaded once. Only the GPU role uploads, one
+        thread at a time (its token holder), so no lock.
 
         ``into(shape, dtype)``: a device buffer to upload an array leaf into, or None for a
         fresh one (see :meth:`Transfers.upload`).
         """
         if self.where == DEVICE:
             return self.value
-        with self._guard():
-            if self._device is None:
-                self._device = (io.upload(self.value, into),)
-            return self._device[0]
+        if self._device is None:
+            self._device = (io.upload(self.value, into),)
+        return self._device[0]
 
     def _guard(self) -> threading.Lock:
         lock = self._lock
@@ -141,9 +141,6 @@ class Slot:
                 if lock is None:
                     lock = self._lock = threading.Lock()
         return lock
-
-    def get(self, where, io):
-        return self.host(io) if where == HOST else self.device(io)
 
 
 class Ring:

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .native_copy import (is_warp_array, numpy_dtype, synchronize_event, to_device, to_host,
-                          to_host_async, warp)
+from .native_copy import (is_warp_array, numpy_dtype, record_event, synchronize_event, to_device,
+                          to_host, to_host_async, wait_event, warp)
 
 
 def tree_map(fn, obj):
@@ -116,7 +116,7 @@ class Transfers:
             else:
                 s = self.stream if a.device.is_cuda else None
                 if event is not None and s is not None:
-                    s.wait_event(event)
+                    wait_event(s, event)
                 # Warp's CPU device shares host memory: copied too, so the value outlives
                 # the buffer.
                 out = to_host(a, s)
@@ -147,9 +147,9 @@ class Transfers:
             ring.append(stage)
         stream = self.stream
         if event is not None:
-            stream.wait_event(event)
+            wait_event(stream, event)
         to_host_async(stage.buffer, a, stream)
-        stream.record_event(stage.event)
+        record_event(stream, stage.event)
         stage.free = False
         return stage
 
