@@ -170,3 +170,24 @@ def test_keypoints_and_user_types_round_trip_through_transfers(device):
     assert isinstance(back[1], Pair) and back[1].label == "lbl"
     np.testing.assert_array_equal(back[1].a, pair.a)
     np.testing.assert_array_equal(back[1].b, pair.b)
+
+
+def test_a_slot_reads_its_staged_download_once_as_a_fresh_copy():
+    """Slot.host takes a staged download (here one already complete, on Warp's CPU device:
+    no event) instead of downloading again, copies it out once, and never hands out the
+    staging buffer itself (it is reused by later frames)."""
+    from warpvx.runtime import DEVICE, Slot
+    from warpvx.runtime.transfers import _Staging
+
+    wp = init_warp()
+    host = np.arange(12, dtype=np.float32).reshape(3, 4)
+    stage = _Staging(wp.array(host, dtype=wp.float32, device="cpu"), None)
+    slot = Slot.ready(wp.zeros((3, 4), dtype=wp.float32, device="cpu"), DEVICE)  # not what is read
+    slot.staged = stage
+    assert slot.ready_event() is None
+    io = Transfers("cpu")
+    got = slot.host(io, waited=slot.ready_event())
+    np.testing.assert_array_equal(got, host)
+    assert not np.shares_memory(got, stage.view) and io.moved == host.nbytes
+    stage.view[:] = -1  # the buffer reused: what was read stays
+    assert slot.host(io) is got and got[0, 1] == 1.0
