@@ -155,12 +155,12 @@ def markdown(report) -> str:
              f"{report['seconds']:.0f} s.", "",
              "## Identity chains (user nodes, never captured)", "",
              "| chain | nodes | us/node (process) | us/node (stream, 4 in flight) | "
-             "breakdown, process (median us) |",
-             "|---|---|---|---|---|"]
+             "breakdown, process (median us) | units short enough to run inline |",
+             "|---|---|---|---|---|---|"]
     for r in report["chains"]:
         parts = ", ".join(f"{k} {v:.1f}" for k, v in r.get("breakdown", {}).items() if v is not None)
         lines.append(f"| {r['chain']} | {r['n_nodes']} | {r['per_node_us']:.1f} | "
-                     f"{r['per_node_us_stream']:.1f} | {parts} |")
+                     f"{r['per_node_us_stream']:.1f} | {parts} | {r.get('inline_units', '')} |")
     lines += ["", "Targets (issue 11): < 5 us/node on the GPU-only chain, < 20 on the alternating "
               "one. Breakdown (executor_overhead): mixed, one CPU -> GPU -> CPU round: the GPU "
               "call's host time (gpu_task), a CPU task with its download (cpu_task), the "
