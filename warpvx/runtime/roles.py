@@ -183,6 +183,8 @@ class RoleRunner:
                 deadline = time.perf_counter() + spin
                 while time.perf_counter() < deadline and not self._ready(home):
                     time.sleep(0)  # lets the producer have the GIL
+                if self._ready(home):
+                    continue
             # Frames waiting: a time-out, as a delay's value may come without a producer (a
             # user's write, a cancelled frame's slot dropped). None: until submit or close.
             home.signal.acquire(timeout=WAIT_SLICE if home.frames else -1)
