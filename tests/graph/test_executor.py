@@ -429,3 +429,18 @@ def test_captured_segment_equals_eager_with_cpu_reader_and_delay(depth):
         # Captured tasks share their replay's interval, in order.
         ta, tb = c.timeline["a"], c.timeline["b"]
         assert ta.start <= ta.finish <= tb.start + 1e-9 <= tb.finish + 1e-9
+
+
+@pytest.mark.parametrize("ms", [LONG, SHORT])
+def test_spinning_threads_hand_off_the_same_results(ms):
+    """With ``spin`` a waiting thread polls before it sleeps; results and order are the same."""
+    n = 6
+    prog, placement, _ = _alternating(n)
+    ex = Executor(sched(placement, ms=ms), prog, gpu_device="cpu", spin=1e-3)
+    try:
+        xs = [np.full(2, i, np.float32) for i in range(5)]
+        frames = [ex.submit(i, {"x": (x, HOST)}) for i, x in enumerate(xs)]
+        for x, f in zip(xs, frames):
+            np.testing.assert_array_equal(ex.wait(f).outputs["y"], _expected(x, n))
+    finally:
+        ex.close()
