@@ -426,11 +426,14 @@ class Executor(RoleRunner, SegmentRunner):
                 frame.wait_slot(s, self._closing, self.spin)
         return slots, waited
 
-    def _run_cpu_task(self, proc: str, frame: Frame, task: ExecTask, io: Transfers) -> bool:
-        """One CPU task: waits for its inputs, downloads device ones, calls, publishes.
-        False when the frame was cancelled meanwhile or the task failed (reported)."""
+    def _run_cpu_task(self, proc: str, frame: Frame, task: ExecTask, io: Transfers,
+                      slots: list | None = None) -> bool:
+        """One CPU task: waits for its inputs (unless given their ``slots``, all set),
+        downloads device ones, calls, publishes. False when the frame was cancelled
+        meanwhile or the task failed (reported)."""
         try:
-            slots, _ = self._ready_inputs(frame, task.inputs)
+            if slots is None:
+                slots, _ = self._ready_inputs(frame, task.inputs)
             remote = [s for s in slots if s.where == DEVICE]
             waited = [None] * len(slots)
             if self.cuda and remote:
@@ -485,13 +488,18 @@ class Executor(RoleRunner, SegmentRunner):
         frame.gpu_last_event = ev1
         return ev1
 
-    def _run_gpu_task(self, frame: Frame, task: ExecTask, state: "GpuState"):
-        """One GPU task, enqueued eagerly: uploads, the call (into a pooled output buffer
-        where it has one), timing events (CUDA) and its outputs published."""
+    def _run_gpu_task(self, frame: Frame, task: ExecTask, state: "GpuState",
+                      slots: list | None = None):
+        """One GPU task, enqueued eagerly: waits for its inputs (unless given their
+        ``slots``, all set), uploads, the call (into a pooled output buffer where it has
+        one), timing events (CUDA) and its outputs published."""
         state.task = task.name
         cuda = self.cuda
         io = state.io
-        slots, waited = self._ready_inputs(frame, task.inputs)
+        if slots is None:
+            slots, waited = self._ready_inputs(frame, task.inputs)
+        else:
+            waited = False
         h0 = time.perf_counter()
         ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved

@@ -219,14 +219,17 @@ class RoleRunner:
             frame = role.frames[0]
         except IndexError:
             return False
-        if frame.cancel.is_set():
-            return True
+        return frame.cancel.is_set() or self._inputs_if_ready(role, frame) is not None
+
+    def _inputs_if_ready(self, role: Role, frame: Frame):
+        """The slots of ``role``'s next unit's inputs in ``frame`` when all are set, else None."""
         fs = frame.slots
-        for ref in role.refs[role.pos]:
-            s = fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)
-            if not s.done.is_set():
-                return False
-        return True
+        slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)
+                 for ref in role.refs[role.pos]]
+        for s in slots:
+            if not s.done._set:
+                return None
+        return slots
 
     def _advance(self, role: Role, home: Role, touched: list):
         """Holding ``role``'s token (if free), run its units while they may run here
@@ -239,29 +242,29 @@ class RoleRunner:
         scope = None
         try:
             frames = role.frames
+            io = role.state.io if role.gpu else self._io()
             if role.gpu:
                 role.state.prev_end = None  # the stream may have idled since the last unit
-            go = None  # whether the next unit may run, when known already
             while frames:
                 frame = frames[0]
                 if frame.cancel.is_set():
                     self._end_frame(role, frame)
-                    go = None
                     continue
                 # Checked under the token: another thread may have run what made the caller
                 # come (and running a unit not ready would block holding the token).
-                if not (self._may_run(role, home) if go is None else go):
+                slots = self._inputs_if_ready(role, frame)
+                if slots is None or (role is not home and (
+                        not role.short[role.pos] or self._ready(home))):
                     break
                 if role.gpu and scope is None and self._scope is not None:
                     scope = self._scope
                     scope.__enter__()
                 pos = role.pos
-                ok = self._run_unit(role, frame)
+                ok = self._run_unit(role, frame, slots, io)
                 if pos + 1 == len(role.units):
                     self._end_frame(role, frame)
                 else:
                     role.pos = pos + 1
-                go = None
                 readers = role.touch[pos] if ok else ()
                 if readers:
                     go = self._may_run(role, home)
@@ -272,6 +275,8 @@ class RoleRunner:
                             touched.append(r)
                         elif not r.token.locked() and self._ready(r):
                             r.wake()
+                    if not go:
+                        break
         finally:
             if scope is not None:
                 scope.__exit__(None, None, None)
@@ -289,11 +294,12 @@ class RoleRunner:
         role.frames.popleft()
         frame.processor_done()
 
-    def _run_unit(self, role: Role, frame: Frame) -> bool:
-        """Run ``role``'s next unit of ``frame``; False when it failed (the frame is
+    def _run_unit(self, role: Role, frame: Frame, slots: list, io: Transfers) -> bool:
+        """Run ``role``'s next unit of ``frame`` (``slots``: its inputs, all set; ``io``: the
+        transfers of this thread, or the GPU role's); False when it failed (the frame is
         cancelled)."""
         if not role.gpu:
-            return self._run_cpu_task(role.proc, frame, role.units[role.pos], self._io())
+            return self._run_cpu_task(role.proc, frame, role.units[role.pos], io, slots)
         i, seg = role.units[role.pos]
         state = role.state
         if role.pos == 0:
@@ -303,9 +309,9 @@ class RoleRunner:
             if seg.captured:
                 self._run_segment_or_tasks(frame, i, seg, state, role.captures)
             else:
-                self._run_gpu_task(frame, seg.tasks[0], state)
+                self._run_gpu_task(frame, seg.tasks[0], state, slots)
             for key in role.stage[role.pos]:
-                self._stage(frame, frame.slots[key], state.io)
+                self._stage(frame, frame.slots[key], io)
         except Cancelled:
             return False
         except BaseException as exc:  # noqa: BLE001 - reported to the caller
