@@ -71,7 +71,7 @@ class DeviceScope:
 class Role:
     """One processor's progress through its frames (one-frame schedules): the thread holding
     ``token`` runs its next units, its own thread or another one inline (see
-    :meth:`Executor._drive`). ``units``: its queue (CPU tasks, or the GPU queue's segments as
+    :meth:`RoleRunner._drive`). ``units``: its queue (CPU tasks, or the GPU queue's segments as
     ``(index, segment)``); ``refs``: each unit's input references (what makes it ready);
     ``frames``: the frames it has still to run, oldest first, ``pos`` the next unit of the
     oldest; ``signal``: released to wake its thread; ``short``: which units may run inline
@@ -107,13 +107,13 @@ class RoleRunner:
     """The executor's roles (one-frame schedules): a mixin of
     :class:`~warpvx.runtime.Executor`, whose tasks, segments, frames and transfers it runs.
 
-    A role's units run on whichever thread holds its token. A
-    thread runs its own role while the next unit is ready; when it is not, a unit whose
-    output made another role's next unit ready and whose thread would otherwise be woken
-    runs inline (a serial chain alternating CPU and GPU tasks then never wakes a thread).
-    Nobody blocks on a value: a role's thread sleeps on its signal until a producer finds
-    the role ready and not taken. No lost wake-up: a producer publishes before it looks at
-    the token, and a token holder looks at readiness again after letting the token go.
+    A role's units run on whichever thread holds its token. A thread runs its own role while
+    the next unit is ready; when it is not, a short unit its output made ready on another
+    role, whose thread would otherwise be woken, runs inline (a serial chain alternating CPU
+    and GPU tasks then never wakes a thread). Nobody blocks on a value: a role's thread
+    sleeps on its signal until a producer finds the role ready and not taken. No lost
+    wake-up: a producer publishes before it looks at the token, and a token holder looks at
+    readiness again after letting the token go.
     """
 
     #: A unit (a task, or a GPU segment) scheduled to take this long or less (ms) may run
@@ -227,7 +227,7 @@ class RoleRunner:
         slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)
                  for ref in role.refs[role.pos]]
         for s in slots:
-            if not s.done._set:
+            if not s.done.is_set():
                 return None
         return slots
 
