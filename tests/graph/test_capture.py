@@ -73,12 +73,27 @@ def test_segments_cut_at_cpu_hand_offs():
     assert segs[2].inputs == (InputRef("c"), InputRef("h", -1))
 
 
-def test_segments_delayed_and_output_values_leave_the_segment():
+def test_segments_own_delay_stays_in_the_segment_swapped():
     p = _program([_task("a", ["x"]), _task("b", ["a", InputRef("b", -1)]), _task("c", ["b"])],
                  outputs=["a"], rings=["b"])
     (seg,) = segments(p, ["a", "b", "c"])
     assert seg.inputs == (InputRef("x"), InputRef("b", -1))
-    assert seg.outputs == ("a", "b")  # a graph output and a delayed value; c is read by nobody
+    # a: a graph output; b: delayed, read only by the segment one frame back, so it stays in
+    # the buffer set its frame wrote (no copy out); c is read by nobody.
+    assert seg.outputs == ("a",)
+    assert seg.swapped == (InputRef("b", -1),)
+
+
+def test_segments_delayed_values_read_elsewhere_leave_the_segment():
+    """A delay read by a task outside the segment, as a graph output, or further back than
+    one frame is copied out; the segment's own one-frame-back read is still swapped."""
+    for outside, outputs, back in ((["b"], (), -1), ([], ["b"], -1), ([], (), -2)):
+        tasks = [_task("a", ["x"]), _task("b", ["a", InputRef("b", back)])]
+        tasks += [_task("eager", [InputRef("b", -1)], capture=False) for _ in outside]
+        p = _program(tasks, outputs=outputs, rings=["b"])
+        seg = segments(p, ["a", "b"] + ["eager"] * bool(outside))[0]
+        assert seg.outputs == ("b",), (outside, outputs, back)
+        assert seg.swapped == ((InputRef("b", -1),) if back == -1 else ())
 
 
 # --------------------------------------------------------------------------- runs
@@ -141,9 +156,20 @@ def test_two_cameras_captured_equals_eager(frames, warp_backend):
              for c in "LR"} | {"detectorL"}
         got = [g.process(f, capture=_capture_arg(warp_backend)) for f in cams]
         # Frame 0 reads the delays' initial points (a plain array); from frame 1 on, the
-        # corners are Counted (fixed rows): one shape, run uncaptured once, then captured
-        # once (frame 2) and replayed, whatever the corner counts.
+        # corners are Counted (fixed rows): one shape whatever the corner counts. Its two
+        # buffer sets (the delays swap between them) run uncaptured once each (frames 1,
+        # 2), are captured (frames 3, 4) and replayed (5-7).
         assert ex.captures == captured_segments
+        (seg,) = [s for s in ex._segments if s.captured]
+        assert {r.key for r in seg.swapped} == {f"{n}{c}.out" for n in ("pyramid", "harris")
+                                                for c in "LR"}
+        # The pyramids stay in their buffer set; the corners leave it (a CPU node reads them).
+        assert not {"pyramidL.out", "pyramidR.out"} & set(seg.outputs)
+        assert {"harrisL.out", "harrisR.out"} <= set(seg.outputs)
+        i = ex._segments.index(seg)
+        (sg,) = [sg for states in ex._captured.values() for sg in states[i].values()
+                 if sg is not None and sg.captured]
+        assert all(b.graph is not None for b in sg.sets) and len(sg.sets) == 2
         for e, c in zip(eager, got):
             assert e.keys() == c.keys()
             for k in e:
