@@ -43,6 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._counted import is_counted
 from .native_copy import copy_device, is_warp_array, to_device, warp
 from .program import InputRef, Program
 from .slots import DEVICE
@@ -51,6 +52,9 @@ from .transfers import tree_map
 
 #: Input signatures (shapes and dtypes of a frame's inputs) whose captures an executor keeps.
 MAX_SIGNATURES = 4
+
+#: Counted views of copy-out buffers a :class:`SegmentGraph` keeps (views cost ~10 us each).
+MAX_VIEWS = 256
 
 
 class NotCapturable(Exception):
@@ -234,6 +238,7 @@ class SegmentGraph:
         self.sets = [_BufferSet(segment.tasks) for _ in range(2 if segment.swapped else 1)]
         self.last = -1  # the set the last run wrote (the next frame's delayed values)
         self.scratch = ()
+        self._views = {}  # (id of a copy buffer, part) -> a Counted of views of it
 
     @property
     def next(self) -> int:
@@ -347,6 +352,20 @@ class SegmentGraph:
         self.last = s
         return b.outputs
 
+    def block_view(self, block, array, pooled: bool):
+        """The Counted of ``block`` as views of ``array`` (a copy of its allocation); made
+        once per copy buffer when ``pooled`` (the executor's pools hand the same buffers out
+        again; a cached view keeps its buffer alive, so its id stays its own)."""
+        if not pooled:
+            return block.view(array)
+        key = (id(array), block.part)
+        view = self._views.get(key)
+        if view is None:
+            view = self._views[key] = block.view(array)
+            while len(self._views) > MAX_VIEWS:
+                del self._views[next(iter(self._views))]
+        return view
+
     def publish(self, values: dict):
         """Remember what this frame published for the swapped inputs' keys (``values``: key
         -> the object set in its slot), so the next frame skips their copy in."""
@@ -441,8 +460,9 @@ class SegmentRunner:
                 self._run_gpu_task(frame, task, state)
             return
         outs = dict(fixed)
+        blocks = {}
         for key in seg.outputs:
-            outs[key] = tree_map(lambda a, key=key: self._copy_out(frame, key, a), fixed[key])
+            outs[key] = self._copy_out(frame, key, fixed[key], sg, blocks)
         sg.publish(outs)
         ev1 = self._end_event(frame) if cuda else None
         h1 = time.perf_counter()
@@ -455,8 +475,21 @@ class SegmentRunner:
             frame.host_trace[task.name] = (h0 + lo * (h1 - h0), h0 + hi * (h1 - h0))
         state.prev_end = ev1
 
-    def _copy_out(self, frame: Frame, key: str, fixed):
-        """A copy of fixed buffer ``fixed`` (of value ``key``) into a buffer of ``frame``'s."""
+    def _copy_out(self, frame: Frame, key: str, fixed, sg: SegmentGraph, blocks: dict):
+        """A copy of ``fixed`` (the value of ``key`` in ``sg``'s buffers) in buffers of
+        ``frame``'s: a Counted with a block as one copy of the block, shared with its node's
+        other outputs (``blocks``: id of a fixed block -> its copy in this frame); other
+        values array by array."""
+        if is_counted(fixed) and fixed.block is not None:
+            array = fixed.block.array
+            buf = blocks.get(id(array))
+            if buf is None:
+                buf = blocks[id(array)] = self._copy_array(frame, key, array)
+            return sg.block_view(fixed.block, buf, self._upload_rule.get(key) != "never")
+        return tree_map(lambda a: self._copy_array(frame, key, a), fixed)
+
+    def _copy_array(self, frame: Frame, key: str, fixed):
+        """A copy of fixed array ``fixed`` (of value ``key``) into a buffer of ``frame``'s."""
         buf = self._lease_upload(frame, key, fixed.shape, fixed.dtype)
         copy_device(buf, fixed, self._stream)
         return buf
