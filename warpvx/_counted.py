@@ -92,8 +92,8 @@ class Block:
     array : wp.array
         uint8 [nbytes], the allocation, on the values' device.
     part : tuple
-        This Counted's rows arrays as (offset, shape, NumPy dtype), in :func:`row_arrays`
-        order.
+        This Counted's rows arrays as (byte offset, bytes, shape, NumPy dtype), in
+        :func:`row_arrays` order.
     aux : object
         Its flatten aux (:meth:`Counted.__warpvx_flatten__`), to rebuild its value.
     """
@@ -122,8 +122,9 @@ class Block:
             part = []
             for a in arrays:
                 shape = (capacity,) + tuple(a.shape[1:])
-                part.append((at, shape, np.dtype(a.dtype)))
-                at += -(-int(np.prod(shape)) * a.dtype.itemsize // Block.ALIGN) * Block.ALIGN
+                nbytes = int(np.prod(shape)) * a.dtype.itemsize
+                part.append((at, nbytes, shape, np.dtype(a.dtype)))
+                at += -(-nbytes // Block.ALIGN) * Block.ALIGN
             layouts.append((tuple(part), aux))
         array = wp.zeros(at, dtype=wp.uint8, device=device)
         return [Block(array, part, aux).view() for part, aux in layouts]
@@ -136,7 +137,7 @@ class Block:
         wp = init_warp()
         base = self.array if array is None else array
 
-        def view(offset, shape, dtype):
+        def view(offset, _nbytes, shape, dtype):
             v = wp.array(ptr=base.ptr + offset, shape=shape, dtype=wp.dtype_from_numpy(dtype),
                          device=base.device)
             v._ref = base  # the views keep the allocation alive
@@ -146,13 +147,12 @@ class Block:
         rows = arrays[0] if self.aux is None else \
             self.aux[0].__warpvx_unflatten__(self.aux[1], arrays)
         block = self if array is None else Block(array, self.part, self.aux)
-        return Counted(rows, view(0, (1,), np.dtype(np.int32)), block)
+        return Counted(rows, view(0, 4, (1,), np.dtype(np.int32)), block)
 
     def host_value(self, raw: np.ndarray):
         """The host value (``rows[:count]``, NumPy) of this Counted from ``raw``, a host
         copy of :attr:`array`."""
-        leaves = tuple(raw[o:o + int(np.prod(sh)) * dt.itemsize].view(dt).reshape(sh)
-                       for o, sh, dt in self.part)
+        leaves = tuple(raw[o:o + n].view(dt).reshape(sh) for o, n, sh, dt in self.part)
         return Counted.__warpvx_unflatten__(self.aux, leaves + (raw[:4].view(np.int32),))
 
 
