@@ -166,11 +166,17 @@ def _flat(rows):
     return arrays, (type(rows), aux)
 
 
+#: A :class:`Block` of this many bytes or fewer is downloaded in one copy; a larger one (a
+#: capacity far above the usual count: FAST's keypoints) reads its count, then its rows.
+ONE_COPY_MAX_BYTES = 1 << 16
+
+
 def download(value: Counted, fetch):
     """The host value of device Counted ``value`` (``fetch(a)``: a host copy of Warp array
-    ``a``, after the producer): one copy of its :class:`Block` where it has one; else its
-    count, then the rows it counts (device views, for the caller to copy)."""
-    if value.block is not None:
+    ``a``, after the producer): one copy of its small :class:`Block` (up to
+    :data:`ONE_COPY_MAX_BYTES`); else its count, then the rows it counts (device views, for
+    the caller to copy)."""
+    if value.block is not None and value.block.array.shape[0] <= ONE_COPY_MAX_BYTES:
         return value.block.host_value(fetch(value.block.array))
     return trimmed(value, int(fetch(value.count)[0]))
 
