@@ -11,19 +11,24 @@ input signature (the shapes and dtypes of a frame's inputs): fixed buffers and t
 Buffers are static, as a CUDA graph holds pointers: each input the segment reads from
 outside (a graph input, a CPU task's output, an eager GPU task's, a delay's) is copied into
 a fixed device buffer before the replay, each task writes a fixed output buffer
-(``gpu_out``), and each value read outside the segment (by another task, as a graph output,
-by a delay) is copied out into a buffer of the frame's after it, as frames in flight share
-the fixed buffers. Copies and replay run on the executor's stream, in frame order. A value
-may be any tree of arrays (:func:`.transfers.tree_map`): a pyramid's list of levels, a task's
-several outputs, a :class:`~warpvx._counted.Counted` (corners, keypoints, tracked points:
-fixed rows and a device count, so data-dependent results need no host sync).
+(``gpu_out``), and each value that leaves the segment (read by another task, as a graph
+output, by a delay read elsewhere) is copied out into a buffer of the frame's after it, as
+frames in flight share the fixed buffers. A segment's own delays (a pyramid, corners: read
+by the segment one frame later) are neither copied in nor out: the segment has two buffer
+sets, and a frame reads the set the previous frame wrote and writes the other (two captures
+per signature); a delayed value read elsewhere too is still copied out for those readers.
+Copies and replay run on the executor's stream, in frame order. A value may be any tree of
+arrays (:func:`.transfers.tree_map`): a pyramid's list of levels, a task's several outputs,
+a :class:`~warpvx._counted.Counted` (corners, keypoints, tracked points: fixed rows and a
+device count, so data-dependent results need no host sync; a node's Counted outputs are
+views of one :class:`~warpvx._counted.Block`, copied out in one device copy).
 
 A segment is captured per input signature and per shapes of its own inputs (a value made in
-an earlier frame, such as the previous frame's corners, may change them), on the second
-sighting of that pair; on the first, its tasks run uncaptured on the same fixed buffers
-(:meth:`SegmentGraph.run`), so values have the captured form from the first frame (a
-corner count changing between eager frames would otherwise change the next segment's input
-shapes) and nothing allocates inside the capture.
+an earlier frame, such as the previous frame's corners, may change them), each buffer set
+on its second sighting of that pair; on the first, its tasks run uncaptured on the same
+fixed buffers (:meth:`SegmentGraph.launch`), so values have the captured form from the
+first frame (a corner count changing between eager frames would otherwise change the next
+segment's input shapes) and nothing allocates inside the capture.
 
 Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
 code runs there when asked (``capture=True``), which is how it is tested without a GPU.
