@@ -465,7 +465,7 @@ class SegmentRunner:
                 self._run_gpu_task(frame, task, state)
             return
         outs = dict(fixed)
-        blocks = {}
+        blocks = {}  # a node's Counted outputs share one block: copied once
         for key in seg.outputs:
             outs[key] = self._copy_out(frame, key, fixed[key], sg, blocks)
         sg.publish(outs)
@@ -483,14 +483,15 @@ class SegmentRunner:
     def _copy_out(self, frame: Frame, key: str, fixed, sg: SegmentGraph, blocks: dict):
         """A copy of ``fixed`` (the value of ``key`` in ``sg``'s buffers) in buffers of
         ``frame``'s: a Counted with a block as one copy of the block, shared with its node's
-        other outputs (``blocks``: id of a fixed block -> its copy in this frame); other
-        values array by array."""
+        other outputs whose copies are reused under the same rule (``blocks``: (id of a
+        fixed block, rule) -> its copy in this frame); other values array by array."""
         if is_counted(fixed) and fixed.block is not None:
+            rule = self._upload_rule.get(key)
             array = fixed.block.array
-            buf = blocks.get(id(array))
+            buf = blocks.get((id(array), rule))
             if buf is None:
-                buf = blocks[id(array)] = self._copy_array(frame, key, array)
-            return sg.block_view(fixed.block, buf, self._upload_rule.get(key) != "never")
+                buf = blocks[id(array), rule] = self._copy_array(frame, key, array)
+            return sg.block_view(fixed.block, buf, rule != "never")
         return tree_map(lambda a: self._copy_array(frame, key, a), fixed)
 
     def _copy_array(self, frame: Frame, key: str, fixed):
