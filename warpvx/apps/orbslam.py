@@ -50,6 +50,11 @@ TH_HIGH, TH_LOW = 100, 50
 REF_PREVIOUS, REF_KEYFRAME, REF_LOST = 0, 1, 2
 # Depth (in units of the baseline) beyond which cv2.recoverPose does not count a point.
 _FAR = 50.0
+# Monocular scale: the fewest points with a depth to take a step's scale from, and the gate
+# (standard deviations) past which a depth ratio is an outlier.
+_MIN_COMMON, _GATE = 5, 3.0
+# Reprojection error (px) within which a matched point keeps its depth (see _carry_depths).
+_CARRY_PX = 2.0
 STATS = ("n_keypoints", "n_matches", "n_inliers", "keyframe", "reference", "track_ms")
 
 
@@ -186,11 +191,13 @@ def filter_matches(pairs, distances, angles_q, angles_t, config: TrackerConfig) 
 class FrameRecord:
     """What tracking keeps of a frame: ``pts`` float64 [N, 2], ``angles`` float [N] (deg),
     ``depth`` float [N] (camera z, m for stereo, the sequence's running scale for monocular;
-    NaN unknown), ``desc`` uint8 [N, 32] (kept for keyframes), ``pose`` 4x4, ``index``."""
+    NaN unknown) and ``depth_var`` float [N] (variance of its log), ``desc`` uint8 [N, 32]
+    (kept for keyframes), ``pose`` 4x4, ``index``."""
 
     pts: np.ndarray
     angles: np.ndarray
     depth: np.ndarray
+    depth_var: np.ndarray
     desc: np.ndarray
     pose: np.ndarray
     index: int
@@ -277,6 +284,65 @@ def _cheirality(E, x1, x2):
     return best[1:]
 
 
+def _log_depth_var(x1, x2, R, f):
+    """Variance of log depth, float64 [M], of points triangulated from the normalised rays
+    ``x1`` (reference) and ``x2`` (current), float64 [M, 3], for the rotation ``R``: a ray's
+    direction is known to 1 px (1/``f`` rad), so the relative depth error is that over the sine
+    of the parallax angle (points near the epipole, seen under little parallax, weigh little)."""
+    a = x1 @ R.T
+    cos = (a * x2).sum(1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(x2, axis=1))
+    return 1.0 / (f * f * np.maximum(1.0 - cos * cos, 1e-12))
+
+
+def _robust_mean(r, var):
+    """Inverse-variance weighted mean of the positive ratios ``r`` (float64 [M]; ``var`` the
+    variance of log ``r``) over those within ``_GATE`` standard deviations of the weighted
+    median (mismatches, moving points); NaN when none."""
+    w = 1.0 / var
+    order = np.argsort(r)
+    cw = np.cumsum(w[order])
+    med = r[order[np.searchsorted(cw, 0.5 * cw[-1])]]
+    keep = np.abs(np.log(r / med)) <= _GATE * np.sqrt(var)
+    return float((w[keep] * r[keep]).sum() / w[keep].sum()) if keep.any() else float("nan")
+
+
+def _scale_and_fuse(ref, pairs, x1, x2, R, t, z_ref, z_cur, f, step):
+    """The scale of a monocular step and this frame's depths, as map points carry them.
+
+    ``pairs`` (this frame's index, the reference's) of the points triangulated in front, their
+    rays ``x1``, ``x2`` and depths ``z_ref``, ``z_cur`` for the unit translation ``t`` (R, t:
+    reference to current). The scale is the inverse-variance weighted mean of
+    (reference depth / z_ref) over the points that had a depth (log-depth variances of both,
+    from their parallax: :func:`_log_depth_var`), ``step`` when fewer than ``_MIN_COMMON``.
+    Each point's depth in this frame fuses its reference depth carried through the motion
+    with the new triangulation, so depths are refined over the frames a point is tracked and
+    the scale stays tied to long-lived points instead of the last triangulation alone (a
+    random walk of the scale). Ratios and fusion are linear in the inverse depth, which is
+    linear in the parallax: a triangulated depth itself (1 / parallax) is biased long, and
+    log or median ratios of it shrink the scale a little at every step. Returns (scale,
+    (this frame's indices, depths, log-depth variances))."""
+    var = _log_depth_var(x1, x2, R, f)
+    prior, prior_var = ref.depth[pairs[:, 1]], ref.depth_var[pairs[:, 1]]
+    common = np.isfinite(prior) & (prior > 0) & (z_ref > 0)
+    scale = step
+    if common.sum() >= _MIN_COMMON:
+        s = _robust_mean(prior[common] / z_ref[common], prior_var[common] + var[common])
+        scale = s if np.isfinite(s) else step
+    depth = z_cur * scale
+    # The reference depth carried into this frame: X_cur = R (prior x1) + scale t.
+    pred = np.where(common, prior * (x1 @ R[2]) + scale * t[2], np.nan)
+    ok = common & (pred > 0)
+    ok[ok] = np.abs(np.log(pred[ok] / depth[ok])) <= _GATE * np.sqrt(prior_var[ok] + var[ok])
+    # Inverse depths rho, var(rho) = rho^2 var(log z).
+    rho1, rho2 = 1.0 / pred[ok], 1.0 / depth[ok]
+    w1, w2 = 1.0 / (rho1 ** 2 * prior_var[ok]), 1.0 / (rho2 ** 2 * var[ok])
+    rho = (w1 * rho1 + w2 * rho2) / (w1 + w2)
+    depth[ok] = 1.0 / rho
+    dvar = var.copy()
+    dvar[ok] = 1.0 / ((w1 + w2) * rho ** 2)
+    return scale, (pairs[:, 0], depth, dvar)
+
+
 def _pose_essential(ref, cur_pts, pairs, K, step, config):
     """T_cur_ref from the essential matrix (MAGSAC++ RANSAC, cheirality), the translation
     scaled by the reference's depths (or ``step`` when none are shared); returns (T, inliers,
@@ -285,7 +351,7 @@ def _pose_essential(ref, cur_pts, pairs, K, step, config):
 
     p1, p2 = ref.pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
     if np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
-        return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]])
+        return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]], ref.depth_var[pairs[:, 1]])
     # MAGSAC++ (OpenCV's USAC): ~10x fewer hypotheses than plain RANSAC at this threshold,
     # and more accurate (its inlier scoring is not a hard 0/1 at the threshold).
     E, mask = cv2.findEssentialMat(p1, p2, K, cv2.USAC_MAGSAC, 0.999, config.ransac_threshold)
@@ -303,16 +369,37 @@ def _pose_essential(ref, cur_pts, pairs, K, step, config):
     front = (z_ref > 0) & (z_ref < _FAR) & (z_cur > 0) & (z_cur < _FAR)
     if front.sum() < 8:
         return None
-    inl, z_ref, z_cur = inl[front], z_ref[front], z_cur[front]
-    prior = ref.depth[pairs[inl, 1]]
-    common = np.isfinite(prior) & (prior > 0)
-    scale = float(np.median(prior[common] / z_ref[common])) if common.sum() >= 5 else step
-    return _rt(R, scale * t), len(inl), (pairs[inl, 0], z_cur * scale)
+    inl = inl[front]
+    scale, tri = _scale_and_fuse(ref, pairs[inl], x1[front], x2[front], R, t, z_ref[front],
+                                 z_cur[front], K[0, 0], step)
+    return _rt(R, scale * t), len(inl), tri
 
 
-def _record(kps, desc, depth, pose, index):
+def _carry_depths(ref, cur_pts, pairs, T, K, depth, depth_var):
+    """Carry the reference's depths through the motion ``T`` (T_cur_ref) to the matched points
+    of this frame that got none from the triangulation (``depth`` NaN; both arrays updated in
+    place): those that reproject within ``_CARRY_PX`` of their keypoint keep their depth and its
+    variance, as a map point stays in the map while it is tracked. Without this a point drops
+    out at the first step where it is not an essential-matrix inlier, and the scale is taken
+    from ever newer points."""
+    prior = ref.depth[pairs[:, 1]]
+    ok = np.isfinite(prior) & np.isnan(depth[pairs[:, 0]])
+    if not ok.any():
+        return
+    p = pairs[ok]
+    X = (np.c_[ref.pts[p[:, 1]], np.ones(len(p))] @ np.linalg.inv(K).T) * prior[ok, None]
+    X = X @ T[:3, :3].T + T[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = (X @ K.T)[:, :2] / X[:, 2:]
+    near = (X[:, 2] > 0) & (np.linalg.norm(uv - cur_pts[p[:, 0]], axis=1) <= _CARRY_PX)
+    depth[p[near, 0]] = X[near, 2]
+    depth_var[p[near, 0]] = ref.depth_var[p[near, 1]]
+
+
+def _record(kps, desc, depth, depth_var, pose, index):
     pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
-    return FrameRecord(pts, np.asarray(kps.angle, np.float64), depth, np.asarray(desc), pose, index)
+    return FrameRecord(pts, np.asarray(kps.angle, np.float64), depth, depth_var, np.asarray(desc),
+                       pose, index)
 
 
 def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
@@ -349,8 +436,10 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     n = len(kps)
     stereo = depth is not None
     cur_depth = np.asarray(depth, np.float64) if stereo else np.full(n, np.nan)
+    # Stereo depths weigh alike (their disparities are not kept); monocular ones are unknown.
+    cur_var = np.full(n, 1.0 / K[0, 0] ** 2 if stereo else np.inf)
     if state.previous is None:
-        rec = _record(kps, desc, cur_depth, np.eye(4), state.frames)
+        rec = _record(kps, desc, cur_depth, cur_var, np.eye(4), state.frames)
         new = TrackState(state.frames + 1, rec, rec, np.eye(4), 0)
         return new, np.eye(4), np.array([n, 0, 0, 1, REF_PREVIOUS, 1e3 * (time.perf_counter() - t0)])
     prev, kf = state.previous, state.keyframe
@@ -378,15 +467,15 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     else:
         T, inliers, tri = result
         if not stereo and tri is not None:
-            idx, z = tri
-            cur_depth[idx] = z
+            idx, cur_depth[idx], cur_var[idx] = tri
+            _carry_depths(ref, cur_pts, good, T, K, cur_depth, cur_var)
     pose = ref.pose @ _inv(T)
     velocity = _inv(pose) @ prev.pose
     since = state.frames - kf.index
     kf_inliers = state.keyframe_inliers or inliers
     is_kf = (reference == REF_LOST or since >= config.keyframe_interval
              or inliers < config.keyframe_ratio * kf_inliers)
-    rec = _record(kps, desc, cur_depth, pose, state.frames)
+    rec = _record(kps, desc, cur_depth, cur_var, pose, state.frames)
     new = TrackState(state.frames + 1, rec, rec if is_kf else kf, velocity, 0 if is_kf else kf_inliers)
     stats = np.array([n, len(good), inliers, float(is_kf), reference, 1e3 * (time.perf_counter() - t0)])
     return new, pose, stats
