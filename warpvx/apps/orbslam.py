@@ -55,6 +55,7 @@ _FAR = 50.0
 _MIN_COMMON, _GATE = 5, 3.0
 # Reprojection error (px) within which a matched point keeps its depth (see _carry_depths).
 _CARRY_PX = 2.0
+_NEW_VAR = 0.1 ** 2
 STATS = ("n_keypoints", "n_matches", "n_inliers", "keyframe", "reference", "track_ms")
 
 
@@ -192,7 +193,8 @@ class FrameRecord:
     """What tracking keeps of a frame: ``pts`` float64 [N, 2], ``angles`` float [N] (deg),
     ``depth`` float [N] (camera z, m for stereo, the sequence's running scale for monocular;
     NaN unknown) and ``depth_var`` float [N] (variance of its log), ``desc`` uint8 [N, 32]
-    (kept for keyframes), ``pose`` 4x4, ``index``."""
+    (kept for keyframes), ``pose`` 4x4, ``index``, and ``kf_index`` int [N]: the keypoint of
+    the last keyframe each one was tracked from, frame to frame (-1 none)."""
 
     pts: np.ndarray
     angles: np.ndarray
@@ -201,6 +203,7 @@ class FrameRecord:
     desc: np.ndarray
     pose: np.ndarray
     index: int
+    kf_index: np.ndarray
 
 
 @dataclasses.dataclass(frozen=True)
@@ -306,41 +309,64 @@ def _robust_mean(r, var):
     return float((w[keep] * r[keep]).sum() / w[keep].sum()) if keep.any() else float("nan")
 
 
-def _scale_and_fuse(ref, pairs, x1, x2, R, t, z_ref, z_cur, f, step):
-    """The scale of a monocular step and this frame's depths, as map points carry them.
+def _step_scale(ref, pairs, x1, x2, R, z_ref, f, step):
+    """The scale of a monocular step from the essential matrix (unit translation): the
+    inverse-variance weighted mean of (reference depth / ``z_ref``) over the ``pairs`` (this
+    frame's index, the reference's) whose reference keypoint has a depth (log-depth variances
+    of both, from the parallax of the rays ``x1``, ``x2``: :func:`_log_depth_var`); ``step``
+    when fewer than ``_MIN_COMMON``. The ratio is linear in the inverse depth, which is linear
+    in the parallax: a triangulated depth itself (1 / parallax) is biased long, and log or
+    median ratios of it shrink the scale a little at every step."""
+    prior = ref.depth[pairs[:, 1]]
+    common = np.isfinite(prior) & (prior > 0) & (z_ref > 0)
+    if common.sum() < _MIN_COMMON:
+        return step
+    var = _log_depth_var(x1[common], x2[common], R, f) + ref.depth_var[pairs[common, 1]]
+    scale = _robust_mean(prior[common] / z_ref[common], var)
+    return scale if np.isfinite(scale) else step
 
-    ``pairs`` (this frame's index, the reference's) of the points triangulated in front, their
-    rays ``x1``, ``x2`` and depths ``z_ref``, ``z_cur`` for the unit translation ``t`` (R, t:
-    reference to current). The scale is the inverse-variance weighted mean of
-    (reference depth / z_ref) over the points that had a depth (log-depth variances of both,
-    from their parallax: :func:`_log_depth_var`), ``step`` when fewer than ``_MIN_COMMON``.
-    Each point's depth in this frame fuses its reference depth carried through the motion
-    with the new triangulation, so depths are refined over the frames a point is tracked and
-    the scale stays tied to long-lived points instead of the last triangulation alone (a
-    random walk of the scale). Ratios and fusion are linear in the inverse depth, which is
-    linear in the parallax: a triangulated depth itself (1 / parallax) is biased long, and
-    log or median ratios of it shrink the scale a little at every step. Returns (scale,
-    (this frame's indices, depths, log-depth variances))."""
+
+def _fuse_depths(ref, pairs, x1, x2, R, t, depth, f):
+    """This frame's depths of triangulated points, refined as map points are.
+
+    ``pairs`` (this frame's index, the reference's), their rays ``x1``, ``x2`` (float64
+    [M, 3]), the motion ``R``, ``t`` (reference to current, at the map's scale) and the
+    triangulated depths ``depth`` in this frame. Where the reference had a depth, it is
+    carried through the motion and fused with the new one, linearly in inverse depth, with
+    inverse-variance weights (:func:`_log_depth_var`), unless they differ by more than
+    ``_GATE`` standard deviations; so depths are refined over the frames a point is tracked
+    and the scale stays tied to long-lived points instead of the last triangulation alone (a
+    random walk of the scale). Returns (this frame's indices, depths, log-depth variances)."""
     var = _log_depth_var(x1, x2, R, f)
     prior, prior_var = ref.depth[pairs[:, 1]], ref.depth_var[pairs[:, 1]]
-    common = np.isfinite(prior) & (prior > 0) & (z_ref > 0)
-    scale = step
-    if common.sum() >= _MIN_COMMON:
-        s = _robust_mean(prior[common] / z_ref[common], prior_var[common] + var[common])
-        scale = s if np.isfinite(s) else step
-    depth = z_cur * scale
-    # The reference depth carried into this frame: X_cur = R (prior x1) + scale t.
-    pred = np.where(common, prior * (x1 @ R[2]) + scale * t[2], np.nan)
-    ok = common & (pred > 0)
+    pred = prior * (x1 @ R[2]) + t[2]  # z of R (prior x1) + t
+    ok = np.isfinite(pred) & (pred > 0)
     ok[ok] = np.abs(np.log(pred[ok] / depth[ok])) <= _GATE * np.sqrt(prior_var[ok] + var[ok])
-    # Inverse depths rho, var(rho) = rho^2 var(log z).
-    rho1, rho2 = 1.0 / pred[ok], 1.0 / depth[ok]
+    rho1, rho2 = 1.0 / pred[ok], 1.0 / depth[ok]  # inverse depths: var(rho) = rho^2 var(log z)
     w1, w2 = 1.0 / (rho1 ** 2 * prior_var[ok]), 1.0 / (rho2 ** 2 * var[ok])
     rho = (w1 * rho1 + w2 * rho2) / (w1 + w2)
+    depth = depth.copy()
     depth[ok] = 1.0 / rho
-    dvar = var.copy()
-    dvar[ok] = 1.0 / ((w1 + w2) * rho ** 2)
-    return scale, (pairs[:, 0], depth, dvar)
+    var[ok] = 1.0 / ((w1 + w2) * rho ** 2)
+    return pairs[:, 0], depth, var
+
+
+def _triangulate_known(ref, cur_pts, pairs, T, K):
+    """Depths of matched points for a known motion ``T`` (T_cur_ref, at the map's scale):
+    midpoint triangulation of the ``pairs`` (this frame's index, the reference's), kept where
+    in front of both cameras and reprojecting within ``_CARRY_PX`` of this frame's keypoint,
+    then :func:`_fuse_depths`. Returns what that returns."""
+    Kinv = np.linalg.inv(K)
+    x1 = np.c_[ref.pts[pairs[:, 1]], np.ones(len(pairs))] @ Kinv.T
+    x2 = np.c_[cur_pts[pairs[:, 0]], np.ones(len(pairs))] @ Kinv.T
+    R, t = T[:3, :3], T[:3, 3]
+    z1, z2 = _ray_depths(x1, x2, R, t)
+    X = (x1 * z1[:, None]) @ R.T + t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = np.linalg.norm((X @ K.T)[:, :2] / X[:, 2:] - cur_pts[pairs[:, 0]], axis=1)
+    ok = (z1 > 0) & (z2 > 0) & (err <= _CARRY_PX)
+    ok[ok] = _log_depth_var(x1[ok], x2[ok], R, K[0, 0]) <= _NEW_VAR
+    return _fuse_depths(ref, pairs[ok], x1[ok], x2[ok], R, t, X[ok, 2], K[0, 0])
 
 
 def _pose_essential(ref, cur_pts, pairs, K, step, config):
@@ -370,8 +396,8 @@ def _pose_essential(ref, cur_pts, pairs, K, step, config):
     if front.sum() < 8:
         return None
     inl = inl[front]
-    scale, tri = _scale_and_fuse(ref, pairs[inl], x1[front], x2[front], R, t, z_ref[front],
-                                 z_cur[front], K[0, 0], step)
+    scale = _step_scale(ref, pairs[inl], x1[front], x2[front], R, z_ref[front], K[0, 0], step)
+    tri = _fuse_depths(ref, pairs[inl], x1[front], x2[front], R, scale * t, scale * z_cur[front], K[0, 0])
     return _rt(R, scale * t), len(inl), tri
 
 
@@ -396,10 +422,15 @@ def _carry_depths(ref, cur_pts, pairs, T, K, depth, depth_var):
     depth_var[p[near, 0]] = ref.depth_var[p[near, 1]]
 
 
-def _record(kps, desc, depth, depth_var, pose, index):
+def _flow(ref_pts, cur_pts, pairs):
+    """Median displacement (px) of the matched keypoints ``pairs`` (this frame's, the reference's)."""
+    return float(np.median(np.linalg.norm(cur_pts[pairs[:, 0]] - ref_pts[pairs[:, 1]], axis=1)))
+
+
+def _record(kps, desc, depth, depth_var, pose, index, kf_index):
     pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
     return FrameRecord(pts, np.asarray(kps.angle, np.float64), depth, depth_var, np.asarray(desc),
-                       pose, index)
+                       pose, index, kf_index)
 
 
 def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
@@ -439,15 +470,24 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     # Stereo depths weigh alike (their disparities are not kept); monocular ones are unknown.
     cur_var = np.full(n, 1.0 / K[0, 0] ** 2 if stereo else np.inf)
     if state.previous is None:
-        rec = _record(kps, desc, cur_depth, cur_var, np.eye(4), state.frames)
+        rec = _record(kps, desc, cur_depth, cur_var, np.eye(4), state.frames, np.arange(n))
         new = TrackState(state.frames + 1, rec, rec, np.eye(4), 0)
         return new, np.eye(4), np.array([n, 0, 0, 1, REF_PREVIOUS, 1e3 * (time.perf_counter() - t0)])
     prev, kf = state.previous, state.keyframe
     cur_pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
     angles = np.asarray(kps.angle, np.float64)
     good = filter_matches(pairs, distances, angles, prev.angles, config) if n else np.zeros((0, 2), int)
-    ref, reference = prev, REF_PREVIOUS
-    if len(good) < config.min_matches and kf.index != prev.index and n:
+    ref, reference, prev_good = prev, REF_PREVIOUS, good
+    chain = prev.kf_index[good[:, 1]]
+    on = chain >= 0
+    if not stereo and kf.index != prev.index and on.sum() >= config.min_matches and (
+            _flow(kf.pts, cur_pts, np.stack([good[on, 0], chain[on]], 1)) * np.sqrt(on.sum())
+            > _flow(prev.pts, cur_pts, good) * np.sqrt(len(good))):
+        # Monocular motion from the last keyframe, through the keypoints tracked since, as
+        # ORB-SLAM2 triangulates against keyframes: several frames of parallax where the
+        # previous frame alone gives little (the essential matrix then degenerates).
+        good, ref, reference = np.stack([good[on, 0], chain[on]], 1), kf, REF_KEYFRAME
+    elif len(good) < config.min_matches and kf.index != prev.index and n:
         kp, kd = warpvx.match_hamming(np.asarray(desc), kf.desc, config.cross_check, config.ratio,
                                       backend="cpu")
         kgood = filter_matches(kp, kd, angles, kf.angles, config)
@@ -460,7 +500,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         if stereo:
             result = _pose_pnp(ref, cur_pts, good, K, guess, config)
         if result is None:
-            step = float(np.linalg.norm(state.velocity[:3, 3])) or 1.0
+            step = float(np.linalg.norm(guess[:3, 3])) or 1.0
             result = _pose_essential(ref, cur_pts, good, K, step, config)
     if result is None:
         T, inliers, reference = guess, 0, REF_LOST
@@ -469,13 +509,20 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         if not stereo and tri is not None:
             idx, cur_depth[idx], cur_var[idx] = tri
             _carry_depths(ref, cur_pts, good, T, K, cur_depth, cur_var)
+            if ref is kf:
+                # The points matched since the keyframe only: from the previous frame.
+                rest = prev_good[np.isnan(cur_depth[prev_good[:, 0]])]
+                idx, z, v = _triangulate_known(prev, cur_pts, rest, T @ _inv(kf.pose) @ prev.pose, K)
+                cur_depth[idx], cur_var[idx] = z, v
     pose = ref.pose @ _inv(T)
     velocity = _inv(pose) @ prev.pose
     since = state.frames - kf.index
     kf_inliers = state.keyframe_inliers or inliers
     is_kf = (reference == REF_LOST or since >= config.keyframe_interval
              or inliers < config.keyframe_ratio * kf_inliers)
-    rec = _record(kps, desc, cur_depth, cur_var, pose, state.frames)
+    kf_index = np.full(n, -1)
+    kf_index[good[:, 0]] = good[:, 1] if ref is kf else prev.kf_index[good[:, 1]]
+    rec = _record(kps, desc, cur_depth, cur_var, pose, state.frames, np.arange(n) if is_kf else kf_index)
     new = TrackState(state.frames + 1, rec, rec if is_kf else kf, velocity, 0 if is_kf else kf_inliers)
     stats = np.array([n, len(good), inliers, float(is_kf), reference, 1e3 * (time.perf_counter() - t0)])
     return new, pose, stats
