@@ -117,8 +117,9 @@ def test_castle_simu_mono_beats_the_opencv_baseline(tmp_path, capsys):
                         "--baseline", "--no-plot", "--max-frames", "25"], capsys)
     assert status == 0, cap.err
     m = json.loads((out / "metrics.json").read_text())
-    # Measured: warpvx 0.023 m, baseline 0.030 m (the README of the data: 0.025 m).
-    assert m["warpvx"]["ate"]["rmse"] < 0.03
+    # Measured: warpvx 0.004 m (0.023 m with each step's scale from the previous frame only),
+    # baseline 0.024 m (the README of the data: 0.025 m).
+    assert m["warpvx"]["ate"]["rmse"] < 0.012
     assert m["warpvx"]["ate"]["rmse"] <= m["opencv_baseline"]["ate"]["rmse"]
 
 
