@@ -22,7 +22,7 @@ import pytest
 
 from warpvx import sched
 from warpvx.apps import orbslam as o
-from warpvx.apps import orbslam_cli
+from warpvx.apps import orbslam_cli, orbslam_depths
 from warpvx.apps.orbslam_sources import open_source
 from warpvx.apps import trajectory_eval as te
 from warpvx.apps.orbslam_synth import camera_path, intrinsics_for, render_sequence, write_kitti_sequence
@@ -247,10 +247,10 @@ def test_step_scale_and_depth_fusion_on_known_geometry():
     pairs = np.stack([np.arange(len(X))] * 2, 1)
     step = np.linalg.norm(t)
     z_ref, z_cur = o._ray_depths(x1, x2, R, t / step)  # the essential matrix's unit step
-    scale = o._step_scale(ref, pairs, x1, x2, R, z_ref, K[0, 0], step=1.0)
+    scale = orbslam_depths.step_scale(ref, pairs, x1, x2, R, z_ref, K[0, 0], step=1.0)
     assert scale == pytest.approx(step, rel=0.01)
     front = (z_ref > 0) & (z_cur > 0)  # what the essential matrix's cheirality keeps
-    idx, depth, var = o._fuse_depths(ref, pairs[front], x1[front], x2[front], R, t,
+    idx, depth, var = orbslam_depths.fuse_depths(ref, pairs[front], x1[front], x2[front], R, t,
                                      z_cur[front] * step, K[0, 0])
     np.testing.assert_array_equal(idx, np.flatnonzero(front))
 

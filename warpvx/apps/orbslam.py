@@ -56,6 +56,7 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
+from .orbslam_depths import NEW_VAR, carry_depths, flow, fuse_depths, log_depth_var, reprojects, step_scale
 from .orbslam_match import add_match_node, mutual_pairs, stereo_depth
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
@@ -64,14 +65,6 @@ TH_HIGH, TH_LOW = 100, 50
 REF_PREVIOUS, REF_KEYFRAME, REF_LOST = 0, 1, 2
 # Depth (in units of the baseline) beyond which cv2.recoverPose does not count a point.
 _FAR = 50.0
-# Monocular scale: the fewest points with a depth to take a step's scale from, and the gate
-# (standard deviations) past which a depth ratio is an outlier.
-_MIN_COMMON, _GATE = 5, 3.0
-# Reprojection error (px) within which a matched point keeps its depth (see _carry_depths).
-_CARRY_PX = 2.0
-# Largest log-depth variance (10 % depth error) of a point triangulated for a known motion:
-# less parallax than that and its depth (1 / parallax, biased long) does more harm than good.
-_NEW_VAR = 0.1 ** 2
 STATS = ("n_keypoints", "n_matches", "n_inliers", "keyframe", "reference", "track_ms")
 
 
@@ -305,91 +298,20 @@ def _cheirality(E, x1, x2):
     return best[1:]
 
 
-def _log_depth_var(x1, x2, R, f):
-    """Variance of log depth, float64 [M], of points triangulated from the normalised rays
-    ``x1`` (reference) and ``x2`` (current), float64 [M, 3], for the rotation ``R``: a ray's
-    direction is known to 1 px (1/``f`` rad), so the relative depth error is that over the sine
-    of the parallax angle (points near the epipole, seen under little parallax, weigh little)."""
-    a = x1 @ R.T
-    cos = (a * x2).sum(1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(x2, axis=1))
-    return 1.0 / (f * f * np.maximum(1.0 - cos * cos, 1e-12))
-
-
-def _robust_mean(r, var):
-    """Inverse-variance weighted mean of the positive ratios ``r`` (float64 [M]; ``var`` the
-    variance of log ``r``) over those within ``_GATE`` standard deviations of the weighted
-    median (mismatches, moving points); NaN when none."""
-    w = 1.0 / var
-    order = np.argsort(r)
-    cw = np.cumsum(w[order])
-    med = r[order[np.searchsorted(cw, 0.5 * cw[-1])]]
-    keep = np.abs(np.log(r / med)) <= _GATE * np.sqrt(var)
-    return float((w[keep] * r[keep]).sum() / w[keep].sum()) if keep.any() else float("nan")
-
-
-def _step_scale(ref, pairs, x1, x2, R, z_ref, f, step):
-    """The scale of a monocular step from the essential matrix (unit translation): the
-    inverse-variance weighted mean of (reference depth / ``z_ref``) over the ``pairs`` (this
-    frame's index, the reference's) whose reference keypoint has a depth (log-depth variances
-    of both, from the parallax of the rays ``x1``, ``x2``: :func:`_log_depth_var`); ``step``
-    when fewer than ``_MIN_COMMON``. The ratio is linear in the inverse depth, which is linear
-    in the parallax: a triangulated depth itself (1 / parallax) is biased long, and log or
-    median ratios of it shrink the scale a little at every step."""
-    prior = ref.depth[pairs[:, 1]]
-    common = np.isfinite(prior) & (prior > 0) & (z_ref > 0)
-    if common.sum() < _MIN_COMMON:
-        return step
-    var = _log_depth_var(x1[common], x2[common], R, f) + ref.depth_var[pairs[common, 1]]
-    scale = _robust_mean(prior[common] / z_ref[common], var)
-    return scale if np.isfinite(scale) else step
-
-
-def _fuse_depths(ref, pairs, x1, x2, R, t, depth, f):
-    """This frame's depths of triangulated points, refined as map points are.
-
-    ``pairs`` (this frame's index, the reference's), their rays ``x1``, ``x2`` (float64
-    [M, 3]), the motion ``R``, ``t`` (reference to current, at the map's scale) and the
-    triangulated depths ``depth`` in this frame. Where the reference had a depth, it is
-    carried through the motion and fused with the new one, linearly in inverse depth, with
-    inverse-variance weights (:func:`_log_depth_var`), unless they differ by more than
-    ``_GATE`` standard deviations; so depths are refined over the frames a point is tracked
-    and the scale stays tied to long-lived points instead of the last triangulation alone (a
-    random walk of the scale). Returns (this frame's indices, depths, log-depth variances)."""
-    var = _log_depth_var(x1, x2, R, f)
-    prior, prior_var = ref.depth[pairs[:, 1]], ref.depth_var[pairs[:, 1]]
-    pred = prior * (x1 @ R[2]) + t[2]  # z of R (prior x1) + t
-    ok = np.isfinite(pred) & (pred > 0)
-    ok[ok] = np.abs(np.log(pred[ok] / depth[ok])) <= _GATE * np.sqrt(prior_var[ok] + var[ok])
-    rho1, rho2 = 1.0 / pred[ok], 1.0 / depth[ok]  # inverse depths: var(rho) = rho^2 var(log z)
-    w1, w2 = 1.0 / (rho1 ** 2 * prior_var[ok]), 1.0 / (rho2 ** 2 * var[ok])
-    rho = (w1 * rho1 + w2 * rho2) / (w1 + w2)
-    depth = depth.copy()
-    depth[ok] = 1.0 / rho
-    var[ok] = 1.0 / ((w1 + w2) * rho ** 2)
-    return pairs[:, 0], depth, var
-
-
-def _reprojects(X, K, pts):
-    """bool [M]: the points ``X`` (float64 [M, 3], camera frame) project within ``_CARRY_PX``
-    of the keypoints ``pts`` (float64 [M, 2])."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.linalg.norm((X @ K.T)[:, :2] / X[:, 2:] - pts, axis=1) <= _CARRY_PX
-
-
 def _triangulate_known(ref, cur_pts, pairs, T, K):
     """Depths of matched points for a known motion ``T`` (T_cur_ref, at the map's scale):
     midpoint triangulation of the ``pairs`` (this frame's index, the reference's), kept where
-    in front of both cameras and reprojecting within ``_CARRY_PX`` of this frame's keypoint,
-    then :func:`_fuse_depths`. Returns what that returns."""
+    in front of both cameras, reprojecting near this frame's keypoint (:func:`reprojects`),
+    seen under enough parallax (``NEW_VAR``), then :func:`fuse_depths`, whose result it returns."""
     Kinv = np.linalg.inv(K)
     x1 = np.c_[ref.pts[pairs[:, 1]], np.ones(len(pairs))] @ Kinv.T
     x2 = np.c_[cur_pts[pairs[:, 0]], np.ones(len(pairs))] @ Kinv.T
     R, t = T[:3, :3], T[:3, 3]
     z1, z2 = _ray_depths(x1, x2, R, t)
     X = (x1 * z1[:, None]) @ R.T + t
-    ok = (z1 > 0) & (z2 > 0) & _reprojects(X, K, cur_pts[pairs[:, 0]])
-    ok[ok] = _log_depth_var(x1[ok], x2[ok], R, K[0, 0]) <= _NEW_VAR
-    return _fuse_depths(ref, pairs[ok], x1[ok], x2[ok], R, t, X[ok, 2], K[0, 0])
+    ok = (z1 > 0) & (z2 > 0) & reprojects(X, K, cur_pts[pairs[:, 0]])
+    ok[ok] = log_depth_var(x1[ok], x2[ok], R, K[0, 0]) <= NEW_VAR
+    return fuse_depths(ref, pairs[ok], x1[ok], x2[ok], R, t, X[ok, 2], K[0, 0])
 
 
 def _pose_essential(ref, cur_pts, pairs, K, step, config):
@@ -419,33 +341,9 @@ def _pose_essential(ref, cur_pts, pairs, K, step, config):
     if front.sum() < 8:
         return None
     inl = inl[front]
-    scale = _step_scale(ref, pairs[inl], x1[front], x2[front], R, z_ref[front], K[0, 0], step)
-    tri = _fuse_depths(ref, pairs[inl], x1[front], x2[front], R, scale * t, scale * z_cur[front], K[0, 0])
+    scale = step_scale(ref, pairs[inl], x1[front], x2[front], R, z_ref[front], K[0, 0], step)
+    tri = fuse_depths(ref, pairs[inl], x1[front], x2[front], R, scale * t, scale * z_cur[front], K[0, 0])
     return _rt(R, scale * t), len(inl), tri
-
-
-def _carry_depths(ref, cur_pts, pairs, T, K, depth, depth_var):
-    """Carry the reference's depths through the motion ``T`` (T_cur_ref) to the matched points
-    of this frame that got none from the triangulation (``depth`` NaN; both arrays updated in
-    place): those that reproject within ``_CARRY_PX`` of their keypoint keep their depth and its
-    variance, as a map point stays in the map while it is tracked. Without this a point drops
-    out at the first step where it is not an essential-matrix inlier, and the scale is taken
-    from ever newer points."""
-    prior = ref.depth[pairs[:, 1]]
-    ok = np.isfinite(prior) & np.isnan(depth[pairs[:, 0]])
-    if not ok.any():
-        return
-    p = pairs[ok]
-    X = (np.c_[ref.pts[p[:, 1]], np.ones(len(p))] @ np.linalg.inv(K).T) * prior[ok, None]
-    X = X @ T[:3, :3].T + T[:3, 3]
-    near = (X[:, 2] > 0) & _reprojects(X, K, cur_pts[p[:, 0]])
-    depth[p[near, 0]] = X[near, 2]
-    depth_var[p[near, 0]] = ref.depth_var[p[near, 1]]
-
-
-def _flow(ref_pts, cur_pts, pairs):
-    """Median displacement (px) of the matched keypoints ``pairs`` (this frame's, the reference's)."""
-    return float(np.median(np.linalg.norm(cur_pts[pairs[:, 0]] - ref_pts[pairs[:, 1]], axis=1)))
 
 
 def _record(kps, desc, depth, depth_var, pose, index, kf_index):
@@ -502,8 +400,8 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     chain = prev.kf_index[good[:, 1]]
     on = chain >= 0
     if not stereo and kf.index != prev.index and on.sum() >= config.min_matches and (
-            _flow(kf.pts, cur_pts, np.stack([good[on, 0], chain[on]], 1)) * np.sqrt(on.sum())
-            > _flow(prev.pts, cur_pts, good) * np.sqrt(len(good))):
+            flow(kf.pts, cur_pts, np.stack([good[on, 0], chain[on]], 1)) * np.sqrt(on.sum())
+            > flow(prev.pts, cur_pts, good) * np.sqrt(len(good))):
         # Monocular motion from the last keyframe, through the keypoints tracked since, as
         # ORB-SLAM2 triangulates against keyframes: several frames of parallax where the
         # previous frame alone gives little (the essential matrix then degenerates).
@@ -529,7 +427,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         T, inliers, tri = result
         if not stereo and tri is not None:
             idx, cur_depth[idx], cur_var[idx] = tri
-            _carry_depths(ref, cur_pts, good, T, K, cur_depth, cur_var)
+            carry_depths(ref, cur_pts, good, T, K, cur_depth, cur_var)
             if ref is kf:
                 # The points matched since the keyframe only: from the previous frame.
                 rest = prev_good[np.isnan(cur_depth[prev_good[:, 0]])]
