@@ -56,7 +56,7 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
-from .orbslam_depths import NEW_VAR, carry_depths, flow, fuse_depths, log_depth_var, reprojects, step_scale
+from .orbslam_depths import NEW_VAR, backfill, carry_depths, flow, fuse_depths, log_depth_var, reprojects, step_scale
 from .orbslam_match import add_match_node, mutual_pairs, stereo_depth
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
@@ -412,6 +412,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         kgood = filter_matches(kp, kd, angles, kf.angles, config)
         if len(kgood) > len(good):
             good, ref, reference = kgood, kf, REF_KEYFRAME
+    from_kf = ref is kf  # (the previous frame may be the keyframe)
     # Constant-velocity guess of T_cur_ref: T_cur_prev = velocity, T_prev_ref from the poses.
     guess = state.velocity @ _inv(prev.pose) @ ref.pose
     result = None
@@ -428,11 +429,15 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         if not stereo and tri is not None:
             idx, cur_depth[idx], cur_var[idx] = tri
             carry_depths(ref, cur_pts, good, T, K, cur_depth, cur_var)
-            if ref is kf:
+            if from_kf:
                 # The points matched since the keyframe only: from the previous frame.
                 rest = prev_good[np.isnan(cur_depth[prev_good[:, 0]])]
                 idx, z, v = _triangulate_known(prev, cur_pts, rest, T @ _inv(kf.pose) @ prev.pose, K)
                 cur_depth[idx], cur_var[idx] = z, v
+            if from_kf and np.isnan(kf.depth).all():
+                # A keyframe without depths (the first, or one after a loss): as ORB-SLAM2's
+                # map initialisation, both frames of its first triangulation get them.
+                kf = backfill(kf, cur_pts, good, T, K, cur_depth, cur_var)
     pose = ref.pose @ _inv(T)
     velocity = _inv(pose) @ prev.pose
     since = state.frames - kf.index
@@ -440,7 +445,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     is_kf = (reference == REF_LOST or since >= config.keyframe_interval
              or inliers < config.keyframe_ratio * kf_inliers)
     kf_index = np.full(n, -1)
-    kf_index[good[:, 0]] = good[:, 1] if ref is kf else prev.kf_index[good[:, 1]]
+    kf_index[good[:, 0]] = good[:, 1] if from_kf else prev.kf_index[good[:, 1]]
     rec = _record(kps, desc, cur_depth, cur_var, pose, state.frames, np.arange(n) if is_kf else kf_index)
     new = TrackState(state.frames + 1, rec, rec if is_kf else kf, velocity, 0 if is_kf else kf_inliers)
     stats = np.array([n, len(good), inliers, float(is_kf), reference, 1e3 * (time.perf_counter() - t0)])

@@ -14,6 +14,8 @@ tracked instead of re-triangulated from one step. Frames are
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 # Monocular scale: the fewest points with a depth to take a step's scale from, and the gate
@@ -121,5 +123,25 @@ def flow(ref_pts, cur_pts, pairs):
     return float(np.median(np.linalg.norm(cur_pts[pairs[:, 0]] - ref_pts[pairs[:, 1]], axis=1)))
 
 
-__all__ = ["log_depth_var", "robust_mean", "step_scale", "fuse_depths", "reprojects",
+def backfill(kf, cur_pts, pairs, T, K, depth, depth_var):
+    """The keyframe ``kf`` with depths for its keypoints that had none, from this frame's
+    (``depth``, ``depth_var`` of this frame's keypoints ``cur_pts``, float64 [N, 2];
+    ``pairs``: this frame's index, the keyframe's; ``T``: T_cur_kf). A keyframe's points are
+    triangulated only by the frames after it: without this, a keyframe stays without depths
+    for the points it first saw, and the frames referred to it take their scale from the
+    motion model."""
+    i, j = pairs[:, 0], pairs[:, 1]
+    ok = np.isnan(kf.depth[j]) & np.isfinite(depth[i])
+    if not ok.any():
+        return kf
+    i, j = i[ok], j[ok]
+    X = (np.c_[cur_pts[i], np.ones(len(i))] @ np.linalg.inv(K).T) * depth[i, None]
+    z = (X - T[:3, 3]) @ T[:3, 2]  # z of T^-1 X: R^T (X - t), third row
+    front = z > 0
+    d, v = kf.depth.copy(), kf.depth_var.copy()
+    d[j[front]], v[j[front]] = z[front], depth_var[i[front]]
+    return dataclasses.replace(kf, depth=d, depth_var=v)
+
+
+__all__ = ["backfill", "log_depth_var", "robust_mean", "step_scale", "fuse_depths", "reprojects",
            "carry_depths", "flow"]
