@@ -100,6 +100,12 @@ class TrackerConfig:
         ATE), the keyframe being the reference of slow, low-parallax motion.
     stereo_max_distance : int
         Stereo matching's Hamming bound (ORB-SLAM2: (TH_HIGH + TH_LOW) / 2 = 75).
+    keyframe_motion : bool
+        Monocular: estimate the motion from the last keyframe when the keypoints tracked
+        since give more parallax than the previous frame (see the module docstring). Off,
+        every frame's motion is from the previous frame, whose essential matrices the
+        batched front end (:mod:`~warpvx.apps.orbslam_batch`) works out ahead on its process
+        pool: faster there, less accurate on slow, low-parallax motion.
     """
 
     n_features: int = 2000
@@ -119,9 +125,12 @@ class TrackerConfig:
     keyframe_interval: int = 10
     keyframe_ratio: float = 0.7
     stereo_max_distance: int = (TH_HIGH + TH_LOW) // 2
+    keyframe_motion: bool = True
 
     def __post_init__(self):
-        from ..check import check_float, check_int
+        from ..check import check_bool, check_float, check_int
+
+        check_bool(self.keyframe_motion, "keyframe_motion")
 
         check_int(self.n_features, "n_features", min_value=1)
         check_int(self.n_levels, "n_levels", min_value=1)
@@ -423,7 +432,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     ref, reference, prev_good = prev, REF_PREVIOUS, good
     chain = prev.kf_index[good[:, 1]]
     on = chain >= 0
-    if not stereo and kf.index != prev.index and on.sum() >= config.min_matches and (
+    if not stereo and config.keyframe_motion and kf.index != prev.index and on.sum() >= config.min_matches and (
             flow(kf.pts, cur_pts, np.stack([good[on, 0], chain[on]], 1)) * np.sqrt(on.sum())
             > flow(prev.pts, cur_pts, good) * np.sqrt(len(good))):
         # Monocular motion from the last keyframe, through the keypoints tracked since, as
