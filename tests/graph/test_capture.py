@@ -157,8 +157,9 @@ def test_two_cameras_captured_equals_eager(frames, warp_backend):
         got = [g.process(f, capture=_capture_arg(warp_backend)) for f in cams]
         # Frame 0 reads the delays' initial points (a plain array); from frame 1 on, the
         # corners are Counted (fixed rows): one shape whatever the corner counts. Its two
-        # buffer sets (the delays swap between them) run uncaptured once each (frames 1,
-        # 2), are captured (frames 3, 4) and replayed (5-7).
+        # buffer sets (the delays swap between them) run uncaptured (frames 1-3: the first
+        # set twice, the second time reading the second set's buffers as its capture
+        # will), are captured (frames 4, 5) and replayed (6, 7).
         assert ex.captures == captured_segments
         (seg,) = [s for s in ex._segments if s.captured]
         assert {r.key for r in seg.swapped} == {f"{n}{c}.out" for n in ("pyramid", "harris")

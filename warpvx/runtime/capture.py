@@ -16,7 +16,8 @@ output, by a delay read elsewhere) is copied out into a buffer of the frame's af
 frames in flight share the fixed buffers. A segment's own delays (a pyramid, corners: read
 by the segment one frame later) are neither copied in nor out: the segment has two buffer
 sets, and a frame reads the set the previous frame wrote and writes the other (two captures
-per signature); a delayed value read elsewhere too is still copied out for those readers.
+per signature, on the fourth and fifth sightings); a delayed value read elsewhere too is
+still copied out for those readers.
 Copies and replay run on the executor's stream, in frame order. A value may be any tree of
 arrays (:func:`.transfers.tree_map`): a pyramid's list of levels, a task's several outputs,
 a :class:`~warpvx._counted.Counted` (corners, keypoints, tracked points: fixed rows and a
@@ -202,15 +203,19 @@ class _BufferSet:
     published : dict
         Key of each swapped input -> the object the last run of this set published for it
         (the fixed value, or its copy): how the next frame knows its delay holds this set.
+    warm : bool
+        An uncaptured run read the buffers a capture of this set reads (the other set's,
+        for swapped inputs), so the primitives' per-buffer state exists: it may be captured.
     """
 
-    __slots__ = ("outs", "outputs", "graph", "published")
+    __slots__ = ("outs", "outputs", "graph", "published", "warm")
 
     def __init__(self, tasks):
         self.outs = {task.name: task.gpu_out() for task in tasks}
         self.outputs = {}
         self.graph = None
         self.published = {}
+        self.warm = False
 
 
 class SegmentGraph:
@@ -255,9 +260,9 @@ class SegmentGraph:
         return any(b.graph is not None for b in self.sets)
 
     def due(self) -> bool:
-        """The next run's set has run once uncaptured and is not captured yet."""
+        """The next run's set is warm (:class:`_BufferSet`) and not captured yet."""
         b = self.sets[self.next]
-        return b.graph is None and bool(b.outputs)
+        return b.graph is None and b.warm
 
     def value(self, ref: InputRef, s: int, outputs: dict):
         """The fixed buffer(s) a task of the segment writing set ``s`` reads for ``ref``
@@ -307,6 +312,7 @@ class SegmentGraph:
             propagates.
         """
         b = self.sets[s]
+        warm = len(self.sets) == 1 or bool(self.sets[1 - s].outputs)
         outputs = {}
         fixed = {a.ptr for ref in self.segment.inputs
                  for a in _leaves(self.value(ref, s, outputs))}
@@ -319,6 +325,7 @@ class SegmentGraph:
             fixed |= mine
             outputs.update(_per_output(task, result))
         b.outputs = outputs
+        b.warm = warm
 
     def fill(self, ref: InputRef, value, io, stream):
         """Copy this frame's ``value`` of ``ref`` into the fixed buffers the next run reads
@@ -400,9 +407,9 @@ class SegmentRunner:
         the segment's inputs (a value made in an earlier frame, such as its corners, may
         change them): made on the first sighting and run uncaptured on its fixed buffers (so
         its values have the captured form from the start, Counted corners included, and the
-        primitives' caches are filled), captured on the second (each of its buffer sets:
-        the first two sightings run uncaptured, the next two capture); None: run the tasks
-        eagerly.
+        primitives' caches are filled), captured on the second (with two buffer sets: the
+        first three sightings run uncaptured, the first set's twice so that it has read the
+        second's buffers, the next two capture); None: run the tasks eagerly.
         Each state: a SegmentGraph, or None (not capturable with these shapes); at most
         :data:`MAX_SIGNATURES` shapes per segment are kept."""
         by_shape = states[i]
