@@ -607,6 +607,8 @@ def main(argv=None):
     p.add_argument("--replay", type=Path, default=None,
                    help="refit the model on a graph_bench.json's recorded per-node medians and "
                         "print each policy's predicted vs measured makespan (no frames run)")
+    p.add_argument("--train-only", action="store_true",
+                   help="--replay: train on --train only (default: each of baseline, heft, xeft)")
     p.add_argument("--soak", type=int, default=0, help="also run N frames pipelined, report memory")
     p.add_argument("--soak-seconds", type=float, default=None,
                    help="stop the soak after this long (it reports the frames it ran)")
@@ -774,6 +776,20 @@ def replay_frame(table: dict):
     return recorded_frame(record)
 
 
+def experiments_of(report: dict) -> list:
+    """A graph_bench.json's experiments; a result of the one-graph format (before
+    2026-11-24: one 16-node graph, no fit frames, ``calibrated``/``history`` policies) as
+    one experiment whose policies were measured on all their frames."""
+    if "experiments" in report:
+        return report["experiments"]
+    w, h = report["size"]
+    policies = [{**p, "policy": p["policy"] + ("" if p.get("costs", "calibrated") == "calibrated"
+                                               else f" ({p['costs']})"),
+                 "measured_out_ms": p["measured_ms"]} for p in report["policies"]]
+    return [{"graph": "two-cameras", "tag": f"two-cameras_{w}x{h}",
+             "calibration": report["calibration"], "policies": policies}]
+
+
 def replay(report: dict, train: str = "baseline") -> list:
     """Refit the contention model offline on ``train``'s recorded fit frames
     (``fit_frames_data`` and the contention ``probe``; results older than those: one frame
@@ -793,7 +809,7 @@ def replay(report: dict, train: str = "baseline") -> list:
                              tm["d2h_latency_ms"], 1e-6 / tm["d2h_gbps"])
     procs = ["gpu"] + [f"cpu{i}" for i in range(report["n_cpus"])]
     rows = []
-    for e in report["experiments"]:
+    for e in experiments_of(report):
         w, h = (int(v) for v in e["tag"].rsplit("_", 1)[1].split("x"))
         g = build_graph((w, h), max_corners=200 if report["mode"] == "quick" else 500,
                         cpu_heavy=e["graph"] == "two-cameras-cv")
@@ -821,10 +837,12 @@ def replay(report: dict, train: str = "baseline") -> list:
                             for n, t in p["nodes"].items()}, procs)
             pred = model.makespan(sch)
             pooled = statistics.mean(same[_plan_key(p)])
-            rows.append({"tag": e["tag"], "policy": p["policy"], "pred_ms": pred,
+            rows.append({"tag": e["tag"], "policy": p["policy"], "train": train, "pred_ms": pred,
                          "measured_ms": p["measured_out_ms"],
                          "error_pct": _err(pred, p["measured_out_ms"]),
-                         "pooled_ms": pooled, "pooled_error_pct": _err(pred, pooled)})
+                         "pooled_ms": pooled, "pooled_error_pct": _err(pred, pooled),
+                         "trained_here": p["policy"] == train})
+        g.close()
     return rows
 
 
@@ -833,21 +851,45 @@ def _plan_key(p) -> tuple:
     return tuple(sorted((t["pe"], t["planned_start_ms"], n) for n, t in p["nodes"].items()))
 
 
+#: Policies each replay trains on in turn (cross-validation: each predicts the others).
+REPLAY_TRAIN = ("baseline", "heft", "xeft")
+
+
 def replay_main(args):
     report = json.loads(args.replay.read_text())
-    rows = replay(report, args.train)
-    lines = [f"Replay of {args.replay} (trained on {args.train}'s recorded node medians)", "",
-             "| experiment | policy | predicted ms | measured ms | error | same plan, mean of runs | error |",
-             "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
-    lines += [f"| {r['tag']} | {r['policy']} | {r['pred_ms']:.3f} | {r['measured_ms']:.3f} | "
-              f"{r['error_pct']:+.1f}% | {r['pooled_ms']:.3f} | {r['pooled_error_pct']:+.1f}% |"
-              for r in rows]
+    trains = [args.train] if args.train_only else list(REPLAY_TRAIN)
+    by_train = {t: replay(report, t) for t in trains}
+    first = by_train[trains[0]]
+    lines = [f"Replay of {args.replay}: the model refit on each training policy's recorded "
+             "frames (or node medians) predicts every policy's plan; error against the "
+             "measured makespan (later frames), and against the mean of every run of the "
+             "same plan (pooled)", "",
+             "| experiment | policy | measured ms | same plan, mean of runs | "
+             + " | ".join(f"trained on {t}: predicted ms | error | pooled error" for t in trains) + " |",
+             "| --- | --- | ---: | ---: | " + " | ".join("---: | ---: | ---:" for _ in trains) + " |"]
+    for i, r in enumerate(first):
+        cells = []
+        for t in trains:
+            o = by_train[t][i]
+            mark = " (in)" if o["trained_here"] else ""
+            cells.append(f"{o['pred_ms']:.3f} | {o['error_pct']:+.1f}%{mark} | {o['pooled_error_pct']:+.1f}%")
+        lines.append(f"| {r['tag']} | {r['policy']} | {r['measured_ms']:.3f} | {r['pooled_ms']:.3f} | "
+                     + " | ".join(cells) + " |")
+    lines += ["", "Summary, policies not trained on (out of sample): "]
+    for t in trains:
+        out = [r for r in by_train[t] if not r["trained_here"]]
+        errs = [abs(r["error_pct"]) for r in out]
+        pooled = [abs(r["pooled_error_pct"]) for r in out]
+        lines.append(f"- trained on {t}: {sum(e <= 20 for e in errs)}/{len(errs)} within 20%, "
+                     f"mean |error| {statistics.mean(errs):.1f}%, max {max(errs):.1f}%; against "
+                     f"the mean of same-plan runs {sum(e <= 20 for e in pooled)}/{len(pooled)}, "
+                     f"mean {statistics.mean(pooled):.1f}%, max {max(pooled):.1f}%")
     text = "\n".join(lines)
     print(text)
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "replay.md").write_text(f"Regenerate: `{args.command}`\n\n{text}\n")
-    return rows
+    return by_train
 
 
 def _write(out_dir, report):

@@ -184,13 +184,12 @@ def _fast_on_gpu(x):
     return x
 
 
-def test_best_trial_keeps_the_measured_winner_when_the_model_is_wrong():
-    # One node, 30 ms on a CPU worker and fast on the GPU role; the model is told the
-    # opposite, so it predicts the CPU placement fastest. The trial runs both candidates
-    # and keeps the one that measured fastest: the GPU placement.
-    g = warpvx.Graph("trial")
+def _one_node_wrong_model(name, cpu_fn, gpu_fn):
+    """A one-node graph (``cpu_fn`` on a CPU worker, ``gpu_fn`` on the GPU role), a frame,
+    and a model fitted on its baseline then told the CPU placement is far faster."""
+    g = warpvx.Graph(name)
     x = g.input("x", shape=(4,), dtype=np.float32)
-    g.output("y", g.user(_slow_on_cpu, [x], warp_fn=_fast_on_gpu, name="work"))
+    g.output("y", g.user(cpu_fn, [x], warp_fn=gpu_fn, name="work"))
     frame = {"x": np.arange(4, dtype=np.float32)}
     g.verify(frame)
     plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
@@ -200,6 +199,14 @@ def test_best_trial_keeps_the_measured_winner_when_the_model_is_wrong():
         runs.append(plan.last_run[-1])
     model = g.fit_model(plan, runs=runs)
     model.alone["work"] = {"cpu": 0.001, "gpu": 50.0, "device": 0.0}  # wrong on purpose
+    return g, frame, model
+
+
+def test_best_trial_keeps_the_measured_winner_when_the_model_is_wrong():
+    # One node, 30 ms on a CPU worker and fast on the GPU role; the model is told the
+    # opposite, so it predicts the CPU placement fastest. The trial runs both candidates
+    # and keeps the one that measured fastest: the GPU placement.
+    g, frame, model = _one_node_wrong_model("trial", _slow_on_cpu, _fast_on_gpu)
     untried = g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model)
     assert untried.placement["work"] == "cpu0"  # the model's (wrong) pick
     tried = g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame],
@@ -225,6 +232,130 @@ def test_best_trial_keeps_the_measured_winner_when_the_model_is_wrong():
     for bad in ("0.2", -0.1, float("nan")):
         with pytest.raises((warpvx.WarpvxTypeError, warpvx.WarpvxValueError), match="trial_margin"):
             g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_margin=bad)
+    g.close()
+
+
+class _Drift:
+    """A machine that slows down frame after frame: each call sleeps ``base`` ms plus
+    ``step`` ms per call made so far (by either placement)."""
+
+    calls = 0
+
+    @classmethod
+    def sleep(cls, base_ms, step_ms=1.0):
+        time.sleep((base_ms + step_ms * cls.calls) / 1e3)
+        cls.calls += 1
+
+
+def _drift_cpu(x):
+    _Drift.sleep(10.0)
+    return x
+
+
+def _drift_gpu(x):
+    _Drift.sleep(6.0)
+    return x
+
+
+def test_best_trial_interleaves_candidates_so_a_drift_does_not_pick_the_loser():
+    # The GPU placement is 4 ms faster, but the machine slows by 1 ms a frame and the
+    # model predicts the CPU placement fastest, so the CPU one is tried first. Run one
+    # after the other, the GPU candidate would measure ~6 ms of drift more and lose; in
+    # interleaved rounds (A B B A) both see the same drift and the faster one wins.
+    g, frame, model = _one_node_wrong_model("drift", _drift_cpu, _drift_gpu)
+    _Drift.calls = 0
+    tried = g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame],
+                       trial_frames=3, trial_rounds=4, trial_margin=1e6)
+    info = tried.schedule.info
+    assert info["trial_frames"] == dict.fromkeys(info["trial_ms"], 12)
+    assert _Drift.calls == 2 * 4 * (3 + 2)  # warm-up frames after each switch discarded
+    assert tried.placement["work"] == "gpu"
+    assert info["trial_ms"][info["chosen"]] == min(info["trial_ms"].values())
+    # One round is the old trial (all of A, then all of B): the drift makes the slower
+    # CPU placement measure faster.
+    cpu_plan = g.schedule("heft", n_cpus=1, gpu=False)
+    gpu_plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
+    _Drift.calls = 0
+    seq = g.measure_plans([cpu_plan, gpu_plan], frame, rounds=1, frames=5, warmup=1)
+    assert cpu_plan.placement["work"] == "cpu0" and gpu_plan.placement["work"] == "gpu"
+    assert statistics.median(r.makespan for r in seq[0]) < statistics.median(r.makespan for r in seq[1])
+    cpu_plan.close()
+    # A budget of 0 s runs the first round only.
+    _Drift.calls = 0
+    quick = g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame],
+                       trial_frames=2, trial_rounds=5, trial_seconds=0.0, trial_margin=1e6)
+    assert set(quick.schedule.info["trial_frames"].values()) == {2}
+    for bad, kw in (("trial_rounds", {"trial_rounds": 0}), ("trial_seconds", {"trial_seconds": -1.0})):
+        with pytest.raises((warpvx.WarpvxTypeError, warpvx.WarpvxValueError), match=bad):
+            g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame], **kw)
+    g.close()
+
+
+def test_measure_plans_and_use_plan_switch_between_warm_plans(frames):
+    g = _graph((frames[0].shape[1], frames[0].shape[0]))
+    g.verify({"frame": frames[0]})
+    plans = [g.schedule(p, n_cpus=1, gpu="warp-cpu") for p in ("baseline", "heft")]
+    runs = g.measure_plans(plans, [{"frame": f} for f in frames], rounds=3, frames=2, warmup=1)
+    assert [len(r) for r in runs] == [6, 6]
+    for plan, got in zip(plans, runs):
+        assert all(set(r.timeline) == set(g.nodes) for r in got)
+        assert all({t.processor for t in r.timeline.values()} <= set(plan.placement.values())
+                   for r in got)
+    assert g.plan is plans[1]  # rounds alternate A B, B A, A B: the last plan run stays
+    other = warpvx.Graph("other")
+    with pytest.raises(warpvx.GraphError, match="plan"):
+        other.use_plan(plans[0])
+    with pytest.raises(warpvx.GraphError, match="inputs"):
+        g.measure_plans(plans, [])
+    with pytest.raises((warpvx.WarpvxTypeError, warpvx.WarpvxValueError), match="rounds"):
+        g.measure_plans(plans, {"frame": frames[0]}, rounds=0)
+    for plan in plans:
+        plan.close()
+    g.close()
+
+
+def _spin(x):
+    # Pure Python: holds the GIL, so two workers running it at once take turns.
+    s = 0
+    for i in range(150_000):
+        s += i
+    return x + 1
+
+
+def test_cpu_interference_is_learnt_from_the_contention_probe(tmp_path, monkeypatch):
+    # Trained on a placement that runs both spinning nodes on one worker (never side by
+    # side), the frames cannot show that they slow each other down; the contention probe
+    # (the CPU mix run beside a second worker looping it) does, and the model then
+    # predicts the placement that runs them on two workers -- no faster, under the GIL.
+    from warpvx.graph.model import fit, graph_reads
+
+    monkeypatch.setenv("WARPVX_CACHE_DIR", str(tmp_path))
+    g = warpvx.Graph("gil")
+    x = g.input("x", shape=(4,), dtype=np.float32)
+    a = g.user(_spin, [x], name="spinA")
+    b = g.user(_spin, [x], name="spinB")
+    g.output("y", g.user(np.add, [a, b], name="join"))
+    frame = {"x": np.zeros(4, np.float32)}
+    g.verify(frame)
+    plans, runs = {}, {}
+    for policy in ("baseline", "heft"):
+        plans[policy] = plan = g.schedule(policy, n_cpus=2, gpu=False)
+        runs[policy] = []
+        for _ in range(9):
+            g.process(frame)
+            runs[policy].append(plan.last_run[-1])
+    assert len(set(plans["baseline"].placement.values())) == 1
+    assert plans["heft"].placement["spinA"] != plans["heft"].placement["spinB"]
+    model = g.fit_model(plans["baseline"], runs=runs["baseline"])
+    _, alone, loaded, cpus, _ = plans["baseline"].calibration.contention[2][("cpu", "cpu")]
+    assert cpus == 1 and loaded / alone > 1.4  # the GIL: about 2x
+    assert model.slowdown["cpu"].per_cpu >= 0.5
+    blind = fit(plans["baseline"].calibration, graph_reads(g), runs["baseline"],
+                plans["baseline"].placement)
+    assert blind.slowdown["cpu"].per_cpu == 0.0  # nothing in the frames to learn it from
+    measured = statistics.median(r.makespan for r in runs["heft"][1:])
+    assert abs(model.makespan(plans["heft"]) - measured) <= 0.25 * measured
+    assert blind.makespan(plans["heft"]) < 0.8 * measured
     g.close()
 
 

@@ -113,6 +113,10 @@ SLOWDOWN_GRID = np.linspace(0.0, 2.0, 21)
 #: interval, what makes a 3 us node take 20 us) tried by :func:`fit_slowdown`.
 OVERHEAD_GRID = np.linspace(0.0, 0.1, 11)
 
+#: At most this share of a task's interval is taken for copies it made but did not time
+#: apart (the transfer model can overestimate a copy; the node's own work stays positive).
+UNTIMED_COPY_SHARE = 0.9
+
 #: Weight of a contention probe (:func:`~warpvx.graph.calibration.measure_contention`)
 #: measurement in the fit, in training samples.
 PROBE_WEIGHT = 8
@@ -391,6 +395,11 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
                     for kind in ("cpu", "gpu")]
             if copy_ms > 0 and modelled > 0:
                 copies[pe].append((copy_ms / modelled, *busy))
+            elif modelled > 0:
+                # Copies made but not timed apart (a captured segment's uploads, small ones
+                # on CUDA) are inside the interval: take out what the simulation adds back,
+                # else the node's correction counts them a second time.
+                copy_ms = min(modelled, UNTIMED_COPY_SHARE * (f - s))
             if alone[task][pe] is not None:
                 samples[pe].append((task, alone[task][pe], f - s - copy_ms, *busy))
             cls, ready = _ready_parts(run, task, reads, placement, hosts)
