@@ -472,8 +472,8 @@ def markdown(report) -> str:
         "",
         "The contention model (`warpvx.graph.model`): each node's calibrated cost alone (a "
         "GPU node: its host call) times an in-frame ratio plus a fixed cost per task, times a "
-        "per-node correction, plus its copies (the transfer model scaled by what the training "
-        "frames' copies took; copies not timed apart, as in a captured segment, are taken out "
+        "per-node correction, plus its copies (the transfer model plus the median extra the "
+        "training frames' copies took; copies not timed apart, as in a captured segment, are taken out "
         "of the interval they are in), slowed down by `1 + a * (other CPU workers busy) + b * "
         "(GPU host thread busy)`, with the measured waits between tasks by kind of edge, "
         "played through a simulation of the executor; `a`, `b` from all nodes at once and "
@@ -504,7 +504,7 @@ def markdown(report) -> str:
                         f"us, slowdown per busy CPU worker {sd[pe].get('per_cpu', 0):.2f}, while "
                         f"the GPU host thread is busy {sd[pe].get('per_gpu', 0):.2f}"
                         for pe in ("cpu", "gpu"))
-            + "; copies x " + ", ".join(f"{k} {v:.2f}" for k, v in m.get("copy_scale", {}).items())
+            + "; copies + " + ", ".join(f"{k} {v:.0f} us" for k, v in m.get("copy_extra_us", {}).items())
             + "; waits (us) " + ", ".join(f"{k} {v:.1f}" for k, v in m["latency_us"].items())
             + ".", "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "

@@ -272,9 +272,11 @@ class ContentionModel:
         The GPU role is a CUDA device (host enqueue and device run apart).
     trained_on : str
         The policy whose frames the model learnt from, and how many.
-    copy_scale : dict
-        ``"cpu"``/``"gpu"`` -> median of measured over modelled copy time in the training
-        frames (a frame's pageable arrays copy slower than calibration's buffers).
+    copy_extra : dict
+        ``"cpu"``/``"gpu"`` -> the median time (ms) a task's copies took in the training
+        frames beyond the transfer model's (a frame's copies wait on a synchronisation and
+        copy pageable arrays; calibration's do neither): a fixed cost per copying task,
+        not a factor, so a scale learnt on 8 KB downloads is not applied to a frame.
     """
 
     slowdown: dict
@@ -284,7 +286,7 @@ class ContentionModel:
     transfer: object
     cuda: bool
     trained_on: str = ""
-    copy_scale: dict = field(default_factory=dict)
+    copy_extra: dict = field(default_factory=dict)
 
     def work(self, node: str, pe: str, copied: int = 0) -> float:
         """``node``'s time on ``pe`` in a frame with no busy neighbour, its copies of
@@ -296,8 +298,10 @@ class ContentionModel:
 
     def copy_time(self, pe: str, nbytes: int) -> float:
         """The copies a task on ``pe`` makes of ``nbytes`` (uploads on the GPU thread,
-        downloads on a CPU worker): the transfer model scaled by ``copy_scale``."""
-        return self.copy_scale.get(pe, 1.0) * _copy_ms(self.transfer, pe, nbytes)
+        downloads on a CPU worker): the transfer model plus ``copy_extra``."""
+        if not nbytes:
+            return 0.0
+        return max(0.0, _copy_ms(self.transfer, pe, nbytes) + self.copy_extra.get(pe, 0.0))
 
     def predict(self, plan_or_schedule, processors=None) -> Schedule:
         """The predicted timeline of one frame of a plan (or of a Schedule's orders):
@@ -317,7 +321,7 @@ class ContentionModel:
                              "per_gpu": s.per_gpu, "samples": s.samples, "rms_log": s.rms_log}
                          for k, s in self.slowdown.items()},
             "latency_us": {k: v * 1e3 for k, v in self.latency.items()},
-            "copy_scale": dict(self.copy_scale),
+            "copy_extra_us": {k: v * 1e3 for k, v in self.copy_extra.items()},
         }
 
 
@@ -394,7 +398,7 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
                                           if p != proc and pe_of(p) == kind])
                     for kind in ("cpu", "gpu")]
             if copy_ms > 0 and modelled > 0:
-                copies[pe].append((copy_ms / modelled, *busy))
+                copies[pe].append((copy_ms, modelled, *busy))
             elif modelled > 0:
                 # Copies made but not timed apart (a captured segment's uploads, small ones
                 # on CUDA) are inside the interval: take out what the simulation adds back,
@@ -414,12 +418,12 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
                 "cpu_from_gpu": d.get("handoff", 0.0), "gpu_from_cpu": d.get("handoff", 0.0)}
     latency = {k: statistics.median(v) if v else fallback[k] for k, v in waits.items()}
     # Copies slow down with busy neighbours like the rest of the task (the simulation
-    # applies the same speed to the whole task), so their scale is taken without that.
-    copy_scale = {pe: statistics.median(r / slow[pe].speed_divisor(c, g) for r, c, g in v)
+    # applies the same speed to the whole task), so their extra is taken without that.
+    copy_extra = {pe: statistics.median(t / slow[pe].speed_divisor(c, g) - m for t, m, c, g in v)
                   for pe, v in copies.items() if v}
     return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
                            f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames",
-                           copy_scale)
+                           copy_extra)
 
 
 def _copy_ms(transfer, pe, n):
