@@ -335,6 +335,7 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     run_frames(g, train, frames[:SWITCH_WARMUP])
     train_runs = run_frames(g, train, frames[:fit_n])
     model = g.fit_model(train, runs=train_runs)
+    model_gil = g.fit_model(train, runs=train_runs, gil=True)  # reported beside, not used
     # best: the model's candidates; those it cannot tell apart are tried in rounds.
     trial = {"trial_inputs": frames, "trial_frames": args.trial_frames,
              "trial_rounds": args.trial_rounds} if args.trial_frames else {}
@@ -353,6 +354,7 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
         own = model if policy == args.train else g.fit_model(plan, runs=fit_runs)
         pred_in, meas_in = own.makespan(plan), median_span(fit_runs)
         pred_out, meas_out = model.makespan(plan), median_span(runs[fit_n:])
+        pred_gil = model_gil.makespan(plan)
         rows.append({
             "policy": policy,
             "chosen": plan.schedule.info.get("chosen", policy),
@@ -361,6 +363,7 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
             "pred_in_ms": pred_in, "measured_in_ms": meas_in, "error_in_pct": _err(pred_in, meas_in),
             "pred_out_ms": pred_out, "measured_out_ms": meas_out,
             "error_out_pct": _err(pred_out, meas_out),
+            "pred_out_gil_ms": pred_gil, "error_out_gil_pct": _err(pred_gil, meas_out),
             "measured_p90_ms": float(np.percentile([r.makespan for r in runs[fit_n:]], 90)),
             "noise_pct": halves_drift_pct(runs, block),
             "sequential_fps": sequential_fps(runs),
@@ -405,6 +408,7 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
         "calibration": plans["baseline"].calibration.nodes,
         "probe": [[list(k), list(v)] for k, v in
                   plans[args.train].calibration.contention.get(args.n_cpus, {}).items()],
+        "gil": plans[args.train].calibration.gil,
         "model_pick": min(best["candidates"], key=best["candidates"].get),
     }
 
@@ -484,7 +488,10 @@ def markdown(report) -> str:
         "frames). *Out of sample*: the training model against every policy's interleaved "
         "frames after the first ones (target: within 20%). *noise*: the same placement's "
         "median makespan in its even against its odd rounds (two interleaved runs of one "
-        "placement): an error below it cannot be told from drift. *scheduler*: the makespan "
+        "placement): an error below it cannot be told from drift. *GIL-weighted*: the same "
+        "training frames fitted with each busy neighbour counted by its node's GIL pressure "
+        "and each victim by its sensitivity (`warpvx.graph.calibration.measure_gil`; not "
+        "used by best yet). *scheduler*: the makespan "
         "the policy's own schedule claims (isolated calibration). `best`: the model's "
         "candidates (baseline, HEFT and XEFT on the calibrated DAG and on the model's "
         "in-frame costs); those predicted within 20% of the fastest (closer than the model "
@@ -508,9 +515,10 @@ def markdown(report) -> str:
             + "; waits (us) " + ", ".join(f"{k} {v:.1f}" for k, v in m["latency_us"].items())
             + ".", "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
-            "of sample | measured | error | noise | p90 ms | sequential FPS | pipelined FPS | "
-            "GPU nodes |",
-            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
+            "of sample | measured | error | noise | GIL-weighted: predicted | error | p90 ms | "
+            "sequential FPS | pipelined FPS | GPU nodes |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+            "| ---: | --- |",
         ]
         for r in e["policies"]:
             name = r["policy"] + (f" ({r['chosen']})" if r["chosen"] != r["policy"] else "")
@@ -518,7 +526,9 @@ def markdown(report) -> str:
                 f"| {name} | {r['scheduler_ms']:.3f} | {r['pred_in_ms']:.3f} | "
                 f"{r['measured_in_ms']:.3f} | {r['error_in_pct']:+.1f}% | {r['pred_out_ms']:.3f} | "
                 f"{r['measured_out_ms']:.3f} | {r['error_out_pct']:+.1f}% | "
-                f"{_pct(r.get('noise_pct'))} | {r['measured_p90_ms']:.3f} | {r['sequential_fps']:.1f} | "
+                f"{_pct(r.get('noise_pct'))} | {_fmt(r.get('pred_out_gil_ms'))} | "
+                f"{_pct(r.get('error_out_gil_pct'))} | {r['measured_p90_ms']:.3f} | "
+                f"{r['sequential_fps']:.1f} | "
                 f"{r['pipelined_fps']:.1f} | {len(r['gpu_nodes'])}: {', '.join(r['gpu_nodes'])} |")
         best = e["policies"][-1]
         within = abs(e["best_vs_fastest_pct"]) <= 5.0
@@ -662,6 +672,8 @@ def main(argv=None):
     p.add_argument("--replay", type=Path, default=None,
                    help="refit the model on a graph_bench.json's recorded per-node medians and "
                         "print each policy's predicted vs measured makespan (no frames run)")
+    p.add_argument("--gil", action="store_true",
+                   help="--replay: weigh busy neighbours by the recorded GIL shares")
     p.add_argument("--train-only", action="store_true",
                    help="--replay: train on --train only (default: each of baseline, heft, xeft)")
     p.add_argument("--soak", type=int, default=0, help="also run N frames pipelined, report memory")
@@ -847,7 +859,7 @@ def experiments_of(report: dict) -> list:
              "calibration": report["calibration"], "policies": policies}]
 
 
-def replay(report: dict, train: str = "baseline") -> list:
+def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
     """Refit the contention model offline on ``train``'s recorded fit frames
     (``fit_frames_data`` and the contention ``probe``; results older than those: one frame
     rebuilt from its later frames' node medians, no probe) and predict every policy's
@@ -884,7 +896,8 @@ def replay(report: dict, train: str = "baseline") -> list:
             frames[0].copied.update(copied_bytes(
                 reads, placement, sorted(table, key=lambda n: table[n]["start_ms"])))
         probe = {tuple(k): tuple(v) for k, v in e.get("probe") or []}
-        model = fit(cal, reads, frames, placement, policy=train, probe=probe)
+        model = fit(cal, reads, frames, placement, policy=train, probe=probe,
+                    gil=e.get("gil") if gil else None)
         same = defaultdict(list)
         for p in e["policies"]:
             same[_plan_key(p)].append(p["measured_out_ms"])
@@ -915,7 +928,7 @@ REPLAY_TRAIN = ("baseline", "heft", "xeft")
 def replay_main(args):
     report = json.loads(args.replay.read_text())
     trains = [args.train] if args.train_only else list(REPLAY_TRAIN)
-    by_train = {t: replay(report, t) for t in trains}
+    by_train = {t: replay(report, t, gil=args.gil) for t in trains}
     first = by_train[trains[0]]
     lines = [f"Replay of {args.replay}: the model refit on each training policy's recorded "
              "frames (or node medians) predicts every policy's plan; error against the "

@@ -353,11 +353,17 @@ class CostModel:
         pes = {n: node.processing_elements for n, node in self.nodes.items()}
         return {"": dag, "model costs": in_frame_dag(model, pes, n_cpus)}
 
-    def fit_model(self, plan=None, *, runs=None):
+    def fit_model(self, plan=None, *, runs=None, gil: bool = False):
         """A :class:`~warpvx.graph.model.ContentionModel` learnt from frames run with ``plan``
         (default: the current plan and its ``last_run``): host contention, copies and
-        hand-offs, to predict this plan's later frames and other plans' (out of sample)."""
-        from .calibration import measure_contention
+        hand-offs, to predict this plan's later frames and other plans' (out of sample).
+        The contention probe is measured on first use
+        (:func:`~warpvx.graph.calibration.measure_contention`) and kept in the calibration;
+        with ``gil``, also each node's GIL shares
+        (:func:`~warpvx.graph.calibration.measure_gil`), and busy neighbours count by them
+        (not yet the default: on a loaded 2-core machine the shares are noise; see
+        ``benchmarks/graph_bench.py``, which reports both)."""
+        from .calibration import measure_contention, measure_gil
         from .model import fit, graph_reads
 
         plan = plan or self._plan
@@ -365,12 +371,14 @@ class CostModel:
         if plan is None or not runs:
             raise GraphError("fit_model: nothing measured yet; run g.process() first")
         cal = plan.calibration
-        if plan.n_cpus not in cal.contention:
-            with self._run_lock:
-                cal.contention[plan.n_cpus] = measure_contention(
-                    self, cal, gpu_backend(plan.gpu or False), plan.n_cpus)
+        be = gpu_backend(plan.gpu or False)
+        with self._run_lock:
+            if plan.n_cpus not in cal.contention:
+                cal.contention[plan.n_cpus] = measure_contention(self, cal, be, plan.n_cpus)
+            if gil and cal.gil is None:
+                cal.gil = measure_gil(self, cal, be)
         return fit(cal, graph_reads(self), runs, plan.placement, policy=plan.policy,
-                   probe=cal.contention[plan.n_cpus])
+                   probe=cal.contention[plan.n_cpus], gil=cal.gil if gil else None)
 
     def learn(self, plan=None, *, runs=None, skip: int = 1) -> dict:
         """Fold measured frames into the plan's calibration history (and the cache), for

@@ -7,14 +7,18 @@ the more other host threads are busy beside it; copies and hand-offs between thr
 time the isolated calibration never sees; and the makespan is a function of placement *and*
 overlap. So the model is
 
-    work(node, pe) = e_node,pe * (r_pe * (alone(node, pe) + copies(node, pe)) + d_pe)
-    speed(t)       = 1 / (1 + a_pe * cpus(t) + b_pe * gpus(t))
+    work(node, pe) = e_node,pe * (r_pe * alone(node, pe) + d_pe) + copies(node, pe)
+    speed(t)       = 1 / (1 + s_node * (a_pe * cpus(t) + b_pe * gpus(t)))
 
 where ``alone`` is the calibrated time (:mod:`warpvx.graph.calibration`; for a GPU node the
 host side of the call, its enqueue: the GPU nodes of a frame are host-bound), ``copies``
-the transfer model's time for the bytes the executor copies for the task, ``cpus(t)`` the
-number of *other* CPU workers running a task at ``t`` and ``gpus(t)`` whether the GPU host
-thread is inside a call (for a CPU task), ``r_pe`` the in-frame over alone ratio, ``d_pe``
+the transfer model's time for the bytes the executor copies for the task (plus the extra
+per copying task the training frames measured), ``cpus(t)`` the *other* CPU workers
+running a task at ``t`` and ``gpus(t)`` the GPU host thread inside a call, each counted by
+its node's GIL pressure, ``s_node`` the node's GIL sensitivity
+(:func:`~warpvx.graph.calibration.measure_gil`: how much a pure-Python neighbour slows
+the node, how much the node slows a pure-Python neighbour; 1 and 1 where not measured),
+``r_pe`` the in-frame over alone ratio, ``d_pe``
 a fixed in-frame cost per task (the executor's work inside the interval), ``a_pe``/``b_pe``
 the slowdown per busy CPU worker / busy GPU host thread of each kind of processing element
 (``"cpu"``, ``"gpu"`` for the GPU host thread), and ``e`` a per-node correction, 1 for a
@@ -231,12 +235,14 @@ def _weighted_median(values, weights) -> float:
     return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
-def busy_overlap(interval, others) -> float:
-    """Mean number of ``others`` (``(start, end)`` intervals) active during ``interval``."""
+def busy_overlap(interval, others, weights=None) -> float:
+    """Mean number of ``others`` (``(start, end)`` intervals) active during ``interval``,
+    each counted ``weights[i]`` times (default once)."""
     s, f = interval
     if f <= s:
         return 0.0
-    total = sum(max(0.0, min(f, b) - max(s, a)) for a, b in others)
+    weights = weights if weights is not None else [1.0] * len(others)
+    total = sum(w * max(0.0, min(f, b) - max(s, a)) for (a, b), w in zip(others, weights))
     return total / (f - s)
 
 
@@ -272,6 +278,10 @@ class ContentionModel:
         The GPU role is a CUDA device (host enqueue and device run apart).
     trained_on : str
         The policy whose frames the model learnt from, and how many.
+    gil : dict
+        :func:`~warpvx.graph.calibration.measure_gil`: node -> ``{pe: (sensitivity,
+        pressure)}``; a busy neighbour counts its pressure, a victim its sensitivity
+        (1 and 1 for a node not measured: every busy thread counts alike).
     copy_extra : dict
         ``"cpu"``/``"gpu"`` -> the median time (ms) a task's copies took in the training
         frames beyond the transfer model's (a frame's copies wait on a synchronisation and
@@ -287,6 +297,15 @@ class ContentionModel:
     cuda: bool
     trained_on: str = ""
     copy_extra: dict = field(default_factory=dict)
+    gil: dict = field(default_factory=dict)
+
+    def sensitivity(self, node: str, pe: str) -> float:
+        """How much ``node`` on ``pe`` suffers from a busy GIL-holding neighbour (0-1)."""
+        return _gil_share(self.gil, node, pe, 0)
+
+    def pressure(self, node: str, pe: str) -> float:
+        """How much ``node`` running on ``pe`` slows a neighbour down (0-1)."""
+        return _gil_share(self.gil, node, pe, 1)
 
     def work(self, node: str, pe: str, copied: int = 0) -> float:
         """``node``'s time on ``pe`` in a frame with no busy neighbour, its copies of
@@ -325,6 +344,11 @@ class ContentionModel:
         }
 
 
+def _gil_share(gil, node, pe, which) -> float:
+    got = (gil or {}).get(node, {}).get(pe)
+    return 1.0 if got is None else float(got[which])
+
+
 def alone_costs(calibration) -> dict:
     """node -> ``{"cpu", "gpu" (host side), "device"}`` ms from a Calibration."""
     cuda = bool(calibration.gpu) and calibration.gpu.startswith("cuda")
@@ -361,7 +385,7 @@ def _ready_parts(run, task, reads, placement, hosts):
 
 
 def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
-        probe: dict | None = None) -> ContentionModel:
+        probe: dict | None = None, gil: dict | None = None) -> ContentionModel:
     """Learn a :class:`ContentionModel` from frames run with one plan.
 
     Parameters
@@ -379,6 +403,10 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
         (node, alone, loaded, busy_cpus, busy_gpus)``: a node timed alone and with other
         host threads busy, so the slowdown per busy thread of each kind is known even when
         the training placement keeps the other threads idle (see :func:`fit_slowdown`).
+    gil : dict, optional
+        :func:`~warpvx.graph.calibration.measure_gil`: each busy neighbour (in the frames
+        and in the probe's mixes) counts its GIL pressure, each victim its sensitivity,
+        so ``a`` and ``b`` are per unit of Python run beside, not per busy thread.
     """
     runs = [r for r in runs if r.timeline]
     if not runs:
@@ -388,15 +416,18 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     samples = {"cpu": [], "gpu": []}
     copies = {"cpu": [], "gpu": []}
     waits = {k: [] for k in LATENCIES}
+    shares = ContentionModel({}, {}, alone, reads, None, cuda, gil=dict(gil or {}))
     for run in runs:
         hosts = host_intervals(run)
         for task, (proc, s, f) in hosts.items():
             pe = pe_of(proc)
             copy_ms = run.transfers.get(task, 0.0)
             modelled = _copy_ms(calibration.transfer, pe, run.copied.get(task, 0))
-            busy = [busy_overlap((s, f), [(b0, b1) for p, b0, b1 in hosts.values()
-                                          if p != proc and pe_of(p) == kind])
-                    for kind in ("cpu", "gpu")]
+            busy = []
+            for kind in ("cpu", "gpu"):
+                near = [(t, b0, b1) for t, (p, b0, b1) in hosts.items() if p != proc and pe_of(p) == kind]
+                busy.append(shares.sensitivity(task, pe) * busy_overlap(
+                    (s, f), [(b0, b1) for _, b0, b1 in near], [shares.pressure(t, kind) for t, _, _ in near]))
             if copy_ms > 0 and modelled > 0:
                 copies[pe].append((copy_ms, modelled, *busy))
             elif modelled > 0:
@@ -409,8 +440,12 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
             cls, ready = _ready_parts(run, task, reads, placement, hosts)
             waits[cls].append(max(0.0, s - ready))
     probes = {"cpu": [], "gpu": []}
-    for (pe, _), (_node, alone_ms, loaded, cpus, gpus) in (probe or {}).items():
-        probes[pe].append((alone_ms, loaded, cpus, gpus))
+    mixes = {victim: mix.split(",") for (victim, _), (mix, *_rest) in (probe or {}).items()}
+    for (pe, loader), (mix, alone_ms, loaded, cpus, gpus) in (probe or {}).items():
+        # The victim mix's sensitivity times the loader mix's pressure (time-weighted).
+        w = _mix_share(shares.sensitivity, alone, mix.split(","), pe) * \
+            _mix_share(shares.pressure, alone, mixes.get(loader, ()), loader)
+        probes[pe].append((alone_ms, loaded, cpus * w, gpus * w))
     slow = {pe: fit_slowdown(s, probes[pe]) for pe, s in samples.items()}
     d = calibration.dispatch or {}
     fallback = {"start": d.get("start", 0.0), "cpu_same": d.get("cpu_gap", 0.0),
@@ -423,7 +458,15 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
                   for pe, v in copies.items() if v}
     return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
                            f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames",
-                           copy_extra)
+                           copy_extra, shares.gil)
+
+
+def _mix_share(share, alone, names, pe) -> float:
+    """A mix's share: its nodes' ``share(node, pe)`` weighted by their alone times (1 for
+    an unknown mix)."""
+    w = [(alone[n][pe] or 0.0, share(n, pe)) for n in names if n in alone]
+    total = sum(t for t, _ in w)
+    return sum(t * x for t, x in w) / total if total > 0 else 1.0
 
 
 def _copy_ms(transfer, pe, n):
@@ -500,12 +543,13 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
             now = min(t for t, _ in starts)
             continue
         # Advance to the next start or end at the current speeds.
-        kinds = [pe_of(p) for p in running]
+        press = {p: model.pressure(r[0], pe_of(p)) for p, r in running.items()}
         speed = {}
-        for p in running:
+        for p, r in running.items():
             me = pe_of(p)
-            cpus, gpus = kinds.count("cpu") - (me == "cpu"), kinds.count("gpu") - (me == "gpu")
-            speed[p] = 1.0 / model.slowdown[me].speed_divisor(cpus, gpus)
+            busy = {k: sum(w for q, w in press.items() if q != p and pe_of(q) == k) for k in ("cpu", "gpu")}
+            sens = model.sensitivity(r[0], me)
+            speed[p] = 1.0 / model.slowdown[me].speed_divisor(sens * busy["cpu"], sens * busy["gpu"])
         dt_end = min(r[1] / speed[p] for p, r in running.items())
         pending = [t for t, p in starts if p not in running and t > now]
         dt = min([dt_end] + [t - now for t in pending])
