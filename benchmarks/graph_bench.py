@@ -398,6 +398,8 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
               f"{r['measured_out_ms']:8.3f} ms ({r['error_out_pct']:+6.1f}%)  scheduler "
               f"{r['scheduler_ms']:8.3f}  pipelined {r['pipelined_fps']:7.1f} FPS  gpu: {r['gpu_nodes']}",
               flush=True)
+    for plan in plans.values():  # measure_plans keeps every plan's executor warm
+        plan.close()
     fastest = min(rows, key=lambda r: r["measured_out_ms"])
     best = rows[-1]
     return {
