@@ -17,23 +17,34 @@ reading PNGs is timed separately. Measured, side by side in one run:
    cross-check, ``findEssentialMat`` + ``recoverPose``) with OpenCV on all cores, serial, and
    with extraction spread over a thread pool of all cores (matching and pose in order);
 4. accuracy (ATE, RPE) of each on the rendered sequence, the scheduler's placement and
-   predicted vs measured makespan, and a Gantt chart of 3 pipelined frames.
+   predicted vs measured makespan, and a Gantt chart of 3 pipelined frames;
+5. the batched front end (warpvx.apps.orbslam_batch, ``--batch B`` frames per graph frame):
+   extraction + matching batched (``orb_batch`` + ``match_batch`` on the device: one launch
+   matches all consecutive pairs both ways; the mutual pairs on the host), mono and stereo end to end with the pose work on a process pool of all
+   cores, the pool's speed-up on one batch's pose work (``pose_batch`` with no pool vs the
+   pool), and its accuracy (the poses must be the sequential ones).
+
+FPS columns: "wall" counts everything from the call (graph build, verification, calibration:
+cached after the warm-up run; the batched mode's pool is opened once, before); "steady" is
+frames over the sum of their output intervals (from the first frame out, no setup).
 
 Accuracy also on ViSP's castle_simu (monocular, warpvx vs the baseline) when
 ``../shared/data/real/castle_simu`` (or ``--castle``) exists.
 
 Writes ``orbslam_bench.json``, ``orbslam_bench.md`` (the command that regenerates it at its
-top), ``gantt_mono.png``, ``gantt_stereo.png`` into ``--out`` (default ``$OUT/orbslam``).
+top), ``gantt_mono.png``, ``gantt_stereo.png``, ``gantt_batch_mono.png``,
+``gantt_batch_stereo.png`` into ``--out`` (default ``$OUT/orbslam``).
 
 Usage::
 
-    PYTHONPATH=. python benchmarks/orbslam_bench.py --out $OUT/orbslam   # GPU machine (cuda), < 3 min
+    PYTHONPATH=. python benchmarks/orbslam_bench.py --out $OUT/orbslam   # GPU machine (cuda), < 5 min
     PYTHONPATH=. python benchmarks/orbslam_bench.py --quick              # anywhere: warp-cpu, few frames
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import statistics
@@ -51,8 +62,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import warpvx  # noqa: E402
 from warpvx.apps import orbslam as o  # noqa: E402
+from warpvx.apps import orbslam_batch as ob  # noqa: E402
 from warpvx.apps import trajectory_eval as te  # noqa: E402
-from warpvx.apps.orbslam_match import add_match_node, mutual_pairs  # noqa: E402
+from warpvx.apps.orbslam_match import add_match_node, batch_pairs, mutual_pairs  # noqa: E402
 from warpvx.apps.orbslam_synth import render_sequence  # noqa: E402
 
 # ../shared/data next to the repository (the main checkout), else the dev machine's copy.
@@ -102,6 +114,85 @@ def bench_extract_match(images, backend, primitive, depth=3):
     return {"fps": fps(n, dt), "frames": n, "placement": plan.placement, "stages_ms": stage_ms(plan)}
 
 
+def _pairs_batch(feats, nearest, tail):
+    """The host side of batched matching: each frame's mutual pairs (and the last count)."""
+    prev_n, pairs = tail, []
+    for f, (kps, _) in enumerate(feats, 1):
+        pairs.append(mutual_pairs(*batch_pairs(*nearest, f), len(kps), prev_n)[0])
+        prev_n = len(kps)
+    return prev_n, pairs
+
+
+def bench_extract_match_batched(images, backend, batch, depth=3):
+    """Pipelined FPS of batched ORB + matching (``orb_batch`` + ``match_batch`` of the batched
+    front end, B frames per graph frame), the pairs on the host each frame."""
+    g = warpvx.Graph("orb_match_batch")
+    h, w = images[0].shape
+    x = g.input("images", shape=(batch, h, w), dtype=np.uint8)
+    feats, nearest = ob.add_extract_match(g, x, batch, o.TrackerConfig(),
+                                          target=None if backend == "cpu" else "gpu")
+    count = g.virtual("count")
+    _, pairs = g.user(_pairs_batch, [feats, nearest, g.delay(count, init=0)[-1]], [count, "pairs"],
+                      name="pairs")
+    g.output("pairs", pairs)
+    batches = [{"images": np.stack(images[i:i + batch])} for i in range(0, len(images) - batch + 1, batch)]
+    g.verify(batches[:2])
+    plan = g.schedule("best", gpu=False if backend == "cpu" else backend)
+    with g:
+        list(g.stream(batches[:2], depth=depth))  # warm-up
+        t = time.perf_counter()
+        n = batch * sum(1 for _ in g.stream(batches, depth=depth))
+        dt = time.perf_counter() - t
+    return {"fps": fps(n, dt), "frames": n, "batch": batch, "placement": plan.placement,
+            "stages_ms": stage_ms(plan)}
+
+
+def _frontend_result(res, dt, plan, out, name, backend):
+    """FPS (wall, steady), median track ms, stages, the plan's summary and a Gantt chart."""
+    summary = plan.summary()
+    try:
+        plan.gantt(out / f"gantt_{name}.png", frames=3, title=f"ORB-SLAM front end ({name}, {backend})")
+    except Exception as exc:  # noqa: BLE001 - matplotlib missing: the numbers still count
+        summary["gantt_error"] = str(exc)
+    track_ms = statistics.median(f.stats["track_ms"] for f in res)
+    return {"fps": fps(len(res), dt), "steady_fps": fps(len(res), 1e-3 * sum(f.ms for f in res)),
+            "frames": len(res), "track_ms_median": track_ms, "stages_ms": stage_ms(plan),
+            "plan": summary}, np.array([f.pose for f in res])
+
+
+def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth=3):
+    """The batched front end end to end (``pool``: the pose work's process pool, opened once)."""
+    plans = []
+    run = functools.partial(ob.track_frames_batched, camera=camera, batch=batch, pool=pool,
+                            backend=backend, depth=depth)
+    list(run(frames[:4 * batch]))  # warm-up, calibration
+    t = time.perf_counter()
+    res = list(run(frames, on_finish=plans.append))
+    return _frontend_result(res, time.perf_counter() - t, plans[0], out, name, backend)
+
+
+def bench_pose_pool(frames, camera, batch, pool):
+    """``pose_batch`` of one batch (mono), ms per frame: in the calling thread vs on ``pool``."""
+    images = np.stack([f["image"] for f in frames[:batch + 1]])
+    config = o.TrackerConfig()
+    feats = ob.orb_batch(images, config=config)  # the features only feed the timed pose work
+    descs = [d for _, d in feats]
+    _, nearest = ob.nearest_batch(descs[1:], descs[0])
+    k0 = feats[0][0]
+    tail = (ob._pts(k0), np.asarray(k0.angle, np.float64))
+    common = dict(K=np.ascontiguousarray(camera.K), config=config, baseline=None, frames=batch)
+    row = {}
+    for key, p in (("no_pool_ms", None), ("pool_ms", pool)):
+        ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)  # warm
+        t = time.perf_counter()
+        for _ in range(3):
+            ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)
+        row[key] = 1e3 * (time.perf_counter() - t) / (3 * batch)
+    row["speedup"] = row["no_pool_ms"] / row["pool_ms"]
+    row["workers"] = pool.workers if pool is not None else 0
+    return row
+
+
 def stage_ms(plan) -> dict:
     """Median per node over the plan's last frames (ms): its interval, the copies in it, and
     for GPU nodes the GPU thread's host time (enqueue plus syncs)."""
@@ -121,16 +212,7 @@ def bench_frontend(frames, camera, backend, out, name, depth=3):
     list(o.track_frames(frames[:10], camera, backend=backend, depth=depth))  # warm-up, calibration
     t = time.perf_counter()
     res = list(o.track_frames(frames, camera, backend=backend, depth=depth, on_finish=plans.append))
-    dt = time.perf_counter() - t
-    plan = plans[0]
-    summary = plan.summary()
-    try:
-        plan.gantt(out / f"gantt_{name}.png", frames=3, title=f"ORB-SLAM front end ({name}, {backend})")
-    except Exception as exc:  # noqa: BLE001 - matplotlib missing: the numbers still count
-        summary["gantt_error"] = str(exc)
-    track_ms = statistics.median(f.stats["track_ms"] for f in res)
-    return {"fps": fps(len(res), dt), "frames": len(res), "track_ms_median": track_ms,
-            "stages_ms": stage_ms(plan), "plan": summary}, np.array([f.pose for f in res])
+    return _frontend_result(res, time.perf_counter() - t, plans[0], out, name, backend)
 
 
 def bench_opencv(images, K):
@@ -201,11 +283,16 @@ def main(argv=None):
     p.add_argument("--unique", type=int, default=60, help="frames rendered")
     p.add_argument("--size", default="1241x376")
     p.add_argument("--castle", default=str(CASTLE), help="castle_simu folder (skipped if absent)")
+    p.add_argument("--batch", type=int, default=16, help="frames per batch of the batched mode (default 16)")
+    p.add_argument("--match-batch", type=int, default=32,
+                   help="also time extraction + matching at this batch (0: skip; default 32)")
+    p.add_argument("--workers", type=int, default=None, help="pose processes (default: all cores but one)")
     p.add_argument("--out", default=os.path.join(os.environ.get("OUT") or ".", "orbslam"),
                    help="output folder (default: $OUT/orbslam)")
     args = p.parse_args(argv)
     backend = args.backend or ("warp-cpu" if args.quick else "cuda")
-    n_unique, n = (12, 30) if args.quick else (args.unique, args.frames)
+    n_unique, n = (12, 32) if args.quick else (args.unique, args.frames)
+    batch = 4 if args.quick else args.batch
     size = tuple(int(v) for v in args.size.lower().split("x"))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -257,16 +344,47 @@ def main(argv=None):
         report[key] = attempt(name, lambda: bench_frontend(replay(frames, n), camera, backend, out, name)[0],
                               failed)
         progress(f"front end {name} FPS", f"{report[key]['fps']:.1f}")
+    # The batched mode: one pool of pose processes for all its runs (opened before timing).
+    pool = ob.make_pool(args.workers)
+    report["batch"] = {"batch": batch, "workers": 0 if pool is None else pool.workers}
+    progress("pose pool", f"{report['batch']['workers']} processes")
+    try:
+        for b in sorted({batch, args.match_batch if not args.quick else batch} - {0}):
+            key = f"extract_match_batch{b}"
+            report[key] = attempt(f"batched matching {b}", lambda: bench_extract_match_batched(images, backend, b),
+                                  failed)
+            progress(f"extraction+matching batched (B={b}) FPS", f"{report[key]['fps']:.1f}")
+        for key, frames, camera, name in (("batched_mono", mono_frames, mono, "batch_mono"),
+                                          ("batched_stereo", stereo_frames, stereo, "batch_stereo")):
+            report[key] = attempt(name, lambda: bench_frontend_batched(replay(frames, n), camera, backend, out,
+                                                                       name, batch, pool)[0], failed)
+            progress(f"front end {name} (B={batch}) FPS", f"{report[key]['fps']:.1f}")
+        report["pose_pool"] = attempt("pose pool", lambda: bench_pose_pool(mono_frames, mono, batch, pool), {})
+        progress("pose_batch alone (ms/frame): no pool vs pool", report["pose_pool"])
+        batched = {name: attempt(f"accuracy batched {name}", lambda: np.array(
+            [f.pose for f in ob.track_frames_batched(frames, camera, batch=batch, pool=pool, backend=backend)]),
+            None) for name, frames, camera in (("mono", mono_frames, mono), ("stereo", stereo_frames, stereo))}
+    finally:
+        if pool is not None:
+            pool.shutdown()
     report["opencv_baseline"] = bench_opencv(replay(left, min(n, 200)), K)
     progress("opencv", report["opencv_baseline"])
     # Accuracy on the rendered sequence itself (no replay), and on castle_simu when present.
     nan = {"ate_m": float("nan"), "rpe1_t_m": float("nan"), "rpe1_r_deg": float("nan")}
-    report["accuracy"] = {
-        "rendered: warpvx_mono (Sim3)": attempt("accuracy mono", lambda: accuracy(np.array(
-            [f.pose for f in o.track_frames(mono_frames, mono, backend=backend)]), gt, True), nan),
-        "rendered: warpvx_stereo (SE3)": attempt("accuracy stereo", lambda: accuracy(np.array(
-            [f.pose for f in o.track_frames(stereo_frames, stereo, backend=backend)]), gt, False), nan),
-        "rendered: opencv_baseline (Sim3)": accuracy(o.opencv_baseline(left, K), gt, True)}
+    sequential = {name: attempt(f"accuracy {name}", lambda: np.array(
+        [f.pose for f in o.track_frames(frames, camera, backend=backend)]), None)
+        for name, frames, camera in (("mono", mono_frames, mono), ("stereo", stereo_frames, stereo))}
+    report["accuracy"] = {}
+    for name, label in (("mono", "Sim3"), ("stereo", "SE3")):
+        for mode, poses in (("", sequential[name]), (f" batched B={batch}", batched[name])):
+            ok = isinstance(poses, np.ndarray)
+            report["accuracy"][f"rendered: warpvx_{name}{mode} ({label})"] = \
+                accuracy(poses, gt, name == "mono") if ok else dict(nan, error=str(poses))
+    report["accuracy"]["rendered: opencv_baseline (Sim3)"] = accuracy(o.opencv_baseline(left, K), gt, True)
+    report["batch"]["max_pose_difference_vs_sequential"] = {
+        name: float(np.abs(batched[name] - sequential[name]).max())
+        if isinstance(batched[name], np.ndarray) and isinstance(sequential[name], np.ndarray) else None
+        for name in ("mono", "stereo")}
     if os.path.isdir(args.castle):
         for k, v in attempt("castle", lambda: castle_accuracy(args.castle, backend), {}).items():
             if k != "error":
@@ -275,28 +393,43 @@ def main(argv=None):
 
     base = report["opencv_baseline"]["thread_pool_fps"]
     rows = [("extraction + matching, pipelined (match node)", "extract_match"),
-            ("extraction + matching, pipelined (match_hamming primitive, before)", "extract_match_primitive"),
-            ("front end mono, end to end", "frontend_mono"),
-            ("front end stereo, end to end", "frontend_stereo")]
+            ("extraction + matching, pipelined (match_hamming primitive, before)", "extract_match_primitive")]
+    rows += [(f"extraction + matching, batched B={k[len('extract_match_batch'):]} (orb_batch + match_batch)", k)
+             for k in report if k.startswith("extract_match_batch")]
+    rows += [("front end mono, end to end, frame by frame", "frontend_mono"),
+             (f"front end mono, end to end, batched B={batch}", "batched_mono"),
+             ("front end stereo, end to end, frame by frame", "frontend_stereo"),
+             (f"front end stereo, end to end, batched B={batch}", "batched_stereo")]
     lines = [f"<!-- {command}   (OUT=$OUT) -->",
              f"# ORB-SLAM front end at {size[0]}x{size[1]} ({backend}, {n} frames, "
-             f"{os.cpu_count()} CPU threads)", "",
-             "| what | FPS | vs OpenCV (thread pool) |", "| --- | --- | --- |"]
-    lines += [f"| {label}" + (f" (FAILED: {report[k]['error']})" if "error" in report[k] else "")
-              + f" | {report[k]['fps']:.1f} | {report[k]['fps'] / base:.1f}x |" for label, k in rows]
-    lines += [f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | |",
-              f"| OpenCV baseline, thread-pool extraction | {base:.1f} | 1.0x |",
-              f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | |",
+             f"{os.cpu_count()} CPU threads; batched mode: {report['batch']['workers']} pose processes)", "",
+             "| what | FPS (wall) | FPS (steady) | vs OpenCV (thread pool) |", "| --- | --- | --- | --- |"]
+    for label, k in rows:
+        r = report[k]
+        steady = f"{r['steady_fps']:.1f}" if "steady_fps" in r else ""
+        lines.append(f"| {label}" + (f" (FAILED: {r['error']})" if "error" in r else "")
+                     + f" | {r['fps']:.1f} | {steady} | {r['fps'] / base:.1f}x |")
+    lines += [f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | | |",
+              f"| OpenCV baseline, thread-pool extraction | {base:.1f} | | 1.0x |",
+              f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | | |",
+              "", "FPS (wall): frames over the whole call (graph build, verification; calibration cached "
+              "by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
+              "", f"Pose work of one mono batch (pose_batch, B={batch}), ms per frame: "
+              + (f"{report['pose_pool']['no_pool_ms']:.2f} in one thread, {report['pose_pool']['pool_ms']:.2f} "
+                 f"on {report['pose_pool']['workers']} processes ({report['pose_pool']['speedup']:.1f}x)"
+                 if "speedup" in report["pose_pool"] else f"FAILED ({report['pose_pool'].get('error')})"),
+              f"Batched poses vs frame-by-frame poses, largest difference: "
+              f"{report['batch']['max_pose_difference_vs_sequential']}.",
               "", f"Tracking node alone, median: mono {report['frontend_mono']['track_ms_median']:.2f} ms, "
               f"stereo {report['frontend_stereo']['track_ms_median']:.2f} ms.", "",
               "Per node, median ms over the last frames (in a pipelined run a node's interval",
               "includes waiting for the GIL and for copies):", ""]
     lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono",
-                                   "frontend_stereo"])
+                                   "frontend_stereo", "batched_mono", "batched_stereo"])
     lines += ["", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
     for k, v in report["accuracy"].items():
         lines.append(f"| {k} | {v['ate_m']:.4f} | {v['rpe1_t_m']:.4f} | {v['rpe1_r_deg']:.3f} |")
-    for k in ("frontend_mono", "frontend_stereo"):
+    for k in ("frontend_mono", "frontend_stereo", "batched_mono", "batched_stereo"):
         s = report[k]["plan"]
         if s is None:
             lines += ["", f"{k}: FAILED ({report[k].get('error')})"]

@@ -154,11 +154,17 @@ def markdown(report) -> str:
              f"{report['python']}, Warp {report['warp']}; OpenCV threads 1; "
              f"{report['seconds']:.0f} s.", "",
              "## Identity chains (user nodes, never captured)", "",
-             "| chain | nodes | us/node (process) | us/node (stream, 4 in flight) |",
-             "|---|---|---|---|"]
+             "| chain | nodes | us/node (process) | us/node (stream, 4 in flight) | "
+             "breakdown, process (median us) | units short enough to run inline |",
+             "|---|---|---|---|---|---|"]
     for r in report["chains"]:
+        parts = ", ".join(f"{k} {v:.1f}" for k, v in r.get("breakdown", {}).items() if v is not None)
         lines.append(f"| {r['chain']} | {r['n_nodes']} | {r['per_node_us']:.1f} | "
-                     f"{r['per_node_us_stream']:.1f} |")
+                     f"{r['per_node_us_stream']:.1f} | {parts} | {r.get('inline_units', '')} |")
+    lines += ["", "Targets (issue 11): < 5 us/node on the GPU-only chain, < 20 on the alternating "
+              "one. Breakdown (executor_overhead): mixed, one CPU -> GPU -> CPU round: the GPU "
+              "call's host time (gpu_task), a CPU task with its download (cpu_task), the "
+              "hand-offs; gpu: a task's host time and the gap to the next."]
     n0, n1 = report["primitive_chain"][0]["nodes"] if report["primitive_chain"] else ("?", "?")
     lines += ["", f"## GPU-only chain of 3x3 blurs (16x16 uint8): cost of one more node "
                   f"(chains of {n0} and {n1})", "",

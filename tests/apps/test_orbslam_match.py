@@ -60,13 +60,58 @@ def test_match_node_keeps_what_cross_check_keeps(frames, backend, kind):
     np.testing.assert_array_equal(dist, want_dist)
 
 
+@pytest.mark.parametrize("empty", [False, True], ids=["orb", "with-empty-frames"])
+def test_batch_match_node_equals_cross_check_per_pair(frames, backend, empty):
+    """nearest_batch[_warp] (the device: one launch for all pairs): frame f against frame
+    f - 1 for B frames, each pair's mutual pairs those of match_hamming(cross_check=True); the
+    first output is the last frame's descriptors (the next batch's ``prev``). The descriptors
+    are rows of one buffer (as orb returns a batch's) or, with empty frames, separate arrays."""
+    descs = [np.asarray(f[1]) for f in frames[2]]  # left 0, left 1, right 0: 3 sizes
+    none = np.zeros((0, 32), np.uint8)
+    if empty:
+        descs = [descs[0], none, descs[1], descs[2], none]
+    prev = descs[-2][::2].copy()
+    if backend == "cpu":
+        last, (nearest, distance, starts) = om.nearest_batch(descs, prev)
+    else:
+        import warp as wp
+
+        from warpvx.backend import resolve_backend
+
+        device = resolve_backend(backend).device
+        if empty:
+            on_device = [wp.array(d, dtype=wp.uint8, device=device) for d in descs]
+        else:  # views of one buffer, frame after frame
+            buf = wp.array(np.concatenate(descs), device=device)
+            cut = np.cumsum([0] + [len(d) for d in descs]).tolist()
+            on_device = [buf[a:b] for a, b in zip(cut[:-1], cut[1:])]
+        last, (nearest, distance, starts) = om.nearest_batch_warp(on_device, wp.array(prev, device=device))
+        last, nearest, distance, starts = (a.numpy() for a in (last, nearest, distance, starts))
+    np.testing.assert_array_equal(last, descs[-1])
+    chain = [prev] + descs
+    np.testing.assert_array_equal(starts, np.cumsum([0] + [len(d) for d in chain]))
+    for f in range(1, len(chain)):
+        want = warpvx.match_hamming(chain[f], chain[f - 1], cross_check=True, backend="cpu")
+        got = om.mutual_pairs(*om.batch_pairs(nearest, distance, starts, f), len(chain[f]), len(chain[f - 1]))
+        assert len(want[0]) > 10 or 0 in (len(chain[f]), len(chain[f - 1]))
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)
+    # The nearest rows themselves, both ways, as knn_match_hamming gives them.
+    idx, dist = warpvx.knn_match_hamming(chain[1], chain[0], 1, backend="cpu")
+    a, b, c = starts[:3]
+    np.testing.assert_array_equal(nearest[0, b:c], idx[:, 0])
+    np.testing.assert_array_equal(distance[0, b:c], dist[:, 0])
+    back, _ = warpvx.knn_match_hamming(chain[0], chain[1], 1, backend="cpu")
+    np.testing.assert_array_equal(nearest[1, a:b], back[:, 0])
+
+
 def test_mutual_pairs_with_nothing_to_match():
     for n, n_prev in ((0, 5), (5, 0)):
         pairs, dist = om.mutual_pairs(np.zeros((n, 1), np.int32), np.zeros((n, 1), np.int32),
                                       np.zeros((n_prev, 1), np.int32), n, n_prev)
         assert pairs.shape == (0, 2) and dist.shape == (0,)
     _, idx, _, back = om.nearest_both_ways(np.zeros((0, 32), np.uint8), np.ones((4, 32), np.uint8))
-    assert idx.shape == (0, 1) and back.tolist() == [[-1]] * 4
+    assert idx.shape == (0,) and back.tolist() == [-1] * 4
 
 
 def _stereo_reference(kl, dl, kr, dr, left, right, fx, baseline, sf=1.2, max_distance=75):

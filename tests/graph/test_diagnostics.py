@@ -32,6 +32,8 @@ def test_executor_overhead_reports_per_node_time(mixed):
     # on 4 floats takes well under a second on any machine.
     assert 0 < r["per_node_us"] * r["n_nodes"] <= r["frame_us"] < 1e6
     assert 0 < r["per_node_us_stream"] * r["n_nodes"] < 1e6
+    # Identity nodes are scheduled far shorter than Executor.INLINE_MAX_MS: all may run inline.
+    assert r["inline_units"] == "20/20"
     if mixed:
         assert set(r["breakdown"]) == {"gpu_task", "cpu_task", "cpu_to_gpu", "gpu_to_cpu"}
         assert all(0 <= v < r["frame_us"] for v in r["breakdown"].values())

@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 
+from warpvx.backend import cuda_available
 from warpvx.errors import NodeExecutionError, ScheduleError
 from warpvx.runtime import (
     DEVICE,
@@ -26,10 +27,17 @@ pytestmark = pytest.mark.timeout(60)
 PROCS = ["cpu0", "cpu1", "gpu"]
 
 
-def sched(placement: dict, order=None) -> Schedule:
-    """A schedule placing tasks in the given order (times are only used for ordering)."""
+#: Scheduled task durations (ms): long ones run on their own processor's thread, short ones
+#: may run inline on the thread whose output they waited for (Executor.INLINE_MAX_MS).
+LONG, SHORT = 1.0, 0.001
+
+
+def sched(placement: dict, order=None, ms: float = LONG) -> Schedule:
+    """A schedule placing tasks in the given order, each ``ms`` long (times only order them,
+    and say which tasks may run inline)."""
     order = order or list(placement)
-    return Schedule({t: ScheduledTask(t, placement[t], i, i + 1) for i, t in enumerate(order)}, PROCS)
+    return Schedule({t: ScheduledTask(t, placement[t], i * ms, (i + 1) * ms)
+                     for i, t in enumerate(order)}, PROCS)
 
 
 def _wp_add(a, b):
@@ -109,8 +117,9 @@ def test_bad_schedules_are_refused():
 
 
 @pytest.mark.timeout(20)
+@pytest.mark.parametrize("ms", [LONG, SHORT])
 @pytest.mark.parametrize("where", ["cpu0", "gpu"])
-def test_error_cancels_frame_and_consumers_on_other_processors_do_not_hang(where):
+def test_error_cancels_frame_and_consumers_on_other_processors_do_not_hang(where, ms):
     prog = diamond()
 
     def boom(x):
@@ -121,7 +130,7 @@ def test_error_cancels_frame_and_consumers_on_other_processors_do_not_hang(where
     else:
         prog.tasks["a"].cpu = boom
     placement = {"a": where, "b": "cpu1", "c": "cpu1", "d": "cpu1"}
-    ex = Executor(sched(placement), prog, gpu_device="cpu")
+    ex = Executor(sched(placement, ms=ms), prog, gpu_device="cpu")
     x = np.zeros(3, np.float32)
     f0 = ex.submit(0, {"x": (x, HOST)})
     f1 = ex.submit(1, {"x": (x, HOST)})
@@ -162,7 +171,8 @@ def test_pipelined_frames_overlap_across_processors():
         assert a_start < b_finish  # overlap: the pipeline, not one frame after another
 
 
-def test_ring_reads_wait_for_the_previous_frames_producer():
+@pytest.mark.parametrize("ms", [LONG, SHORT])
+def test_ring_reads_wait_for_the_previous_frames_producer(ms):
     """acc_i = acc_{i-1} + x_i with a slow producer: frame i's read waits for frame i-1."""
     def slow_add(x, prev):
         time.sleep(0.005)
@@ -173,7 +183,7 @@ def test_ring_reads_wait_for_the_previous_frames_producer():
         "acc": ExecTask("acc", (InputRef("x"), InputRef("acc", -1)), ("acc",), slow_add),
         "copy": ExecTask("copy", (InputRef("acc"),), ("out",), lambda v: v),
     }, ("x",), {"out": "out"}, rings={"acc": ring})
-    ex = Executor(sched({"acc": "cpu0", "copy": "cpu1"}), prog)
+    ex = Executor(sched({"acc": "cpu0", "copy": "cpu1"}, ms=ms), prog)
     frames = [ex.submit(i, {"x": (np.float32(i + 1), HOST)}) for i in range(6)]
     got = [float(ex.wait(f).outputs["out"]) for f in frames]
     ex.close()
@@ -197,6 +207,66 @@ def test_zero_cost_ties_run_in_dependency_order():
     x = np.ones(2, np.float32)
     res = run_schedule(s, diamond(), {"x": (x, HOST)})
     np.testing.assert_array_equal(res.outputs["out"], 3 * x)
+
+
+def _alternating(n: int):
+    """x -> t0 (CPU, +1) -> t1 (GPU, *2) -> t2 (CPU, +1) -> ...; each callable records the
+    thread that ran it."""
+    import threading
+
+    import warp as wp
+
+    ran = []
+
+    def cpu(v):
+        ran.append(("cpu", threading.current_thread()))
+        return v + 1
+
+    def gpu(v):
+        ran.append(("gpu", threading.current_thread()))
+        return wp.array(v.numpy() * 2, dtype=wp.float32, device=v.device)
+
+    tasks, prev = {}, "x"
+    for i in range(n):
+        tasks[f"t{i}"] = ExecTask(f"t{i}", (InputRef(prev),), (f"v{i}",), cpu, gpu)
+        prev = f"v{i}"
+    placement = {f"t{i}": "gpu" if i % 2 else "cpu0" for i in range(n)}
+    return Program(tasks, ("x",), {"y": prev}), placement, ran
+
+
+def _expected(x, n):
+    for i in range(n):
+        x = x * 2 if i % 2 else x + 1
+    return x
+
+
+@pytest.mark.parametrize("device", ["cpu"] + (["cuda:0"] if cuda_available() else []))
+@pytest.mark.parametrize("ms", [LONG, SHORT])
+def test_alternating_chain_runs_short_tasks_inline_and_long_ones_on_their_threads(ms, device):
+    """Short tasks of a CPU/GPU chain run on the thread whose output they wait for (no
+    wake-up per hand-off); long ones on their own processor's thread; outputs and the order
+    of pipelined frames are the same either way (on CUDA, through staged downloads)."""
+    n = 8
+    prog, placement, ran = _alternating(n)
+    ex = Executor(sched(placement, ms=ms), prog, gpu_device=device)
+    try:
+        xs = [np.full(3, i, np.float32) for i in range(6)]
+        frames = [ex.submit(i, {"x": (x, HOST)}) for i, x in enumerate(xs)]
+        for x, f in zip(xs, frames):
+            res = ex.wait(f)
+            np.testing.assert_array_equal(res.outputs["y"], _expected(x, n))
+            assert {t: s.processor for t, s in res.timeline.items()} == placement
+        threads = {p: ex._threads[p] for p in ("cpu0", "gpu")}
+        if device != "cpu":  # every GPU -> CPU edge was staged, in a few reused buffers
+            staging = ex._roles["gpu"].state.io._unstaging
+            assert staging and all(len(ring) <= 2 * 4 for ring in staging.values())
+    finally:
+        ex.close()
+    elsewhere = sum(th is not threads["cpu0" if kind == "cpu" else "gpu"] for kind, th in ran)
+    if ms == LONG:
+        assert elsewhere == 0
+    else:  # mostly inline (a thread woken by its wait's time-out may take a task now and then)
+        assert elsewhere >= len(ran) // 4
 
 
 # --------------------------------------------------------------------------- flags, buffers, timing
@@ -359,3 +429,18 @@ def test_captured_segment_equals_eager_with_cpu_reader_and_delay(depth):
         # Captured tasks share their replay's interval, in order.
         ta, tb = c.timeline["a"], c.timeline["b"]
         assert ta.start <= ta.finish <= tb.start + 1e-9 <= tb.finish + 1e-9
+
+
+@pytest.mark.parametrize("ms", [LONG, SHORT])
+def test_spinning_threads_hand_off_the_same_results(ms):
+    """With ``spin`` a waiting thread polls before it sleeps; results and order are the same."""
+    n = 6
+    prog, placement, _ = _alternating(n)
+    ex = Executor(sched(placement, ms=ms), prog, gpu_device="cpu", spin=1e-3)
+    try:
+        xs = [np.full(2, i, np.float32) for i in range(5)]
+        frames = [ex.submit(i, {"x": (x, HOST)}) for i, x in enumerate(xs)]
+        for x, f in zip(xs, frames):
+            np.testing.assert_array_equal(ex.wait(f).outputs["y"], _expected(x, n))
+    finally:
+        ex.close()

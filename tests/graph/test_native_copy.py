@@ -64,6 +64,44 @@ def test_native_and_public_copies_give_the_same_bytes(device, host):
 
 
 @pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("native", [True, False])
+def test_asynchronous_downloads_give_the_same_bytes(device, native):
+    wp = init_warp()
+    host = np.random.default_rng(3).integers(-1000, 1000, (67, 5), dtype=np.int32)
+    src = wp.array(host, dtype=wp.int32, device=device)
+    dst = wp.empty(host.shape, dtype=wp.int32, device="cpu", pinned=device != "cpu")
+    stream = _stream(wp, device)
+    nc.to_host_async(dst, src, stream, native=native)
+    if stream is not None:
+        wp.synchronize_event(stream.record_event())
+    np.testing.assert_array_equal(dst.numpy(), host)
+
+
+@pytest.mark.skipif(not cuda_available(), reason="CUDA staging and events")
+def test_staged_download_and_native_elapsed_time():
+    wp = init_warp()
+    host = np.arange(1000, dtype=np.float32) * 0.25
+    a = wp.array(host, dtype=wp.float32, device="cuda:0")
+    io = Transfers("cuda:0")
+    start, end = (wp.Event("cuda:0", enable_timing=True) for _ in range(2))
+    stream = wp.get_stream("cuda:0")
+    stream.record_event(start)
+    a.fill_(2.0)
+    stream.record_event(end)
+    stage = io.stage_download(a, end)  # waits for the fill on the device, not on the host
+    got = io.unstage(stage)
+    np.testing.assert_array_equal(got, np.full_like(host, 2.0))
+    assert not np.shares_memory(got, stage.view)
+    stage.free = True
+    assert io.stage_download(a, end) is stage  # reused once free and copied
+    io.unstage(stage)
+    wp.synchronize_event(end)
+    assert nc.elapsed_ms(start, end) == pytest.approx(wp.get_event_elapsed_time(start, end))
+    # Another kind of value (a vector dtype) downloads the usual way.
+    assert io.stage_download(wp.zeros(3, dtype=wp.vec2, device="cuda:0")) is None
+
+
+@pytest.mark.parametrize("device", DEVICES)
 def test_pinned_source_uploads_agree(device):
     wp = init_warp()
     host = np.arange(4096, dtype=np.float32) * 0.5
@@ -132,3 +170,24 @@ def test_keypoints_and_user_types_round_trip_through_transfers(device):
     assert isinstance(back[1], Pair) and back[1].label == "lbl"
     np.testing.assert_array_equal(back[1].a, pair.a)
     np.testing.assert_array_equal(back[1].b, pair.b)
+
+
+def test_a_slot_reads_its_staged_download_once_as_a_fresh_copy():
+    """Slot.host takes a staged download (here one already complete, on Warp's CPU device:
+    no event) instead of downloading again, copies it out once, and never hands out the
+    staging buffer itself (it is reused by later frames)."""
+    from warpvx.runtime import DEVICE, Slot
+    from warpvx.runtime.transfers import _Staging
+
+    wp = init_warp()
+    host = np.arange(12, dtype=np.float32).reshape(3, 4)
+    stage = _Staging(wp.array(host, dtype=wp.float32, device="cpu"), None)
+    slot = Slot.ready(wp.zeros((3, 4), dtype=wp.float32, device="cpu"), DEVICE)  # not what is read
+    slot.staged = stage
+    assert slot.ready_event() is None
+    io = Transfers("cpu")
+    got = slot.host(io, waited=slot.ready_event())
+    np.testing.assert_array_equal(got, host)
+    assert not np.shares_memory(got, stage.view) and io.moved == host.nbytes
+    stage.view[:] = -1  # the buffer reused: what was read stays
+    assert slot.host(io) is got and got[0, 1] == 1.0

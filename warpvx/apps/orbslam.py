@@ -277,15 +277,17 @@ def _cheirality(E, x1, x2):
     return best[1:]
 
 
-def _pose_essential(ref, cur_pts, pairs, K, step, config):
-    """T_cur_ref from the essential matrix (MAGSAC++ RANSAC, cheirality), the translation
-    scaled by the reference's depths (or ``step`` when none are shared); returns (T, inliers,
-    depth of the inliers in the current frame as (cur indices, z)) or None."""
+def essential_core(p1, p2, K, config):
+    """The state-free core of a monocular step: the motion between matched points ``p1``
+    (reference) and ``p2`` (current), float64 [M, 2] px, for intrinsics ``K`` (float64 3x3,
+    contiguous): the essential matrix by MAGSAC++, the cheirality check and the DLT
+    triangulation of its inliers. Returns (R float64 3x3, t float64 [3] unit length, inl int
+    [F] indices into the matches of the F points in front of both cameras, z_ref, z_cur
+    float64 [F] their depths in units of the baseline) or None (no model, fewer than 8 in
+    front). Depends only on its arguments (the batched front end runs it in worker processes:
+    :mod:`warpvx.apps.orbslam_batch`)."""
     import cv2
 
-    p1, p2 = ref.pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
-    if np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
-        return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]])
     # MAGSAC++ (OpenCV's USAC): ~10x fewer hypotheses than plain RANSAC at this threshold,
     # and more accurate (its inlier scoring is not a hard 0/1 at the threshold).
     E, mask = cv2.findEssentialMat(p1, p2, K, cv2.USAC_MAGSAC, 0.999, config.ransac_threshold)
@@ -303,7 +305,21 @@ def _pose_essential(ref, cur_pts, pairs, K, step, config):
     front = (z_ref > 0) & (z_ref < _FAR) & (z_cur > 0) & (z_cur < _FAR)
     if front.sum() < 8:
         return None
-    inl, z_ref, z_cur = inl[front], z_ref[front], z_cur[front]
+    return R, t, inl[front], z_ref[front], z_cur[front]
+
+
+def _pose_essential(ref, cur_pts, pairs, K, step, config, essential=essential_core):
+    """T_cur_ref from the essential matrix (:func:`essential_core`, or ``essential`` with its
+    signature and results), the translation scaled by the reference's depths (or ``step``
+    when none are shared); returns (T, inliers, depth of the inliers in the current frame as
+    (cur indices, z)) or None."""
+    p1, p2 = ref.pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
+    if np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
+        return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]])
+    core = essential(p1, p2, K, config)
+    if core is None:
+        return None
+    R, t, inl, z_ref, z_cur = core
     prior = ref.depth[pairs[inl, 1]]
     common = np.isfinite(prior) & (prior > 0)
     scale = float(np.median(prior[common] / z_ref[common])) if common.sum() >= 5 else step
@@ -316,7 +332,7 @@ def _record(kps, desc, depth, pose, index):
 
 
 def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
-          config: TrackerConfig = TrackerConfig()):
+          config: TrackerConfig = TrackerConfig(), essential=essential_core):
     """One frame of tracking (the graph's ``track`` node; pure).
 
     Parameters
@@ -331,6 +347,9 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         Stereo depth (m) of each keypoint, NaN unknown; None for monocular.
     K : float64 3x3
         Intrinsics.
+    essential : callable
+        :func:`essential_core` or a stand-in with its results (the batched front end's look-up
+        of cores computed ahead in worker processes).
 
     Returns
     -------
@@ -372,7 +391,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
             result = _pose_pnp(ref, cur_pts, good, K, guess, config)
         if result is None:
             step = float(np.linalg.norm(state.velocity[:3, 3])) or 1.0
-            result = _pose_essential(ref, cur_pts, good, K, step, config)
+            result = _pose_essential(ref, cur_pts, good, K, step, config, essential)
     if result is None:
         T, inliers, reference = guess, 0, REF_LOST
     else:
@@ -569,6 +588,7 @@ def opencv_baseline(images, K):
 
 __all__ = [
     "TrackerConfig", "Camera", "TrackState", "FrameRecord", "TrackedFrame", "three_maxima",
-    "rotation_consistent", "filter_matches", "stereo_depth", "track", "track_nearest", "build_graph",
+    "rotation_consistent", "filter_matches", "stereo_depth", "essential_core", "track", "track_nearest",
+    "build_graph",
     "spread_cpu_nodes", "schedule", "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
 ]

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..check import check_int
 from ..errors import WarpvxError, WarpvxValueError
 from . import orbslam as app
 from .orbslam_sources import Sequence, open_source
@@ -25,7 +26,13 @@ def add_arguments(parser):
     parser.add_argument("--backend", choices=app.BACKENDS, default="cpu")
     parser.add_argument("--max-frames", type=int, default=None)
     parser.add_argument("--mono", action="store_true", help="ignore image_1/ (monocular even on a stereo folder)")
-    parser.add_argument("--depth", type=int, default=2, help="frames in flight")
+    parser.add_argument("--depth", type=int, default=2, help="frames (batches with --batch) in flight")
+    parser.add_argument("--batch", type=int, default=1, metavar="B",
+                        help="frames per batch: B > 1 extracts and matches B frames per launch set and spreads "
+                             "the pose work over --pose-workers processes (warpvx.apps.orbslam_batch; same "
+                             "poses, faster on long sequences; try 16 on a GPU); 1: frame by frame")
+    parser.add_argument("--pose-workers", type=int, default=None, metavar="N",
+                        help="with --batch: processes for the pose work (default: all cores but one; 0: none)")
     parser.add_argument("--baseline", action="store_true",
                         help="also run the OpenCV-only monocular baseline and score it (with --gt)")
     parser.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
@@ -66,6 +73,7 @@ def run(args) -> int:
 
     if args.max_frames is not None and args.max_frames < 1:
         raise WarpvxValueError(f"max_frames: expected an int >= 1, got {args.max_frames}")
+    batch = check_int(getattr(args, "batch", 1), "batch", min_value=1)
     if not args.no_plot:
         try:
             import matplotlib  # noqa: F401
@@ -95,7 +103,14 @@ def run(args) -> int:
             yield item
 
     with tqdm(total=seq.count, unit="frame", disable=args.quiet, desc=f"orbslam ({mode})") as bar:
-        for f in app.track_frames(feed(), seq.camera, backend=args.backend, depth=args.depth):
+        if batch > 1:
+            from .orbslam_batch import track_frames_batched
+
+            tracked = track_frames_batched(feed(), seq.camera, batch=batch, backend=args.backend,
+                                           workers=getattr(args, "pose_workers", None), depth=args.depth)
+        else:
+            tracked = app.track_frames(feed(), seq.camera, backend=args.backend, depth=args.depth)
+        for f in tracked:
             poses.append(f.pose)
             rows.append([f.index, f"{seq.times[f.index]:.6f}"]
                         + [int(f.stats[k]) for k in app.STATS[:5]]
@@ -113,7 +128,7 @@ def run(args) -> int:
             "(ATE after Sim(3) alignment)" if mode == "monocular"
             else "stereo: metric scale from the stereo baseline (ATE after SE(3) alignment)")
     report = {"source": os.fspath(args.source), "kind": seq.kind, "mode": mode, "note": note,
-              "frames": n, "backend": args.backend, "read_ms_per_frame": seq.read_ms / max(n, 1)}
+              "frames": n, "backend": args.backend, "batch": batch, "read_ms_per_frame": seq.read_ms / max(n, 1)}
     gt = None
     if args.gt:
         idx, gt = _ground_truth(args.gt, seq, n)

@@ -8,7 +8,8 @@ pairs are kept on the host by :func:`mutual_pairs` -- what ``match_hamming(cross
 rows are padded to a multiple of :data:`ROW_BUCKET` so the matcher's scratch buffers and recorded
 launches are reused frame after frame (ORB's keypoint count changes every frame); padding rows
 repeat real rows of lower index, so a pad never wins a tie (ties go to the lowest index) and the
-kept pairs are exactly the unpadded ones.
+kept pairs are exactly the unpadded ones. The batched front end (:mod:`warpvx.apps.orbslam_batch`)
+matches all consecutive frames of a batch both ways in one launch instead (:func:`nearest_batch`).
 """
 
 from __future__ import annotations
@@ -26,17 +27,17 @@ _BITWISE_COUNT = getattr(np, "bitwise_count", None)
 
 
 def nearest_both_ways(desc, prev):
-    """The ``match`` node on CPU workers: (``desc``, nearest, back) for uint8 [N, 32] and
-    [Np, 32] descriptor arrays; see :func:`nearest_both_ways_warp` for the outputs."""
+    """The ``match`` node on CPU workers: (``desc``, nearest, distance, back) for uint8 [N, 32]
+    and [Np, 32] descriptor arrays; see :func:`nearest_both_ways_warp` for the outputs."""
     from .. import knn_match_hamming
 
     desc, prev = np.ascontiguousarray(desc), np.ascontiguousarray(prev)
     if len(desc) == 0 or len(prev) == 0:
-        return desc, np.full((len(desc), 1), -1, np.int32), np.zeros((len(desc), 1), np.int32), \
-            np.full((len(prev), 1), -1, np.int32)
+        return desc, np.full(len(desc), -1, np.int32), np.zeros(len(desc), np.int32), \
+            np.full(len(prev), -1, np.int32)
     idx, dist = knn_match_hamming(desc, prev, 1, backend="cpu")
     back, _ = knn_match_hamming(prev, desc, 1, backend="cpu")
-    return desc, idx, dist, back
+    return desc, idx[:, 0], dist[:, 0], back[:, 0]
 
 
 def _pad_rows(desc, rows: int):
@@ -75,28 +76,100 @@ def nearest_both_ways_warp(desc, prev):
     -------
     padded : uint8 [C, 32]
         ``desc`` padded to C = a multiple of :data:`ROW_BUCKET` (>= N).
-    nearest, distance : int32 [C, 1]
+    nearest, distance : int32 [C]
         Each row's nearest row of ``prev`` and its Hamming distance (-1 / 0 when ``prev`` is
         empty).
-    back : int32 [Cp, 1]
+    back : int32 [Cp]
         Each row of ``prev``'s nearest row of ``padded``.
     """
     import warp as wp
 
-    from .. import knn_match_hamming
+    # The primitive's scratch state: both sets packed into words once, then the nearest rows
+    # forward and (cross_check) backward (two knn_match_hamming calls packed each set twice).
+    from ..kernels_warp.match_hamming import _workspace
 
     rows = max(ROW_BUCKET, -(-desc.shape[0] // ROW_BUCKET) * ROW_BUCKET)
     padded = _pad_rows(desc, rows)
     device = desc.device
-    idx = wp.empty((rows, 1), dtype=wp.int32, device=device)
-    dist = wp.zeros((rows, 1), dtype=wp.int32, device=device)
-    back = wp.empty((prev.shape[0], 1), dtype=wp.int32, device=device)
+    idx = wp.empty(rows, dtype=wp.int32, device=device)
+    dist = wp.zeros(rows, dtype=wp.int32, device=device)
+    back = wp.empty(prev.shape[0], dtype=wp.int32, device=device)
     if prev.shape[0] == 0:
         idx.fill_(-1)
         return padded, idx, dist, back
-    knn_match_hamming(padded, prev, 1, out=(idx, dist))
-    knn_match_hamming(prev, padded, 1, out=(back, wp.empty_like(back)))
+    ws = _workspace(padded, prev)
+    forward = ws.nearest(padded, prev, cross_check=True)
+    # The workspace's buffers are reused by the next call of these sizes: copy the results out.
+    wp.copy(idx, forward.best_idx)
+    wp.copy(dist, forward.best_dist)
+    wp.copy(back, ws.backward.out.best_idx)
     return padded, idx, dist, back
+
+
+def nearest_batch(descs, prev):
+    """The ``match`` node over a batch of consecutive frames: each frame's nearest rows in the
+    frame before and after it, for ``descs`` a list of B uint8 [N_i, 32] descriptor arrays
+    after ``prev`` (the frame before the batch, uint8 [N_0, 32]). CPU: NumPy arrays in and
+    out; :func:`nearest_batch_warp` on the device.
+
+    Returns
+    -------
+    last : uint8 [N_B, 32]
+        The batch's last descriptors (the next batch's ``prev``).
+    (nearest, distance, starts) : int32 [2, T], int32 [2, T], int32 [B + 2]
+        Frames 0 (``prev``) to B one after the other, frame f on rows ``starts[f]:starts[f + 1]``
+        (T = ``starts[-1]``); row 0 of ``nearest``/``distance``: each row's nearest row (local
+        index) of the frame before and its Hamming distance, row 1: of the frame after (-1 /
+        0 where there is none). :func:`batch_pairs` slices them per frame.
+    """
+    frames = [np.ascontiguousarray(prev)] + [np.ascontiguousarray(d) for d in descs]
+    starts = np.cumsum([0] + [len(d) for d in frames]).astype(np.int32)
+    nearest = np.full((2, starts[-1]), -1, np.int32)
+    distance = np.zeros((2, starts[-1]), np.int32)
+    for f in range(1, len(frames)):
+        _, idx, dist, back = nearest_both_ways(frames[f], frames[f - 1])
+        nearest[0, starts[f]:starts[f + 1]], distance[0, starts[f]:starts[f + 1]] = idx, dist
+        nearest[1, starts[f - 1]:starts[f]] = back
+    return frames[-1], (nearest, distance, starts)
+
+
+def nearest_batch_warp(descs, prev):
+    """:func:`nearest_batch` on the device (wp.arrays; no host sync): the frames' descriptors
+    gathered into one array (one copy for the batch when they are consecutive rows of one
+    buffer, as ``warpvx.orb`` returns a batch's), then one launch
+    (:func:`warpvx.kernels_warp.match_chain.nearest_chain`) for all pairs both ways."""
+    import warp as wp
+
+    from ..kernels_warp._launch import view
+    from ..kernels_warp.match_chain import nearest_chain
+
+    device = prev.device
+    counts = [prev.shape[0]] + [d.shape[0] for d in descs]
+    starts = np.cumsum([0] + counts).astype(np.int32)
+    rows = int(starts[-1])
+    gathered = wp.empty((rows, 32), dtype=wp.uint8, device=device)
+    pieces = [(prev, counts[0])]
+    nonempty = [d for d in descs if d.shape[0]]
+    if nonempty and all(b.ptr == a.ptr + a.shape[0] * 32 for a, b in zip(nonempty, nonempty[1:])):
+        # One buffer, frame after frame: one copy of all its rows.
+        pieces.append((view(nonempty[0], wp.uint8, (rows - counts[0], 32), (32, 1)), rows - counts[0]))
+    else:
+        pieces += [(d, d.shape[0]) for d in descs]
+    at = 0
+    for src, n in pieces:
+        if n:
+            wp.copy(gathered.flatten(), src.contiguous().flatten(), at * 32, 0, n * 32)
+        at += n
+    starts = wp.array(starts, dtype=wp.int32, device=device)
+    return descs[-1], (*nearest_chain(gathered, starts), starts)
+
+
+def batch_pairs(nearest, distance, starts, f: int) -> tuple:
+    """(nearest, distance, back) of frame ``f`` (>= 1) of :func:`nearest_batch`'s outputs
+    (host arrays): its rows' nearest rows in frame f - 1 and frame f - 1's rows' nearest in
+    it, the inputs of :func:`mutual_pairs`."""
+    a, b, c = int(starts[f - 1]), int(starts[f]), int(starts[f + 1])
+    return nearest[0, b:c], distance[0, b:c], nearest[1, a:b]
 
 
 def add_match_node(g, desc, *, target=None):
@@ -240,5 +313,6 @@ def stereo_depth(kps_left, desc_left, kps_right, desc_right, left, right, *, fx,
     return depth
 
 
-__all__ = ["ROW_BUCKET", "add_match_node", "nearest_both_ways", "nearest_both_ways_warp", "mutual_pairs",
+__all__ = ["ROW_BUCKET", "add_match_node", "nearest_both_ways", "nearest_both_ways_warp", "nearest_batch",
+           "nearest_batch_warp", "batch_pairs", "mutual_pairs",
            "hamming_pairs", "stereo_depth"]

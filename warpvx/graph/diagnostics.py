@@ -128,7 +128,9 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
     -------
     dict
         ``chain``, ``mixed``, ``per_node_us`` (process), ``per_node_us_stream``,
-        ``frame_us``, the settings, and a ``breakdown`` (medians, us). ``"mixed"``: one
+        ``frame_us``, the settings, ``inline_units`` ("short/all": the executor's units
+        scheduled short enough to run inline, :attr:`Executor.INLINE_MAX_MS`), and a
+        ``breakdown`` (medians, us). ``"mixed"``: one
         CPU -> GPU -> CPU round: the GPU thread's time in a task (``gpu_task``), a CPU task's
         interval with its download (``cpu_task``), and the hand-offs from a CPU task's end to
         the GPU thread starting the next task (``cpu_to_gpu``) and from the GPU thread's end
@@ -164,7 +166,10 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
         pass
     stream_s = (time.perf_counter() - t0) / frames
     plan = g.plan
-    spin_used = plan.executor().spin
+    ex = plan.executor()
+    spin_used = ex.spin
+    # How many units were scheduled short enough to run inline (Executor.INLINE_MAX_MS).
+    shorts = [ok for role in ex._roles.values() for ok in role.short]
     g.close()
     out = {
         "n_nodes": n_nodes,
@@ -176,6 +181,7 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
         "frame_us": frame_s * 1e6,
         "per_node_us": max(0.0, frame_s - t_call) / n_nodes * 1e6,
         "per_node_us_stream": max(0.0, stream_s - t_call) / n_nodes * 1e6,
+        "inline_units": f"{sum(shorts)}/{len(shorts)}",
     }
     if chain == "mixed":
         out["breakdown"] = _breakdown(runs, n_nodes)

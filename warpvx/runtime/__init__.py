@@ -4,6 +4,8 @@ worker threads beside one GPU queue (SPEC §7). It knows nothing of graphs: the 
 
 - :mod:`.executor`: :class:`Executor` (threads, cross-queue edges, pipelining, errors, buffer
   pools) and :func:`run_schedule`.
+- :mod:`.roles`: how it runs a one-frame schedule's processors: roles on threads, short units
+  inline on the thread whose output they waited for.
 - :mod:`.program`: :class:`Program`, :class:`ExecTask`, :class:`InputRef`: what it runs.
 - :mod:`.slots`: :class:`Slot`, :class:`Ring`, :class:`Flag`: values of frames in flight.
 - :mod:`.timeline`: :class:`Frame`, :class:`FrameResult`: what a frame measured.

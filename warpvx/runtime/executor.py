@@ -4,28 +4,38 @@ The executor is the runtime half of SPEC §7. It knows nothing of graphs: it run
 :class:`Program` (tasks with named inputs and outputs and one callable per processing
 element) according to a schedule, frame after frame.
 
-Threads
-    One thread per processor of the schedule. A CPU worker (``"cpu<i>"``) runs its tasks' CPU
-    callables in schedule order on host data (NumPy/OpenCV release the GIL, so workers
-    overlap). The GPU host thread (``"gpu"``) runs the GPU callables in schedule order with the
-    device's current stream set to the executor's ``wp.Stream``; on CUDA the calls only enqueue
-    kernels, so the thread runs ahead of the device.
+Roles and threads
+    Each processor of the schedule is a *role* with a thread of its own. A CPU worker
+    (``"cpu<i>"``) runs its tasks' CPU callables in schedule order on host data (NumPy/OpenCV
+    release the GIL, so workers overlap). The GPU role (``"gpu"``) runs the GPU callables in
+    schedule order with the device's current stream set to the executor's ``wp.Stream``; on
+    CUDA the calls only enqueue kernels, so its thread runs ahead of the device. With a
+    one-frame schedule a role's next unit (a task, or a GPU segment) runs on whichever thread
+    holds the role's token: its own thread while it has ready work, or *inline* on the
+    thread whose output made it ready when that thread's own role has nothing ready and the
+    unit is short (:attr:`Executor.INLINE_MAX_MS`): a serial chain alternating CPU and GPU
+    tasks then runs on one thread, with no thread wake-up per hand-off (10-30 us each under
+    the GIL). Nobody blocks on a value: a role's thread sleeps on its signal until a producer
+    finds the role ready and not taken; a producer going on with its own work wakes the
+    ready readers of what it published at once. With a K-frame schedule each thread runs its
+    own role and blocks on each value it needs.
 Cross-queue edges
-    Every (frame, value) pair is a :class:`Slot` with a ``threading.Event`` set when its
-    producer has finished (CPU) or enqueued (GPU). GPU -> CPU: the GPU thread records a CUDA
-    event after the producer; the CPU consumer waits for the slot, then for the event
-    (``wp.synchronize_event``), then downloads on its own copy stream. CPU -> GPU: the GPU
-    thread waits for the CPU producer's slot and uploads on the GPU stream (stream-ordered, so
-    the kernel after it sees the data; large arrays go through reusable pinned staging
-    buffers, so the copy is asynchronous and the GPU thread does not wait for the kernels
-    queued before it). Between two GPU tasks data stays on the device: one in-order stream
-    needs no synchronisation at all.
+    Every (frame, value) pair is a :class:`Slot`, set when its producer has finished (CPU) or
+    enqueued (GPU). GPU -> CPU: the producer's end event is recorded on the stream; on CUDA,
+    where a CPU task of the frame reads the value, the GPU role then starts its download at
+    once (:meth:`Transfers.stage_download`: a pinned buffer, its own copy stream after the
+    producer's event), so the reader waits for one event and copies out; otherwise the
+    reader waits for the producer's event and downloads on its thread's copy stream.
+    CPU -> GPU: the GPU role uploads on the GPU stream (stream-ordered, so the kernel after
+    it sees the data; large arrays go through reusable pinned staging buffers, so the copy is
+    asynchronous and the host does not wait for the kernels queued before it). Between two
+    GPU tasks data stays on the device: one in-order stream needs no synchronisation at all.
 Timing
     CPU tasks: host ``time.perf_counter`` before the task's downloads and after its call
     (waiting for a producer is not counted). GPU tasks on CUDA: timing events recorded on the
     stream before the task's uploads and after its kernels, mapped to the host clock through
     an anchor event recorded while the stream was idle (:meth:`Executor.reanchor`), so a GPU
-    interval is when the device ran it, not when the host enqueued it. When the GPU thread
+    interval is when the device ran it, not when the host enqueued it. When the GPU role
     did not have to wait between two tasks, the first one's end event is the second one's
     start (one event per task, not two). Events come from a pool and return to it once their
     frame has been waited for. The host-side time of each GPU call (enqueue plus any host
@@ -73,15 +83,14 @@ K frames in flight
     the queue, which a K-frame order interleaves: with K > 1 GPU tasks run eagerly.
 Errors
     A task that raises fails its frame: that frame and every later frame in flight are
-    cancelled (their waits see the cancel flag within :data:`WAIT_SLICE` seconds and their
-    remaining tasks are skipped), earlier frames complete, and :meth:`Executor.wait` raises
+    cancelled (the roles are woken and skip their remaining units; a K-frame schedule's waits
+    see the cancel flag within :data:`WAIT_SLICE` seconds), earlier frames complete, and :meth:`Executor.wait` raises
     :class:`~warpvx.errors.NodeExecutionError` with the task's exception as ``__cause__``. No
     wait is unbounded: each checks its frame's cancel flag and the executor's shutdown flag.
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import queue
 import threading
@@ -94,10 +103,11 @@ import networkx as nx
 from ..check import check_bool
 from ..errors import NodeExecutionError, ScheduleError, WarpvxValueError
 from ..sched.schedule import Schedule
-from .capture import NotCapturable, SegmentRunner, segments, signature
+from .capture import SegmentRunner, segments, signature
 from .cycles import Batch, frames_of
 from .native_copy import record_event, synchronize_event, warp
 from .program import ExecTask, InputRef, Program, data_graph
+from .roles import DeviceScope, GpuState, RoleRunner, is_gpu_processor
 from .slots import DEVICE, HOST, Slot
 from .timeline import WAIT_SLICE, Cancelled, EventPool, Frame, FrameResult, event_clock, frame_result
 from .transfers import Transfers
@@ -111,23 +121,7 @@ SPIN_SECONDS = 0.0
 TIMED_COPY_MIN_BYTES = 1 << 16
 
 
-def _is_gpu_processor(name: str) -> bool:
-    return name.startswith("gpu")
-
-
-class _GpuState:
-    """The GPU thread's state through one frame."""
-
-    __slots__ = ("proc", "io", "prev_end", "task")
-
-    def __init__(self, proc: str, io: Transfers):
-        self.proc = proc
-        self.io = io
-        self.prev_end = None  # the last task's end event while the thread has not waited since
-        self.task = "<executor>"  # the task running, for error reports
-
-
-class Executor(SegmentRunner):
+class Executor(RoleRunner, SegmentRunner):
     """Run ``program`` according to ``schedule`` on CPU worker threads and a GPU host thread.
 
     Parameters
@@ -194,7 +188,7 @@ class Executor(SegmentRunner):
         # first take Python's GIL first; the GPU thread (Python-heavy, usually the critical
         # path) should not start its frame behind every CPU worker's Python prologue.
         self._active = sorted((p for p in self.processors if self.queues[p]),
-                              key=lambda p: not _is_gpu_processor(p))
+                              key=lambda p: not is_gpu_processor(p))
         # slot -> processors a frame of that slot waits for; processor -> slot -> its last entry.
         self._slot_procs = [sum(any(f == s for _, f in self.entries[p]) for p in self._active)
                             for s in range(self.frames)]
@@ -219,8 +213,8 @@ class Executor(SegmentRunner):
         self._upload_rule = self._upload_rules() if self.cuda else {}
         self._up_pools: dict[str, list] = {k: [] for k, rule in self._upload_rule.items()
                                            if rule != "never"}
-        self._up_lock = threading.Lock()  # the GPU thread leases, wait() returns
-        gpu_queue = [t.name for p in self.processors if _is_gpu_processor(p) for t in self.queues[p]]
+        self._up_lock = threading.Lock()  # the GPU role leases, wait() returns
+        gpu_queue = [t.name for p in self.processors if is_gpu_processor(p) for t in self.queues[p]]
         # A captured segment is one frame's consecutive GPU tasks; a K-frame order interleaves
         # frames on the GPU queue, so with K > 1 nothing is captured (every task runs eagerly).
         self._segments = segments(program, gpu_queue) if self.frames == 1 else []
@@ -245,6 +239,8 @@ class Executor(SegmentRunner):
                     self._up_pools.pop(key, None)
         self._null_stream = None  # the device's legacy stream (CUDA), looked up once
         self._task_keys = [k for t in program.tasks.values() for k in t.outputs]
+        self._roles = self._make_roles() if self.frames == 1 else {}
+        self._scope: DeviceScope | None = None  # the GPU role's device/stream (set by _start)
 
     # ------------------------------------------------------------------ checks
 
@@ -268,7 +264,7 @@ class Executor(SegmentRunner):
                     raise ScheduleError(f"schedule: task {label!r} is placed on both "
                                         f"{placed[label]!r} and {p!r}")
                 placed[label] = p
-                kind = "gpu" if _is_gpu_processor(p) else "cpu"
+                kind = "gpu" if is_gpu_processor(p) else "cpu"
                 if getattr(task, kind) is None:
                     raise ScheduleError(f"schedule: task {label!r} is placed on {p!r} but has "
                                         f"no {kind.upper()} implementation")
@@ -276,10 +272,10 @@ class Executor(SegmentRunner):
                    if self._label(t, f) not in placed]
         if missing:
             raise ScheduleError(f"schedule: tasks {missing!r} are not scheduled")
-        gpus = [p for p in self.processors if _is_gpu_processor(p)]
+        gpus = [p for p in self.processors if is_gpu_processor(p)]
         if len(gpus) > 1:
             raise ScheduleError(f"schedule: one GPU processor is supported, got {gpus}")
-        if any(_is_gpu_processor(p) and self.queues[p] for p in self.processors) and not self.gpu_device:
+        if any(is_gpu_processor(p) and self.queues[p] for p in self.processors) and not self.gpu_device:
             raise ScheduleError("schedule: tasks are placed on the GPU but no gpu_device was given")
         # Data edges (each slot's, and delayed reads of an earlier slot of the cycle) plus
         # each processor's order must be acyclic, or some wait never returns. A later cycle
@@ -311,12 +307,16 @@ class Executor(SegmentRunner):
     def _start(self):
         if self._threads:
             return
-        if self.cuda:
+        if self.gpu_device:
             wp = warp()
-            self._stream = wp.Stream(self.gpu_device)
-            self.reanchor()
+            device = wp.get_device(self.gpu_device)
+            if self.cuda:
+                self._stream = wp.Stream(device)
+                self.reanchor()
+            self._scope = DeviceScope(device, self._stream)
+        loop = self._role_loop if self._roles else self._loop
         for p in self._active:
-            th = threading.Thread(target=self._loop, args=(p,), name=f"warpvx-{self.name}-{p}",
+            th = threading.Thread(target=loop, args=(p,), name=f"warpvx-{self.name}-{p}",
                                   daemon=True)
             self._threads[p] = th
             th.start()
@@ -341,7 +341,8 @@ class Executor(SegmentRunner):
         self._anchor = (0.5 * (t_before + t_after), ev)
 
     def _loop(self, proc: str):
-        gpu = _is_gpu_processor(proc)
+        """A processor's thread with a K-frame schedule: batches from its inbox."""
+        gpu = is_gpu_processor(proc)
         inbox = self._inbox[proc]
         while True:
             item = inbox.get()
@@ -351,31 +352,14 @@ class Executor(SegmentRunner):
                 if self._gpu_frames(proc, item, inbox):
                     return
             else:
-                self._run_item(proc, item)
-
-    def _run_item(self, proc: str, item):
-        """Run ``proc``'s part of a frame (its queue) or of a :class:`Batch` (K frames)."""
-        if isinstance(item, Batch):
-            self._run_batch(proc, item)
-        else:
-            self._one_frame(proc, item, self._run_gpu_tasks if _is_gpu_processor(proc)
-                            else self._run_cpu)
-
-    def _one_frame(self, proc: str, frame: Frame, run):
-        try:
-            if not frame.cancel.is_set():
-                run(proc, frame)
-        except BaseException as exc:  # noqa: BLE001 - an executor bug must not kill the thread
-            self._fail(frame, "<executor>", proc, exc)
-        finally:
-            frame.processor_done()
+                self._run_batch(proc, item)
 
     def _run_batch(self, proc: str, batch: Batch):
         """``proc``'s ``(task, slot)`` entries for the frames of ``batch``, in the K-frame
         schedule's order; a frame is done on ``proc`` after its slot's last entry there."""
-        gpu = _is_gpu_processor(proc)
+        gpu = is_gpu_processor(proc)
         io = self._io()
-        state = _GpuState(proc, io) if gpu else None
+        state = GpuState(proc, io) if gpu else None
         last = self._last[proc]
         current = None
         for i, (task, slot) in enumerate(self.entries[proc]):
@@ -402,16 +386,12 @@ class Executor(SegmentRunner):
                     frame.processor_done()
 
     def _gpu_frames(self, proc: str, item, inbox) -> bool:
-        """Run ``item`` (a frame or a batch) and those queued behind it in one device/stream
+        """Run ``item`` (a batch) and those queued behind it in one device/stream
         scope (entering and leaving the scope per frame costs host time on the critical
         thread). Returns True when the stop sentinel came."""
-        wp = warp()
-        scope = (wp.ScopedStream(self._stream, sync_enter=False) if self.cuda
-                 # sync_enter=False: the stream's order is ours; the user's stream is not a producer.
-                 else contextlib.nullcontext())
-        with wp.ScopedDevice(self.gpu_device), scope:
+        with self._scope:
             while True:
-                self._run_item(proc, item)
+                self._run_batch(proc, item)
                 try:
                     item = inbox.get_nowait()
                 except queue.Empty:
@@ -446,28 +426,28 @@ class Executor(SegmentRunner):
                 frame.wait_slot(s, self._closing, self.spin)
         return slots, waited
 
-    def _run_cpu(self, proc: str, frame: Frame):
-        io = self._io()
-        for task in self.queues[proc]:
-            if frame.cancel.is_set() or not self._run_cpu_task(proc, frame, task, io):
-                return
-
-    def _run_cpu_task(self, proc: str, frame: Frame, task: ExecTask, io: Transfers) -> bool:
-        """One CPU task: waits for its inputs, downloads device ones, calls, publishes.
-        False when the frame was cancelled meanwhile or the task failed (reported)."""
+    def _run_cpu_task(self, proc: str, frame: Frame, task: ExecTask, io: Transfers,
+                      slots: list | None = None) -> bool:
+        """One CPU task: waits for its inputs (unless given their ``slots``, all set),
+        downloads device ones, calls, publishes. False when the frame was cancelled
+        meanwhile or the task failed (reported)."""
         try:
-            slots, _ = self._ready_inputs(frame, task.inputs)
+            if slots is None:
+                slots, _ = self._ready_inputs(frame, task.inputs)
             remote = [s for s in slots if s.where == DEVICE]
-            if self.cuda:
-                for s in remote:
-                    ev = s.event
-                    if ev is not None:
-                        synchronize_event(ev)
+            waited = [None] * len(slots)
+            if self.cuda and remote:
+                # Waiting for the producer (or its staged download) is not the task's time.
+                for i, s in enumerate(slots):
+                    if s.where == DEVICE:
+                        ev = waited[i] = s.ready_event()
+                        if ev is not None:
+                            synchronize_event(ev)
             t0 = time.perf_counter()
             t_mid = None
             if remote:
                 before = io.moved
-                values = [s.host(io, ready=True) for s in slots]
+                values = [s.host(io, waited=ev) for s, ev in zip(slots, waited)]
                 t_mid = time.perf_counter()
                 if io.moved > before:
                     frame.copied[task.name] = io.moved - before
@@ -484,32 +464,7 @@ class Executor(SegmentRunner):
         frame.trace[task.name] = (proc, t0, t1, t_mid)
         return True
 
-    def _run_gpu_tasks(self, proc: str, frame: Frame):
-        state = _GpuState(proc, self._io())
-        captures = self._captures_of(frame) if frame.capture else None
-        for i, seg in enumerate(self._segments):
-            if frame.cancel.is_set():
-                return
-            try:
-                sg = self._segment_graph(captures, i, seg, frame, state) if captures is not None \
-                    and seg.captured else None
-                if sg is not None:
-                    try:
-                        self._run_segment(frame, seg, sg, state)
-                        continue
-                    except NotCapturable:  # an input unlike the captured one: eagerly from now
-                        captures[i] = None
-                for task in seg.tasks:
-                    if frame.cancel.is_set():
-                        return
-                    self._run_gpu_task(frame, task, state)
-            except Cancelled:
-                return
-            except BaseException as exc:  # noqa: BLE001 - reported to the caller
-                self._fail(frame, state.task, proc, exc)
-                return
-
-    def _start_event(self, frame: Frame, state: "_GpuState", slots, waited: bool):
+    def _start_event(self, frame: Frame, state: "GpuState", slots, waited: bool):
         """The timing event a GPU task (or segment) starts at, after making the stream wait
         for the caller's device inputs among ``slots`` (CUDA)."""
         if waited:
@@ -533,13 +488,18 @@ class Executor(SegmentRunner):
         frame.gpu_last_event = ev1
         return ev1
 
-    def _run_gpu_task(self, frame: Frame, task: ExecTask, state: "_GpuState"):
-        """One GPU task, enqueued eagerly: uploads, the call (into a pooled output buffer
-        where it has one), timing events (CUDA) and its outputs published."""
+    def _run_gpu_task(self, frame: Frame, task: ExecTask, state: "GpuState",
+                      slots: list | None = None):
+        """One GPU task, enqueued eagerly: waits for its inputs (unless given their
+        ``slots``, all set), uploads, the call (into a pooled output buffer where it has
+        one), timing events (CUDA) and its outputs published."""
         state.task = task.name
         cuda = self.cuda
         io = state.io
-        slots, waited = self._ready_inputs(frame, task.inputs)
+        if slots is None:
+            slots, waited = self._ready_inputs(frame, task.inputs)
+        else:
+            waited = False
         h0 = time.perf_counter()
         ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved
@@ -635,7 +595,7 @@ class Executor(SegmentRunner):
         """key -> when the device copy of that host value, uploaded for the GPU tasks that
         read it in its frame, may be reused (:meth:`_reuse_rule`; a delayed key's slot, and
         the copy cached in it, outlive the frame: never)."""
-        gpu = {t.name for p in self.processors if _is_gpu_processor(p) for t in self.queues[p]}
+        gpu = {t.name for p in self.processors if is_gpu_processor(p) for t in self.queues[p]}
         readers: dict = {}
         for name in gpu:
             for r in self.program.tasks[name].inputs:
@@ -676,6 +636,7 @@ class Executor(SegmentRunner):
             if f is not frame and f.cancelled_by is None:
                 f.cancelled_by = frame.index
             f.cancel.set()
+        self._wake_all()  # their roles skip the cancelled frames
 
     # ------------------------------------------------------------------ API
 
@@ -721,10 +682,14 @@ class Executor(SegmentRunner):
         with self._lock:
             failed = [f.index for f in self._inflight if f.error is not None]
             self._inflight.append(frame)
-            batch = self._join_batch(frame) if self.frames > 1 else frame
+            batch = self._join_batch(frame) if self.frames > 1 else None
         if failed:
             frame.cancelled_by = failed[0]
             frame.cancel.set()
+        for role in self._roles.values():
+            role.frames.append(frame)
+            if self._ready(role):
+                role.wake()
         if batch is not None:
             for p in self._active:
                 self._inbox[p].put(batch)
@@ -798,9 +763,17 @@ class Executor(SegmentRunner):
                 ring.age(frame.index)
             return result
         finally:
+            self._unstage(frame)
             with self._lock:
                 if frame in self._inflight:
                     self._inflight.remove(frame)
+
+    @staticmethod
+    def _unstage(frame: Frame):
+        """Frame over: its staged downloads' buffers may be reused (once their copy is done)."""
+        for staged in frame.staged:
+            staged.free = True
+        frame.staged = []
 
     def _recycle(self, frame: Frame):
         """Every GPU task of the frame has completed: its events go back to the pool. Slots
@@ -825,12 +798,14 @@ class Executor(SegmentRunner):
             frames = list(self._inflight)
         for f in frames:
             f.cancel.set()
+        self._wake_all()
         for f in frames:
             while not f.finished.wait(WAIT_SLICE):
                 if not any(th.is_alive() for th in self._threads.values()):
                     break
             for ring in self.program.rings.values():
                 ring.discard_pending(f.index)
+            self._unstage(f)
         with self._lock:
             self._inflight = [f for f in self._inflight if f not in frames]
 
@@ -845,6 +820,7 @@ class Executor(SegmentRunner):
             return
         self.abort()
         self._closing.set()
+        self._wake_all()
         for p in self._threads:
             self._inbox[p].put(None)
         for th in self._threads.values():

@@ -54,7 +54,9 @@ def native_entry_points():
                 d2d=core.wp_memcpy_d2d,
                 stream_sync=core.wp_cuda_stream_synchronize,
                 event_record=core.wp_cuda_event_record,
-                event_sync=core.wp_cuda_event_synchronize)
+                stream_wait_event=core.wp_cuda_stream_wait_event,
+                event_sync=core.wp_cuda_event_synchronize,
+                event_elapsed=core.wp_cuda_event_elapsed_time)
         except (ImportError, AttributeError):
             _NATIVE = None
     return _NATIVE
@@ -109,6 +111,26 @@ def to_host(a, stream=None, *, native: bool = True) -> np.ndarray:
         if not fast.stream_sync(stream.cuda_stream):
             raise RuntimeError("download: stream synchronisation failed")
     return out
+
+
+def to_host_async(dst, a, stream=None, *, native: bool = True):
+    """Queue a copy of contiguous ``wp.array`` ``a`` into ``dst``, a host ``wp.array`` of the
+    same size and dtype (pinned, for the copy to be asynchronous), on ``stream`` (a
+    ``wp.Stream``; CUDA), without waiting for it: the caller records an event after it. On
+    Warp's CPU device the copy is done on return. ``native=False`` takes ``wp.copy``."""
+    fast = _fast(native, a)
+    if fast is None:
+        warp().copy(dst, a, stream=stream if a.device.is_cuda else None)
+        return
+    n = dst.capacity
+    if not n:
+        return
+    if a.device.is_cuda:
+        ok = fast.d2h(a.device.context, dst.ptr, a.ptr, n, stream.cuda_stream)
+    else:
+        ok = fast.h2h(dst.ptr, a.ptr, n)
+    if not ok:
+        raise RuntimeError(f"download of {n} bytes failed")
 
 
 def to_device(dst, src, stream=None, *, native: bool = True):
@@ -173,6 +195,16 @@ def record_event(stream, event):
         fast.event_record(event.cuda_event, stream.cuda_stream, True)
 
 
+def wait_event(stream, event):
+    """``stream.wait_event(event)`` (the stream's later work waits for the event, on the
+    device) without Warp's Python checks."""
+    fast = native_entry_points()
+    if fast is None:
+        stream.wait_event(event)
+    else:
+        fast.stream_wait_event(stream.cuda_stream, event.cuda_event, False)
+
+
 def synchronize_event(event):
     """``wp.synchronize_event(event)`` without Warp's capture checks: the executor's GPU
     thread may be capturing a CUDA graph on its own stream while another thread waits for an
@@ -183,5 +215,16 @@ def synchronize_event(event):
         warp().synchronize_event(event)  # the checked path, which also reports errors
 
 
-__all__ = ["warp", "is_warp_array", "native_entry_points", "numpy_dtype", "to_host", "to_device",
-           "copy_device", "record_event", "synchronize_event"]
+def elapsed_ms(start, end) -> float:
+    """``wp.get_event_elapsed_time(start, end, synchronize=False)`` (ms between two completed
+    timing events) without Warp's Python checks: the executor converts every GPU task's
+    events each frame."""
+    fast = native_entry_points()
+    if fast is None:
+        return warp().get_event_elapsed_time(start, end, synchronize=False)
+    return fast.event_elapsed(start.cuda_event, end.cuda_event)
+
+
+__all__ = ["warp", "is_warp_array", "native_entry_points", "numpy_dtype", "to_host",
+           "to_host_async", "to_device", "copy_device", "record_event", "wait_event", "synchronize_event",
+           "elapsed_ms"]

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from .transfers import Transfers
 
-_GUARD_INIT = threading.Lock()  # makes the first Slot._lock of a slot, once
+_GUARD_INIT = threading.Lock()  # makes a slot's copy lock, or a flag's, once
 
 #: Where a slot's value lives: host memory (NumPy) or the GPU role's device (``wp.array``).
 HOST = "host"
@@ -18,22 +18,25 @@ DEVICE = "device"
 
 
 class Flag:
-    """A one-shot ``threading.Event`` (``set``, ``is_set``, ``wait(timeout)``) made of one
-    lock: cheaper to create, set and wait on than an Event (a Condition per wait), and the
-    executor makes one per value per frame and waits on them on every cross-thread edge."""
+    """A one-shot ``threading.Event`` (``set``, ``is_set``, ``wait(timeout)``): a bool, and a
+    lock made only when a thread has to block on it. The executor makes one per value per
+    frame and, with one-frame schedules, never blocks on them (a task runs once its inputs
+    are set), so most flags never make their lock."""
 
     __slots__ = ("_lock", "_set")
 
     def __init__(self):
-        self._lock = threading.Lock()
-        self._lock.acquire()
+        self._lock = None
         self._set = False
 
     def set(self):
-        if not self._set:
-            self._set = True
+        if self._set:
+            return
+        self._set = True  # before looking at the lock: a waiter making it looks at _set after
+        lock = self._lock
+        if lock is not None:
             try:
-                self._lock.release()
+                lock.release()
             except RuntimeError:  # released by a concurrent set()
                 pass
 
@@ -43,9 +46,19 @@ class Flag:
     def wait(self, timeout: float | None = None) -> bool:
         if self._set:
             return True
-        if self._lock.acquire(timeout=-1 if timeout is None else timeout):
+        lock = self._lock
+        if lock is None:
+            with _GUARD_INIT:
+                lock = self._lock
+                if lock is None:
+                    lock = threading.Lock()
+                    lock.acquire()
+                    self._lock = lock
+        if self._set:
+            return True
+        if lock.acquire(timeout=-1 if timeout is None else timeout):
             try:
-                self._lock.release()  # let the other waiters through
+                lock.release()  # let the other waiters through
             except RuntimeError:
                 pass
             return True
@@ -59,7 +72,8 @@ class Slot:
     device). ``done`` is set once the value may be read (after the CUDA ``event``, if any).
     """
 
-    __slots__ = ("value", "where", "event", "external", "done", "_host", "_device", "_lock")
+    __slots__ = ("value", "where", "event", "external", "done", "staged", "_host", "_device",
+                 "_lock")
 
     def __init__(self):
         self.value = None
@@ -67,9 +81,10 @@ class Slot:
         self.event = None
         self.external = False  # a device value made outside the executor's stream
         self.done = Flag()
+        self.staged = None  # a download already under way (Transfers.stage_download)
         self._host = None
         self._device = None
-        self._lock = None  # made on the first copy (most values are never copied)
+        self._lock = None  # made on the first download (most values are never downloaded)
 
     @classmethod
     def ready(cls, value, where=HOST) -> "Slot":
@@ -81,31 +96,42 @@ class Slot:
         self.value, self.where, self.event = value, where, event
         self.done.set()
 
-    def host(self, io: "Transfers", *, ready: bool = False):
+    def host(self, io: "Transfers", *, waited=None):
         """The value as host data, downloaded once (thread-safe).
 
-        ``ready``: the caller already waited for the producer's event on the host, so the
-        copy need not wait for it again.
+        ``waited``: the event (:meth:`ready_event`) the caller already waited for on the
+        host; the copy does not wait for it again.
         """
         if self.where == HOST:
             return self.value
         with self._guard():
             if self._host is None:
-                self._host = (io.download(self.value, None if ready else self.event),)
+                staged = self.staged
+                if staged is not None:
+                    self._host = (io.unstage(staged, ready=waited is staged.event),)
+                else:
+                    event = self.event
+                    self._host = (io.download(self.value, None if waited is event else event),)
             return self._host[0]
 
+    def ready_event(self):
+        """The CUDA event after which :meth:`host` copies without waiting: the staged
+        download's, else the producer's (None: nothing to wait for)."""
+        staged = self.staged
+        return self.event if staged is None else staged.event
+
     def device(self, io: "Transfers", into=None):
-        """The value on the GPU role's device, uploaded once (call from the GPU thread).
+        """The value on the GPU role's device, uploaded once. Only the GPU role uploads, one
+        thread at a time (its token holder), so no lock.
 
         ``into(shape, dtype)``: a device buffer to upload an array leaf into, or None for a
         fresh one (see :meth:`Transfers.upload`).
         """
         if self.where == DEVICE:
             return self.value
-        with self._guard():
-            if self._device is None:
-                self._device = (io.upload(self.value, into),)
-            return self._device[0]
+        if self._device is None:
+            self._device = (io.upload(self.value, into),)
+        return self._device[0]
 
     def _guard(self) -> threading.Lock:
         lock = self._lock
@@ -115,9 +141,6 @@ class Slot:
                 if lock is None:
                     lock = self._lock = threading.Lock()
         return lock
-
-    def get(self, where, io):
-        return self.host(io) if where == HOST else self.device(io)
 
 
 class Ring:

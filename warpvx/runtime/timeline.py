@@ -9,7 +9,7 @@ import time
 from dataclasses import dataclass, field
 
 from ..sched.schedule import ScheduledTask
-from .native_copy import warp
+from .native_copy import elapsed_ms, warp
 from .slots import Slot
 
 #: Seconds between cancellation checks of a blocked wait.
@@ -71,6 +71,7 @@ class Frame:
         self.events = []  # pooled CUDA events this frame recorded
         self.leases = []  # (task, buffer) output buffers taken from the pools
         self.uploads = []  # (key, buffer) upload buffers taken from the pools
+        self.staged = []  # staged downloads (Transfers.stage_download), freed when it is over
         self.capture = False  # replay captured GPU segments
         self.signature = None  # the capture key of its inputs' shapes and dtypes
         self.shares = {}  # captured task -> (start, end) fractions of its segment's interval
@@ -157,15 +158,13 @@ def frame_result(frame: Frame, outputs: dict, to_host=None) -> FrameResult:
 def event_clock(anchor):
     """event -> host seconds through ``anchor`` (``(host seconds, timing event)`` recorded
     while the stream was idle); each event read once."""
-    wp = warp()
     base, anchor_event = anchor
     seen = {}
 
     def convert(ev):
         t = seen.get(id(ev))
         if t is None:
-            t = seen[id(ev)] = base + wp.get_event_elapsed_time(anchor_event, ev,
-                                                                synchronize=False) / 1e3
+            t = seen[id(ev)] = base + elapsed_ms(anchor_event, ev) / 1e3
         return t
 
     return convert

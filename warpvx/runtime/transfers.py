@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .native_copy import is_warp_array, synchronize_event, to_device, to_host, warp
+from .native_copy import (is_warp_array, numpy_dtype, record_event, synchronize_event, to_device,
+                          to_host, to_host_async, wait_event, warp)
 
 
 def tree_map(fn, obj):
@@ -37,14 +38,16 @@ def tree_map(fn, obj):
 
 
 class _Staging:
-    """A pinned host buffer for uploads of one shape and dtype, and the event of its last copy."""
+    """A pinned host buffer of one shape and dtype and the event of its last copy; for
+    downloads also whether its reader is done with it (``free``)."""
 
-    __slots__ = ("buffer", "view", "event")
+    __slots__ = ("buffer", "view", "event", "free")
 
     def __init__(self, buffer, event):
         self.buffer = buffer
         self.view = buffer.numpy()  # aliases the pinned memory
         self.event = event
+        self.free = True
 
 
 class Transfers:
@@ -84,6 +87,7 @@ class Transfers:
         self._stream = None
         self._dev = None
         self._staging: dict = {}
+        self._unstaging: dict = {}  # (shape, dtype) -> pinned download buffers
         self.moved = 0  # bytes copied so far, both ways
 
     @property
@@ -112,7 +116,7 @@ class Transfers:
             else:
                 s = self.stream if a.device.is_cuda else None
                 if event is not None and s is not None:
-                    s.wait_event(event)
+                    wait_event(s, event)
                 # Warp's CPU device shares host memory: copied too, so the value outlives
                 # the buffer.
                 out = to_host(a, s)
@@ -120,6 +124,43 @@ class Transfers:
             return out
 
         return tree_map(leaf, value)
+
+    def stage_download(self, a, event=None):
+        """Start downloading ``a``, a contiguous CUDA ``wp.array`` of a scalar dtype, into a
+        pinned host buffer on this thread's copy stream, after ``event`` (the producer's):
+        the reader then waits for one event, the copy's, and copies out of the buffer
+        (:meth:`unstage`), instead of waiting for the producer, then copying and waiting
+        again. Returns the staging buffer, or None (another kind of value, or every buffer of
+        that shape still in use: download as usual). The caller sets its ``free`` once no
+        reader can take it any more."""
+        if not (self.cuda and is_warp_array(a) and a.device.is_cuda and a.is_contiguous
+                and numpy_dtype(a.dtype) is not None):
+            return None
+        wp = warp()
+        ring = self._unstaging.setdefault((a.shape, a.dtype), [])
+        stage = next((s for s in ring if s.free and s.event.is_complete), None)
+        if stage is None:
+            if len(ring) >= self.STAGING_DEPTH * 2:  # readers hold them all
+                return None
+            stage = _Staging(wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True),
+                             wp.Event(self.device))
+            ring.append(stage)
+        stream = self.stream
+        if event is not None:
+            wait_event(stream, event)
+        to_host_async(stage.buffer, a, stream)
+        record_event(stream, stage.event)
+        stage.free = False
+        return stage
+
+    def unstage(self, stage, *, ready: bool = False):
+        """A fresh host array with what :meth:`stage_download` copied into ``stage`` (waiting
+        for that copy unless ``ready``: the caller did)."""
+        if not ready:
+            synchronize_event(stage.event)
+        out = stage.view.copy()
+        self.moved += out.nbytes
+        return out
 
     def upload(self, value, into=None):
         """``value`` with every host array copied to the device (on its current stream).

@@ -1,0 +1,158 @@
+"""The batched ORB-SLAM2 front end (warpvx.apps.orbslam_batch) against the sequential one
+(warpvx.apps.orbslam.track_frames) on a rendered sequence with exact poses.
+
+Both run the same per-frame ``track``; the batch only works out the essential matrices (mono)
+or stereo depths ahead on worker processes, so the poses must be the sequential ones (OpenCV's
+USAC draws from a fixed seed) and the ATE bars those of tests/apps/test_orbslam.py (mono 4 cm
+after Sim(3), stereo 1 cm). 12 frames in batches of 5: the last batch is filled up.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from warpvx.apps import orbslam as o
+from warpvx.apps import orbslam_batch as ob
+from warpvx.apps import orbslam_cli
+from warpvx.apps import trajectory_eval as te
+from warpvx.apps.orbslam_synth import render_sequence, write_kitti_sequence
+from warpvx.errors import WarpvxError
+
+FRAMES, BATCH = 12, 5
+
+
+@pytest.fixture(scope="module")
+def seq():
+    """12 rendered stereo frames (640x480, baseline 0.2 m) and their exact poses."""
+    left, right, K, poses = render_sequence(FRAMES, (640, 480), baseline=0.2, supersample=1)
+    return left, right, K, poses
+
+
+def _frames(seq, stereo):
+    left, right, K, _ = seq
+    camera = o.Camera(K, (640, 480), 0.2 if stereo else None)
+    return [{"image": a, "right": b} if stereo else {"image": a} for a, b in zip(left, right)], camera
+
+
+@pytest.mark.parametrize("stereo", [False, True], ids=["mono", "stereo"])
+def test_batched_poses_are_the_sequential_ones(seq, stereo):
+    frames, camera = _frames(seq, stereo)
+    want = np.array([f.pose for f in o.track_frames(frames, camera)])
+    got = list(ob.track_frames_batched(frames, camera, batch=BATCH, workers=2))
+    assert [f.index for f in got] == list(range(FRAMES))
+    got = np.array([f.pose for f in got])
+    np.testing.assert_allclose(got, want, atol=1e-9)
+    bar = 0.01 if stereo else 0.04
+    assert te.ate(got, seq[3], with_scale=not stereo)["rmse"] < bar
+
+
+def test_warp_graph_places_batches_on_the_gpu_role(seq):
+    frames, camera = _frames(seq, False)
+    plans = []
+    got = np.array([f.pose for f in ob.track_frames_batched(frames[:8], camera, batch=4, workers=0,
+                                                            backend="warp-cpu", on_finish=plans.append)])
+    want = np.array([f.pose for f in o.track_frames(frames[:8], camera, backend="warp-cpu")])
+    np.testing.assert_allclose(got, want, atol=1e-9)
+    placement = plans[0].placement
+    assert placement["orb_batch"] == placement["match_batch"] == "gpu"
+    assert placement["pose_batch"] != "gpu" and placement["chain"] != "gpu"
+
+
+def test_essential_ahead_is_used_only_for_its_own_points(seq):
+    """The look-up track() gets: the core worked out ahead for exactly those points (here a
+    sentinel, so its use shows), essential_core for any others (the keyframe fallback)."""
+    import warpvx
+
+    (k0, d0), (k1, d1) = (warpvx.orb(im, backend="cpu") for im in seq[0][:2])
+    pairs, _ = warpvx.match_hamming(d1, d0, True, None, backend="cpu")
+    p1, p2 = ob._pts(k0)[pairs[:, 1]], ob._pts(k1)[pairs[:, 0]]
+    K, config = np.ascontiguousarray(seq[2], np.float64), o.TrackerConfig()
+    sentinel = object()
+    essential = ob._essential_ahead((p1, p2, sentinel))
+    assert essential(p1.copy(), p2.copy(), K, config) is sentinel
+    want = o.essential_core(p1[1:], p2[1:], K, config)
+    assert want is not None
+    for g, w in zip(essential(p1[1:], p2[1:], K, config), want):
+        np.testing.assert_array_equal(g, w)
+
+
+def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch):
+    """pose_batch works out every frame's essential matrix ahead (on 2 processes); chain then
+    tracks the batch with no essential_core call of its own and gives the sequential poses."""
+    frames, camera = _frames(seq, False)
+    config, K = o.TrackerConfig(), np.ascontiguousarray(seq[2], np.float64)
+    images = np.stack([f["image"] for f in frames])
+    feats = ob.orb_batch(images, config=config)
+    last, nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=FRAMES)
+    np.testing.assert_array_equal(last, feats[-1][1])
+    common = dict(K=K, config=config, baseline=None, frames=FRAMES)
+    pool = ob.make_pool(2)
+    try:
+        tail, ahead = ob.pose_batch(images, feats, nearest, (np.zeros((0, 2)), np.zeros(0)), pool=pool, **common)
+    finally:
+        pool.shutdown()
+    np.testing.assert_array_equal(tail[0], ob._pts(feats[-1][0]))
+    assert sum(a[2] is not None for a in ahead) >= FRAMES - 2  # frame 0 has no previous frame
+    calls = []
+    core = o.essential_core
+    monkeypatch.setattr(o, "essential_core", lambda *a: calls.append(1) or core(*a))
+    _, poses, stats = ob.chain(o.TrackState(), feats, ahead, **common)
+    assert calls == [] and stats.shape == (FRAMES, len(o.STATS))
+    np.testing.assert_allclose(poses, [f.pose for f in o.track_frames(frames, camera)], atol=1e-9)
+
+
+def test_cli_batch_flag_end_to_end(tmp_path, seq, capsys):
+    left, right, K, poses = seq
+    folder = write_kitti_sequence(tmp_path / "seq", left, K, poses)
+    out = tmp_path / "out"
+    status = orbslam_cli.main([str(folder), "--gt", str(folder / "poses.txt"), "--out", str(out),
+                               "--quiet", "--no-plot", "--batch", str(BATCH), "--pose-workers", "1"])
+    assert status == 0, capsys.readouterr().err
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["batch"] == BATCH and m["frames"] == FRAMES
+    assert m["warpvx"]["ate"]["rmse"] < 0.04
+    assert len((out / "frames.csv").read_text().splitlines()) == FRAMES + 1
+
+
+def test_bad_input_names_the_argument(seq, tmp_path, capsys):
+    frames, camera = _frames(seq, False)
+    cases = [(dict(batch=0), "batch"), (dict(batch=2, workers=-1), "workers"),
+             (dict(batch=2, config=o.TrackerConfig(ratio=0.8)), "config"),
+             (dict(batch=2, backend="gpu"), "backend")]
+    for kwargs, name in cases:
+        with pytest.raises(WarpvxError, match=name):
+            list(ob.track_frames_batched(frames[:3], camera, **{"workers": 0, **kwargs}))
+    with pytest.raises(WarpvxError, match="no frames"):
+        list(ob.track_frames_batched([], camera, batch=2, workers=0))
+    folder = write_kitti_sequence(tmp_path / "seq", seq[0][:3], seq[2], seq[3][:3])
+    assert orbslam_cli.main([str(folder), "--batch", "0", "--quiet", "--no-plot",
+                             "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "batch" in err[0]
+
+
+def test_pool_in_an_unguarded_script(tmp_path):
+    """A script without ``if __name__ == "__main__"`` can open a pool: the spawned processes
+    do not re-run it (they would raise, and run its top level once per process)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    marker = tmp_path / "runs.txt"
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "import operator\n"
+        "from warpvx.apps import orbslam_batch as ob\n"
+        f"open({str(marker)!r}, 'a').write('run\\n')\n"
+        "pool = ob.make_pool(2)\n"
+        "print(pool.map(operator.add, [(1, 2), (3, 4)]))\n"
+        "pool.shutdown()\n")
+    root = Path(__file__).resolve().parents[2]
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                         cwd=root, env={**__import__("os").environ, "PYTHONPATH": str(root)})
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stdout.strip() == "[3, 7]"
+    assert marker.read_text() == "run\n"  # the script's top level ran once, in the parent

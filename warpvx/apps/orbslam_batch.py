@@ -1,0 +1,369 @@
+"""The ORB-SLAM2 front end in batches of frames: extraction and matching of B frames per launch
+set on the GPU, the costly state-free tracking work of B frames spread over worker processes.
+
+Tracking (:func:`warpvx.apps.orbslam.track`) is sequential only through cheap state (the
+previous frame and keyframe, the scale from the reference's depths, the motion model); its
+costly parts depend on the frames alone: the essential matrix between frame t and t-1
+(:func:`~warpvx.apps.orbslam.essential_core`, MAGSAC++, ~5 ms on one core) for a monocular
+sequence, the stereo matching of frame t (:func:`~warpvx.apps.orbslam_match.stereo_depth`,
+~10 ms) for a stereo one. The graph, one batch of B frames per graph frame::
+
+    images [B (x2 stereo), H, W] -> orb_batch (GPU role) -> feats (B (or 2B) keypoints, descriptors)
+    feats, last_desc[-1] -> match_batch (GPU role) -> last_desc, nearest rows both ways between
+        consecutive frames, one launch for the batch
+        (:func:`~warpvx.apps.orbslam_match.nearest_batch_warp`)
+    images, feats, nearest, tail[-1] -> pose_batch (CPU) -> tail, ahead: the mutual pairs and
+        their filter on the host, then the essential cores (mono) or stereo depths of the B
+        frames in parallel on a process pool
+    state[-1], feats, ahead -> chain (CPU) -> state, poses [B, 4, 4], stats [B, 6]: ``track``
+        frame by frame, the essential matrix taken from ``ahead`` when its inputs are the
+        ones worked out ahead (the previous frame as the reference; the keyframe fallback is
+        computed on the spot)
+
+With ``stream(depth >= 2)`` batch k+1 is extracted and matched on the GPU while batch k is
+tracked. The pool is one of processes (``cv2.setNumThreads(1)`` in each), not threads: the
+GPU host thread and the graph's CPU nodes then never wait on OpenCV for the GIL. The graph's
+executor runs threads only, so the pool runs *inside* the ``pose_batch`` node (its worker
+thread waits on the processes with the GIL released); the scheduler places the four nodes and
+records their timeline as for any graph.
+
+Poses equal the sequential front end's (:func:`~warpvx.apps.orbslam.track_frames`, same
+inputs, same per-frame ``track``; OpenCV's USAC draws from a fixed seed), up to the last bits
+of the device matcher's ties, which match the CPU ones (see the tests).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import os
+import sys
+import time
+
+import numpy as np
+
+from ..errors import WarpvxValueError
+from . import orbslam as o
+from .orbslam_match import batch_pairs, mutual_pairs, nearest_batch, nearest_batch_warp, stereo_depth
+
+
+def _init_worker():
+    import cv2
+
+    # One OpenCV thread per process: the pool already spreads the work over the cores.
+    cv2.setNumThreads(1)
+
+
+@contextlib.contextmanager
+def _caller_script_hidden():
+    """While processes start, the caller's ``__main__`` looks like an interactive session:
+    a spawned process then does not re-run the caller's script (it only needs warpvx's
+    functions), so a script need not guard its entry point with ``if __name__ ==
+    "__main__"`` to use a pool."""
+    main = sys.modules.get("__main__")
+    saved = {k: main.__dict__[k] for k in ("__file__", "__spec__") if main is not None and k in main.__dict__}
+    try:
+        for k in saved:
+            if k == "__spec__":
+                main.__spec__ = None
+            else:
+                del main.__dict__[k]
+        yield
+    finally:
+        for k, v in saved.items():
+            setattr(main, k, v)
+
+
+class PosePool:
+    """Processes for :func:`pose_batch`, all started on construction (about a second each;
+    spawned, not forked: the parent holds a CUDA context and executor threads), each with
+    one OpenCV thread since the pool already spreads the work over the cores. ``workers``:
+    the number of processes. Close it with :meth:`shutdown` (or use it as a context manager)."""
+
+    def __init__(self, workers: int):
+        from multiprocessing import get_context
+
+        with _caller_script_hidden():
+            self._pool = get_context("spawn").Pool(workers, initializer=_init_worker)
+        self.workers = workers
+
+    def map(self, fn, jobs) -> list:
+        """``[fn(*job) for job in jobs]`` on the processes, one job per task."""
+        return self._pool.starmap(fn, jobs, chunksize=1)
+
+    def shutdown(self, cancel_futures: bool = False):
+        if cancel_futures:
+            self._pool.terminate()
+        else:
+            self._pool.close()
+        self._pool.join()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.shutdown(cancel_futures=exc[0] is not None)
+
+
+def make_pool(workers: int | None = None) -> PosePool | None:
+    """A :class:`PosePool` for :func:`pose_batch` (``workers`` processes, default: all cores
+    but one, which the calling process's GPU and tracking threads keep, and at least 2; 0:
+    None, the work runs in the calling thread)."""
+    from ..check import check_int
+
+    workers = max(2, os.cpu_count() - 1) if workers is None else check_int(workers, "workers", min_value=0)
+    return PosePool(workers) if workers else None
+
+
+def _map(pool, fn, jobs):
+    """``[fn(*job) for job in jobs]``, on ``pool``'s processes when given."""
+    if pool is None:
+        return [fn(*job) for job in jobs]
+    return pool.map(fn, jobs)
+
+
+# --------------------------------------------------------------------------- the nodes
+
+
+def orb_batch(images, *, config):
+    """``images`` uint8 [B', H, W] -> a list of B' (Keypoints, uint8 [N_i, 32]) (CPU)."""
+    import warpvx
+
+    return warpvx.orb(np.asarray(images), **config.orb_args(), backend="cpu")
+
+
+def orb_batch_warp(images, *, config):
+    """:func:`orb_batch` on the device (one launch set for the batch)."""
+    import warpvx
+
+    return warpvx.orb(images, **config.orb_args())
+
+
+def _left(feats, frames):
+    """The left images' descriptors (stereo batches put the right images after the left)."""
+    return [d for _, d in feats[:frames]]
+
+
+def match_batch(feats, before, *, frames):
+    """The ``frames`` left frames' descriptors after ``before`` (the previous batch's last),
+    each matched both ways to the next: :func:`~warpvx.apps.orbslam_match.nearest_batch`'s
+    (last descriptors, (nearest, distance, starts))."""
+    return nearest_batch(_left(feats, frames), before)
+
+
+def match_batch_warp(feats, before, *, frames):
+    """:func:`match_batch` on the device (no host sync)."""
+    return nearest_batch_warp(_left(feats, frames), before)
+
+
+def _pts(kps):
+    """Keypoint positions, float64 [N, 2] (as track's frame records hold them)."""
+    return np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
+
+
+def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, pool):
+    """The state-free tracking work of a batch (CPU, fanned out to ``pool``).
+
+    Parameters
+    ----------
+    images : uint8 [B', H, W]
+        The batch (stereo: B left images, then B right ones).
+    feats : list of B' (Keypoints, uint8 [N, 32])
+    nearest : (nearest, distance, starts)
+        :func:`match_batch`'s second output.
+    tail : tuple (float64 [N, 2] points, float64 [N] angles)
+        The previous batch's last frame (empty before the first batch).
+
+    Returns
+    -------
+    tail : the last frame's (points, angles)
+    ahead : list of B
+        Per frame: (pairs int32 [M, 2], distances int32 [M], then for a stereo camera the
+        depth float32 [N] of each keypoint (:func:`stereo_depth`), else the essential core
+        (p1, p2, :func:`~warpvx.apps.orbslam.essential_core`'s result) of the filtered matches
+        to the previous frame, or None when ``track`` will not need one).
+    """
+    prev_pts, prev_angles = tail
+    pairs, jobs, cores = [], [], []
+    for f, (kps, _) in enumerate(feats[:frames], 1):
+        idx, dist, back = batch_pairs(*nearest, f)
+        pts, angles = _pts(kps), np.asarray(kps.angle, np.float64)
+        p, d = mutual_pairs(idx, dist, back, len(kps), len(prev_pts))
+        pairs.append((p, d))
+        if baseline is None:
+            # What track() will hand to essential_core when the previous frame is the reference.
+            good = o.filter_matches(p, d, angles, prev_angles, config) if len(kps) else p[:0]
+            p1, p2 = prev_pts[good[:, 1]], pts[good[:, 0]]
+            costly = len(good) >= 8 and np.median(np.linalg.norm(p2 - p1, axis=1)) >= config.min_parallax
+            cores.append((p1, p2) if costly else None)
+            if costly:
+                jobs.append((p1, p2, K, config))
+        prev_pts, prev_angles = pts, angles
+    if baseline is not None:
+        left, right = feats[:frames], feats[frames:]
+        job = functools.partial(_stereo_job, fx=float(K[0, 0]), baseline=baseline, config=config)
+        depths = _map(pool, job, [(*left[i], *right[i], images[i], images[frames + i]) for i in range(frames)])
+        ahead = [(p, d, z) for (p, d), z in zip(pairs, depths)]
+    else:
+        done = iter(_map(pool, o.essential_core, jobs))
+        ahead = [(p, d, None if c is None else (*c, next(done))) for (p, d), c in zip(pairs, cores)]
+    return (prev_pts, prev_angles), ahead
+
+
+def _stereo_job(kl, dl, kr, dr, left, right, *, fx, baseline, config):
+    return stereo_depth(kl, dl, kr, dr, left, right, fx=fx, baseline=baseline,
+                        scale_factor=config.scale_factor, max_distance=config.stereo_max_distance)
+
+
+def _essential_ahead(core):
+    """An ``essential`` for :func:`~warpvx.apps.orbslam.track`: ``core`` = (p1, p2, result)
+    worked out ahead is returned for those very points, anything else is computed."""
+
+    def essential(p1, p2, K, config):
+        if core is not None and np.array_equal(p1, core[0]) and np.array_equal(p2, core[1]):
+            return core[2]
+        return o.essential_core(p1, p2, K, config)
+
+    return essential
+
+
+def chain(state, feats, ahead, *, K, config, baseline, frames):
+    """Track the batch's frames in order (:func:`~warpvx.apps.orbslam.track`, cheap with the
+    work done ahead): (state, poses float64 [B, 4, 4], stats float64 [B, 6])."""
+    poses, stats = [], []
+    for (kps, desc), (pairs, dist, extra) in zip(feats[:frames], ahead):
+        if baseline is not None:
+            state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config)
+        else:
+            state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config,
+                                      essential=_essential_ahead(extra))
+        poses.append(pose)
+        stats.append(st)
+    return state, np.asarray(poses), np.asarray(stats)
+
+
+# --------------------------------------------------------------------------- the graph
+
+
+def add_extract_match(g, images, batch: int, config: o.TrackerConfig, *, target=None):
+    """Add ``orb_batch`` and ``match_batch`` to graph ``g`` for ``images`` (a data object of
+    uint8 [B', H, W], the first ``batch`` the left frames); returns the data objects (feats,
+    nearest). ``target="gpu"`` makes both GPU-only nodes (calibration then never times a
+    batch's extraction on the CPU); None: both implementations, placed by the scheduler."""
+    cpu = target is None
+    feats = g.user(functools.partial(orb_batch, config=config) if cpu else None, [images], ["feats"],
+                   warp_fn=functools.partial(orb_batch_warp, config=config), name="orb_batch",
+                   target=target)
+    last_desc = g.virtual("last_desc")
+    # Before the first batch: no rows (pose_batch pairs nothing with them: its tail is empty).
+    before = g.delay(last_desc, init=np.zeros((0, 32), np.uint8))[-1]
+    _, nearest = g.user(functools.partial(match_batch, frames=batch) if cpu else None, [feats, before],
+                        [last_desc, "nearest"], warp_fn=functools.partial(match_batch_warp, frames=batch),
+                        name="match_batch", target=target)
+    return feats, nearest
+
+
+def build_batch_graph(camera: o.Camera, batch: int, config: o.TrackerConfig = o.TrackerConfig(), *,
+                      backend="cpu", pool=None):
+    """The batched front-end graph for ``batch`` gray uint8 frames of ``camera.size`` per
+    graph frame: input ``images`` uint8 [B, H, W] (stereo [2B, H, W]: the left images, then the
+    right ones); outputs ``poses`` float64 [B, 4, 4] (camera to world) and ``stats`` float64
+    [B, 6] (see :func:`~warpvx.apps.orbslam.track`). ``pool``: :func:`make_pool`'s, or None
+    (pose work in the node's thread). ``backend`` as in
+    :func:`~warpvx.apps.orbslam.build_graph`. Needs ``cross_check`` and no ``ratio`` (the
+    defaults: the match node's mutual pairs)."""
+    from ..check import check_choice, check_int
+    from ..graph import Graph
+
+    check_choice(backend, "backend", o.BACKENDS)
+    batch = check_int(batch, "batch", min_value=1)
+    if not config.cross_check or config.ratio is not None:
+        raise WarpvxValueError("config: the batched front end matches with cross_check and no ratio "
+                               "(run the sequential one, batch 1, for a ratio test)")
+    w, h = camera.size
+    pin = None if backend == "cpu" else "gpu"
+    K = np.ascontiguousarray(camera.K, np.float64)
+    common = dict(K=K, config=config, baseline=camera.baseline,
+                  frames=batch)
+    g = Graph("orbslam_batch")
+    images = g.input("images", shape=(batch * (2 if camera.stereo else 1), h, w), dtype=np.uint8)
+    feats, nearest = add_extract_match(g, images, batch, config, target=pin)
+    tail = g.virtual("tail")
+    last = g.delay(tail, init=(np.zeros((0, 2)), np.zeros(0)))[-1]
+    _, ahead = g.user(functools.partial(pose_batch, pool=pool, **common), [images, feats, nearest, last],
+                      [tail, "ahead"], name="pose_batch")
+    state = g.virtual("state")
+    previous = g.delay(state, init=o.TrackState())[-1]
+    _, poses, stats = g.user(functools.partial(chain, **common), [previous, feats, ahead],
+                             [state, "poses", "stats"], name="chain")
+    g.output("poses", poses)
+    g.output("stats", stats)
+    return g
+
+
+def _batches(frames, batch: int, stereo: bool):
+    """Stack ``frames`` (input dicts) into graph inputs of ``batch`` frames; the last batch is
+    filled up by repeating its last frame. Yields (inputs, number of real frames)."""
+    chunk = []
+
+    def stacked(items):
+        images = [f["image"] for f in items] + ([f["right"] for f in items] if stereo else [])
+        return {"images": np.stack(images)}
+
+    for f in frames:
+        chunk.append(f)
+        if len(chunk) == batch:
+            yield stacked(chunk), batch
+            chunk = []
+    if chunk:
+        yield stacked(chunk + chunk[-1:] * (batch - len(chunk))), len(chunk)
+
+
+def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.TrackerConfig(), *,
+                         batch: int = 16, workers: int | None = None, pool=None, backend="cpu",
+                         depth: int = 2, on_finish=None):
+    """:func:`~warpvx.apps.orbslam.track_frames` in batches of ``batch`` frames
+    (:func:`build_batch_graph`), with ``workers`` processes for the pose work (default: see
+    :func:`make_pool`; 0: none), or an open ``pool`` (:func:`make_pool`'s, kept open). A
+    generator of :class:`~warpvx.apps.orbslam.TrackedFrame` in order; a
+    frame's ``ms`` is its batch's interval divided by the batch's frames. ``depth`` batches in
+    flight; ``on_finish(plan)`` as in ``track_frames``."""
+    from ..check import check_int
+
+    batches = _batches(frames, check_int(batch, "batch", min_value=1), camera.stereo)
+    first = next(batches, None)
+    if first is None:
+        raise WarpvxValueError("frames: the sequence has no frames")
+    own = pool is None
+    if own:
+        pool = make_pool(workers)
+    try:
+        g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
+        g.verify(first[0])
+        plan = o.schedule(g, backend)
+        counts = [first[1]]
+
+        def feed():
+            yield first[0]
+            for inputs, n in batches:
+                counts.append(n)
+                yield inputs
+
+        k, t = 0, time.perf_counter()
+        with g:
+            for i, out in enumerate(g.stream(feed(), depth=depth)):
+                now = time.perf_counter()
+                n = counts[i]
+                for pose, st in zip(out["poses"][:n], out["stats"][:n]):
+                    yield o.TrackedFrame(k, pose, dict(zip(o.STATS, st.tolist())), 1e3 * (now - t) / n)
+                    k += 1
+                t = now
+            if on_finish is not None:
+                on_finish(plan)
+    finally:
+        if own and pool is not None:
+            pool.shutdown(cancel_futures=True)
+
+
+__all__ = ["PosePool", "make_pool", "orb_batch", "match_batch", "pose_batch", "chain", "add_extract_match", "build_batch_graph",
+           "track_frames_batched"]

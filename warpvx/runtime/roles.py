@@ -1,0 +1,352 @@
+"""Roles: how an :class:`~warpvx.runtime.Executor` runs a one-frame schedule's processors
+(see its module docstring). A :class:`Role` is one processor's progress through its frames;
+:class:`RoleRunner` (a mixin of the executor) runs roles on threads, inline where it pays;
+:class:`DeviceScope` makes the GPU role's device and stream current on whichever thread runs it."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+from .capture import NotCapturable
+from .slots import DEVICE, Slot
+from .timeline import WAIT_SLICE, Cancelled, Frame
+from .transfers import Transfers
+
+
+def is_gpu_processor(name: str) -> bool:
+    """Whether processor ``name`` of a schedule is the GPU role (``"gpu"``)."""
+    return name.startswith("gpu")
+
+
+class GpuState:
+    """The GPU role's state through a frame (whichever thread runs it)."""
+
+    __slots__ = ("proc", "io", "prev_end", "task")
+
+    def __init__(self, proc: str, io: Transfers):
+        self.proc = proc
+        self.io = io
+        self.prev_end = None  # the last task's end event while the thread has not waited since
+        self.task = "<executor>"  # the task running, for error reports
+
+
+class DeviceScope:
+    """The GPU role's device, and on CUDA its stream, made current around a run of its units
+    on whichever thread runs them: ``wp.ScopedStream(stream, sync_enter=False)`` (the
+    stream's order is ours; the user's stream is no producer), or ``wp.ScopedDevice`` on
+    Warp's CPU device without saving the thread's CUDA context (~4 us a run, paid on each
+    hand-off of an alternating chain). Warp's current device and stream are the process's,
+    so one run at a time: the GPU role's token holder's."""
+
+    __slots__ = ("device", "stream", "saved")
+
+    def __init__(self, device, stream):
+        self.device = device
+        self.stream = stream
+        self.saved = None
+
+    def __enter__(self):
+        dev = self.device
+        runtime = dev.runtime
+        stream = self.stream
+        if stream is None:
+            self.saved = (runtime.default_device, None)
+        else:
+            dev.context_guard.__enter__()
+            self.saved = (runtime.default_device, dev.stream)
+            dev.set_stream(stream, sync=False)
+        runtime.default_device = dev
+
+    def __exit__(self, *exc):
+        dev = self.device
+        default, stream = self.saved
+        if stream is not None:
+            dev.set_stream(stream, sync=False)
+            dev.context_guard.__exit__(*exc)
+        dev.runtime.default_device = default
+
+
+class Role:
+    """One processor's progress through its frames (one-frame schedules): the thread holding
+    ``token`` runs its next units, its own thread or another one inline (see
+    :meth:`RoleRunner._drive`). ``units``: its queue (CPU tasks, or the GPU queue's segments as
+    ``(index, segment)``); ``refs``: each unit's input references (what makes it ready);
+    ``frames``: the frames it has still to run, oldest first, ``pos`` the next unit of the
+    oldest; ``signal``: released to wake its thread; ``short``: which units may run inline
+    (:attr:`RoleRunner.INLINE_MAX_MS`)."""
+
+    __slots__ = ("proc", "gpu", "units", "refs", "short", "frames", "pos", "token", "signal",
+                 "state", "captures", "touch", "stage")
+
+    def __init__(self, proc: str, units: list, refs: list, short: list, state: "GpuState | None"):
+        self.proc = proc
+        self.gpu = state is not None
+        self.units = units
+        self.refs = refs
+        self.short = short  # per unit: short enough to run inline on another role's thread
+        self.frames: deque = deque()
+        self.pos = 0
+        self.token = threading.Lock()
+        self.signal = threading.Lock()
+        self.signal.acquire()
+        self.state = state
+        self.captures = None  # the oldest frame's capture states (GPU role)
+        self.touch: list = []  # per unit: the other roles that read what it publishes
+        self.stage: list = []  # per GPU unit: its output keys whose download starts at once
+
+    def wake(self):
+        try:
+            self.signal.release()
+        except RuntimeError:  # already awake
+            pass
+
+
+class RoleRunner:
+    """The executor's roles (one-frame schedules): a mixin of
+    :class:`~warpvx.runtime.Executor`, whose tasks, segments, frames and transfers it runs.
+
+    A role's units run on whichever thread holds its token. A thread runs its own role while
+    the next unit is ready; when it is not, a short unit its output made ready on another
+    role, whose thread would otherwise be woken, runs inline (a serial chain alternating CPU
+    and GPU tasks then never wakes a thread). Nobody blocks on a value: a role's thread
+    sleeps on its signal until a producer finds the role ready and not taken. No lost
+    wake-up: a producer publishes before it looks at the token, and a token holder looks at
+    readiness again after letting the token go.
+    """
+
+    #: A unit (a task, or a GPU segment) scheduled to take this long or less (ms) may run
+    #: inline on the thread of the role whose output it waited for, instead of waking its
+    #: own role's thread (a wake-up, 10-30 us, is worth saving on short units only: a long
+    #: one inline would hold that thread's own role back).
+    INLINE_MAX_MS = 0.1
+
+    def _make_roles(self) -> dict:
+        """processor -> its :class:`Role`: units, what makes each ready, which may run inline,
+        which roles read what each publishes, which outputs to stage."""
+
+        def short(tasks) -> bool:
+            ms = sum(self.placed[t.name, 0].finish - self.placed[t.name, 0].start for t in tasks)
+            return ms <= self.INLINE_MAX_MS
+
+        staged = self._staged_keys()
+        roles = {}
+        for p in self._active:
+            if is_gpu_processor(p):
+                units = list(enumerate(self._segments))
+                refs = [seg.inputs if seg.captured else seg.tasks[0].inputs for seg in self._segments]
+                roles[p] = Role(p, units, refs, [short(seg.tasks) for seg in self._segments],
+                                GpuState(p, Transfers(self.gpu_device)))
+            else:
+                units = self.queues[p]
+                roles[p] = Role(p, units, [t.inputs for t in units], [short([t]) for t in units],
+                                None)
+        reading: dict = {}  # key -> roles with a unit reading it (at any frame offset)
+        for role in roles.values():
+            for refs in role.refs:
+                for ref in refs:
+                    reading.setdefault(ref.key, {})[id(role)] = role
+        for role in roles.values():
+            for unit in role.units:
+                keys = [k for t in (unit[1].tasks if role.gpu else [unit]) for k in t.outputs]
+                touch = {id(r): r for k in keys for r in reading.get(k, {}).values() if r is not role}
+                role.touch.append(tuple(touch.values()))
+                role.stage.append(tuple(k for k in keys if k in staged))
+        return roles
+
+    def _staged_keys(self) -> set:
+        """Keys whose download starts as soon as the GPU role publishes them (CUDA): read by
+        a CPU task of the same frame, and by no delay (a staging buffer is reused once its
+        frame is over)."""
+        if not self.cuda:
+            return set()
+        cpu_reads = {r.key for p in self._active if not is_gpu_processor(p)
+                     for t in self.queues[p] for r in t.inputs if r.offset == 0}
+        return cpu_reads - set(self.program.rings)
+
+    def _role_loop(self, proc: str):
+        home = self._roles[proc]
+        closing = self._closing
+        spin = self.spin
+        while not closing.is_set():
+            if self._ready(home) and not home.token.locked():
+                try:
+                    self._drive(home)
+                except BaseException as exc:  # noqa: BLE001 - an executor bug must not kill the thread
+                    frame = home.frames[0] if home.frames else None
+                    if frame is None:
+                        raise
+                    self._fail(frame, "<executor>", proc, exc)
+                continue
+            if spin > 0:
+                deadline = time.perf_counter() + spin
+                while time.perf_counter() < deadline and not self._ready(home):
+                    time.sleep(0)  # lets the producer have the GIL
+                if self._ready(home):
+                    continue
+            # Frames waiting: a time-out, as a delay's value may come without a producer (a
+            # user's write, a cancelled frame's slot dropped). None: until submit or close.
+            home.signal.acquire(timeout=WAIT_SLICE if home.frames else -1)
+
+    def _drive(self, home: Role):
+        """Run ``home``'s ready units on this thread, then (while ``home`` waits) those of a
+        role that this thread's work made ready, inline; wake the roles it made ready and
+        does not run."""
+        role = home
+        while True:
+            touched: list = []
+            self._advance(role, home, touched)
+            if role is not home and self._ready(role):
+                role.wake()  # left for a ready home unit, or a long one
+            role = None
+            if self._ready(home) and not home.token.locked():
+                role = home
+            for r in touched:
+                if r is role or r is home or r.token.locked() or not self._ready(r):
+                    continue
+                if role is None and r.short[r.pos]:
+                    role = r
+                else:
+                    r.wake()
+            if role is None:
+                return
+
+    def _ready(self, role: Role) -> bool:
+        """``role`` has work: its next unit's inputs are all set, or its frame was cancelled.
+        Read without the token (a hint, checked again under it)."""
+        try:
+            frame = role.frames[0]
+        except IndexError:
+            return False
+        return frame.cancel.is_set() or self._inputs_if_ready(role, frame) is not None
+
+    def _inputs_if_ready(self, role: Role, frame: Frame):
+        """The slots of ``role``'s next unit's inputs in ``frame`` when all are set, else None."""
+        fs = frame.slots
+        slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)
+                 for ref in role.refs[role.pos]]
+        for s in slots:
+            if not s.done.is_set():
+                return None
+        return slots
+
+    def _advance(self, role: Role, home: Role, touched: list):
+        """Holding ``role``'s token (if free), run its units while they may run here
+        (:meth:`_may_run`). After a unit, the roles that read what it published are woken
+        when this thread goes on with ``role`` (at once: a producer does not sit on a ready
+        consumer while it runs its next unit), else appended to ``touched`` (the caller may
+        run one of them inline)."""
+        if not role.token.acquire(False):
+            return
+        scope = None
+        try:
+            frames = role.frames
+            io = role.state.io if role.gpu else self._io()
+            if role.gpu:
+                role.state.prev_end = None  # the stream may have idled since the last unit
+            while frames:
+                frame = frames[0]
+                if frame.cancel.is_set():
+                    self._end_frame(role, frame)
+                    continue
+                # Checked under the token: another thread may have run what made the caller
+                # come (and running a unit not ready would block holding the token).
+                slots = self._inputs_if_ready(role, frame)
+                if slots is None or (role is not home and (
+                        not role.short[role.pos] or self._ready(home))):
+                    break
+                if role.gpu and scope is None and self._scope is not None:
+                    scope = self._scope
+                    scope.__enter__()
+                pos = role.pos
+                ok = self._run_unit(role, frame, slots, io)
+                if pos + 1 == len(role.units):
+                    self._end_frame(role, frame)
+                else:
+                    role.pos = pos + 1
+                readers = role.touch[pos] if ok else ()
+                if readers:
+                    go = self._may_run(role, home)
+                    for r in readers:
+                        if r is home or r in touched:
+                            continue
+                        if not go:
+                            touched.append(r)
+                        elif not r.token.locked() and self._ready(r):
+                            r.wake()
+                    if not go:
+                        break
+        finally:
+            if scope is not None:
+                scope.__exit__(None, None, None)
+            role.token.release()
+
+    def _may_run(self, role: Role, home: Role) -> bool:
+        """``role``'s next unit may run on the thread of ``home``: it is ready, and it is
+        ``home``'s, or short while ``home`` has nothing ready."""
+        return self._ready(role) and (role is home or (
+            role.short[role.pos] and not self._ready(home)))
+
+    def _end_frame(self, role: Role, frame: Frame):
+        role.pos = 0
+        role.captures = None
+        role.frames.popleft()
+        frame.processor_done()
+
+    def _run_unit(self, role: Role, frame: Frame, slots: list, io: Transfers) -> bool:
+        """Run ``role``'s next unit of ``frame`` (``slots``: its inputs, all set; ``io``: the
+        transfers of this thread, or the GPU role's); False when it failed (the frame is
+        cancelled)."""
+        if not role.gpu:
+            return self._run_cpu_task(role.proc, frame, role.units[role.pos], io, slots)
+        i, seg = role.units[role.pos]
+        state = role.state
+        if role.pos == 0:
+            state.prev_end = None  # a fresh start event: the last end event is another frame's
+            role.captures = self._captures_of(frame) if frame.capture else None
+        try:
+            if seg.captured:
+                self._run_segment_or_tasks(frame, i, seg, state, role.captures)
+            else:
+                self._run_gpu_task(frame, seg.tasks[0], state, slots)
+            for key in role.stage[role.pos]:
+                self._stage(frame, frame.slots[key], io)
+        except Cancelled:
+            return False
+        except BaseException as exc:  # noqa: BLE001 - reported to the caller
+            self._fail(frame, state.task, role.proc, exc)
+            return False
+        return True
+
+    def _stage(self, frame: Frame, slot: Slot, io: Transfers):
+        """Start the download of a GPU value a CPU task of the frame reads (CUDA): see
+        :meth:`Transfers.stage_download`."""
+        if slot.where != DEVICE or slot.staged is not None:
+            return
+        staged = io.stage_download(slot.value, slot.event)
+        if staged is not None:
+            slot.staged = staged
+            frame.staged.append(staged)
+
+    def _run_segment_or_tasks(self, frame: Frame, i: int, seg, state: "GpuState", captures):
+        """Capturable GPU segment ``i`` of ``frame``: replayed from its captured graph where
+        there is one (``captures``: the frame's capture states, or None), else task by task."""
+        sg = self._segment_graph(captures, i, seg, frame, state) if captures is not None else None
+        if sg is not None:
+            try:
+                self._run_segment(frame, seg, sg, state)
+                return
+            except NotCapturable:  # an input unlike the captured one: eagerly from now
+                captures[i] = None
+        for task in seg.tasks:
+            if frame.cancel.is_set():
+                return
+            self._run_gpu_task(frame, task, state)
+
+    def _wake_all(self):
+        for role in self._roles.values():
+            role.wake()
+
+
+__all__ = ["DeviceScope", "GpuState", "Role", "RoleRunner", "is_gpu_processor"]
