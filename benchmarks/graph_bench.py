@@ -106,15 +106,28 @@ def to_float(src: wp.array2d(dtype=wp.uint8), dst: wp.array2d(dtype=wp.float32))
     dst[y, x] = float(src[y, x]) / 255.0
 
 
-def detector_warp(gray):
-    """A stand-in for a network: DETECTOR_ITERS 5x5 nonlinear filter passes (GPU only)."""
-    a = wp.empty(gray.shape, dtype=wp.float32, device=gray.device)
-    b = wp.empty_like(a)
-    wp.launch(to_float, dim=gray.shape, inputs=[gray], outputs=[a], device=gray.device)
-    for _ in range(DETECTOR_ITERS):
-        wp.launch(smooth_response, dim=gray.shape, inputs=[a], outputs=[b], device=gray.device)
-        a, b = b, a
-    return a
+_DETECTOR_SCRATCH: dict = {}  # (shape, device) -> two float32 images, for calls with out=
+
+
+def detector_warp(gray, out=None):
+    """A stand-in for a network: DETECTOR_ITERS 5x5 nonlinear filter passes (GPU only).
+
+    ``out``: the float32 HxW result buffer (the graph's: the node is declared capturable, so
+    with ``out`` nothing is allocated; the scratch images are kept per size and device).
+    """
+    if out is None:
+        bufs = [wp.empty(gray.shape, dtype=wp.float32, device=gray.device) for _ in range(2)]
+    else:
+        key = (tuple(gray.shape), str(gray.device))
+        bufs = _DETECTOR_SCRATCH.get(key) or _DETECTOR_SCRATCH.setdefault(
+            key, [wp.empty(gray.shape, dtype=wp.float32, device=gray.device) for _ in range(2)])
+    src = bufs[0]
+    wp.launch(to_float, dim=gray.shape, inputs=[gray], outputs=[src], device=gray.device)
+    for i in range(DETECTOR_ITERS):
+        dst = out if out is not None and i == DETECTOR_ITERS - 1 else bufs[(i + 1) % 2]
+        wp.launch(smooth_response, dim=gray.shape, inputs=[src], outputs=[dst], device=gray.device)
+        src = dst
+    return src
 
 
 # --------------------------------------------------------------------------- CPU-only nodes
@@ -182,7 +195,8 @@ def build_graph(size, *, max_corners=500, levels=4, cpu_heavy=False) -> warpvx.G
             smooth = g.user(denoise, [gray], "smooth", name=f"denoise{cam}")
             cv_edges.append(g.user(edges, [smooth], "edges", name=f"edges{cam}"))
         if cam == "L":
-            det = g.user(None, [gray], "score", warp_fn=detector_warp, name="detectorL")
+            det = g.user(None, [gray], "score", warp_fn=detector_warp, name="detectorL",
+                         capturable=True)
             g.output("scoreL", det)
     motion = g.user(fuse, homs, "motion", name="fuse")
     g.output("motion", motion)

@@ -2,13 +2,15 @@
 
 1. Trivial chains (identity user nodes, :func:`warpvx.graph.diagnostics.executor_overhead`):
    CPU-only, GPU-only, alternating CPU/GPU; per node: wall time per frame minus the nodes'
-   own time, over the nodes. User nodes are never captured.
+   own time, over the nodes. These user nodes do not opt in to capture.
 2. A GPU-only chain of primitive nodes (3x3 Gaussian blurs of a 16x16 gray image, which the
    runtime may capture), eager and captured: per node = the difference of the frame times of
    a long and a short chain over the difference of their lengths (what one more node costs:
    its kernel call on the host eagerly, its share of one graph launch when captured).
 3. The 16-node two-camera graph of ``benchmarks/graph_bench.py`` (its builder and frames), at
-   1280x720, baseline placement, pipelined with 3 and 8 frames in flight, eager and captured.
+   1280x720, baseline placement, pipelined with 3 and 8 frames in flight, eager and captured;
+   the report names the captured segments and the GPU nodes that still run eagerly, and
+   first checks that captured frames give the eager outputs bit for bit (16 frames).
 
 On Warp's CPU device (``--gpu warp-cpu``) "captured" rows replay Warp's CPU graphs (Warp 1.19
 captures there too, ``capture=True``); on CUDA they are CUDA graphs (the default there).
@@ -121,9 +123,13 @@ def _two_cameras(args) -> list:
           flush=True)
     ex = g.plan.executor()
     segs = [[t.name for t in s.tasks] for s in ex._segments if s.captured]
+    eager = [t.name for s in ex._segments if not s.captured for t in s.tasks]
     rows = []
     n = args.graph_frames
     try:
+        same = _captured_equals_eager(g, frames)
+        print(f"  captured == eager on {len(frames)} frames one at a time: {same or 'yes'}",
+              flush=True)
         for depth in (3, 8):
             for mode, capture in MODES.items():
                 g.reset()
@@ -143,7 +149,28 @@ def _two_cameras(args) -> list:
                       flush=True)
     finally:
         g.close()
-    return [{"size": list(size), "segments": segs, "rows": rows}]
+    return [{"size": list(size), "segments": segs, "eager": eager, "rows": rows,
+             "captured_equals_eager": same or "yes"}]
+
+
+def _captured_equals_eager(g, frames) -> str:
+    """"" when every output of ``frames`` run one at a time captured equals the eager run's
+    (bit for bit; the graph's first frames capture its segments), else what differs."""
+    g.reset()
+    eager = [g.process(f, capture=False) for f in frames]
+    g.reset()
+    captured = [g.process(f, capture=True) for f in frames]
+    differ = sorted({f"{k} (frame {i})" for i, (e, c) in enumerate(zip(eager, captured))
+                     for k in e if not _same(e[k], c[k])})
+    return "no: " + ", ".join(differ[:8]) if differ else ""
+
+
+def _same(a, b) -> bool:
+    flatten = getattr(a, "__warpvx_flatten__", None)
+    if flatten is not None:
+        return type(a) is type(b) and all(map(_same, flatten()[0], b.__warpvx_flatten__()[0]))
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b)
 
 
 def markdown(report) -> str:
@@ -153,7 +180,7 @@ def markdown(report) -> str:
              f"GPU role: {report['gpu']}; {report['n_cpus']} CPU workers; Python "
              f"{report['python']}, Warp {report['warp']}; OpenCV threads 1; "
              f"{report['seconds']:.0f} s.", "",
-             "## Identity chains (user nodes, never captured)", "",
+             "## Identity chains (user nodes, not captured)", "",
              "| chain | nodes | us/node (process) | us/node (stream, 4 in flight) | "
              "breakdown, process (median us) | units short enough to run inline |",
              "|---|---|---|---|---|---|"]
@@ -178,7 +205,11 @@ def markdown(report) -> str:
         w, h = e["size"]
         lines += ["", f"## Two-camera graph (16 nodes), {w}x{h}, baseline placement, pipelined", "",
                   "Captured segments: " + ("; ".join(" + ".join(s) for s in e["segments"])
-                                           or "none") + ".", "",
+                                           or "none") + ".",
+                  "GPU nodes run eagerly (not capturable): " + (", ".join(e.get("eager", []))
+                                                                or "none") + ".",
+                  "Captured outputs equal the eager run's, bit for bit, on 16 frames one at a "
+                  f"time: {e.get('captured_equals_eager', '?')}.", "",
                   "| frames in flight | mode | FPS | median frame (ms) | frames timed |",
                   "|---|---|---|---|---|"]
         for r in e["rows"]:

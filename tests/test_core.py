@@ -139,7 +139,25 @@ def test_sized_by_inputs_primitives_take_out():
     for name in sized:
         assert "out" in inspect.signature(registry.get_primitive(name).function()).parameters, name
     assert not sized & {"fast_corners", "harris_corners", "orb", "orb_compute", "match_hamming",
-                        "knn_match_hamming", "optical_flow_pyr_lk"}
+                        "knn_match_hamming"}
+
+
+def test_counted_rows_name_an_input_or_a_capacity_function():
+    """Primitives with Counted outputs take out= and say where the capacity comes from: one
+    of their inputs, or an importable function."""
+    import importlib
+    import inspect
+
+    counted = {n: p for n, p in registry.REGISTRY.items() if p.counted_rows}
+    assert set(counted) == {"fast_corners", "harris_corners", "optical_flow_pyr_lk"}
+    for name, prim in counted.items():
+        params = inspect.signature(prim.function()).parameters
+        assert "out" in params, name
+        if ":" in prim.counted_rows:
+            module, attr = prim.counted_rows.split(":")
+            assert callable(getattr(importlib.import_module(module), attr)), name
+        else:
+            assert prim.counted_rows in params, name
 
 
 def test_dispatch_output_kind_follows_input(backend, invert):

@@ -13,7 +13,8 @@ import numpy as np
 
 from .backend import resolve_backend
 from .check import check_bool, check_choice, check_float, check_image, check_int, check_out
-from .errors import WarpvxTypeError
+from ._counted import check_counted, check_counted_keypoints
+from .errors import UnsupportedError, WarpvxTypeError
 from .keypoints import Keypoints
 from .registry import dispatch
 
@@ -29,7 +30,7 @@ def _gray(src, name: str = "src"):
     return src
 
 
-def fast_corners(src, threshold: int = 10, nonmax: bool = True, *, backend=None,
+def fast_corners(src, threshold: int = 10, nonmax: bool = True, *, out=None, backend=None,
                  stream=None) -> Keypoints:
     """FAST-9/16 corners with OpenCV's score, strongest first.
 
@@ -48,6 +49,11 @@ def fast_corners(src, threshold: int = 10, nonmax: bool = True, *, backend=None,
         Intensity difference to the centre pixel.
     nonmax : bool
         3x3 non-maximum suppression on the score.
+    out : warpvx._counted.Counted, optional
+        Warp backends, device ``src``: Keypoints of
+        :func:`~warpvx.kernels_warp.fast_corners.max_fast_corners` rows (the most corners
+        the image can hold) and an int32 [1] count (a graph's fixed buffers, so the call can
+        be captured): the same keypoints written there and their number, with no host sync.
     backend, stream
         See :mod:`warpvx.backend`.
 
@@ -75,7 +81,13 @@ def fast_corners(src, threshold: int = 10, nonmax: bool = True, *, backend=None,
     src = _gray(src)
     threshold = check_int(threshold, "threshold", min_value=0, max_value=255)
     nonmax = check_bool(nonmax, "nonmax")
-    return dispatch("fast_corners", be, src, threshold, nonmax, stream=stream)
+    if out is not None:
+        if be.kind == "cpu":
+            raise UnsupportedError("out: a Counted result needs a Warp backend")
+        from .kernels_warp.fast_corners import max_fast_corners
+
+        check_counted_keypoints(out, "out", max_fast_corners(src.shape[0], src.shape[1], nonmax))
+    return dispatch("fast_corners", be, src, threshold, nonmax, out=out, stream=stream)
 
 
 def harris_response(src, block_size: int = 2, ksize: int = 3, k: float = 0.04, *,
@@ -146,9 +158,29 @@ def _no_limit_distance(h: int, w: int) -> float:
     return float(math.ceil(math.hypot(w, h)))
 
 
+def _corner_limits(h: int, w: int, max_corners: int, min_distance: float) -> tuple:
+    """``(max_corners, min_distance)`` as computed for an HxW image: a limit of at least H*W
+    is none (0: no image has more corners than pixels); a ``min_distance`` from the diagonal
+    on keeps the strongest corner alone, which is what ``max_corners=1`` without suppression
+    gives on both backends and in OpenCV."""
+    if max_corners >= h * w:
+        max_corners = 0
+    if min_distance >= _no_limit_distance(h, w):
+        max_corners, min_distance = 1, 0.0
+    return max_corners, min_distance
+
+
+def harris_corners_capacity(src, max_corners, min_distance, **_) -> int | None:
+    """Rows of a graph node's Counted corners (:attr:`warpvx.registry.Primitive.counted_rows`):
+    the corner limit :func:`harris_corners` computes for ``src``'s size, None without one."""
+    limit, _ = _corner_limits(int(src.shape[0]), int(src.shape[1]), int(max_corners),
+                              float(min_distance))
+    return limit if limit > 0 else None
+
+
 def harris_corners(src, max_corners: int = 1000, quality_level: float = 0.01,
                    min_distance: float = 10, block_size: int = 3, k: float = 0.04, *,
-                   ksize: int = 3, score: str = "harris", backend=None, stream=None):
+                   ksize: int = 3, score: str = "harris", out=None, backend=None, stream=None):
     """Strongest corners, as cv2.goodFeaturesToTrack(useHarrisDetector=True).
 
     The response (:func:`harris_response`, or the minimum eigenvalue with
@@ -179,12 +211,17 @@ def harris_corners(src, max_corners: int = 1000, quality_level: float = 0.01,
     ksize : {1, 3, 5, 7}
         Sobel aperture (OpenCV's ``gradientSize``).
     score : {"harris", "min_eigen"}
+    out : warpvx._counted.Counted, optional
+        Warp backends, device ``src``: float32 [max_corners, 2] rows and an int32 [1] count
+        (a graph's fixed buffers, so the call can be captured): the same corners written
+        there and their number, at most ``max_corners`` (the count is clamped to the rows),
+        with no host sync. Needs a limit (``0 < max_corners < H*W``).
 
     Returns
     -------
     float32 [N, 2]
         (x, y) per corner, strongest first, of the input's kind (cv2 returns [N, 1, 2] or
-        None; :func:`warpvx.cv.goodFeaturesToTrack` does too).
+        None; :func:`warpvx.cv.goodFeaturesToTrack` does too); ``out`` when given.
 
     Raises
     ------
@@ -206,14 +243,14 @@ def harris_corners(src, max_corners: int = 1000, quality_level: float = 0.01,
     # "No limit" values are clamped, never iterated over or passed on as they come: OpenCV
     # takes int32 counts and rounds min_distance to an int32 cell size (it crashes from
     # 2^31), and the Warp search window grows with min_distance.
-    if max_corners >= h * w:  # no image has more corners than pixels
-        max_corners = 0
-    if min_distance >= _no_limit_distance(h, w):
-        # Every corner suppresses all weaker ones: the strongest alone, which is what
-        # max_corners=1 without suppression gives on both backends and in OpenCV.
-        max_corners, min_distance = 1, 0.0
+    max_corners, min_distance = _corner_limits(h, w, max_corners, min_distance)
+    if out is not None:
+        if be.kind == "cpu" or max_corners <= 0:
+            raise UnsupportedError("out: a Counted result needs a Warp backend and a corner "
+                                   "limit (0 < max_corners < H*W)")
+        check_counted(out, "out", (max_corners, 2), (np.float32,))
     return dispatch("harris_corners", be, src, max_corners, quality_level, min_distance,
-                    block_size, k, ksize=ksize, score=score, stream=stream)
+                    block_size, k, ksize=ksize, score=score, out=out, stream=stream)
 
 
 __all__ = [

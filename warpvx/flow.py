@@ -12,6 +12,7 @@ import numpy as np
 from .backend import resolve_backend
 from .check import check_array, check_float, check_image, check_int, check_outs, check_size
 from .errors import ShapeError, WarpvxValueError
+from ._counted import Counted, check_counted, is_counted
 from .registry import dispatch
 
 MAX_ITERS_LIMIT = 100  # OpenCV clamps the iteration count to [0, 100] ...
@@ -46,7 +47,9 @@ def optical_flow_pyr_lk(
         float32 [N, 2] (or [N, 1, 2]) points (x, y) in ``prev``, pixel centres at integers;
         NaN/inf are rejected in host arrays (device arrays are not read back: such a point
         comes back lost). Points whose window lies entirely outside the image are not an
-        error: they come back with status 0, as in OpenCV.
+        error: they come back with status 0, as in OpenCV. Warp backends also take a device
+        :class:`~warpvx._counted.Counted` (a graph's corners: fixed rows, a device count):
+        every row is tracked and the results are Counteds of that count.
     next_pts : array, optional
         float32 initial guesses in ``next``, shaped as ``prev_pts`` (OpenCV's
         ``OPTFLOW_USE_INITIAL_FLOW``); by default the search starts at ``prev_pts``.
@@ -64,7 +67,8 @@ def optical_flow_pyr_lk(
         A point is lost when the smaller eigenvalue of its window's gradient matrix, divided
         by the window area (gradients scaled as OpenCV's: Scharr / 32), is below this.
     out : tuple, optional
-        (next_pts float32 [N, 2], status uint8 [N], err float32 [N]) to fill.
+        (next_pts float32 [N, 2], status uint8 [N], err float32 [N]) to fill, or three
+        Counteds of those rows (Warp backends): their counts receive the points' count.
     backend, stream
         See :mod:`warpvx.backend`.
 
@@ -116,12 +120,25 @@ def optical_flow_pyr_lk(
     _check_window_fits(win, size)
     levels = min(max_level, _level_limit(size, win, max_level), prev_levels - 1, next_levels - 1)
 
-    pts = _check_points(prev_pts, "prev_pts")
-    n = pts.shape[0]
+    if is_counted(prev_pts):  # a graph's corners: every row tracked, the count kept
+        pts = Counted(check_counted(prev_pts, "prev_pts", (None, 2), (np.float32,)).rows,
+                      prev_pts.count)
+        n = pts.capacity
+    else:
+        pts = _check_points(prev_pts, "prev_pts")
+        n = pts.shape[0]
     guess = None if next_pts is None else _check_points(next_pts, "next_pts", n)
     if out is not None:
-        out = check_outs(out, [("next_pts", (n, 2), (np.float32,)), ("status", (n,), (np.uint8,)),
-                               ("err", (n,), (np.float32,))])
+        specs = [("next_pts", (n, 2), (np.float32,)), ("status", (n,), (np.uint8,)),
+                 ("err", (n,), (np.float32,))]
+        if isinstance(out, (tuple, list)) and all(map(is_counted, out)) and len(out) == 3:
+            out = tuple(check_counted(o, f"out[{i}] ({label})", (None,) + shape[1:], dtypes)
+                        for i, (o, (label, shape, dtypes)) in enumerate(zip(out, specs)))
+            if any(o.capacity < n for o in out):
+                raise ShapeError(f"out: Counted rows for at least {n} points, got "
+                                 f"{[o.capacity for o in out]}")
+        else:
+            out = check_outs(out, specs)
     return dispatch(
         "optical_flow_pyr_lk",
         be,

@@ -32,8 +32,8 @@ def gaussian_pyramid(src, levels, *, out=None, backend=None, stream=None):
         Number of images returned, >= 1, and at most one more than the reductions that
         bring the image to 1x1 (a further level could not shrink).
     out : list of arrays, optional
-        ``levels`` arrays: ``out[0]`` must be ``src`` itself (it is not written), ``out[l]``
-        receives level ``l``. A level may take any size that ``cv2.pyrDown``'s ``dstsize``
+        ``levels`` arrays: ``out[0]`` must be ``src`` itself or None (it is not written; the
+        graph's buffers leave it None), ``out[l]`` receives level ``l``. A level may take any size that ``cv2.pyrDown``'s ``dstsize``
         allows from the previous one (``|2 * w_l - w_{l-1}| <= 2``, same for heights).
     backend, stream
         See :mod:`warpvx.backend`.
@@ -90,7 +90,7 @@ def scale_pyramid(src, levels, scale_factor=1.2, *, out=None, backend=None, stre
     scale_factor : float
         Scale between levels, > 1 (ORB-SLAM2: 1.2).
     out : list of arrays, optional
-        ``levels`` arrays of the level shapes; ``out[0]`` must be ``src`` itself.
+        ``levels`` arrays of the level shapes; ``out[0]`` must be ``src`` itself or None.
     backend, stream
         See :mod:`warpvx.backend`.
 
@@ -204,8 +204,8 @@ def _check_pyramid_out(out, original, src, levels, sizes, *, flexible):
         raise WarpvxTypeError(f"out: expected a list of {levels} arrays, got {type(out).__name__}")
     if len(out) != levels:
         raise ShapeError(f"out: expected {levels} arrays (one per level), got {len(out)}")
-    if out[0] is not original and out[0] is not src:
-        raise WarpvxValueError("out[0]: expected src itself (level 0 is the input)")
+    if out[0] is not None and out[0] is not original and out[0] is not src:
+        raise WarpvxValueError("out[0]: expected src itself or None (level 0 is the input)")
     tail = tuple(src.shape[2:])
     prev_w, prev_h = sizes[0]
     got = [sizes[0]]

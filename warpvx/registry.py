@@ -22,6 +22,7 @@ from typing import Callable
 
 import numpy as np
 
+from ._counted import Counted, row_arrays
 from .arrays import _convert, is_warp_array, like_input
 from .backend import Backend, init_warp
 from .check import check_writable
@@ -53,13 +54,23 @@ class Primitive:
         Names of what the public function returns, in order: one name (default ``"out"``)
         for a single value, several for a tuple. A graph node's output ports.
     sized_by_inputs : bool
-        True when the public function takes ``out=`` and returns one array whose shape and
-        dtype follow from its inputs' shapes and its constant arguments, never from pixel
-        values: a graph may then allocate that array once and reuse it frame after frame.
+        True when the public function takes ``out=`` and its outputs' shapes and dtypes
+        follow from its inputs' shapes and its constant arguments, never from pixel values
+        (one array, a pyramid's list of levels, or one array per output): a graph may then
+        allocate them once and reuse them frame after frame.
     capturable : bool
         True when the Warp implementation, given ``out=``, only enqueues work on the current
         stream (no allocation, host synchronisation or read-back once its caches are warm):
         a graph may then capture it into a CUDA graph (:mod:`warpvx.runtime.capture`).
+    counted_rows : str or None
+        For a data-dependent number of rows: the Warp implementation writes
+        :class:`~warpvx._counted.Counted` outputs (fixed rows, a device count) given them
+        as ``out=``, and this names where their capacity comes from: an input whose rows
+        the outputs follow (``"prev_pts"``; when that input is itself Counted, with its
+        capacity), or a ``"module:function"`` called with the public function's arguments
+        (inputs as verification's samples, defaults applied) that returns it, None for
+        none. A graph then allocates the Counteds once
+        (:meth:`warpvx.graph.nodes.PrimitiveNode.out_factory`).
     """
 
     name: str
@@ -69,6 +80,7 @@ class Primitive:
     outputs: tuple = ("out",)
     sized_by_inputs: bool = False
     capturable: bool = False
+    counted_rows: str | None = None
     _loaded: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def implementation(self, kind: str) -> Callable:
@@ -106,7 +118,7 @@ REGISTRY: dict[str, Primitive] = {}
 
 
 def register(name, *, public, cpu=None, warp=None, bench=None, outputs=("out",),
-             sized_by_inputs=False, capturable=False) -> Primitive:
+             sized_by_inputs=False, capturable=False, counted_rows=None) -> Primitive:
     """Register (or replace) a primitive; implementations are ``"module:function"`` strings.
     See :class:`Primitive` for the other attributes."""
     impls = {}
@@ -115,7 +127,8 @@ def register(name, *, public, cpu=None, warp=None, bench=None, outputs=("out",),
     if warp:
         impls["warp"] = warp
     prim = Primitive(name=name, public=public, impls=impls, bench=bench, outputs=tuple(outputs),
-                     sized_by_inputs=sized_by_inputs, capturable=capturable)
+                     sized_by_inputs=sized_by_inputs, capturable=capturable,
+                     counted_rows=counted_rows)
     REGISTRY[name] = prim
     return prim
 
@@ -142,17 +155,21 @@ def _std(name, public_module, **attrs):
 
 # The built-in primitives: public module (by domain, as kornia), kernel modules by name.
 # capturable: launches only, given out= (harris_response allocates its products outside the
-# fused 3x3 path; pyramids, corners, flow, ORB, matching allocate or read counts back).
+# fused 3x3 path; scale pyramids, ORB, matching allocate or read counts back); FAST,
+# harris_corners and LK are captured with Counted outputs (counted_rows).
 _std("color_convert", "color", sized_by_inputs=True, capturable=True)
 _std("remap", "geometry", sized_by_inputs=True, capturable=True)
 _std("warp_perspective", "geometry", sized_by_inputs=True, capturable=True)
-_std("gaussian_pyramid", "pyramid")
+_std("gaussian_pyramid", "pyramid", sized_by_inputs=True, capturable=True)
 _std("scale_pyramid", "pyramid")
 _std("gaussian_blur", "filters", sized_by_inputs=True, capturable=True)
-_std("fast_corners", "features")
+_std("fast_corners", "features", capturable=True,
+     counted_rows="warpvx.kernels_warp.fast_corners:counted_capacity")
 _std("harris_response", "features", sized_by_inputs=True)
-_std("harris_corners", "features")
-_std("optical_flow_pyr_lk", "flow", outputs=("next_pts", "status", "err"))
+_std("harris_corners", "features", capturable=True,
+     counted_rows="warpvx.features:harris_corners_capacity")
+_std("optical_flow_pyr_lk", "flow", outputs=("next_pts", "status", "err"), sized_by_inputs=True,
+     capturable=True, counted_rows="prev_pts")
 _std("orb", "orb_extractor", outputs=("keypoints", "descriptors"))
 _std("match_hamming", "matching", outputs=("pairs", "distances"))
 _std("find_homography", "homography", outputs=("H", "mask"))
@@ -195,7 +212,7 @@ def dispatch(name: str, backend: Backend, *args, out=None, stream=None, template
             else:
                 with _device_scope(backend, stream):
                     result = impl(*args, out=out, **kwargs)
-            if type(result) is _wp.array or not any(_is_array(a) for a in args):
+            if type(result) in (_wp.array, Counted) or not any(_is_array(a) for a in args):
                 return result
             return like_input(result, next(a for a in args if _is_array(a)))
     if out is not None:
@@ -249,6 +266,9 @@ def _on_device(values, device) -> bool:
         elif t is tuple or t is list:
             if not _on_device(v, device):
                 return False
+        elif t is Counted:
+            if not _on_device(row_arrays(v.rows) + (v.count,), device):
+                return False
         else:
             return False
     return True
@@ -259,8 +279,10 @@ def _out_on_device(out, device) -> bool:
         return True
     if type(out) is _wp.array:
         return out.device is device
+    if type(out) is Counted:
+        return _on_device(row_arrays(out.rows) + (out.count,), device)
     if isinstance(out, (list, tuple)):
-        return all(type(o) is _wp.array and o.device is device for o in out)
+        return all(type(o) in (_wp.array, Counted) and _out_on_device(o, device) for o in out)
     return False
 
 
@@ -269,6 +291,8 @@ def _is_native(out, backend: Backend) -> bool:
         return False
     if isinstance(out, (list, tuple)):
         return all(_is_native(o, backend) for o in out)
+    if type(out) is Counted:
+        return all(_is_native(a, backend) for a in row_arrays(out.rows) + (out.count,))
     if backend.kind == "cpu":
         return isinstance(out, np.ndarray)
     return is_warp_array(out) and str(out.device) == backend.device

@@ -122,12 +122,13 @@ def test_device_corners_with_few_round_counters(warp_backend, monkeypatch):
 
     from warpvx import harris_corners
     from warpvx.kernels_warp import harris_corners as hc
+    from warpvx.kernels_warp import harris_counted as hcd
     from warpvx.kernels_warp import stabilize_points as kp
 
     src = wp.array(gray("rocket"), dtype=wp.uint8, device=_device(warp_backend))
     want = harris_corners(src, 400, 0.001, 8.0).numpy()
     monkeypatch.setattr(hc, "MAX_ROUNDS", 3)
-    monkeypatch.setattr(kp, "ROUND_BATCH", 1)
+    monkeypatch.setattr(hcd, "ROUND_BATCH", 1)
     det = kp.DeviceCorners(src.shape, src.device, 400, 0.001, 8.0)
     det.launch(src)
     n = int(det.result.numpy()[0])

@@ -97,6 +97,8 @@ def _capture_arg(gpu):
 
 
 def _same(a, b):
+    if isinstance(a, (list, tuple)):  # a pyramid's levels
+        return type(a) is type(b) and len(a) == len(b) and all(map(_same, a, b))
     flat = getattr(a, "__warpvx_flatten__", None)
     if flat is not None:
         (xa, _), (xb, _) = flat(), b.__warpvx_flatten__()
@@ -122,7 +124,7 @@ def _two_cameras(frames, gpu):
 
 def test_two_cameras_captured_equals_eager(frames, warp_backend):
     """The 16-node graph on real frames: captured segments give the eager run's outputs,
-    each segment is captured once (second frame) and replayed after."""
+    each segment is captured once and replayed after."""
     cams = _camera_frames(frames) * 2
     g = _two_cameras(frames, warp_backend)
     try:
@@ -131,17 +133,125 @@ def test_two_cameras_captured_equals_eager(frames, warp_backend):
         g.reset()
         ex = g.plan.executor()
         captured_segments = sum(s.captured for s in ex._segments)
-        assert captured_segments >= 2  # the grays and the blurs
-        got = []
-        for i, f in enumerate(cams):
-            got.append(g.process(f, capture=_capture_arg(warp_backend)))
-            assert ex.captures == (0 if i == 0 else captured_segments)  # no recapture
+        # Every GPU node, data-dependent ones included (corners, keypoints: Counted outputs),
+        # and the detector user node that opts in.
+        in_captured = {t.name for s in ex._segments if s.captured for t in s.tasks}
+        assert in_captured == {t.name for s in ex._segments for t in s.tasks} == \
+            {f"{n}{c}" for n in ("gray", "pyramid", "harris", "blur", "fast", "lk")
+             for c in "LR"} | {"detectorL"}
+        got = [g.process(f, capture=_capture_arg(warp_backend)) for f in cams]
+        # Frame 0 reads the delays' initial points (a plain array); from frame 1 on, the
+        # corners are Counted (fixed rows): one shape, run uncaptured once, then captured
+        # once (frame 2) and replayed, whatever the corner counts.
+        assert ex.captures == captured_segments
         for e, c in zip(eager, got):
             assert e.keys() == c.keys()
             for k in e:
                 assert _same(e[k], c[k]), k
         # Timelines still name every node, captured ones inside their replay's interval.
         assert set(g.plan.last_run[-1].timeline) == set(g.nodes)
+    finally:
+        g.close()
+
+
+def test_two_cameras_pyramids_and_flow_are_captured_with_the_grays(frames, warp_backend):
+    """Pyramids (a list of levels) and LK (three outputs) join captured segments with their
+    neighbours (the grays, the blurs: the schedule's order decides), and are replayed."""
+    g = _two_cameras(frames, warp_backend)
+    try:
+        ex = g.plan.executor()
+        captured = {t.name: i for i, s in enumerate(ex._segments) if s.captured
+                    for t in s.tasks}
+        assert {"pyramidL", "pyramidR", "lkL", "lkR"} <= set(captured)
+        assert len(ex._segments[captured["lkL"]].tasks) > 1
+        for f in _camera_frames(frames)[:2]:
+            g.process(f, capture=_capture_arg(warp_backend))
+        states = next(iter(ex._captured.values()))
+        for name in ("pyramidL", "lkL"):
+            assert any(type(sg).__name__ == "SegmentGraph"
+                       for sg in states[captured[name]].values()), name
+    finally:
+        g.close()
+
+
+def _flow_graph(frames, gpu, n_points):
+    """gray -> pyramid (delayed) -> LK of ``pts`` (a graph input) on the GPU role."""
+    g = warpvx.Graph("flow")
+    f = g.input("frame", shape=frames[0].shape, dtype=np.uint8)
+    pts = g.input("pts", shape=(None, 2), dtype=np.float32)
+    gray = g.color_convert(f, code="BGR2GRAY", name="gray", target="gpu")
+    pyr = g.gaussian_pyramid(gray, levels=3, name="pyr", target="gpu")
+    prev = g.delay(pyr, slots=1)
+    nxt, status, err = g.optical_flow_pyr_lk(prev[-1], pyr, pts, win_size=(15, 15), max_level=2,
+                                             name="lk", target="gpu")
+    for name, d in (("next", nxt), ("status", status), ("err", err), ("pyr", pyr)):
+        g.output(name, d)
+    g.verify([{"frame": frames[0], "pts": n_points}, {"frame": frames[1], "pts": n_points}])
+    g.schedule("baseline", n_cpus=1, gpu=gpu)
+    return g
+
+
+def test_segment_inputs_of_another_shape_run_eagerly_then_replay(frames, warp_backend):
+    """LK's points change count from frame to frame: a count other than verification's
+    runs eagerly (its out= buffers do not fit), verification's count replays its capture;
+    every output (LK's three, the pyramid's levels) equals the eager run's."""
+    rng = np.random.default_rng(3)
+    h, w = frames[0].shape[:2]
+
+    def points(n):
+        return (rng.random((n, 2)) * [w - 20, h - 20] + 10).astype(np.float32)
+
+    feed = [{"frame": f, "pts": points(n)} for f, n in zip(frames * 3, [24, 24, 31, 24, 31, 24,
+                                                                     24, 24, 17, 24, 24, 24])]
+    g = _flow_graph(frames, warp_backend, points(24))
+    try:
+        eager = [g.process(x, capture=False) for x in feed]
+        g.reset()
+        ex = g.plan.executor()
+        got = [g.process(x, capture=_capture_arg(warp_backend)) for x in feed]
+        assert ex.captures == 1  # 24 points only; 31 and 17 do not fit the out= buffers
+        for e, c in zip(eager, got):
+            for k in e:
+                assert _same(e[k], c[k]), k
+        # The replay reads the frames' own points: the pyramid's delayed copy and LK tracked
+        # as the public function does.
+        x = feed[-1]
+        prev_pyr = warpvx.gaussian_pyramid(warpvx.color_convert(feed[-2]["frame"],
+                                                                code="BGR2GRAY"), 3)
+        pyr = warpvx.gaussian_pyramid(warpvx.color_convert(x["frame"], code="BGR2GRAY"), 3)
+        ref = warpvx.optical_flow_pyr_lk(prev_pyr, pyr, x["pts"], win_size=(15, 15),
+                                         max_level=2, backend=warp_backend)
+        for k, r in zip(("next", "status", "err"), ref):
+            np.testing.assert_array_equal(got[-1][k], r)
+    finally:
+        g.close()
+
+
+@pytest.mark.parametrize("max_corners,min_distance,captured", [
+    (30, 5.0, True),
+    (10**9, 5.0, False),  # no limit (>= H*W): no capacity, the node runs eagerly
+    (50, 1e6, True),      # beyond the diagonal: the strongest corner alone (capacity 1)
+])
+def test_corners_node_capacity_follows_the_public_limits(frames, warp_backend, max_corners,
+                                                        min_distance, captured):
+    """A corners node's Counted capacity is the limit harris_corners computes: its outputs,
+    captured or not, are the public function's."""
+    g = warpvx.Graph("corners")
+    f = g.input("frame", shape=frames[0].shape, dtype=np.uint8)
+    gray = g.color_convert(f, code="BGR2GRAY", name="gray", target="gpu")
+    g.output("pts", g.harris_corners(gray, max_corners=max_corners, quality_level=0.01,
+                                     min_distance=min_distance, name="corners", target="gpu"))
+    g.verify({"frame": frames[0]})
+    g.schedule("baseline", n_cpus=1, gpu=warp_backend)
+    try:
+        for fr in frames:
+            want = warpvx.harris_corners(warpvx.color_convert(fr, code="BGR2GRAY"), max_corners,
+                                         0.01, min_distance)
+            np.testing.assert_array_equal(
+                g.process({"frame": fr}, capture=_capture_arg(warp_backend))["pts"], want)
+        ex = g.plan.executor()
+        assert [s.captured for s in ex._segments] == ([True] if captured else [True, False])
+        assert ex.captures == 1  # the gray alone when the corners run eagerly
     finally:
         g.close()
 

@@ -150,8 +150,8 @@ def test_sorted_by_score_then_y_then_x(backend):
 
 
 def test_kernels_refuse_out(backend):
-    """The keypoint count depends on the data: an out= reaching the implementation through the
-    registry's dispatch is refused rather than ignored."""
+    """The keypoint count depends on the data: an out= other than a Counted reaching the
+    implementation through the registry's dispatch is refused rather than ignored."""
     from warpvx.backend import resolve_backend
     from warpvx.registry import dispatch
 
@@ -159,6 +159,55 @@ def test_kernels_refuse_out(backend):
     out = _on_device(np.zeros(16, np.float32), backend)
     with pytest.raises(UnsupportedError, match="out"):
         dispatch("fast_corners", resolve_backend(backend), src, 20, True, out=out)
+
+
+# --- Counted out= (a graph's fixed buffers, no host sync) -------------------------------------
+
+def _counted_keypoints(capacity, device):
+    from warpvx._counted import Counted
+
+    wp = init_warp()
+    fields = {f: wp.zeros(capacity, dtype=wp.int32 if f == "octave" else wp.float32,
+                          device=device) for f in warpvx.keypoints.FIELDS}
+    return Counted(warpvx.Keypoints(**fields), wp.zeros(1, dtype=wp.int32, device=device))
+
+
+@pytest.mark.parametrize("name,threshold,nonmax", [("camera", 20, True), ("brick", 7, True),
+                                                   ("coffee", 12, False)])
+@pytest.mark.parametrize("small", [None, 64])  # 64: the count overflows the short sort
+def test_counted_out_parity(warp_backend, monkeypatch, small, name, threshold, nonmax):
+    """Into a Counted of the image's capacity: exactly the keypoints of the plain call (every
+    field, in order), OpenCV's corners and scores, twice over the same buffers."""
+    if small is not None:
+        from warpvx.kernels_warp import _device_sort
+
+        monkeypatch.setattr(_device_sort, "SMALL", small)
+    from warpvx.kernels_warp.fast_corners import max_fast_corners
+
+    img = gray(name)
+    src = _on_device(img, warp_backend)
+    want = warpvx.fast_corners(src, threshold, nonmax).numpy()
+    out = _counted_keypoints(max_fast_corners(*img.shape, nonmax), src.device)
+    for _ in range(2):
+        assert warpvx.fast_corners(src, threshold, nonmax, out=out) is out
+        got = out.to("host")
+        for f in warpvx.keypoints.FIELDS:
+            np.testing.assert_array_equal(getattr(got, f), getattr(want, f), f)
+    ref = _inner(_cv_fast(img, threshold, nonmax), img.shape)
+    mine = _inner(_ours(got), img.shape)
+    assert len(set(ref) ^ set(mine)) <= 0.04 * len(ref)
+    if nonmax:
+        assert all(mine[p] == ref[p] for p in set(ref) & set(mine))
+
+
+def test_counted_out_bad(warp_backend):
+    src = _on_device(gray("brick"), warp_backend)
+    with pytest.raises(ShapeError, match="out.rows.x"):
+        warpvx.fast_corners(src, 20, out=_counted_keypoints(10, src.device))
+    with pytest.raises(WarpvxTypeError, match="out: expected a Counted"):
+        warpvx.fast_corners(src, 20, out=warpvx.Keypoints.empty())
+    with pytest.raises(UnsupportedError, match="Warp backend"):
+        warpvx.fast_corners(gray("brick"), 20, out=_counted_keypoints(10, "cpu"), backend="cpu")
 
 
 # --- backends: kinds, devices, determinism ---------------------------------------------------

@@ -124,6 +124,16 @@ def test_out_is_written(backend):
         assert np.array_equal(buf, ref)
 
 
+def test_out_level0_none_is_the_input(backend):
+    """A graph's pooled buffers leave level 0 None (it is the input): same levels as OpenCV."""
+    src = crop(gray("camera"), 101, 149)
+    out = [None] + [np.zeros((h, w), np.uint8) for w, h in [(75, 51), (38, 26)]]
+    pyr = warpvx.gaussian_pyramid(src, 3, out=out, backend=backend)
+    assert pyr[0] is src or np.array_equal(pyr[0], src)
+    for got, buf, ref in zip(pyr[1:], out[1:], cv_pyramid(src, 3)[1:]):
+        assert got is buf and np.array_equal(buf, ref)
+
+
 @pytest.mark.parametrize("sizes", [[(229, 151)], [(227, 149), (114, 75)], [(229, 149), (114, 74)]])
 def test_out_sizes_follow_pyrdown_dstsize(backend, sizes):
     """Any size cv2.pyrDown's dstsize allows, including OpenCV's w/2 + 1 edge stepping."""

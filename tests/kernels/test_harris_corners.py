@@ -188,6 +188,72 @@ def test_deterministic_repeated_runs(warp_backend):
     assert len(a) > 100 and np.array_equal(a, b)
 
 
+# --- Counted out= (a graph's fixed buffers, no host sync) -------------------------------------
+
+def _counted(capacity, device):
+    from warpvx._counted import Counted
+
+    wp = init_warp()
+    return Counted(wp.zeros((capacity, 2), dtype=wp.float32, device=device),
+                   wp.zeros(1, dtype=wp.int32, device=device))
+
+
+@pytest.mark.parametrize("name,max_corners,quality,min_distance,score", [
+    ("astronaut", 500, 0.01, 7, "harris"), ("coffee", 300, 0.001, 8.0, "harris"),
+    ("brick", 200, 0.01, 0.5, "harris"),  # no suppression
+    ("camera", 400, 0.01, 8, "min_eigen")])
+@pytest.mark.parametrize("small", [None, 64])  # 64: the count overflows the short sort
+def test_counted_out_parity(warp_backend, monkeypatch, small, name, max_corners, quality,
+                            min_distance, score):
+    """Into a Counted: OpenCV's corners (the parity bar), and exactly the points the call
+    without out= returns, twice over the same buffers (the cached plan is reused)."""
+    if small is not None:
+        from warpvx.kernels_warp import _device_sort
+
+        monkeypatch.setattr(_device_sort, "SMALL", small)
+    img = gray(name)
+    src = _on_device(img, warp_backend)
+    want = _host(warpvx.harris_corners(src, max_corners, quality, min_distance, score=score))
+    out = _counted(max_corners, src.device)
+    for _ in range(2):
+        got = warpvx.harris_corners(src, max_corners, quality, min_distance, score=score, out=out)
+        assert got is out
+        np.testing.assert_array_equal(out.to("host"), want)
+    ref = _cv_gftt(img, max_corners, quality, min_distance, harris=score == "harris")
+    _assert_parity(out.to("host"), ref, warp_backend)
+
+
+def test_counted_out_count_is_clamped_to_the_rows(warp_backend):
+    """More corners than rows: the count stops at the rows (max_corners), the first
+    max_corners corners in order."""
+    img = gray("brick")
+    src = _on_device(img, warp_backend)
+    everything = _host(warpvx.harris_corners(src, 0, 0.001, 4))
+    assert len(everything) > 60
+    out = _counted(60, src.device)
+    warpvx.harris_corners(src, 60, 0.001, 4, out=out)
+    assert int(out.count.numpy()[0]) == 60
+    np.testing.assert_array_equal(out.to("host"), everything[:60])
+
+
+@pytest.mark.parametrize("make,kwargs,err,match", [
+    (lambda d: np.zeros((50, 2), np.float32), {}, WarpvxTypeError, "out: expected a Counted"),
+    (lambda d: _counted(49, d), {}, ShapeError, "out.rows"),
+    (lambda d: _counted(50, d), {"max_corners": 0}, UnsupportedError, "corner limit"),
+])
+def test_counted_out_bad(warp_backend, make, kwargs, err, match):
+    src = _on_device(gray("coffee"), warp_backend)
+    args = {"max_corners": 50, **kwargs}
+    with pytest.raises(err, match=match):
+        warpvx.harris_corners(src, args["max_corners"], 0.01, 5, out=make(src.device))
+
+
+def test_counted_out_needs_a_warp_backend():
+    with pytest.raises(UnsupportedError, match="out"):
+        warpvx.harris_corners(gray("coffee"), 50, 0.01, 5, out=_counted(50, "cpu"),
+                              backend="cpu")
+
+
 # --- warpvx.cv drop-in -----------------------------------------------------------------------
 
 @pytest.mark.parametrize("harris", [True, False])

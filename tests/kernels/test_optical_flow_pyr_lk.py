@@ -262,6 +262,45 @@ def test_parity_consecutive_frames(backend):
     assert np.mean(np.abs(e[both] - ref[2][both]) < 0.05) >= 0.98
 
 
+def _counted_points(pts, capacity, device):
+    """A Counted of ``pts`` in ``capacity`` rows (the rest far outside the image)."""
+    import warp as wp
+
+    from warpvx._counted import Counted
+
+    rows = np.full((capacity, 2), -1e4, np.float32)
+    rows[: len(pts)] = pts
+    return Counted(wp.array(rows, dtype=wp.float32, device=device),
+                   wp.array([len(pts)], dtype=wp.int32, device=device))
+
+
+def test_counted_points_track_as_their_count(warp_backend):
+    """Counted points (a graph's corners): every row is tracked, the results are Counteds
+    of the points' count whose value is exactly the plain call's (OpenCV's parity), with or
+    without Counted out= buffers."""
+    import warp as wp
+
+    from warpvx._counted import Counted
+
+    a, b = _basketball()
+    pts = _corners(a, 300, 5)
+    device = warpvx.backend.resolve_backend(warp_backend).device
+    wa, wb = (wp.array(x, dtype=wp.uint8, device=device) for x in (a, b))
+    want = [r.numpy() for r in warpvx.optical_flow_pyr_lk(wa, wb, wp.array(pts, device=device))]
+    counted = _counted_points(pts, 400, device)
+    got = warpvx.optical_flow_pyr_lk(wa, wb, counted)
+    assert all(isinstance(r, Counted) and r.count.ptr == counted.count.ptr for r in got)
+    count = wp.zeros(1, dtype=wp.int32, device=device)
+    out = tuple(Counted(wp.zeros((400,) + shape, dtype=dtype, device=device), count)
+                for shape, dtype in (((2,), wp.float32), ((), wp.uint8), ((), wp.float32)))
+    into = warpvx.optical_flow_pyr_lk(wa, wb, counted, out=out)
+    assert into == out and int(count.numpy()[0]) == len(pts)
+    for result in (got, into):
+        for r, w in zip(result, want):
+            np.testing.assert_array_equal(r.to("host"), w)
+    _assert_parity(want, _opencv(a, b, pts))
+
+
 def test_parity_known_subpixel_shift(backend):
     cam, moved, shift = _camera_shifted()
     pts = _corners(cam, 400)

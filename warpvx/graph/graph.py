@@ -28,7 +28,7 @@ import weakref
 
 import numpy as np
 
-from ..check import check_int
+from ..check import check_bool, check_int
 from ..errors import GraphError
 from ..registry import REGISTRY
 from .costs import CostModel, default_n_cpus
@@ -144,7 +144,7 @@ class Graph(CostModel, Runner):
         return sorted(set(super().__dir__()) | set(REGISTRY))
 
     def user(self, fn, inputs, outputs=("out",), *, warp_fn=None, name: str | None = None,
-             target: str | None = None):
+             target: str | None = None, capturable: bool = False):
         """Add a node running a Python callable.
 
         Parameters
@@ -162,6 +162,12 @@ class Graph(CostModel, Runner):
             The same computation on ``wp.array`` inputs on the GPU role's device, run inside
             ``wp.ScopedDevice`` with the executor's stream current. Without it the node is
             CPU-only (exclusive); with only it, GPU-only.
+        capturable : bool
+            ``warp_fn`` also takes ``out=`` (an array per output, of the shapes and dtypes
+            verification gave, a tuple for several) and, given it, writes it and only
+            enqueues Warp work on the current stream (no allocation, host sync or read-back
+            once warm): the runtime may then capture the node with its GPU neighbours
+            (:mod:`warpvx.runtime.capture`).
         """
         self._check_building(f"node {name or 'user'!r}")
         name = self._node_name(name, "user")
@@ -189,7 +195,8 @@ class Graph(CostModel, Runner):
             else:
                 raise GraphError(f"node {name!r} (user), port 'outputs': expected names or data "
                                  f"objects, got {o!r}")
-        node = UserNode(self, name, fn, warp_fn, ports, tuple(out_ports))
+        node = UserNode(self, name, fn, warp_fn, ports, tuple(out_ports),
+                        capturable=check_bool(capturable, "capturable"))
         return self._register(node, target, existing)
 
     def delay(self, data, slots: int = 1, *, init=None) -> Delay:

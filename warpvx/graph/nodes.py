@@ -11,6 +11,7 @@ implementation gets what it takes.
 from __future__ import annotations
 
 import functools
+import importlib
 import inspect
 import re
 import threading
@@ -18,6 +19,7 @@ import weakref
 
 import numpy as np
 
+from .._counted import Counted, is_counted, row_arrays
 from ..errors import GraphError, WarpvxError
 from ..registry import REGISTRY, get_primitive
 from .data import Data, DelayRef
@@ -77,9 +79,12 @@ class Node:
     target : str or None
         ``"cpu"`` or ``"gpu"`` pins the node to that kind of processing element
         (``vxSetNodeTarget``); None lets the scheduler choose.
+    capturable : bool
+        Its GPU callable, given ``out=``, may be captured into a CUDA graph.
     """
 
     kind = "node"
+    capturable = False
 
     def __init__(self, graph, name: str):
         self._graph = weakref.ref(graph)
@@ -139,6 +144,23 @@ class Node:
 
     def __repr__(self):
         return f"{type(self).__name__}({self.name!r})"
+
+    def _fits(self):
+        """``fits(values)``: whether input values have the shapes verification saw, so the
+        node's ``out=`` buffers (sized from its samples) fit them."""
+        shapes = []
+        for port in self.input_ports:
+            ref = self.inputs[port]
+            # A delayed input's: the previous frame's value the output sample came from.
+            sample = _delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
+            shapes.append(tuple(sample.shape) if isinstance(sample, np.ndarray) else None)
+
+        def fits(values):
+            # A Counted input has its producer's capacity, which sized the Counted out=.
+            return all(s is None or is_counted(v) or tuple(getattr(v, "shape", ())) == s
+                       for v, s in zip(values, shapes))
+
+        return fits
 
 
 class PrimitiveNode(Node):
@@ -201,12 +223,7 @@ class PrimitiveNode(Node):
         simple = all(sig.parameters[p].kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD,
                                                 inspect.Parameter.KEYWORD_ONLY)
                      for p in base)
-        shapes = self._input_shapes()
-
-        def fits(values):
-            return all(s is None or tuple(getattr(v, "shape", ())) == s
-                       for v, s in zip(values, shapes))
-
+        fits = self._fits()
         if simple:
             # Hot path: keyword call, no BoundArguments per frame.
             def run(*values, out=None):
@@ -225,32 +242,69 @@ class PrimitiveNode(Node):
 
         return run
 
-    def _input_shapes(self) -> tuple:
-        """Shapes of the array inputs as verification saw them (None: not an array)."""
-        out = []
-        for port in self.input_ports:
-            ref = self.inputs[port]
-            sample = ref.data.sample if isinstance(ref, DelayRef) else ref.sample
-            out.append(tuple(sample.shape) if isinstance(sample, np.ndarray) else None)
-        return tuple(out)
-
     def out_factory(self, backend):
-        """A maker of this node's output buffer on ``backend``'s device, for the executor's
-        buffer pools; None unless the registry says the primitive's one output array is sized
-        by its inputs (:attr:`~warpvx.registry.Primitive.sized_by_inputs`; verification's
-        sample then fixes shape and dtype)."""
-        if backend is None or backend.kind != "warp" or not self.primitive.sized_by_inputs:
+        """A maker of this node's output buffers on ``backend``'s device, for the executor's
+        buffer pools; None unless the registry says the primitive's outputs are sized by its
+        inputs (:attr:`~warpvx.registry.Primitive.sized_by_inputs`; verification's samples
+        then fix shapes and dtypes). One output: its buffer (an array, or a list of arrays
+        for a pyramid); several: a tuple, one per output. A sample leaf that is an input's
+        own sample (a pyramid's level 0 is its source) is None: the call fills it in."""
+        if backend is None or backend.kind != "warp":
             return None
-        sample = self.outputs[self.output_ports[0]].sample
-        if not isinstance(sample, np.ndarray) or sample.ndim == 0 or sample.dtype.kind not in "uif":
+        counted = self._counted_factory(backend.device)
+        if counted is not None or not self.primitive.sized_by_inputs:
+            return counted
+        return _sized_factory(self, backend.device)
+
+    @property
+    def capturable(self) -> bool:
+        """The registry's :attr:`~warpvx.registry.Primitive.capturable`."""
+        return self.primitive.capturable
+
+    def row_capacity(self) -> int | None:
+        """Rows of this node's Counted outputs in a graph
+        (:attr:`~warpvx.registry.Primitive.counted_rows`): the capacity of the node producing
+        the input it names, or what the function it names gives for the node's arguments
+        (inputs as verification's samples); None when there is none."""
+        source = self.primitive.counted_rows
+        if source is None:
             return None
-        shape, dtype, device = tuple(sample.shape), sample.dtype, backend.device
+        if ":" in source:
+            module, attr = source.split(":")
+            samples = {p: _delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
+                       for p, ref in self.inputs.items()}
+            if any(v is None for v in samples.values()):
+                return None
+            bound = self.signature.bind_partial(**{**self.arguments, **samples})
+            bound.apply_defaults()
+            value = getattr(importlib.import_module(module), attr)(**bound.arguments)
+            return None if value is None else int(value)
+        ref = self.inputs[source]
+        producer = ref.data.producer if isinstance(ref, DelayRef) else ref.producer
+        return producer.row_capacity() if isinstance(producer, PrimitiveNode) else None
+
+    def _counted_factory(self, device):
+        """A maker of this node's Counted outputs (one count buffer shared by them), or None
+        (no capacity, or outputs that are not numeric arrays in verification)."""
+        capacity = self.row_capacity()
+        samples = [self.outputs[p].sample for p in self.output_ports]
+        arrays = [a for s in samples for a in row_arrays(s)]
+        if capacity is None or not arrays or not all(
+                isinstance(a, np.ndarray) and a.ndim >= 1 and a.dtype.kind in "uif"
+                for a in arrays):
+            return None
 
         def make():
             from ..backend import init_warp
+            from ..runtime import tree_map
 
             wp = init_warp()
-            return wp.empty(shape, dtype=wp.dtype_from_numpy(dtype), device=device)
+            count = wp.zeros(1, dtype=wp.int32, device=device)
+            # Zeroed rows: what lies past the count stays finite for the kernels reading it.
+            bufs = [Counted(tree_map(lambda a: wp.zeros(
+                (capacity,) + a.shape[1:], dtype=wp.dtype_from_numpy(a.dtype), device=device),
+                s), count) for s in samples]
+            return bufs[0] if len(bufs) == 1 else tuple(bufs)
 
         return make
 
@@ -259,6 +313,54 @@ class PrimitiveNode(Node):
 
     def cache_key(self) -> str:
         return self.kind + "|" + _const_text(self.constants())
+
+
+def _sized_factory(node, device):
+    """A maker of ``node``'s output buffers shaped as verification's samples (see
+    :meth:`PrimitiveNode.out_factory`), or None when a sample is not a numeric array or a
+    list of them."""
+    samples = [node.outputs[p].sample for p in node.output_ports]
+    inputs = [_delayed_sample(ref) if isinstance(ref, DelayRef) else ref.sample
+              for ref in node.inputs.values()]
+    specs = [_buffer_spec(s, inputs) for s in samples]
+    if any(s is None for s in specs):
+        return None
+
+    def make():
+        from ..backend import init_warp
+
+        wp = init_warp()
+
+        def build(spec):
+            if isinstance(spec, list):
+                return [build(s) for s in spec]
+            return None if spec == "input" else \
+                wp.empty(spec[0], dtype=wp.dtype_from_numpy(spec[1]), device=device)
+
+        bufs = [build(s) for s in specs]
+        return bufs[0] if len(bufs) == 1 else tuple(bufs)
+
+    return make
+
+
+def _delayed_sample(ref):
+    """What a delayed input read in verification's last frame (its data's sample before
+    verification has run two frames)."""
+    previous = getattr(ref.delay, "sample_previous", None)
+    return ref.data.sample if previous is None else previous
+
+
+def _buffer_spec(sample, inputs):
+    """(shape, dtype) of an output buffer for ``sample``, a list of specs for a list of
+    arrays, "input" for an input's own sample; None when it has none (not numeric arrays)."""
+    if isinstance(sample, list) and sample:
+        specs = [_buffer_spec(s, inputs) for s in sample]
+        return None if any(s is None for s in specs) else specs
+    if any(sample is i for i in inputs):
+        return "input"
+    if not isinstance(sample, np.ndarray) or sample.ndim == 0 or sample.dtype.kind not in "uif":
+        return None
+    return tuple(sample.shape), sample.dtype
 
 
 class UserNode(Node):
@@ -272,7 +374,8 @@ class UserNode(Node):
 
     kind = "user"
 
-    def __init__(self, graph, name: str, fn, warp_fn, inputs: dict, n_outputs_ports: tuple):
+    def __init__(self, graph, name: str, fn, warp_fn, inputs: dict, n_outputs_ports: tuple, *,
+                 capturable: bool = False):
         super().__init__(graph, name)
         if fn is None and warp_fn is None:
             raise GraphError(f"node {name!r} (user): give fn, warp_fn or both")
@@ -282,6 +385,7 @@ class UserNode(Node):
                                  f"got {type(f).__name__}")
         self.fn = fn
         self.warp_fn = warp_fn
+        self.capturable = bool(capturable) and warp_fn is not None
         self.inputs = dict(inputs)
         self.input_ports = list(inputs)
         self.output_ports = tuple(n_outputs_ports)
@@ -297,7 +401,24 @@ class UserNode(Node):
 
     def callable(self, pe: str, backend):
         fn = self.fn if pe == "cpu" else self.warp_fn
-        return None if fn is None else _marked(self, fn)
+        if fn is None:
+            return None
+        fn = _marked(self, fn)
+        if pe == "cpu" or not self.capturable:
+            return fn
+        fits = self._fits()
+
+        def run(*values, out=None):
+            return fn(*values, out=out) if out is not None and fits(values) else fn(*values)
+
+        return run
+
+    def out_factory(self, backend):
+        """A capturable node's output buffers, shaped as verification's samples (see
+        :meth:`PrimitiveNode.out_factory`); None otherwise."""
+        if not self.capturable or backend is None or backend.kind != "warp":
+            return None
+        return _sized_factory(self, backend.device)
 
     def cache_key(self) -> str:
         parts = []

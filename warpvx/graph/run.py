@@ -57,13 +57,12 @@ def program(graph, gpu_name: str | None) -> Program:
         on_gpu = "gpu" in pes and gpu_be is not None
         out_factory = getattr(node, "out_factory", None)
         gpu_out = out_factory(gpu_be) if on_gpu and out_factory is not None else None
-        primitive = getattr(node, "primitive", None)
         tasks[node.name] = ExecTask(
             node.name, refs, tuple(d.name for d in node.outputs.values()),
             cpu=bind(node, "cpu", cpu_be) if "cpu" in pes else None,
             gpu=bind(node, "gpu", gpu_be) if on_gpu else None,
             gpu_out=gpu_out,
-            capture=gpu_out is not None and getattr(primitive, "capturable", False),
+            capture=gpu_out is not None and node.capturable,
         )
     return Program(tasks, tuple(graph.inputs), {n: d.name for n, d in graph.outputs.items()},
                    {d.data.name: d for d in graph.delays})

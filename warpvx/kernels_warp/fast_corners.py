@@ -25,8 +25,9 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..errors import UnsupportedError
+from .._counted import refuse_uncounted
 from ..keypoints import Keypoints
+from ._device_sort import CountedSort
 from ._launch import HostReadback, Recorded, workspace
 
 # Forward-only kernels: no adjoint code to generate and compile.
@@ -274,6 +275,21 @@ def decode_keypoints(
     octave[r] = 0
 
 
+@wp.kernel
+def fill_sentinels(corners: CornerKeys, capacity: int):
+    """Keys past the corner count sort after every corner (all key bits set)."""
+    i = wp.tid()
+    if i >= corners.count[0] and i < capacity:
+        bits = corners.x_bits + corners.y_bits + 8
+        corners.keys[i] = (wp.int64(1) << wp.int64(bits)) - wp.int64(1)
+
+
+@wp.kernel
+def write_count(corners: CornerKeys, count: wp.array(dtype=wp.int32)):
+    """count[0] = the number of corners, clamped to the capacity."""
+    count[0] = corner_count(corners)
+
+
 def _bits(n: int) -> int:
     """Bits needed for coordinates 0..n-1."""
     return max(1, int(n - 1).bit_length())
@@ -286,6 +302,12 @@ def max_fast_corners(height: int, width: int, nonmax: bool) -> int:
     if nonmax:
         return ((inner_h + 1) // 2) * ((inner_w + 1) // 2)
     return inner_h * inner_w
+
+
+def counted_capacity(src, nonmax: bool, **_) -> int:
+    """Rows of a graph node's Counted keypoints: :func:`max_fast_corners` of its image
+    (:attr:`warpvx.registry.Primitive.counted_rows`)."""
+    return max_fast_corners(int(src.shape[0]), int(src.shape[1]), bool(nonmax))
 
 
 # --- FAST -------------------------------------------------------------------------------------
@@ -319,32 +341,75 @@ class _FastWorkspace:
         self.decode = None
 
 
+class _IntoPlan:
+    """The launches writing every corner of one workspace into a Counted's Keypoints: keys
+    padded with sentinels and sorted (:class:`._device_sort.CountedSort`), decoded into
+    ``fields`` (then copied into the Keypoints' arrays), the count."""
+
+    def __init__(self, ws, out, capacity: int):
+        device = out.count.device
+        self.fields = wp.zeros((5, capacity), dtype=wp.float32, device=device)
+        self.sentinels = Recorded(fill_sentinels, capacity, device, corners=ws.corners,
+                                  capacity=capacity)
+        c = ws.corners
+        self.sort = CountedSort(c.keys, ws.values, c.count, capacity, c.x_bits + c.y_bits + 8)
+        self.decode = Recorded(decode_keypoints, capacity, device, corners=ws.corners, ranked=0,
+                               rank=ws.rank, fields=self.fields, octave=out.rows.octave)
+        self.count = Recorded(write_count, 1, device, corners=ws.corners, count=out.count)
+
+
 def fast_corners(src, threshold: int, nonmax: bool, *, out=None) -> Keypoints:
     """FAST-9/16 keypoints of a gray uint8 ``wp.array2d``, sorted by (score desc, y, x).
 
     Everything runs on ``src.device``; the one host sync reads the corner count (the result's
     length). ``response`` is the OpenCV score also without NMS (cv2 leaves it 0 then).
 
-    ``out`` is refused: the keypoint count depends on the data.
+    ``out``: a :class:`~warpvx._counted.Counted` of Keypoints with
+    :func:`max_fast_corners` rows (a graph's fixed buffers): the same keypoints written there
+    with their count, with no host sync (sentinel keys after the corners, sorted without
+    reading the count: :class:`._device_sort.CountedSort`); returns ``out``.
     """
-    if out is not None:
-        raise UnsupportedError("out: fast_corners returns a data-dependent number of keypoints; "
-                               "it takes no out=")
+    refuse_uncounted(out, "fast_corners")
     device = src.device
     h, w = src.shape
     capacity = max_fast_corners(h, w, nonmax)
     if capacity == 0:
+        if out is not None:
+            out.count.zero_()
+            return out
         return Keypoints.empty().to(str(device))
     ws = workspace("fast", (h, w, bool(nonmax)), device,
                    lambda: _FastWorkspace(src, nonmax, capacity))
+    # Made before the corners are collected: making it sorts the keys (CountedSort).
+    plan = None if out is None else _into_plan(ws, out, capacity)
     if nonmax:
         ws.score.launch(img=src, threshold=int(threshold))
         ws.collect.launch()
     else:
         ws.corners.count.zero_()
         ws.collect.launch(img=src, threshold=int(threshold))
+    if plan is not None:
+        return _keypoints_into(plan, out)
     n = min(int(ws.readback.read(ws.corners.count)[0]), capacity)  # the host sync: the length
     return _sorted_keypoints(ws, n, device, nonmax)
+
+
+def _into_plan(ws, out, capacity: int) -> _IntoPlan:
+    # Keyed by the workspace's buffers too: the plan sorts them.
+    return workspace("fast_into", (capacity, ws.corners.keys.ptr, out.count.ptr) + tuple(
+        a.ptr for a in out.rows.__warpvx_flatten__()[0]), out.count.device,
+        lambda: _IntoPlan(ws, out, capacity))
+
+
+def _keypoints_into(plan: _IntoPlan, out):
+    kps = out.rows
+    plan.sentinels.launch()
+    plan.sort.launch()
+    plan.decode.launch()
+    for i, field in enumerate((kps.x, kps.y, kps.response, kps.size, kps.angle)):
+        wp.copy(field, plan.fields[i])
+    plan.count.launch()
+    return out
 
 
 def _sorted_keypoints(ws, n: int, device, nonmax: bool) -> Keypoints:
@@ -381,4 +446,4 @@ def _sorted_keypoints(ws, n: int, device, nonmax: bool) -> Keypoints:
     return kps
 
 
-__all__ = ["fast_score", "fast_corners", "max_fast_corners"]
+__all__ = ["counted_capacity", "fast_score", "fast_corners", "max_fast_corners"]

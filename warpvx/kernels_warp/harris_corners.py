@@ -26,7 +26,10 @@ OpenCV's ``goodFeaturesToTrack`` (``featureselect.cpp``), all on ``src.device``:
 
 Host syncs: two; the candidate count (to size the sort), and the accepted count together with
 the number of candidates still undecided after the batch (a further batch runs when it is not
-zero, which the batch size, learnt from the previous call, makes rare). Scratch buffers
+zero, which the batch size, learnt from the previous call, makes rare). With ``out=`` (a
+:class:`~warpvx._counted.Counted`: a graph's fixed buffers) none:
+:class:`.harris_counted.DeviceCorners` sorts and decides the rounds on the device, so the
+call can be captured. Scratch buffers
 (response, keys, rank map) and recorded launches are reused between calls of one image size
 (:func:`._launch.workspace`); the rank map is kept at -1 between calls by clearing only
 the entries a call set.
@@ -38,6 +41,7 @@ import math
 
 import warp as wp
 
+from .._counted import refuse_uncounted
 from ._launch import HostReadback, Recorded, drop_workspace, workspace
 from .harris_response import corner_response
 
@@ -450,9 +454,22 @@ class _CornersWorkspace:
 def harris_corners(src, max_corners: int, quality_level: float, min_distance: float,
                    block_size: int, k: float, *, ksize: int = 3, score: str = "harris",
                    out=None):
-    """Strongest corners of a gray uint8 ``wp.array2d``: float32 [N, 2] (x, y) on its device."""
+    """Strongest corners of a gray uint8 ``wp.array2d``: float32 [N, 2] (x, y) on its device.
+
+    ``out``: a :class:`~warpvx._counted.Counted` of ``max_corners`` (> 0) float32 rows and
+    an int32 [1] count on ``src.device`` (a graph's fixed buffers): the same points written
+    there with their count (the first ``max_corners`` accepted, as without ``out``), with
+    no host sync and no allocation once warm (:class:`.harris_counted.DeviceCorners`,
+    cached per image size, parameters and buffers); returns ``out``.
+    """
+    refuse_uncounted(out, "harris_corners")
     device = src.device
     h, w = src.shape
+    if out is not None:
+        from .harris_counted import select_into  # built on this module's kernels
+
+        return select_into(src, out, max_corners, quality_level, min_distance, block_size, k,
+                           ksize, score)
     if h < 3 or w < 3:  # no pixel 1 px inside the image
         return wp.empty((0, 2), dtype=wp.float32, device=device)
     ws = workspace("harris_corners", (h, w), device, lambda: _CornersWorkspace(h, w, device))

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from .._counted import Counted, is_counted
 from ._sampling import read_reflect101
 from ._launch import Recorded, workspace
 
@@ -468,7 +469,17 @@ def optical_flow_pyr_lk(
     ``win_size`` (w, h); ``max_level`` already limited to the pyramid (and the image size);
     ``max_iters`` in [0, 100], ``eps`` in [0, 10]. ``out``: optional (next_pts [N, 2] float32,
     status [N] uint8, err [N] float32) on the same device. Returns that triple. No host sync.
+
+    Counted points (:class:`~warpvx._counted.Counted`, a graph's corners): every row is
+    tracked (rows are independent; those past the count are simply not part of the value)
+    and the results are Counteds of the points' count: ``out``'s own counts (a device copy)
+    when ``out`` holds Counteds, else the points' count buffer itself. Plain points into
+    Counted ``out``: their counts are set to N.
     """
+    counted_in = is_counted(prev_pts)
+    count = prev_pts.count if counted_in else None
+    if counted_in:
+        prev_pts = prev_pts.rows
     device = prev_pts.device
     n = prev_pts.shape[0]
     win_w, win_h = int(win_size[0]), int(win_size[1])
@@ -477,10 +488,15 @@ def optical_flow_pyr_lk(
         res = wp.empty((n, 2), dtype=wp.float32, device=device)
         status = wp.empty(n, dtype=wp.uint8, device=device)
         err = wp.empty(n, dtype=wp.float32, device=device)
+        result = (res, status, err) if count is None else \
+            tuple(Counted(a, count) for a in (res, status, err))
     else:
-        res, status, err = out
+        result = tuple(out)
+        if is_counted(result[0]):
+            _set_counts(result, count, n)
+        res, status, err = (o.rows if is_counted(o) else o for o in result)
     if n == 0:
-        return res, status, err
+        return result
 
     n_levels = max_level + 1
     level0 = prev[0] if isinstance(prev, (list, tuple)) else prev
@@ -508,7 +524,21 @@ def optical_flow_pyr_lk(
                        tracked_pts=res, status=status, err=err)
         else:
             cmd.launch(prev_img=prev_pyr[level], next_img=next_pyr[level], prev_pts=prev_pts)
-    return res, status, err
+    return result
+
+
+def _set_counts(outs, count, n: int) -> None:
+    """Each distinct count buffer of the Counted ``outs``: a copy of ``count`` (device), or
+    ``n`` when the points came without one."""
+    seen = set()
+    for o in outs:
+        if o.count.ptr in seen:
+            continue
+        seen.add(o.count.ptr)
+        if count is None:
+            o.count.fill_(n)
+        elif o.count.ptr != count.ptr:
+            wp.copy(o.count, count)
 
 
 __all__ = ["optical_flow_pyr_lk", "BLOCK_DIM"]

@@ -15,34 +15,23 @@ as duplicates. The steps mirror :func:`warpvx.apps.stabilize.refresh_points`:
    the host's off-image points);
 3. :func:`pad_points`: NaN after the count.
 
-:class:`DeviceCorners` reuses the kernels of :mod:`.harris_corners` and gives its points
-exactly (tests/apps/test_stabilize_device.py): the candidates are sorted over the whole
-capacity with sentinel keys after the count; the selection rounds run in batches of
-:data:`ROUND_BATCH`, each batch in a conditional node on the previous batch's last
-"undecided" counter (nested ``wp.capture_if``), up to :data:`~.harris_corners.MAX_ROUNDS`,
-looping on the device (``wp.capture_while``) in the rare case they did not decide every
-candidate (the counters start again, as ``harris_corners`` does).
+:class:`DeviceCorners` (:mod:`.harris_counted`, which a graph's captured ``harris_corners``
+node runs too) gives ``harris_corners``' points exactly (tests/apps/test_stabilize_device.py).
 """
 
 from __future__ import annotations
 
-import math
-
 import warp as wp
 
 from . import find_homography as fh
-from . import harris_corners as hc
 from ._launch import Recorded
-from .harris_response import corner_response
+from .harris_counted import DeviceCorners
 
 # No FMA contraction: merge_fresh squares distances as NumPy does, and sample_first inlines
 # find_homography's draw_hypothesis, which must round as it does there.
 wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 BLOCK = 256  # lanes of the one-block compaction kernels
-# Selection rounds launched per conditional batch: real frames need a few to a dozen rounds;
-# launching all MAX_ROUNDS (each a launch over every pixel's candidate slot) would cost more.
-ROUND_BATCH = 8
 OFF_IMAGE = wp.constant(wp.float32(-1.0e4))  # refresh_points' padding (x and y, px)
 
 
@@ -143,14 +132,6 @@ def sample_first(src_pts: wp.array(dtype=wp.vec2d), dst_pts: wp.array(dtype=wp.v
     hypotheses[h] = model
 
 
-@wp.kernel
-def fill_sentinels(keys: hc.CandidateKeys, capacity: int):
-    """Keys past the candidate count sort after every candidate (all key bits set)."""
-    i = wp.tid()
-    if i >= keys.count[0] and i < capacity:
-        keys.keys[i] = (wp.int64(1) << wp.int64(32 + keys.raster_bits)) - wp.int64(1)
-
-
 class DeviceRansac:
     """:func:`warpvx.find_homography` (Warp) on the first ``count[0]`` of ``src``/``dst``
     (float32 [P, 2] device buffers): the find_homography workspace of P points with its
@@ -173,73 +154,6 @@ class DeviceRansac:
 
     def launch(self):
         self.ws.run(self.src, self.dst, self.threshold2, self.seed, self.h_out, self.mask)
-
-
-class DeviceCorners:
-    """``harris_corners(gray, max_corners, quality_level, min_distance, block_size, k)`` on
-    gray images of ``shape`` (h, w) with no host sync: strongest-first float32 points into
-    ``points`` ([max_corners, 2]) and their number into ``result[0]`` (int32 [3], as
-    ``write_selected``)."""
-
-    def __init__(self, shape, device, max_corners: int, quality_level: float,
-                 min_distance: float, block_size: int = 3, k: float = 0.04):
-        h, w = shape
-        # A workspace of its own (not the cache's, shared by harris_corners calls and other
-        # plans): its launches are sized for the whole capacity once and write into
-        # ``self.points``.
-        self.ws = ws = hc._CornersWorkspace(h, w, device)
-        ws.resize(ws.capacity)
-        self.block_size, self.k = int(block_size), float(k)
-        self.quality_level = float(quality_level)
-        self.points = wp.empty((max_corners, 2), dtype=wp.float32, device=device)
-        self.suppress = min_distance >= 1
-        self.sentinels = Recorded(fill_sentinels, ws.capacity, device, keys=ws.keys,
-                                  capacity=ws.capacity)
-        ws.select_cmd.set(points=self.points, last_round=hc.MAX_ROUNDS - 1 if self.suppress else 0)
-        if self.suppress:
-            ws.set_spacing(int(math.ceil(min_distance)), int(round(min_distance)),
-                           float(min_distance) ** 2)
-        self.result = ws.result
-        # The condition of the device loop: candidates left undecided after all the rounds.
-        self.undecided_left = ws.result[1:2]
-
-    def _rounds(self, first: int = 1):
-        """Rounds ``first`` .. in batches of :data:`ROUND_BATCH`, each batch after the first
-        only when the previous one left candidates undecided (a nested conditional on its
-        last counter)."""
-        last = min(first + ROUND_BATCH, hc.MAX_ROUNDS) - 1
-        for r in range(first, last + 1):
-            self.ws.run_round(r)
-        if last < hc.MAX_ROUNDS - 1:
-            wp.capture_if(self.ws.undecided[last:last + 1], on_true=self._rounds, first=last + 1)
-
-    def _restart(self):
-        # Out of round counters: start them again (every decision so far stays), as
-        # harris_corners does.
-        self.ws.undecided.zero_()
-        self.ws.undecided[0:1].fill_(1)
-        self._rounds()
-        self.ws.select_cmd.launch()
-
-    def launch(self, gray):
-        """Detect in ``gray`` (uint8 HxW ``wp.array`` of the constructed shape)."""
-        ws = self.ws
-        corner_response(gray, self.block_size, 3, self.k, "harris", ws.response)
-        ws.row_max_cmd.launch()
-        ws.finish_cmd.launch()
-        ws.collect_cmd.launch(quality_level=self.quality_level)
-        self.sentinels.launch()
-        wp.utils.radix_sort_pairs(ws.keys.keys, ws.values, ws.capacity, 0, 32 + ws.keys.raster_bits)
-        ws.rank_cmd.launch(initial_state=hc.UNDECIDED if self.suppress else hc.ACCEPTED,
-                           conflicts=ws.conflicts)
-        if self.suppress:
-            ws.find()
-            self._rounds()
-            ws.select_cmd.launch()
-            wp.capture_while(self.undecided_left, self._restart)
-        else:
-            ws.select_cmd.launch()
-        ws.clear_cmd.launch()
 
 
 __all__ = ["DeviceCorners", "DeviceRansac", "keep_tracked", "merge_fresh", "pad_points", "BLOCK"]

@@ -13,7 +13,17 @@ outside (a graph input, a CPU task's output, an eager GPU task's, a delay's) is 
 a fixed device buffer before the replay, each task writes a fixed output buffer
 (``gpu_out``), and each value read outside the segment (by another task, as a graph output,
 by a delay) is copied out into a buffer of the frame's after it, as frames in flight share
-the fixed buffers. Copies and replay run on the executor's stream, in frame order.
+the fixed buffers. Copies and replay run on the executor's stream, in frame order. A value
+may be any tree of arrays (:func:`.transfers.tree_map`): a pyramid's list of levels, a task's
+several outputs, a :class:`~warpvx._counted.Counted` (corners, keypoints, tracked points:
+fixed rows and a device count, so data-dependent results need no host sync).
+
+A segment is captured per input signature and per shapes of its own inputs (a value made in
+an earlier frame, such as the previous frame's corners, may change them), on the second
+sighting of that pair; on the first, its tasks run uncaptured on the same fixed buffers
+(:meth:`SegmentGraph.run`), so values have the captured form from the first frame (a
+corner count changing between eager frames would otherwise change the next segment's input
+shapes) and nothing allocates inside the capture.
 
 Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
 code runs there when asked (``capture=True``), which is how it is tested without a GPU.
@@ -37,6 +47,7 @@ from .native_copy import copy_device, is_warp_array, to_device, warp
 from .program import InputRef, Program
 from .slots import DEVICE
 from .timeline import Frame
+from .transfers import tree_map
 
 #: Input signatures (shapes and dtypes of a frame's inputs) whose captures an executor keeps.
 MAX_SIGNATURES = 4
@@ -82,7 +93,7 @@ def segments(program: Program, gpu_order) -> list:
     groups, current = [], []
     for name in gpu_order:
         task = program.tasks[name]
-        if not (task.capture and task.gpu_out is not None and len(task.outputs) == 1):
+        if not _capturable(task):
             if current:
                 groups.append(current)
                 current = []
@@ -97,9 +108,13 @@ def segments(program: Program, gpu_order) -> list:
     return [_segment(program, g) for g in groups]
 
 
+def _capturable(task) -> bool:
+    return task.capture and task.gpu_out is not None
+
+
 def _segment(program: Program, tasks: list) -> Segment:
     first = tasks[0]
-    if not (first.capture and first.gpu_out is not None and len(first.outputs) == 1):
+    if not _capturable(first):
         return Segment((first,), False)
     names = {t.name for t in tasks}
     made = {k for t in tasks for k in t.outputs}
@@ -130,10 +145,28 @@ def _workspaces() -> list:
         return list(_launch._WORKSPACES.values())
 
 
-def _single_array(value):
-    if not (isinstance(value, np.ndarray) or is_warp_array(value)):
-        raise NotCapturable(f"a segment input is a {type(value).__name__}, not one array")
-    return value
+def _leaves(value) -> list:
+    """The array leaves of a value (an array, or a tree of them: :func:`.transfers.tree_map`)
+    in a fixed order; NotCapturable when it has none."""
+    leaves = []
+
+    def take(a):
+        leaves.append(a)
+        return a  # the tree is rebuilt around the leaves (Keypoints validate theirs)
+
+    tree_map(take, value)
+    if not leaves:
+        raise NotCapturable(f"a segment value is a {type(value).__name__} holding no array")
+    return leaves
+
+
+def _per_output(task, result) -> dict:
+    """A task's call result as output key -> value (a tuple when it has several outputs)."""
+    if len(task.outputs) == 1:
+        return {task.outputs[0]: result}
+    if not isinstance(result, (tuple, list)) or len(result) != len(task.outputs):
+        raise NotCapturable(f"task {task.name!r}: expected {len(task.outputs)} outputs")
+    return dict(zip(task.outputs, result))
 
 
 class SegmentGraph:
@@ -154,35 +187,49 @@ class SegmentGraph:
         self.segment = segment
         self.inputs = {}
         for ref, v in zip(segment.inputs, values):
-            v = _single_array(v)
-            dtype = v.dtype if is_warp_array(v) else wp.dtype_from_numpy(v.dtype)
-            self.inputs[ref] = wp.empty(v.shape, dtype=dtype, device=device)
-        self.outputs = {t.outputs[0]: t.gpu_out() for t in segment.tasks}
+            _leaves(v)
+            self.inputs[ref] = tree_map(lambda a: wp.zeros(
+                a.shape, dtype=a.dtype if is_warp_array(a) else wp.dtype_from_numpy(a.dtype),
+                device=device), v)
+        self.outs = {task.name: task.gpu_out() for task in segment.tasks}
+        self.outputs = {}  # key -> the value its task wrote in the capture (fixed buffers)
         self.graph = None
         self.scratch = ()
 
     def value(self, ref: InputRef):
-        """The fixed buffer a task of the segment reads for ``ref``."""
+        """The fixed buffer(s) a task of the segment reads for ``ref``."""
         if ref.offset == 0 and ref.key in self.outputs:
             return self.outputs[ref.key]
         return self.inputs[ref]
 
-    def capture(self, device: str, stream):
-        """Capture the segment's tasks writing the fixed buffers (``stream``: CUDA only).
+    def run(self):
+        """Run the tasks uncaptured on the fixed buffers (a first sighting: it also builds
+        whatever a primitive makes per set of buffers, workspaces, recorded launches, so
+        nothing allocates inside the capture that follows).
 
         Raises
         ------
         NotCapturable
-            A task did not return its ``out=`` buffer (it allocated), or Warp refused or
-            failed the capture (a host sync or read-back inside, a caller's capture).
+            A task returned memory it allocated (its out= did not fit); a task's own error
+            propagates.
+        """
+        self._run_tasks()
+
+    def capture(self, device: str, stream):
+        """Capture the segment's tasks writing fixed buffers (``stream``: CUDA only), once
+        :meth:`run` has run them. Each task writes its ``gpu_out()`` buffers; its result may
+        also hold a buffer it read (a pyramid's level 0 is its source), but nothing else.
+
+        Raises
+        ------
+        NotCapturable
+            A task returned memory it allocated, or Warp refused or failed the capture (a
+            host sync or read-back inside, a caller's capture).
         """
         wp = warp()
         try:
             with wp.ScopedCapture(device=device, stream=stream) as cap:
-                for task in self.segment.tasks:
-                    out = self.outputs[task.outputs[0]]
-                    if task.gpu(*[self.value(r) for r in task.inputs], out=out) is not out:
-                        raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
+                self._run_tasks()
         except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
             raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
         if cap.graph is None:
@@ -190,25 +237,46 @@ class SegmentGraph:
         self.graph = cap.graph
         self.scratch = _workspaces()
 
+    def _run_tasks(self):
+        """Enqueue the tasks, each into its ``outs`` buffers; their results become the
+        outputs."""
+        fixed = {a.ptr for v in self.inputs.values() for a in _leaves(v)}
+        self.outputs = {}
+        for task in self.segment.tasks:
+            out = self.outs[task.name]
+            mine = {a.ptr for a in _leaves(out)}
+            result = task.gpu(*[self.value(r) for r in task.inputs], out=out)
+            if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
+                raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
+            fixed |= mine
+            self.outputs.update(_per_output(task, result))
 
     def fill(self, ref: InputRef, value, io, stream):
-        """Copy this frame's ``value`` of ``ref`` into its fixed buffer (on ``stream``)."""
-        buf = self.inputs[ref]
-        _single_array(value)
-        if tuple(value.shape) != tuple(buf.shape):
-            raise NotCapturable(f"input {ref.key!r}: shape {value.shape} != {buf.shape}")
-        if is_warp_array(value) and value.device != buf.device:
-            value = value.numpy()
-        if is_warp_array(value):
-            copy_device(buf, value, stream)
-        elif buf.device.is_cuda:
-            io.upload(value, lambda shape, dtype: buf)
-        else:  # Warp's CPU device: uploads alias host data; the buffer must be written
-            to_device(buf, np.ascontiguousarray(value))
-            io.moved += value.nbytes
+        """Copy this frame's ``value`` of ``ref`` into its fixed buffers (on ``stream``)."""
+        bufs = _leaves(self.inputs[ref])
+        values = _leaves(value)
+        if len(values) != len(bufs):
+            raise NotCapturable(f"input {ref.key!r}: {len(values)} arrays, not {len(bufs)}")
+        for buf, v in zip(bufs, values):
+            if tuple(v.shape) != tuple(buf.shape):
+                raise NotCapturable(f"input {ref.key!r}: shape {v.shape} != {buf.shape}")
+            if is_warp_array(v) and v.device != buf.device:
+                v = v.numpy()
+            if is_warp_array(v):
+                copy_device(buf, v, stream)
+            elif buf.device.is_cuda:
+                io.upload(v, lambda shape, dtype, buf=buf: buf)
+            else:  # Warp's CPU device: uploads alias host data; the buffer must be written
+                to_device(buf, np.ascontiguousarray(v))
+                io.moved += v.nbytes
 
     def launch(self, stream):
-        warp().capture_launch(self.graph, stream=stream)
+        """Replay the captured graph on ``stream`` (or run the tasks uncaptured before it
+        is captured)."""
+        if self.graph is None:
+            self.run()
+        else:
+            warp().capture_launch(self.graph, stream=stream)
 
 
 class SegmentRunner:
@@ -216,11 +284,12 @@ class SegmentRunner:
     frames' slots, timing events, buffer pools and stream it uses."""
 
     def _captures_of(self, frame: Frame) -> list:
-        """The capture states of ``frame``'s input signature, one per segment: 0 unseen, 1
-        run eagerly once (caches warm), a :class:`SegmentGraph`, or None (not capturable)."""
+        """The capture states of ``frame``'s input signature, one per segment: a dict of
+        :meth:`_segment_graph`'s states by the shapes of the segment's own inputs, or None
+        (not capturable)."""
         states = self._captured.get(frame.signature)
         if states is None:
-            states = self._captured[frame.signature] = [0] * len(self._segments)
+            states = self._captured[frame.signature] = [{} for _ in self._segments]
             while len(self._captured) > MAX_SIGNATURES:
                 self._captured.popitem(last=False)
         else:
@@ -228,25 +297,43 @@ class SegmentRunner:
         return states
 
     def _segment_graph(self, states: list, i: int, seg: Segment, frame: Frame, state):
-        """Segment ``i``'s graph for this frame's signature, captured on its second sighting
-        (the first, eager, loads the kernels and fills the primitives' caches, so nothing
-        allocates inside the capture); None: run it eagerly."""
-        sg = states[i]
-        if sg is None or isinstance(sg, SegmentGraph):
-            return sg
-        if sg == 0:
-            states[i] = 1
+        """Segment ``i``'s :class:`SegmentGraph` for this frame's signature and the shapes of
+        the segment's inputs (a value made in an earlier frame, such as its corners, may
+        change them): made on the first sighting and run uncaptured on its fixed buffers (so
+        its values have the captured form from the start, Counted corners included, and the
+        primitives' caches are filled), captured on the second; None: run the tasks eagerly.
+        Each state: a SegmentGraph, or None (not capturable with these shapes); at most
+        :data:`MAX_SIGNATURES` shapes per segment are kept."""
+        by_shape = states[i]
+        if by_shape is None:
             return None
-        slots, _ = self._ready_inputs(frame, seg.inputs)
+        slots, waited = self._ready_inputs(frame, seg.inputs)
+        if waited:
+            state.prev_end = None  # the stream may idle while we waited: a fresh start event
         try:
-            sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
-            with self._capture_lock:
-                sg.capture(self.gpu_device, self._stream)
+            key = tuple(tuple(tuple(a.shape) for a in _leaves(s.value)) for s in slots)
         except NotCapturable:
             states[i] = None
             return None
+        if key not in by_shape:
+            try:
+                sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
+            except NotCapturable:
+                sg = None
+            by_shape[key] = sg
+            while len(by_shape) > MAX_SIGNATURES:
+                del by_shape[next(iter(by_shape))]
+            return sg
+        sg = by_shape[key]
+        if sg is None or sg.graph is not None:
+            return sg
+        try:
+            with self._capture_lock:
+                sg.capture(self.gpu_device, self._stream)
+        except NotCapturable:  # a host sync or read-back inside, a caller's capture
+            by_shape[key] = None
+            return None
         self.captures += 1
-        states[i] = sg
         state.prev_end = None  # the stream idled while the host captured
         return sg
 
@@ -265,22 +352,36 @@ class SegmentRunner:
             sg.fill(ref, s.value, io, self._stream)
         if io.moved > before:
             frame.copied[seg.tasks[0].name] = io.moved - before
-        sg.launch(self._stream)
+        try:
+            sg.launch(self._stream)
+        except NotCapturable:  # uncaptured first run: an out= did not fit these inputs
+            by_shape = self._captures_of(frame)[self._segments.index(seg)]
+            for key, value in list(by_shape.items()):
+                if value is sg:
+                    by_shape[key] = None
+            for task in seg.tasks:  # eagerly, as the executor runs an uncaptured segment
+                self._run_gpu_task(frame, task, state)
+            return
         outs = dict(sg.outputs)
         for key in seg.outputs:
-            fixed = sg.outputs[key]
-            outs[key] = self._lease_upload(frame, key, fixed.shape, fixed.dtype)
-            copy_device(outs[key], fixed, self._stream)
+            outs[key] = tree_map(lambda fixed, key=key: self._copy_out(frame, key, fixed),
+                                 sg.outputs[key])
         ev1 = self._end_event(frame) if cuda else None
         h1 = time.perf_counter()
         for task in seg.tasks:
-            key = task.outputs[0]
-            frame.slots[key].set(outs[key], DEVICE, ev1)
+            for key in task.outputs:
+                frame.slots[key].set(outs[key], DEVICE, ev1)
             lo, hi = frame.shares[task.name] = self._shares[task.name]
             frame.trace[task.name] = (state.proc, ev0, ev1, None) if cuda else \
                 (state.proc, h0, h1, None)
             frame.host_trace[task.name] = (h0 + lo * (h1 - h0), h0 + hi * (h1 - h0))
         state.prev_end = ev1
+
+    def _copy_out(self, frame: Frame, key: str, fixed):
+        """A copy of fixed buffer ``fixed`` (of value ``key``) into a buffer of ``frame``'s."""
+        buf = self._lease_upload(frame, key, fixed.shape, fixed.dtype)
+        copy_device(buf, fixed, self._stream)
+        return buf
 
     def _copy_rule(self, seg: Segment, key: str) -> str:
         """When the copy of ``key`` a captured segment makes for its frame may be reused

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._counted import map_counted, trimmed
 from .native_copy import (is_warp_array, numpy_dtype, record_event, synchronize_event, to_device,
                           to_host, to_host_async, wait_event, warp)
 
@@ -101,8 +102,12 @@ class Transfers:
         """``value`` with every device array copied to host NumPy (fresh arrays, never views
         of device-role memory: a pooled buffer may be overwritten by a later frame).
 
-        ``event``: a CUDA event after the producer's kernels; the copy waits for it.
+        ``event``: a CUDA event after the producer's kernels; the copy waits for it. A device
+        :class:`~warpvx._counted.Counted` reads its count first and copies only the rows it
+        counts (its value: a capacity may be far larger).
         """
+        value = map_counted(lambda c: trimmed(c, int(self.download(c.count, event)[0]))
+                            if is_warp_array(c.count) else c, value)
 
         def leaf(a):
             if not is_warp_array(a):
