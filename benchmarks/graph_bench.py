@@ -425,6 +425,7 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
         "probe": [[list(k), list(v)] for k, v in
                   plans[args.train].calibration.contention.get(args.n_cpus, {}).items()],
         "gil": plans[args.train].calibration.gil,
+        "capturable": sorted(g.capturable_nodes(plans[args.train].gpu)),
         "model_pick": min(best["candidates"], key=best["candidates"].get),
     }
 
@@ -913,7 +914,7 @@ def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
                 reads, placement, sorted(table, key=lambda n: table[n]["start_ms"])))
         probe = {tuple(k): tuple(v) for k, v in e.get("probe") or []}
         model = fit(cal, reads, frames, placement, policy=train, probe=probe,
-                    gil=e.get("gil") if gil else None)
+                    gil=e.get("gil") if gil else None, capturable=e.get("capturable", ()))
         same = defaultdict(list)
         for p in e["policies"]:
             same[_plan_key(p)].append(p["measured_out_ms"])

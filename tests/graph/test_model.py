@@ -115,6 +115,30 @@ def test_simulate_weighs_busy_neighbours_by_their_gil_shares():
     assert simulate(model, sch).makespan == pytest.approx(2.0)
 
 
+def test_simulate_a_gpu_segment_publishes_to_cpu_readers_when_it_ends():
+    # g1, g2 (1 ms each) run in one captured GPU segment; x on a CPU worker reads g1 and
+    # starts only when the segment ends (2 ms), as the executor runs it; without capture
+    # each GPU task is its own unit and x starts after g1 (1 ms). A task reading a CPU
+    # value starts a new segment (gpu_segments cuts where the executor cuts).
+    from warpvx.graph.model import gpu_segments
+
+    alone = {"g1": {"cpu": None, "gpu": 1.0, "device": 0.0},
+             "g2": {"cpu": None, "gpu": 1.0, "device": 0.0},
+             "x": {"cpu": 1.0, "gpu": None, "device": 0.0}}
+    reads = {"g1": (), "g2": (Reads("g1.out", "g1", 8, False),), "x": (Reads("g1.out", "g1", 8, False),)}
+    sch = _sched([("g1", "gpu"), ("g2", "gpu"), ("x", "cpu0")])
+    model = _model(alone, reads)
+    assert simulate(model, sch).tasks["x"].start == pytest.approx(1.0)
+    model.capturable = frozenset({"g1", "g2"})
+    pred = simulate(model, sch)
+    assert pred.tasks["g2"].finish == pytest.approx(2.0)
+    assert pred.tasks["x"].start == pytest.approx(2.0) and pred.makespan == pytest.approx(3.0)
+    reads["g2"] = (Reads("x.out", "x", 8, False),)
+    placement = {"g1": "gpu", "g2": "gpu", "x": "cpu0"}
+    assert gpu_segments(reads, {"g1", "g2"}, placement, ["g1", "g2"]) == [["g1"], ["g2"]]
+    assert gpu_segments(reads, {"g2"}, placement, ["g1", "g2"]) == [["g1"], ["g2"]]
+
+
 def test_simulate_cuda_device_follows_the_host_call_and_copies_are_charged_once():
     # g (GPU, host 0.2 ms, device 3 ms) feeds two CPU readers; its output crosses once.
     alone = {"g": {"cpu": None, "gpu": 0.2, "device": 3.0},

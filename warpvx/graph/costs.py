@@ -378,7 +378,15 @@ class CostModel:
             if gil and cal.gil is None:
                 cal.gil = measure_gil(self, cal, be)
         return fit(cal, graph_reads(self), runs, plan.placement, policy=plan.policy,
-                   probe=cal.contention[plan.n_cpus], gil=cal.gil if gil else None)
+                   probe=cal.contention[plan.n_cpus], gil=cal.gil if gil else None,
+                   capturable=self.capturable_nodes(plan.gpu))
+
+    def capturable_nodes(self, gpu) -> frozenset:
+        """Nodes the executor may run in captured GPU segments with GPU role ``gpu`` (a
+        backend name): capturable with a preallocated output."""
+        from .run import program
+
+        return frozenset(t.name for t in program(self, gpu).tasks.values() if t.capture)
 
     def learn(self, plan=None, *, runs=None, skip: int = 1) -> dict:
         """Fold measured frames into the plan's calibration history (and the cache), for

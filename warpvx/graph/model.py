@@ -278,6 +278,9 @@ class ContentionModel:
         The GPU role is a CUDA device (host enqueue and device run apart).
     trained_on : str
         The policy whose frames the model learnt from, and how many.
+    capturable : frozenset
+        Nodes the executor runs in GPU segments (:func:`gpu_segments`): a segment is one
+        unit, its values published to CPU readers when it ends.
     gil : dict
         :func:`~warpvx.graph.calibration.measure_gil`: node -> ``{pe: (sensitivity,
         pressure)}``; a busy neighbour counts its pressure, a victim its sensitivity
@@ -298,6 +301,7 @@ class ContentionModel:
     trained_on: str = ""
     copy_extra: dict = field(default_factory=dict)
     gil: dict = field(default_factory=dict)
+    capturable: frozenset = frozenset()
 
     def sensitivity(self, node: str, pe: str) -> float:
         """How much ``node`` on ``pe`` suffers from a busy GIL-holding neighbour (0-1)."""
@@ -361,8 +365,37 @@ def alone_costs(calibration) -> dict:
     return out
 
 
-def _ready_parts(run, task, reads, placement, hosts):
-    """(latency class, time the task became ready) in a measured frame."""
+def gpu_segments(reads: dict, capturable, placement: dict, gpu_order) -> list:
+    """The GPU queue ``gpu_order`` cut as the executor cuts it
+    (:func:`warpvx.runtime.capture.segments`): runs of consecutive ``capturable`` tasks, a
+    new one where a task reads (at any frame offset) a value a CPU worker made; any other
+    task a segment of its own. Lists of task names."""
+    groups, current = [], []
+    for task in gpu_order:
+        if task not in capturable:
+            if current:
+                groups.append(current)
+                current = []
+            groups.append([task])
+            continue
+        if current and any(r.producer is not None and pe_of(placement[r.producer]) == "cpu"
+                           for r in reads[task]):
+            groups.append(current)
+            current = []
+        current.append(task)
+    if current:
+        groups.append(current)
+    return groups
+
+
+def _segment_of(reads, capturable, placement, gpu_order) -> dict:
+    """task -> the tasks of its GPU segment (:func:`gpu_segments`)."""
+    return {t: seg for seg in gpu_segments(reads, capturable, placement, gpu_order) for t in seg}
+
+
+def _ready_parts(run, task, reads, placement, hosts, segment):
+    """(latency class, time the task became ready) in a measured frame; ``segment``: GPU
+    task -> its segment's tasks (a CPU reader waits for the whole segment)."""
     proc, start, _ = hosts[task]
     side = pe_of(proc)
     ready, cls = 0.0, "start"
@@ -376,16 +409,18 @@ def _ready_parts(run, task, reads, placement, hosts):
         p_side = pe_of(placement[r.producer])
         if hosts[r.producer][0] == proc:
             continue  # ordered on this thread already
-        # A CPU reader of GPU data waits for the device; a GPU reader for the host call.
-        t = (run.timeline[r.producer].finish if p_side == "gpu" and side == "cpu"
-             else hosts[r.producer][2])
+        # A CPU reader of GPU data waits for the device, to the end of the producer's
+        # segment; a GPU reader for the host call.
+        t = (max(run.timeline[u].finish for u in segment.get(r.producer, (r.producer,))
+                 if u in run.timeline)
+             if p_side == "gpu" and side == "cpu" else hosts[r.producer][2])
         if t > ready:
             ready, cls = t, f"{side}_from_{p_side}"
     return cls, ready
 
 
 def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
-        probe: dict | None = None, gil: dict | None = None) -> ContentionModel:
+        probe: dict | None = None, gil: dict | None = None, capturable=()) -> ContentionModel:
     """Learn a :class:`ContentionModel` from frames run with one plan.
 
     Parameters
@@ -407,6 +442,8 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
         :func:`~warpvx.graph.calibration.measure_gil`: each busy neighbour (in the frames
         and in the probe's mixes) counts its GIL pressure, each victim its sensitivity,
         so ``a`` and ``b`` are per unit of Python run beside, not per busy thread.
+    capturable : iterable of str
+        Nodes the executor runs in GPU segments (:func:`gpu_segments`).
     """
     runs = [r for r in runs if r.timeline]
     if not runs:
@@ -416,9 +453,13 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     samples = {"cpu": [], "gpu": []}
     copies = {"cpu": [], "gpu": []}
     waits = {k: [] for k in LATENCIES}
+    capturable = frozenset(capturable)
     shares = ContentionModel({}, {}, alone, reads, None, cuda, gil=dict(gil or {}))
     for run in runs:
         hosts = host_intervals(run)
+        gpu_order = sorted((t for t, (p, _, _) in hosts.items() if pe_of(p) == "gpu"),
+                           key=lambda t: hosts[t][1])
+        segment = _segment_of(reads, capturable, placement, gpu_order)
         for task, (proc, s, f) in hosts.items():
             pe = pe_of(proc)
             copy_ms = run.transfers.get(task, 0.0)
@@ -437,7 +478,7 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
                 copy_ms = min(modelled, UNTIMED_COPY_SHARE * (f - s))
             if alone[task][pe] is not None:
                 samples[pe].append((task, alone[task][pe], f - s - copy_ms, *busy))
-            cls, ready = _ready_parts(run, task, reads, placement, hosts)
+            cls, ready = _ready_parts(run, task, reads, placement, hosts, segment)
             waits[cls].append(max(0.0, s - ready))
     probes = {"cpu": [], "gpu": []}
     mixes = {victim: mix.split(",") for (victim, _), (mix, *_rest) in (probe or {}).items()}
@@ -458,7 +499,7 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
                   for pe, v in copies.items() if v}
     return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
                            f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames",
-                           copy_extra, shares.gil)
+                           copy_extra, shares.gil, capturable)
 
 
 def _mix_share(share, alone, names, pe) -> float:
@@ -495,6 +536,10 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
     queues = {p: [t for t in order if placement[t] == p] for p in schedule.processors}
     queues = {p: q for p, q in queues.items() if q}
     copied = copied_bytes(model.reads, placement, order)
+    # A GPU segment is one unit: CPU readers see its values when its last task ends.
+    last_of = {t: seg[-1] for p, q in queues.items() if pe_of(p) == "gpu"
+               for seg in gpu_segments(model.reads, model.capturable, placement, q) for t in seg}
+    seg_end = 0.0
     lat = model.latency
     pos = {p: 0 for p in queues}
     free_at = {p: 0.0 for p in queues}
@@ -566,11 +611,20 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
                 d0 = max(device_free, h0)
                 d1 = max(d0 + model.alone[task]["device"], now)
                 device_free = d1
-                avail_gpu[task], avail_cpu[task] = now, d1
                 out[task] = ScheduledTask(task, p, d0, d1)
             else:
-                avail_gpu[task] = avail_cpu[task] = now
+                d1 = now
                 out[task] = ScheduledTask(task, p, h0, now)
+            avail_gpu[task] = now
+            if pe_of(p) != "gpu":
+                avail_cpu[task] = now
+            else:
+                seg_end = max(seg_end, d1)
+                if last_of.get(task, task) == task:
+                    for t in queues[p][:pos[p]]:
+                        if t not in avail_cpu:
+                            avail_cpu[t] = seg_end
+                    seg_end = 0.0
     return Schedule(out, list(schedule.processors), policy=f"{schedule.policy} (simulated)",
                     info={"model": model.trained_on})
 
@@ -654,6 +708,7 @@ __all__ = [
     "copied_bytes",
     "fit",
     "fit_slowdown",
+    "gpu_segments",
     "graph_reads",
     "host_intervals",
     "pe_of",
