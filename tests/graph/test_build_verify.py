@@ -242,3 +242,36 @@ def test_unproduced_output_is_an_error():
     g.output("nothing", g.virtual("nothing"))
     with pytest.raises(GraphError, match="output 'nothing'"):
         g.verify()
+
+
+def test_verify_runs_gpu_pinned_nodes_on_the_given_gpu_backend():
+    """A node pinned to the GPU runs its verification on ``verify(gpu=...)``'s backend (its
+    Warp implementation, on Warp arrays there); without ``gpu`` its CPU implementation runs."""
+    import warp as wp
+
+    calls = []
+
+    def double_cpu(x):
+        calls.append("cpu")
+        return x * 2
+
+    def double_warp(x):
+        calls.append(("warp", str(x.device)))
+        return wp.array(x.numpy() * 2, device=x.device)
+
+    def build():
+        g = warpvx.Graph("pinned")
+        x = g.input("x", shape=(4,), dtype=np.float32)
+        y = g.user(double_cpu, [x], "y", warp_fn=double_warp, name="double", target="gpu")
+        g.output("y", y)
+        return g
+
+    sample = {"x": np.arange(4, dtype=np.float32)}
+    build().verify(sample)
+    assert calls == ["cpu"]
+    calls.clear()
+    g = build().verify(sample, gpu="warp-cpu")
+    assert calls == [("warp", "cpu")]
+    np.testing.assert_array_equal(g.outputs["y"].sample, sample["x"] * 2)
+    with pytest.raises(GraphError, match="gpu"):
+        build().verify(sample, gpu="cpu")

@@ -115,11 +115,20 @@ def make_pool(workers: int | None = None) -> PosePool | None:
     return PosePool(workers) if workers else None
 
 
-def _map(pool, fn, jobs):
-    """``[fn(*job) for job in jobs]``, on ``pool``'s processes when given."""
-    if pool is None:
-        return [fn(*job) for job in jobs]
-    return pool.map(fn, jobs)
+class _Later:
+    """``[fn(*job) for job in jobs]``: on ``pool``'s processes when given, started now and
+    waited for by :meth:`get` (in the ``chain`` node: the next batch's jobs queue up behind
+    these while the chain waits, so the pool never idles between batches); else in the
+    calling thread, now."""
+
+    def __init__(self, pool, fn, jobs):
+        self._pending = pool._pool.starmap_async(fn, jobs, chunksize=1) if pool is not None else None
+        self._values = None if pool is not None else [fn(*job) for job in jobs]
+
+    def get(self) -> list:
+        if self._values is None:
+            self._values = self._pending.get()
+        return self._values
 
 
 # --------------------------------------------------------------------------- the nodes
@@ -177,11 +186,13 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     Returns
     -------
     tail : the last frame's (points, angles)
-    ahead : list of B
-        Per frame: (pairs int32 [M, 2], distances int32 [M], then for a stereo camera the
-        depth float32 [N] of each keypoint (:func:`stereo_depth`), else the essential core
-        (p1, p2, :func:`~warpvx.apps.orbslam.essential_core`'s result) of the filtered matches
-        to the previous frame, or None when ``track`` will not need one).
+    ahead : (pairs, cores, later)
+        ``pairs``: per frame (pairs int32 [M, 2], distances int32 [M]); ``cores`` (mono; None
+        for stereo): per frame the filtered matches' (p1, p2) to the previous frame whose
+        essential core the pool works out, or None when ``track`` will not need one;
+        ``later``: the pool's results still running (:func:`ahead_frames` waits for them):
+        the essential cores in ``cores``' order (mono) or each frame's stereo depths float32
+        [N] (:func:`stereo_depth`).
     """
     prev_pts, prev_angles = tail
     pairs, jobs, cores = [], [], []
@@ -202,12 +213,9 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     if baseline is not None:
         left, right = feats[:frames], feats[frames:]
         job = functools.partial(_stereo_job, fx=float(K[0, 0]), baseline=baseline, config=config)
-        depths = _map(pool, job, [(*left[i], *right[i], images[i], images[frames + i]) for i in range(frames)])
-        ahead = [(p, d, z) for (p, d), z in zip(pairs, depths)]
-    else:
-        done = iter(_map(pool, o.essential_core, jobs))
-        ahead = [(p, d, None if c is None else (*c, next(done))) for (p, d), c in zip(pairs, cores)]
-    return (prev_pts, prev_angles), ahead
+        depths = _Later(pool, job, [(*left[i], *right[i], images[i], images[frames + i]) for i in range(frames)])
+        return (prev_pts, prev_angles), (pairs, None, depths)
+    return (prev_pts, prev_angles), (pairs, cores, _Later(pool, o.essential_core, jobs))
 
 
 def _stereo_job(kl, dl, kr, dr, left, right, *, fx, baseline, config):
@@ -227,11 +235,21 @@ def _essential_ahead(core):
     return essential
 
 
+def ahead_frames(ahead) -> list:
+    """:func:`pose_batch`'s ``ahead`` per frame, once the pool's work is done: (pairs,
+    distances, then the stereo depths, or (p1, p2, essential core) or None for mono)."""
+    pairs, cores, later = ahead
+    values = iter(later.get())
+    if cores is None:
+        return [(p, d, next(values)) for p, d in pairs]
+    return [(p, d, None if c is None else (*c, next(values))) for (p, d), c in zip(pairs, cores)]
+
+
 def chain(state, feats, ahead, *, K, config, baseline, frames):
     """Track the batch's frames in order (:func:`~warpvx.apps.orbslam.track`, cheap with the
     work done ahead): (state, poses float64 [B, 4, 4], stats float64 [B, 6])."""
     poses, stats = [], []
-    for (kps, desc), (pairs, dist, extra) in zip(feats[:frames], ahead):
+    for (kps, desc), (pairs, dist, extra) in zip(feats[:frames], ahead_frames(ahead)):
         if baseline is not None:
             state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config)
         else:
@@ -339,7 +357,7 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
         pool = make_pool(workers)
     try:
         g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
-        g.verify(first[0])
+        g.verify(first[0], gpu=None if backend == "cpu" else backend)
         plan = o.schedule(g, backend)
         counts = [first[1]]
 
@@ -365,5 +383,5 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
             pool.shutdown(cancel_futures=True)
 
 
-__all__ = ["PosePool", "make_pool", "orb_batch", "match_batch", "pose_batch", "chain", "add_extract_match", "build_batch_graph",
+__all__ = ["PosePool", "make_pool", "ahead_frames", "orb_batch", "match_batch", "pose_batch", "chain", "add_extract_match", "build_batch_graph",
            "track_frames_batched"]

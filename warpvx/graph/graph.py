@@ -377,7 +377,7 @@ class Graph(CostModel, Runner):
 
     # ------------------------------------------------------------------ verify
 
-    def verify(self, inputs=None) -> "Graph":
+    def verify(self, inputs=None, *, gpu=None) -> "Graph":
         """Check the graph; raise one :class:`~warpvx.errors.GraphError` naming node and port.
 
         Checks missing inputs, cycles, pin feasibility, then types and shapes by running each
@@ -385,10 +385,19 @@ class Graph(CostModel, Runner):
         synthetic data from their shape and dtype). ``inputs`` may be a list of two input
         dicts, two consecutive frames: a graph with delays then runs its second verification
         frame on the second one, so the samples calibration times temporal nodes on (LK
-        tracking from one frame to the next) show real motion. See :mod:`warpvx.graph.verify`.
+        tracking from one frame to the next) show real motion. ``gpu`` (a backend name such as
+        ``"cuda"``): nodes pinned to the GPU run their check there instead of on the CPU (a
+        heavy GPU-only node on Warp's CPU device can take seconds). See
+        :mod:`warpvx.graph.verify`.
         """
+        if gpu is not None:
+            from ..backend import resolve_backend
+
+            gpu = resolve_backend(gpu)
+            if gpu.kind != "warp":
+                raise GraphError(f"gpu: expected a Warp backend ('cuda', 'warp-cpu'), got {gpu.name!r}")
         with self._run_lock:
-            self._order = _verify(self, inputs)
+            self._order = _verify(self, inputs, gpu)
         return self
 
     @property

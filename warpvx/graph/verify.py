@@ -123,8 +123,13 @@ def _warp_np_dtype(a):
     return numpy_dtype(a)
 
 
-def dry_run(graph, order, given=None):
+def dry_run(graph, order, given=None, gpu=None):
     """Run every node on samples; set each data object's ``sample`` and the delays' inits.
+
+    A node runs its CPU implementation when it has one, except a node pinned to the GPU when
+    ``gpu`` (a resolved GPU backend) is given: it runs there (a batch of images on Warp's CPU
+    device can take seconds where the GPU takes milliseconds). Otherwise GPU-only nodes run on
+    Warp's CPU device.
 
     With delays, two frames run: the first reads the delays' initial values (checking that
     they fit), the second reads the first frame's values, so the samples calibration times
@@ -144,7 +149,7 @@ def dry_run(graph, order, given=None):
     from ..backend import resolve_backend
 
     cpu = resolve_backend("cpu")
-    _dry_frame(graph, order, cpu, previous=None)
+    _dry_frame(graph, order, cpu, previous=None, gpu=gpu)
     for delay in graph.delays:
         if delay.init is not None:
             delay.set_initial(delay.init)
@@ -158,7 +163,7 @@ def dry_run(graph, order, given=None):
             for name, data in graph.inputs.items():
                 if name in frames[1]:
                     data.sample = input_sample(data, frames[1][name])
-        _dry_frame(graph, order, cpu, previous=previous)
+        _dry_frame(graph, order, cpu, previous=previous, gpu=gpu)
 
 
 def _given_frames(given) -> list:
@@ -172,7 +177,7 @@ def _given_frames(given) -> list:
                      f"consecutive frames), got {type(given).__name__}")
 
 
-def _dry_frame(graph, order, cpu, previous):
+def _dry_frame(graph, order, cpu, previous, gpu=None):
     for name in order:
         node = graph.nodes[name]
         values = []
@@ -191,21 +196,24 @@ def _dry_frame(graph, order, cpu, previous):
                                            f"its initial value")
             else:
                 values.append(ref.sample)
-        result = _run_once(node, values, cpu)
+        result = _run_once(node, values, cpu, gpu)
         outs = _split(node, result)
         for data, value in zip(node.outputs.values(), outs):
             data.sample = value
 
 
-def _run_once(node, values, cpu):
+def _run_once(node, values, cpu, gpu=None):
     try:
-        if "cpu" in node.implementations:
+        on_gpu = gpu is not None and node.target == "gpu" and "gpu" in node.implementations
+        if "cpu" in node.implementations and not on_gpu:
             return node.callable("cpu", cpu)(*values)
-        from ..backend import resolve_backend
+        from ..backend import init_warp, resolve_backend
 
-        be = resolve_backend("warp-cpu")
-        io = Transfers("cpu")
-        return io.download(node.callable("gpu", be)(*io.upload(list(values))))
+        be = gpu if on_gpu else resolve_backend("warp-cpu")
+        io = Transfers(be.device)
+        with init_warp().ScopedDevice(be.device):
+            outs = node.callable("gpu", be)(*io.upload(list(values)))
+        return io.download(outs)
     except GraphError:
         raise
     except WarpvxError as exc:
@@ -227,11 +235,12 @@ def _split(node, result) -> tuple:
     return tuple(result)
 
 
-def verify(graph, inputs: dict | None = None) -> list:
-    """Verify ``graph``; returns the nodes in execution (topological) order."""
+def verify(graph, inputs: dict | None = None, gpu=None) -> list:
+    """Verify ``graph``; returns the nodes in execution (topological) order. ``gpu``: see
+    :func:`dry_run`."""
     g = check_structure(graph)
     order = list(nx.lexicographical_topological_sort(g, key=lambda n: graph._node_index[n]))
-    dry_run(graph, order, inputs)
+    dry_run(graph, order, inputs, gpu)
     return order
 
 
