@@ -171,7 +171,11 @@ def _pts(kps):
 
 
 def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, pool):
-    """The state-free tracking work of a batch (CPU, fanned out to ``pool``).
+    """The state-free tracking work of a batch (CPU, fanned out to ``pool``): per frame the
+    mutual pairs to the previous frame and, for a stereo camera, each keypoint's stereo depth;
+    else the essential core of the filtered matches to the previous frame. Each frame is one
+    job (:func:`frame_job`): the calling thread only slices the batch, so the pose work holds
+    the GIL of the process that runs the tracking for none of it.
 
     Parameters
     ----------
@@ -186,41 +190,41 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     Returns
     -------
     tail : the last frame's (points, angles)
-    ahead : (pairs, cores, later)
-        ``pairs``: per frame (pairs int32 [M, 2], distances int32 [M]); ``cores`` (mono; None
-        for stereo): per frame the filtered matches' (p1, p2) to the previous frame whose
-        essential core the pool works out, or None when ``track`` will not need one;
-        ``later``: the pool's results still running (:func:`ahead_frames` waits for them):
-        the essential cores in ``cores``' order (mono) or each frame's stereo depths float32
-        [N] (:func:`stereo_depth`).
+    ahead : the pool's results, still running: :func:`ahead_frames` waits for them.
     """
     prev_pts, prev_angles = tail
-    pairs, jobs, cores = [], [], []
-    for f, (kps, _) in enumerate(feats[:frames], 1):
-        idx, dist, back = batch_pairs(*nearest, f)
+    fx = float(K[0, 0])
+    jobs = []
+    for f, (kps, desc) in enumerate(feats[:frames], 1):
         pts, angles = _pts(kps), np.asarray(kps.angle, np.float64)
-        p, d = mutual_pairs(idx, dist, back, len(kps), len(prev_pts))
-        pairs.append((p, d))
-        if baseline is None:
-            # What track() will hand to essential_core when the previous frame is the reference.
-            good = o.filter_matches(p, d, angles, prev_angles, config) if len(kps) else p[:0]
-            p1, p2 = prev_pts[good[:, 1]], pts[good[:, 0]]
-            costly = len(good) >= 8 and np.median(np.linalg.norm(p2 - p1, axis=1)) >= config.min_parallax
-            cores.append((p1, p2) if costly else None)
-            if costly:
-                jobs.append((p1, p2, K, config))
+        stereo = None
+        if baseline is not None:
+            kr, dr = feats[frames + f - 1]
+            stereo = (kps, desc, kr, dr, images[f - 1], images[frames + f - 1], fx, baseline)
+        jobs.append((batch_pairs(*nearest, f), pts, angles, prev_pts, prev_angles, K, config, stereo))
         prev_pts, prev_angles = pts, angles
-    if baseline is not None:
-        left, right = feats[:frames], feats[frames:]
-        job = functools.partial(_stereo_job, fx=float(K[0, 0]), baseline=baseline, config=config)
-        depths = _Later(pool, job, [(*left[i], *right[i], images[i], images[frames + i]) for i in range(frames)])
-        return (prev_pts, prev_angles), (pairs, None, depths)
-    return (prev_pts, prev_angles), (pairs, cores, _Later(pool, o.essential_core, jobs))
+    return (prev_pts, prev_angles), _Later(pool, frame_job, jobs)
 
 
-def _stereo_job(kl, dl, kr, dr, left, right, *, fx, baseline, config):
-    return stereo_depth(kl, dl, kr, dr, left, right, fx=fx, baseline=baseline,
-                        scale_factor=config.scale_factor, max_distance=config.stereo_max_distance)
+def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
+    """One frame's state-free work (on a pool process): (pairs int32 [M, 2], distances int32
+    [M], extra). ``nearest``: :func:`~warpvx.apps.orbslam_match.batch_pairs`' (nearest,
+    distance, back); ``stereo``: None (monocular), or (left keypoints, left descriptors, right
+    keypoints, right descriptors, left image, right image, fx, baseline). ``extra``: stereo,
+    the depth float32 [N] of each keypoint (:func:`stereo_depth`); monocular, (p1, p2,
+    :func:`~warpvx.apps.orbslam.essential_core`'s result) for the filtered matches to the
+    previous frame, what ``track`` hands to it when that frame is the reference, or None when
+    ``track`` will not need one."""
+    idx, dist, back = nearest
+    p, d = mutual_pairs(idx, dist, back, len(pts), len(prev_pts))
+    if stereo is not None:
+        kl, dl, kr, dr, left, right, fx, baseline = stereo
+        return p, d, stereo_depth(kl, dl, kr, dr, left, right, fx=fx, baseline=baseline,
+                                  scale_factor=config.scale_factor, max_distance=config.stereo_max_distance)
+    good = o.filter_matches(p, d, angles, prev_angles, config) if len(pts) else p[:0]
+    p1, p2 = prev_pts[good[:, 1]], pts[good[:, 0]]
+    costly = len(good) >= 8 and np.median(np.linalg.norm(p2 - p1, axis=1)) >= config.min_parallax
+    return p, d, (p1, p2, o.essential_core(p1, p2, K, config)) if costly else None
 
 
 def _essential_ahead(core):
@@ -237,12 +241,8 @@ def _essential_ahead(core):
 
 def ahead_frames(ahead) -> list:
     """:func:`pose_batch`'s ``ahead`` per frame, once the pool's work is done: (pairs,
-    distances, then the stereo depths, or (p1, p2, essential core) or None for mono)."""
-    pairs, cores, later = ahead
-    values = iter(later.get())
-    if cores is None:
-        return [(p, d, next(values)) for p, d in pairs]
-    return [(p, d, None if c is None else (*c, next(values))) for (p, d), c in zip(pairs, cores)]
+    distances, extra) as :func:`frame_job` returns them."""
+    return ahead.get()
 
 
 def chain(state, feats, ahead, *, K, config, baseline, frames):
