@@ -218,6 +218,30 @@ def _flow_graph(frames, gpu, n_points):
     return g
 
 
+def test_eager_frame_between_replays_refills_the_swapped_delay(frames, warp_backend):
+    """A frame run eagerly between replays leaves its own pyramid in the delay (same shapes,
+    so the next frame replays): that replay copies it into its buffer set instead of reading
+    the set the last replay wrote (an older frame's), and every output equals the eager
+    run's."""
+    rng = np.random.default_rng(5)
+    h, w = frames[0].shape[:2]
+    pts = (rng.random((24, 2)) * [w - 20, h - 20] + 10).astype(np.float32)
+    feed = [{"frame": f, "pts": pts} for f in frames * 3]
+    g = _flow_graph(frames, warp_backend, pts)
+    try:
+        eager = [g.process(x, capture=False) for x in feed]
+        g.reset()
+        ex = g.plan.executor()
+        cap = _capture_arg(warp_backend)
+        got = [g.process(x, capture=False if i in (7, 9) else cap) for i, x in enumerate(feed)]
+        assert ex.captures == 1 and ex._segments[0].swapped
+        for i, (e, c) in enumerate(zip(eager, got)):
+            for k in e:
+                assert _same(e[k], c[k]), (i, k)
+    finally:
+        g.close()
+
+
 def test_segment_inputs_of_another_shape_run_eagerly_then_replay(frames, warp_backend):
     """LK's points change count from frame to frame: a count other than verification's
     runs eagerly (its out= buffers do not fit), verification's count replays its capture;
