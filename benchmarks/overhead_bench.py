@@ -191,7 +191,9 @@ def markdown(report) -> str:
     lines += ["", "Targets (issue 11): < 5 us/node on the GPU-only chain, < 20 on the alternating "
               "one. Breakdown (executor_overhead): mixed, one CPU -> GPU -> CPU round: the GPU "
               "call's host time (gpu_task), a CPU task with its download (cpu_task), the "
-              "hand-offs; gpu: a task's host time and the gap to the next."]
+              "hand-offs; gpu: a task's host time and the gap to the next; every chain: a "
+              "frame's host time before its first task (frame_head) and after its last "
+              "(frame_tail: wait, outputs, result)."]
     n0, n1 = report["primitive_chain"][0]["nodes"] if report["primitive_chain"] else ("?", "?")
     lines += ["", f"## GPU-only chain of 3x3 blurs (16x16 uint8): cost of one more node "
                   f"(chains of {n0} and {n1})", "",

@@ -34,9 +34,12 @@ def test_executor_overhead_reports_per_node_time(mixed):
     assert 0 < r["per_node_us_stream"] * r["n_nodes"] < 1e6
     # Identity nodes are scheduled far shorter than Executor.INLINE_MAX_MS: all may run inline.
     assert r["inline_units"] == "20/20"
-    if mixed:
-        assert set(r["breakdown"]) == {"gpu_task", "cpu_task", "cpu_to_gpu", "gpu_to_cpu"}
-        assert all(0 <= v < r["frame_us"] for v in r["breakdown"].values())
+    ends = {"frame_head", "frame_tail"}
+    assert set(r["breakdown"]) == ends | ({"gpu_task", "cpu_task", "cpu_to_gpu", "gpu_to_cpu"}
+                                          if mixed else set())
+    assert all(0 <= v < r["frame_us"] for v in r["breakdown"].values())
+    # The frame's ends and its tasks' span fit in the frame (one median each: 2x slack).
+    assert r["breakdown"]["frame_head"] + r["breakdown"]["frame_tail"] < 2 * r["frame_us"]
     print(f"\nexecutor overhead ({'mixed' if mixed else 'cpu'}): {r['per_node_us']:.1f} us/node")
 
 

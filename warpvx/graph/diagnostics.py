@@ -136,7 +136,9 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
         the GPU thread starting the next task (``cpu_to_gpu``) and from the GPU thread's end
         of a task to the CPU worker starting the next (``gpu_to_cpu``: wake-up, event wait).
         ``"gpu"``: the GPU thread's time in a task (``gpu_task``; the first one, with the
-        upload, left out) and between two tasks (``gpu_gap``).
+        upload, left out) and between two tasks (``gpu_gap``). Every chain: the frame's host
+        time before its first task and after its last (``frame_head``, ``frame_tail``:
+        :func:`_frame_ends`).
     """
     from ..runtime import executor as _executor
 
@@ -154,11 +156,13 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
     finally:
         _executor.SPIN_SECONDS = saved
     t_call = _time_direct(n_nodes)
-    wall, runs = [], []
+    wall, runs, calls = [], [], []
     for _ in range(frames):
         t0 = time.perf_counter()
         g.process({"x": x})
-        wall.append(time.perf_counter() - t0)
+        t1 = time.perf_counter()
+        wall.append(t1 - t0)
+        calls.append((t0, t1))
         runs.append(g.plan.last_run[-1])
     frame_s = statistics.median(wall)
     t0 = time.perf_counter()
@@ -187,7 +191,23 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
         out["breakdown"] = _breakdown(runs, n_nodes)
     elif chain == "gpu":
         out["breakdown"] = _breakdown_gpu(runs, n_nodes)
+    else:
+        out["breakdown"] = {}
+    out["breakdown"].update(_frame_ends(runs, calls))
     return out
+
+
+def _frame_ends(runs, calls) -> dict:
+    """Medians (us) of a frame's host time outside its tasks: from ``process`` being called
+    to the first task's start (``frame_head``: inputs, submit, a thread's wake-up) and from the
+    last task's end (the device's, for a GPU task timed by CUDA events) to ``process``
+    returning (``frame_tail``: the wait, outputs, the frame's result and recycling)."""
+    head, tail = [], []
+    for r, (c0, c1) in zip(runs, calls):
+        first = min(t.start for t in r.timeline.values()) / 1e3
+        head.append(r.t0 + first - c0)
+        tail.append(c1 - r.t0 - r.makespan / 1e3)
+    return {"frame_head": statistics.median(head) * 1e6, "frame_tail": statistics.median(tail) * 1e6}
 
 
 def _breakdown(runs, n_nodes: int) -> dict:
