@@ -198,15 +198,16 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
 
 
 def _frame_ends(runs, calls) -> dict:
-    """Medians (us) of a frame's host time outside its tasks: from ``process`` being called
-    to the first task's start (``frame_head``: inputs, submit, a thread's wake-up) and from the
-    last task's end (the device's, for a GPU task timed by CUDA events) to ``process``
-    returning (``frame_tail``: the wait, outputs, the frame's result and recycling)."""
+    """Medians (us) of a frame's host time outside its tasks, on the host clock (a GPU task's
+    call, not its device interval): from ``process`` being called to the first task's start
+    (``frame_head``: inputs, submit, a thread's wake-up) and from the last task's end to
+    ``process`` returning (``frame_tail``: the device finishing, the wait, outputs, the
+    frame's result and recycling)."""
     head, tail = [], []
     for r, (c0, c1) in zip(runs, calls):
-        first = min(t.start for t in r.timeline.values()) / 1e3
-        head.append(r.t0 + first - c0)
-        tail.append(c1 - r.t0 - r.makespan / 1e3)
+        spans = [r.host.get(k) or (t.start, t.finish) for k, t in r.timeline.items()]
+        head.append(r.t0 + min(a for a, _ in spans) / 1e3 - c0)
+        tail.append(c1 - r.t0 - max(b for _, b in spans) / 1e3)
     return {"frame_head": statistics.median(head) * 1e6, "frame_tail": statistics.median(tail) * 1e6}
 
 
