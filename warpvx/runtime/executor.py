@@ -239,6 +239,9 @@ class Executor(RoleRunner, SegmentRunner):
                     self._up_pools.pop(key, None)
         self._null_stream = None  # the device's legacy stream (CUDA), looked up once
         self._task_keys = [k for t in program.tasks.values() for k in t.outputs]
+        # The slots a frame's events may outlive it in (_recycle): the caller's inputs and
+        # the delays' (kept by their rings); the others go with the frame.
+        self._outliving = list(dict.fromkeys([*program.inputs, *program.rings]))
         self._roles = self._make_roles() if self.frames == 1 else {}
         self._scope: DeviceScope | None = None  # the GPU role's device/stream (set by _start)
 
@@ -781,7 +784,9 @@ class Executor(RoleRunner, SegmentRunner):
         if not frame.events:
             return
         mine = {id(e) for e in frame.events}
-        for slot in frame.slots.values():
+        slots = frame.slots
+        for key in self._outliving:
+            slot = slots[key]
             if slot.event is not None and id(slot.event) in mine:
                 if slot.external:  # the caller's copy, which no task of the frame may have awaited
                     synchronize_event(slot.event)
