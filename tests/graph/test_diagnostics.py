@@ -43,6 +43,18 @@ def test_executor_overhead_reports_per_node_time(mixed):
     print(f"\nexecutor overhead ({'mixed' if mixed else 'cpu'}): {r['per_node_us']:.1f} us/node")
 
 
+def test_profile_overhead_sees_the_role_threads():
+    from warpvx.graph.diagnostics import profile_overhead
+    from warpvx.runtime.roles import RoleRunner
+
+    loop = RoleRunner._role_loop
+    text = profile_overhead(8, 5, chain="mixed", gpu="warp-cpu", top=400)
+    # GPU and CPU tasks run on the executor's role threads only, never the caller's.
+    assert "_run_gpu_task" in text and "_run_cpu_task" in text
+    assert "Ordered by: internal time" in text and "Ordered by: cumulative time" in text
+    assert RoleRunner._role_loop is loop  # the wrapper is gone
+
+
 def test_soak_reports_memory_at_start_and_end(frames):
     g = warpvx.Graph("soak")
     f = g.input("frame", shape=frames[0].shape, dtype=np.uint8)
@@ -116,7 +128,8 @@ def test_graph_bench_quick_runs(tmp_path):
     assert all(t["measured_ms"] >= 0 and t["calibrated_ms"] > 0 for t in row["nodes"].values())
     assert saved["switch_interval"]["chosen"] in [float(k) for k in saved["switch_interval"]["switch"]]
     mixed = [o for o in saved["overhead"] if o["mixed"]]
-    assert mixed and all(set(o["breakdown"]) == {"gpu_task", "cpu_task", "cpu_to_gpu", "gpu_to_cpu"}
+    assert mixed and all(set(o["breakdown"]) == {"gpu_task", "cpu_task", "cpu_to_gpu", "gpu_to_cpu",
+                                             "frame_head", "frame_tail"}
                          for o in mixed)
     md = (tmp_path / "graph_bench.md").read_text()
     assert "| best" in md and "out of sample" in md and "graph_bench.py --quick" in md

@@ -197,6 +197,54 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
     return out
 
 
+def profile_overhead(n_nodes: int = 64, frames: int = 200, *, chain: str = "gpu", gpu=None,
+                     top: int = 40) -> str:
+    """:func:`executor_overhead` of one chain under ``cProfile``, on every thread: the
+    caller's and the executor's role threads (their loop is wrapped while this runs), merged.
+
+    Returns the ``pstats`` report (text): the ``top`` functions by own time, then by
+    cumulative time (scheduling included; a short unprofiled run first loads modules and
+    kernels; lock ``acquire`` is mostly idle threads waiting). Profiling slows every call several-fold: read it for where the host
+    time goes, not for its amount.
+    """
+    import cProfile
+    import io
+    import pstats
+
+    from ..runtime.roles import RoleRunner
+
+    profiles = []
+    loop = RoleRunner._role_loop
+
+    def profiled_loop(self, proc):
+        prof = cProfile.Profile()
+        profiles.append(prof)
+        prof.enable()
+        try:
+            loop(self, proc)
+        finally:
+            prof.disable()
+
+    executor_overhead(n_nodes, 5, chain=chain, gpu=gpu)  # imports, JIT: not profiled
+    main = cProfile.Profile()
+    RoleRunner._role_loop = profiled_loop
+    try:
+        main.enable()
+        try:
+            executor_overhead(n_nodes, frames, chain=chain, gpu=gpu)  # closes its threads
+        finally:
+            main.disable()
+    finally:
+        RoleRunner._role_loop = loop
+    text = io.StringIO()
+    stats = pstats.Stats(main, stream=text)
+    for prof in profiles:
+        stats.add(prof)
+    stats.sort_stats("tottime").print_stats(top)
+    stats.sort_stats("cumulative").print_stats(top)
+    return text.getvalue()
+
+
 def _frame_ends(runs, calls) -> dict:
     """Medians (us) of a frame's host time outside its tasks, on the host clock (a GPU task's
     call, not its device interval): from ``process`` being called to the first task's start
@@ -336,4 +384,4 @@ def soak(graph: Graph, make_inputs, n: int, *, depth: int = 2, report_every: int
     }
 
 
-__all__ = ["CHAINS", "executor_overhead", "soak", "host_rss_bytes", "gpu_memory_bytes", "nvidia_smi_mb"]
+__all__ = ["CHAINS", "executor_overhead", "profile_overhead", "soak", "host_rss_bytes", "gpu_memory_bytes", "nvidia_smi_mb"]
