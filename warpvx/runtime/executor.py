@@ -95,6 +95,7 @@ import functools
 import queue
 import threading
 import time
+from time import perf_counter
 from collections import OrderedDict
 from collections.abc import Mapping
 
@@ -437,28 +438,36 @@ class Executor(RoleRunner, SegmentRunner):
         try:
             if slots is None:
                 slots, _ = self._ready_inputs(frame, task.inputs)
-            remote = [s for s in slots if s.where == DEVICE]
-            waited = [None] * len(slots)
-            if self.cuda and remote:
+            remote = False
+            for s in slots:
+                if s.where == DEVICE:
+                    remote = True
+                    break
+            if remote and self.cuda:
                 # Waiting for the producer (or its staged download) is not the task's time.
-                for i, s in enumerate(slots):
-                    if s.where == DEVICE:
-                        ev = waited[i] = s.ready_event()
-                        if ev is not None:
-                            synchronize_event(ev)
-            t0 = time.perf_counter()
+                waited = [s.ready_event() if s.where == DEVICE else None for s in slots]
+                for ev in waited:
+                    if ev is not None:
+                        synchronize_event(ev)
+            elif remote:
+                waited = [None] * len(slots)
+            t0 = perf_counter()
             t_mid = None
             if remote:
                 before = io.moved
                 values = [s.host(io, waited=ev) for s, ev in zip(slots, waited)]
-                t_mid = time.perf_counter()
+                t_mid = perf_counter()
                 if io.moved > before:
                     frame.copied[task.name] = io.moved - before
             else:
                 values = [s.value for s in slots]
             result = task.cpu(*values)
-            t1 = time.perf_counter()
-            self._publish(frame, task, result, HOST)
+            t1 = perf_counter()
+            outputs = task.outputs
+            if len(outputs) == 1:  # the usual task: _publish's one-output case, inline
+                frame.slots[outputs[0]].set(result, HOST)
+            else:
+                self._publish(frame, task, result, HOST)
         except Cancelled:
             return False
         except BaseException as exc:  # noqa: BLE001 - reported to the caller
@@ -496,14 +505,14 @@ class Executor(RoleRunner, SegmentRunner):
         """One GPU task, enqueued eagerly: waits for its inputs (unless given their
         ``slots``, all set), uploads, the call (into a pooled output buffer where it has
         one), timing events (CUDA) and its outputs published."""
-        state.task = task.name
+        name = state.task = task.name
         cuda = self.cuda
         io = state.io
         if slots is None:
             slots, waited = self._ready_inputs(frame, task.inputs)
         else:
             waited = False
-        h0 = time.perf_counter()
+        h0 = perf_counter()
         ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved
         values = [s.value if s.where == DEVICE else
@@ -512,28 +521,31 @@ class Executor(RoleRunner, SegmentRunner):
         mid = None
         moved = io.moved - before
         if moved:
-            frame.copied[task.name] = moved
+            frame.copied[name] = moved
             if not cuda:
-                mid = time.perf_counter()
+                mid = perf_counter()
             elif moved >= TIMED_COPY_MIN_BYTES:
                 mid = self._events.get()
                 frame.events.append(mid)
                 record_event(self._stream, mid)
-        if task.name in self._out_pools:
+        if name in self._out_pools:
             result = task.gpu(*values, out=self._lease(frame, task))
         else:
             result = task.gpu(*values)
         if cuda:
-            ev1 = self._end_event(frame)
-            h1 = time.perf_counter()
-            self._publish(frame, task, result, DEVICE, ev1)
-            frame.trace[task.name] = (state.proc, ev0, ev1, mid)
-            state.prev_end = ev1
+            ev1 = state.prev_end = self._end_event(frame)
+            h1 = perf_counter()
+            frame.trace[name] = (state.proc, ev0, ev1, mid)
         else:
-            h1 = time.perf_counter()
-            self._publish(frame, task, result, DEVICE)
-            frame.trace[task.name] = (state.proc, h0, h1, mid)
-        frame.host_trace[task.name] = (h0, h1)
+            ev1 = None
+            h1 = perf_counter()
+            frame.trace[name] = (state.proc, h0, h1, mid)
+        frame.host_trace[name] = (h0, h1)
+        outputs = task.outputs
+        if len(outputs) == 1:  # the usual task: _publish's one-output case, inline
+            frame.slots[outputs[0]].set(result, DEVICE, ev1)
+        else:
+            self._publish(frame, task, result, DEVICE, ev1)
 
     def _lease(self, frame: Frame, task: ExecTask):
         pool = self._out_pools[task.name]
