@@ -160,10 +160,18 @@ def _frontend_result(res, dt, plan, out, name, backend):
             "plan": summary}, np.array([f.pose for f in res])
 
 
-def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth=3):
+#: Monocular motion from the previous frame only: every essential matrix worked out ahead.
+PREVIOUS_ONLY = o.TrackerConfig(keyframe_motion=False)
+#: The batched runs: report key, camera, Gantt name, tracker settings.
+BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig()),
+           ("batched_mono_prev", "mono", "batch_mono_prev", PREVIOUS_ONLY),
+           ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig()))
+
+
+def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth=3, config=o.TrackerConfig()):
     """The batched front end end to end (``pool``: the pose work's process pool, opened once)."""
     plans = []
-    run = functools.partial(ob.track_frames_batched, camera=camera, batch=batch, pool=pool,
+    run = functools.partial(ob.track_frames_batched, camera=camera, config=config, batch=batch, pool=pool,
                             backend=backend, depth=depth)
     list(run(frames[:4 * batch]))  # warm-up, calibration
     t = time.perf_counter()
@@ -354,16 +362,19 @@ def main(argv=None):
             report[key] = attempt(f"batched matching {b}", lambda: bench_extract_match_batched(images, backend, b),
                                   failed)
             progress(f"extraction+matching batched (B={b}) FPS", f"{report[key]['fps']:.1f}")
-        for key, frames, camera, name in (("batched_mono", mono_frames, mono, "batch_mono"),
-                                          ("batched_stereo", stereo_frames, stereo, "batch_stereo")):
+        for key, cam, name, config in BATCHED:
+            camera, frames = (mono, mono_frames) if cam == "mono" else (stereo, stereo_frames)
             report[key] = attempt(name, lambda: bench_frontend_batched(replay(frames, n), camera, backend, out,
-                                                                       name, batch, pool)[0], failed)
+                                                                       name, batch, pool, config=config)[0], failed)
             progress(f"front end {name} (B={batch}) FPS", f"{report[key]['fps']:.1f}")
         report["pose_pool"] = attempt("pose pool", lambda: bench_pose_pool(mono_frames, mono, batch, pool), {})
         progress("pose_batch alone (ms/frame): no pool vs pool", report["pose_pool"])
         batched = {name: attempt(f"accuracy batched {name}", lambda: np.array(
-            [f.pose for f in ob.track_frames_batched(frames, camera, batch=batch, pool=pool, backend=backend)]),
-            None) for name, frames, camera in (("mono", mono_frames, mono), ("stereo", stereo_frames, stereo))}
+            [f.pose for f in ob.track_frames_batched(frames, camera, config, batch=batch, pool=pool,
+                                                     backend=backend)]), None)
+            for name, frames, camera, config in (("mono", mono_frames, mono, o.TrackerConfig()),
+                                                 ("stereo", stereo_frames, stereo, o.TrackerConfig()),
+                                                 ("mono_prev", mono_frames, mono, PREVIOUS_ONLY))}
     finally:
         if pool is not None:
             pool.shutdown()
@@ -376,7 +387,10 @@ def main(argv=None):
         for name, frames, camera in (("mono", mono_frames, mono), ("stereo", stereo_frames, stereo))}
     report["accuracy"] = {}
     for name, label in (("mono", "Sim3"), ("stereo", "SE3")):
-        for mode, poses in (("", sequential[name]), (f" batched B={batch}", batched[name])):
+        modes = [("", sequential[name]), (f" batched B={batch}", batched[name])]
+        if name == "mono":
+            modes.append((f" batched B={batch}, keyframe_motion off", batched["mono_prev"]))
+        for mode, poses in modes:
             ok = isinstance(poses, np.ndarray)
             report["accuracy"][f"rendered: warpvx_{name}{mode} ({label})"] = \
                 accuracy(poses, gt, name == "mono") if ok else dict(nan, error=str(poses))
@@ -398,6 +412,7 @@ def main(argv=None):
              for k in report if k.startswith("extract_match_batch")]
     rows += [("front end mono, end to end, frame by frame", "frontend_mono"),
              (f"front end mono, end to end, batched B={batch}", "batched_mono"),
+             (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),
              ("front end stereo, end to end, frame by frame", "frontend_stereo"),
              (f"front end stereo, end to end, batched B={batch}", "batched_stereo")]
     lines = [f"<!-- {command}   (OUT=$OUT) -->",
@@ -425,11 +440,11 @@ def main(argv=None):
               "Per node, median ms over the last frames (in a pipelined run a node's interval",
               "includes waiting for the GIL and for copies):", ""]
     lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono",
-                                   "frontend_stereo", "batched_mono", "batched_stereo"])
+                                   "frontend_stereo", "batched_mono", "batched_mono_prev", "batched_stereo"])
     lines += ["", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
     for k, v in report["accuracy"].items():
         lines.append(f"| {k} | {v['ate_m']:.4f} | {v['rpe1_t_m']:.4f} | {v['rpe1_r_deg']:.3f} |")
-    for k in ("frontend_mono", "frontend_stereo", "batched_mono", "batched_stereo"):
+    for k in ("frontend_mono", "frontend_stereo", "batched_mono", "batched_mono_prev", "batched_stereo"):
         s = report[k]["plan"]
         if s is None:
             lines += ["", f"{k}: FAILED ({report[k].get('error')})"]

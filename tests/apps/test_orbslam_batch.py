@@ -79,11 +79,14 @@ def test_essential_ahead_is_used_only_for_its_own_points(seq):
         np.testing.assert_array_equal(g, w)
 
 
-def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch):
-    """pose_batch works out every frame's essential matrix ahead (on 2 processes); chain then
-    tracks the batch with no essential_core call of its own and gives the sequential poses."""
+@pytest.mark.parametrize("keyframe_motion", [True, False])
+def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_motion):
+    """pose_batch works out every frame's essential matrix to the previous frame ahead (on 2
+    processes); chain then tracks the batch with no essential_core call of its own except for
+    frames tracked from the keyframe (none with keyframe_motion off) and gives the sequential
+    poses."""
     frames, camera = _frames(seq, False)
-    config, K = o.TrackerConfig(), np.ascontiguousarray(seq[2], np.float64)
+    config, K = o.TrackerConfig(keyframe_motion=keyframe_motion), np.ascontiguousarray(seq[2], np.float64)
     images = np.stack([f["image"] for f in frames])
     feats = ob.orb_batch(images, config=config)
     last, nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=FRAMES)
@@ -101,8 +104,12 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch):
     core = o.essential_core
     monkeypatch.setattr(o, "essential_core", lambda *a: calls.append(1) or core(*a))
     _, poses, stats = ob.chain(o.TrackState(), feats, ahead, **common)
-    assert calls == [] and stats.shape == (FRAMES, len(o.STATS))
-    np.testing.assert_allclose(poses, [f.pose for f in o.track_frames(frames, camera)], atol=1e-9)
+    # Frames tracked from the keyframe (reference 1: which frame that is, is state) work out
+    # theirs on the spot; the others use the ones worked out ahead.
+    assert len(calls) == np.count_nonzero(stats[:, 4] == o.REF_KEYFRAME) and stats.shape == (FRAMES, len(o.STATS))
+    if not keyframe_motion:
+        assert calls == []
+    np.testing.assert_allclose(poses, [f.pose for f in o.track_frames(frames, camera, config)], atol=1e-9)
 
 
 def test_cli_batch_flag_end_to_end(tmp_path, seq, capsys):

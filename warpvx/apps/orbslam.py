@@ -16,12 +16,26 @@ falls back to the last keyframe when the previous frame gives too few, and estim
 from the reference frame: PnP with RANSAC on the reference's stereo 3-D points (metric, the
 constant-velocity motion model as the initial guess, ``useExtrinsicGuess``), or for monocular
 sequences the essential matrix by MAGSAC++ (OpenCV's USAC) with the cheirality check (as
-``cv2.recoverPose``; its four-way choice vectorised). A
-monocular camera cannot observe scale: the first step has unit length and later steps take
-their length from the depths triangulated at the step before (the median ratio over the points
-seen in both), so the trajectory is right up to one global scale -- evaluate it after a Sim(3)
-alignment. Keyframes: every ``keyframe_interval`` frames, when the inliers drop under
-``keyframe_ratio`` of those tracked just after the last keyframe, or after a tracking loss.
+``cv2.recoverPose``; its four-way choice vectorised).
+
+A monocular camera cannot observe scale: the first step has unit length, and the trajectory
+is right up to one global scale -- evaluate it after a Sim(3) alignment. Keeping that one scale
+along the sequence is what ORB-SLAM2's map does; here, without a map, the same ingredients:
+
+- depths as map points: each keypoint carries a depth and its variance (from the parallax it
+  was triangulated under), carried through the motion to the keypoint it matches in the next
+  frame and fused there with the new triangulation (in inverse depth), so depths are refined
+  over the frames a point is tracked instead of re-triangulated from one step;
+- the step's scale from those depths: the inverse-variance weighted mean of (depth / depth for
+  a unit step) over the points seen in both, outliers gated;
+- the reference with the most parallax: each keypoint remembers the keyframe keypoint it was
+  tracked from, frame to frame; when those tracks give more parallax (median displacement
+  times the square root of their count) than the previous frame's matches, the motion is
+  estimated from the keyframe (as ORB-SLAM2 triangulates against keyframes), and the points
+  matched since then get depths triangulated from the previous frame for the known motion.
+
+Keyframes: every ``keyframe_interval`` frames, when the inliers drop under ``keyframe_ratio``
+of those tracked just after the last keyframe, or after a tracking loss.
 
 All tracking state is carried from frame to frame through a delay (:class:`TrackState`,
 immutable), so every node is a pure function: verification and calibration may run them on
@@ -42,6 +56,7 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
+from .orbslam_depths import NEW_VAR, backfill, carry_depths, flow, fuse_depths, log_depth_var, reprojects, step_scale
 from .orbslam_match import add_match_node, mutual_pairs, stereo_depth
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
@@ -80,9 +95,17 @@ class TrackerConfig:
     pnp_threshold : float
         PnP RANSAC reprojection threshold (px).
     keyframe_interval, keyframe_ratio
-        Keyframe policy (see the module docstring).
+        Keyframe policy (see the module docstring). ORB-SLAM2's ratio is 0.9 of a map's
+        tracked points; 0.7 measured best of 0.3, 0.5, 0.7 on rendered sequences (monocular
+        ATE), the keyframe being the reference of slow, low-parallax motion.
     stereo_max_distance : int
         Stereo matching's Hamming bound (ORB-SLAM2: (TH_HIGH + TH_LOW) / 2 = 75).
+    keyframe_motion : bool
+        Monocular: estimate the motion from the last keyframe when the keypoints tracked
+        since give more parallax than the previous frame (see the module docstring). Off,
+        every frame's motion is from the previous frame, whose essential matrices the
+        batched front end (:mod:`~warpvx.apps.orbslam_batch`) works out ahead on its process
+        pool: faster there, less accurate on slow, low-parallax motion.
     """
 
     n_features: int = 2000
@@ -100,11 +123,14 @@ class TrackerConfig:
     min_parallax: float = 1.0
     pnp_threshold: float = 2.0
     keyframe_interval: int = 10
-    keyframe_ratio: float = 0.5
+    keyframe_ratio: float = 0.7
     stereo_max_distance: int = (TH_HIGH + TH_LOW) // 2
+    keyframe_motion: bool = True
 
     def __post_init__(self):
-        from ..check import check_float, check_int
+        from ..check import check_bool, check_float, check_int
+
+        check_bool(self.keyframe_motion, "keyframe_motion")
 
         check_int(self.n_features, "n_features", min_value=1)
         check_int(self.n_levels, "n_levels", min_value=1)
@@ -186,14 +212,18 @@ def filter_matches(pairs, distances, angles_q, angles_t, config: TrackerConfig) 
 class FrameRecord:
     """What tracking keeps of a frame: ``pts`` float64 [N, 2], ``angles`` float [N] (deg),
     ``depth`` float [N] (camera z, m for stereo, the sequence's running scale for monocular;
-    NaN unknown), ``desc`` uint8 [N, 32] (kept for keyframes), ``pose`` 4x4, ``index``."""
+    NaN unknown) and ``depth_var`` float [N] (variance of its log), ``desc`` uint8 [N, 32]
+    (kept for keyframes), ``pose`` 4x4, ``index``, and ``kf_index`` int [N]: the keypoint of
+    the last keyframe each one was tracked from, frame to frame (-1 none)."""
 
     pts: np.ndarray
     angles: np.ndarray
     depth: np.ndarray
+    depth_var: np.ndarray
     desc: np.ndarray
     pose: np.ndarray
     index: int
+    kf_index: np.ndarray
 
 
 @dataclasses.dataclass(frozen=True)
@@ -277,6 +307,22 @@ def _cheirality(E, x1, x2):
     return best[1:]
 
 
+def _triangulate_known(ref, cur_pts, pairs, T, K):
+    """Depths of matched points for a known motion ``T`` (T_cur_ref, at the map's scale):
+    midpoint triangulation of the ``pairs`` (this frame's index, the reference's), kept where
+    in front of both cameras, reprojecting near this frame's keypoint (:func:`reprojects`),
+    seen under enough parallax (``NEW_VAR``), then :func:`fuse_depths`, whose result it returns."""
+    Kinv = np.linalg.inv(K)
+    x1 = np.c_[ref.pts[pairs[:, 1]], np.ones(len(pairs))] @ Kinv.T
+    x2 = np.c_[cur_pts[pairs[:, 0]], np.ones(len(pairs))] @ Kinv.T
+    R, t = T[:3, :3], T[:3, 3]
+    z1, z2 = _ray_depths(x1, x2, R, t)
+    X = (x1 * z1[:, None]) @ R.T + t
+    ok = (z1 > 0) & (z2 > 0) & reprojects(X, K, cur_pts[pairs[:, 0]])
+    ok[ok] = log_depth_var(x1[ok], x2[ok], R, K[0, 0]) <= NEW_VAR
+    return fuse_depths(ref, pairs[ok], x1[ok], x2[ok], R, t, X[ok, 2], K[0, 0])
+
+
 def essential_core(p1, p2, K, config):
     """The state-free core of a monocular step: the motion between matched points ``p1``
     (reference) and ``p2`` (current), float64 [M, 2] px, for intrinsics ``K`` (float64 3x3,
@@ -310,25 +356,30 @@ def essential_core(p1, p2, K, config):
 
 def _pose_essential(ref, cur_pts, pairs, K, step, config, essential=essential_core):
     """T_cur_ref from the essential matrix (:func:`essential_core`, or ``essential`` with its
-    signature and results), the translation scaled by the reference's depths (or ``step``
-    when none are shared); returns (T, inliers, depth of the inliers in the current frame as
-    (cur indices, z)) or None."""
+    signature and results), the translation scaled by the reference's depths
+    (:func:`~warpvx.apps.orbslam_depths.step_scale`; ``step`` when too few are shared);
+    returns (T, inliers, (this frame's indices, depths, log-depth variances)) or None: the
+    depths of the points in front (:func:`~warpvx.apps.orbslam_depths.fuse_depths`), or the
+    reference's when it did not move."""
     p1, p2 = ref.pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
     if np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
-        return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]])
+        return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]], ref.depth_var[pairs[:, 1]])
     core = essential(p1, p2, K, config)
     if core is None:
         return None
     R, t, inl, z_ref, z_cur = core
-    prior = ref.depth[pairs[inl, 1]]
-    common = np.isfinite(prior) & (prior > 0)
-    scale = float(np.median(prior[common] / z_ref[common])) if common.sum() >= 5 else step
-    return _rt(R, scale * t), len(inl), (pairs[inl, 0], z_cur * scale)
+    Kinv = np.linalg.inv(K)
+    x1 = np.c_[p1[inl], np.ones(len(inl))] @ Kinv.T
+    x2 = np.c_[p2[inl], np.ones(len(inl))] @ Kinv.T
+    scale = step_scale(ref, pairs[inl], x1, x2, R, z_ref, K[0, 0], step)
+    tri = fuse_depths(ref, pairs[inl], x1, x2, R, scale * t, scale * z_cur, K[0, 0])
+    return _rt(R, scale * t), len(inl), tri
 
 
-def _record(kps, desc, depth, pose, index):
+def _record(kps, desc, depth, depth_var, pose, index, kf_index):
     pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
-    return FrameRecord(pts, np.asarray(kps.angle, np.float64), depth, np.asarray(desc), pose, index)
+    return FrameRecord(pts, np.asarray(kps.angle, np.float64), depth, depth_var, np.asarray(desc),
+                       pose, index, kf_index)
 
 
 def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
@@ -368,21 +419,33 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     n = len(kps)
     stereo = depth is not None
     cur_depth = np.asarray(depth, np.float64) if stereo else np.full(n, np.nan)
+    # Stereo depths weigh alike (their disparities are not kept); monocular ones are unknown.
+    cur_var = np.full(n, 1.0 / K[0, 0] ** 2 if stereo else np.inf)
     if state.previous is None:
-        rec = _record(kps, desc, cur_depth, np.eye(4), state.frames)
+        rec = _record(kps, desc, cur_depth, cur_var, np.eye(4), state.frames, np.arange(n))
         new = TrackState(state.frames + 1, rec, rec, np.eye(4), 0)
         return new, np.eye(4), np.array([n, 0, 0, 1, REF_PREVIOUS, 1e3 * (time.perf_counter() - t0)])
     prev, kf = state.previous, state.keyframe
     cur_pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
     angles = np.asarray(kps.angle, np.float64)
     good = filter_matches(pairs, distances, angles, prev.angles, config) if n else np.zeros((0, 2), int)
-    ref, reference = prev, REF_PREVIOUS
-    if len(good) < config.min_matches and kf.index != prev.index and n:
+    ref, reference, prev_good = prev, REF_PREVIOUS, good
+    chain = prev.kf_index[good[:, 1]]
+    on = chain >= 0
+    if not stereo and config.keyframe_motion and kf.index != prev.index and on.sum() >= config.min_matches and (
+            flow(kf.pts, cur_pts, np.stack([good[on, 0], chain[on]], 1)) * np.sqrt(on.sum())
+            > flow(prev.pts, cur_pts, good) * np.sqrt(len(good))):
+        # Monocular motion from the last keyframe, through the keypoints tracked since, as
+        # ORB-SLAM2 triangulates against keyframes: several frames of parallax where the
+        # previous frame alone gives little (the essential matrix then degenerates).
+        good, ref, reference = np.stack([good[on, 0], chain[on]], 1), kf, REF_KEYFRAME
+    elif len(good) < config.min_matches and kf.index != prev.index and n:
         kp, kd = warpvx.match_hamming(np.asarray(desc), kf.desc, config.cross_check, config.ratio,
                                       backend="cpu")
         kgood = filter_matches(kp, kd, angles, kf.angles, config)
         if len(kgood) > len(good):
             good, ref, reference = kgood, kf, REF_KEYFRAME
+    from_kf = ref is kf  # (the previous frame may be the keyframe)
     # Constant-velocity guess of T_cur_ref: T_cur_prev = velocity, T_prev_ref from the poses.
     guess = state.velocity @ _inv(prev.pose) @ ref.pose
     result = None
@@ -390,22 +453,33 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         if stereo:
             result = _pose_pnp(ref, cur_pts, good, K, guess, config)
         if result is None:
-            step = float(np.linalg.norm(state.velocity[:3, 3])) or 1.0
+            step = float(np.linalg.norm(guess[:3, 3])) or 1.0
             result = _pose_essential(ref, cur_pts, good, K, step, config, essential)
     if result is None:
         T, inliers, reference = guess, 0, REF_LOST
     else:
         T, inliers, tri = result
         if not stereo and tri is not None:
-            idx, z = tri
-            cur_depth[idx] = z
+            idx, cur_depth[idx], cur_var[idx] = tri
+            carry_depths(ref, cur_pts, good, T, K, cur_depth, cur_var)
+            if from_kf:
+                # The points matched since the keyframe only: from the previous frame.
+                rest = prev_good[np.isnan(cur_depth[prev_good[:, 0]])]
+                idx, z, v = _triangulate_known(prev, cur_pts, rest, T @ _inv(kf.pose) @ prev.pose, K)
+                cur_depth[idx], cur_var[idx] = z, v
+            if from_kf and np.isnan(kf.depth).all():
+                # A keyframe without depths (the first, or one after a loss): as ORB-SLAM2's
+                # map initialisation, both frames of its first triangulation get them.
+                kf = backfill(kf, cur_pts, good, T, K, cur_depth, cur_var)
     pose = ref.pose @ _inv(T)
     velocity = _inv(pose) @ prev.pose
     since = state.frames - kf.index
     kf_inliers = state.keyframe_inliers or inliers
     is_kf = (reference == REF_LOST or since >= config.keyframe_interval
              or inliers < config.keyframe_ratio * kf_inliers)
-    rec = _record(kps, desc, cur_depth, pose, state.frames)
+    kf_index = np.full(n, -1)
+    kf_index[good[:, 0]] = good[:, 1] if from_kf else prev.kf_index[good[:, 1]]
+    rec = _record(kps, desc, cur_depth, cur_var, pose, state.frames, np.arange(n) if is_kf else kf_index)
     new = TrackState(state.frames + 1, rec, rec if is_kf else kf, velocity, 0 if is_kf else kf_inliers)
     stats = np.array([n, len(good), inliers, float(is_kf), reference, 1e3 * (time.perf_counter() - t0)])
     return new, pose, stats

@@ -33,6 +33,10 @@ def add_arguments(parser):
                              "poses, faster on long sequences; try 16 on a GPU); 1: frame by frame")
     parser.add_argument("--pose-workers", type=int, default=None, metavar="N",
                         help="with --batch: processes for the pose work (default: all cores but one; 0: none)")
+    parser.add_argument("--no-keyframe-motion", action="store_true",
+                        help="monocular: motion from the previous frame only, never from the last keyframe "
+                             "(faster with --batch, whose pose processes then do all essential matrices; "
+                             "less accurate on slow motion)")
     parser.add_argument("--baseline", action="store_true",
                         help="also run the OpenCV-only monocular baseline and score it (with --gt)")
     parser.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
@@ -93,6 +97,7 @@ def run(args) -> int:
 
         out = fresh_results_dir("orbslam")
     mode = "stereo" if seq.camera.stereo else "monocular"
+    config = app.TrackerConfig(keyframe_motion=not getattr(args, "no_keyframe_motion", False))
     poses, rows = [], []
     images = [] if args.baseline else None
 
@@ -106,10 +111,10 @@ def run(args) -> int:
         if batch > 1:
             from .orbslam_batch import track_frames_batched
 
-            tracked = track_frames_batched(feed(), seq.camera, batch=batch, backend=args.backend,
+            tracked = track_frames_batched(feed(), seq.camera, config, batch=batch, backend=args.backend,
                                            workers=getattr(args, "pose_workers", None), depth=args.depth)
         else:
-            tracked = app.track_frames(feed(), seq.camera, backend=args.backend, depth=args.depth)
+            tracked = app.track_frames(feed(), seq.camera, config, backend=args.backend, depth=args.depth)
         for f in tracked:
             poses.append(f.pose)
             rows.append([f.index, f"{seq.times[f.index]:.6f}"]
@@ -128,7 +133,8 @@ def run(args) -> int:
             "(ATE after Sim(3) alignment)" if mode == "monocular"
             else "stereo: metric scale from the stereo baseline (ATE after SE(3) alignment)")
     report = {"source": os.fspath(args.source), "kind": seq.kind, "mode": mode, "note": note,
-              "frames": n, "backend": args.backend, "batch": batch, "read_ms_per_frame": seq.read_ms / max(n, 1)}
+              "frames": n, "backend": args.backend, "batch": batch, "keyframe_motion": config.keyframe_motion,
+              "read_ms_per_frame": seq.read_ms / max(n, 1)}
     gt = None
     if args.gt:
         idx, gt = _ground_truth(args.gt, seq, n)

@@ -48,17 +48,25 @@ def default_textures() -> list:
 
 
 def camera_path(n_frames: int, step: float = 0.05, sway: float = 0.3, yaw_deg: float = 6.0,
-                pitch_deg: float = 2.0) -> np.ndarray:
-    """A smooth path of ``n_frames`` camera-to-world poses (float64 [N, 4, 4]) starting at the
-    identity: forward (+z) ``step`` m a frame, swaying sideways and up (amplitude ``sway`` m,
-    ``sway`` / 3) and turning (yaw, pitch amplitudes in degrees) over one period."""
+                pitch_deg: float = 2.0, speed_var: float = 0.0, seed: int | None = None) -> np.ndarray:
+    """A smooth path of ``n_frames`` camera-to-world poses (float64 [N, 4, 4]) in the room's
+    frame: forward (+z) ``step`` m a frame on average, swaying sideways and up (amplitude
+    ``sway`` m, ``sway`` / 3) and turning (yaw, pitch amplitudes in degrees) over one period.
+    ``speed_var``: the forward speed varies by that fraction of ``step`` (0.5: from 0.5 to 1.5
+    ``step`` a frame) over the period. ``seed``: random phases of the sway, the turns and the
+    speed (so turn rates vary differently along the path); None starts them all at zero, the
+    first pose then being the identity."""
     k = np.arange(n_frames, dtype=np.float64)
     phase = 2 * math.pi * k / max(n_frames, 8)
+    ph = np.zeros(4) if seed is None else np.random.default_rng(seed).uniform(0, 2 * math.pi, 4)
+    speed = step * (1 + speed_var * np.sin(phase + ph[3]))
     P = np.tile(np.eye(4), (n_frames, 1, 1))
-    P[:, 0, 3] = sway * np.sin(phase)
-    P[:, 1, 3] = sway / 3 * (1 - np.cos(phase))
-    P[:, 2, 3] = step * k
-    for T, a, b in zip(P, np.radians(yaw_deg) * np.sin(phase), np.radians(pitch_deg) * np.sin(2 * phase)):
+    P[:, 0, 3] = sway * np.sin(phase + ph[0])
+    P[:, 1, 3] = sway / 3 * (1 - np.cos(phase + ph[0]))
+    P[:, 2, 3] = np.concatenate([[0.0], np.cumsum(speed[:-1])])
+    yaws = np.radians(yaw_deg) * np.sin(phase + ph[1])
+    pitches = np.radians(pitch_deg) * np.sin(2 * phase + ph[2])
+    for T, a, b in zip(P, yaws, pitches):
         ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
         yaw = np.array([[ca, 0, sa], [0, 1, 0], [-sa, 0, ca]])
         pitch = np.array([[1, 0, 0], [0, cb, -sb], [0, sb, cb]])
@@ -132,19 +140,21 @@ def intrinsics_for(size) -> np.ndarray:
 
 
 def render_sequence(n_frames: int, size=(640, 480), *, baseline=None, textures=None, step=0.05,
-                    supersample: int = 2):
+                    supersample: int = 2, speed_var: float = 0.0, seed: int | None = None):
     """Render a sequence: returns (left images [N] uint8 HxW, right images or None, K 3x3,
-    poses float64 [N, 4, 4]). ``baseline`` (m) renders the right camera too."""
+    poses float64 [N, 4, 4], camera to world with world = the first camera). ``baseline`` (m)
+    renders the right camera too; ``step``, ``speed_var``, ``seed``: the path
+    (:func:`camera_path`)."""
     K = intrinsics_for(size)
-    poses = camera_path(n_frames, step=step)
-    room = Room(textures, z_range=(-2.0, step * n_frames + 12.0))
-    left = [room.render(K, size, T, supersample) for T in poses]
+    path = camera_path(n_frames, step=step, speed_var=speed_var, seed=seed)
+    room = Room(textures, z_range=(-2.0, path[-1, 2, 3] + step + 12.0))
+    left = [room.render(K, size, T, supersample) for T in path]
     right = None
     if baseline:
         offset = np.eye(4)
         offset[0, 3] = baseline
-        right = [room.render(K, size, T @ offset, supersample) for T in poses]
-    return left, right, K, poses
+        right = [room.render(K, size, T @ offset, supersample) for T in path]
+    return left, right, K, np.linalg.inv(path[0]) @ path
 
 
 def write_kitti_sequence(folder, left, K, poses, *, right=None, baseline=None, fps=10.0) -> Path:
@@ -183,9 +193,13 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=40)
     p.add_argument("--size", default="640x480", help="WxH, e.g. 1241x376 (KITTI)")
     p.add_argument("--baseline", type=float, default=None, help="stereo baseline in metres (KITTI: 0.54)")
+    p.add_argument("--step", type=float, default=0.05, help="mean forward step (m/frame)")
+    p.add_argument("--speed-var", type=float, default=0.0, help="forward speed variation (fraction of --step)")
+    p.add_argument("--seed", type=int, default=None, help="random phases of the path's sway, turns, speed")
     args = p.parse_args(argv)
     size = tuple(int(v) for v in args.size.lower().split("x"))
-    left, right, K, poses = render_sequence(args.frames, size, baseline=args.baseline)
+    left, right, K, poses = render_sequence(args.frames, size, baseline=args.baseline, step=args.step,
+                                            speed_var=args.speed_var, seed=args.seed)
     print(write_kitti_sequence(args.folder, left, K, poses, right=right, baseline=args.baseline))
     return 0
 
