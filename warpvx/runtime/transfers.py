@@ -107,29 +107,30 @@ class Transfers:
         :class:`~warpvx._counted.Counted` reads its count first and copies only the rows it
         counts (its value: a capacity may be far larger).
         """
+        if is_warp_array(value):  # the usual value: no tree to walk
+            return self._download_array(value, event)
         value = map_counted(lambda c: trimmed(c, int(self.download(c.count, event)[0]))
                             if is_warp_array(c.count) else c, value)
+        return tree_map(lambda a: self._download_array(a, event) if is_warp_array(a) else a,
+                        value)
 
-        def leaf(a):
-            if not is_warp_array(a):
-                return a
-            if a.device.is_cuda and not a.is_contiguous:
-                # A strided view needs a gather kernel on the device's current stream (the GPU
-                # thread's); wait for the producer, then let Warp copy synchronously.
-                if event is not None:
-                    synchronize_event(event)
-                out = a.numpy()
-            else:
-                s = self.stream if a.device.is_cuda else None
-                if event is not None and s is not None:
-                    wait_event(s, event)
-                # Warp's CPU device shares host memory: copied too, so the value outlives
-                # the buffer.
-                out = to_host(a, s)
-            self.moved += out.nbytes
-            return out
-
-        return tree_map(leaf, value)
+    def _download_array(self, a, event):
+        """Device array ``a`` -> a fresh NumPy array (see :meth:`download`)."""
+        if a.device.is_cuda and not a.is_contiguous:
+            # A strided view needs a gather kernel on the device's current stream (the GPU
+            # thread's); wait for the producer, then let Warp copy synchronously.
+            if event is not None:
+                synchronize_event(event)
+            out = a.numpy()
+        else:
+            s = self.stream if a.device.is_cuda else None
+            if event is not None and s is not None:
+                wait_event(s, event)
+            # Warp's CPU device shares host memory: copied too, so the value outlives
+            # the buffer.
+            out = to_host(a, s)
+        self.moved += out.nbytes
+        return out
 
     def stage_download(self, a, event=None):
         """Start downloading ``a``, a contiguous CUDA ``wp.array`` of a scalar dtype, into a
