@@ -17,8 +17,10 @@ Roles and threads
     tasks then runs on one thread, with no thread wake-up per hand-off (10-30 us each under
     the GIL). Nobody blocks on a value: a role's thread sleeps on its signal until a producer
     finds the role ready and not taken; a producer going on with its own work wakes the
-    ready readers of what it published at once. With a K-frame schedule each thread runs its
-    own role and blocks on each value it needs.
+    ready readers of what it published at once. A caller waiting for a frame alone in
+    flight runs its ready units itself first (:meth:`Executor._help`), so a frame run one at
+    a time needs no thread wake-up at its start or end. With a K-frame schedule each thread
+    runs its own role and blocks on each value it needs.
 Cross-queue edges
     Every (frame, value) pair is a :class:`Slot`, set when its producer has finished (CPU) or
     enqueued (GPU). GPU -> CPU: the producer's end event is recorded on the stream; on CUDA,
@@ -744,6 +746,8 @@ class Executor(RoleRunner, SegmentRunner):
         """
         if self.frames > 1:  # no frame joins its batch while the caller waits for this one
             self._close_batch(frame)
+        elif not frame.finished.is_set():
+            self._help(frame)
         while not frame.finished.wait(WAIT_SLICE):
             dead = [p for p, th in self._threads.items() if not th.is_alive()]
             if dead:
@@ -782,6 +786,23 @@ class Executor(RoleRunner, SegmentRunner):
             with self._lock:
                 if frame in self._inflight:
                     self._inflight.remove(frame)
+
+    def _help(self, frame: Frame):
+        """The caller's thread, about to block on ``frame`` alone in flight (one-frame
+        schedules), runs the ready units itself first, as the thread of the first ready role
+        would (:meth:`_drive`): a frame run one at a time then wakes no role thread and needs
+        no wake-up of the caller at its end (each 10-30 us under the GIL). With other frames
+        in flight it only waits: its role would go on into their units."""
+        with self._lock:
+            if len(self._inflight) != 1:
+                return
+        for role in self._roles.values():
+            if self._ready(role) and not role.token.locked():
+                try:
+                    self._drive(role)
+                except BaseException as exc:  # noqa: BLE001 - an executor bug, reported
+                    self._fail(frame, "<executor>", role.proc, exc)
+                return
 
     @staticmethod
     def _unstage(frame: Frame):
