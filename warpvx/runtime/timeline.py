@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 from ..sched.schedule import ScheduledTask
 from .native_copy import elapsed_ms, warp
-from .slots import Slot
+from .slots import Flag, Slot
 
 #: Seconds between cancellation checks of a blocked wait.
 WAIT_SLICE = 0.02
@@ -57,8 +57,9 @@ class Frame:
     def __init__(self, index: int, slots: dict, n_procs: int):
         self.index = index
         self.slots = slots
-        self.cancel = threading.Event()
-        self.finished = threading.Event()
+        # One-shot flags (set, is_set, wait): a lock only when a thread blocks on one.
+        self.cancel = Flag()
+        self.finished = Flag()
         self.error = None  # (task, processor, exception)
         self.cancelled_by = None
         # task -> (processor, start, end, after_transfers or None): host seconds, or CUDA
