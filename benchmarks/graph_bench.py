@@ -16,16 +16,21 @@ Steps, per graph and camera size (default 1280x720 and 1920x1080):
 
 1. verify on two real consecutive frames and calibrate (cached per machine); once, the GIL
    switch interval and executor spin are chosen (``--switch-interval``, ``--spin`` fix them);
-2. baseline, heft and xeft (calibrated costs) each run ``--frames`` frames one at a time,
-   then pipelined (``--depth`` in flight, FPS);
-3. the contention model (:mod:`warpvx.graph.model`) is fitted on the first ``--fit-frames``
-   frames of ``--train`` (baseline); ``best`` takes its candidates (baseline, HEFT and XEFT
-   on the calibrated and on the model's costs), runs ``--trial-frames`` frames of each one
-   predicted within 20% of the fastest (the model's error) and keeps the measured fastest;
-   it runs too;
-4. per policy: predicted in sample (its own model on its own first frames) and out of sample
-   (the training model on the later frames), errors, and whether best is within 5% of the
-   fastest measured; Gantt charts of the prediction over a measured frame
+2. the contention model (:mod:`warpvx.graph.model`) is fitted on the first ``--fit-frames``
+   frames of ``--train`` (baseline, calibrated costs), run alone after warm-up frames;
+   ``best`` takes its candidates (baseline, HEFT and XEFT on the calibrated and on the
+   model's costs) and tries those predicted within 20% of the fastest (the model's error)
+   in ``--trial-rounds`` interleaved rounds of ``--trial-frames`` frames, keeping the least
+   median makespan;
+3. baseline, heft, xeft and best run ``--frames`` frames each, one at a time, in
+   interleaved rounds of ``--block`` frames (A B C D, D C B A, ...; warm-up frames after
+   each switch discarded): a drift of the machine (the same placement measured 30-40%
+   apart minutes later on the H100) falls on every policy alike; then each is pipelined
+   (``--depth`` in flight, FPS);
+4. per policy: predicted in sample (a model on the frames it learnt from) and out of sample
+   (the training model on the frames after the first ``--fit-frames``), errors, the noise
+   floor (the same placement's even rounds against its odd rounds), and whether best is
+   within 5% of the fastest measured; Gantt charts of the prediction over a measured frame
    (``gantt_<graph>_<size>_<policy>.png``) and of 3 pipelined frames (``..._pipelined.png``),
    packed into ``gantt.tar`` (each graph's best chart also beside it: results come back from
    the GPU machine as at most 8 files);
@@ -66,6 +71,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import warpvx  # noqa: E402
 from warpvx.backend import init_warp  # noqa: E402
 from warpvx.graph import default_n_cpus  # noqa: E402
+from warpvx.graph.costs import SWITCH_WARMUP, TRIAL_ROUNDS  # noqa: E402
 from warpvx.graph.diagnostics import executor_overhead, soak  # noqa: E402
 from warpvx.runtime import executor  # noqa: E402
 
@@ -233,14 +239,12 @@ def make_frames(size, n):
 
 
 def run_frames(g, plan, frames):
-    """Run ``frames`` one at a time; their FrameResults and wall times (ms)."""
-    runs, walls = [], []
+    """Run ``frames`` one at a time with ``plan`` (the current plan); their FrameResults."""
+    runs = []
     for f in frames:
-        t0 = time.perf_counter()
         g.process(f)
-        walls.append((time.perf_counter() - t0) * 1e3)
         runs.append(plan.last_run[-1])
-    return runs, walls
+    return runs
 
 
 def node_table(plan, runs) -> dict:
@@ -289,16 +293,33 @@ def device_edges(plan) -> dict:
     return dict(kinds)
 
 
-def run_policy(g, plan, frames, args):
-    """Run ``plan`` (the graph's current plan): 2 warm-up frames, then ``frames`` one at a
-    time, then the same frames pipelined (``args.depth`` in flight). Returns the sequential
-    FrameResults, the pipelined ones and the pipelined FPS."""
-    run_frames(g, plan, frames[:2])  # threads, pools, events warm up
-    runs, walls = run_frames(g, plan, frames)
+def pipelined(g, plan, frames, depth):
+    """Make ``plan`` current and stream ``frames`` through it, ``depth`` in flight: the
+    pipelined FrameResults and FPS."""
+    g.use_plan(plan)
     t0 = time.perf_counter()
-    n = sum(1 for _ in g.stream(frames, depth=args.depth))
-    fps = n / (time.perf_counter() - t0)
-    return runs, list(plan.last_run), fps, walls
+    n = sum(1 for _ in g.stream(frames, depth=depth))
+    return list(plan.last_run), n / (time.perf_counter() - t0)
+
+
+def sequential_fps(runs) -> float:
+    """Frames per second one at a time: the median time between consecutive frames'
+    submissions (within a round: a switch between plans is a long gap, and the median
+    ignores the one per round)."""
+    gaps = [b.t0 - a.t0 for a, b in zip(runs, runs[1:])]
+    return 1.0 / statistics.median(gaps) if gaps else float("nan")
+
+
+def halves_drift_pct(runs, block) -> float:
+    """The noise floor of one placement: its median makespan over the even rounds against
+    the odd rounds (``block`` frames a round), as % of their mean -- two runs of the same
+    placement, interleaved with the others like every measurement here."""
+    rounds = [runs[i:i + block] for i in range(0, len(runs), block)]
+    halves = [[r.makespan for rd in rounds[k::2] for r in rd] for k in (0, 1)]
+    if not all(halves):
+        return float("nan")
+    a, b = (statistics.median(h) for h in halves)
+    return 100.0 * abs(a - b) / (0.5 * (a + b))
 
 
 def median_span(runs) -> float:
@@ -310,32 +331,44 @@ def _err(pred, meas) -> float:
 
 
 def experiment(g, frames, args, out_dir, tag: str) -> dict:
-    """One graph at one size: every policy run, the contention model fitted on the first
-    ``args.fit_frames`` frames of the training policy's run and of each policy's own, each
-    policy predicted (in sample: its own model on its own training frames; out of sample:
-    the training policy's model on the frames after them), ``best`` chosen by the model,
-    Gantt charts (predicted over measured, one frame and pipelined)."""
+    """One graph at one size. The contention model learns from the first
+    ``args.fit_frames`` frames of the training policy (run alone, after warm-up);
+    ``best`` is chosen with it (its trial interleaves its candidates); then the four
+    policies run ``len(frames)`` frames each in interleaved rounds of ``args.block``
+    (:meth:`~warpvx.graph.Graph.measure_plans`: A B C D, D C B A, ...; warm-up frames after
+    each switch discarded), so a drift of the machine falls on every policy alike, and
+    the drift between a policy's even and odd rounds is the noise floor. Each policy is
+    predicted in sample (a model fitted on the frames it is scored on: the training
+    frames for the training policy, its own first frames for the others) and out of
+    sample (the training model against its frames after the first ``fit_frames``); Gantt
+    charts (predicted over measured, one frame and pipelined)."""
     fit_n = min(args.fit_frames, len(frames) - 1)
-    plans, seq, piped, fps, walls = {}, {}, {}, {}, {}
-
-    def run(policy, **kw):
-        plan = g.schedule(policy, n_cpus=args.n_cpus, gpu=args.gpu, **kw)
-        plans[policy] = plan
-        seq[policy], piped[policy], fps[policy], walls[policy] = run_policy(g, plan, frames, args)
-
-    for policy in ("baseline", "heft", "xeft"):
-        run(policy)
-    model = g.fit_model(plans[args.train], runs=seq[args.train][:fit_n])
-    # best: the model's candidates; those it cannot tell apart are tried on a few frames.
-    trial = {"trial_inputs": frames[:args.trial_frames + 1],
-             "trial_frames": args.trial_frames} if args.trial_frames else {}
-    run("best", model=model, **trial)
+    plans = {p: g.schedule(p, n_cpus=args.n_cpus, gpu=args.gpu) for p in ("baseline", "heft", "xeft")}
+    train = plans[args.train]
+    g.use_plan(train)
+    run_frames(g, train, frames[:SWITCH_WARMUP])
+    train_runs = run_frames(g, train, frames[:fit_n])
+    model = g.fit_model(train, runs=train_runs)
+    model_gil = g.fit_model(train, runs=train_runs, gil=True)  # reported beside, not used
+    # best: the model's candidates; those it cannot tell apart are tried in rounds.
+    trial = {"trial_inputs": frames, "trial_frames": args.trial_frames,
+             "trial_rounds": args.trial_rounds} if args.trial_frames else {}
+    plans["best"] = g.schedule("best", n_cpus=args.n_cpus, gpu=args.gpu, model=model, **trial)
+    block = min(args.block, len(frames))
+    measured = g.measure_plans([plans[p] for p in POLICIES], frames, rounds=-(-len(frames) // block),
+                               frames=block, warmup=SWITCH_WARMUP)
+    seq = {p: runs[:len(frames)] for p, runs in zip(POLICIES, measured)}
+    piped, fps = {}, {}
+    for policy in POLICIES:
+        piped[policy], fps[policy] = pipelined(g, plans[policy], frames, args.depth)
     rows = []
     for policy in POLICIES:
         plan, runs = plans[policy], seq[policy]
-        own = g.fit_model(plan, runs=runs[:fit_n])
-        pred_in, meas_in = own.makespan(plan), median_span(runs[:fit_n])
+        fit_runs = train_runs if policy == args.train else runs[:fit_n]
+        own = model if policy == args.train else g.fit_model(plan, runs=fit_runs)
+        pred_in, meas_in = own.makespan(plan), median_span(fit_runs)
         pred_out, meas_out = model.makespan(plan), median_span(runs[fit_n:])
+        pred_gil = model_gil.makespan(plan)
         rows.append({
             "policy": policy,
             "chosen": plan.schedule.info.get("chosen", policy),
@@ -344,17 +377,20 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
             "pred_in_ms": pred_in, "measured_in_ms": meas_in, "error_in_pct": _err(pred_in, meas_in),
             "pred_out_ms": pred_out, "measured_out_ms": meas_out,
             "error_out_pct": _err(pred_out, meas_out),
+            "pred_out_gil_ms": pred_gil, "error_out_gil_pct": _err(pred_gil, meas_out),
             "measured_p90_ms": float(np.percentile([r.makespan for r in runs[fit_n:]], 90)),
-            "sequential_fps": 1e3 / statistics.median(walls[policy]),
+            "noise_pct": halves_drift_pct(runs, block),
+            "sequential_fps": sequential_fps(runs),
             "pipelined_fps": fps[policy],
             "gpu_nodes": sorted(t for t, p in plan.placement.items() if p == "gpu"),
             "placement": plan.placement,
             "metrics": {k: v for k, v in plan.metrics.items() if k != "idle_per_processor"},
             "nodes": node_table(plan, runs[fit_n:]),
-            "fit_nodes": node_table(plan, runs[:fit_n]),
-            "fit_frames_data": [frame_record(r) for r in runs[:fit_n]],
+            "fit_nodes": node_table(plan, fit_runs),
+            "fit_frames_data": [frame_record(r) for r in fit_runs],
             "makespans": [r.makespan for r in runs],
             "trial_ms": plan.schedule.info.get("trial_ms"),
+            "trial_frames": plan.schedule.info.get("trial_frames"),
             "copies": copies(runs[fit_n:]),
             "edges": device_edges(plan),
             "own_model": own.summary(),
@@ -376,6 +412,8 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
               f"{r['measured_out_ms']:8.3f} ms ({r['error_out_pct']:+6.1f}%)  scheduler "
               f"{r['scheduler_ms']:8.3f}  pipelined {r['pipelined_fps']:7.1f} FPS  gpu: {r['gpu_nodes']}",
               flush=True)
+    for plan in plans.values():  # measure_plans keeps every plan's executor warm
+        plan.close()
     fastest = min(rows, key=lambda r: r["measured_out_ms"])
     best = rows[-1]
     return {
@@ -386,6 +424,8 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
         "calibration": plans["baseline"].calibration.nodes,
         "probe": [[list(k), list(v)] for k, v in
                   plans[args.train].calibration.contention.get(args.n_cpus, {}).items()],
+        "gil": plans[args.train].calibration.gil,
+        "capturable": sorted(g.capturable_nodes(plans[args.train].gpu)),
         "model_pick": min(best["candidates"], key=best["candidates"].get),
     }
 
@@ -403,7 +443,7 @@ def choose_threading(g, frames, args) -> dict:
     def trial():
         plan = g.schedule("heft", n_cpus=args.n_cpus, gpu=args.gpu)
         run_frames(g, plan, sample[:2])
-        runs, _ = run_frames(g, plan, sample)
+        runs = run_frames(g, plan, sample)
         return median_span(runs)
 
     out = {"switch": {}, "spin": {}}
@@ -428,6 +468,10 @@ def choose_threading(g, frames, args) -> dict:
     return out
 
 
+def _pct(v) -> str:
+    return "-" if v is None or v != v else f"{v:.1f}%"
+
+
 def _fmt(v, spec=".3f"):
     return "-" if v is None else format(v, spec)
 
@@ -440,25 +484,37 @@ def markdown(report) -> str:
         f"Regenerate: `{report['command']}`",
         "",
         f"Machine: {report['machine']}; GPU role: {report['gpu']}; CPU workers: "
-        f"{report['n_cpus']}; {report['frames']} frames per policy run one at a time, then "
-        f"pipelined (depth {report['depth']}); OpenCV threads {report['cv_threads']}; GIL "
-        f"switch interval {si['chosen'] * 1e3:g} ms; executor spin {si['spin_chosen'] * 1e6:g} us.",
+        f"{report['n_cpus']}; {report['frames']} frames per policy run one at a time in "
+        f"interleaved rounds of {report.get('block', '-')} (A B C D, D C B A, ...; "
+        f"{SWITCH_WARMUP} warm-up frames discarded after each switch), then pipelined "
+        f"(depth {report['depth']}, one policy after the other); OpenCV threads "
+        f"{report['cv_threads']}; GIL switch interval {si['chosen'] * 1e3:g} ms; executor spin "
+        f"{si['spin_chosen'] * 1e6:g} us.",
         "",
         "The contention model (`warpvx.graph.model`): each node's calibrated cost alone (a "
         "GPU node: its host call) times an in-frame ratio plus a fixed cost per task, times a "
-        "per-node correction, plus its copies (the transfer model scaled by what the training "
-        "frames' copies took), slowed down by `1 + a * (other CPU workers busy) + b * (GPU "
-        "host thread busy)`, with the measured waits between tasks by kind of edge, played "
-        "through a simulation of the executor; `a`, `b` from all nodes at once and from a "
-        "contention probe (mixes of the graph's nodes run beside each other). *In sample*: "
-        "each policy's own model, fitted on its first frames, against those frames. *Out of "
-        "sample*: the model fitted on the first frames of the training policy only, against "
-        "the later frames of every policy (target: within 20%). *scheduler*: the makespan the "
-        "policy's own schedule claims (isolated calibration). `best`: the model's candidates "
-        "(baseline, HEFT and XEFT on the calibrated DAG and on the model's in-frame costs); "
-        "those predicted within 20% of the fastest (closer than the model can tell apart) run "
-        f"{report.get('trial_frames', 0)} frames each (after a warm-up frame) and the measured "
-        "fastest is kept.",
+        "per-node correction, plus its copies (the transfer model plus the median extra the "
+        "training frames' copies took; copies not timed apart, as in a captured segment, are taken out "
+        "of the interval they are in), slowed down by `1 + a * (other CPU workers busy) + b * "
+        "(GPU host thread busy)`, with the measured waits between tasks by kind of edge, "
+        "played through a simulation of the executor; `a`, `b` from all nodes at once and "
+        "from a contention probe (mixes of the graph's nodes run beside each other). "
+        "*Training*: the first frames of the training policy, run alone before the others. "
+        "*In sample*: a model against the frames it learnt from (the training model for the "
+        "training policy, each other policy's own model fitted on its first interleaved "
+        "frames). *Out of sample*: the training model against every policy's interleaved "
+        "frames after the first ones (target: within 20%). *noise*: the same placement's "
+        "median makespan in its even against its odd rounds (two interleaved runs of one "
+        "placement): an error below it cannot be told from drift. *GIL-weighted*: the same "
+        "training frames fitted with each busy neighbour counted by its node's GIL pressure "
+        "and each victim by its sensitivity (`warpvx.graph.calibration.measure_gil`; not "
+        "used by best yet). *scheduler*: the makespan "
+        "the policy's own schedule claims (isolated calibration). `best`: the model's "
+        "candidates (baseline, HEFT and XEFT on the calibrated DAG and on the model's "
+        "in-frame costs); those predicted within 20% of the fastest (closer than the model "
+        f"can tell apart) run {report.get('trial_rounds', 1)} interleaved rounds of "
+        f"{report.get('trial_frames', 0)} frames each ({SWITCH_WARMUP} warm-up frames discarded "
+        "after each switch) and the least median makespan is kept.",
         "",
     ]
     for e in report["experiments"]:
@@ -472,12 +528,14 @@ def markdown(report) -> str:
                         f"us, slowdown per busy CPU worker {sd[pe].get('per_cpu', 0):.2f}, while "
                         f"the GPU host thread is busy {sd[pe].get('per_gpu', 0):.2f}"
                         for pe in ("cpu", "gpu"))
-            + "; copies x " + ", ".join(f"{k} {v:.2f}" for k, v in m.get("copy_scale", {}).items())
+            + "; copies + " + ", ".join(f"{k} {v:.0f} us" for k, v in m.get("copy_extra_us", {}).items())
             + "; waits (us) " + ", ".join(f"{k} {v:.1f}" for k, v in m["latency_us"].items())
             + ".", "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
-            "of sample | measured | error | p90 ms | sequential FPS | pipelined FPS | GPU nodes |",
-            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
+            "of sample | measured | error | noise | GIL-weighted: predicted | error | p90 ms | "
+            "sequential FPS | pipelined FPS | GPU nodes |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+            "| ---: | --- |",
         ]
         for r in e["policies"]:
             name = r["policy"] + (f" ({r['chosen']})" if r["chosen"] != r["policy"] else "")
@@ -485,7 +543,9 @@ def markdown(report) -> str:
                 f"| {name} | {r['scheduler_ms']:.3f} | {r['pred_in_ms']:.3f} | "
                 f"{r['measured_in_ms']:.3f} | {r['error_in_pct']:+.1f}% | {r['pred_out_ms']:.3f} | "
                 f"{r['measured_out_ms']:.3f} | {r['error_out_pct']:+.1f}% | "
-                f"{r['measured_p90_ms']:.3f} | {r['sequential_fps']:.1f} | "
+                f"{_pct(r.get('noise_pct'))} | {_fmt(r.get('pred_out_gil_ms'))} | "
+                f"{_pct(r.get('error_out_gil_pct'))} | {r['measured_p90_ms']:.3f} | "
+                f"{r['sequential_fps']:.1f} | "
                 f"{r['pipelined_fps']:.1f} | {len(r['gpu_nodes'])}: {', '.join(r['gpu_nodes'])} |")
         best = e["policies"][-1]
         within = abs(e["best_vs_fastest_pct"]) <= 5.0
@@ -495,7 +555,9 @@ def markdown(report) -> str:
                       f"5%). Best's candidates, predicted ms: "
                       + ", ".join(f"{k} {v:.3f}" for k, v in (best["candidates"] or {}).items())
                       + f". The model alone would pick {e.get('model_pick', '-')}"
-                      + ("; trial (median ms): " + ", ".join(f"{k} {v:.3f}" for k, v in trial.items())
+                      + ("; trial (median ms, frames): " + ", ".join(
+                          f"{k} {v:.3f} ({(best.get('trial_frames') or {}).get(k, '-')})"
+                          for k, v in trial.items())
                          if trial else "; no trial (one candidate within the margin)") + ".", ""]
         lines += ["Per node (out-of-sample frames of each policy): calibrated alone vs measured in "
                   "the frames (interval without transfers; GPU: device interval), ms:", ""]
@@ -617,10 +679,20 @@ def main(argv=None):
                    help="two-cameras (16 nodes) and/or two-cameras-cv (more CPU-only OpenCV nodes)")
     p.add_argument("--depth", type=int, default=3, help="frames in flight when pipelined")
     p.add_argument("--trial-frames", type=int, default=5,
-                   help="frames best runs each candidate the model cannot tell apart (0: no trial)")
+                   help="frames per round best runs each candidate the model cannot tell apart "
+                        "(0: no trial)")
+    p.add_argument("--trial-rounds", type=int, default=TRIAL_ROUNDS,
+                   help="interleaved rounds of best's trial")
+    p.add_argument("--block", type=int, default=10,
+                   help="frames a policy runs per round when the policies are measured in "
+                        "interleaved rounds")
     p.add_argument("--replay", type=Path, default=None,
                    help="refit the model on a graph_bench.json's recorded per-node medians and "
                         "print each policy's predicted vs measured makespan (no frames run)")
+    p.add_argument("--gil", action="store_true",
+                   help="--replay: weigh busy neighbours by the recorded GIL shares")
+    p.add_argument("--train-only", action="store_true",
+                   help="--replay: train on --train only (default: each of baseline, heft, xeft)")
     p.add_argument("--soak", type=int, default=0, help="also run N frames pipelined, report memory")
     p.add_argument("--soak-seconds", type=float, default=None,
                    help="stop the soak after this long (it reports the frames it ran)")
@@ -730,6 +802,8 @@ def _report(args, cal, n_frames, switch, experiments, overhead, soak_report, t_s
         "frames": n_frames,
         "depth": args.depth,
         "trial_frames": args.trial_frames,
+        "trial_rounds": args.trial_rounds,
+        "block": args.block,
         "cv_threads": args.cv_threads,
         "switch_interval": switch,
         "experiments": experiments,
@@ -788,7 +862,21 @@ def replay_frame(table: dict):
     return recorded_frame(record)
 
 
-def replay(report: dict, train: str = "baseline") -> list:
+def experiments_of(report: dict) -> list:
+    """A graph_bench.json's experiments; a result of the one-graph format (before
+    2026-11-24: one 16-node graph, no fit frames, ``calibrated``/``history`` policies) as
+    one experiment whose policies were measured on all their frames."""
+    if "experiments" in report:
+        return report["experiments"]
+    w, h = report["size"]
+    policies = [{**p, "policy": p["policy"] + ("" if p.get("costs", "calibrated") == "calibrated"
+                                               else f" ({p['costs']})"),
+                 "measured_out_ms": p["measured_ms"]} for p in report["policies"]]
+    return [{"graph": "two-cameras", "tag": f"two-cameras_{w}x{h}",
+             "calibration": report["calibration"], "policies": policies}]
+
+
+def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
     """Refit the contention model offline on ``train``'s recorded fit frames
     (``fit_frames_data`` and the contention ``probe``; results older than those: one frame
     rebuilt from its later frames' node medians, no probe) and predict every policy's
@@ -807,7 +895,7 @@ def replay(report: dict, train: str = "baseline") -> list:
                              tm["d2h_latency_ms"], 1e-6 / tm["d2h_gbps"])
     procs = ["gpu"] + [f"cpu{i}" for i in range(report["n_cpus"])]
     rows = []
-    for e in report["experiments"]:
+    for e in experiments_of(report):
         w, h = (int(v) for v in e["tag"].rsplit("_", 1)[1].split("x"))
         g = build_graph((w, h), max_corners=200 if report["mode"] == "quick" else 500,
                         cpu_heavy=e["graph"] == "two-cameras-cv")
@@ -825,7 +913,8 @@ def replay(report: dict, train: str = "baseline") -> list:
             frames[0].copied.update(copied_bytes(
                 reads, placement, sorted(table, key=lambda n: table[n]["start_ms"])))
         probe = {tuple(k): tuple(v) for k, v in e.get("probe") or []}
-        model = fit(cal, reads, frames, placement, policy=train, probe=probe)
+        model = fit(cal, reads, frames, placement, policy=train, probe=probe,
+                    gil=e.get("gil") if gil else None, capturable=e.get("capturable", ()))
         same = defaultdict(list)
         for p in e["policies"]:
             same[_plan_key(p)].append(p["measured_out_ms"])
@@ -835,10 +924,12 @@ def replay(report: dict, train: str = "baseline") -> list:
                             for n, t in p["nodes"].items()}, procs)
             pred = model.makespan(sch)
             pooled = statistics.mean(same[_plan_key(p)])
-            rows.append({"tag": e["tag"], "policy": p["policy"], "pred_ms": pred,
+            rows.append({"tag": e["tag"], "policy": p["policy"], "train": train, "pred_ms": pred,
                          "measured_ms": p["measured_out_ms"],
                          "error_pct": _err(pred, p["measured_out_ms"]),
-                         "pooled_ms": pooled, "pooled_error_pct": _err(pred, pooled)})
+                         "pooled_ms": pooled, "pooled_error_pct": _err(pred, pooled),
+                         "trained_here": p["policy"] == train})
+        g.close()
     return rows
 
 
@@ -847,21 +938,45 @@ def _plan_key(p) -> tuple:
     return tuple(sorted((t["pe"], t["planned_start_ms"], n) for n, t in p["nodes"].items()))
 
 
+#: Policies each replay trains on in turn (cross-validation: each predicts the others).
+REPLAY_TRAIN = ("baseline", "heft", "xeft")
+
+
 def replay_main(args):
     report = json.loads(args.replay.read_text())
-    rows = replay(report, args.train)
-    lines = [f"Replay of {args.replay} (trained on {args.train}'s recorded node medians)", "",
-             "| experiment | policy | predicted ms | measured ms | error | same plan, mean of runs | error |",
-             "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
-    lines += [f"| {r['tag']} | {r['policy']} | {r['pred_ms']:.3f} | {r['measured_ms']:.3f} | "
-              f"{r['error_pct']:+.1f}% | {r['pooled_ms']:.3f} | {r['pooled_error_pct']:+.1f}% |"
-              for r in rows]
+    trains = [args.train] if args.train_only else list(REPLAY_TRAIN)
+    by_train = {t: replay(report, t, gil=args.gil) for t in trains}
+    first = by_train[trains[0]]
+    lines = [f"Replay of {args.replay}: the model refit on each training policy's recorded "
+             "frames (or node medians) predicts every policy's plan; error against the "
+             "measured makespan (later frames), and against the mean of every run of the "
+             "same plan (pooled)", "",
+             "| experiment | policy | measured ms | same plan, mean of runs | "
+             + " | ".join(f"trained on {t}: predicted ms | error | pooled error" for t in trains) + " |",
+             "| --- | --- | ---: | ---: | " + " | ".join("---: | ---: | ---:" for _ in trains) + " |"]
+    for i, r in enumerate(first):
+        cells = []
+        for t in trains:
+            o = by_train[t][i]
+            mark = " (in)" if o["trained_here"] else ""
+            cells.append(f"{o['pred_ms']:.3f} | {o['error_pct']:+.1f}%{mark} | {o['pooled_error_pct']:+.1f}%")
+        lines.append(f"| {r['tag']} | {r['policy']} | {r['measured_ms']:.3f} | {r['pooled_ms']:.3f} | "
+                     + " | ".join(cells) + " |")
+    lines += ["", "Summary, policies not trained on (out of sample): "]
+    for t in trains:
+        out = [r for r in by_train[t] if not r["trained_here"]]
+        errs = [abs(r["error_pct"]) for r in out]
+        pooled = [abs(r["pooled_error_pct"]) for r in out]
+        lines.append(f"- trained on {t}: {sum(e <= 20 for e in errs)}/{len(errs)} within 20%, "
+                     f"mean |error| {statistics.mean(errs):.1f}%, max {max(errs):.1f}%; against "
+                     f"the mean of same-plan runs {sum(e <= 20 for e in pooled)}/{len(pooled)}, "
+                     f"mean {statistics.mean(pooled):.1f}%, max {max(pooled):.1f}%")
     text = "\n".join(lines)
     print(text)
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "replay.md").write_text(f"Regenerate: `{args.command}`\n\n{text}\n")
-    return rows
+    return by_train
 
 
 def _write(out_dir, report):

@@ -259,3 +259,36 @@ def test_learn_charges_each_frame_to_the_processor_that_ran_it(fresh_cache, fram
     assert learnt["hist"] == pytest.approx({"cpu": 4.0, "gpu": 1.5})
     assert plan.calibration.history["hist"]["gpu"] == pytest.approx(1.5)
     assert plan.calibration.placement["hist"] == "cpu"  # the one-frame plan's kind
+
+
+def _python_loop(x):
+    s = 0
+    for i in range(100_000):
+        s += i
+    return x + 1
+
+
+def _sleep(x):
+    import time
+
+    time.sleep(0.003)  # releases the GIL for its whole duration
+    return x + 1
+
+
+def test_gil_shares_tell_python_from_gil_free_nodes(fresh_cache, monkeypatch):
+    # A pure-Python node holds the GIL: beside a Python thread it runs about 2x slower
+    # (sensitivity) and slows that thread down as much (pressure); a node that releases
+    # the GIL for its whole call (a sleep, like a long OpenCV call) slows nobody.
+    g = warpvx.Graph("gil")
+    x = g.input("x", shape=(4,), dtype=np.float32)
+    g.output("a", g.user(_python_loop, [x], name="python"))
+    g.output("b", g.user(_sleep, [x], name="sleep"))
+    g.verify({"x": np.zeros(4, np.float32)})
+    cal = g.calibrate(gpu=False, repeats=3)
+    monkeypatch.setattr(cal_mod, "GIL_PAIRS", 5)  # a steadier median on a loaded machine
+    shares = cal_mod.measure_gil(g, cal, None, repeats=5)
+    assert set(shares) == {"python", "sleep"} and all(set(v) == {"cpu"} for v in shares.values())
+    assert all(0.0 <= v <= 1.0 for sp in shares.values() for v in sp["cpu"])
+    # (Margins for a loaded 2-core machine; on a quiet one these are about 1, 1 and 0.)
+    assert shares["python"]["cpu"][0] > 0.4
+    assert shares["sleep"]["cpu"][1] < 0.5 and shares["python"]["cpu"][1] > shares["sleep"]["cpu"][1] + 0.15

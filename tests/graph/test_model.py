@@ -99,6 +99,46 @@ def test_simulate_two_busy_workers_share_at_the_fitted_rate():
                     ).makespan == pytest.approx(2.0)
 
 
+def test_simulate_weighs_busy_neighbours_by_their_gil_shares():
+    # Same as above, but b releases the GIL (pressure 0): a runs at full speed beside it;
+    # b is still slowed by a (its sensitivity 1). A victim with sensitivity 0 is never slowed.
+    alone = {n: {"cpu": 1.0, "gpu": None, "device": 0.0} for n in "abc"}
+    reads = {"a": (), "b": (), "c": (Reads("a.out", "a", 8, False), Reads("b.out", "b", 8, False))}
+    sch = _sched([("a", "cpu0"), ("b", "cpu1"), ("c", "cpu0")])
+    model = _model(alone, reads, cpu=1.0)
+    model.gil = {"b": {"cpu": (1.0, 0.0)}}
+    pred = simulate(model, sch)
+    assert pred.tasks["a"].finish == pytest.approx(1.0)
+    # b: half speed while a runs (1 ms: 0.5 done), then full speed for the rest.
+    assert pred.tasks["b"].finish == pytest.approx(1.5)
+    model.gil = {"a": {"cpu": (0.0, 1.0)}, "b": {"cpu": (0.0, 1.0)}}
+    assert simulate(model, sch).makespan == pytest.approx(2.0)
+
+
+def test_simulate_a_gpu_segment_publishes_to_cpu_readers_when_it_ends():
+    # g1, g2 (1 ms each) run in one captured GPU segment; x on a CPU worker reads g1 and
+    # starts only when the segment ends (2 ms), as the executor runs it; without capture
+    # each GPU task is its own unit and x starts after g1 (1 ms). A task reading a CPU
+    # value starts a new segment (gpu_segments cuts where the executor cuts).
+    from warpvx.graph.model import gpu_segments
+
+    alone = {"g1": {"cpu": None, "gpu": 1.0, "device": 0.0},
+             "g2": {"cpu": None, "gpu": 1.0, "device": 0.0},
+             "x": {"cpu": 1.0, "gpu": None, "device": 0.0}}
+    reads = {"g1": (), "g2": (Reads("g1.out", "g1", 8, False),), "x": (Reads("g1.out", "g1", 8, False),)}
+    sch = _sched([("g1", "gpu"), ("g2", "gpu"), ("x", "cpu0")])
+    model = _model(alone, reads)
+    assert simulate(model, sch).tasks["x"].start == pytest.approx(1.0)
+    model.capturable = frozenset({"g1", "g2"})
+    pred = simulate(model, sch)
+    assert pred.tasks["g2"].finish == pytest.approx(2.0)
+    assert pred.tasks["x"].start == pytest.approx(2.0) and pred.makespan == pytest.approx(3.0)
+    reads["g2"] = (Reads("x.out", "x", 8, False),)
+    placement = {"g1": "gpu", "g2": "gpu", "x": "cpu0"}
+    assert gpu_segments(reads, {"g1", "g2"}, placement, ["g1", "g2"]) == [["g1"], ["g2"]]
+    assert gpu_segments(reads, {"g2"}, placement, ["g1", "g2"]) == [["g1"], ["g2"]]
+
+
 def test_simulate_cuda_device_follows_the_host_call_and_copies_are_charged_once():
     # g (GPU, host 0.2 ms, device 3 ms) feeds two CPU readers; its output crosses once.
     alone = {"g": {"cpu": None, "gpu": 0.2, "device": 3.0},
@@ -184,13 +224,12 @@ def _fast_on_gpu(x):
     return x
 
 
-def test_best_trial_keeps_the_measured_winner_when_the_model_is_wrong():
-    # One node, 30 ms on a CPU worker and fast on the GPU role; the model is told the
-    # opposite, so it predicts the CPU placement fastest. The trial runs both candidates
-    # and keeps the one that measured fastest: the GPU placement.
-    g = warpvx.Graph("trial")
+def _one_node_wrong_model(name, cpu_fn, gpu_fn):
+    """A one-node graph (``cpu_fn`` on a CPU worker, ``gpu_fn`` on the GPU role), a frame,
+    and a model fitted on its baseline then told the CPU placement is far faster."""
+    g = warpvx.Graph(name)
     x = g.input("x", shape=(4,), dtype=np.float32)
-    g.output("y", g.user(_slow_on_cpu, [x], warp_fn=_fast_on_gpu, name="work"))
+    g.output("y", g.user(cpu_fn, [x], warp_fn=gpu_fn, name="work"))
     frame = {"x": np.arange(4, dtype=np.float32)}
     g.verify(frame)
     plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
@@ -200,6 +239,14 @@ def test_best_trial_keeps_the_measured_winner_when_the_model_is_wrong():
         runs.append(plan.last_run[-1])
     model = g.fit_model(plan, runs=runs)
     model.alone["work"] = {"cpu": 0.001, "gpu": 50.0, "device": 0.0}  # wrong on purpose
+    return g, frame, model
+
+
+def test_best_trial_keeps_the_measured_winner_when_the_model_is_wrong():
+    # One node, 30 ms on a CPU worker and fast on the GPU role; the model is told the
+    # opposite, so it predicts the CPU placement fastest. The trial runs both candidates
+    # and keeps the one that measured fastest: the GPU placement.
+    g, frame, model = _one_node_wrong_model("trial", _slow_on_cpu, _fast_on_gpu)
     untried = g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model)
     assert untried.placement["work"] == "cpu0"  # the model's (wrong) pick
     tried = g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame],
@@ -225,6 +272,128 @@ def test_best_trial_keeps_the_measured_winner_when_the_model_is_wrong():
     for bad in ("0.2", -0.1, float("nan")):
         with pytest.raises((warpvx.WarpvxTypeError, warpvx.WarpvxValueError), match="trial_margin"):
             g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_margin=bad)
+    g.close()
+
+
+class _Drift:
+    """A machine that slows down frame after frame: each call sleeps ``base`` ms plus
+    ``step`` ms per call made so far (by either placement)."""
+
+    calls = 0
+
+    @classmethod
+    def sleep(cls, base_ms, step_ms=1.0):
+        time.sleep((base_ms + step_ms * cls.calls) / 1e3)
+        cls.calls += 1
+
+
+def _drift_cpu(x):
+    _Drift.sleep(10.0)
+    return x
+
+
+def _drift_gpu(x):
+    _Drift.sleep(6.0)
+    return x
+
+
+def test_best_trial_interleaves_candidates_so_a_drift_does_not_pick_the_loser():
+    # The GPU placement is 4 ms faster, but the machine slows by 1 ms a frame and the
+    # model predicts the CPU placement fastest, so the CPU one is tried first. Run one
+    # after the other, the GPU candidate would measure ~6 ms of drift more and lose; in
+    # interleaved rounds (A B B A) both see the same drift and the faster one wins.
+    g, frame, model = _one_node_wrong_model("drift", _drift_cpu, _drift_gpu)
+    _Drift.calls = 0
+    tried = g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame],
+                       trial_frames=3, trial_rounds=4, trial_margin=1e6)
+    info = tried.schedule.info
+    assert info["trial_frames"] == dict.fromkeys(info["trial_ms"], 12)
+    assert _Drift.calls == 2 * 4 * (3 + 2)  # warm-up frames after each switch discarded
+    assert tried.placement["work"] == "gpu"
+    assert info["trial_ms"][info["chosen"]] == min(info["trial_ms"].values())
+    # One round is the old trial (all of A, then all of B): the drift makes the slower
+    # CPU placement measure faster.
+    cpu_plan = g.schedule("heft", n_cpus=1, gpu=False)
+    gpu_plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
+    _Drift.calls = 0
+    seq = g.measure_plans([cpu_plan, gpu_plan], frame, rounds=1, frames=5, warmup=1)
+    assert cpu_plan.placement["work"] == "cpu0" and gpu_plan.placement["work"] == "gpu"
+    assert statistics.median(r.makespan for r in seq[0]) < statistics.median(r.makespan for r in seq[1])
+    cpu_plan.close()
+    # A budget of 0 s runs the first round only.
+    _Drift.calls = 0
+    quick = g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame],
+                       trial_frames=2, trial_rounds=5, trial_seconds=0.0, trial_margin=1e6)
+    assert set(quick.schedule.info["trial_frames"].values()) == {2}
+    for bad, kw in (("trial_rounds", {"trial_rounds": 0}), ("trial_seconds", {"trial_seconds": -1.0})):
+        with pytest.raises((warpvx.WarpvxTypeError, warpvx.WarpvxValueError), match=bad):
+            g.schedule("best", n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame], **kw)
+    g.close()
+
+
+def test_measure_plans_and_use_plan_switch_between_warm_plans(frames):
+    g = _graph((frames[0].shape[1], frames[0].shape[0]))
+    g.verify({"frame": frames[0]})
+    plans = [g.schedule(p, n_cpus=1, gpu="warp-cpu") for p in ("baseline", "heft")]
+    runs = g.measure_plans(plans, [{"frame": f} for f in frames], rounds=3, frames=2, warmup=1)
+    assert [len(r) for r in runs] == [6, 6]
+    for plan, got in zip(plans, runs):
+        assert all(set(r.timeline) == set(g.nodes) for r in got)
+        assert all({t.processor for t in r.timeline.values()} <= set(plan.placement.values())
+                   for r in got)
+    assert g.plan is plans[1]  # rounds alternate A B, B A, A B: the last plan run stays
+    other = warpvx.Graph("other")
+    with pytest.raises(warpvx.GraphError, match="plan"):
+        other.use_plan(plans[0])
+    with pytest.raises(warpvx.GraphError, match="inputs"):
+        g.measure_plans(plans, [])
+    with pytest.raises((warpvx.WarpvxTypeError, warpvx.WarpvxValueError), match="rounds"):
+        g.measure_plans(plans, {"frame": frames[0]}, rounds=0)
+    for plan in plans:
+        plan.close()
+    g.close()
+
+
+def _spin(x):
+    # Pure Python: holds the GIL, so two workers running it at once take turns.
+    s = 0
+    for i in range(150_000):
+        s += i
+    return x + 1
+
+
+def test_cpu_interference_is_learnt_from_the_contention_probe(tmp_path, monkeypatch):
+    # Trained on a placement that runs both spinning nodes on one worker (never side by
+    # side), the frames cannot show that they slow each other down; the contention probe
+    # (the CPU mix run beside a second worker looping it) does, and the model then
+    # predicts the placement that runs them on two workers -- no faster, under the GIL.
+    from warpvx.graph.model import fit, graph_reads
+
+    monkeypatch.setenv("WARPVX_CACHE_DIR", str(tmp_path))
+    g = warpvx.Graph("gil")
+    x = g.input("x", shape=(4,), dtype=np.float32)
+    a = g.user(_spin, [x], name="spinA")
+    b = g.user(_spin, [x], name="spinB")
+    g.output("y", g.user(np.add, [a, b], name="join"))
+    frame = {"x": np.zeros(4, np.float32)}
+    g.verify(frame)
+    plans = {p: g.schedule(p, n_cpus=2, gpu=False) for p in ("baseline", "heft")}
+    assert len(set(plans["baseline"].placement.values())) == 1
+    assert plans["heft"].placement["spinA"] != plans["heft"].placement["spinB"]
+    # Interleaved, so that the other processes of a loaded machine fall on both alike.
+    runs = dict(zip(plans, g.measure_plans(list(plans.values()), frame, rounds=4, frames=3)))
+    model = g.fit_model(plans["baseline"], runs=runs["baseline"])
+    _, alone, loaded, cpus, _ = plans["baseline"].calibration.contention[2][("cpu", "cpu")]
+    assert cpus == 1 and loaded / alone > 1.4  # the GIL: about 2x
+    assert model.slowdown["cpu"].per_cpu >= 0.5
+    blind = fit(plans["baseline"].calibration, graph_reads(g), runs["baseline"],
+                plans["baseline"].placement)
+    assert blind.slowdown["cpu"].per_cpu == 0.0  # nothing in the frames to learn it from
+    # Two workers over one: blind, the model expects them to nearly halve the time; with
+    # the probe it expects the GIL to take most of that back. (What the frames measured is
+    # not compared: on a loaded 2-core machine their ratio moves from 0.5 to 1.)
+    probed, guessed = (m.makespan(plans["heft"]) / m.makespan(plans["baseline"]) for m in (model, blind))
+    assert probed > guessed + 0.1
     g.close()
 
 

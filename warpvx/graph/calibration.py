@@ -36,10 +36,12 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import platform
 import socket
 import statistics
+import sys
 import tempfile
 import threading
 import time
@@ -140,6 +142,8 @@ class Calibration:
         node -> ``"cpu"``/``"gpu"``: where each node ran when :func:`learn` last saw it.
     contention : dict
         ``n_cpus`` -> :func:`measure_contention`'s probe (measured on first use).
+    gil : dict or None
+        :func:`measure_gil` (measured on first use).
     """
 
     machine: str
@@ -153,6 +157,7 @@ class Calibration:
     transfer_scale: float = 1.0
     placement: dict = field(default_factory=dict)
     contention: dict = field(default_factory=dict)
+    gil: dict | None = None
 
     def cost(self, node: str, pe: str, costs: str = "calibrated"):
         """``node``'s cost (ms) on ``pe`` (``"cpu"``/``"gpu"``), None without an
@@ -393,6 +398,82 @@ def measure_dispatch(gpu_backend, transfer: TransferModel | None = None, *, n_no
 PROBE_SPREAD = 4.0
 
 
+def _looping(call, scope):
+    """A thread body calling ``call()`` (inside ``scope()``, if any) until ``stop`` is set;
+    it sets ``started`` after its first call."""
+    def body(stop, started):
+        with scope() if scope is not None else contextlib.nullcontext():
+            call()
+            started.release()
+            while not stop.is_set():
+                call()
+    return body
+
+
+def _time_beside(call, scope, bodies, *, repeats: int, mean: bool = False) -> float:
+    """Median ms of ``call()`` (inside ``scope()``) while a thread runs each of ``bodies``
+    (:func:`_looping`) beside it; ``mean``: the mean over ``repeats`` back-to-back calls
+    instead (a thread holding the GIL takes it in turns of the switch interval: calls
+    shorter than a turn are either untouched or wait a whole turn, and only the mean
+    counts both)."""
+    stop, started = threading.Event(), threading.Semaphore(0)
+    threads = [threading.Thread(target=b, args=(stop, started), daemon=True) for b in bodies]
+    for th in threads:
+        th.start()
+    try:
+        for _ in threads:  # a loaded machine can start a thread late: time only side by side
+            started.acquire()
+        with scope() if scope is not None else contextlib.nullcontext():
+            if not mean:
+                return time_call(call, warmup=1, repeats=repeats)
+            call()
+            t0 = time.perf_counter()
+            for _ in range(repeats):
+                call()
+            return (time.perf_counter() - t0) * 1e3 / repeats
+    finally:
+        stop.set()
+        for th in threads:
+            th.join()
+
+
+def _node_calls(graph, names, kind, gpu_backend):
+    """``(name -> call of that node on kind, the GPU thread's scope or None, sync or None)``:
+    a CPU node called on its inputs; a GPU node's host call on uploaded inputs, and on
+    CUDA a stream sync to call after a batch of them (the queue stays short, as in a
+    frame)."""
+    from ..backend import init_warp, resolve_backend
+
+    if kind == "cpu":
+        cpu = resolve_backend("cpu")
+        calls = {}
+        for n in names:
+            fn, values = graph.nodes[n].callable("cpu", cpu), input_values(graph, graph.nodes[n])
+            calls[n] = (lambda fn=fn, values=values: fn(*values))
+        return calls, None, None
+    wp = init_warp()
+    stream = wp.Stream(gpu_backend.device) if gpu_backend.is_cuda else None
+    calls = {}
+    for n in names:
+        node = graph.nodes[n]
+        with wp.ScopedDevice(gpu_backend.device):
+            dvals = Transfers(gpu_backend.device).upload(list(input_values(graph, node)))
+        fn = node.callable("gpu", gpu_backend)
+        calls[n] = (lambda fn=fn, dvals=dvals: fn(*dvals))
+    return (calls, lambda: _gpu_scope(wp, gpu_backend.device, stream),
+            None if stream is None else (lambda: wp.synchronize_stream(stream)))
+
+
+def _in_turn(calls, sync=None):
+    """One call making each of ``calls`` in turn, then ``sync()`` if given."""
+    def call():
+        for c in calls:
+            c()
+        if sync is not None:
+            sync()
+    return call
+
+
 def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats: int = 9) -> dict:
     """How much the graph's own nodes slow each other down when run together (ms).
 
@@ -415,73 +496,98 @@ def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats:
         (``mix``: its nodes, comma-separated); a pair is absent when a kind has no node (or
         ``n_cpus`` is 1 for ``("cpu", "cpu")``).
     """
-    from ..backend import init_warp, resolve_backend
-
-    def plausible_on_cpu(t):
-        return t.get("cpu") and (not t.get("gpu") or t["cpu"] <= PROBE_SPREAD * t["gpu"])
-
-    mixes = {"cpu": sorted(n for n, t in calibration.nodes.items() if plausible_on_cpu(t)),
-             "gpu": sorted(n for n, t in calibration.nodes.items() if t.get("gpu"))
-             if gpu_backend is not None else []}
+    mixes = _probe_mixes(calibration, gpu_backend)
     calls = {}
-    if mixes["cpu"]:
-        cpu = resolve_backend("cpu")
-        cpu_calls = [(graph.nodes[n].callable("cpu", cpu), input_values(graph, graph.nodes[n]))
-                     for n in mixes["cpu"]]
-
-        def cpu_call():
-            for fn, values in cpu_calls:
-                fn(*values)
-
-        calls["cpu"] = (cpu_call, None)
-    wp = stream = None
-    if mixes["gpu"]:
-        wp = init_warp()
-        gpu_calls = []
-        for n in mixes["gpu"]:
-            node = graph.nodes[n]
-            with wp.ScopedDevice(gpu_backend.device):
-                dvals = Transfers(gpu_backend.device).upload(list(input_values(graph, node)))
-            gpu_calls.append((node.callable("gpu", gpu_backend), dvals))
-        stream = wp.Stream(gpu_backend.device) if gpu_backend.is_cuda else None
-
-        def gpu_call():
-            for fn, values in gpu_calls:
-                fn(*values)
-            if stream is not None:
-                wp.synchronize_stream(stream)  # the queue stays short, as in a frame
-
-        calls["gpu"] = (gpu_call, lambda: _gpu_scope(wp, gpu_backend.device, stream))
-
-    def loop(kind, stop):
-        call, scope = calls[kind]
-        with scope() if scope is not None else contextlib.nullcontext():
-            while not stop.is_set():
-                call()
-
-    def timed(kind, loaders):
-        call, scope = calls[kind]
-        stop = threading.Event()
-        threads = [threading.Thread(target=loop, args=(k, stop), daemon=True) for k in loaders]
-        for th in threads:
-            th.start()
-        try:
-            with scope() if scope is not None else contextlib.nullcontext():
-                return time_call(call, warmup=1, repeats=repeats)
-        finally:
-            stop.set()
-            for th in threads:
-                th.join()
+    for kind, names in mixes.items():
+        if names:
+            per_node, scope, sync = _node_calls(graph, names, kind, gpu_backend)
+            calls[kind] = (_in_turn([per_node[n] for n in names], sync), scope)
 
     out, alone = {}, {}
     loads = {("cpu", "cpu"): n_cpus - 1, ("cpu", "gpu"): 1, ("gpu", "cpu"): n_cpus}
     for (kind, loader), n in loads.items():
         if kind not in calls or loader not in calls or n < 1:
             continue
+        call, scope = calls[kind]
+        # Means, not medians: a mix shorter than a GIL turn is either untouched or waits
+        # a whole turn, and the median would keep the untouched calls only.
         if kind not in alone:
-            alone[kind] = timed(kind, [])
-        out[(kind, loader)] = (",".join(mixes[kind]), alone[kind], timed(kind, [loader] * n),
+            alone[kind] = _time_beside(call, scope, [], repeats=repeats, mean=True)
+        loaded = _time_beside(call, scope, [_looping(*calls[loader])] * n, repeats=repeats,
+                              mean=True)
+        out[(kind, loader)] = (",".join(mixes[kind]), alone[kind], loaded,
                                n if loader == "cpu" else 0, n if loader == "gpu" else 0)
+    return out
+
+
+def _probe_mixes(calibration, gpu_backend) -> dict:
+    """``"cpu"``/``"gpu"`` -> the nodes of :func:`measure_contention`'s mixes, sorted."""
+    def plausible_on_cpu(t):
+        return t.get("cpu") and (not t.get("gpu") or t["cpu"] <= PROBE_SPREAD * t["gpu"])
+
+    return {"cpu": sorted(n for n, t in calibration.nodes.items() if plausible_on_cpu(t)),
+            "gpu": sorted(n for n, t in calibration.nodes.items() if t.get("gpu"))
+            if gpu_backend is not None else []}
+
+
+#: :func:`measure_gil` times each call over at least this many GIL switch intervals...
+GIL_TURNS = 10
+#: ... alone and beside its neighbour in turn, this many times (the median ratio counts).
+GIL_PAIRS = 3
+
+
+def _spin_python(n: int = 20_000):
+    """Pure Python for a while: holds the GIL but for the interpreter's forced switches."""
+    x = 0
+    for i in range(n):
+        x += i
+    return x
+
+
+def measure_gil(graph, calibration, gpu_backend, *, repeats: int = 5) -> dict:
+    """Each node's share in the contention for Python's GIL, on each processing element.
+
+    ``sensitivity``: how much slower the node's call runs beside one thread running pure
+    Python (``loaded / alone - 1``); ``pressure``: how much slower a pure-Python loop runs
+    beside a thread looping the node's call. A node that is mostly Python has both near
+    1 (two such threads take turns); an OpenCV call that releases the GIL for its whole
+    duration has pressure near 0 (sensitivity can stay above 0: it waits for the GIL to
+    return). The contention model weighs each busy neighbour by its pressure and each
+    victim by its sensitivity (:mod:`warpvx.graph.model`), so that three workers running
+    OpenCV filters do not count as three workers running Python.
+
+    Returns
+    -------
+    dict
+        node -> ``{pe: (sensitivity, pressure)}`` for each of ``"cpu"``/``"gpu"`` it
+        can run on (the GPU: its host call), each clipped to ``[0, 1]``.
+    """
+    def mean_ms(call, scope, bodies, n):
+        return _time_beside(call, scope, bodies, repeats=n, mean=True)
+
+    def share(call, scope, beside, n):
+        """Median over GIL_PAIRS of (loaded / alone - 1), alone and loaded in turn: a burst
+        of other processes' work falls on one pair, not on the share."""
+        ratios = [mean_ms(call, scope, [beside], n) / max(mean_ms(call, scope, [], n), 1e-9)
+                  for _ in range(GIL_PAIRS)]
+        return float(min(1.0, max(0.0, statistics.median(ratios) - 1.0)))
+
+    # Enough of the Python loop to span several switch intervals.
+    spins = max(repeats, math.ceil(GIL_TURNS * sys.getswitchinterval() * 1e3
+                                   / mean_ms(_spin_python, None, [], 3)))
+    out = {}
+    for kind in ("cpu", "gpu"):
+        names = sorted(n for n, t in calibration.nodes.items() if t.get(kind))
+        if not names or (kind == "gpu" and gpu_backend is None):
+            continue
+        per_node, scope, sync = _node_calls(graph, names, kind, gpu_backend)
+        for n in names:
+            call = _in_turn([per_node[n]], sync)
+            alone = mean_ms(call, scope, [], repeats)
+            n_calls = max(repeats, math.ceil(GIL_TURNS * sys.getswitchinterval() * 1e3 / max(alone, 1e-3)))
+            sens = share(call, scope, _looping(_spin_python, None), n_calls)
+            press = share(_spin_python, None, _looping(call, scope), spins)
+            out.setdefault(n, {})[kind] = (sens, press)
     return out
 
 
@@ -737,6 +843,7 @@ __all__ = [
     "load_cache",
     "machine_id",
     "measure_contention",
+    "measure_gil",
     "measure_dispatch",
     "measure_transfer",
     "save_cache",

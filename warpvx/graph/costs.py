@@ -11,7 +11,7 @@ import os
 import warnings
 import weakref
 
-from ..check import check_float
+from ..check import check_float, check_int
 from ..errors import GraphError
 from .data import INPUT, Data, nbytes
 
@@ -25,6 +25,15 @@ def default_n_cpus() -> int:
 #: within this fraction of the fastest: the contention model's out-of-sample error (about
 #: 20%, ``benchmarks/graph_bench.py``) is larger than most gaps between candidates.
 TRIAL_MARGIN = 0.2
+
+#: Frames run and discarded each time a trial or :meth:`CostModel.measure_plans` switches
+#: to a plan: its threads wake, and captured segments record on a signature's second frame.
+SWITCH_WARMUP = 2
+
+#: Rounds of a trial by default: each candidate runs once per round, the order reversed
+#: every other round (ABBA), so a drift of the machine over the trial (measured on the H100:
+#: the same placement 30-40% apart minutes later) falls on every candidate alike.
+TRIAL_ROUNDS = 4
 
 
 class NoCudaWarning(UserWarning):
@@ -157,7 +166,8 @@ class CostModel:
 
     def schedule(self, policy="best", *, n_cpus: int | None = None, gpu=None,
                  recalibrate: bool = False, costs: str = "calibrated", model=None,
-                 trial_inputs=None, trial_frames: int = 5, trial_margin: float = TRIAL_MARGIN):
+                 trial_inputs=None, trial_frames: int = 5, trial_margin: float = TRIAL_MARGIN,
+                 trial_rounds: int = TRIAL_ROUNDS, trial_seconds: float | None = None):
         """Calibrate (cached), schedule with ``policy`` and make the result the current plan.
 
         Parameters
@@ -183,12 +193,20 @@ class CostModel:
         trial_inputs : dict or list of dict, optional
             With ``policy="best"`` and a ``model``: frames to try the candidates on. Every
             distinct candidate predicted within ``trial_margin`` (a fraction) of the fastest
-            prediction -- closer than the model can tell apart -- runs one warm-up frame
-            and ``trial_frames`` frames through :meth:`process` (frames cycle through
-            ``trial_inputs``), and the one with the least median measured makespan is kept:
+            prediction -- closer than the model can tell apart -- is measured by
+            :meth:`measure_plans`: ``trial_rounds`` interleaved rounds (ABBA), each running
+            every candidate for :data:`SWITCH_WARMUP` discarded frames and ``trial_frames``
+            measured ones through :meth:`process` (frames cycle through ``trial_inputs``);
+            the one with the least median measured makespan over all its rounds is kept:
             the measured winner, not the predicted one. ``plan.schedule.info["trial_ms"]``
-            gives each tried candidate's median (ms). These are real frames: outputs are
-            published and delays advance. With one candidate in the margin nothing runs.
+            gives each tried candidate's median (ms), ``info["trial_frames"]`` how many
+            frames each measured. These are real frames: outputs are published and delays
+            advance. With one candidate in the margin nothing runs.
+        trial_rounds : int
+            Rounds of the trial (>= 1).
+        trial_seconds : float, optional
+            Time budget of the trial (s): no round starts after it is spent (the first
+            always runs).
 
         Returns
         -------
@@ -208,6 +226,9 @@ class CostModel:
             if isinstance(trial_frames, bool) or not isinstance(trial_frames, int) or trial_frames < 1:
                 raise GraphError(f"trial_frames: expected an int >= 1, got {trial_frames!r}")
         trial_margin = check_float(trial_margin, "trial_margin", min_value=0.0)
+        trial_rounds = check_int(trial_rounds, "trial_rounds", min_value=1)
+        if trial_seconds is not None:
+            trial_seconds = check_float(trial_seconds, "trial_seconds", min_value=0.0)
         be = gpu_backend(gpu)
         with self._run_lock:
             if not self.verified:
@@ -225,9 +246,7 @@ class CostModel:
                     prediction = model.predict(sch)
                 plan = Plan(weakref.ref(self), sch, dag, sched.metrics(dag, sch), name, n_cpus,
                             be.name if be else None, cal, costs=costs, prediction=prediction)
-                self._invalidate_plan()
-                self._plan = plan
-                self._plan_box[0] = plan
+                self.use_plan(plan, close_previous=True)
                 return plan
 
             if model is not None and policy == "best":
@@ -235,16 +254,18 @@ class CostModel:
 
                 cands = choose(model, self._candidate_dags(dag, model, n_cpus))
                 top = [c for c in cands if c[3].makespan <= cands[0][3].makespan * (1 + trial_margin)]
-                chosen, trial = cands[0], None
+                chosen, trial, plan = cands[0], None, None
                 if trial_inputs is not None and len(top) > 1:
-                    chosen, trial = self._trial(top, trial_inputs, trial_frames, make_plan)
+                    chosen, trial, plan = self._trial(
+                        top, trial_inputs, make_plan, frames=trial_frames, rounds=trial_rounds,
+                        seconds=trial_seconds)
                 label, sch, dag, prediction = chosen
                 sch.info = {**sch.info, "chosen": label}
                 if trial is not None:
-                    sch.info["trial_ms"] = trial
+                    sch.info["trial_ms"] = {k: v[0] for k, v in trial.items()}
+                    sch.info["trial_frames"] = {k: v[1] for k, v in trial.items()}
                 sch.policy = "best"
-                plan = self._plan if trial is not None and self._plan.schedule is sch else \
-                    make_plan(sch, dag, prediction)
+                plan = plan or make_plan(sch, dag, prediction)
             else:
                 plan = make_plan(sched.schedule(dag, policy), dag, None)
         if gpu is None and be is not None and be.device == "cpu":
@@ -253,22 +274,77 @@ class CostModel:
                 warn_no_cuda(self.name, on_gpu)
         return plan
 
-    def _trial(self, candidates, inputs, frames: int, make_plan) -> tuple:
-        """Run each candidate (``(name, Schedule, dag, prediction)``) as the current plan
-        for one warm-up frame and ``frames`` measured ones; (the fastest by median
-        measured makespan, name -> that median in ms)."""
+    def _trial(self, candidates, inputs, make_plan, *, frames, rounds, seconds) -> tuple:
+        """Measure each candidate (``(name, Schedule, dag, prediction)``) with
+        :meth:`measure_plans`; (the fastest by median measured makespan, name -> (that
+        median in ms, frames measured), its plan, now the current one)."""
         import statistics
 
-        measured = {}
-        for name, sch, dag, prediction in candidates:
-            plan = make_plan(sch, dag, prediction)
-            spans = []
-            for i in range(frames + 1):  # the first warms the executor's threads and pools
-                self.process(inputs[i % len(inputs)])
-                if i:
-                    spans.append(plan.last_run[-1].makespan)
-            measured[name] = statistics.median(spans)
-        return min(candidates, key=lambda c: measured[c[0]]), measured
+        plans = [make_plan(sch, dag, prediction) for _, sch, dag, prediction in candidates]
+        try:
+            runs = self.measure_plans(plans, inputs, rounds=rounds, frames=frames, seconds=seconds)
+        except BaseException:
+            for plan in plans:
+                plan.close()
+            raise
+        measured = {c[0]: (statistics.median(r.makespan for r in got), len(got))
+                    for c, got in zip(candidates, runs)}
+        i = min(range(len(candidates)), key=lambda k: measured[candidates[k][0]][0])
+        for k, plan in enumerate(plans):  # idle executors' threads: only the kept one stays
+            if k != i:
+                plan.close()
+        self.use_plan(plans[i])
+        return candidates[i], measured, plans[i]
+
+    def use_plan(self, plan, *, close_previous: bool = False):
+        """Make ``plan`` (one of this graph's, e.g. from an earlier :meth:`schedule`) the
+        current plan, which :meth:`process` and :meth:`stream` run. The previous plan's
+        executor keeps its threads (switching back is cheap) unless ``close_previous``;
+        a plan left idle is closed with :meth:`~warpvx.graph.plan.Plan.close`."""
+        if getattr(plan, "graph", None) is not self:
+            raise GraphError(f"plan: expected a Plan of graph {self.name!r}, got {plan!r}")
+        with self._run_lock:
+            if close_previous and self._plan is not None and self._plan is not plan:
+                self._plan.close()
+            self._plan = plan
+            self._plan_box[0] = plan
+
+    def measure_plans(self, plans, inputs, *, rounds: int = TRIAL_ROUNDS, frames: int = 5,
+                      warmup: int = SWITCH_WARMUP, seconds: float | None = None) -> list:
+        """Run ``plans`` (this graph's) in interleaved rounds, one frame at a time, so that a
+        drift of the machine falls on each alike: per plan, the FrameResults of its
+        measured frames.
+
+        Each round makes each plan current (:meth:`use_plan`; executors stay warm) and runs
+        ``warmup`` frames, discarded (the first frames after a switch wake its threads and
+        record captures), then ``frames`` measured ones; every other round takes the plans
+        in reverse order (A B B A: a linear drift cancels, and no plan always runs first).
+        No round starts once ``seconds`` (a budget, s) have passed; the first always runs.
+        Inputs cycle through ``inputs`` (a dict or a list of dicts); frames are real:
+        outputs are published and delays advance. The last plan run stays current.
+        """
+        import time
+
+        inputs = [inputs] if isinstance(inputs, dict) else list(inputs)
+        if not inputs:
+            raise GraphError("inputs: expected a dict of inputs or a non-empty list of them")
+        rounds = check_int(rounds, "rounds", min_value=1)
+        frames = check_int(frames, "frames", min_value=1)
+        warmup = check_int(warmup, "warmup", min_value=0)
+        out = [[] for _ in plans]
+        t0, k = time.perf_counter(), 0
+        for r in range(rounds):
+            if r and seconds is not None and time.perf_counter() - t0 > seconds:
+                break
+            order = range(len(plans)) if r % 2 == 0 else range(len(plans) - 1, -1, -1)
+            for i in order:
+                self.use_plan(plans[i])
+                for j in range(warmup + frames):
+                    self.process(inputs[k % len(inputs)])
+                    k += 1
+                    if j >= warmup:
+                        out[i].append(plans[i].last_run[-1])
+        return out
 
     def _candidate_dags(self, dag, model, n_cpus) -> dict:
         """name -> task DAG: the schedule's own and one with the model's in-frame costs."""
@@ -277,11 +353,17 @@ class CostModel:
         pes = {n: node.processing_elements for n, node in self.nodes.items()}
         return {"": dag, "model costs": in_frame_dag(model, pes, n_cpus)}
 
-    def fit_model(self, plan=None, *, runs=None):
+    def fit_model(self, plan=None, *, runs=None, gil: bool = False):
         """A :class:`~warpvx.graph.model.ContentionModel` learnt from frames run with ``plan``
         (default: the current plan and its ``last_run``): host contention, copies and
-        hand-offs, to predict this plan's later frames and other plans' (out of sample)."""
-        from .calibration import measure_contention
+        hand-offs, to predict this plan's later frames and other plans' (out of sample).
+        The contention probe is measured on first use
+        (:func:`~warpvx.graph.calibration.measure_contention`) and kept in the calibration;
+        with ``gil``, also each node's GIL shares
+        (:func:`~warpvx.graph.calibration.measure_gil`), and busy neighbours count by them
+        (not yet the default: on a loaded 2-core machine the shares are noise; see
+        ``benchmarks/graph_bench.py``, which reports both)."""
+        from .calibration import measure_contention, measure_gil
         from .model import fit, graph_reads
 
         plan = plan or self._plan
@@ -289,12 +371,22 @@ class CostModel:
         if plan is None or not runs:
             raise GraphError("fit_model: nothing measured yet; run g.process() first")
         cal = plan.calibration
-        if plan.n_cpus not in cal.contention:
-            with self._run_lock:
-                cal.contention[plan.n_cpus] = measure_contention(
-                    self, cal, gpu_backend(plan.gpu or False), plan.n_cpus)
+        be = gpu_backend(plan.gpu or False)
+        with self._run_lock:
+            if plan.n_cpus not in cal.contention:
+                cal.contention[plan.n_cpus] = measure_contention(self, cal, be, plan.n_cpus)
+            if gil and cal.gil is None:
+                cal.gil = measure_gil(self, cal, be)
         return fit(cal, graph_reads(self), runs, plan.placement, policy=plan.policy,
-                   probe=cal.contention[plan.n_cpus])
+                   probe=cal.contention[plan.n_cpus], gil=cal.gil if gil else None,
+                   capturable=self.capturable_nodes(plan.gpu))
+
+    def capturable_nodes(self, gpu) -> frozenset:
+        """Nodes the executor may run in captured GPU segments with GPU role ``gpu`` (a
+        backend name): capturable with a preallocated output."""
+        from .run import program
+
+        return frozenset(t.name for t in program(self, gpu).tasks.values() if t.capture)
 
     def learn(self, plan=None, *, runs=None, skip: int = 1) -> dict:
         """Fold measured frames into the plan's calibration history (and the cache), for
@@ -320,4 +412,4 @@ class CostModel:
         return self._plan
 
 
-__all__ = ["CostModel", "NoCudaWarning", "TRIAL_MARGIN", "default_n_cpus", "gpu_backend", "warn_no_cuda"]
+__all__ = ["CostModel", "NoCudaWarning", "SWITCH_WARMUP", "TRIAL_MARGIN", "TRIAL_ROUNDS", "default_n_cpus", "gpu_backend", "warn_no_cuda"]

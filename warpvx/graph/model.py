@@ -7,14 +7,18 @@ the more other host threads are busy beside it; copies and hand-offs between thr
 time the isolated calibration never sees; and the makespan is a function of placement *and*
 overlap. So the model is
 
-    work(node, pe) = e_node,pe * (r_pe * (alone(node, pe) + copies(node, pe)) + d_pe)
-    speed(t)       = 1 / (1 + a_pe * cpus(t) + b_pe * gpus(t))
+    work(node, pe) = e_node,pe * (r_pe * alone(node, pe) + d_pe) + copies(node, pe)
+    speed(t)       = 1 / (1 + s_node * (a_pe * cpus(t) + b_pe * gpus(t)))
 
 where ``alone`` is the calibrated time (:mod:`warpvx.graph.calibration`; for a GPU node the
 host side of the call, its enqueue: the GPU nodes of a frame are host-bound), ``copies``
-the transfer model's time for the bytes the executor copies for the task, ``cpus(t)`` the
-number of *other* CPU workers running a task at ``t`` and ``gpus(t)`` whether the GPU host
-thread is inside a call (for a CPU task), ``r_pe`` the in-frame over alone ratio, ``d_pe``
+the transfer model's time for the bytes the executor copies for the task (plus the extra
+per copying task the training frames measured), ``cpus(t)`` the *other* CPU workers
+running a task at ``t`` and ``gpus(t)`` the GPU host thread inside a call, each counted by
+its node's GIL pressure, ``s_node`` the node's GIL sensitivity
+(:func:`~warpvx.graph.calibration.measure_gil`: how much a pure-Python neighbour slows
+the node, how much the node slows a pure-Python neighbour; 1 and 1 where not measured),
+``r_pe`` the in-frame over alone ratio, ``d_pe``
 a fixed in-frame cost per task (the executor's work inside the interval), ``a_pe``/``b_pe``
 the slowdown per busy CPU worker / busy GPU host thread of each kind of processing element
 (``"cpu"``, ``"gpu"`` for the GPU host thread), and ``e`` a per-node correction, 1 for a
@@ -112,6 +116,10 @@ SLOWDOWN_GRID = np.linspace(0.0, 2.0, 21)
 #: Grid of fixed in-frame costs per task (ms: the executor's bookkeeping inside a task's
 #: interval, what makes a 3 us node take 20 us) tried by :func:`fit_slowdown`.
 OVERHEAD_GRID = np.linspace(0.0, 0.1, 11)
+
+#: At most this share of a task's interval is taken for copies it made but did not time
+#: apart (the transfer model can overestimate a copy; the node's own work stays positive).
+UNTIMED_COPY_SHARE = 0.9
 
 #: Weight of a contention probe (:func:`~warpvx.graph.calibration.measure_contention`)
 #: measurement in the fit, in training samples.
@@ -227,12 +235,14 @@ def _weighted_median(values, weights) -> float:
     return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
-def busy_overlap(interval, others) -> float:
-    """Mean number of ``others`` (``(start, end)`` intervals) active during ``interval``."""
+def busy_overlap(interval, others, weights=None) -> float:
+    """Mean number of ``others`` (``(start, end)`` intervals) active during ``interval``,
+    each counted ``weights[i]`` times (default once)."""
     s, f = interval
     if f <= s:
         return 0.0
-    total = sum(max(0.0, min(f, b) - max(s, a)) for a, b in others)
+    weights = weights if weights is not None else [1.0] * len(others)
+    total = sum(w * max(0.0, min(f, b) - max(s, a)) for (a, b), w in zip(others, weights))
     return total / (f - s)
 
 
@@ -268,9 +278,18 @@ class ContentionModel:
         The GPU role is a CUDA device (host enqueue and device run apart).
     trained_on : str
         The policy whose frames the model learnt from, and how many.
-    copy_scale : dict
-        ``"cpu"``/``"gpu"`` -> median of measured over modelled copy time in the training
-        frames (a frame's pageable arrays copy slower than calibration's buffers).
+    capturable : frozenset
+        Nodes the executor runs in GPU segments (:func:`gpu_segments`): a segment is one
+        unit, its values published to CPU readers when it ends.
+    gil : dict
+        :func:`~warpvx.graph.calibration.measure_gil`: node -> ``{pe: (sensitivity,
+        pressure)}``; a busy neighbour counts its pressure, a victim its sensitivity
+        (1 and 1 for a node not measured: every busy thread counts alike).
+    copy_extra : dict
+        ``"cpu"``/``"gpu"`` -> the median time (ms) a task's copies took in the training
+        frames beyond the transfer model's (a frame's copies wait on a synchronisation and
+        copy pageable arrays; calibration's do neither): a fixed cost per copying task,
+        not a factor, so a scale learnt on 8 KB downloads is not applied to a frame.
     """
 
     slowdown: dict
@@ -280,7 +299,17 @@ class ContentionModel:
     transfer: object
     cuda: bool
     trained_on: str = ""
-    copy_scale: dict = field(default_factory=dict)
+    copy_extra: dict = field(default_factory=dict)
+    gil: dict = field(default_factory=dict)
+    capturable: frozenset = frozenset()
+
+    def sensitivity(self, node: str, pe: str) -> float:
+        """How much ``node`` on ``pe`` suffers from a busy GIL-holding neighbour (0-1)."""
+        return _gil_share(self.gil, node, pe, 0)
+
+    def pressure(self, node: str, pe: str) -> float:
+        """How much ``node`` running on ``pe`` slows a neighbour down (0-1)."""
+        return _gil_share(self.gil, node, pe, 1)
 
     def work(self, node: str, pe: str, copied: int = 0) -> float:
         """``node``'s time on ``pe`` in a frame with no busy neighbour, its copies of
@@ -292,8 +321,10 @@ class ContentionModel:
 
     def copy_time(self, pe: str, nbytes: int) -> float:
         """The copies a task on ``pe`` makes of ``nbytes`` (uploads on the GPU thread,
-        downloads on a CPU worker): the transfer model scaled by ``copy_scale``."""
-        return self.copy_scale.get(pe, 1.0) * _copy_ms(self.transfer, pe, nbytes)
+        downloads on a CPU worker): the transfer model plus ``copy_extra``."""
+        if not nbytes:
+            return 0.0
+        return max(0.0, _copy_ms(self.transfer, pe, nbytes) + self.copy_extra.get(pe, 0.0))
 
     def predict(self, plan_or_schedule, processors=None) -> Schedule:
         """The predicted timeline of one frame of a plan (or of a Schedule's orders):
@@ -313,8 +344,13 @@ class ContentionModel:
                              "per_gpu": s.per_gpu, "samples": s.samples, "rms_log": s.rms_log}
                          for k, s in self.slowdown.items()},
             "latency_us": {k: v * 1e3 for k, v in self.latency.items()},
-            "copy_scale": dict(self.copy_scale),
+            "copy_extra_us": {k: v * 1e3 for k, v in self.copy_extra.items()},
         }
+
+
+def _gil_share(gil, node, pe, which) -> float:
+    got = (gil or {}).get(node, {}).get(pe)
+    return 1.0 if got is None else float(got[which])
 
 
 def alone_costs(calibration) -> dict:
@@ -329,8 +365,37 @@ def alone_costs(calibration) -> dict:
     return out
 
 
-def _ready_parts(run, task, reads, placement, hosts):
-    """(latency class, time the task became ready) in a measured frame."""
+def gpu_segments(reads: dict, capturable, placement: dict, gpu_order) -> list:
+    """The GPU queue ``gpu_order`` cut as the executor cuts it
+    (:func:`warpvx.runtime.capture.segments`): runs of consecutive ``capturable`` tasks, a
+    new one where a task reads (at any frame offset) a value a CPU worker made; any other
+    task a segment of its own. Lists of task names."""
+    groups, current = [], []
+    for task in gpu_order:
+        if task not in capturable:
+            if current:
+                groups.append(current)
+                current = []
+            groups.append([task])
+            continue
+        if current and any(r.producer is not None and pe_of(placement[r.producer]) == "cpu"
+                           for r in reads[task]):
+            groups.append(current)
+            current = []
+        current.append(task)
+    if current:
+        groups.append(current)
+    return groups
+
+
+def _segment_of(reads, capturable, placement, gpu_order) -> dict:
+    """task -> the tasks of its GPU segment (:func:`gpu_segments`)."""
+    return {t: seg for seg in gpu_segments(reads, capturable, placement, gpu_order) for t in seg}
+
+
+def _ready_parts(run, task, reads, placement, hosts, segment):
+    """(latency class, time the task became ready) in a measured frame; ``segment``: GPU
+    task -> its segment's tasks (a CPU reader waits for the whole segment)."""
     proc, start, _ = hosts[task]
     side = pe_of(proc)
     ready, cls = 0.0, "start"
@@ -344,16 +409,18 @@ def _ready_parts(run, task, reads, placement, hosts):
         p_side = pe_of(placement[r.producer])
         if hosts[r.producer][0] == proc:
             continue  # ordered on this thread already
-        # A CPU reader of GPU data waits for the device; a GPU reader for the host call.
-        t = (run.timeline[r.producer].finish if p_side == "gpu" and side == "cpu"
-             else hosts[r.producer][2])
+        # A CPU reader of GPU data waits for the device, to the end of the producer's
+        # segment; a GPU reader for the host call.
+        t = (max(run.timeline[u].finish for u in segment.get(r.producer, (r.producer,))
+                 if u in run.timeline)
+             if p_side == "gpu" and side == "cpu" else hosts[r.producer][2])
         if t > ready:
             ready, cls = t, f"{side}_from_{p_side}"
     return cls, ready
 
 
 def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
-        probe: dict | None = None) -> ContentionModel:
+        probe: dict | None = None, gil: dict | None = None, capturable=()) -> ContentionModel:
     """Learn a :class:`ContentionModel` from frames run with one plan.
 
     Parameters
@@ -371,6 +438,12 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
         (node, alone, loaded, busy_cpus, busy_gpus)``: a node timed alone and with other
         host threads busy, so the slowdown per busy thread of each kind is known even when
         the training placement keeps the other threads idle (see :func:`fit_slowdown`).
+    gil : dict, optional
+        :func:`~warpvx.graph.calibration.measure_gil`: each busy neighbour (in the frames
+        and in the probe's mixes) counts its GIL pressure, each victim its sensitivity,
+        so ``a`` and ``b`` are per unit of Python run beside, not per busy thread.
+    capturable : iterable of str
+        Nodes the executor runs in GPU segments (:func:`gpu_segments`).
     """
     runs = [r for r in runs if r.timeline]
     if not runs:
@@ -380,24 +453,40 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     samples = {"cpu": [], "gpu": []}
     copies = {"cpu": [], "gpu": []}
     waits = {k: [] for k in LATENCIES}
+    capturable = frozenset(capturable)
+    shares = ContentionModel({}, {}, alone, reads, None, cuda, gil=dict(gil or {}))
     for run in runs:
         hosts = host_intervals(run)
+        gpu_order = sorted((t for t, (p, _, _) in hosts.items() if pe_of(p) == "gpu"),
+                           key=lambda t: hosts[t][1])
+        segment = _segment_of(reads, capturable, placement, gpu_order)
         for task, (proc, s, f) in hosts.items():
             pe = pe_of(proc)
             copy_ms = run.transfers.get(task, 0.0)
             modelled = _copy_ms(calibration.transfer, pe, run.copied.get(task, 0))
-            busy = [busy_overlap((s, f), [(b0, b1) for p, b0, b1 in hosts.values()
-                                          if p != proc and pe_of(p) == kind])
-                    for kind in ("cpu", "gpu")]
+            busy = []
+            for kind in ("cpu", "gpu"):
+                near = [(t, b0, b1) for t, (p, b0, b1) in hosts.items() if p != proc and pe_of(p) == kind]
+                busy.append(shares.sensitivity(task, pe) * busy_overlap(
+                    (s, f), [(b0, b1) for _, b0, b1 in near], [shares.pressure(t, kind) for t, _, _ in near]))
             if copy_ms > 0 and modelled > 0:
-                copies[pe].append((copy_ms / modelled, *busy))
+                copies[pe].append((copy_ms, modelled, *busy))
+            elif modelled > 0:
+                # Copies made but not timed apart (a captured segment's uploads, small ones
+                # on CUDA) are inside the interval: take out what the simulation adds back,
+                # else the node's correction counts them a second time.
+                copy_ms = min(modelled, UNTIMED_COPY_SHARE * (f - s))
             if alone[task][pe] is not None:
                 samples[pe].append((task, alone[task][pe], f - s - copy_ms, *busy))
-            cls, ready = _ready_parts(run, task, reads, placement, hosts)
+            cls, ready = _ready_parts(run, task, reads, placement, hosts, segment)
             waits[cls].append(max(0.0, s - ready))
     probes = {"cpu": [], "gpu": []}
-    for (pe, _), (_node, alone_ms, loaded, cpus, gpus) in (probe or {}).items():
-        probes[pe].append((alone_ms, loaded, cpus, gpus))
+    mixes = {victim: mix.split(",") for (victim, _), (mix, *_rest) in (probe or {}).items()}
+    for (pe, loader), (mix, alone_ms, loaded, cpus, gpus) in (probe or {}).items():
+        # The victim mix's sensitivity times the loader mix's pressure (time-weighted).
+        w = _mix_share(shares.sensitivity, alone, mix.split(","), pe) * \
+            _mix_share(shares.pressure, alone, mixes.get(loader, ()), loader)
+        probes[pe].append((alone_ms, loaded, cpus * w, gpus * w))
     slow = {pe: fit_slowdown(s, probes[pe]) for pe, s in samples.items()}
     d = calibration.dispatch or {}
     fallback = {"start": d.get("start", 0.0), "cpu_same": d.get("cpu_gap", 0.0),
@@ -405,12 +494,20 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
                 "cpu_from_gpu": d.get("handoff", 0.0), "gpu_from_cpu": d.get("handoff", 0.0)}
     latency = {k: statistics.median(v) if v else fallback[k] for k, v in waits.items()}
     # Copies slow down with busy neighbours like the rest of the task (the simulation
-    # applies the same speed to the whole task), so their scale is taken without that.
-    copy_scale = {pe: statistics.median(r / slow[pe].speed_divisor(c, g) for r, c, g in v)
+    # applies the same speed to the whole task), so their extra is taken without that.
+    copy_extra = {pe: statistics.median(t / slow[pe].speed_divisor(c, g) - m for t, m, c, g in v)
                   for pe, v in copies.items() if v}
     return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
                            f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames",
-                           copy_scale)
+                           copy_extra, shares.gil, capturable)
+
+
+def _mix_share(share, alone, names, pe) -> float:
+    """A mix's share: its nodes' ``share(node, pe)`` weighted by their alone times (1 for
+    an unknown mix)."""
+    w = [(alone[n][pe] or 0.0, share(n, pe)) for n in names if n in alone]
+    total = sum(t for t, _ in w)
+    return sum(t * x for t, x in w) / total if total > 0 else 1.0
 
 
 def _copy_ms(transfer, pe, n):
@@ -439,6 +536,10 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
     queues = {p: [t for t in order if placement[t] == p] for p in schedule.processors}
     queues = {p: q for p, q in queues.items() if q}
     copied = copied_bytes(model.reads, placement, order)
+    # A GPU segment is one unit: CPU readers see its values when its last task ends.
+    last_of = {t: seg[-1] for p, q in queues.items() if pe_of(p) == "gpu"
+               for seg in gpu_segments(model.reads, model.capturable, placement, q) for t in seg}
+    seg_end = 0.0
     lat = model.latency
     pos = {p: 0 for p in queues}
     free_at = {p: 0.0 for p in queues}
@@ -487,12 +588,13 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
             now = min(t for t, _ in starts)
             continue
         # Advance to the next start or end at the current speeds.
-        kinds = [pe_of(p) for p in running]
+        press = {p: model.pressure(r[0], pe_of(p)) for p, r in running.items()}
         speed = {}
-        for p in running:
+        for p, r in running.items():
             me = pe_of(p)
-            cpus, gpus = kinds.count("cpu") - (me == "cpu"), kinds.count("gpu") - (me == "gpu")
-            speed[p] = 1.0 / model.slowdown[me].speed_divisor(cpus, gpus)
+            busy = {k: sum(w for q, w in press.items() if q != p and pe_of(q) == k) for k in ("cpu", "gpu")}
+            sens = model.sensitivity(r[0], me)
+            speed[p] = 1.0 / model.slowdown[me].speed_divisor(sens * busy["cpu"], sens * busy["gpu"])
         dt_end = min(r[1] / speed[p] for p, r in running.items())
         pending = [t for t, p in starts if p not in running and t > now]
         dt = min([dt_end] + [t - now for t in pending])
@@ -509,11 +611,20 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
                 d0 = max(device_free, h0)
                 d1 = max(d0 + model.alone[task]["device"], now)
                 device_free = d1
-                avail_gpu[task], avail_cpu[task] = now, d1
                 out[task] = ScheduledTask(task, p, d0, d1)
             else:
-                avail_gpu[task] = avail_cpu[task] = now
+                d1 = now
                 out[task] = ScheduledTask(task, p, h0, now)
+            avail_gpu[task] = now
+            if pe_of(p) != "gpu":
+                avail_cpu[task] = now
+            else:
+                seg_end = max(seg_end, d1)
+                if last_of.get(task, task) == task:
+                    for t in queues[p][:pos[p]]:
+                        if t not in avail_cpu:
+                            avail_cpu[t] = seg_end
+                    seg_end = 0.0
     return Schedule(out, list(schedule.processors), policy=f"{schedule.policy} (simulated)",
                     info={"model": model.trained_on})
 
@@ -597,6 +708,7 @@ __all__ = [
     "copied_bytes",
     "fit",
     "fit_slowdown",
+    "gpu_segments",
     "graph_reads",
     "host_intervals",
     "pe_of",
