@@ -20,7 +20,9 @@ Usage::
     PYTHONPATH=. python3 benchmarks/overhead_bench.py --gpu cuda --out $OUT/overhead   # GPU
     PYTHONPATH=. python benchmarks/overhead_bench.py --gpu warp-cpu --quick            # anywhere
 
-Writes ``overhead_bench.md`` (its first line is the command) and ``overhead_bench.json``.
+Writes ``overhead_bench.md`` (its first line is the command), ``overhead_bench.json``, and ``overhead_profile_gpu.txt`` and ``overhead_profile_mixed.txt``: the
+GPU-only and alternating chains under cProfile, every thread
+(:func:`warpvx.graph.diagnostics.profile_overhead`).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ import graph_bench  # noqa: E402 - the two-camera graph's builder and frames, ne
 
 import warpvx  # noqa: E402
 from warpvx.backend import init_warp  # noqa: E402
-from warpvx.graph.diagnostics import executor_overhead  # noqa: E402
+from warpvx.graph.diagnostics import executor_overhead, profile_overhead  # noqa: E402
 
 MODES = {"eager": False, "captured": True}
 
@@ -59,6 +61,10 @@ def _chains(args) -> list:
         print(f"  {r['chain']:5s} chain, {r['n_nodes']} identity nodes: "
               f"{r['per_node_us']:.1f} us/node process, {r['per_node_us_stream']:.1f} stream",
               flush=True)
+    for chain, nodes in (("gpu", n), ("mixed", n // 2)):  # where the host time goes
+        text = profile_overhead(nodes, frames, chain=chain, gpu=args.gpu)
+        (args.out / f"overhead_profile_{chain}.txt").write_text(text)
+        print(f"  wrote overhead_profile_{chain}.txt", flush=True)
     return rows
 
 
@@ -211,7 +217,10 @@ def markdown(report) -> str:
     lines += ["", "Targets (issue 11): < 5 us/node on the GPU-only chain, < 20 on the alternating "
               "one. Breakdown (executor_overhead): mixed, one CPU -> GPU -> CPU round: the GPU "
               "call's host time (gpu_task), a CPU task with its download (cpu_task), the "
-              "hand-offs; gpu: a task's host time and the gap to the next."]
+              "hand-offs; gpu: a task's host time and the gap to the next; every chain: a "
+              "frame's host time before its first task (frame_head) and after its last "
+              "(frame_tail: wait, outputs, result). Where the host time goes: "
+              "overhead_profile_gpu.txt, overhead_profile_mixed.txt (cProfile, every thread)."]
     n0, n1 = report["primitive_chain"][0]["nodes"] if report["primitive_chain"] else ("?", "?")
     lines += ["", f"## GPU-only chain of 3x3 blurs (16x16 uint8): cost of one more node "
                   f"(chains of {n0} and {n1})", "",
@@ -275,6 +284,7 @@ def main(argv=None):
         args.n_cpus = warpvx.graph.default_n_cpus()
     out_dir = args.out or Path("warpvx-results") / time.strftime("overhead-%Y%m%d-%H%M%S")
     out_dir.mkdir(parents=True, exist_ok=True)
+    args.out = out_dir
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # one core per CPU worker, as the graph benchmark
     t_start = time.perf_counter()
