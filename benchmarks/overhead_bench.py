@@ -143,20 +143,40 @@ def _two_cameras(args) -> list:
                 stream = g.stream(feed, depth=depth, capture=capture)
                 for _ in range(2 * depth):  # warm: threads, pools, the capture
                     next(stream)
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 done = sum(1 for _ in stream)
                 seconds = time.perf_counter() - t0
-                spans = [r.makespan for r in list(g.plan.last_run)[-min(done, 32):]]
+                cpu = time.process_time() - c0
+                runs = list(g.plan.last_run)[-min(done, 32):]
                 row = {"depth": depth, "mode": mode, "frames": done, "fps": done / seconds,
-                       "frame_ms_median": statistics.median(spans), "captures": ex.captures}
+                       "frame_ms_median": statistics.median(r.makespan for r in runs),
+                       "captures": ex.captures, "cpu_ms_per_frame": cpu / done * 1e3,
+                       "gpu_host_ms_median": statistics.median(_gpu_host_ms(r) for r in runs)}
                 rows.append(row)
                 print(f"  depth {depth} {mode}: {row['fps']:.1f} FPS ({done} frames), median "
-                      f"frame {row['frame_ms_median']:.2f} ms, captures so far {ex.captures}",
+                      f"frame {row['frame_ms_median']:.2f} ms, CPU time "
+                      f"{row['cpu_ms_per_frame']:.2f} ms/frame, captures so far {ex.captures}",
                       flush=True)
     finally:
         g.close()
     return [{"size": list(size), "segments": segs, "eager": eager, "rows": rows,
              "captured_equals_eager": same or "yes"}]
+
+
+def _gpu_host_ms(run) -> float:
+    """The GPU thread's host time in a frame (ms): its calls, or its replays (copies in,
+    launch, copies out), summed (on warp-cpu these include the kernels)."""
+    return _union_ms(sorted(run.host.values()))  # a replay's tasks tile its interval
+
+
+def _union_ms(intervals) -> float:
+    """Total length of sorted (start, end) intervals, overlaps counted once."""
+    total, end = 0.0, float("-inf")
+    for a, b in intervals:
+        if b > end:
+            total += b - max(a, end)
+            end = b
+    return total
 
 
 def _captured_equals_eager(g, frames) -> str:
@@ -219,12 +239,20 @@ def markdown(report) -> str:
                                                                 or "none") + ".",
                   "Captured outputs equal the eager run's, bit for bit, on 16 frames one at a "
                   f"time: {e.get('captured_equals_eager', '?')}.", "",
-                  "| frames in flight | mode | FPS | median frame (ms) | frames timed |",
-                  "|---|---|---|---|---|"]
+                  "| frames in flight | mode | FPS | median frame (ms) | GPU thread host time "
+                  "per frame (ms, median) | process CPU time per frame (ms, all threads) | "
+                  "frames timed |",
+                  "|---|---|---|---|---|---|---|"]
         for r in e["rows"]:
             mode = r["mode"] + (cpu_note if r["mode"] == "captured" else "")
             lines.append(f"| {r['depth']} | {mode} | {r['fps']:.1f} | {r['frame_ms_median']:.2f} | "
-                         f"{r['frames']} |")
+                         f"{r.get('gpu_host_ms_median', float('nan')):.3f} | "
+                         f"{r.get('cpu_ms_per_frame', float('nan')):.2f} | {r['frames']} |")
+        lines += ["", "GPU thread host time: its calls (eager) or its replay (copies in, launch, "
+                  "copies out; captured), from the frames' host timelines. CPU time: the "
+                  "process's over the timed frames (every thread, CPU nodes included). On "
+                  "warp-cpu both include the kernels; on CUDA the CPU time includes any spin "
+                  "in a synchronisation."]
     for key, err in report["errors"].items():
         lines += ["", f"**{key} failed**: {err}"]
     return "\n".join(lines) + "\n"

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._counted import map_counted, trimmed
+from .._counted import download, map_counted
 from .native_copy import (is_warp_array, numpy_dtype, record_event, synchronize_event, to_device,
                           to_host, to_host_async, wait_event, warp)
 
@@ -104,12 +104,12 @@ class Transfers:
         of device-role memory: a pooled buffer may be overwritten by a later frame).
 
         ``event``: a CUDA event after the producer's kernels; the copy waits for it. A device
-        :class:`~warpvx._counted.Counted` reads its count first and copies only the rows it
-        counts (its value: a capacity may be far larger).
+        :class:`~warpvx._counted.Counted` is copied in one piece where it has a block (a
+        graph node's), else its count is read first and only the rows it counts are copied.
         """
         if is_warp_array(value):  # the usual value: no tree to walk
             return self._download_array(value, event)
-        value = map_counted(lambda c: trimmed(c, int(self.download(c.count, event)[0]))
+        value = map_counted(lambda c: download(c, lambda a: self._download_array(a, event))
                             if is_warp_array(c.count) else c, value)
         return tree_map(lambda a: self._download_array(a, event) if is_warp_array(a) else a,
                         value)
