@@ -62,7 +62,10 @@ def _chains(args) -> list:
               f"{r['per_node_us']:.1f} us/node process, {r['per_node_us_stream']:.1f} stream",
               flush=True)
     for chain, nodes in (("gpu", n), ("mixed", n // 2)):  # where the host time goes
-        text = profile_overhead(nodes, frames, chain=chain, gpu=args.gpu)
+        try:
+            text = profile_overhead(nodes, frames, chain=chain, gpu=args.gpu)
+        except Exception as exc:  # noqa: BLE001 - a profiler clash must not lose the tables
+            text = f"profile failed: {type(exc).__name__}: {exc}\n"
         (args.out / f"overhead_profile_{chain}.txt").write_text(text)
         print(f"  wrote overhead_profile_{chain}.txt", flush=True)
     return rows

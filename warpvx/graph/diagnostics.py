@@ -9,6 +9,7 @@ from __future__ import annotations
 import gc
 import os
 import statistics
+import sys
 import time
 
 import numpy as np
@@ -227,7 +228,10 @@ def profile_overhead(n_nodes: int = 64, frames: int = 200, *, chain: str = "gpu"
 
     executor_overhead(n_nodes, 5, chain=chain, gpu=gpu)  # imports, JIT: not profiled
     main = cProfile.Profile()
-    RoleRunner._role_loop = profiled_loop
+    # From Python 3.12 cProfile runs on sys.monitoring: one profiler for the whole process,
+    # which sees every thread (a second one enabled on a role thread would raise).
+    if sys.version_info < (3, 12):
+        RoleRunner._role_loop = profiled_loop
     try:
         main.enable()
         try:
