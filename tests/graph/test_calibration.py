@@ -241,6 +241,31 @@ def test_contention_probe_times_mixes_of_plausible_nodes(fresh_cache, frames):
     assert probe[("cpu", "cpu")][1] == probe[("cpu", "gpu")][1]
 
 
+def test_contention_probe_reads_a_drift_between_blocks_as_no_contention(fresh_cache, frames, monkeypatch):
+    # Every timed block runs 1 + 0.5 per loader slower with loaders beside it; the machine
+    # gets 1.7x slower for good after the first block (as frames of one placement did
+    # between blocks on the H100). Alone and loaded in turn, the probe still reports the
+    # true slowdown; timing alone once, then loaded, would report 2.55x for 1.5x.
+    g = warpvx.Graph("probe")
+    frame = g.input("frame", shape=frames[0].shape, dtype=np.uint8)
+    gray = g.color_convert(frame, code="BGR2GRAY", name="gray")
+    g.output("mean", g.user(lambda x: np.array([x.mean()]), [gray], "m", name="mean"))
+    cal = g.calibrate({"frame": frames[0]}, gpu="warp-cpu", repeats=3)
+    from warpvx.backend import resolve_backend
+
+    blocks = []
+
+    def drifting(call, scope, bodies, *, repeats, mean=False):
+        blocks.append(len(bodies))
+        return 2.0 * (1.0 if len(blocks) == 1 else 1.7) * (1.0 + 0.5 * len(bodies))
+
+    monkeypatch.setattr(cal_mod, "_time_beside", drifting)
+    probe = cal_mod.measure_contention(g, cal, resolve_backend("warp-cpu"), 2, repeats=3)
+    assert blocks[:2] == [0, 1] and blocks[2:4] == [1, 0]  # A B, B A, ...
+    for (_, _, alone, loaded, cpus, gpus) in ((k, *v) for k, v in probe.items()):
+        assert loaded / alone == pytest.approx(1.0 + 0.5 * (cpus + gpus))
+
+
 def test_learn_charges_each_frame_to_the_processor_that_ran_it(fresh_cache, frames):
     """Under a K-frame plan a node may run on a CPU worker in one frame and on the GPU in the
     next: each frame's time is learnt for the kind of processor its timeline names."""

@@ -396,6 +396,8 @@ def measure_dispatch(gpu_backend, transfer: TransferModel | None = None, *, n_no
 #: :func:`measure_contention`'s CPU mix: nodes whose CPU time is at most this many times
 #: their GPU time (a scheduler would not put a slower one on a CPU worker).
 PROBE_SPREAD = 4.0
+#: :func:`measure_contention` times each pair in this many rounds of alone then loaded.
+PROBE_ROUNDS = 3
 
 
 def _looping(call, scope):
@@ -486,7 +488,10 @@ def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats:
     so what matters is how much Python a typical task runs (a long OpenCV call that
     releases the GIL hides it). A placement that keeps the workers idle (all on the GPU)
     does not reveal contention, and one kind of busy neighbour does not tell the other's
-    cost; this probe does.
+    cost; this probe does. Each pair is timed in :data:`PROBE_ROUNDS` rounds, alone and
+    loaded in turn, ``repeats`` calls in all of each; its slowdown is the median of the
+    rounds' loaded over alone times (so a drift of the machine between blocks is not read
+    as contention), applied to the median alone time of its victim kind.
 
     Returns
     -------
@@ -503,19 +508,31 @@ def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats:
             per_node, scope, sync = _node_calls(graph, names, kind, gpu_backend)
             calls[kind] = (_in_turn([per_node[n] for n in names], sync), scope)
 
-    out, alone = {}, {}
+    ratios, alone = {}, {}
     loads = {("cpu", "cpu"): n_cpus - 1, ("cpu", "gpu"): 1, ("gpu", "cpu"): n_cpus}
+    per_round = max(1, -(-repeats // PROBE_ROUNDS))
     for (kind, loader), n in loads.items():
         if kind not in calls or loader not in calls or n < 1:
             continue
         call, scope = calls[kind]
         # Means, not medians: a mix shorter than a GIL turn is either untouched or waits
-        # a whole turn, and the median would keep the untouched calls only.
-        if kind not in alone:
-            alone[kind] = _time_beside(call, scope, [], repeats=repeats, mean=True)
-        loaded = _time_beside(call, scope, [_looping(*calls[loader])] * n, repeats=repeats,
-                              mean=True)
-        out[(kind, loader)] = (",".join(mixes[kind]), alone[kind], loaded,
+        # a whole turn, and the median would keep the untouched calls only. Alone and
+        # loaded in turn (A B B A ...), each loaded time over the alone time next to it:
+        # the machine drifts (frames of one placement differ by up to 1.7x between blocks
+        # on the H100) and a drift between an alone and a loaded block reads as contention.
+        sides = ([], [_looping(*calls[loader])] * n)
+        pairs = []
+        for r in range(PROBE_ROUNDS):
+            order = (0, 1) if r % 2 == 0 else (1, 0)
+            timed = {i: _time_beside(call, scope, sides[i], repeats=per_round, mean=True)
+                     for i in order}
+            pairs.append((timed[0], timed[1]))
+        alone.setdefault(kind, []).extend(a for a, _ in pairs)
+        ratios[(kind, loader)] = (statistics.median(b / a for a, b in pairs), n)
+    out = {}
+    for (kind, loader), (ratio, n) in ratios.items():
+        a = statistics.median(alone[kind])
+        out[(kind, loader)] = (",".join(mixes[kind]), a, a * ratio,
                                n if loader == "cpu" else 0, n if loader == "gpu" else 0)
     return out
 
