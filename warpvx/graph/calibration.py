@@ -398,6 +398,8 @@ def measure_dispatch(gpu_backend, transfer: TransferModel | None = None, *, n_no
 PROBE_SPREAD = 4.0
 #: :func:`measure_contention` times each pair in this many rounds of alone then loaded.
 PROBE_ROUNDS = 3
+#: ... and times its *heavy* CPU nodes (this many ms or more alone) beside each other.
+HEAVY_MS = 2.0
 
 
 def _looping(call, scope):
@@ -491,25 +493,33 @@ def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats:
     cost; this probe does. Each pair is timed in :data:`PROBE_ROUNDS` rounds, alone and
     loaded in turn, ``repeats`` calls in all of each; its slowdown is the median of the
     rounds' loaded over alone times (so a drift of the machine between blocks is not read
-    as contention), applied to the median alone time of its victim kind.
+    as contention), applied to the median alone time of its victim kind. Long OpenCV
+    calls release the GIL but still share the cores' caches and memory bandwidth, which the
+    mixes dilute: the *heavy* mix (the CPU mix's nodes of :data:`HEAVY_MS` or more) is also
+    timed beside one worker looping it, as ``("cpu", "heavy")`` (one busy CPU worker), so
+    two heavy nodes placed side by side are predicted to slow each other as measured.
 
     Returns
     -------
     dict
         ``(victim kind, loader kind)`` -> ``(mix, alone_ms, loaded_ms, busy_cpus,
-        busy_gpus)``, for ``("cpu", "cpu")``, ``("cpu", "gpu")`` and ``("gpu", "cpu")``
-        (``mix``: its nodes, comma-separated); a pair is absent when a kind has no node (or
-        ``n_cpus`` is 1 for ``("cpu", "cpu")``).
+        busy_gpus)``, for ``("cpu", "cpu")``, ``("cpu", "gpu")``, ``("gpu", "cpu")`` and
+        ``("cpu", "heavy")`` (``mix``: its nodes, comma-separated); a pair is absent when a
+        mix has no node (or ``n_cpus`` is 1 for ``("cpu", "cpu")``/``("cpu", "heavy")``).
     """
     mixes = _probe_mixes(calibration, gpu_backend)
     calls = {}
     for kind, names in mixes.items():
         if names:
-            per_node, scope, sync = _node_calls(graph, names, kind, gpu_backend)
+            per_node, scope, sync = _node_calls(graph, names, "gpu" if kind == "gpu" else "cpu",
+                                                gpu_backend)
             calls[kind] = (_in_turn([per_node[n] for n in names], sync), scope)
 
     ratios, alone = {}, {}
-    loads = {("cpu", "cpu"): n_cpus - 1, ("cpu", "gpu"): 1, ("gpu", "cpu"): n_cpus}
+    # (victim mix, loader mix) -> loaders; the heavy mix beside one worker looping it is
+    # reported as ("cpu", "heavy"): a CPU victim, one busy CPU worker.
+    loads = {("cpu", "cpu"): n_cpus - 1, ("cpu", "gpu"): 1, ("gpu", "cpu"): n_cpus,
+             ("heavy", "heavy"): min(1, n_cpus - 1)}
     per_round = max(1, -(-repeats // PROBE_ROUNDS))
     for (kind, loader), n in loads.items():
         if kind not in calls or loader not in calls or n < 1:
@@ -532,17 +542,21 @@ def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats:
     out = {}
     for (kind, loader), (ratio, n) in ratios.items():
         a = statistics.median(alone[kind])
-        out[(kind, loader)] = (",".join(mixes[kind]), a, a * ratio,
-                               n if loader == "cpu" else 0, n if loader == "gpu" else 0)
+        cpus = n if loader in ("cpu", "heavy") else 0
+        out[("cpu", "heavy") if kind == "heavy" else (kind, loader)] = (
+            ",".join(mixes[kind]), a, a * ratio, cpus, n - cpus)
     return out
 
 
 def _probe_mixes(calibration, gpu_backend) -> dict:
-    """``"cpu"``/``"gpu"`` -> the nodes of :func:`measure_contention`'s mixes, sorted."""
+    """``"cpu"``/``"heavy"``/``"gpu"`` -> the nodes of :func:`measure_contention`'s mixes,
+    sorted (``heavy``: the CPU mix's nodes of :data:`HEAVY_MS` or more, if two or more)."""
     def plausible_on_cpu(t):
         return t.get("cpu") and (not t.get("gpu") or t["cpu"] <= PROBE_SPREAD * t["gpu"])
 
-    return {"cpu": sorted(n for n, t in calibration.nodes.items() if plausible_on_cpu(t)),
+    cpu = sorted(n for n, t in calibration.nodes.items() if plausible_on_cpu(t))
+    heavy = [n for n in cpu if calibration.nodes[n]["cpu"] >= HEAVY_MS]
+    return {"cpu": cpu, "heavy": heavy if len(heavy) >= 2 else [],
             "gpu": sorted(n for n, t in calibration.nodes.items() if t.get("gpu"))
             if gpu_backend is not None else []}
 

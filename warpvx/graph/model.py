@@ -508,8 +508,9 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
         node -> processor of the plan that ran.
     probe : dict, optional
         :func:`~warpvx.graph.calibration.measure_contention`'s ``(victim, loader) ->
-        (node, alone, loaded, busy_cpus, busy_gpus)``: a node timed alone and with other
-        host threads busy, so the slowdown per busy thread of each kind is known even when
+        (mix, alone, loaded, busy_cpus, busy_gpus)``: a mix timed alone and with other
+        host threads busy (loader ``"heavy"``: the heavy CPU nodes beside each other),
+        so the slowdown per busy thread of each kind is known even when
         the training placement keeps the other threads idle (see :func:`fit_slowdown`).
     gil : dict, optional
         :func:`~warpvx.graph.calibration.measure_gil`: each busy neighbour (in the frames
@@ -554,11 +555,14 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
             cls, ready = _ready_parts(run, task, reads, placement, hosts, segment)
             waits[cls].append(max(0.0, s - ready))
     probes = {"cpu": [], "gpu": []}
-    mixes = {victim: mix.split(",") for (victim, _), (mix, *_rest) in (probe or {}).items()}
+    # Loader mix -> its nodes: a kind's mix, or the heavy CPU nodes' looping each other.
+    mixes = {"heavy" if loader == "heavy" else victim: mix.split(",")
+             for (victim, loader), (mix, *_rest) in (probe or {}).items()}
     for (pe, loader), (mix, alone_ms, loaded, cpus, gpus) in (probe or {}).items():
         # The victim mix's sensitivity times the loader mix's pressure (time-weighted).
         w = _mix_share(shares.sensitivity, alone, mix.split(","), pe) * \
-            _mix_share(shares.pressure, alone, mixes.get(loader, ()), loader)
+            _mix_share(shares.pressure, alone, mixes.get(loader, ()),
+                       "cpu" if loader == "heavy" else loader)
         probes[pe].append((alone_ms, loaded, cpus * w, gpus * w))
     slow = {pe: fit_slowdown(s, probes[pe]) for pe, s in samples.items()}
     d = calibration.dispatch or {}
