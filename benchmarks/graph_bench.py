@@ -533,7 +533,8 @@ def markdown(report) -> str:
                         for pe in ("cpu", "gpu"))
             + "; copies + " + ", ".join(f"{k} {v:.0f} us" for k, v in m.get("copy_extra_us", {}).items())
             + "; waits (us) " + ", ".join(f"{k} {v:.1f}" for k, v in m["latency_us"].items())
-            + (f"; captured segment replay {m['segment_ratio']:.2f} x its nodes' calibrated GPU (device) time + "
+            + (f"; captured segment replay {m['segment_ratio']:.2f} x its nodes' calibrated GPU "
+               f"(device) time + "
                f"{m.get('segment_fixed_us', 0):.0f} us" if m.get("segment_ratio") else "")
             + ".", "", probe_line(e.get("probe") or []), "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
