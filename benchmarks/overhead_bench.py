@@ -20,7 +20,9 @@ Usage::
     PYTHONPATH=. python3 benchmarks/overhead_bench.py --gpu cuda --out $OUT/overhead   # GPU
     PYTHONPATH=. python benchmarks/overhead_bench.py --gpu warp-cpu --quick            # anywhere
 
-Writes ``overhead_bench.md`` (its first line is the command) and ``overhead_bench.json``.
+Writes ``overhead_bench.md`` (its first line is the command), ``overhead_bench.json``, and ``overhead_profile_gpu.txt`` and ``overhead_profile_mixed.txt``: the
+GPU-only and alternating chains under cProfile, every thread
+(:func:`warpvx.graph.diagnostics.profile_overhead`).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ import graph_bench  # noqa: E402 - the two-camera graph's builder and frames, ne
 
 import warpvx  # noqa: E402
 from warpvx.backend import init_warp  # noqa: E402
-from warpvx.graph.diagnostics import executor_overhead  # noqa: E402
+from warpvx.graph.diagnostics import executor_overhead, profile_overhead  # noqa: E402
 
 MODES = {"eager": False, "captured": True}
 
@@ -59,6 +61,13 @@ def _chains(args) -> list:
         print(f"  {r['chain']:5s} chain, {r['n_nodes']} identity nodes: "
               f"{r['per_node_us']:.1f} us/node process, {r['per_node_us_stream']:.1f} stream",
               flush=True)
+    for chain, nodes in (("gpu", n), ("mixed", n // 2)):  # where the host time goes
+        try:
+            text = profile_overhead(nodes, frames, chain=chain, gpu=args.gpu)
+        except Exception as exc:  # noqa: BLE001 - a profiler clash must not lose the tables
+            text = f"profile failed: {type(exc).__name__}: {exc}\n"
+        (args.out / f"overhead_profile_{chain}.txt").write_text(text)
+        print(f"  wrote overhead_profile_{chain}.txt", flush=True)
     return rows
 
 
@@ -137,20 +146,40 @@ def _two_cameras(args) -> list:
                 stream = g.stream(feed, depth=depth, capture=capture)
                 for _ in range(2 * depth):  # warm: threads, pools, the capture
                     next(stream)
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 done = sum(1 for _ in stream)
                 seconds = time.perf_counter() - t0
-                spans = [r.makespan for r in list(g.plan.last_run)[-min(done, 32):]]
+                cpu = time.process_time() - c0
+                runs = list(g.plan.last_run)[-min(done, 32):]
                 row = {"depth": depth, "mode": mode, "frames": done, "fps": done / seconds,
-                       "frame_ms_median": statistics.median(spans), "captures": ex.captures}
+                       "frame_ms_median": statistics.median(r.makespan for r in runs),
+                       "captures": ex.captures, "cpu_ms_per_frame": cpu / done * 1e3,
+                       "gpu_host_ms_median": statistics.median(_gpu_host_ms(r) for r in runs)}
                 rows.append(row)
                 print(f"  depth {depth} {mode}: {row['fps']:.1f} FPS ({done} frames), median "
-                      f"frame {row['frame_ms_median']:.2f} ms, captures so far {ex.captures}",
+                      f"frame {row['frame_ms_median']:.2f} ms, CPU time "
+                      f"{row['cpu_ms_per_frame']:.2f} ms/frame, captures so far {ex.captures}",
                       flush=True)
     finally:
         g.close()
     return [{"size": list(size), "segments": segs, "eager": eager, "rows": rows,
              "captured_equals_eager": same or "yes"}]
+
+
+def _gpu_host_ms(run) -> float:
+    """The GPU thread's host time in a frame (ms): its calls, or its replays (copies in,
+    launch, copies out), summed (on warp-cpu these include the kernels)."""
+    return _union_ms(sorted(run.host.values()))  # a replay's tasks tile its interval
+
+
+def _union_ms(intervals) -> float:
+    """Total length of sorted (start, end) intervals, overlaps counted once."""
+    total, end = 0.0, float("-inf")
+    for a, b in intervals:
+        if b > end:
+            total += b - max(a, end)
+            end = b
+    return total
 
 
 def _captured_equals_eager(g, frames) -> str:
@@ -191,7 +220,10 @@ def markdown(report) -> str:
     lines += ["", "Targets (issue 11): < 5 us/node on the GPU-only chain, < 20 on the alternating "
               "one. Breakdown (executor_overhead): mixed, one CPU -> GPU -> CPU round: the GPU "
               "call's host time (gpu_task), a CPU task with its download (cpu_task), the "
-              "hand-offs; gpu: a task's host time and the gap to the next."]
+              "hand-offs; gpu: a task's host time and the gap to the next; every chain: a "
+              "frame's host time before its first task (frame_head) and after its last "
+              "(frame_tail: wait, outputs, result). Where the host time goes: "
+              "overhead_profile_gpu.txt, overhead_profile_mixed.txt (cProfile, every thread)."]
     n0, n1 = report["primitive_chain"][0]["nodes"] if report["primitive_chain"] else ("?", "?")
     lines += ["", f"## GPU-only chain of 3x3 blurs (16x16 uint8): cost of one more node "
                   f"(chains of {n0} and {n1})", "",
@@ -210,12 +242,20 @@ def markdown(report) -> str:
                                                                 or "none") + ".",
                   "Captured outputs equal the eager run's, bit for bit, on 16 frames one at a "
                   f"time: {e.get('captured_equals_eager', '?')}.", "",
-                  "| frames in flight | mode | FPS | median frame (ms) | frames timed |",
-                  "|---|---|---|---|---|"]
+                  "| frames in flight | mode | FPS | median frame (ms) | GPU thread host time "
+                  "per frame (ms, median) | process CPU time per frame (ms, all threads) | "
+                  "frames timed |",
+                  "|---|---|---|---|---|---|---|"]
         for r in e["rows"]:
             mode = r["mode"] + (cpu_note if r["mode"] == "captured" else "")
             lines.append(f"| {r['depth']} | {mode} | {r['fps']:.1f} | {r['frame_ms_median']:.2f} | "
-                         f"{r['frames']} |")
+                         f"{r.get('gpu_host_ms_median', float('nan')):.3f} | "
+                         f"{r.get('cpu_ms_per_frame', float('nan')):.2f} | {r['frames']} |")
+        lines += ["", "GPU thread host time: its calls (eager) or its replay (copies in, launch, "
+                  "copies out; captured), from the frames' host timelines. CPU time: the "
+                  "process's over the timed frames (every thread, CPU nodes included). On "
+                  "warp-cpu both include the kernels; on CUDA the CPU time includes any spin "
+                  "in a synchronisation."]
     for key, err in report["errors"].items():
         lines += ["", f"**{key} failed**: {err}"]
     return "\n".join(lines) + "\n"
@@ -247,6 +287,7 @@ def main(argv=None):
         args.n_cpus = warpvx.graph.default_n_cpus()
     out_dir = args.out or Path("warpvx-results") / time.strftime("overhead-%Y%m%d-%H%M%S")
     out_dir.mkdir(parents=True, exist_ok=True)
+    args.out = out_dir
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # one core per CPU worker, as the graph benchmark
     t_start = time.perf_counter()

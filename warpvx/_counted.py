@@ -9,7 +9,12 @@ device; the value is ``rows[:count[0]]``. Rows past the count hold nothing meani
 A Counted behaves as its value wherever it reaches the host: moved there (a CPU node's input,
 a graph output), by :func:`warpvx.arrays.like_input` (``.to("host")``) or by the runtime's
 transfers (the flatten protocol), it becomes the plain NumPy array ``rows[:count]``, exactly
-what the public function returns. Neutral module: NumPy only, no Warp import.
+what the public function returns.
+
+A graph node's Counted outputs live in one allocation, a :class:`Block` (the count and every
+row array, views of it): moving them costs one copy, not one per array plus a read of the
+count first (each a host sync on CUDA). Neutral module: NumPy only, Warp only when a block is
+laid out.
 """
 
 from __future__ import annotations
@@ -29,13 +34,16 @@ class Counted:
     count : wp.array or numpy.ndarray
         int32 [1] on the same device as ``rows``: the number of valid rows, at most the
         capacity (writers clamp it; a reader clamps again).
+    block : Block, optional
+        The one allocation ``rows`` and ``count`` are views of (a graph node's outputs).
     """
 
-    __slots__ = ("rows", "count")
+    __slots__ = ("rows", "count", "block")
 
-    def __init__(self, rows, count):
+    def __init__(self, rows, count, block=None):
         self.rows = rows
         self.count = count
+        self.block = block
 
     @property
     def capacity(self) -> int:
@@ -48,11 +56,8 @@ class Counted:
     def __warpvx_flatten__(self):
         # The rows' arrays themselves (not a flattenable rows value): rebuilt only once cut
         # to the count, so what lies past it is never validated as data.
-        flatten = getattr(self.rows, "__warpvx_flatten__", None)
-        if flatten is None:
-            return (self.rows, self.count), None
-        arrays, aux = flatten()
-        return tuple(arrays) + (self.count,), (type(self.rows), aux)
+        arrays, aux = _flat(self.rows)
+        return tuple(arrays) + (self.count,), aux
 
     @classmethod
     def __warpvx_unflatten__(cls, aux, arrays):
@@ -77,14 +82,112 @@ class Counted:
         return f"Counted(capacity={self.capacity}, rows={type(self.rows).__name__})"
 
 
+class Block:
+    """Where a Counted lives in a byte allocation shared with its node's other Counted
+    outputs: their count (int32, at offset 0), then every rows array at a 16-byte aligned
+    offset. :meth:`layout` makes them; the Counteds' arrays are views of :attr:`array`.
+
+    Attributes
+    ----------
+    array : wp.array
+        uint8 [nbytes], the allocation, on the values' device.
+    part : tuple
+        This Counted's rows arrays as (byte offset, bytes, shape, NumPy dtype), in
+        :func:`row_arrays` order.
+    aux : object
+        Its flatten aux (:meth:`Counted.__warpvx_flatten__`), to rebuild its value.
+    """
+
+    __slots__ = ("array", "part", "aux")
+
+    ALIGN = 16
+
+    def __init__(self, array, part, aux):
+        self.array = array
+        self.part = part
+        self.aux = aux
+
+    @staticmethod
+    def layout(samples, capacity: int, device) -> list:
+        """Counteds of ``capacity`` rows shaped as ``samples`` (rows values: an array or a
+        flattenable, whose arrays give each row's shape and dtype) sharing one count, all
+        views of one zeroed allocation (zeroed rows stay finite for the kernels that read
+        past the count)."""
+        from .backend import init_warp
+
+        wp = init_warp()
+        layouts, at = [], Block.ALIGN
+        for s in samples:
+            arrays, aux = _flat(s)
+            part = []
+            for a in arrays:
+                shape = (capacity,) + tuple(a.shape[1:])
+                nbytes = int(np.prod(shape)) * a.dtype.itemsize
+                part.append((at, nbytes, shape, np.dtype(a.dtype)))
+                at += -(-nbytes // Block.ALIGN) * Block.ALIGN
+            layouts.append((tuple(part), aux))
+        array = wp.zeros(at, dtype=wp.uint8, device=device)
+        return [Block(array, part, aux).view() for part, aux in layouts]
+
+    def view(self, array=None) -> "Counted":
+        """This Counted as Warp views of ``array`` (default :attr:`array`; another
+        allocation of the same size: a copy of it)."""
+        from .backend import init_warp
+
+        wp = init_warp()
+        base = self.array if array is None else array
+
+        def view(offset, _nbytes, shape, dtype):
+            v = wp.array(ptr=base.ptr + offset, shape=shape, dtype=wp.dtype_from_numpy(dtype),
+                         device=base.device)
+            v._ref = base  # the views keep the allocation alive
+            return v
+
+        arrays = tuple(view(*p) for p in self.part)
+        rows = arrays[0] if self.aux is None else \
+            self.aux[0].__warpvx_unflatten__(self.aux[1], arrays)
+        block = self if array is None else Block(array, self.part, self.aux)
+        return Counted(rows, view(0, 4, (1,), np.dtype(np.int32)), block)
+
+    def host_value(self, raw: np.ndarray):
+        """The host value (``rows[:count]``, NumPy) of this Counted from ``raw``, a host
+        copy of :attr:`array`."""
+        leaves = tuple(raw[o:o + n].view(dt).reshape(sh) for o, n, sh, dt in self.part)
+        return Counted.__warpvx_unflatten__(self.aux, leaves + (raw[:4].view(np.int32),))
+
+
+def _flat(rows):
+    """(arrays, aux) of a rows value, aux as :meth:`Counted.__warpvx_flatten__` gives it:
+    None for a plain array, else (its type, its own aux)."""
+    flatten = getattr(rows, "__warpvx_flatten__", None)
+    if flatten is None:
+        return (rows,), None
+    arrays, aux = flatten()
+    return arrays, (type(rows), aux)
+
+
+#: A :class:`Block` of this many bytes or fewer is downloaded in one copy; a larger one (a
+#: capacity far above the usual count: FAST's keypoints) reads its count, then its rows.
+ONE_COPY_MAX_BYTES = 1 << 16
+
+
+def download(value: Counted, fetch):
+    """The host value of device Counted ``value`` (``fetch(a)``: a host copy of Warp array
+    ``a``, after the producer): one copy of its small :class:`Block` (up to
+    :data:`ONE_COPY_MAX_BYTES`); else its count, then the rows it counts (device views, for
+    the caller to copy)."""
+    if value.block is not None and value.block.array.shape[0] <= ONE_COPY_MAX_BYTES:
+        return value.block.host_value(fetch(value.block.array))
+    return trimmed(value, int(fetch(value.count)[0]))
+
+
 def _host(a) -> np.ndarray:
     return a if isinstance(a, np.ndarray) else a.numpy()
 
 
 def row_arrays(rows) -> tuple:
     """The arrays of ``rows``: itself, or its flattened arrays."""
-    flatten = getattr(rows, "__warpvx_flatten__", None)
-    return (rows,) if flatten is None else flatten()[0]
+    return _flat(rows)[0]
 
 
 def _map(fn, rows):
@@ -176,5 +279,5 @@ def _check_count(value, name: str, arrays) -> None:
         raise WarpvxValueError(f"{name}: rows and count on different devices")
 
 
-__all__ = ["Counted", "check_counted", "check_counted_keypoints", "is_counted", "map_counted",
+__all__ = ["Block", "Counted", "check_counted", "check_counted_keypoints", "download", "is_counted", "map_counted",
            "refuse_uncounted", "row_arrays", "trimmed"]

@@ -96,19 +96,23 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
     try:
         tail, ahead = ob.pose_batch(images, feats, nearest, (np.zeros((0, 2)), np.zeros(0)), pool=pool, **common)
         per_frame = ob.ahead_frames(ahead)  # waits for the pool's results
+        np.testing.assert_array_equal(tail[0], ob._pts(feats[-1][0]))
+        assert sum(a[2] is not None for a in per_frame) >= FRAMES - 2  # frame 0 has no previous frame
+        calls = []
+        core = o.essential_core
+        monkeypatch.setattr(o, "essential_core", lambda *a: calls.append(1) or core(*a))
+        # Frames tracked from the keyframe (reference 1: which frame that is, is state) take
+        # the cores chain speculated on the pool; the others the ones worked out ahead.
+        _, poses, stats = ob.chain(o.TrackState(), feats, ahead, pool=pool, **common)
+        assert calls == [] and stats.shape == (FRAMES, len(o.STATS))
+        if keyframe_motion:
+            assert np.count_nonzero(stats[:, 4] == o.REF_KEYFRAME) > 0
+            # Without the pool, chain works those out itself, on the spot.
+            _, poses_here, stats = ob.chain(o.TrackState(), feats, ahead, **common)
+            assert len(calls) == np.count_nonzero(stats[:, 4] == o.REF_KEYFRAME) > 0
+            np.testing.assert_array_equal(poses_here, poses)
     finally:
         pool.shutdown()
-    np.testing.assert_array_equal(tail[0], ob._pts(feats[-1][0]))
-    assert sum(a[2] is not None for a in per_frame) >= FRAMES - 2  # frame 0 has no previous frame
-    calls = []
-    core = o.essential_core
-    monkeypatch.setattr(o, "essential_core", lambda *a: calls.append(1) or core(*a))
-    _, poses, stats = ob.chain(o.TrackState(), feats, ahead, **common)
-    # Frames tracked from the keyframe (reference 1: which frame that is, is state) work out
-    # theirs on the spot; the others use the ones worked out ahead.
-    assert len(calls) == np.count_nonzero(stats[:, 4] == o.REF_KEYFRAME) and stats.shape == (FRAMES, len(o.STATS))
-    if not keyframe_motion:
-        assert calls == []
     np.testing.assert_allclose(poses, [f.pose for f in o.track_frames(frames, camera, config)], atol=1e-9)
 
 

@@ -73,12 +73,27 @@ def test_segments_cut_at_cpu_hand_offs():
     assert segs[2].inputs == (InputRef("c"), InputRef("h", -1))
 
 
-def test_segments_delayed_and_output_values_leave_the_segment():
+def test_segments_own_delay_stays_in_the_segment_swapped():
     p = _program([_task("a", ["x"]), _task("b", ["a", InputRef("b", -1)]), _task("c", ["b"])],
                  outputs=["a"], rings=["b"])
     (seg,) = segments(p, ["a", "b", "c"])
     assert seg.inputs == (InputRef("x"), InputRef("b", -1))
-    assert seg.outputs == ("a", "b")  # a graph output and a delayed value; c is read by nobody
+    # a: a graph output; b: delayed, read only by the segment one frame back, so it stays in
+    # the buffer set its frame wrote (no copy out); c is read by nobody.
+    assert seg.outputs == ("a",)
+    assert seg.swapped == (InputRef("b", -1),)
+
+
+def test_segments_delayed_values_read_elsewhere_leave_the_segment():
+    """A delay read by a task outside the segment, as a graph output, or further back than
+    one frame is copied out; the segment's own one-frame-back read is still swapped."""
+    for outside, outputs, back in ((["b"], (), -1), ([], ["b"], -1), ([], (), -2)):
+        tasks = [_task("a", ["x"]), _task("b", ["a", InputRef("b", back)])]
+        tasks += [_task("eager", [InputRef("b", -1)], capture=False) for _ in outside]
+        p = _program(tasks, outputs=outputs, rings=["b"])
+        seg = segments(p, ["a", "b"] + ["eager"] * bool(outside))[0]
+        assert seg.outputs == ("b",), (outside, outputs, back)
+        assert seg.swapped == ((InputRef("b", -1),) if back == -1 else ())
 
 
 # --------------------------------------------------------------------------- runs
@@ -141,9 +156,21 @@ def test_two_cameras_captured_equals_eager(frames, warp_backend):
              for c in "LR"} | {"detectorL"}
         got = [g.process(f, capture=_capture_arg(warp_backend)) for f in cams]
         # Frame 0 reads the delays' initial points (a plain array); from frame 1 on, the
-        # corners are Counted (fixed rows): one shape, run uncaptured once, then captured
-        # once (frame 2) and replayed, whatever the corner counts.
+        # corners are Counted (fixed rows): one shape whatever the corner counts. Its two
+        # buffer sets (the delays swap between them) run uncaptured (frames 1-3: the first
+        # set twice, the second time reading the second set's buffers as its capture
+        # will), are captured (frames 4, 5) and replayed (6, 7).
         assert ex.captures == captured_segments
+        (seg,) = [s for s in ex._segments if s.captured]
+        assert {r.key for r in seg.swapped} == {f"{n}{c}.out" for n in ("pyramid", "harris")
+                                                for c in "LR"}
+        # The pyramids stay in their buffer set; the corners leave it (a CPU node reads them).
+        assert not {"pyramidL.out", "pyramidR.out"} & set(seg.outputs)
+        assert {"harrisL.out", "harrisR.out"} <= set(seg.outputs)
+        i = ex._segments.index(seg)
+        (sg,) = [sg for states in ex._captured.values() for sg in states[i].values()
+                 if sg is not None and sg.captured]
+        assert all(b.graph is not None for b in sg.sets) and len(sg.sets) == 2
         for e, c in zip(eager, got):
             assert e.keys() == c.keys()
             for k in e:
@@ -189,6 +216,30 @@ def _flow_graph(frames, gpu, n_points):
     g.verify([{"frame": frames[0], "pts": n_points}, {"frame": frames[1], "pts": n_points}])
     g.schedule("baseline", n_cpus=1, gpu=gpu)
     return g
+
+
+def test_eager_frame_between_replays_refills_the_swapped_delay(frames, warp_backend):
+    """A frame run eagerly between replays leaves its own pyramid in the delay (same shapes,
+    so the next frame replays): that replay copies it into its buffer set instead of reading
+    the set the last replay wrote (an older frame's), and every output equals the eager
+    run's."""
+    rng = np.random.default_rng(5)
+    h, w = frames[0].shape[:2]
+    pts = (rng.random((24, 2)) * [w - 20, h - 20] + 10).astype(np.float32)
+    feed = [{"frame": f, "pts": pts} for f in frames * 3]
+    g = _flow_graph(frames, warp_backend, pts)
+    try:
+        eager = [g.process(x, capture=False) for x in feed]
+        g.reset()
+        ex = g.plan.executor()
+        cap = _capture_arg(warp_backend)
+        got = [g.process(x, capture=False if i in (7, 9) else cap) for i, x in enumerate(feed)]
+        assert ex.captures == 1 and ex._segments[0].swapped
+        for i, (e, c) in enumerate(zip(eager, got)):
+            for k in e:
+                assert _same(e[k], c[k]), (i, k)
+    finally:
+        g.close()
 
 
 def test_segment_inputs_of_another_shape_run_eagerly_then_replay(frames, warp_backend):

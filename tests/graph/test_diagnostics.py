@@ -34,10 +34,25 @@ def test_executor_overhead_reports_per_node_time(mixed):
     assert 0 < r["per_node_us_stream"] * r["n_nodes"] < 1e6
     # Identity nodes are scheduled far shorter than Executor.INLINE_MAX_MS: all may run inline.
     assert r["inline_units"] == "20/20"
-    if mixed:
-        assert set(r["breakdown"]) == {"gpu_task", "cpu_task", "cpu_to_gpu", "gpu_to_cpu"}
-        assert all(0 <= v < r["frame_us"] for v in r["breakdown"].values())
+    ends = {"frame_head", "frame_tail"}
+    assert set(r["breakdown"]) == ends | ({"gpu_task", "cpu_task", "cpu_to_gpu", "gpu_to_cpu"}
+                                          if mixed else set())
+    assert all(0 <= v < r["frame_us"] for v in r["breakdown"].values())
+    # The frame's ends and its tasks' span fit in the frame (one median each: 2x slack).
+    assert r["breakdown"]["frame_head"] + r["breakdown"]["frame_tail"] < 2 * r["frame_us"]
     print(f"\nexecutor overhead ({'mixed' if mixed else 'cpu'}): {r['per_node_us']:.1f} us/node")
+
+
+def test_profile_overhead_sees_the_role_threads():
+    from warpvx.graph.diagnostics import profile_overhead
+    from warpvx.runtime.roles import RoleRunner
+
+    loop = RoleRunner._role_loop
+    text = profile_overhead(8, 5, chain="mixed", gpu="warp-cpu", top=400)
+    # GPU and CPU tasks run on the executor's role threads only, never the caller's.
+    assert "_run_gpu_task" in text and "_run_cpu_task" in text
+    assert "Ordered by: internal time" in text and "Ordered by: cumulative time" in text
+    assert RoleRunner._role_loop is loop  # the wrapper is gone
 
 
 def test_soak_reports_memory_at_start_and_end(frames):
@@ -115,7 +130,8 @@ def test_graph_bench_quick_runs(tmp_path):
     assert all(t["measured_ms"] >= 0 and t["calibrated_ms"] > 0 for t in row["nodes"].values())
     assert saved["switch_interval"]["chosen"] in [float(k) for k in saved["switch_interval"]["switch"]]
     mixed = [o for o in saved["overhead"] if o["mixed"]]
-    assert mixed and all(set(o["breakdown"]) == {"gpu_task", "cpu_task", "cpu_to_gpu", "gpu_to_cpu"}
+    assert mixed and all(set(o["breakdown"]) == {"gpu_task", "cpu_task", "cpu_to_gpu", "gpu_to_cpu",
+                                             "frame_head", "frame_tail"}
                          for o in mixed)
     md = (tmp_path / "graph_bench.md").read_text()
     assert "| best" in md and "out of sample" in md and "graph_bench.py --quick" in md

@@ -3,6 +3,7 @@ detection. No graph involved: Programs and Schedules are built by hand."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -262,11 +263,49 @@ def test_alternating_chain_runs_short_tasks_inline_and_long_ones_on_their_thread
             assert staging and all(len(ring) <= 2 * 4 for ring in staging.values())
     finally:
         ex.close()
-    elsewhere = sum(th is not threads["cpu0" if kind == "cpu" else "gpu"] for kind, th in ran)
+    # The caller's thread may run units too, as a role's thread, while it waits for the last
+    # frame alone in flight (Executor._help): not "elsewhere".
+    caller = threading.current_thread()
+    elsewhere = sum(th is not threads["cpu0" if kind == "cpu" else "gpu"] and th is not caller
+                    for kind, th in ran)
     if ms == LONG:
         assert elsewhere == 0
     else:  # mostly inline (a thread woken by its wait's time-out may take a task now and then)
         assert elsewhere >= len(ran) // 4
+
+
+@pytest.mark.parametrize("ms", [LONG, SHORT])
+def test_caller_runs_units_while_it_waits_for_a_frame_alone_in_flight(ms):
+    """One frame at a time, the waiting caller runs the ready units itself as a role's
+    thread would (Executor._help): short ones of a serial chain all of them, long ones the
+    first role's; with frames of their own in flight the roles' threads still run them."""
+    n = 6
+    prog, placement, ran = _alternating(n)
+    ex = Executor(sched(placement, ms=ms), prog, gpu_device="cpu")
+    caller = threading.current_thread()
+    try:
+        per_frame = []
+        for i in range(5):
+            x = np.full(3, i, np.float32)
+            del ran[:]
+            np.testing.assert_array_equal(ex.wait(ex.submit(i, {"x": (x, HOST)})).outputs["y"],
+                                          _expected(x, n))
+            per_frame.append([th is caller for _, th in ran])
+        # The role's thread woken by submit may take the first unit before the caller: some
+        # frame, not every one.
+        if ms == SHORT:
+            assert any(all(on) for on in per_frame)
+        else:  # the first CPU unit; the GPU one is long: its own thread, and so on
+            assert any(on[0] and not any(on[1:]) for on in per_frame)
+        del ran[:]
+        xs = [np.full(3, i, np.float32) for i in range(4)]
+        frames = [ex.submit(5 + i, {"x": (x, HOST)}) for i, x in enumerate(xs)]
+        for x, f in zip(xs[:-1], frames[:-1]):  # others in flight: the caller only waits
+            np.testing.assert_array_equal(ex.wait(f).outputs["y"], _expected(x, n))
+        assert len(ran) >= 3 * n and not any(th is caller for _, th in ran[:3 * n])
+        ex.wait(frames[-1])
+    finally:
+        ex.close()
 
 
 # --------------------------------------------------------------------------- flags, buffers, timing

@@ -91,6 +91,14 @@ class PosePool:
         """``[fn(*job) for job in jobs]`` on the processes, one job per task."""
         return self._pool.starmap(fn, jobs, chunksize=1)
 
+    def map_async(self, fn, jobs):
+        """:meth:`map` started now; ``.get()`` of the result waits for the list."""
+        return self._pool.starmap_async(fn, jobs, chunksize=1)
+
+    def submit(self, fn, *args):
+        """``fn(*args)`` started now; ``.get()`` of the result waits for it."""
+        return self._pool.apply_async(fn, args)
+
     def shutdown(self, cancel_futures: bool = False):
         if cancel_futures:
             self._pool.terminate()
@@ -122,7 +130,7 @@ class _Later:
     calling thread, now."""
 
     def __init__(self, pool, fn, jobs):
-        self._pending = pool._pool.starmap_async(fn, jobs, chunksize=1) if pool is not None else None
+        self._pending = pool.map_async(fn, jobs) if pool is not None else None
         self._values = None if pool is not None else [fn(*job) for job in jobs]
 
     def get(self) -> list:
@@ -208,7 +216,8 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
 
 def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
     """One frame's state-free work (on a pool process): (pairs int32 [M, 2], distances int32
-    [M], extra). ``nearest``: :func:`~warpvx.apps.orbslam_match.batch_pairs`' (nearest,
+    [M], extra, good int [G, 2]: the pairs ``track``'s match filter keeps; monocular only,
+    else None). ``nearest``: :func:`~warpvx.apps.orbslam_match.batch_pairs`' (nearest,
     distance, back); ``stereo``: None (monocular), or (left keypoints, left descriptors, right
     keypoints, right descriptors, left image, right image, fx, baseline). ``extra``: stereo,
     the depth float32 [N] of each keypoint (:func:`stereo_depth`); monocular, (p1, p2,
@@ -220,41 +229,97 @@ def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
     if stereo is not None:
         kl, dl, kr, dr, left, right, fx, baseline = stereo
         return p, d, stereo_depth(kl, dl, kr, dr, left, right, fx=fx, baseline=baseline,
-                                  scale_factor=config.scale_factor, max_distance=config.stereo_max_distance)
+                                  scale_factor=config.scale_factor, max_distance=config.stereo_max_distance), None
     good = o.filter_matches(p, d, angles, prev_angles, config) if len(pts) else p[:0]
-    p1, p2 = prev_pts[good[:, 1]], pts[good[:, 0]]
-    costly = len(good) >= 8 and np.median(np.linalg.norm(p2 - p1, axis=1)) >= config.min_parallax
-    return p, d, (p1, p2, o.essential_core(p1, p2, K, config)) if costly else None
+    return p, d, _core_ahead(prev_pts, pts, good, K, config), good
 
 
-def _essential_ahead(core):
-    """An ``essential`` for :func:`~warpvx.apps.orbslam.track`: ``core`` = (p1, p2, result)
-    worked out ahead is returned for those very points, anything else is computed."""
+def _core_ahead(ref_pts, pts, pairs, K, config):
+    """(p1, p2, essential core) for ``pairs`` (this frame's index, the reference's), what
+    ``track`` hands to :func:`~warpvx.apps.orbslam.essential_core` for that reference, or
+    None when it will not call it (too few pairs, too little parallax)."""
+    p1, p2 = ref_pts[pairs[:, 1]], pts[pairs[:, 0]]
+    if len(pairs) < 8 or np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
+        return None
+    return p1, p2, o.essential_core(p1, p2, K, config)
+
+
+def _essential_ahead(*cores):
+    """An ``essential`` for :func:`~warpvx.apps.orbslam.track`: a core = (p1, p2, result)
+    worked out ahead (the result may be a pending pool result) is returned for those very
+    points, anything else is computed."""
 
     def essential(p1, p2, K, config):
-        if core is not None and np.array_equal(p1, core[0]) and np.array_equal(p2, core[1]):
-            return core[2]
+        for core in cores:
+            if core is not None and np.array_equal(p1, core[0]) and np.array_equal(p2, core[1]):
+                return core[2].get() if hasattr(core[2], "get") else core[2]
         return o.essential_core(p1, p2, K, config)
 
     return essential
 
 
+def _essential_job(p1, p2, K, config):
+    """:func:`~warpvx.apps.orbslam.essential_core` on a pool process (looked up there)."""
+    return o.essential_core(p1, p2, K, config)
+
+
+def speculate_keyframe(state, frames, pool, K, config) -> dict:
+    """Monocular: the essential cores ``track`` will ask for when it takes a frame's motion
+    from the keyframe, started on ``pool`` before the chain reaches the frame. Which frame is
+    the keyframe is state (only ``chain`` knows it), but from one frame to the next the
+    keypoints' keyframe tracks only compose the frames' filtered matches, so with the current
+    keyframe the tracks, the parallax test and the points of every later frame of the batch
+    are known until the keyframe changes (then the chain speculates again).
+
+    ``frames``: [(frame index in the batch, points float64 [N, 2], good int [G, 2])] of the
+    frames after ``state.previous``, in order. Returns {frame index: (p1, p2, pending)}."""
+    from .orbslam_depths import flow
+
+    kf, prev = state.keyframe, state.previous
+    if pool is None or kf is None or prev is None or not config.keyframe_motion:
+        return {}
+    kf_index, prev_pts, prev_is_kf = prev.kf_index, prev.pts, kf.index == prev.index
+    out = {}
+    for f, pts, good in frames:
+        tracked = kf_index[good[:, 1]]
+        on = tracked >= 0
+        if not prev_is_kf and on.sum() >= config.min_matches:
+            kf_good = np.stack([good[on, 0], tracked[on]], 1)
+            if flow(kf.pts, pts, kf_good) * np.sqrt(on.sum()) > flow(prev_pts, pts, good) * np.sqrt(len(good)):
+                p1, p2 = kf.pts[kf_good[:, 1]], pts[kf_good[:, 0]]
+                if np.median(np.linalg.norm(p2 - p1, axis=1)) >= config.min_parallax:
+                    out[f] = (p1, p2, pool.submit(_essential_job, p1, p2, K, config))
+        kf_index = np.full(len(pts), -1)
+        kf_index[good[:, 0]] = tracked
+        prev_pts, prev_is_kf = pts, False
+    return out
+
+
 def ahead_frames(ahead) -> list:
     """:func:`pose_batch`'s ``ahead`` per frame, once the pool's work is done: (pairs,
-    distances, extra) as :func:`frame_job` returns them."""
+    distances, extra, good) as :func:`frame_job` returns them."""
     return ahead.get()
 
 
-def chain(state, feats, ahead, *, K, config, baseline, frames):
+def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
     """Track the batch's frames in order (:func:`~warpvx.apps.orbslam.track`, cheap with the
-    work done ahead): (state, poses float64 [B, 4, 4], stats float64 [B, 6])."""
+    work done ahead; monocular, the keyframe's cores speculated on ``pool``, see
+    :func:`speculate_keyframe`): (state, poses float64 [B, 4, 4], stats float64 [B, 6])."""
     poses, stats = [], []
-    for (kps, desc), (pairs, dist, extra) in zip(feats[:frames], ahead_frames(ahead)):
+    per_frame = ahead_frames(ahead)
+    pts = [_pts(kps) for kps, _ in feats[:frames]] if baseline is None else None
+    spec, keyframe = {}, -1
+    for f, ((kps, desc), (pairs, dist, extra, _)) in enumerate(zip(feats[:frames], per_frame)):
         if baseline is not None:
             state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config)
         else:
+            now = None if state.keyframe is None else state.keyframe.index
+            if now != keyframe:  # a new keyframe (or the batch's first frame): speculate again
+                keyframe = now
+                spec = speculate_keyframe(state, [(u, pts[u], per_frame[u][3]) for u in range(f, frames)],
+                                          pool, K, config)
             state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config,
-                                      essential=_essential_ahead(extra))
+                                      essential=_essential_ahead(extra, spec.get(f)))
         poses.append(pose)
         stats.append(st)
     return state, np.asarray(poses), np.asarray(stats)
@@ -312,7 +377,7 @@ def build_batch_graph(camera: o.Camera, batch: int, config: o.TrackerConfig = o.
                       [tail, "ahead"], name="pose_batch")
     state = g.virtual("state")
     previous = g.delay(state, init=o.TrackState())[-1]
-    _, poses, stats = g.user(functools.partial(chain, **common), [previous, feats, ahead],
+    _, poses, stats = g.user(functools.partial(chain, pool=pool, **common), [previous, feats, ahead],
                              [state, "poses", "stats"], name="chain")
     g.output("poses", poses)
     g.output("stats", stats)

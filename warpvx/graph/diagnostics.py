@@ -9,6 +9,7 @@ from __future__ import annotations
 import gc
 import os
 import statistics
+import sys
 import time
 
 import numpy as np
@@ -136,7 +137,9 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
         the GPU thread starting the next task (``cpu_to_gpu``) and from the GPU thread's end
         of a task to the CPU worker starting the next (``gpu_to_cpu``: wake-up, event wait).
         ``"gpu"``: the GPU thread's time in a task (``gpu_task``; the first one, with the
-        upload, left out) and between two tasks (``gpu_gap``).
+        upload, left out) and between two tasks (``gpu_gap``). Every chain: the frame's host
+        time before its first task and after its last (``frame_head``, ``frame_tail``:
+        :func:`_frame_ends`).
     """
     from ..runtime import executor as _executor
 
@@ -154,11 +157,13 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
     finally:
         _executor.SPIN_SECONDS = saved
     t_call = _time_direct(n_nodes)
-    wall, runs = [], []
+    wall, runs, calls = [], [], []
     for _ in range(frames):
         t0 = time.perf_counter()
         g.process({"x": x})
-        wall.append(time.perf_counter() - t0)
+        t1 = time.perf_counter()
+        wall.append(t1 - t0)
+        calls.append((t0, t1))
         runs.append(g.plan.last_run[-1])
     frame_s = statistics.median(wall)
     t0 = time.perf_counter()
@@ -187,7 +192,75 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
         out["breakdown"] = _breakdown(runs, n_nodes)
     elif chain == "gpu":
         out["breakdown"] = _breakdown_gpu(runs, n_nodes)
+    else:
+        out["breakdown"] = {}
+    out["breakdown"].update(_frame_ends(runs, calls))
     return out
+
+
+def profile_overhead(n_nodes: int = 64, frames: int = 200, *, chain: str = "gpu", gpu=None,
+                     top: int = 40) -> str:
+    """:func:`executor_overhead` of one chain under ``cProfile``, on every thread: the
+    caller's and the executor's role threads (their loop is wrapped while this runs), merged.
+
+    Returns the ``pstats`` report (text): the ``top`` functions by own time, then by
+    cumulative time (scheduling included; a short unprofiled run first loads modules and
+    kernels; lock ``acquire`` is mostly idle threads waiting). Profiling slows every call several-fold: read it for where the host
+    time goes, not for its amount.
+    """
+    import cProfile
+    import io
+    import pstats
+
+    from ..runtime.roles import RoleRunner
+
+    profiles = []
+    loop = RoleRunner._role_loop
+
+    def profiled_loop(self, proc):
+        prof = cProfile.Profile()
+        profiles.append(prof)
+        prof.enable()
+        try:
+            loop(self, proc)
+        finally:
+            prof.disable()
+
+    executor_overhead(n_nodes, 5, chain=chain, gpu=gpu)  # imports, JIT: not profiled
+    main = cProfile.Profile()
+    # From Python 3.12 cProfile runs on sys.monitoring: one profiler for the whole process,
+    # which sees every thread (a second one enabled on a role thread would raise).
+    if sys.version_info < (3, 12):
+        RoleRunner._role_loop = profiled_loop
+    try:
+        main.enable()
+        try:
+            executor_overhead(n_nodes, frames, chain=chain, gpu=gpu)  # closes its threads
+        finally:
+            main.disable()
+    finally:
+        RoleRunner._role_loop = loop
+    text = io.StringIO()
+    stats = pstats.Stats(main, stream=text)
+    for prof in profiles:
+        stats.add(prof)
+    stats.sort_stats("tottime").print_stats(top)
+    stats.sort_stats("cumulative").print_stats(top)
+    return text.getvalue()
+
+
+def _frame_ends(runs, calls) -> dict:
+    """Medians (us) of a frame's host time outside its tasks, on the host clock (a GPU task's
+    call, not its device interval): from ``process`` being called to the first task's start
+    (``frame_head``: inputs, submit, a thread's wake-up) and from the last task's end to
+    ``process`` returning (``frame_tail``: the device finishing, the wait, outputs, the
+    frame's result and recycling)."""
+    head, tail = [], []
+    for r, (c0, c1) in zip(runs, calls):
+        spans = [r.host.get(k) or (t.start, t.finish) for k, t in r.timeline.items()]
+        head.append(r.t0 + min(a for a, _ in spans) / 1e3 - c0)
+        tail.append(c1 - r.t0 - max(b for _, b in spans) / 1e3)
+    return {"frame_head": statistics.median(head) * 1e6, "frame_tail": statistics.median(tail) * 1e6}
 
 
 def _breakdown(runs, n_nodes: int) -> dict:
@@ -315,4 +388,4 @@ def soak(graph: Graph, make_inputs, n: int, *, depth: int = 2, report_every: int
     }
 
 
-__all__ = ["CHAINS", "executor_overhead", "soak", "host_rss_bytes", "gpu_memory_bytes", "nvidia_smi_mb"]
+__all__ = ["CHAINS", "executor_overhead", "profile_overhead", "soak", "host_rss_bytes", "gpu_memory_bytes", "nvidia_smi_mb"]

@@ -19,7 +19,7 @@ import weakref
 
 import numpy as np
 
-from .._counted import Counted, is_counted, row_arrays
+from .._counted import Block, is_counted, row_arrays
 from ..errors import GraphError, WarpvxError
 from ..registry import REGISTRY, get_primitive
 from .data import Data, DelayRef
@@ -295,15 +295,8 @@ class PrimitiveNode(Node):
             return None
 
         def make():
-            from ..backend import init_warp
-            from ..runtime import tree_map
-
-            wp = init_warp()
-            count = wp.zeros(1, dtype=wp.int32, device=device)
-            # Zeroed rows: what lies past the count stays finite for the kernels reading it.
-            bufs = [Counted(tree_map(lambda a: wp.zeros(
-                (capacity,) + a.shape[1:], dtype=wp.dtype_from_numpy(a.dtype), device=device),
-                s), count) for s in samples]
+            # One allocation for the count and every rows array: one copy moves them all.
+            bufs = Block.layout(samples, capacity, device)
             return bufs[0] if len(bufs) == 1 else tuple(bufs)
 
         return make

@@ -218,7 +218,8 @@ class Runner:
         placement of its index mod K.
 
         ``capture``: replay runs of consecutive capturable GPU nodes from CUDA graphs
-        (:mod:`warpvx.runtime.capture`; captured on the second frame). None (default): on
+        (:mod:`warpvx.runtime.capture`; captured on the second frame, or on the fourth and
+        fifth where the run's own delays swap between two buffer sets). None (default): on
         CUDA; False: never; True: also on Warp's CPU device. A plan of K > 1 frames in
         flight never captures (its GPU queue interleaves frames). Where a capture fails (a node
         synchronising, a caller's own capture, inputs of another shape than verification's,

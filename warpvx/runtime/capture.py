@@ -11,19 +11,25 @@ input signature (the shapes and dtypes of a frame's inputs): fixed buffers and t
 Buffers are static, as a CUDA graph holds pointers: each input the segment reads from
 outside (a graph input, a CPU task's output, an eager GPU task's, a delay's) is copied into
 a fixed device buffer before the replay, each task writes a fixed output buffer
-(``gpu_out``), and each value read outside the segment (by another task, as a graph output,
-by a delay) is copied out into a buffer of the frame's after it, as frames in flight share
-the fixed buffers. Copies and replay run on the executor's stream, in frame order. A value
-may be any tree of arrays (:func:`.transfers.tree_map`): a pyramid's list of levels, a task's
-several outputs, a :class:`~warpvx._counted.Counted` (corners, keypoints, tracked points:
-fixed rows and a device count, so data-dependent results need no host sync).
+(``gpu_out``), and each value that leaves the segment (read by another task, as a graph
+output, by a delay read elsewhere) is copied out into a buffer of the frame's after it, as
+frames in flight share the fixed buffers. A segment's own delays (a pyramid, corners: read
+by the segment one frame later) are neither copied in nor out: the segment has two buffer
+sets, and a frame reads the set the previous frame wrote and writes the other (two captures
+per signature, on the fourth and fifth sightings); a delayed value read elsewhere too is
+still copied out for those readers.
+Copies and replay run on the executor's stream, in frame order. A value may be any tree of
+arrays (:func:`.transfers.tree_map`): a pyramid's list of levels, a task's several outputs,
+a :class:`~warpvx._counted.Counted` (corners, keypoints, tracked points: fixed rows and a
+device count, so data-dependent results need no host sync; a node's Counted outputs are
+views of one :class:`~warpvx._counted.Block`, copied out in one device copy).
 
 A segment is captured per input signature and per shapes of its own inputs (a value made in
-an earlier frame, such as the previous frame's corners, may change them), on the second
-sighting of that pair; on the first, its tasks run uncaptured on the same fixed buffers
-(:meth:`SegmentGraph.run`), so values have the captured form from the first frame (a
-corner count changing between eager frames would otherwise change the next segment's input
-shapes) and nothing allocates inside the capture.
+an earlier frame, such as the previous frame's corners, may change them), each buffer set
+on its second sighting of that pair; on the first, its tasks run uncaptured on the same
+fixed buffers (:meth:`SegmentGraph.launch`), so values have the captured form from the
+first frame (a corner count changing between eager frames would otherwise change the next
+segment's input shapes) and nothing allocates inside the capture.
 
 Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
 code runs there when asked (``capture=True``), which is how it is tested without a GPU.
@@ -43,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._counted import is_counted
 from .native_copy import copy_device, is_warp_array, to_device, warp
 from .program import InputRef, Program
 from .slots import DEVICE
@@ -51,6 +58,9 @@ from .transfers import tree_map
 
 #: Input signatures (shapes and dtypes of a frame's inputs) whose captures an executor keeps.
 MAX_SIGNATURES = 4
+
+#: Counted views of copy-out buffers a :class:`SegmentGraph` keeps (views cost ~10 us each).
+MAX_VIEWS = 256
 
 
 class NotCapturable(Exception):
@@ -71,14 +81,18 @@ class Segment:
     inputs : tuple of InputRef
         What its tasks read from outside it, each once, in order of first use.
     outputs : tuple of str
-        Keys it produces that are read outside it (by other tasks, as graph outputs, by
-        delays): copied out of the fixed buffers each frame.
+        Keys it produces that leave it (read by another task, as graph outputs, by a delay
+        read outside it): copied out of the fixed buffers each frame.
+    swapped : tuple of InputRef
+        Its inputs that are its own outputs of the previous frame (offset -1): read straight
+        from the other of two buffer sets (:class:`SegmentGraph`), not copied in.
     """
 
     tasks: tuple
     captured: bool
     inputs: tuple = ()
     outputs: tuple = ()
+    swapped: tuple = ()
 
 
 def segments(program: Program, gpu_order) -> list:
@@ -124,9 +138,14 @@ def _segment(program: Program, tasks: list) -> Segment:
             if (r.offset or r.key not in made) and r not in inputs:
                 inputs.append(r)
     outside = {r.key for t in program.tasks.values() if t.name not in names for r in t.inputs}
-    outside |= set(program.outputs.values()) | set(program.rings)
+    outside |= set(program.outputs.values())
+    # A delay read only by the segment itself, one frame back, stays in its buffer set: the
+    # next frame's replay writes the other set (stream order keeps the two frames apart).
+    far = {r.key for t in tasks for r in t.inputs if r.offset not in (0, -1)}
+    outside |= {k for k in program.rings if k not in made or k in far}
     outputs = tuple(k for t in tasks for k in t.outputs if k in outside)
-    return Segment(tuple(tasks), True, tuple(inputs), outputs)
+    swapped = tuple(r for r in inputs if r.offset == -1 and r.key in made)
+    return Segment(tuple(tasks), True, tuple(inputs), outputs, swapped)
 
 
 def signature(inputs) -> tuple:
@@ -169,8 +188,43 @@ def _per_output(task, result) -> dict:
     return dict(zip(task.outputs, result))
 
 
+class _BufferSet:
+    """One set of a segment's task output buffers and the graph that writes it.
+
+    Attributes
+    ----------
+    outs : dict
+        task name -> its ``gpu_out()`` buffers.
+    outputs : dict
+        key -> the value its task returned (the fixed buffers; a tree may also hold a
+        buffer the task read: a pyramid's level 0 is its source); empty before the first run.
+    graph : wp.Graph or None
+        The capture of the tasks writing this set; None before it.
+    published : dict
+        Key of each swapped input -> the object the last run of this set published for it
+        (the fixed value, or its copy): how the next frame knows its delay holds this set.
+    warm : bool
+        An uncaptured run read the buffers a capture of this set reads (the other set's,
+        for swapped inputs), so the primitives' per-buffer state exists: it may be captured.
+    """
+
+    __slots__ = ("outs", "outputs", "graph", "published", "warm")
+
+    def __init__(self, tasks):
+        self.outs = {task.name: task.gpu_out() for task in tasks}
+        self.outputs = {}
+        self.graph = None
+        self.published = {}
+        self.warm = False
+
+
 class SegmentGraph:
-    """A :class:`Segment` captured for one input signature: fixed buffers and its graph.
+    """A :class:`Segment` captured for one input signature: fixed buffers and its graphs.
+
+    A segment with swapped inputs (its own outputs one frame back, through a delay) has two
+    buffer sets that frames alternate between: a frame's tasks read the delayed values in
+    the set the previous frame wrote and write the other set, so a delay costs no copy in
+    or out and no allocation (two captures per signature). Other segments have one set.
 
     Parameters
     ----------
@@ -191,34 +245,41 @@ class SegmentGraph:
             self.inputs[ref] = tree_map(lambda a: wp.zeros(
                 a.shape, dtype=a.dtype if is_warp_array(a) else wp.dtype_from_numpy(a.dtype),
                 device=device), v)
-        self.outs = {task.name: task.gpu_out() for task in segment.tasks}
-        self.outputs = {}  # key -> the value its task wrote in the capture (fixed buffers)
-        self.graph = None
+        self.sets = [_BufferSet(segment.tasks) for _ in range(2 if segment.swapped else 1)]
+        self.last = -1  # the set the last run wrote (the next frame's delayed values)
         self.scratch = ()
+        self._views = {}  # (id of a copy buffer, part) -> a Counted of views of it
 
-    def value(self, ref: InputRef):
-        """The fixed buffer(s) a task of the segment reads for ``ref``."""
-        if ref.offset == 0 and ref.key in self.outputs:
-            return self.outputs[ref.key]
+    @property
+    def next(self) -> int:
+        """The buffer set the next run writes: the other one than the last run's."""
+        return 0 if self.last < 0 else (self.last + 1) % len(self.sets)
+
+    @property
+    def captured(self) -> bool:
+        return any(b.graph is not None for b in self.sets)
+
+    def due(self) -> bool:
+        """The next run's set is warm (:class:`_BufferSet`) and not captured yet."""
+        b = self.sets[self.next]
+        return b.graph is None and b.warm
+
+    def value(self, ref: InputRef, s: int, outputs: dict):
+        """The fixed buffer(s) a task of the segment writing set ``s`` reads for ``ref``
+        (``outputs``: the values of the tasks before it in this run)."""
+        if ref.offset == 0 and ref.key in outputs:
+            return outputs[ref.key]
+        if ref in self.segment.swapped:
+            other = self.sets[1 - s].outputs
+            if other:
+                return other[ref.key]
         return self.inputs[ref]
 
-    def run(self):
-        """Run the tasks uncaptured on the fixed buffers (a first sighting: it also builds
-        whatever a primitive makes per set of buffers, workspaces, recorded launches, so
-        nothing allocates inside the capture that follows).
-
-        Raises
-        ------
-        NotCapturable
-            A task returned memory it allocated (its out= did not fit); a task's own error
-            propagates.
-        """
-        self._run_tasks()
-
     def capture(self, device: str, stream):
-        """Capture the segment's tasks writing fixed buffers (``stream``: CUDA only), once
-        :meth:`run` has run them. Each task writes its ``gpu_out()`` buffers; its result may
-        also hold a buffer it read (a pyramid's level 0 is its source), but nothing else.
+        """Capture the tasks writing the next run's buffer set (``stream``: CUDA only), once
+        an uncaptured run has written it. Each task writes its ``gpu_out()`` buffers; its
+        result may also hold a buffer it read (a pyramid's level 0 is its source), but
+        nothing else.
 
         Raises
         ------
@@ -227,33 +288,53 @@ class SegmentGraph:
             host sync or read-back inside, a caller's capture).
         """
         wp = warp()
+        b = self.sets[self.next]
         try:
             with wp.ScopedCapture(device=device, stream=stream) as cap:
-                self._run_tasks()
+                self._run_tasks(self.next)
         except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
             raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
         if cap.graph is None:
             raise NotCapturable("the capture produced no graph")
-        self.graph = cap.graph
+        b.graph = cap.graph
         self.scratch = _workspaces()
 
-    def _run_tasks(self):
-        """Enqueue the tasks, each into its ``outs`` buffers; their results become the
-        outputs."""
-        fixed = {a.ptr for v in self.inputs.values() for a in _leaves(v)}
-        self.outputs = {}
+    def _run_tasks(self, s: int):
+        """Enqueue the tasks, each into its buffers of set ``s``; their results become the
+        set's outputs. Uncaptured (a set's first run) this also builds whatever a primitive
+        makes per set of buffers (workspaces, recorded launches), so nothing allocates
+        inside the capture that follows.
+
+        Raises
+        ------
+        NotCapturable
+            A task returned memory it allocated (its out= did not fit); a task's own error
+            propagates.
+        """
+        b = self.sets[s]
+        warm = len(self.sets) == 1 or bool(self.sets[1 - s].outputs)
+        outputs = {}
+        fixed = {a.ptr for ref in self.segment.inputs
+                 for a in _leaves(self.value(ref, s, outputs))}
         for task in self.segment.tasks:
-            out = self.outs[task.name]
+            out = b.outs[task.name]
             mine = {a.ptr for a in _leaves(out)}
-            result = task.gpu(*[self.value(r) for r in task.inputs], out=out)
+            result = task.gpu(*[self.value(r, s, outputs) for r in task.inputs], out=out)
             if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
                 raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
             fixed |= mine
-            self.outputs.update(_per_output(task, result))
+            outputs.update(_per_output(task, result))
+        b.outputs = outputs
+        b.warm = warm
 
     def fill(self, ref: InputRef, value, io, stream):
-        """Copy this frame's ``value`` of ``ref`` into its fixed buffers (on ``stream``)."""
-        bufs = _leaves(self.inputs[ref])
+        """Copy this frame's ``value`` of ``ref`` into the fixed buffers the next run reads
+        (on ``stream``); nothing for a swapped input that is what the last run published."""
+        s = self.next
+        if self.last >= 0 and ref in self.segment.swapped and \
+                self.sets[self.last].published.get(ref.key) is value:
+            return
+        bufs = _leaves(self.value(ref, s, {}))
         values = _leaves(value)
         if len(values) != len(bufs):
             raise NotCapturable(f"input {ref.key!r}: {len(values)} arrays, not {len(bufs)}")
@@ -263,20 +344,45 @@ class SegmentGraph:
             if is_warp_array(v) and v.device != buf.device:
                 v = v.numpy()
             if is_warp_array(v):
-                copy_device(buf, v, stream)
+                if v.ptr != buf.ptr:
+                    copy_device(buf, v, stream)
             elif buf.device.is_cuda:
                 io.upload(v, lambda shape, dtype, buf=buf: buf)
             else:  # Warp's CPU device: uploads alias host data; the buffer must be written
                 to_device(buf, np.ascontiguousarray(v))
                 io.moved += v.nbytes
 
-    def launch(self, stream):
-        """Replay the captured graph on ``stream`` (or run the tasks uncaptured before it
-        is captured)."""
-        if self.graph is None:
-            self.run()
+    def launch(self, stream) -> dict:
+        """Replay the next run's captured graph on ``stream`` (or run its tasks uncaptured
+        before it is captured); returns the set's outputs (key -> fixed value)."""
+        s = self.next
+        b = self.sets[s]
+        if b.graph is None:
+            self._run_tasks(s)
         else:
-            warp().capture_launch(self.graph, stream=stream)
+            warp().capture_launch(b.graph, stream=stream)
+        self.last = s
+        return b.outputs
+
+    def block_view(self, block, array, pooled: bool):
+        """The Counted of ``block`` as views of ``array`` (a copy of its allocation); made
+        once per copy buffer when ``pooled`` (the executor's pools hand the same buffers out
+        again; a cached view keeps its buffer alive, so its id stays its own)."""
+        if not pooled:
+            return block.view(array)
+        key = (id(array), block.part)
+        view = self._views.get(key)
+        if view is None:
+            view = self._views[key] = block.view(array)
+            while len(self._views) > MAX_VIEWS:
+                del self._views[next(iter(self._views))]
+        return view
+
+    def publish(self, values: dict):
+        """Remember what this frame published for the swapped inputs' keys (``values``: key
+        -> the object set in its slot), so the next frame skips their copy in."""
+        b = self.sets[self.last]
+        b.published = {r.key: values[r.key] for r in self.segment.swapped}
 
 
 class SegmentRunner:
@@ -301,7 +407,9 @@ class SegmentRunner:
         the segment's inputs (a value made in an earlier frame, such as its corners, may
         change them): made on the first sighting and run uncaptured on its fixed buffers (so
         its values have the captured form from the start, Counted corners included, and the
-        primitives' caches are filled), captured on the second; None: run the tasks eagerly.
+        primitives' caches are filled), captured on the second (with two buffer sets: the
+        first three sightings run uncaptured, the first set's twice so that it has read the
+        second's buffers, the next two capture); None: run the tasks eagerly.
         Each state: a SegmentGraph, or None (not capturable with these shapes); at most
         :data:`MAX_SIGNATURES` shapes per segment are kept."""
         by_shape = states[i]
@@ -325,15 +433,16 @@ class SegmentRunner:
                 del by_shape[next(iter(by_shape))]
             return sg
         sg = by_shape[key]
-        if sg is None or sg.graph is not None:
+        if sg is None or not sg.due():
             return sg
+        first = not sg.captured
         try:
             with self._capture_lock:
                 sg.capture(self.gpu_device, self._stream)
         except NotCapturable:  # a host sync or read-back inside, a caller's capture
             by_shape[key] = None
             return None
-        self.captures += 1
+        self.captures += first
         state.prev_end = None  # the stream idled while the host captured
         return sg
 
@@ -353,7 +462,7 @@ class SegmentRunner:
         if io.moved > before:
             frame.copied[seg.tasks[0].name] = io.moved - before
         try:
-            sg.launch(self._stream)
+            fixed = sg.launch(self._stream)
         except NotCapturable:  # uncaptured first run: an out= did not fit these inputs
             by_shape = self._captures_of(frame)[self._segments.index(seg)]
             for key, value in list(by_shape.items()):
@@ -362,10 +471,11 @@ class SegmentRunner:
             for task in seg.tasks:  # eagerly, as the executor runs an uncaptured segment
                 self._run_gpu_task(frame, task, state)
             return
-        outs = dict(sg.outputs)
+        outs = dict(fixed)
+        blocks = {}  # a node's Counted outputs share one block: copied once
         for key in seg.outputs:
-            outs[key] = tree_map(lambda fixed, key=key: self._copy_out(frame, key, fixed),
-                                 sg.outputs[key])
+            outs[key] = self._copy_out(frame, key, fixed[key], sg, blocks)
+        sg.publish(outs)
         ev1 = self._end_event(frame) if cuda else None
         h1 = time.perf_counter()
         for task in seg.tasks:
@@ -377,8 +487,22 @@ class SegmentRunner:
             frame.host_trace[task.name] = (h0 + lo * (h1 - h0), h0 + hi * (h1 - h0))
         state.prev_end = ev1
 
-    def _copy_out(self, frame: Frame, key: str, fixed):
-        """A copy of fixed buffer ``fixed`` (of value ``key``) into a buffer of ``frame``'s."""
+    def _copy_out(self, frame: Frame, key: str, fixed, sg: SegmentGraph, blocks: dict):
+        """A copy of ``fixed`` (the value of ``key`` in ``sg``'s buffers) in buffers of
+        ``frame``'s: a Counted with a block as one copy of the block, shared with its node's
+        other outputs whose copies are reused under the same rule (``blocks``: (id of a
+        fixed block, rule) -> its copy in this frame); other values array by array."""
+        if is_counted(fixed) and fixed.block is not None:
+            rule = self._upload_rule.get(key)
+            array = fixed.block.array
+            buf = blocks.get((id(array), rule))
+            if buf is None:
+                buf = blocks[id(array), rule] = self._copy_array(frame, key, array)
+            return sg.block_view(fixed.block, buf, rule != "never")
+        return tree_map(lambda a: self._copy_array(frame, key, a), fixed)
+
+    def _copy_array(self, frame: Frame, key: str, fixed):
+        """A copy of fixed array ``fixed`` (of value ``key``) into a buffer of ``frame``'s."""
         buf = self._lease_upload(frame, key, fixed.shape, fixed.dtype)
         copy_device(buf, fixed, self._stream)
         return buf

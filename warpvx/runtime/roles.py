@@ -219,7 +219,13 @@ class RoleRunner:
             frame = role.frames[0]
         except IndexError:
             return False
-        return frame.cancel.is_set() or self._inputs_if_ready(role, frame) is not None
+        if frame.cancel.is_set():
+            return True
+        fs = frame.slots
+        for ref in role.refs[role.pos]:  # no list: several checks per hand-off
+            if not (fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)).done.is_set():
+                return False
+        return True
 
     def _inputs_if_ready(self, role: Role, frame: Frame):
         """The slots of ``role``'s next unit's inputs in ``frame`` when all are set, else None."""

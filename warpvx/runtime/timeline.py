@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from ..sched.schedule import ScheduledTask
 from .native_copy import elapsed_ms, warp
-from .slots import Slot
+from .slots import Flag, Slot
 
 #: Seconds between cancellation checks of a blocked wait.
 WAIT_SLICE = 0.02
@@ -23,26 +24,25 @@ class Cancelled(Exception):
 class EventPool:
     """Reusable CUDA timing events of one device (creating events per task costs more than
     recording them). :meth:`get` hands out a free one; :meth:`put` takes back events whose
-    frame is over."""
+    frame is over. No lock: a list's ``pop`` and ``extend`` are atomic (one per GPU task on
+    the critical thread; ``MAX_FREE`` is a soft bound)."""
 
     MAX_FREE = 4096
 
     def __init__(self, device: str):
         self.device = device
         self._free: list = []
-        self._lock = threading.Lock()
 
     def get(self):
-        with self._lock:
-            if self._free:
-                return self._free.pop()
-        return warp().Event(self.device, enable_timing=True)
+        try:
+            return self._free.pop()
+        except IndexError:
+            return warp().Event(self.device, enable_timing=True)
 
     def put(self, events):
-        with self._lock:
-            room = self.MAX_FREE - len(self._free)
-            if room > 0:
-                self._free.extend(events[:room])
+        room = self.MAX_FREE - len(self._free)
+        if room > 0:
+            self._free.extend(events[:room])
 
     def __len__(self):
         return len(self._free)
@@ -57,8 +57,9 @@ class Frame:
     def __init__(self, index: int, slots: dict, n_procs: int):
         self.index = index
         self.slots = slots
-        self.cancel = threading.Event()
-        self.finished = threading.Event()
+        # One-shot flags (set, is_set, wait): a lock only when a thread blocks on one.
+        self.cancel = Flag()
+        self.finished = Flag()
         self.error = None  # (task, processor, exception)
         self.cancelled_by = None
         # task -> (processor, start, end, after_transfers or None): host seconds, or CUDA
@@ -101,6 +102,78 @@ class Frame:
                 raise Cancelled()
 
 
+class _Trace:
+    """A frame's raw trace (host seconds), turned into its result's dicts (ms from
+    submission) on the first read: results are kept by the dozen (``Plan.last_run``) and most
+    are never read, while building one :class:`ScheduledTask` per task cost ~1 us a task on
+    the critical path of every frame."""
+
+    __slots__ = ("t0", "trace", "host", "shares", "built")
+
+    def __init__(self, t0: float, trace: dict, host: dict, shares: dict):
+        self.t0, self.trace, self.host, self.shares = t0, trace, host, shares
+        self.built = None
+
+    def build(self) -> tuple:
+        """``(timeline, transfers, host)`` (built once; a race builds equal dicts twice)."""
+        built = self.built
+        if built is not None:
+            return built
+        timeline, transfers, host = {}, {}, {}
+        t0, shares = self.t0, self.shares
+        for task, (proc, a, b, mid) in self.trace.items():
+            share = shares.get(task)
+            if share is not None:  # a task of a captured segment: its part of the replay
+                a, b = a + share[0] * (b - a), a + share[1] * (b - a)
+            timeline[task] = ScheduledTask(task, proc, (a - t0) * 1e3, (b - t0) * 1e3)
+            if mid is not None:
+                transfers[task] = (mid - a) * 1e3
+        for task, (a, b) in self.host.items():
+            host[task] = ((a - t0) * 1e3, (b - t0) * 1e3)
+        built = self.built = (timeline, transfers, host)
+        return built
+
+
+class _Lazy(Mapping):
+    """One of a :class:`_Trace`'s dicts (``part``: 0 timeline, 1 transfers, 2 host), built
+    when first read: a read-only mapping like the dict it stands for."""
+
+    __slots__ = ("_trace", "_part")
+
+    def __init__(self, trace: _Trace, part: int):
+        self._trace, self._part = trace, part
+
+    def _dict(self) -> dict:
+        return self._trace.build()[self._part]
+
+    def __getitem__(self, key):
+        return self._dict()[key]
+
+    def __iter__(self):
+        return iter(self._dict())
+
+    def __len__(self):
+        return len(self._dict())
+
+    def __contains__(self, key):
+        return key in self._dict()
+
+    def get(self, key, default=None):
+        return self._dict().get(key, default)
+
+    def items(self):
+        return self._dict().items()
+
+    def values(self):
+        return self._dict().values()
+
+    def keys(self):
+        return self._dict().keys()
+
+    def __repr__(self):
+        return repr(self._dict())
+
+
 @dataclass
 class FrameResult:
     """What :meth:`Executor.wait` returns: outputs, the measured timeline and the makespan.
@@ -110,16 +183,17 @@ class FrameResult:
     ``transfers``: task -> ms of its interval spent on host <-> device copies (uploads of a
     GPU task, downloads of a CPU task); ``copied``: task -> bytes it copied; ``host``: GPU
     task -> (start, finish) ms of the GPU thread's call (enqueue plus host syncs inside it),
-    on the same axis as ``timeline``.
+    on the same axis as ``timeline``. The executor's ``timeline``, ``transfers`` and ``host``
+    are read-only mappings built on their first read.
     """
 
     index: int
     outputs: dict
-    timeline: dict
+    timeline: Mapping
     t0: float
-    transfers: dict = field(default_factory=dict)
+    transfers: Mapping = field(default_factory=dict)
     copied: dict = field(default_factory=dict)
-    host: dict = field(default_factory=dict)
+    host: Mapping = field(default_factory=dict)
 
     def compute_ms(self, task) -> float:
         """The task's measured time without its transfers (ms)."""
@@ -132,27 +206,20 @@ class FrameResult:
 
 
 def frame_result(frame: Frame, outputs: dict, to_host=None) -> FrameResult:
-    """``frame``'s outputs plus its measured timeline (ms from submission).
+    """``frame``'s outputs plus its measured timeline (ms from submission), built lazily.
 
     ``to_host``: event -> host seconds (:func:`event_clock`) when GPU tasks were timed with
-    CUDA events; None when every time is a host time.
+    CUDA events (read now: the events go back to their pool once the frame is over); None
+    when every time is a host time.
     """
-    timeline, transfers, host = {}, {}, {}
-    t0 = frame.t0
-    shares = frame.shares
-    for task, (proc, a, b, mid) in frame.trace.items():
-        if to_host is not None and proc.startswith("gpu"):
-            a, b = to_host(a), to_host(b)
-            mid = None if mid is None else to_host(mid)
-        share = shares.get(task)
-        if share is not None:  # a task of a captured segment: its part of the replay
-            a, b = a + share[0] * (b - a), a + share[1] * (b - a)
-        timeline[task] = ScheduledTask(task, proc, (a - t0) * 1e3, (b - t0) * 1e3)
-        if mid is not None:
-            transfers[task] = (mid - a) * 1e3
-    for task, (a, b) in frame.host_trace.items():
-        host[task] = ((a - t0) * 1e3, (b - t0) * 1e3)
-    return FrameResult(frame.index, outputs, timeline, t0, transfers, dict(frame.copied), host)
+    trace = frame.trace
+    if to_host is not None:
+        for task, (proc, a, b, mid) in trace.items():
+            if proc.startswith("gpu"):
+                trace[task] = (proc, to_host(a), to_host(b), None if mid is None else to_host(mid))
+    raw = _Trace(frame.t0, trace, frame.host_trace, frame.shares)
+    return FrameResult(frame.index, outputs, _Lazy(raw, 0), frame.t0, _Lazy(raw, 1),
+                       frame.copied, _Lazy(raw, 2))
 
 
 def event_clock(anchor):

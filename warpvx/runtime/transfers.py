@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._counted import map_counted, trimmed
+from .._counted import download, map_counted
 from .native_copy import (is_warp_array, numpy_dtype, record_event, synchronize_event, to_device,
                           to_host, to_host_async, wait_event, warp)
 
@@ -89,6 +89,7 @@ class Transfers:
         self._dev = None
         self._staging: dict = {}
         self._unstaging: dict = {}  # (shape, dtype) -> pinned download buffers
+        self._wp_dtypes: dict = {}  # NumPy dtype -> Warp dtype, looked up once
         self.moved = 0  # bytes copied so far, both ways
 
     @property
@@ -103,32 +104,33 @@ class Transfers:
         of device-role memory: a pooled buffer may be overwritten by a later frame).
 
         ``event``: a CUDA event after the producer's kernels; the copy waits for it. A device
-        :class:`~warpvx._counted.Counted` reads its count first and copies only the rows it
-        counts (its value: a capacity may be far larger).
+        :class:`~warpvx._counted.Counted` is copied in one piece where it has a block (a
+        graph node's), else its count is read first and only the rows it counts are copied.
         """
-        value = map_counted(lambda c: trimmed(c, int(self.download(c.count, event)[0]))
+        if is_warp_array(value):  # the usual value: no tree to walk
+            return self._download_array(value, event)
+        value = map_counted(lambda c: download(c, lambda a: self._download_array(a, event))
                             if is_warp_array(c.count) else c, value)
+        return tree_map(lambda a: self._download_array(a, event) if is_warp_array(a) else a,
+                        value)
 
-        def leaf(a):
-            if not is_warp_array(a):
-                return a
-            if a.device.is_cuda and not a.is_contiguous:
-                # A strided view needs a gather kernel on the device's current stream (the GPU
-                # thread's); wait for the producer, then let Warp copy synchronously.
-                if event is not None:
-                    synchronize_event(event)
-                out = a.numpy()
-            else:
-                s = self.stream if a.device.is_cuda else None
-                if event is not None and s is not None:
-                    wait_event(s, event)
-                # Warp's CPU device shares host memory: copied too, so the value outlives
-                # the buffer.
-                out = to_host(a, s)
-            self.moved += out.nbytes
-            return out
-
-        return tree_map(leaf, value)
+    def _download_array(self, a, event):
+        """Device array ``a`` -> a fresh NumPy array (see :meth:`download`)."""
+        if a.device.is_cuda and not a.is_contiguous:
+            # A strided view needs a gather kernel on the device's current stream (the GPU
+            # thread's); wait for the producer, then let Warp copy synchronously.
+            if event is not None:
+                synchronize_event(event)
+            out = a.numpy()
+        else:
+            s = self.stream if a.device.is_cuda else None
+            if event is not None and s is not None:
+                wait_event(s, event)
+            # Warp's CPU device shares host memory: copied too, so the value outlives
+            # the buffer.
+            out = to_host(a, s)
+        self.moved += out.nbytes
+        return out
 
     def stage_download(self, a, event=None):
         """Start downloading ``a``, a contiguous CUDA ``wp.array`` of a scalar dtype, into a
@@ -173,34 +175,47 @@ class Transfers:
         ``into(shape, dtype)``, when given, returns the contiguous device buffer an array leaf
         is copied into (or None: a fresh one); the caller owns its reuse.
         """
-        wp = warp()
+        if type(value) is np.ndarray:  # the usual value: no tree to walk
+            return self._upload_array(value, into)
+        return tree_map(lambda a: self._upload_leaf(a, into), value)
+
+    def _upload_leaf(self, a, into):
+        """One leaf of :meth:`upload`'s value: a device array of another device goes through
+        the host; non-arrays pass."""
+        if is_warp_array(a):
+            if a.device == self._device():
+                return a
+            a = a.numpy()
+        if not isinstance(a, np.ndarray):
+            return a
+        return self._upload_array(a, into)
+
+    def _device(self):
         dev = self._dev
         if dev is None:
-            dev = self._dev = wp.get_device(self.device)
+            dev = self._dev = warp().get_device(self.device)
+        return dev
 
-        def leaf(a):
-            if is_warp_array(a):
-                if a.device == dev:
-                    return a
-                a = a.numpy()
-            if not isinstance(a, np.ndarray):
-                return a
-            dtype = wp.dtype_from_numpy(a.dtype)
-            self.moved += a.nbytes
-            if dev.is_cpu:
-                # Warp's CPU device shares host memory: alias, do not copy (host values are
-                # never written after their producer finished).
-                return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev, copy=False)
-            dst = into(a.shape, dtype) if into is not None else None
-            if dst is None:
-                dst = wp.empty(a.shape, dtype=dtype, device=dev)
-            if a.nbytes < self.PINNED_MIN_BYTES:
-                to_device(dst, np.ascontiguousarray(a), dev.stream)
-            else:
-                self._upload_staged(wp, dev, a, dst)
-            return dst
-
-        return tree_map(leaf, value)
+    def _upload_array(self, a: np.ndarray, into):
+        """Host array ``a`` -> a device array (see :meth:`upload`)."""
+        dev = self._device()
+        wp = warp()
+        dtype = self._wp_dtypes.get(a.dtype)
+        if dtype is None:
+            dtype = self._wp_dtypes[a.dtype] = wp.dtype_from_numpy(a.dtype)
+        self.moved += a.nbytes
+        if dev.is_cpu:
+            # Warp's CPU device shares host memory: alias, do not copy (host values are
+            # never written after their producer finished).
+            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev, copy=False)
+        dst = into(a.shape, dtype) if into is not None else None
+        if dst is None:
+            dst = wp.empty(a.shape, dtype=dtype, device=dev)
+        if a.nbytes < self.PINNED_MIN_BYTES:
+            to_device(dst, np.ascontiguousarray(a), dev.stream)
+        else:
+            self._upload_staged(wp, dev, a, dst)
+        return dst
 
     def _upload_staged(self, wp, dev, a, dst):
         """A large host array -> ``dst`` through a pinned staging buffer (asynchronous)."""
