@@ -498,7 +498,10 @@ def markdown(report) -> str:
         "of the interval they are in), slowed down by `1 + a * (other CPU workers busy) + b * "
         "(GPU host thread busy)`, with the measured waits between tasks by kind of edge, "
         "played through a simulation of the executor; `a`, `b` from all nodes at once and "
-        "from a contention probe (mixes of the graph's nodes run beside each other). "
+        "from a contention probe (mixes of the graph's nodes run beside each other, alone and loaded in "
+        "turn; the heavy CPU nodes also beside each other). A captured GPU segment is played as "
+        "one replay: a ratio times its nodes' calibrated device times plus a fixed cost, fitted on "
+        "the training frames' segments. "
         "*Training*: the first frames of the training policy, run alone before the others. "
         "*In sample*: a model against the frames it learnt from (the training model for the "
         "training policy, each other policy's own model fitted on its first interleaved "
@@ -530,7 +533,10 @@ def markdown(report) -> str:
                         for pe in ("cpu", "gpu"))
             + "; copies + " + ", ".join(f"{k} {v:.0f} us" for k, v in m.get("copy_extra_us", {}).items())
             + "; waits (us) " + ", ".join(f"{k} {v:.1f}" for k, v in m["latency_us"].items())
-            + ".", "",
+            + (f"; captured segment replay {m['segment_ratio']:.2f} x its nodes' calibrated GPU "
+               f"(device) time + "
+               f"{m.get('segment_fixed_us', 0):.0f} us" if m.get("segment_ratio") else "")
+            + ".", "", probe_line(e.get("probe") or []), "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
             "of sample | measured | error | noise | GIL-weighted: predicted | error | p90 ms | "
             "sequential FPS | pipelined FPS | GPU nodes |",
@@ -586,6 +592,17 @@ def markdown(report) -> str:
 
 
 CHAIN_TEXT = {"cpu": "one CPU worker", "gpu": "all on the GPU role", "mixed": "alternating CPU/GPU"}
+
+
+def probe_line(probe) -> str:
+    """The contention probe of one experiment in words (:func:`warpvx.graph.calibration.
+    measure_contention`: each mix alone and loaded, in interleaved rounds)."""
+    parts = [(f"the heavy CPU nodes ({mix}) beside one worker looping them" if loader == "heavy"
+              else f"{victim} mix ({len(mix.split(','))} nodes) beside {cpus + gpus} {loader} "
+                   "thread(s)")
+             + f": {alone:.3f} -> {loaded:.3f} ms (x{loaded / alone:.2f})"
+             for (victim, loader), (mix, alone, loaded, cpus, gpus) in probe]
+    return "Contention probe: " + ("; ".join(parts) if parts else "none") + "."
 
 
 def overhead_lines(overhead) -> list:

@@ -160,6 +160,51 @@ def test_simulate_cuda_device_follows_the_host_call_and_copies_are_charged_once(
     assert pred.makespan == pytest.approx(5.2)
 
 
+def test_captured_segment_replay_is_learnt_from_its_intervals():
+    # CUDA: g1 (device 1 ms), g2 (device 2 ms) replayed as one captured segment, then x on
+    # a CPU worker. The frames time the replay as one interval, 0.5 ms per calibrated ms
+    # plus 0.2 ms per replay (no launch gaps: shorter than the eager calls); the fit learns
+    # it and the simulation plays the segment so. One segment size alone cannot tell the
+    # fixed cost from the ratio; segments of several sizes do.
+    import types
+
+    from warpvx.graph.model import fit, fit_segments, segment_samples
+    from warpvx.runtime.timeline import FrameResult
+
+    alone = {"g1": {"cpu": None, "gpu": 0.1, "device": 1.0},
+             "g2": {"cpu": None, "gpu": 0.1, "device": 2.0},
+             "x": {"cpu": 1.0, "gpu": None, "device": 0.0}}
+    reads = {"g1": (), "g2": (Reads("g1.out", "g1", 8, False),), "x": (Reads("g2.out", "g2", 8, False),)}
+    placement = {"g1": "gpu", "g2": "gpu", "x": "cpu0"}
+    replay = 0.5 * 3.0 + 0.2
+    frames = []
+    for jitter in (0.0, 0.01, -0.01):
+        span = replay + jitter
+        timeline = {"g1": ScheduledTask("g1", "gpu", 0.0, span / 3),
+                    "g2": ScheduledTask("g2", "gpu", span / 3, span),
+                    "x": ScheduledTask("x", "cpu0", span, span + 1.0)}
+        frames.append(FrameResult(0, {}, timeline, 0.0, host={"g1": (0.0, 0.05), "g2": (0.05, 0.1)}))
+    cal = types.SimpleNamespace(nodes={n: {"cpu": t["cpu"], "gpu": t["device"] if t["gpu"] else None,
+                                           "gpu_host": t["gpu"]} for n, t in alone.items()},
+                                gpu="cuda:0", transfer=TransferModel(), dispatch={})
+    model = fit(cal, reads, frames, placement, capturable={"g1", "g2"})
+    assert model.segment_ratio == pytest.approx(replay / 3.0, rel=0.01)
+    assert model.segment_fixed == 0.0
+    pred = model.predict(_sched([("g1", "gpu"), ("g2", "gpu"), ("x", "cpu0")]))
+    assert pred.tasks["g2"].finish == pytest.approx(replay, rel=0.02)
+    # Eager (nothing capturable), the device times add up: 3 ms.
+    eager = fit(cal, reads, frames, placement)
+    assert eager.segment_ratio is None
+    assert eager.predict(_sched([("g1", "gpu"), ("g2", "gpu"), ("x", "cpu0")])).tasks["g2"].finish \
+        == pytest.approx(3.0, rel=0.02)
+    assert segment_samples(frames, reads, {"g1", "g2"}, placement, model.alone, TransferModel(),
+                           True)[0] == pytest.approx((3.0, replay))
+    # Several sizes: ratio and fixed cost apart.
+    sizes = [(b, 0.5 * b + 0.2) for b in (0.3, 0.6, 1.2, 3.0)]
+    assert fit_segments(sizes) == pytest.approx((0.5, 0.2))
+    assert fit_segments([]) == (None, 0.0)
+
+
 def test_simulate_refuses_an_order_that_deadlocks():
     alone = {n: {"cpu": 1.0, "gpu": None, "device": 0.0} for n in "ab"}
     reads = {"a": (Reads("b.out", "b", 8, False),), "b": ()}

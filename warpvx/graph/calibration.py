@@ -396,6 +396,10 @@ def measure_dispatch(gpu_backend, transfer: TransferModel | None = None, *, n_no
 #: :func:`measure_contention`'s CPU mix: nodes whose CPU time is at most this many times
 #: their GPU time (a scheduler would not put a slower one on a CPU worker).
 PROBE_SPREAD = 4.0
+#: :func:`measure_contention` times each pair in this many rounds of alone then loaded.
+PROBE_ROUNDS = 3
+#: ... and times its *heavy* CPU nodes (this many ms or more alone) beside each other.
+HEAVY_MS = 2.0
 
 
 def _looping(call, scope):
@@ -486,46 +490,73 @@ def measure_contention(graph, calibration, gpu_backend, n_cpus: int, *, repeats:
     so what matters is how much Python a typical task runs (a long OpenCV call that
     releases the GIL hides it). A placement that keeps the workers idle (all on the GPU)
     does not reveal contention, and one kind of busy neighbour does not tell the other's
-    cost; this probe does.
+    cost; this probe does. Each pair is timed in :data:`PROBE_ROUNDS` rounds, alone and
+    loaded in turn, ``repeats`` calls in all of each; its slowdown is the median of the
+    rounds' loaded over alone times (so a drift of the machine between blocks is not read
+    as contention), applied to the median alone time of its victim kind. Long OpenCV
+    calls release the GIL but still share the cores' caches and memory bandwidth, which the
+    mixes dilute: the *heavy* mix (the CPU mix's nodes of :data:`HEAVY_MS` or more) is also
+    timed beside one worker looping it, as ``("cpu", "heavy")`` (one busy CPU worker), so
+    two heavy nodes placed side by side are predicted to slow each other as measured.
 
     Returns
     -------
     dict
         ``(victim kind, loader kind)`` -> ``(mix, alone_ms, loaded_ms, busy_cpus,
-        busy_gpus)``, for ``("cpu", "cpu")``, ``("cpu", "gpu")`` and ``("gpu", "cpu")``
-        (``mix``: its nodes, comma-separated); a pair is absent when a kind has no node (or
-        ``n_cpus`` is 1 for ``("cpu", "cpu")``).
+        busy_gpus)``, for ``("cpu", "cpu")``, ``("cpu", "gpu")``, ``("gpu", "cpu")`` and
+        ``("cpu", "heavy")`` (``mix``: its nodes, comma-separated); a pair is absent when a
+        mix has no node (or ``n_cpus`` is 1 for ``("cpu", "cpu")``/``("cpu", "heavy")``).
     """
     mixes = _probe_mixes(calibration, gpu_backend)
     calls = {}
     for kind, names in mixes.items():
         if names:
-            per_node, scope, sync = _node_calls(graph, names, kind, gpu_backend)
+            per_node, scope, sync = _node_calls(graph, names, "gpu" if kind == "gpu" else "cpu",
+                                                gpu_backend)
             calls[kind] = (_in_turn([per_node[n] for n in names], sync), scope)
 
-    out, alone = {}, {}
-    loads = {("cpu", "cpu"): n_cpus - 1, ("cpu", "gpu"): 1, ("gpu", "cpu"): n_cpus}
+    ratios, alone = {}, {}
+    # (victim mix, loader mix) -> loaders; the heavy mix beside one worker looping it is
+    # reported as ("cpu", "heavy"): a CPU victim, one busy CPU worker.
+    loads = {("cpu", "cpu"): n_cpus - 1, ("cpu", "gpu"): 1, ("gpu", "cpu"): n_cpus,
+             ("heavy", "heavy"): min(1, n_cpus - 1)}
+    per_round = max(1, -(-repeats // PROBE_ROUNDS))
     for (kind, loader), n in loads.items():
         if kind not in calls or loader not in calls or n < 1:
             continue
         call, scope = calls[kind]
         # Means, not medians: a mix shorter than a GIL turn is either untouched or waits
-        # a whole turn, and the median would keep the untouched calls only.
-        if kind not in alone:
-            alone[kind] = _time_beside(call, scope, [], repeats=repeats, mean=True)
-        loaded = _time_beside(call, scope, [_looping(*calls[loader])] * n, repeats=repeats,
-                              mean=True)
-        out[(kind, loader)] = (",".join(mixes[kind]), alone[kind], loaded,
-                               n if loader == "cpu" else 0, n if loader == "gpu" else 0)
+        # a whole turn, and the median would keep the untouched calls only. Alone and
+        # loaded in turn (A B B A ...), each loaded time over the alone time next to it:
+        # the machine drifts (frames of one placement differ by up to 1.7x between blocks
+        # on the H100) and a drift between an alone and a loaded block reads as contention.
+        sides = ([], [_looping(*calls[loader])] * n)
+        pairs = []
+        for r in range(PROBE_ROUNDS):
+            order = (0, 1) if r % 2 == 0 else (1, 0)
+            timed = {i: _time_beside(call, scope, sides[i], repeats=per_round, mean=True)
+                     for i in order}
+            pairs.append((timed[0], timed[1]))
+        alone.setdefault(kind, []).extend(a for a, _ in pairs)
+        ratios[(kind, loader)] = (statistics.median(b / a for a, b in pairs), n)
+    out = {}
+    for (kind, loader), (ratio, n) in ratios.items():
+        a = statistics.median(alone[kind])
+        cpus = n if loader in ("cpu", "heavy") else 0
+        out[("cpu", "heavy") if kind == "heavy" else (kind, loader)] = (
+            ",".join(mixes[kind]), a, a * ratio, cpus, n - cpus)
     return out
 
 
 def _probe_mixes(calibration, gpu_backend) -> dict:
-    """``"cpu"``/``"gpu"`` -> the nodes of :func:`measure_contention`'s mixes, sorted."""
+    """``"cpu"``/``"heavy"``/``"gpu"`` -> the nodes of :func:`measure_contention`'s mixes,
+    sorted (``heavy``: the CPU mix's nodes of :data:`HEAVY_MS` or more, if two or more)."""
     def plausible_on_cpu(t):
         return t.get("cpu") and (not t.get("gpu") or t["cpu"] <= PROBE_SPREAD * t["gpu"])
 
-    return {"cpu": sorted(n for n, t in calibration.nodes.items() if plausible_on_cpu(t)),
+    cpu = sorted(n for n, t in calibration.nodes.items() if plausible_on_cpu(t))
+    heavy = [n for n in cpu if calibration.nodes[n]["cpu"] >= HEAVY_MS]
+    return {"cpu": cpu, "heavy": heavy if len(heavy) >= 2 else [],
             "gpu": sorted(n for n, t in calibration.nodes.items() if t.get("gpu"))
             if gpu_backend is not None else []}
 

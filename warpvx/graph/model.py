@@ -290,6 +290,14 @@ class ContentionModel:
         frames beyond the transfer model's (a frame's copies wait on a synchronisation and
         copy pageable arrays; calibration's do neither): a fixed cost per copying task,
         not a factor, so a scale learnt on 8 KB downloads is not applied to a frame.
+    segment_ratio : float or None
+        A captured GPU segment's measured interval (its copies taken out) over the sum of
+        its tasks' calibrated device times (host times without CUDA), the median over the
+        training frames' segments (:func:`fit_segments`): a replay runs its kernels back
+        to back with no launch gaps, so it is shorter than the eager calls calibrated
+        alone. None where the training frames ran no segment: each task played eagerly.
+    segment_fixed : float
+        The fixed cost (ms) of one segment's replay (:func:`fit_segments`), on its first task.
     """
 
     slowdown: dict
@@ -302,6 +310,8 @@ class ContentionModel:
     copy_extra: dict = field(default_factory=dict)
     gil: dict = field(default_factory=dict)
     capturable: frozenset = frozenset()
+    segment_ratio: float | None = None
+    segment_fixed: float = 0.0
 
     def sensitivity(self, node: str, pe: str) -> float:
         """How much ``node`` on ``pe`` suffers from a busy GIL-holding neighbour (0-1)."""
@@ -318,6 +328,13 @@ class ContentionModel:
         if alone is None:
             raise GraphError(f"node {node!r}: no {pe.upper()} implementation to predict")
         return self.slowdown[pe].in_frame(node, alone) + self.copy_time(pe, copied)
+
+    def segment_work(self, node: str, first: bool) -> float:
+        """``node``'s share (ms) of a captured segment's replay: :attr:`segment_ratio` times
+        its calibrated device time (host time without CUDA), plus :attr:`segment_fixed` on
+        the segment's ``first`` task."""
+        return self.segment_ratio * _segment_base(self.alone, node, self.cuda) + \
+            (self.segment_fixed if first else 0.0)
 
     def copy_time(self, pe: str, nbytes: int) -> float:
         """The copies a task on ``pe`` makes of ``nbytes`` (uploads on the GPU thread,
@@ -345,6 +362,7 @@ class ContentionModel:
                          for k, s in self.slowdown.items()},
             "latency_us": {k: v * 1e3 for k, v in self.latency.items()},
             "copy_extra_us": {k: v * 1e3 for k, v in self.copy_extra.items()},
+            "segment_ratio": self.segment_ratio, "segment_fixed_us": self.segment_fixed * 1e3,
         }
 
 
@@ -386,6 +404,61 @@ def gpu_segments(reads: dict, capturable, placement: dict, gpu_order) -> list:
     if current:
         groups.append(current)
     return groups
+
+
+def _segment_base(alone, node, cuda) -> float:
+    """The calibrated time a captured segment's replay scales: the device time on CUDA (the
+    replay is device-bound), else the call."""
+    return alone[node]["device"] if cuda else alone[node]["gpu"]
+
+
+def segment_samples(runs, reads, capturable, placement, alone, transfer, cuda, slow=None) -> list:
+    """``(calibrated ms, replay ms)`` of each captured segment of each frame.
+
+    A segment (:func:`gpu_segments`, capturable tasks only) of a frame is timed as one
+    interval, shared by its tasks (:mod:`warpvx.runtime.capture`): its span, less the
+    transfer model's time for the bytes uploaded into it and divided by ``slow``'s (the GPU
+    :class:`Slowdown`) contention for the CPU workers busy beside it, against the sum of its
+    tasks' :func:`_segment_base`. Segments with no calibrated time are skipped."""
+    out = []
+    for run in runs:
+        hosts = host_intervals(run)
+        order = sorted((t for t, v in run.timeline.items() if pe_of(v.processor) == "gpu"),
+                       key=lambda t: run.timeline[t].start)
+        cpu_busy = [(s, f) for p, s, f in hosts.values() if pe_of(p) == "cpu"]
+        for seg in gpu_segments(reads, capturable, placement, order):
+            if seg[0] not in capturable:
+                continue
+            base = sum(_segment_base(alone, t, cuda) or 0.0 for t in seg)
+            s0 = min(run.timeline[t].start for t in seg)
+            s1 = max(run.timeline[t].finish for t in seg)
+            copies = _copy_ms(transfer, "gpu", sum(run.copied.get(t, 0) for t in seg))
+            div = slow.speed_divisor(busy_overlap((s0, s1), cpu_busy), 0.0) if slow else 1.0
+            if base > 0 and s1 - s0 > copies:
+                out.append((base, (s1 - s0 - copies) / div))
+    return out
+
+
+def fit_segments(samples) -> tuple:
+    """``(ratio, fixed ms per segment)`` of ``replay = ratio * calibrated + fixed`` over
+    :func:`segment_samples`: least absolute deviations on :data:`OVERHEAD_GRID` x 10 (the
+    fixed cost of a replay: input fills, launch, copy-out) where the segments differ in
+    size, else the median ratio and no fixed cost (one size cannot tell them apart);
+    ``(None, 0)`` without samples."""
+    if not samples:
+        return None, 0.0
+    base, meas = (np.array(v, np.float64) for v in zip(*samples))
+    if np.ptp(base) <= 0.05 * base.max():
+        return float(np.median(meas / base)), 0.0
+    best = None
+    for c in np.asarray(OVERHEAD_GRID) * 10:
+        if c >= meas.min():
+            break
+        r = _weighted_median((meas - c) / base, base)
+        cost = float(np.abs(meas - r * base - c).sum())
+        if best is None or cost < best[0] - 1e-12:
+            best = (cost, r, float(c))
+    return float(best[1]), best[2]
 
 
 def _segment_of(reads, capturable, placement, gpu_order) -> dict:
@@ -435,8 +508,9 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
         node -> processor of the plan that ran.
     probe : dict, optional
         :func:`~warpvx.graph.calibration.measure_contention`'s ``(victim, loader) ->
-        (node, alone, loaded, busy_cpus, busy_gpus)``: a node timed alone and with other
-        host threads busy, so the slowdown per busy thread of each kind is known even when
+        (mix, alone, loaded, busy_cpus, busy_gpus)``: a mix timed alone and with other
+        host threads busy (loader ``"heavy"``: the heavy CPU nodes beside each other),
+        so the slowdown per busy thread of each kind is known even when
         the training placement keeps the other threads idle (see :func:`fit_slowdown`).
     gil : dict, optional
         :func:`~warpvx.graph.calibration.measure_gil`: each busy neighbour (in the frames
@@ -481,11 +555,14 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
             cls, ready = _ready_parts(run, task, reads, placement, hosts, segment)
             waits[cls].append(max(0.0, s - ready))
     probes = {"cpu": [], "gpu": []}
-    mixes = {victim: mix.split(",") for (victim, _), (mix, *_rest) in (probe or {}).items()}
+    # Loader mix -> its nodes: a kind's mix, or the heavy CPU nodes' looping each other.
+    mixes = {"heavy" if loader == "heavy" else victim: mix.split(",")
+             for (victim, loader), (mix, *_rest) in (probe or {}).items()}
     for (pe, loader), (mix, alone_ms, loaded, cpus, gpus) in (probe or {}).items():
         # The victim mix's sensitivity times the loader mix's pressure (time-weighted).
         w = _mix_share(shares.sensitivity, alone, mix.split(","), pe) * \
-            _mix_share(shares.pressure, alone, mixes.get(loader, ()), loader)
+            _mix_share(shares.pressure, alone, mixes.get(loader, ()),
+                       "cpu" if loader == "heavy" else loader)
         probes[pe].append((alone_ms, loaded, cpus * w, gpus * w))
     slow = {pe: fit_slowdown(s, probes[pe]) for pe, s in samples.items()}
     d = calibration.dispatch or {}
@@ -497,9 +574,11 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     # applies the same speed to the whole task), so their extra is taken without that.
     copy_extra = {pe: statistics.median(t / slow[pe].speed_divisor(c, g) - m for t, m, c, g in v)
                   for pe, v in copies.items() if v}
+    ratio, fixed = fit_segments(segment_samples(runs, reads, capturable, placement, alone,
+                                                calibration.transfer, cuda, slow["gpu"]))
     return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
                            f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames",
-                           copy_extra, shares.gil, capturable)
+                           copy_extra, shares.gil, capturable, ratio, fixed)
 
 
 def _mix_share(share, alone, names, pe) -> float:
@@ -537,8 +616,12 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
     queues = {p: q for p, q in queues.items() if q}
     copied = copied_bytes(model.reads, placement, order)
     # A GPU segment is one unit: CPU readers see its values when its last task ends.
-    last_of = {t: seg[-1] for p, q in queues.items() if pe_of(p) == "gpu"
-               for seg in gpu_segments(model.reads, model.capturable, placement, q) for t in seg}
+    segs = [seg for p, q in queues.items() if pe_of(p) == "gpu"
+            for seg in gpu_segments(model.reads, model.capturable, placement, q)]
+    last_of = {t: seg[-1] for seg in segs for t in seg}
+    # Tasks replayed in a captured segment: host and device busy for the replay's share.
+    replayed = {} if model.segment_ratio is None else \
+        {t: t == seg[0] for seg in segs if seg[0] in model.capturable for t in seg}
     seg_end = 0.0
     lat = model.latency
     pos = {p: 0 for p in queues}
@@ -580,7 +663,8 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
             if t <= now + 1e-12:
                 task = queues[p][pos[p]]
                 pe = pe_of(p)
-                work = model.work(task, pe, copied.get(task, 0))
+                work = (model.segment_work(task, replayed[task]) + _copy_ms(model.transfer, pe, copied.get(task, 0))
+                        if task in replayed else model.work(task, pe, copied.get(task, 0)))
                 running[p] = [task, work, now]
         if not running:
             if not starts:
@@ -609,7 +693,7 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
             host_done[task] = now
             if pe_of(p) == "gpu" and model.cuda:
                 d0 = max(device_free, h0)
-                d1 = max(d0 + model.alone[task]["device"], now)
+                d1 = max(d0 + (0.0 if task in replayed else model.alone[task]["device"]), now)
                 device_free = d1
                 out[task] = ScheduledTask(task, p, d0, d1)
             else:
