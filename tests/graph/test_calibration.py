@@ -145,7 +145,7 @@ def test_learnt_history_drives_the_history_costs(fresh_cache, frames):
     for node, proc in plan.placement.items():
         pe = "gpu" if proc == "gpu" else "cpu"
         if pe == "gpu":  # the GPU role is busy for the longer of the device and host times
-            per_frame = [max(r.compute_ms(node), r.host[node][1] - r.host[node][0] - r.transfers[node])
+            per_frame = [max(r.compute_ms(node), r.host[node][1] - r.host[node][0] - r.transfers.get(node, 0.0))
                          for r in runs[1:]]
         else:
             per_frame = [r.compute_ms(node) for r in runs[1:]]  # the first frame is skipped

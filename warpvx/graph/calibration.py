@@ -407,8 +407,10 @@ def _looping(call, scope):
     it sets ``started`` after its first call."""
     def body(stop, started):
         with scope() if scope is not None else contextlib.nullcontext():
-            call()
-            started.release()
+            try:
+                call()
+            finally:  # a failing call must not leave the timer waiting for it
+                started.release()
             while not stop.is_set():
                 call()
     return body
