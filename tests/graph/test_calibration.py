@@ -18,6 +18,8 @@ import warpvx
 from warpvx.graph import calibration as cal_mod
 from warpvx.graph.calibration import TransferModel, _fit, cache_file
 
+from .helpers import joined_pair
+
 pytestmark = pytest.mark.timeout(60)
 
 
@@ -296,12 +298,7 @@ def test_contention_probe_times_heavy_cpu_nodes_side_by_side(fresh_cache):
     from warpvx.runtime.timeline import FrameResult
     from warpvx.sched.schedule import Schedule, ScheduledTask
 
-    g = warpvx.Graph("bus")
-    x = g.input("x", shape=(4,), dtype=np.float32)
-    a = g.user(_bus_bound, [x], name="heavyA")
-    b = g.user(_bus_bound, [x], name="heavyB")
-    g.output("y", g.user(np.add, [a, b], name="join"))
-    frame = {"x": np.zeros(4, np.float32)}
+    g, frame = joined_pair("bus", _bus_bound, ("heavyA", "heavyB"))
     cal = g.calibrate(frame, gpu=None, repeats=3)
     probe = cal_mod.measure_contention(g, cal, None, 2, repeats=6)
     mix, alone, loaded, cpus, gpus = probe[("cpu", "heavy")]

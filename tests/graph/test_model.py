@@ -26,6 +26,8 @@ from warpvx.graph.model import (
 )
 from warpvx.sched.schedule import Schedule, ScheduledTask
 
+from .helpers import joined_pair
+
 pytestmark = pytest.mark.timeout(120)
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -415,12 +417,7 @@ def test_cpu_interference_is_learnt_from_the_contention_probe(tmp_path, monkeypa
     from warpvx.graph.model import fit, graph_reads
 
     monkeypatch.setenv("WARPVX_CACHE_DIR", str(tmp_path))
-    g = warpvx.Graph("gil")
-    x = g.input("x", shape=(4,), dtype=np.float32)
-    a = g.user(_spin, [x], name="spinA")
-    b = g.user(_spin, [x], name="spinB")
-    g.output("y", g.user(np.add, [a, b], name="join"))
-    frame = {"x": np.zeros(4, np.float32)}
+    g, frame = joined_pair("gil", _spin, ("spinA", "spinB"))
     g.verify(frame)
     plans = {p: g.schedule(p, n_cpus=2, gpu=False) for p in ("baseline", "heft")}
     assert len(set(plans["baseline"].placement.values())) == 1
