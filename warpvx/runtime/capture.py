@@ -44,6 +44,7 @@ Warp's CPU device a capture is process-wide, hence opt-in there.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 
@@ -55,6 +56,10 @@ from .program import InputRef, Program
 from .slots import DEVICE
 from .timeline import Frame
 from .transfers import tree_map
+
+#: Why a segment runs eagerly (``logging.getLogger("warpvx.capture")`` at DEBUG): every
+#: capture failure falls back to eager silently otherwise.
+_log = logging.getLogger("warpvx.capture")
 
 #: Input signatures (shapes and dtypes of a frame's inputs) whose captures an executor keeps.
 MAX_SIGNATURES = 4
@@ -420,13 +425,15 @@ class SegmentRunner:
             state.prev_end = None  # the stream may idle while we waited: a fresh start event
         try:
             key = tuple(tuple(tuple(a.shape) for a in _leaves(s.value)) for s in slots)
-        except NotCapturable:
+        except NotCapturable as exc:
+            _log.debug("segment %s runs eagerly: %s", seg.tasks[0].name, exc)
             states[i] = None
             return None
         if key not in by_shape:
             try:
                 sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
-            except NotCapturable:
+            except NotCapturable as exc:
+                _log.debug("segment %s, inputs %s, runs eagerly: %s", seg.tasks[0].name, key, exc)
                 sg = None
             by_shape[key] = sg
             while len(by_shape) > MAX_SIGNATURES:
@@ -439,7 +446,8 @@ class SegmentRunner:
         try:
             with self._capture_lock:
                 sg.capture(self.gpu_device, self._stream)
-        except NotCapturable:  # a host sync or read-back inside, a caller's capture
+        except NotCapturable as exc:  # a host sync or read-back inside, a caller's capture
+            _log.debug("segment %s, inputs %s, not captured: %s", seg.tasks[0].name, key, exc)
             by_shape[key] = None
             return None
         self.captures += first
@@ -463,7 +471,8 @@ class SegmentRunner:
             frame.copied[seg.tasks[0].name] = io.moved - before
         try:
             fixed = sg.launch(self._stream)
-        except NotCapturable:  # uncaptured first run: an out= did not fit these inputs
+        except NotCapturable as exc:  # uncaptured first run: an out= did not fit these inputs
+            _log.debug("segment %s runs eagerly: %s", seg.tasks[0].name, exc)
             by_shape = self._captures_of(frame)[self._segments.index(seg)]
             for key, value in list(by_shape.items()):
                 if value is sg:
