@@ -168,3 +168,24 @@ def test_pool_in_an_unguarded_script(tmp_path):
     assert res.returncode == 0, res.stderr[-2000:]
     assert res.stdout.strip() == "[3, 7]"
     assert marker.read_text() == "run\n"  # the script's top level ran once, in the parent
+
+
+def test_new_settings_refuse_bad_values_by_name():
+    """keyframe_motion, the pool's workers and verify's gpu= answer bad values with warpvx
+    errors naming them."""
+    from warpvx.errors import GraphError
+    import warpvx
+
+    for bad in (1, "yes", None):
+        with pytest.raises(WarpvxError, match="keyframe_motion"):
+            o.TrackerConfig(keyframe_motion=bad)
+    for bad in (-1, 1.5, "2"):
+        with pytest.raises(WarpvxError, match="workers"):
+            ob.make_pool(bad)
+    g = warpvx.Graph("g")
+    x = g.input("x", shape=(4,), dtype=np.float32)
+    g.output("y", g.user(np.negative, [x], name="neg"))
+    with pytest.raises(GraphError, match="gpu"):
+        g.verify({"x": np.zeros(4, np.float32)}, gpu="cpu")
+    with pytest.raises(WarpvxError, match="backend|gpu"):
+        g.verify({"x": np.zeros(4, np.float32)}, gpu="tpu")

@@ -382,6 +382,23 @@ def _record(kps, desc, depth, depth_var, pose, index, kf_index):
                        pose, index, kf_index)
 
 
+def keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf: bool, cur_pts, good, config):
+    """(tracked, pairs): ``tracked`` int [G], the keyframe keypoint each pair of ``good`` (this
+    frame's index, the previous frame's; the filtered matches) reaches through the previous
+    frame's ``prev_kf_index`` (-1: none); ``pairs`` int [M, 2] (this frame's index, the
+    keyframe's) when the monocular motion is to be taken from the keyframe (``keyframe_motion``
+    on, the previous frame not the keyframe, enough tracks, and more parallax x sqrt(count)
+    than the previous frame's matches), else None. Points float64 [N, 2]."""
+    tracked = prev_kf_index[good[:, 1]]
+    on = tracked >= 0
+    if not config.keyframe_motion or prev_is_kf or on.sum() < config.min_matches:
+        return tracked, None
+    pairs = np.stack([good[on, 0], tracked[on]], 1)
+    if flow(kf_pts, cur_pts, pairs) * np.sqrt(on.sum()) > flow(prev_pts, cur_pts, good) * np.sqrt(len(good)):
+        return tracked, pairs
+    return tracked, None
+
+
 def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
           config: TrackerConfig = TrackerConfig(), essential=essential_core):
     """One frame of tracking (the graph's ``track`` node; pure).
@@ -430,15 +447,12 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     angles = np.asarray(kps.angle, np.float64)
     good = filter_matches(pairs, distances, angles, prev.angles, config) if n else np.zeros((0, 2), int)
     ref, reference, prev_good = prev, REF_PREVIOUS, good
-    chain = prev.kf_index[good[:, 1]]
-    on = chain >= 0
-    if not stereo and config.keyframe_motion and kf.index != prev.index and on.sum() >= config.min_matches and (
-            flow(kf.pts, cur_pts, np.stack([good[on, 0], chain[on]], 1)) * np.sqrt(on.sum())
-            > flow(prev.pts, cur_pts, good) * np.sqrt(len(good))):
+    _, kf_good = keyframe_pairs(kf.pts, prev.pts, prev.kf_index, kf.index == prev.index, cur_pts, good, config)
+    if not stereo and kf_good is not None:
         # Monocular motion from the last keyframe, through the keypoints tracked since, as
         # ORB-SLAM2 triangulates against keyframes: several frames of parallax where the
         # previous frame alone gives little (the essential matrix then degenerates).
-        good, ref, reference = np.stack([good[on, 0], chain[on]], 1), kf, REF_KEYFRAME
+        good, ref, reference = kf_good, kf, REF_KEYFRAME
     elif len(good) < config.min_matches and kf.index != prev.index and n:
         kp, kd = warpvx.match_hamming(np.asarray(desc), kf.desc, config.cross_check, config.ratio,
                                       backend="cpu")
@@ -664,5 +678,5 @@ __all__ = [
     "TrackerConfig", "Camera", "TrackState", "FrameRecord", "TrackedFrame", "three_maxima",
     "rotation_consistent", "filter_matches", "stereo_depth", "essential_core", "track", "track_nearest",
     "build_graph",
-    "spread_cpu_nodes", "schedule", "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
+    "spread_cpu_nodes", "keyframe_pairs", "schedule", "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
 ]

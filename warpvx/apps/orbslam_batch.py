@@ -234,14 +234,20 @@ def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
     return p, d, _core_ahead(prev_pts, pts, good, K, config), good
 
 
-def _core_ahead(ref_pts, pts, pairs, K, config):
-    """(p1, p2, essential core) for ``pairs`` (this frame's index, the reference's), what
-    ``track`` hands to :func:`~warpvx.apps.orbslam.essential_core` for that reference, or
-    None when it will not call it (too few pairs, too little parallax)."""
+def _essential_points(ref_pts, pts, pairs, config):
+    """(p1, p2) for ``pairs`` (this frame's index, the reference's): what ``track`` hands to
+    :func:`~warpvx.apps.orbslam.essential_core` for that reference, or None when it will not
+    call it (too few pairs, too little parallax)."""
     p1, p2 = ref_pts[pairs[:, 1]], pts[pairs[:, 0]]
     if len(pairs) < 8 or np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
         return None
-    return p1, p2, o.essential_core(p1, p2, K, config)
+    return p1, p2
+
+
+def _core_ahead(ref_pts, pts, pairs, K, config):
+    """(p1, p2, essential core) of :func:`_essential_points`, or None."""
+    points = _essential_points(ref_pts, pts, pairs, config)
+    return None if points is None else (*points, o.essential_core(*points, K, config))
 
 
 def _essential_ahead(*cores):
@@ -273,22 +279,16 @@ def speculate_keyframe(state, frames, pool, K, config) -> dict:
 
     ``frames``: [(frame index in the batch, points float64 [N, 2], good int [G, 2])] of the
     frames after ``state.previous``, in order. Returns {frame index: (p1, p2, pending)}."""
-    from .orbslam_depths import flow
-
     kf, prev = state.keyframe, state.previous
     if pool is None or kf is None or prev is None or not config.keyframe_motion:
         return {}
     kf_index, prev_pts, prev_is_kf = prev.kf_index, prev.pts, kf.index == prev.index
     out = {}
     for f, pts, good in frames:
-        tracked = kf_index[good[:, 1]]
-        on = tracked >= 0
-        if not prev_is_kf and on.sum() >= config.min_matches:
-            kf_good = np.stack([good[on, 0], tracked[on]], 1)
-            if flow(kf.pts, pts, kf_good) * np.sqrt(on.sum()) > flow(prev_pts, pts, good) * np.sqrt(len(good)):
-                p1, p2 = kf.pts[kf_good[:, 1]], pts[kf_good[:, 0]]
-                if np.median(np.linalg.norm(p2 - p1, axis=1)) >= config.min_parallax:
-                    out[f] = (p1, p2, pool.submit(_essential_job, p1, p2, K, config))
+        tracked, kf_good = o.keyframe_pairs(kf.pts, prev_pts, kf_index, prev_is_kf, pts, good, config)
+        points = None if kf_good is None else _essential_points(kf.pts, pts, kf_good, config)
+        if points is not None:
+            out[f] = (*points, pool.submit(_essential_job, *points, K, config))
         kf_index = np.full(len(pts), -1)
         kf_index[good[:, 0]] = tracked
         prev_pts, prev_is_kf = pts, False
