@@ -35,13 +35,14 @@ along the sequence is what ORB-SLAM2's map does; here, without a map, the same i
   matched since then get depths triangulated from the previous frame for the known motion.
 
 Keyframes: every ``keyframe_interval`` frames, when the inliers drop under ``keyframe_ratio``
-of those tracked just after the last keyframe, or the first good frame after a tracking loss.
+of those tracked just after the last keyframe, or a lost frame that the next one matches
+(a new scene after a cut: the map re-initialises from that pair).
 
 Tracking loss (a cut in a video, a blank or blurred frame), as ORB-SLAM2 detects it: too few
 matches or inliers, no essential matrix, or an implausible jump of the step's scale; the lost
 frame keeps the constant-velocity pose, the next frame relocalises against the last keyframe
-or else re-initialises the depths at the last step's speed (scale continuity); poses stay
-finite (see :func:`track`).
+or else re-initialises the depths at the last scene depth (scale continuity); poses stay
+finite and their rotations orthonormal (see :func:`track`).
 
 All tracking state is carried from frame to frame through a delay (:class:`TrackState`,
 immutable), so every node is a pure function: verification and calibration may run them on
@@ -247,13 +248,15 @@ class FrameRecord:
 class TrackState:
     """Tracking state carried by a delay from frame to frame: the previous frame, the last
     keyframe, the motion model (``velocity`` = T_prev_prevprev, 4x4), the inliers tracked just
-    after the keyframe (``keyframe_inliers``), the frame count, and ``speed``: the length per
-    frame of the last step that moved (at the map's scale; the first step's is 1), the scale
-    a monocular step falls back on when its reference has no depths (the first step, or the
-    first after a loss) and the yardstick of an implausible scale jump; ``scene_depth``: the
-    median depth of the last frame with depths (at the map's scale; NaN none yet), the scale
-    a re-initialisation after a loss keeps; ``lost``: how many frames in a row up to the
-    previous one were lost."""
+    after the keyframe (``keyframe_inliers``), the frame count, and:
+
+    - ``speed``: the length per frame of the last step that moved (at the map's scale; the
+      first step's is 1): the yardstick of an implausible scale jump, and the step a
+      monocular frame whose reference has no depths takes when the motion model's is
+      implausible (~0 after a stop);
+    - ``scene_depth``: the median depth of the last frame with depths (at the map's scale;
+      NaN none yet), the scale a re-initialisation after a loss keeps;
+    - ``lost``: how many frames in a row up to the previous one were lost."""
 
     frames: int = 0
     previous: FrameRecord | None = None
