@@ -94,7 +94,7 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
     common = dict(K=K, config=config, baseline=None, frames=FRAMES)
     pool = ob.make_pool(2)
     try:
-        tail, ahead = ob.pose_batch(images, feats, nearest, (np.zeros((0, 2)), np.zeros(0)), pool=pool, **common)
+        tail, ahead = ob.pose_batch(images, feats, nearest, ob.NO_TAIL, pool=pool, **common)
         per_frame = ob.ahead_frames(ahead)  # waits for the pool's results
         np.testing.assert_array_equal(tail[0], ob._pts(feats[-1][0]))
         assert sum(a[2] is not None for a in per_frame) >= FRAMES - 2  # frame 0 has no previous frame
@@ -106,10 +106,15 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
         _, poses, stats = ob.chain(o.TrackState(), feats, ahead, pool=pool, **common)
         assert calls == [] and stats.shape == (FRAMES, len(o.STATS))
         if keyframe_motion:
-            assert np.count_nonzero(stats[:, 4] == o.REF_KEYFRAME) > 0
-            # Without the pool, chain works those out itself, on the spot.
+            from_kf = stats[:, 4] == o.REF_KEYFRAME
+            assert np.count_nonzero(from_kf) > 0
+            # Without the pool, chain works those out itself, on the spot, but for the frames
+            # whose keyframe is the frame before the previous one: pose_batch guessed those.
+            kf = stats[:, 3] == 1
+            guessed = [t for t in range(2, FRAMES) if from_kf[t] and kf[t - 2] and not kf[t - 1]]
+            assert guessed and all(per_frame[t][4] is not None for t in guessed)
             _, poses_here, stats = ob.chain(o.TrackState(), feats, ahead, **common)
-            assert len(calls) == np.count_nonzero(stats[:, 4] == o.REF_KEYFRAME) > 0
+            assert len(calls) == np.count_nonzero(from_kf) - len(guessed)
             np.testing.assert_array_equal(poses_here, poses)
     finally:
         pool.shutdown()
@@ -144,6 +149,26 @@ def test_bad_input_names_the_argument(seq, tmp_path, capsys):
                              "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "batch" in err[0]
+
+
+def test_pool_starts_urgent_jobs_first_and_drops_cancelled_ones():
+    """One process, busy: queued jobs start by urgency, then in submit order; a cancelled
+    job never starts; wait() books its blocked time."""
+    import time
+
+    with ob.make_pool(1) as pool:
+        busy = pool.submit(time.sleep, 0.5)
+        later = [pool.submit(time.time) for _ in range(3)]
+        dropped = pool.submit(time.time)
+        urgent = pool.submit(time.time, urgent=True)
+        dropped.cancel()
+        busy.cancel()  # already started: still runs
+        assert pool.wait(busy, "busy") is None and pool.waited_s["busy"] > 0.2
+        times = [t.get() for t in later]
+        assert urgent.get() < times[0] < times[1] < times[2]
+        with pytest.raises(WarpvxError, match="cancelled"):
+            dropped.get()
+        assert pool.cancelled == 1 and pool.started == {"sleep": 1, "time": 4}
 
 
 def test_pool_in_an_unguarded_script(tmp_path):

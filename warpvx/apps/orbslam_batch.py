@@ -34,10 +34,14 @@ of the device matcher's ties, which match the CPU ones (see the tests).
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import functools
+import heapq
+import itertools
 import os
 import sys
+import threading
 import time
 
 import numpy as np
@@ -74,11 +78,37 @@ def _caller_script_hidden():
             setattr(main, k, v)
 
 
+class PoolTask:
+    """One job on a :class:`PosePool`: :meth:`get` waits for its value; :meth:`cancel` drops
+    it if no process has started it yet."""
+
+    def __init__(self, fn, args, lock):
+        self._job, self._result, self.cancelled, self._lock = (fn, args), None, False, lock
+        self._started = threading.Event()
+
+    def get(self):
+        if self.cancelled:
+            raise WarpvxValueError("task: cancelled before it started")
+        self._started.wait()
+        return self._result.get()
+
+    def cancel(self):
+        with self._lock:
+            self.cancelled = self._result is None
+
+
 class PosePool:
     """Processes for :func:`pose_batch`, all started on construction (about a second each;
     spawned, not forked: the parent holds a CUDA context and executor threads), each with
     one OpenCV thread since the pool already spreads the work over the cores. ``workers``:
-    the number of processes. Close it with :meth:`shutdown` (or use it as a context manager)."""
+    the number of processes. Close it with :meth:`shutdown` (or use it as a context manager).
+
+    Jobs wait in the parent, by priority, and go to the processes only as these free up (no
+    more in flight than processes): an ``urgent`` job (what the tracking chain waits on) then
+    starts before every queued non-urgent one (the next batch's work) instead of behind it,
+    and a job cancelled before it starts costs nothing. ``waited_s`` sums the seconds
+    :meth:`wait` spent blocked, by its ``what``; ``started`` counts the jobs started, by
+    function name, and ``cancelled`` those dropped unstarted."""
 
     def __init__(self, workers: int):
         from multiprocessing import get_context
@@ -86,20 +116,53 @@ class PosePool:
         with _caller_script_hidden():
             self._pool = get_context("spawn").Pool(workers, initializer=_init_worker)
         self.workers = workers
+        self._lock = threading.Lock()
+        self._queue, self._order, self._running = [], itertools.count(), 0
+        self.waited_s, self.started, self.cancelled = collections.Counter(), collections.Counter(), 0
+
+    def submit(self, fn, *args, urgent: bool = False) -> PoolTask:
+        """``fn(*args)`` on a process, as soon as one is free and no job more urgent (or
+        submitted earlier at the same urgency) waits."""
+        task = PoolTask(fn, args, self._lock)
+        with self._lock:
+            heapq.heappush(self._queue, (not urgent, next(self._order), task))
+            self._dispatch()
+        return task
+
+    def _dispatch(self):
+        """Start queued jobs while processes are free (the caller holds the lock)."""
+        while self._running < self.workers and self._queue:
+            task = heapq.heappop(self._queue)[2]
+            if task.cancelled:
+                self.cancelled += 1
+                continue
+            self.started[task._job[0].__name__] += 1
+            self._running += 1
+            task._result = self._pool.apply_async(*task._job, callback=self._done, error_callback=self._done)
+            task._started.set()
+
+    def _done(self, _):
+        with self._lock:
+            self._running -= 1
+            self._dispatch()
 
     def map(self, fn, jobs) -> list:
         """``[fn(*job) for job in jobs]`` on the processes, one job per task."""
-        return self._pool.starmap(fn, jobs, chunksize=1)
+        return [t.get() for t in [self.submit(fn, *job) for job in jobs]]
 
-    def map_async(self, fn, jobs):
-        """:meth:`map` started now; ``.get()`` of the result waits for the list."""
-        return self._pool.starmap_async(fn, jobs, chunksize=1)
-
-    def submit(self, fn, *args):
-        """``fn(*args)`` started now; ``.get()`` of the result waits for it."""
-        return self._pool.apply_async(fn, args)
+    def wait(self, task, what: str):
+        """``task.get()``, its blocked time added to ``waited_s[what]``."""
+        t = time.perf_counter()
+        try:
+            return task.get()
+        finally:
+            self.waited_s[what] += time.perf_counter() - t
 
     def shutdown(self, cancel_futures: bool = False):
+        with self._lock:
+            for *_, task in self._queue:
+                task.cancelled = True
+            self._queue.clear()
         if cancel_futures:
             self._pool.terminate()
         else:
@@ -124,18 +187,18 @@ def make_pool(workers: int | None = None) -> PosePool | None:
 
 
 class _Later:
-    """``[fn(*job) for job in jobs]``: on ``pool``'s processes when given, started now and
-    waited for by :meth:`get` (in the ``chain`` node: the next batch's jobs queue up behind
-    these while the chain waits, so the pool never idles between batches); else in the
+    """``[fn(*job) for job in jobs]``: on ``pool``'s processes when given, submitted now (not
+    urgent: the chain's keyframe jobs go first) and waited for by :meth:`get`; else in the
     calling thread, now."""
 
     def __init__(self, pool, fn, jobs):
-        self._pending = pool.map_async(fn, jobs) if pool is not None else None
+        self._pool = pool
+        self._pending = [pool.submit(fn, *job) for job in jobs] if pool is not None else None
         self._values = None if pool is not None else [fn(*job) for job in jobs]
 
     def get(self) -> list:
         if self._values is None:
-            self._values = self._pending.get()
+            self._values = [self._pool.wait(t, "ahead") for t in self._pending]
         return self._values
 
 
@@ -178,12 +241,17 @@ def _pts(kps):
     return np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
 
 
+#: :func:`pose_batch`'s ``tail`` before the first batch: no frame.
+NO_TAIL = (np.zeros((0, 2)), np.zeros(0), None)
+
+
 def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, pool):
     """The state-free tracking work of a batch (CPU, fanned out to ``pool``): per frame the
     mutual pairs to the previous frame and, for a stereo camera, each keypoint's stereo depth;
-    else the essential core of the filtered matches to the previous frame. Each frame is one
-    job (:func:`frame_job`): the calling thread only slices the batch, so the pose work holds
-    the GIL of the process that runs the tracking for none of it.
+    else the essential cores of the filtered matches to the previous frame and to the frame
+    before it as the keyframe (:func:`frame_job`). Each frame is one job: the calling thread
+    only slices the batch, so the pose work holds the GIL of the process that runs the
+    tracking for none of it.
 
     Parameters
     ----------
@@ -192,15 +260,16 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     feats : list of B' (Keypoints, uint8 [N, 32])
     nearest : (nearest, distance, starts)
         :func:`match_batch`'s second output.
-    tail : tuple (float64 [N, 2] points, float64 [N] angles)
-        The previous batch's last frame (empty before the first batch).
+    tail : tuple (float64 [N, 2] points, float64 [N] angles, before)
+        The previous batch's last frame and ``before``, its own job's (nearest, points,
+        angles) of the frame before it (None: none); :data:`NO_TAIL` before the first batch.
 
     Returns
     -------
-    tail : the last frame's (points, angles)
+    tail : the last frame's (points, angles, before)
     ahead : the pool's results, still running: :func:`ahead_frames` waits for them.
     """
-    prev_pts, prev_angles = tail
+    prev_pts, prev_angles, before = tail
     fx = float(K[0, 0])
     jobs = []
     for f, (kps, desc) in enumerate(feats[:frames], 1):
@@ -209,35 +278,77 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
         if baseline is not None:
             kr, dr = feats[frames + f - 1]
             stereo = (kps, desc, kr, dr, images[f - 1], images[frames + f - 1], fx, baseline)
-        jobs.append((batch_pairs(*nearest, f), pts, angles, prev_pts, prev_angles, K, config, stereo))
+        near = batch_pairs(*nearest, f)
+        jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo, before))
+        # The guesses only pay on a pool (without one the chain computes what it needs).
+        before = (near, prev_pts, prev_angles) if pool is not None else None
         prev_pts, prev_angles = pts, angles
-    return (prev_pts, prev_angles), _Later(pool, frame_job, jobs)
+    return (prev_pts, prev_angles, before), _Later(pool, frame_job, jobs)
 
 
-def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
+def _good(nearest, pts, angles, prev_pts, prev_angles, config):
+    """(pairs int32 [M, 2], distances int32 [M], good int [G, 2]): the mutual pairs of
+    :func:`~warpvx.apps.orbslam_match.batch_pairs`' ``nearest`` and those ``track``'s match
+    filter keeps."""
+    p, d = mutual_pairs(*nearest, len(pts), len(prev_pts))
+    return p, d, o.filter_matches(p, d, angles, prev_angles, config) if len(pts) else p[:0]
+
+
+def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo, before=None):
     """One frame's state-free work (on a pool process): (pairs int32 [M, 2], distances int32
-    [M], extra, good int [G, 2]: the pairs ``track``'s match filter keeps; monocular only,
-    else None). ``nearest``: :func:`~warpvx.apps.orbslam_match.batch_pairs`' (nearest,
-    distance, back); ``stereo``: None (monocular), or (left keypoints, left descriptors, right
-    keypoints, right descriptors, left image, right image, fx, baseline). ``extra``: stereo,
-    the depth float32 [N] of each keypoint (:func:`stereo_depth`); monocular, (p1, p2,
-    :func:`~warpvx.apps.orbslam.essential_core`'s result) for the filtered matches to the
-    previous frame, what ``track`` hands to it when that frame is the reference, or None when
-    ``track`` will not need one."""
-    idx, dist, back = nearest
-    p, d = mutual_pairs(idx, dist, back, len(pts), len(prev_pts))
+    [M], extra, good int [G, 2], guess). ``nearest``: :func:`~warpvx.apps.orbslam_match.batch_pairs`'
+    (nearest, distance, back); ``stereo``: None (monocular), or (left keypoints, left
+    descriptors, right keypoints, right descriptors, left image, right image, fx, baseline).
+    Stereo: ``extra`` the depth float32 [N] of each keypoint (:func:`stereo_depth`), ``good``
+    and ``guess`` None. Monocular: ``good`` the pairs ``track``'s match filter keeps, ``extra``
+    (p1, p2, :func:`~warpvx.apps.orbslam.essential_core`'s result) for them, what ``track``
+    hands to it when the previous frame is the reference, or None when ``track`` will not
+    need one; ``guess`` the same for the motion from the frame before the previous one as
+    the keyframe (``before``: the previous frame's (nearest, points, angles) of that frame,
+    None: none), the core ``track`` asks for right after a keyframe change (keyframes two
+    frames apart are common: the inliers drop there), or None."""
     if stereo is not None:
+        idx, dist, back = nearest
+        p, d = mutual_pairs(idx, dist, back, len(pts), len(prev_pts))
         kl, dl, kr, dr, left, right, fx, baseline = stereo
         return p, d, stereo_depth(kl, dl, kr, dr, left, right, fx=fx, baseline=baseline,
-                                  scale_factor=config.scale_factor, max_distance=config.stereo_max_distance), None
-    good = o.filter_matches(p, d, angles, prev_angles, config) if len(pts) else p[:0]
-    return p, d, _core_ahead(prev_pts, pts, good, K, config), good
+                                  scale_factor=config.scale_factor, max_distance=config.stereo_max_distance), \
+            None, None
+    p, d, good = _good(nearest, pts, angles, prev_pts, prev_angles, config)
+    guess = None
+    if before is not None and config.keyframe_motion:
+        near, kf_pts, kf_angles = before
+        cursor = _keyframe_cursor(kf_pts)
+        cursor = _track_step(kf_pts, cursor, prev_pts, _good(near, prev_pts, prev_angles, kf_pts, kf_angles,
+                                                             config)[2], config)[1]
+        guess = _core_ahead(kf_pts, pts, _track_step(kf_pts, cursor, pts, good, config)[0], K, config)
+    return p, d, _core_ahead(prev_pts, pts, good, K, config), good, guess
+
+
+def _keyframe_cursor(kf_pts):
+    """:func:`_track_step`'s cursor at a keyframe with points ``kf_pts``."""
+    return kf_pts, np.arange(len(kf_pts)), True
+
+
+def _track_step(kf_pts, cursor, pts, good, config):
+    """One frame along the keyframe's tracks, as ``track`` takes it when the keyframe stays:
+    ``cursor`` = (previous frame's points, its keypoints' keyframe keypoint (-1 none), whether
+    it is the keyframe); ``pts``, ``good``: this frame's points and filtered matches to the
+    previous frame. Returns (pairs int [M, 2] to the keyframe when ``track`` takes the motion
+    from it, else None (:func:`~warpvx.apps.orbslam.keyframe_pairs`); this frame's cursor)."""
+    prev_pts, kf_index, prev_is_kf = cursor
+    tracked, kf_good = o.keyframe_pairs(kf_pts, prev_pts, kf_index, prev_is_kf, pts, good, config)
+    kf_index = np.full(len(pts), -1)
+    kf_index[good[:, 0]] = tracked
+    return kf_good, (pts, kf_index, False)
 
 
 def _essential_points(ref_pts, pts, pairs, config):
     """(p1, p2) for ``pairs`` (this frame's index, the reference's): what ``track`` hands to
     :func:`~warpvx.apps.orbslam.essential_core` for that reference, or None when it will not
-    call it (too few pairs, too little parallax)."""
+    call it (none, too few pairs, too little parallax)."""
+    if pairs is None:
+        return None
     p1, p2 = ref_pts[pairs[:, 1]], pts[pairs[:, 0]]
     if len(pairs) < 8 or np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
         return None
@@ -250,15 +361,19 @@ def _core_ahead(ref_pts, pts, pairs, K, config):
     return None if points is None else (*points, o.essential_core(*points, K, config))
 
 
-def _essential_ahead(*cores):
+def _same_points(core, p1, p2) -> bool:
+    return core is not None and np.array_equal(p1, core[0]) and np.array_equal(p2, core[1])
+
+
+def _essential_ahead(*cores, pool=None):
     """An ``essential`` for :func:`~warpvx.apps.orbslam.track`: a core = (p1, p2, result)
-    worked out ahead (the result may be a pending pool result) is returned for those very
-    points, anything else is computed."""
+    worked out ahead (the result may be a :class:`PoolTask`, waited for on ``pool``) is
+    returned for those very points, anything else is computed."""
 
     def essential(p1, p2, K, config):
         for core in cores:
-            if core is not None and np.array_equal(p1, core[0]) and np.array_equal(p2, core[1]):
-                return core[2].get() if hasattr(core[2], "get") else core[2]
+            if _same_points(core, p1, p2):
+                return pool.wait(core[2], "keyframe") if isinstance(core[2], PoolTask) else core[2]
         return o.essential_core(p1, p2, K, config)
 
     return essential
@@ -269,57 +384,84 @@ def _essential_job(p1, p2, K, config):
     return o.essential_core(p1, p2, K, config)
 
 
-def speculate_keyframe(state, frames, pool, K, config) -> dict:
-    """Monocular: the essential cores ``track`` will ask for when it takes a frame's motion
-    from the keyframe, started on ``pool`` before the chain reaches the frame. Which frame is
-    the keyframe is state (only ``chain`` knows it), but from one frame to the next the
-    keypoints' keyframe tracks only compose the frames' filtered matches, so with the current
-    keyframe the tracks, the parallax test and the points of every later frame of the batch
-    are known until the keyframe changes (then the chain speculates again).
+#: Frames ahead of the chain whose keyframe cores :class:`KeyframeSpeculation` keeps started:
+#: ~ a core's latency (one process: ~14 ms on the H100 host) over the chain's time per frame
+#: (~3 ms there).
+SPECULATE_AHEAD = 6
 
-    ``frames``: [(frame index in the batch, points float64 [N, 2], good int [G, 2])] of the
-    frames after ``state.previous``, in order. Returns {frame index: (p1, p2, pending)}."""
-    kf, prev = state.keyframe, state.previous
-    if pool is None or kf is None or prev is None or not config.keyframe_motion:
-        return {}
-    kf_index, prev_pts, prev_is_kf = prev.kf_index, prev.pts, kf.index == prev.index
-    out = {}
-    for f, pts, good in frames:
-        tracked, kf_good = o.keyframe_pairs(kf.pts, prev_pts, kf_index, prev_is_kf, pts, good, config)
-        points = None if kf_good is None else _essential_points(kf.pts, pts, kf_good, config)
-        if points is not None:
-            out[f] = (*points, pool.submit(_essential_job, *points, K, config))
-        kf_index = np.full(len(pts), -1)
-        kf_index[good[:, 0]] = tracked
-        prev_pts, prev_is_kf = pts, False
-    return out
+
+class KeyframeSpeculation:
+    """Monocular: the essential cores ``track`` will ask for when it takes a frame's motion
+    from the current keyframe, started on ``pool`` (urgent) :data:`SPECULATE_AHEAD` frames
+    before the chain reaches the frame. Which frame is the keyframe is state (only ``chain``
+    knows it), but from one frame to the next the keypoints' keyframe tracks only compose the
+    frames' filtered matches, so with the current keyframe the tracks, the parallax test and
+    the points of every later frame of the batch are known until the keyframe changes (then
+    the chain cancels what has not started and speculates again).
+
+    ``state``: the chain's before frame ``first`` of the batch; ``pts``, ``good``, ``guess``
+    per frame of the batch: points float64 [N, 2], filtered matches int [G, 2] to the previous
+    frame, :func:`frame_job`'s ``guess``. A core equal to the frame's ``guess`` is not started
+    again. ``hold``: start nothing before the chain reaches frame ``first + 2`` (when the last
+    keyframe lasted two frames: the next change comes as soon, and ``guess`` covers the
+    frame after it)."""
+
+    def __init__(self, state, first, pts, good, guess, pool, K, config, hold=False):
+        kf, prev = state.keyframe, state.previous
+        self.cores, self._next, self._hold = {}, first, first + 2 if hold else first
+        self._on = pool is not None and kf is not None and prev is not None and config.keyframe_motion
+        if self._on:
+            self._cursor = (prev.pts, prev.kf_index, kf.index == prev.index)
+            self._kf_pts, self._args = kf.pts, (pts, good, guess, pool, K, config)
+
+    def ahead(self, f):
+        """Started up to frame ``f`` + :data:`SPECULATE_AHEAD` (the chain is at frame ``f``)."""
+        if not self._on or f < self._hold:
+            return
+        pts, good, guess, pool, K, config = self._args
+        while self._next < min(f + 1 + SPECULATE_AHEAD, len(pts)):
+            u = self._next
+            kf_good, self._cursor = _track_step(self._kf_pts, self._cursor, pts[u], good[u], config)
+            points = _essential_points(self._kf_pts, pts[u], kf_good, config)
+            if points is not None and not _same_points(guess[u], *points):
+                self.cores[u] = (*points, pool.submit(_essential_job, *points, K, config, urgent=True))
+            self._next += 1
+
+    def cancel(self):
+        for *_, task in self.cores.values():
+            task.cancel()
 
 
 def ahead_frames(ahead) -> list:
     """:func:`pose_batch`'s ``ahead`` per frame, once the pool's work is done: (pairs,
-    distances, extra, good) as :func:`frame_job` returns them."""
+    distances, extra, good, guess) as :func:`frame_job` returns them."""
     return ahead.get()
 
 
 def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
     """Track the batch's frames in order (:func:`~warpvx.apps.orbslam.track`, cheap with the
     work done ahead; monocular, the keyframe's cores speculated on ``pool``, see
-    :func:`speculate_keyframe`): (state, poses float64 [B, 4, 4], stats float64 [B, 6])."""
+    :class:`KeyframeSpeculation`): (state, poses float64 [B, 4, 4], stats float64 [B, 6])."""
     poses, stats = [], []
     per_frame = ahead_frames(ahead)
-    pts = [_pts(kps) for kps, _ in feats[:frames]] if baseline is None else None
-    spec, keyframe = {}, -1
-    for f, ((kps, desc), (pairs, dist, extra, _)) in enumerate(zip(feats[:frames], per_frame)):
+    if baseline is None:
+        pts = [_pts(kps) for kps, _ in feats[:frames]]
+        good, guess = [a[3] for a in per_frame], [a[4] for a in per_frame]
+    spec, keyframe, span = None, -1, 0
+    for f, ((kps, desc), (pairs, dist, extra, _, hint)) in enumerate(zip(feats[:frames], per_frame)):
         if baseline is not None:
             state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config)
         else:
             now = None if state.keyframe is None else state.keyframe.index
             if now != keyframe:  # a new keyframe (or the batch's first frame): speculate again
+                if spec is not None:
+                    spec.cancel()
+                    span = now - keyframe if None not in (now, keyframe) else 0
                 keyframe = now
-                spec = speculate_keyframe(state, [(u, pts[u], per_frame[u][3]) for u in range(f, frames)],
-                                          pool, K, config)
+                spec = KeyframeSpeculation(state, f, pts, good, guess, pool, K, config, hold=span == 2)
+            spec.ahead(f)
             state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config,
-                                      essential=_essential_ahead(extra, spec.get(f)))
+                                      essential=_essential_ahead(extra, hint, spec.cores.get(f), pool=pool))
         poses.append(pose)
         stats.append(st)
     return state, np.asarray(poses), np.asarray(stats)
@@ -372,7 +514,7 @@ def build_batch_graph(camera: o.Camera, batch: int, config: o.TrackerConfig = o.
     images = g.input("images", shape=(batch * (2 if camera.stereo else 1), h, w), dtype=np.uint8)
     feats, nearest = add_extract_match(g, images, batch, config, target=pin)
     tail = g.virtual("tail")
-    last = g.delay(tail, init=(np.zeros((0, 2)), np.zeros(0)))[-1]
+    last = g.delay(tail, init=NO_TAIL)[-1]
     _, ahead = g.user(functools.partial(pose_batch, pool=pool, **common), [images, feats, nearest, last],
                       [tail, "ahead"], name="pose_batch")
     state = g.virtual("state")
