@@ -21,8 +21,10 @@ reading PNGs is timed separately. Measured, side by side in one run:
 5. the batched front end (warpvx.apps.orbslam_batch, ``--batch B`` frames per graph frame):
    extraction + matching batched (``orb_batch`` + ``match_batch`` on the device: one launch
    matches all consecutive pairs both ways; the mutual pairs on the host), mono and stereo end to end with the pose work on a process pool of all
-   cores, the pool's speed-up on one batch's pose work (``pose_batch`` with no pool vs the
-   pool), and its accuracy (the poses must be the sequential ones).
+   cores, the pool's speed-up on one batch's pose work (``pose_batch`` on one process vs the
+   pool), what the pool did per batch (how long the chain waited on it, for the frame jobs
+   and for the keyframe cores it speculates; jobs started and dropped), and its accuracy
+   (the poses must be the sequential ones).
 
 FPS columns: "wall" counts everything from the call (graph build, verification, calibration:
 cached after the warm-up run; the batched mode's pool is opened once, before); "steady" is
@@ -168,36 +170,59 @@ BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig()),
            ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig()))
 
 
+def _pool_counts(pool):
+    return dict(pool.waited_s), dict(pool.started), pool.cancelled
+
+
+def pool_per_batch(pool, before, batches) -> dict:
+    """What the pool did per batch since ``before`` (:func:`_pool_counts`): ms the chain waited
+    for the frame jobs (``ahead``) and for keyframe cores, jobs started, keyframe cores dropped
+    unstarted."""
+    waited, started, cancelled = before
+    return {"chain_wait_ahead_ms": 1e3 * (pool.waited_s["ahead"] - waited.get("ahead", 0)) / batches,
+            "chain_wait_keyframe_ms": 1e3 * (pool.waited_s["keyframe"] - waited.get("keyframe", 0)) / batches,
+            "frame_jobs": (pool.started["frame_job"] - started.get("frame_job", 0)) / batches,
+            "keyframe_cores": (pool.started["_essential_job"] - started.get("_essential_job", 0)) / batches,
+            "keyframe_cores_dropped": (pool.cancelled - cancelled) / batches}
+
+
 def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth=3, config=o.TrackerConfig()):
-    """The batched front end end to end (``pool``: the pose work's process pool, opened once)."""
+    """The batched front end end to end (``pool``: the pose work's process pool, opened once),
+    with what the pool did per batch (:func:`pool_per_batch`)."""
     plans = []
     run = functools.partial(ob.track_frames_batched, camera=camera, config=config, batch=batch, pool=pool,
                             backend=backend, depth=depth)
     list(run(frames[:4 * batch]))  # warm-up, calibration
+    before = _pool_counts(pool) if pool is not None else None
     t = time.perf_counter()
     res = list(run(frames, on_finish=plans.append))
-    return _frontend_result(res, time.perf_counter() - t, plans[0], out, name, backend)
+    row, poses = _frontend_result(res, time.perf_counter() - t, plans[0], out, name, backend)
+    if pool is not None:
+        row["pool_per_batch"] = pool_per_batch(pool, before, -(-len(frames) // batch))
+    return row, poses
 
 
 def bench_pose_pool(frames, camera, batch, pool):
-    """``pose_batch`` of one batch (mono), ms per frame: in the calling thread vs on ``pool``."""
+    """``pose_batch`` of one batch (mono), ms per frame: on one process vs on ``pool`` (the
+    same jobs: with a pool, ``frame_job`` also guesses the core after a keyframe change)."""
     images = np.stack([f["image"] for f in frames[:batch + 1]])
     config = o.TrackerConfig()
     feats = ob.orb_batch(images, config=config)  # the features only feed the timed pose work
     descs = [d for _, d in feats]
     _, nearest = ob.nearest_batch(descs[1:], descs[0])
     k0 = feats[0][0]
-    tail = (ob._pts(k0), np.asarray(k0.angle, np.float64))
+    tail = (ob._pts(k0), np.asarray(k0.angle, np.float64), None)
     common = dict(K=np.ascontiguousarray(camera.K), config=config, baseline=None, frames=batch)
     row = {}
-    for key, p in (("no_pool_ms", None), ("pool_ms", pool)):
-        ob.ahead_frames(ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1])  # warm
-        t = time.perf_counter()
-        for _ in range(3):
-            ob.ahead_frames(ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1])
-        row[key] = 1e3 * (time.perf_counter() - t) / (3 * batch)
-    row["speedup"] = row["no_pool_ms"] / row["pool_ms"]
-    row["workers"] = pool.workers if pool is not None else 0
+    with ob.make_pool(1) as one:
+        for key, p in (("one_process_ms", one), ("pool_ms", pool)):
+            ob.ahead_frames(ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1])  # warm
+            t = time.perf_counter()
+            for _ in range(3):
+                ob.ahead_frames(ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1])
+            row[key] = 1e3 * (time.perf_counter() - t) / (3 * batch)
+    row["speedup"] = row["one_process_ms"] / row["pool_ms"]
+    row["workers"] = pool.workers
     return row
 
 
@@ -367,8 +392,9 @@ def main(argv=None):
             report[key] = attempt(name, lambda: bench_frontend_batched(replay(frames, n), camera, backend, out,
                                                                        name, batch, pool, config=config)[0], failed)
             progress(f"front end {name} (B={batch}) FPS", f"{report[key]['fps']:.1f}")
-        report["pose_pool"] = attempt("pose pool", lambda: bench_pose_pool(mono_frames, mono, batch, pool), {})
-        progress("pose_batch alone (ms/frame): no pool vs pool", report["pose_pool"])
+        report["pose_pool"] = attempt("pose pool", lambda: bench_pose_pool(mono_frames, mono, batch, pool), {}) \
+            if pool is not None else {"error": "no pool (--workers 0)"}
+        progress("pose_batch alone (ms/frame): one process vs pool", report["pose_pool"])
         batched = {name: attempt(f"accuracy batched {name}", lambda: np.array(
             [f.pose for f in ob.track_frames_batched(frames, camera, config, batch=batch, pool=pool,
                                                      backend=backend)]), None)
@@ -430,7 +456,7 @@ def main(argv=None):
               "", "FPS (wall): frames over the whole call (graph build, verification; calibration cached "
               "by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
               "", f"Pose work of one mono batch (pose_batch, B={batch}), ms per frame: "
-              + (f"{report['pose_pool']['no_pool_ms']:.2f} in one thread, {report['pose_pool']['pool_ms']:.2f} "
+              + (f"{report['pose_pool']['one_process_ms']:.2f} on one process, {report['pose_pool']['pool_ms']:.2f} "
                  f"on {report['pose_pool']['workers']} processes ({report['pose_pool']['speedup']:.1f}x)"
                  if "speedup" in report["pose_pool"] else f"FAILED ({report['pose_pool'].get('error')})"),
               f"Batched poses vs frame-by-frame poses, largest difference: "
@@ -441,6 +467,16 @@ def main(argv=None):
               "includes waiting for the GIL and for copies):", ""]
     lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono",
                                    "frontend_stereo", "batched_mono", "batched_mono_prev", "batched_stereo"])
+    lines += ["", "What the pose pool did per batch (the chain's waits: for the batch's frame jobs, and for",
+              "keyframe cores speculated on the pool; session 3, before the urgent lane and the guesses,",
+              "the mono chain took 117 ms per batch, 43 ms with keyframe_motion off):", "",
+              "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | frame jobs "
+              "| keyframe cores started | dropped unstarted |", "| --- | --- | --- | --- | --- | --- |"]
+    for key, *_ in BATCHED:
+        b = report[key].get("pool_per_batch")
+        lines.append(f"| {key} | " + (f"{b['chain_wait_ahead_ms']:.2f} | {b['chain_wait_keyframe_ms']:.2f} | "
+                                      f"{b['frame_jobs']:.1f} | {b['keyframe_cores']:.1f} | "
+                                      f"{b['keyframe_cores_dropped']:.1f} |" if b else "n/a | | | | |"))
     lines += ["", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
     for k, v in report["accuracy"].items():
         lines.append(f"| {k} | {v['ate_m']:.4f} | {v['rpe1_t_m']:.4f} | {v['rpe1_r_deg']:.3f} |")
