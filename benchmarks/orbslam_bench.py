@@ -150,10 +150,12 @@ def bench_extract_match_batched(images, backend, batch, depth=3):
 
 
 def _frontend_result(res, dt, plan, out, name, backend):
-    """FPS (wall, steady), median track ms, stages, the plan's summary and a Gantt chart."""
+    """FPS (wall, steady), median track ms, stages, the plan's summary and a Gantt chart
+    (``gantt_{name}.png``; name None: none)."""
     summary = plan.summary()
     try:
-        plan.gantt(out / f"gantt_{name}.png", frames=3, title=f"ORB-SLAM front end ({name}, {backend})")
+        if name is not None:
+            plan.gantt(out / f"gantt_{name}.png", frames=3, title=f"ORB-SLAM front end ({name}, {backend})")
     except Exception as exc:  # noqa: BLE001 - matplotlib missing: the numbers still count
         summary["gantt_error"] = str(exc)
     track_ms = statistics.median(f.stats["track_ms"] for f in res)
@@ -164,10 +166,12 @@ def _frontend_result(res, dt, plan, out, name, backend):
 
 #: Monocular motion from the previous frame only: every essential matrix worked out ahead.
 PREVIOUS_ONLY = o.TrackerConfig(keyframe_motion=False)
-#: The batched runs: report key, camera, Gantt name, tracker settings.
-BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig()),
-           ("batched_mono_prev", "mono", "batch_mono_prev", PREVIOUS_ONLY),
-           ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig()))
+#: The batched runs: report key, camera, Gantt name (None: none), tracker settings, the pool's
+#: ``ahead`` (False: jobs in submit order and no guessed cores, the scheduling before them).
+BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig(), True),
+           ("batched_mono_fifo", "mono", None, o.TrackerConfig(), False),
+           ("batched_mono_prev", "mono", "batch_mono_prev", PREVIOUS_ONLY, True),
+           ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig(), True))
 
 
 def _pool_counts(pool):
@@ -176,19 +180,28 @@ def _pool_counts(pool):
 
 def pool_per_batch(pool, before, batches) -> dict:
     """What the pool did per batch since ``before`` (:func:`_pool_counts`): ms the chain waited
-    for the frame jobs (``ahead``) and for keyframe cores, jobs started, keyframe cores dropped
-    unstarted."""
+    for the frame jobs (``ahead``) and for keyframe cores, and computed cores itself (none
+    worked out ahead), jobs started, keyframe cores dropped unstarted."""
     waited, started, cancelled = before
     return {"chain_wait_ahead_ms": 1e3 * (pool.waited_s["ahead"] - waited.get("ahead", 0)) / batches,
             "chain_wait_keyframe_ms": 1e3 * (pool.waited_s["keyframe"] - waited.get("keyframe", 0)) / batches,
+            "chain_on_the_spot_ms": 1e3 * (pool.waited_s["on the spot"] - waited.get("on the spot", 0)) / batches,
             "frame_jobs": (pool.started["frame_job"] - started.get("frame_job", 0)) / batches,
             "keyframe_cores": (pool.started["_essential_job"] - started.get("_essential_job", 0)) / batches,
             "keyframe_cores_dropped": (pool.cancelled - cancelled) / batches}
 
 
-def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth=3, config=o.TrackerConfig()):
-    """The batched front end end to end (``pool``: the pose work's process pool, opened once),
-    with what the pool did per batch (:func:`pool_per_batch`)."""
+def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth=3, config=o.TrackerConfig(),
+                           ahead=True):
+    """The batched front end end to end (``pool``: the pose work's process pool, opened once;
+    its ``ahead`` set to ``ahead`` for the run), with what the pool did per batch
+    (:func:`pool_per_batch`)."""
+    if pool is not None and not ahead:
+        pool.ahead = False
+        try:
+            return bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth, config)
+        finally:
+            pool.ahead = True
     plans = []
     run = functools.partial(ob.track_frames_batched, camera=camera, config=config, batch=batch, pool=pool,
                             backend=backend, depth=depth)
@@ -387,11 +400,12 @@ def main(argv=None):
             report[key] = attempt(f"batched matching {b}", lambda: bench_extract_match_batched(images, backend, b),
                                   failed)
             progress(f"extraction+matching batched (B={b}) FPS", f"{report[key]['fps']:.1f}")
-        for key, cam, name, config in BATCHED:
+        for key, cam, name, config, ahead in BATCHED:
             camera, frames = (mono, mono_frames) if cam == "mono" else (stereo, stereo_frames)
-            report[key] = attempt(name, lambda: bench_frontend_batched(replay(frames, n), camera, backend, out,
-                                                                       name, batch, pool, config=config)[0], failed)
-            progress(f"front end {name} (B={batch}) FPS", f"{report[key]['fps']:.1f}")
+            report[key] = attempt(key, lambda: bench_frontend_batched(replay(frames, n), camera, backend, out, name,
+                                                                      batch, pool, config=config, ahead=ahead)[0],
+                                  failed)
+            progress(f"front end {key} (B={batch}) FPS", f"{report[key]['fps']:.1f}")
         report["pose_pool"] = attempt("pose pool", lambda: bench_pose_pool(mono_frames, mono, batch, pool), {}) \
             if pool is not None else {"error": "no pool (--workers 0)"}
         progress("pose_batch alone (ms/frame): one process vs pool", report["pose_pool"])
@@ -438,6 +452,8 @@ def main(argv=None):
              for k in report if k.startswith("extract_match_batch")]
     rows += [("front end mono, end to end, frame by frame", "frontend_mono"),
              (f"front end mono, end to end, batched B={batch}", "batched_mono"),
+             (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores (before)",
+              "batched_mono_fifo"),
              (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),
              ("front end stereo, end to end, frame by frame", "frontend_stereo"),
              (f"front end stereo, end to end, batched B={batch}", "batched_stereo")]
@@ -466,21 +482,23 @@ def main(argv=None):
               "Per node, median ms over the last frames (in a pipelined run a node's interval",
               "includes waiting for the GIL and for copies):", ""]
     lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono",
-                                   "frontend_stereo", "batched_mono", "batched_mono_prev", "batched_stereo"])
+                                   "frontend_stereo", *(key for key, *_ in BATCHED)])
     lines += ["", "What the pose pool did per batch (the chain's waits: for the batch's frame jobs, and for",
-              "keyframe cores speculated on the pool; session 3, before the urgent lane and the guesses,",
-              "the mono chain took 117 ms per batch, 43 ms with keyframe_motion off):", "",
-              "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | frame jobs "
-              "| keyframe cores started | dropped unstarted |", "| --- | --- | --- | --- | --- | --- |"]
+              "keyframe cores speculated on the pool; batched_mono_fifo: the pool in submit order, no guessed",
+              "cores, as before them):", "",
+              "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | chain computes cores "
+              "(ms) | frame jobs | keyframe cores started | dropped unstarted |",
+              "| --- | --- | --- | --- | --- | --- | --- |"]
     for key, *_ in BATCHED:
         b = report[key].get("pool_per_batch")
         lines.append(f"| {key} | " + (f"{b['chain_wait_ahead_ms']:.2f} | {b['chain_wait_keyframe_ms']:.2f} | "
-                                      f"{b['frame_jobs']:.1f} | {b['keyframe_cores']:.1f} | "
-                                      f"{b['keyframe_cores_dropped']:.1f} |" if b else "n/a | | | | |"))
+                                      f"{b['chain_on_the_spot_ms']:.2f} | {b['frame_jobs']:.1f} | "
+                                      f"{b['keyframe_cores']:.1f} | {b['keyframe_cores_dropped']:.1f} |"
+                                      if b else "n/a | | | | | |"))
     lines += ["", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
     for k, v in report["accuracy"].items():
         lines.append(f"| {k} | {v['ate_m']:.4f} | {v['rpe1_t_m']:.4f} | {v['rpe1_r_deg']:.3f} |")
-    for k in ("frontend_mono", "frontend_stereo", "batched_mono", "batched_mono_prev", "batched_stereo"):
+    for k in ("frontend_mono", "frontend_stereo", *(key for key, *_ in BATCHED)):
         s = report[k]["plan"]
         if s is None:
             lines += ["", f"{k}: FAILED ({report[k].get('error')})"]

@@ -79,12 +79,13 @@ def test_essential_ahead_is_used_only_for_its_own_points(seq):
         np.testing.assert_array_equal(g, w)
 
 
-@pytest.mark.parametrize("keyframe_motion", [True, False])
-def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_motion):
+@pytest.mark.parametrize("keyframe_motion, guesses", [(True, True), (False, True), (True, False)])
+def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_motion, guesses):
     """pose_batch works out every frame's essential matrix to the previous frame ahead (on 2
-    processes); chain then tracks the batch with no essential_core call of its own except for
-    frames tracked from the keyframe (none with keyframe_motion off) and gives the sequential
-    poses."""
+    processes), and with keyframe_motion on a pool with ``ahead`` the one to the frame before it
+    as the keyframe; chain then tracks the batch with no essential_core call of its own
+    (speculating the others on the pool) and gives the sequential poses; with no pool it
+    computes those the pool did not guess."""
     frames, camera = _frames(seq, False)
     config, K = o.TrackerConfig(keyframe_motion=keyframe_motion), np.ascontiguousarray(seq[2], np.float64)
     images = np.stack([f["image"] for f in frames])
@@ -92,7 +93,7 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
     last, nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=FRAMES)
     np.testing.assert_array_equal(last, feats[-1][1])
     common = dict(K=K, config=config, baseline=None, frames=FRAMES)
-    pool = ob.make_pool(2)
+    pool = ob.PosePool(2, ahead=guesses)
     try:
         tail, ahead = ob.pose_batch(images, feats, nearest, ob.NO_TAIL, pool=pool, **common)
         per_frame = ob.ahead_frames(ahead)  # waits for the pool's results
@@ -112,7 +113,11 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
             # whose keyframe is the frame before the previous one: pose_batch guessed those.
             kf = stats[:, 3] == 1
             guessed = [t for t in range(2, FRAMES) if from_kf[t] and kf[t - 2] and not kf[t - 1]]
-            assert guessed and all(per_frame[t][4] is not None for t in guessed)
+            if pool.ahead:
+                assert guessed and all(per_frame[t][4] is not None for t in guessed)
+            else:
+                assert all(a[4] is None for a in per_frame)
+                guessed = []
             _, poses_here, stats = ob.chain(o.TrackState(), feats, ahead, **common)
             assert len(calls) == np.count_nonzero(from_kf) - len(guessed)
             np.testing.assert_array_equal(poses_here, poses)

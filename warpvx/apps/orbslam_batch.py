@@ -108,14 +108,15 @@ class PosePool:
     starts before every queued non-urgent one (the next batch's work) instead of behind it,
     and a job cancelled before it starts costs nothing. ``waited_s`` sums the seconds
     :meth:`wait` spent blocked, by its ``what``; ``started`` counts the jobs started, by
-    function name, and ``cancelled`` those dropped unstarted."""
+    function name, and ``cancelled`` those dropped unstarted. ``ahead`` False (to measure
+    what it gives): every job in submit order, and :func:`pose_batch` guesses no core."""
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, ahead: bool = True):
         from multiprocessing import get_context
 
         with _caller_script_hidden():
             self._pool = get_context("spawn").Pool(workers, initializer=_init_worker)
-        self.workers = workers
+        self.workers, self.ahead = workers, ahead
         self._lock = threading.Lock()
         self._queue, self._order, self._running = [], itertools.count(), 0
         self.waited_s, self.started, self.cancelled = collections.Counter(), collections.Counter(), 0
@@ -125,7 +126,7 @@ class PosePool:
         submitted earlier at the same urgency) waits."""
         task = PoolTask(fn, args, self._lock)
         with self._lock:
-            heapq.heappush(self._queue, (not urgent, next(self._order), task))
+            heapq.heappush(self._queue, (not (urgent and self.ahead), next(self._order), task))
             self._dispatch()
         return task
 
@@ -281,7 +282,7 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
         near = batch_pairs(*nearest, f)
         jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo, before))
         # The guesses only pay on a pool (without one the chain computes what it needs).
-        before = (near, prev_pts, prev_angles) if pool is not None else None
+        before = (near, prev_pts, prev_angles) if pool is not None and pool.ahead else None
         prev_pts, prev_angles = pts, angles
     return (prev_pts, prev_angles, before), _Later(pool, frame_job, jobs)
 
@@ -368,13 +369,19 @@ def _same_points(core, p1, p2) -> bool:
 def _essential_ahead(*cores, pool=None):
     """An ``essential`` for :func:`~warpvx.apps.orbslam.track`: a core = (p1, p2, result)
     worked out ahead (the result may be a :class:`PoolTask`, waited for on ``pool``) is
-    returned for those very points, anything else is computed."""
+    returned for those very points, anything else is computed (its time booked on ``pool``
+    as ``waited_s["on the spot"]``: nothing ran it ahead)."""
 
     def essential(p1, p2, K, config):
         for core in cores:
             if _same_points(core, p1, p2):
                 return pool.wait(core[2], "keyframe") if isinstance(core[2], PoolTask) else core[2]
-        return o.essential_core(p1, p2, K, config)
+        t = time.perf_counter()
+        try:
+            return o.essential_core(p1, p2, K, config)
+        finally:
+            if pool is not None:
+                pool.waited_s["on the spot"] += time.perf_counter() - t
 
     return essential
 
@@ -402,9 +409,9 @@ class KeyframeSpeculation:
     ``state``: the chain's before frame ``first`` of the batch; ``pts``, ``good``, ``guess``
     per frame of the batch: points float64 [N, 2], filtered matches int [G, 2] to the previous
     frame, :func:`frame_job`'s ``guess``. A core equal to the frame's ``guess`` is not started
-    again. ``hold``: start nothing before the chain reaches frame ``first + 2`` (when the last
-    keyframe lasted two frames: the next change comes as soon, and ``guess`` covers the
-    frame after it)."""
+    again. ``hold``: start none past frame ``first + 1`` (the first that may need one, which
+    ``guess`` covers on a pool) before the chain reaches frame ``first + 2`` (when the last
+    keyframe lasted two frames: the next change, which drops them, comes as soon)."""
 
     def __init__(self, state, first, pts, good, guess, pool, K, config, hold=False):
         kf, prev = state.keyframe, state.previous
@@ -415,11 +422,13 @@ class KeyframeSpeculation:
             self._kf_pts, self._args = kf.pts, (pts, good, guess, pool, K, config)
 
     def ahead(self, f):
-        """Started up to frame ``f`` + :data:`SPECULATE_AHEAD` (the chain is at frame ``f``)."""
-        if not self._on or f < self._hold:
+        """Started up to frame ``f`` + :data:`SPECULATE_AHEAD` (the chain is at frame ``f``;
+        holding, up to ``first + 1``)."""
+        if not self._on:
             return
         pts, good, guess, pool, K, config = self._args
-        while self._next < min(f + 1 + SPECULATE_AHEAD, len(pts)):
+        end = f + 1 + SPECULATE_AHEAD if f >= self._hold else self._hold
+        while self._next < min(end, len(pts)):
             u = self._next
             kf_good, self._cursor = _track_step(self._kf_pts, self._cursor, pts[u], good[u], config)
             points = _essential_points(self._kf_pts, pts[u], kf_good, config)
