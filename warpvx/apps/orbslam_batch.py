@@ -192,10 +192,12 @@ class _Later:
     urgent: the chain's keyframe jobs go first) and waited for by :meth:`get`; else in the
     calling thread, now."""
 
-    def __init__(self, pool, fn, jobs):
+    def __init__(self, pool, fn, jobs, guesses=()):
         self._pool = pool
         self._pending = [pool.submit(fn, *job) for job in jobs] if pool is not None else None
         self._values = None if pool is not None else [fn(*job) for job in jobs]
+        #: Per job, a pending :func:`guess_job` (submitted after all the jobs), or None.
+        self.guesses = [None if g is None else pool.submit(guess_job, *g) for g in guesses] or [None] * len(jobs)
 
     def get(self) -> list:
         if self._values is None:
@@ -249,10 +251,11 @@ NO_TAIL = (np.zeros((0, 2)), np.zeros(0), None)
 def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, pool):
     """The state-free tracking work of a batch (CPU, fanned out to ``pool``): per frame the
     mutual pairs to the previous frame and, for a stereo camera, each keypoint's stereo depth;
-    else the essential cores of the filtered matches to the previous frame and to the frame
-    before it as the keyframe (:func:`frame_job`). Each frame is one job: the calling thread
-    only slices the batch, so the pose work holds the GIL of the process that runs the
-    tracking for none of it.
+    else the essential core of the filtered matches to the previous frame (:func:`frame_job`)
+    and, on a pool with ``ahead`` and ``keyframe_motion`` on, the one to the frame before it
+    as the keyframe (:func:`guess_job`, after the batch's frame jobs: the chain waits for
+    those first). Each is one job: the calling thread only slices the batch, so the pose work
+    holds the GIL of the process that runs the tracking for none of it.
 
     Parameters
     ----------
@@ -262,17 +265,20 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     nearest : (nearest, distance, starts)
         :func:`match_batch`'s second output.
     tail : tuple (float64 [N, 2] points, float64 [N] angles, before)
-        The previous batch's last frame and ``before``, its own job's (nearest, points,
-        angles) of the frame before it (None: none); :data:`NO_TAIL` before the first batch.
+        The previous batch's last frame and ``before``, its (nearest, points, angles) of the
+        frame before it (None: none); :data:`NO_TAIL` before the first batch.
 
     Returns
     -------
     tail : the last frame's (points, angles, before)
-    ahead : the pool's results, still running: :func:`ahead_frames` waits for them.
+    ahead : the pool's results, still running: :func:`ahead_frames` waits for them; its
+        ``guesses``: per frame the pending :func:`guess_job` or None.
     """
     prev_pts, prev_angles, before = tail
     fx = float(K[0, 0])
-    jobs = []
+    # The guesses only pay on a pool (without one the chain computes what it needs).
+    guessing = pool is not None and pool.ahead and baseline is None and config.keyframe_motion
+    jobs, guesses = [], []
     for f, (kps, desc) in enumerate(feats[:frames], 1):
         pts, angles = _pts(kps), np.asarray(kps.angle, np.float64)
         stereo = None
@@ -280,11 +286,12 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
             kr, dr = feats[frames + f - 1]
             stereo = (kps, desc, kr, dr, images[f - 1], images[frames + f - 1], fx, baseline)
         near = batch_pairs(*nearest, f)
-        jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo, before))
-        # The guesses only pay on a pool (without one the chain computes what it needs).
-        before = (near, prev_pts, prev_angles) if pool is not None and pool.ahead else None
+        jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo))
+        guesses.append(None if before is None or not guessing else (before, near, pts, angles, prev_pts,
+                                                                    prev_angles, K, config))
+        before = (near, prev_pts, prev_angles)
         prev_pts, prev_angles = pts, angles
-    return (prev_pts, prev_angles, before), _Later(pool, frame_job, jobs)
+    return (prev_pts, prev_angles, before), _Later(pool, frame_job, jobs, guesses if guessing else ())
 
 
 def _good(nearest, pts, angles, prev_pts, prev_angles, config):
@@ -295,35 +302,36 @@ def _good(nearest, pts, angles, prev_pts, prev_angles, config):
     return p, d, o.filter_matches(p, d, angles, prev_angles, config) if len(pts) else p[:0]
 
 
-def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo, before=None):
+def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
     """One frame's state-free work (on a pool process): (pairs int32 [M, 2], distances int32
-    [M], extra, good int [G, 2], guess). ``nearest``: :func:`~warpvx.apps.orbslam_match.batch_pairs`'
-    (nearest, distance, back); ``stereo``: None (monocular), or (left keypoints, left
-    descriptors, right keypoints, right descriptors, left image, right image, fx, baseline).
-    Stereo: ``extra`` the depth float32 [N] of each keypoint (:func:`stereo_depth`), ``good``
-    and ``guess`` None. Monocular: ``good`` the pairs ``track``'s match filter keeps, ``extra``
-    (p1, p2, :func:`~warpvx.apps.orbslam.essential_core`'s result) for them, what ``track``
-    hands to it when the previous frame is the reference, or None when ``track`` will not
-    need one; ``guess`` the same for the motion from the frame before the previous one as
-    the keyframe (``before``: the previous frame's (nearest, points, angles) of that frame,
-    None: none), the core ``track`` asks for right after a keyframe change (keyframes two
-    frames apart are common: the inliers drop there), or None."""
+    [M], extra, good int [G, 2]: the pairs ``track``'s match filter keeps; monocular only,
+    else None). ``nearest``: :func:`~warpvx.apps.orbslam_match.batch_pairs`' (nearest,
+    distance, back); ``stereo``: None (monocular), or (left keypoints, left descriptors, right
+    keypoints, right descriptors, left image, right image, fx, baseline). ``extra``: stereo,
+    the depth float32 [N] of each keypoint (:func:`stereo_depth`); monocular, (p1, p2,
+    :func:`~warpvx.apps.orbslam.essential_core`'s result) for the filtered matches to the
+    previous frame, what ``track`` hands to it when that frame is the reference, or None when
+    ``track`` will not need one."""
     if stereo is not None:
-        idx, dist, back = nearest
-        p, d = mutual_pairs(idx, dist, back, len(pts), len(prev_pts))
+        p, d = mutual_pairs(*nearest, len(pts), len(prev_pts))
         kl, dl, kr, dr, left, right, fx, baseline = stereo
         return p, d, stereo_depth(kl, dl, kr, dr, left, right, fx=fx, baseline=baseline,
-                                  scale_factor=config.scale_factor, max_distance=config.stereo_max_distance), \
-            None, None
+                                  scale_factor=config.scale_factor, max_distance=config.stereo_max_distance), None
     p, d, good = _good(nearest, pts, angles, prev_pts, prev_angles, config)
-    guess = None
-    if before is not None and config.keyframe_motion:
-        near, kf_pts, kf_angles = before
-        cursor = _keyframe_cursor(kf_pts)
-        cursor = _track_step(kf_pts, cursor, prev_pts, _good(near, prev_pts, prev_angles, kf_pts, kf_angles,
-                                                             config)[2], config)[1]
-        guess = _core_ahead(kf_pts, pts, _track_step(kf_pts, cursor, pts, good, config)[0], K, config)
-    return p, d, _core_ahead(prev_pts, pts, good, K, config), good, guess
+    return p, d, _core_ahead(prev_pts, pts, good, K, config), good
+
+
+def guess_job(before, nearest, pts, angles, prev_pts, prev_angles, K, config):
+    """Monocular (on a pool process): (p1, p2, essential core) for the motion ``track`` takes
+    from the frame before the previous one when that is the keyframe, or None (``track``
+    would not ask for one). That is the core it asks for right after a keyframe change, and
+    keyframes two frames apart are common (the inliers drop there). ``before``: the previous
+    frame's (nearest, points, angles of that frame); the rest as :func:`frame_job`'s."""
+    near, kf_pts, kf_angles = before
+    prev_good = _good(near, prev_pts, prev_angles, kf_pts, kf_angles, config)[2]
+    cursor = _track_step(kf_pts, _keyframe_cursor(kf_pts), prev_pts, prev_good, config)[1]
+    good = _good(nearest, pts, angles, prev_pts, prev_angles, config)[2]
+    return _core_ahead(kf_pts, pts, _track_step(kf_pts, cursor, pts, good, config)[0], K, config)
 
 
 def _keyframe_cursor(kf_pts):
@@ -362,19 +370,20 @@ def _core_ahead(ref_pts, pts, pairs, K, config):
     return None if points is None else (*points, o.essential_core(*points, K, config))
 
 
-def _same_points(core, p1, p2) -> bool:
-    return core is not None and np.array_equal(p1, core[0]) and np.array_equal(p2, core[1])
-
-
-def _essential_ahead(*cores, pool=None):
+def _essential_ahead(*cores, pool=None, guess=None):
     """An ``essential`` for :func:`~warpvx.apps.orbslam.track`: a core = (p1, p2, result)
     worked out ahead (the result may be a :class:`PoolTask`, waited for on ``pool``) is
-    returned for those very points, anything else is computed (its time booked on ``pool``
-    as ``waited_s["on the spot"]``: nothing ran it ahead)."""
+    returned for those very points, as is ``guess``'s (a pending :func:`guess_job`: waited for
+    only when no core matches); anything else is computed (its time booked on ``pool`` as
+    ``waited_s["on the spot"]``: nothing ran it ahead)."""
+
+    def guessed():
+        # (Cancelled: the chain ruled it out; track then asks for another keyframe's core.)
+        yield None if guess is None or guess.cancelled else pool.wait(guess, "keyframe")
 
     def essential(p1, p2, K, config):
-        for core in cores:
-            if _same_points(core, p1, p2):
+        for core in itertools.chain(cores, guessed()):
+            if core is not None and np.array_equal(p1, core[0]) and np.array_equal(p2, core[1]):
                 return pool.wait(core[2], "keyframe") if isinstance(core[2], PoolTask) else core[2]
         t = time.perf_counter()
         try:
@@ -406,33 +415,35 @@ class KeyframeSpeculation:
     the points of every later frame of the batch are known until the keyframe changes (then
     the chain cancels what has not started and speculates again).
 
-    ``state``: the chain's before frame ``first`` of the batch; ``pts``, ``good``, ``guess``
+    ``state``: the chain's before frame ``first`` of the batch; ``pts``, ``good``, ``guessed``
     per frame of the batch: points float64 [N, 2], filtered matches int [G, 2] to the previous
-    frame, :func:`frame_job`'s ``guess``. A core equal to the frame's ``guess`` is not started
-    again. ``hold``: start none past frame ``first + 1`` (the first that may need one, which
-    ``guess`` covers on a pool) before the chain reaches frame ``first + 2`` (when the last
-    keyframe lasted two frames: the next change, which drops them, comes as soon)."""
+    frame, whether :func:`guess_job` runs for it (then the frame two after the keyframe needs
+    no core started). ``hold``: start none past frame ``first + 1`` (the first that may need
+    one) before the chain reaches frame ``first + 2`` (when the last keyframe lasted two
+    frames: the next change, which drops them, comes as soon)."""
 
-    def __init__(self, state, first, pts, good, guess, pool, K, config, hold=False):
+    def __init__(self, state, first, pts, good, guessed, pool, K, config, hold=False):
         kf, prev = state.keyframe, state.previous
         self.cores, self._next, self._hold = {}, first, first + 2 if hold else first
         self._on = pool is not None and kf is not None and prev is not None and config.keyframe_motion
         if self._on:
             self._cursor = (prev.pts, prev.kf_index, kf.index == prev.index)
-            self._kf_pts, self._args = kf.pts, (pts, good, guess, pool, K, config)
+            # The batch's frame whose guess_job works out this keyframe's core (-1: none).
+            self._guessed = first + kf.index + 2 - state.frames
+            self._kf_pts, self._args = kf.pts, (pts, good, guessed, pool, K, config)
 
     def ahead(self, f):
         """Started up to frame ``f`` + :data:`SPECULATE_AHEAD` (the chain is at frame ``f``;
         holding, up to ``first + 1``)."""
         if not self._on:
             return
-        pts, good, guess, pool, K, config = self._args
+        pts, good, guessed, pool, K, config = self._args
         end = f + 1 + SPECULATE_AHEAD if f >= self._hold else self._hold
         while self._next < min(end, len(pts)):
             u = self._next
             kf_good, self._cursor = _track_step(self._kf_pts, self._cursor, pts[u], good[u], config)
             points = _essential_points(self._kf_pts, pts[u], kf_good, config)
-            if points is not None and not _same_points(guess[u], *points):
+            if points is not None and not (u == self._guessed and guessed[u]):
                 self.cores[u] = (*points, pool.submit(_essential_job, *points, K, config, urgent=True))
             self._next += 1
 
@@ -443,21 +454,24 @@ class KeyframeSpeculation:
 
 def ahead_frames(ahead) -> list:
     """:func:`pose_batch`'s ``ahead`` per frame, once the pool's work is done: (pairs,
-    distances, extra, good, guess) as :func:`frame_job` returns them."""
+    distances, extra, good) as :func:`frame_job` returns them."""
     return ahead.get()
 
 
 def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
     """Track the batch's frames in order (:func:`~warpvx.apps.orbslam.track`, cheap with the
     work done ahead; monocular, the keyframe's cores speculated on ``pool``, see
-    :class:`KeyframeSpeculation`): (state, poses float64 [B, 4, 4], stats float64 [B, 6])."""
+    :class:`KeyframeSpeculation`, and ``ahead``'s guesses: one used when the keyframe is two
+    frames back, dropped unstarted once it cannot be): (state, poses float64 [B, 4, 4], stats
+    float64 [B, 6])."""
     poses, stats = [], []
     per_frame = ahead_frames(ahead)
+    guesses = ahead.guesses if pool is not None else [None] * frames
     if baseline is None:
-        pts = [_pts(kps) for kps, _ in feats[:frames]]
-        good, guess = [a[3] for a in per_frame], [a[4] for a in per_frame]
+        pts, good = [_pts(kps) for kps, _ in feats[:frames]], [a[3] for a in per_frame]
+        guessed = [g is not None for g in guesses]
     spec, keyframe, span = None, -1, 0
-    for f, ((kps, desc), (pairs, dist, extra, _, hint)) in enumerate(zip(feats[:frames], per_frame)):
+    for f, ((kps, desc), (pairs, dist, extra, _)) in enumerate(zip(feats[:frames], per_frame)):
         if baseline is not None:
             state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config)
         else:
@@ -467,10 +481,16 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
                     spec.cancel()
                     span = now - keyframe if None not in (now, keyframe) else 0
                 keyframe = now
-                spec = KeyframeSpeculation(state, f, pts, good, guess, pool, K, config, hold=span == 2)
+                spec = KeyframeSpeculation(state, f, pts, good, guessed, pool, K, config, hold=span == 2)
             spec.ahead(f)
+            # The guesses for the keyframe two frames back: this frame's needed only if it is
+            # so; the next frame's only if the previous frame is the keyframe.
+            guess = guesses[f] if now is not None and now == state.frames - 2 else None
+            for u, need in ((f, guess is not None), (f + 1, now is not None and now == state.frames - 1)):
+                if u < frames and guesses[u] is not None and not need:
+                    guesses[u].cancel()
             state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config,
-                                      essential=_essential_ahead(extra, hint, spec.cores.get(f), pool=pool))
+                                      essential=_essential_ahead(extra, spec.cores.get(f), pool=pool, guess=guess))
         poses.append(pose)
         stats.append(st)
     return state, np.asarray(poses), np.asarray(stats)
