@@ -12,13 +12,15 @@ sequence, the stereo matching of frame t (:func:`~warpvx.apps.orbslam_match.ster
     feats, last_desc[-1] -> match_batch (GPU role) -> last_desc, nearest rows both ways between
         consecutive frames, one launch for the batch
         (:func:`~warpvx.apps.orbslam_match.nearest_batch_warp`)
-    images, feats, nearest, tail[-1] -> pose_batch (CPU) -> tail, ahead: the mutual pairs and
-        their filter on the host, then the essential cores (mono) or stereo depths of the B
-        frames in parallel on a process pool
+    images, feats, nearest, tail[-1] -> pose_batch (CPU) -> tail, ahead: per frame on a
+        process pool, the mutual pairs and their filter, then the essential core to the
+        previous frame (mono) or the stereo depths; mono, the core to the frame before the
+        previous one as the keyframe (a guess: right after a keyframe change)
     state[-1], feats, ahead -> chain (CPU) -> state, poses [B, 4, 4], stats [B, 6]: ``track``
         frame by frame, the essential matrix taken from ``ahead`` when its inputs are the
-        ones worked out ahead (the previous frame as the reference; the keyframe fallback is
-        computed on the spot)
+        ones worked out ahead; the cores to the keyframe are speculated on the pool a few
+        frames before the chain needs them (only the chain knows the keyframe), as urgent
+        jobs that start before the next batch's (see :class:`PosePool`)
 
 With ``stream(depth >= 2)`` batch k+1 is extracted and matched on the GPU while batch k is
 tracked. The pool is one of processes (``cv2.setNumThreads(1)`` in each), not threads: the
@@ -84,17 +86,23 @@ class PoolTask:
 
     def __init__(self, fn, args, lock):
         self._job, self._result, self.cancelled, self._lock = (fn, args), None, False, lock
-        self._started = threading.Event()
+        self._settled = threading.Event()  # started, or cancelled
 
     def get(self):
-        if self.cancelled:
+        self._settled.wait()
+        if self._result is None:
             raise WarpvxValueError("task: cancelled before it started")
-        self._started.wait()
         return self._result.get()
 
     def cancel(self):
         with self._lock:
-            self.cancelled = self._result is None
+            self._drop()
+
+    def _drop(self):
+        """Cancel if not started (the caller holds the pool's lock)."""
+        if self._result is None:
+            self.cancelled = True
+            self._settled.set()
 
 
 class PosePool:
@@ -107,8 +115,8 @@ class PosePool:
     more in flight than processes): an ``urgent`` job (what the tracking chain waits on) then
     starts before every queued non-urgent one (the next batch's work) instead of behind it,
     and a job cancelled before it starts costs nothing. ``waited_s`` sums the seconds
-    :meth:`wait` spent blocked, by its ``what``; ``started`` counts the jobs started, by
-    function name, and ``cancelled`` those dropped unstarted. ``ahead`` False (to measure
+    :meth:`wait` spent blocked, by its ``what``; ``started`` counts the jobs started and
+    ``cancelled`` those dropped unstarted, by function name. ``ahead`` False (to measure
     what it gives): every job in submit order, and :func:`pose_batch` guesses no core."""
 
     def __init__(self, workers: int, ahead: bool = True):
@@ -119,7 +127,7 @@ class PosePool:
         self.workers, self.ahead = workers, ahead
         self._lock = threading.Lock()
         self._queue, self._order, self._running = [], itertools.count(), 0
-        self.waited_s, self.started, self.cancelled = collections.Counter(), collections.Counter(), 0
+        self.waited_s, self.started, self.cancelled = (collections.Counter() for _ in range(3))
 
     def submit(self, fn, *args, urgent: bool = False) -> PoolTask:
         """``fn(*args)`` on a process, as soon as one is free and no job more urgent (or
@@ -135,12 +143,12 @@ class PosePool:
         while self._running < self.workers and self._queue:
             task = heapq.heappop(self._queue)[2]
             if task.cancelled:
-                self.cancelled += 1
+                self.cancelled[task._job[0].__name__] += 1
                 continue
             self.started[task._job[0].__name__] += 1
             self._running += 1
             task._result = self._pool.apply_async(*task._job, callback=self._done, error_callback=self._done)
-            task._started.set()
+            task._settled.set()
 
     def _done(self, _):
         with self._lock:
@@ -162,7 +170,7 @@ class PosePool:
     def shutdown(self, cancel_futures: bool = False):
         with self._lock:
             for *_, task in self._queue:
-                task.cancelled = True
+                task._drop()
             self._queue.clear()
         if cancel_futures:
             self._pool.terminate()
