@@ -449,6 +449,8 @@ class KeyframeSpeculation:
         end = f + 1 + SPECULATE_AHEAD if f >= self._hold else self._hold
         while self._next < min(end, len(pts)):
             u = self._next
+            if u == self._guessed and guessed[u] and end == u + 1:
+                break  # the guess covers it: its tracks only when a later frame needs them
             kf_good, self._cursor = _track_step(self._kf_pts, self._cursor, pts[u], good[u], config)
             points = _essential_points(self._kf_pts, pts[u], kf_good, config)
             if points is not None and not (u == self._guessed and guessed[u]):
