@@ -131,6 +131,25 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
     np.testing.assert_allclose(poses, [f.pose for f in o.track_frames(frames, camera, config)], atol=1e-9)
 
 
+def test_slow_motion_takes_the_speculated_keyframe_cores():
+    """Slow motion (0.05 m/frame): keyframes several frames apart, so frames three or more
+    after the keyframe take their motion from it; the chain takes those cores from the ones
+    it speculated on the pool (computing none itself), the rest as guessed, and the poses
+    are the sequential ones."""
+    left, _, K, _ = render_sequence(14, (640, 480), step=0.05, speed_var=0.5, seed=5, supersample=1)
+    frames, camera = [{"image": im} for im in left], o.Camera(K, (640, 480))
+    want = list(o.track_frames(frames, camera))
+    stats = np.array([[f.stats[k] for k in o.STATS] for f in want])
+    kf = stats[:, 3] == 1
+    last_kf = {t: max(k for k in range(t) if kf[k]) for t in range(1, 14)}  # each frame's keyframe
+    assert any(stats[t, 4] == o.REF_KEYFRAME and t - last_kf[t] >= 3 for t in last_kf)  # not guessed
+    with ob.make_pool(2) as pool:
+        got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=7, pool=pool)])
+        assert pool.started["_essential_job"] > 0 and pool.started["guess_job"] > 0
+        assert pool.waited_s["on the spot"] == 0
+    np.testing.assert_allclose(got, [f.pose for f in want], atol=1e-9)
+
+
 def test_cli_batch_flag_end_to_end(tmp_path, seq, capsys):
     left, right, K, poses = seq
     folder = write_kitti_sequence(tmp_path / "seq", left, K, poses)
