@@ -221,8 +221,8 @@ def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, dept
 
 
 def bench_pose_pool(frames, camera, batch, pool):
-    """``pose_batch`` of one batch (mono), ms per frame: on one process vs on ``pool`` (the
-    same jobs: with a pool, ``frame_job`` also guesses the core after a keyframe change)."""
+    """``pose_batch`` of one batch (mono), ms per frame: on one process vs on ``pool``, the
+    frame jobs and the guesses (``guess_job``: the core after a keyframe change) both."""
     images = np.stack([f["image"] for f in frames[:batch + 1]])
     config = o.TrackerConfig()
     feats = ob.orb_batch(images, config=config)  # the features only feed the timed pose work
@@ -232,12 +232,18 @@ def bench_pose_pool(frames, camera, batch, pool):
     tail = (ob._pts(k0), np.asarray(k0.angle, np.float64), None)
     common = dict(K=np.ascontiguousarray(camera.K), config=config, baseline=None, frames=batch)
     row = {}
+
+    def work(p):
+        ahead = ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1]
+        ob.ahead_frames(ahead)
+        return [g.get() for g in ahead.guesses if g is not None]
+
     with ob.make_pool(1) as one:
         for key, p in (("one_process_ms", one), ("pool_ms", pool)):
-            ob.ahead_frames(ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1])  # warm
+            row["guesses"] = len(work(p))  # (warm-up)
             t = time.perf_counter()
             for _ in range(3):
-                ob.ahead_frames(ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1])
+                work(p)
             row[key] = 1e3 * (time.perf_counter() - t) / (3 * batch)
     row["speedup"] = row["one_process_ms"] / row["pool_ms"]
     row["workers"] = pool.workers
@@ -476,7 +482,8 @@ def main(argv=None):
               f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | | |",
               "", "FPS (wall): frames over the whole call (graph build, verification; calibration cached "
               "by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
-              "", f"Pose work of one mono batch (pose_batch, B={batch}), ms per frame: "
+              "", f"Pose work of one mono batch (pose_batch, B={batch}: frame jobs and "
+              f"{report['pose_pool'].get('guesses', '?')} guesses), ms per frame: "
               + (f"{report['pose_pool']['one_process_ms']:.2f} on one process, {report['pose_pool']['pool_ms']:.2f} "
                  f"on {report['pose_pool']['workers']} processes ({report['pose_pool']['speedup']:.1f}x)"
                  if "speedup" in report["pose_pool"] else f"FAILED ({report['pose_pool'].get('error')})"),
