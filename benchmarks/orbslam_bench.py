@@ -463,7 +463,7 @@ def main(argv=None):
              for k in report if k.startswith("extract_match_batch")]
     rows += [("front end mono, end to end, frame by frame", "frontend_mono"),
              (f"front end mono, end to end, batched B={batch}", "batched_mono"),
-             (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores (before)",
+             (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores",
               "batched_mono_fifo"),
              (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),
              ("front end stereo, end to end, frame by frame", "frontend_stereo"),
