@@ -169,6 +169,12 @@ def _workspaces() -> list:
         return list(_launch._WORKSPACES.values())
 
 
+def _fits(values: list, bufs: list) -> bool:
+    """Arrays ``values`` have the shapes of buffers ``bufs``, one for one."""
+    return len(values) == len(bufs) and all(
+        tuple(v.shape) == tuple(b.shape) for v, b in zip(values, bufs))
+
+
 def _leaves(value) -> list:
     """The array leaves of a value (an array, or a tree of them: :func:`.transfers.tree_map`)
     in a fixed order; NotCapturable when it has none."""
@@ -252,6 +258,9 @@ class SegmentGraph:
                 device=device), v)
         self.sets = [_BufferSet(segment.tasks) for _ in range(2 if segment.swapped else 1)]
         self.last = -1  # the set the last run wrote (the next frame's delayed values)
+        # The next run reads its swapped inputs from `inputs` (filled from the frame), not
+        # from the other set: a delay's initial value (a reset) unlike the outputs swapped in.
+        self.fresh = False
         self.scratch = ()
         self._views = {}  # (id of a copy buffer, part) -> a Counted of views of it
 
@@ -269,12 +278,13 @@ class SegmentGraph:
         b = self.sets[self.next]
         return b.graph is None and b.warm
 
-    def value(self, ref: InputRef, s: int, outputs: dict):
+    def value(self, ref: InputRef, s: int, outputs: dict, fresh: bool = False):
         """The fixed buffer(s) a task of the segment writing set ``s`` reads for ``ref``
-        (``outputs``: the values of the tasks before it in this run)."""
+        (``outputs``: the values of the tasks before it in this run; ``fresh``: swapped inputs
+        read from ``inputs``)."""
         if ref.offset == 0 and ref.key in outputs:
             return outputs[ref.key]
-        if ref in self.segment.swapped:
+        if ref in self.segment.swapped and not fresh:
             other = self.sets[1 - s].outputs
             if other:
                 return other[ref.key]
@@ -304,7 +314,7 @@ class SegmentGraph:
         b.graph = cap.graph
         self.scratch = _workspaces()
 
-    def _run_tasks(self, s: int):
+    def _run_tasks(self, s: int, fresh: bool = False):
         """Enqueue the tasks, each into its buffers of set ``s``; their results become the
         set's outputs. Uncaptured (a set's first run) this also builds whatever a primitive
         makes per set of buffers (workspaces, recorded launches), so nothing allocates
@@ -317,14 +327,15 @@ class SegmentGraph:
             propagates.
         """
         b = self.sets[s]
-        warm = len(self.sets) == 1 or bool(self.sets[1 - s].outputs)
+        # Warm: read what a capture of this set reads (the other set's outputs).
+        warm = len(self.sets) == 1 or (bool(self.sets[1 - s].outputs) and not fresh)
         outputs = {}
         fixed = {a.ptr for ref in self.segment.inputs
-                 for a in _leaves(self.value(ref, s, outputs))}
+                 for a in _leaves(self.value(ref, s, outputs, fresh))}
         for task in self.segment.tasks:
             out = b.outs[task.name]
             mine = {a.ptr for a in _leaves(out)}
-            result = task.gpu(*[self.value(r, s, outputs) for r in task.inputs], out=out)
+            result = task.gpu(*[self.value(r, s, outputs, fresh) for r in task.inputs], out=out)
             if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
                 raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
             fixed |= mine
@@ -332,14 +343,25 @@ class SegmentGraph:
         b.outputs = outputs
         b.warm = warm
 
+    def read_fresh(self, values) -> bool:
+        """Set and return :attr:`fresh` for the next run, given the frame's ``values`` of
+        ``segment.inputs``: a swapped input unlike the other set's outputs (a delay's initial
+        value after a reset, where this segment's own outputs swap in later) is read, with
+        the other swapped inputs, from ``inputs``; that run is not captured."""
+        other = self.sets[1 - self.next].outputs if len(self.sets) == 2 else {}
+        self.fresh = bool(other) and any(
+            ref in self.segment.swapped and not _fits(_leaves(v), _leaves(other[ref.key]))
+            for ref, v in zip(self.segment.inputs, values))
+        return self.fresh
+
     def fill(self, ref: InputRef, value, io, stream):
         """Copy this frame's ``value`` of ``ref`` into the fixed buffers the next run reads
         (on ``stream``); nothing for a swapped input that is what the last run published."""
         s = self.next
-        if self.last >= 0 and ref in self.segment.swapped and \
+        if self.last >= 0 and ref in self.segment.swapped and not self.fresh and \
                 self.sets[self.last].published.get(ref.key) is value:
             return
-        bufs = _leaves(self.value(ref, s, {}))
+        bufs = _leaves(self.value(ref, s, {}, self.fresh))
         values = _leaves(value)
         if len(values) != len(bufs):
             raise NotCapturable(f"input {ref.key!r}: {len(values)} arrays, not {len(bufs)}")
@@ -362,8 +384,9 @@ class SegmentGraph:
         before it is captured); returns the set's outputs (key -> fixed value)."""
         s = self.next
         b = self.sets[s]
-        if b.graph is None:
-            self._run_tasks(s)
+        fresh, self.fresh = self.fresh, False
+        if b.graph is None or fresh:
+            self._run_tasks(s, fresh)
         else:
             warp().capture_launch(b.graph, stream=stream)
         self.last = s
@@ -406,6 +429,17 @@ class SegmentRunner:
         else:
             self._captured.move_to_end(frame.signature)
         return states
+
+    @staticmethod
+    def _forget(states: list, i: int, sg: SegmentGraph):
+        """The input shapes ``sg`` was made for run segment ``i`` eagerly from now; its other
+        shapes keep their graphs (``states``: a signature's capture states)."""
+        by_shape = states[i]
+        if by_shape is None:
+            return
+        for key, value in list(by_shape.items()):
+            if value is sg:
+                by_shape[key] = None
 
     def _segment_graph(self, states: list, i: int, seg: Segment, frame: Frame, state):
         """Segment ``i``'s :class:`SegmentGraph` for this frame's signature and the shapes of
@@ -465,21 +499,21 @@ class SegmentRunner:
         h0 = time.perf_counter()
         ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved
+        sg.read_fresh([s.value for s in slots])
         for ref, s in zip(seg.inputs, slots):
             sg.fill(ref, s.value, io, self._stream)
         if io.moved > before:
             frame.copied[seg.tasks[0].name] = io.moved - before
+        replay = sg.sets[sg.next].graph is not None and not sg.fresh
         try:
             fixed = sg.launch(self._stream)
         except NotCapturable as exc:  # uncaptured first run: an out= did not fit these inputs
             _log.debug("segment %s runs eagerly: %s", seg.tasks[0].name, exc)
-            by_shape = self._captures_of(frame)[self._segments.index(seg)]
-            for key, value in list(by_shape.items()):
-                if value is sg:
-                    by_shape[key] = None
+            self._forget(self._captures_of(frame), self._segments.index(seg), sg)
             for task in seg.tasks:  # eagerly, as the executor runs an uncaptured segment
                 self._run_gpu_task(frame, task, state)
             return
+        self.replays += replay
         outs = dict(fixed)
         blocks = {}  # a node's Counted outputs share one block: copied once
         for key in seg.outputs:

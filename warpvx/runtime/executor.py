@@ -226,6 +226,7 @@ class Executor(RoleRunner, SegmentRunner):
         self.capture = bool(gpu_device) and self.frames == 1 and \
             (self.cuda if capture is None else capture)
         self.captures = 0  # segments captured so far (each signature's once)
+        self.replays = 0  # captured graphs launched (frames x segments)
         self._captured: OrderedDict = OrderedDict()  # input signature -> per-segment state
         # Held while capturing and while recording on the legacy stream (submit): that
         # stream synchronises with ours, which a capture forbids. One lock for the process,

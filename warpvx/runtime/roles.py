@@ -9,7 +9,7 @@ import threading
 import time
 from collections import deque
 
-from .capture import NotCapturable
+from .capture import NotCapturable, _log
 from .slots import DEVICE, Slot
 from .timeline import WAIT_SLICE, Cancelled, Frame
 from .transfers import Transfers
@@ -343,8 +343,13 @@ class RoleRunner:
             try:
                 self._run_segment(frame, seg, sg, state)
                 return
-            except NotCapturable:  # an input unlike the captured one: eagerly from now
-                captures[i] = None
+            except NotCapturable as exc:
+                # An input unlike the buffers: e.g. a delay's initial value after a reset where
+                # the graph's own output swaps in. These shapes run eagerly from now, the
+                # segment's other shapes (every later frame's) still replay.
+                _log.debug("segment %s, these inputs run eagerly from now: %s",
+                           seg.tasks[0].name, exc)
+                self._forget(captures, i, sg)
         for task in seg.tasks:
             if frame.cancel.is_set():
                 return
