@@ -436,7 +436,7 @@ class KeyframeSpeculation:
         self._on = pool is not None and kf is not None and prev is not None and config.keyframe_motion
         if self._on:
             self._cursor = (prev.pts, prev.kf_index, kf.index == prev.index)
-            # The batch's frame whose guess_job works out this keyframe's core (-1: none).
+            # The batch's frame whose guess_job works out this keyframe's core (if in the batch).
             self._guessed = first + kf.index + 2 - state.frames
             self._kf_pts, self._args = kf.pts, (pts, good, guessed, pool, K, config)
 
