@@ -23,7 +23,9 @@ Arithmetic follows OpenCV's ``LKTrackerInvoker`` (``modules/video/src/lkpyramid.
   ``next`` (in gray levels), 0 for lost points.
 
 Speed: each lane steps through its share of the window without integer divisions; the window
-patch (value, Ix, Iy) is one int64 per sample, read with one load per iteration; windows that
+patch (value, Ix, Iy) is one int64 per sample, held in registers for the first
+:data:`PATCH_REGS` samples of each lane (unrolled loops: a lane's loads overlap), in scratch
+past them; windows that
 lie with their derivative margins inside the level read pixels directly (the reflecting reads
 serve the edges only). Scratch (pyramid levels of image inputs, coarse-level results, window patches)
 and the per-level launches are recorded once per problem size and replayed
@@ -45,6 +47,13 @@ BLOCK_DIM = 128
 """Lanes per point on CUDA (Warp's CPU device runs one lane per block). The kernel is bound by
 the latency of each point's iterations: on an H200, 1000 points of 21x21 took 743 / 524 /
 437 us over four levels with 32 / 64 / 128 lanes."""
+
+PATCH_REGS = 4
+"""Window samples each lane keeps in registers (the rest of its share, for windows larger than
+``PATCH_REGS * BLOCK_DIM`` = 512 samples on CUDA, go through the ``patch`` scratch). Their loops
+are unrolled, so a lane's loads of one pass are issued together instead of one latency after
+another, and the iterations read no scratch."""
+PatchRegs = wp.types.vector(length=PATCH_REGS, dtype=wp.int64)
 
 FLT_SCALE = wp.constant(1.0 / float(1 << 20))
 FLT_EPSILON = wp.constant(1.1920928955078125e-07)
@@ -211,6 +220,54 @@ def unpack_field(p: wp.int64, shift: int) -> int:
 
 
 @wp.func
+def prev_sample(img: wp.array2d(dtype=wp.uint8), r: int, c: int, wts: wp.vec4i,
+                inner: bool) -> wp.int64:
+    """The window sample of ``prev`` at ``(r, c)`` (+ the bilinear fraction): value * 32, Ix,
+    Iy packed by :func:`pack_sample`."""
+    val = sample_fixed(img, r, c, wts[0], wts[1], wts[2], wts[3])
+    d = sample_scharr_fixed(img, r, c, wts[0], wts[1], wts[2], wts[3], inner)
+    return pack_sample(val, d[0], d[1])
+
+
+@wp.func
+def cov_terms(p: wp.int64) -> wp.vec3:
+    """(Ix^2, Ix Iy, Iy^2) of packed sample ``p``."""
+    dx = unpack_field(p, 16)
+    dy = unpack_field(p, 32)
+    return wp.vec3(float(dx * dx), float(dx * dy), float(dy * dy))
+
+
+@wp.func
+def mismatch(img: wp.array2d(dtype=wp.uint8), r: int, c: int, wts: wp.vec4i,
+             p: wp.int64) -> wp.vec3:
+    """(diff Ix, diff Iy, |diff|) of ``next`` at ``(r, c)`` against packed sample ``p``, diff =
+    next - prev (value * 32)."""
+    diff = sample_fixed(img, r, c, wts[0], wts[1], wts[2], wts[3]) - unpack_field(p, 0)
+    return wp.vec3(float(diff * unpack_field(p, 16)), float(diff * unpack_field(p, 32)),
+                   float(wp.abs(diff)))
+
+
+@wp.func
+def next_mismatch(img: wp.array2d(dtype=wp.uint8), r0: int, c0: int, wts: wp.vec4i,
+                  regs: PatchRegs, patch: wp.array2d(dtype=wp.int64), i: int, lane: int,
+                  nlanes: int, start: wp.vec2i, step: wp.vec2i, win_w: int, area: int) -> wp.vec3:
+    """This lane's sum of :func:`mismatch` over its samples of the window of ``next`` at
+    ``(r0, c0)``, in sample order: the ones held in ``regs``, then those in ``patch``."""
+    total = wp.vec3(0.0, 0.0, 0.0)
+    rc = start
+    for u in range(wp.static(PATCH_REGS)):
+        if lane + u * nlanes < area:
+            total += mismatch(img, r0 + rc[0], c0 + rc[1], wts, regs[u])
+        rc = next_sample(rc, step, win_w)
+    k = lane + PATCH_REGS * nlanes
+    while k < area:
+        total += mismatch(img, r0 + rc[0], c0 + rc[1], wts, patch[i, k])
+        k += nlanes
+        rc = next_sample(rc, step, win_w)
+    return total
+
+
+@wp.func
 def finish_level(i: int, lane: int, level: int, res_x: float, res_y: float, alive: bool,
                  error: float, tracked_pts: wp.array2d(dtype=wp.float32),
                  status: wp.array(dtype=wp.uint8), err: wp.array(dtype=wp.float32)):
@@ -243,9 +300,10 @@ def track_points_level(
 
     ``guess_pts`` is the previous (coarser) level's result, or the initial flow at the top
     level; ``tracked_pts`` receives this level's result. ``status`` and ``err`` are written
-    at level 0 only. ``patch[i]`` holds the window of ``prev`` (value * 32, Ix, Iy packed by
-    :func:`pack_sample`) between the covariance pass and the iterations; each lane reads
-    back only what it wrote. Lane ``lane`` takes samples ``lane + j * lanes``.
+    at level 0 only. Lane ``lane`` takes samples ``lane + j * lanes``; it keeps those of its
+    window of ``prev`` (value * 32, Ix, Iy packed by :func:`pack_sample`) in registers for
+    ``j < PATCH_REGS`` and in ``patch[i]`` past them (each lane reads back only what it
+    wrote), between the covariance pass and the iterations.
     """
     i, lane = wp.tid()
     nlanes = wp.block_dim()
@@ -300,15 +358,18 @@ def track_points_level(
     inner = iy0 >= 1 and ix0 >= 1 and iy0 + win_h + 1 < h and ix0 + win_w + 1 < w
     wts = bilinear_weights(x0 - float(ix0), y0 - float(iy0))
     acc = wp.vec3(0.0, 0.0, 0.0)
-    k = lane
+    regs = PatchRegs()
     rc = start
+    for u in range(wp.static(PATCH_REGS)):
+        if lane + u * nlanes < area:
+            regs[u] = prev_sample(prev_img, iy0 + rc[0], ix0 + rc[1], wts, inner)
+            acc += cov_terms(regs[u])
+        rc = next_sample(rc, step, win_w)
+    k = lane + PATCH_REGS * nlanes
     while k < area:
-        r = iy0 + rc[0]
-        c = ix0 + rc[1]
-        val = sample_fixed(prev_img, r, c, wts[0], wts[1], wts[2], wts[3])
-        d = sample_scharr_fixed(prev_img, r, c, wts[0], wts[1], wts[2], wts[3], inner)
-        patch[i, k] = pack_sample(val, d[0], d[1])
-        acc += wp.vec3(float(d[0] * d[0]), float(d[0] * d[1]), float(d[1] * d[1]))
+        p = prev_sample(prev_img, iy0 + rc[0], ix0 + rc[1], wts, inner)
+        patch[i, k] = p
+        acc += cov_terms(p)
         k += nlanes
         rc = next_sample(rc, step, win_w)
     cov = wp.tile_extract(wp.tile_sum(wp.tile(acc, preserve_type=True)), 0)
@@ -340,16 +401,9 @@ def track_points_level(
             alive = False
             break
         wj = bilinear_weights(cx - float(jx), cy - float(jy))
-        bsum = wp.vec2(0.0, 0.0)
-        k = lane
-        rc = start
-        while k < area:
-            p = patch[i, k]
-            val = sample_fixed(next_img, jy + rc[0], jx + rc[1], wj[0], wj[1], wj[2], wj[3])
-            diff = val - unpack_field(p, 0)
-            bsum += wp.vec2(float(diff * unpack_field(p, 16)), float(diff * unpack_field(p, 32)))
-            k += nlanes
-            rc = next_sample(rc, step, win_w)
+        m = next_mismatch(next_img, jy, jx, wj, regs, patch, i, lane, nlanes, start, step,
+                          win_w, area)
+        bsum = wp.vec2(m[0], m[1])
         b = wp.tile_extract(wp.tile_sum(wp.tile(bsum, preserve_type=True)), 0)
         b1 = b[0] * FLT_SCALE
         b2 = b[1] * FLT_SCALE
@@ -388,15 +442,8 @@ def track_points_level(
                 alive = False
             else:
                 we = bilinear_weights(ex - float(ejx), ey - float(ejy))
-                esum = float(0.0)
-                k = lane
-                rc = start
-                while k < area:
-                    val = sample_fixed(next_img, ejy + rc[0], ejx + rc[1], we[0], we[1], we[2], we[3])
-                    diff = val - unpack_field(patch[i, k], 0)
-                    esum += float(wp.abs(diff))
-                    k += nlanes
-                    rc = next_sample(rc, step, win_w)
+                esum = next_mismatch(next_img, ejy, ejx, we, regs, patch, i, lane, nlanes,
+                                     start, step, win_w, area)[2]
                 total = wp.tile_extract(wp.tile_sum(wp.tile(esum)), 0)
                 error = total / float(32 * area)
     finish_level(i, lane, level, res_x, res_y, alive, error, tracked_pts, status, err)
