@@ -52,7 +52,10 @@ UNDECIDED = wp.constant(0)
 ACCEPTED = wp.constant(1)
 REJECTED = wp.constant(2)
 
-BLOCK = 256  # lanes of the block reductions and of the output scan
+BLOCK = 256  # lanes of the block reductions
+# Lanes of the output scan (``write_selected``): it walks the ranked candidates a block at a
+# time until ``max_corners`` are accepted, thousands on a real frame: wider blocks, fewer steps.
+SCAN_BLOCK = 1024
 MAX_ROUNDS = 64  # undecided counters per call (rounds launched over all batches)
 FIRST_BATCH = 8  # rounds launched in the first call of a size (later: learnt)
 MAX_CONFLICTS = 16  # better-ranked conflicts listed per candidate (more: walk the window)
@@ -411,7 +414,7 @@ class _CornersWorkspace:
                                  stride=self.threads)
         self.clear_cmd = Recorded(clear_ranks, self.threads, device, cands=self.cands,
                                   stride=self.threads)
-        self.select_cmd = Recorded(write_selected, [1], device, block_dim=BLOCK, cands=self.cands,
+        self.select_cmd = Recorded(write_selected, [1], device, block_dim=SCAN_BLOCK, cands=self.cands,
                                    undecided=self.undecided, last_round=0,
                                    points=wp.empty((0, 2), dtype=wp.float32, device=device),
                                    result=self.result)
