@@ -7,8 +7,9 @@ the graph executor replays them), timed with CUDA events: ``--repeat`` trials of
 ``--replays`` replays after a warm-up, the median trial per replay.
 
 - LK (``optical_flow_pyr_lk`` on given pyramids, 500 Harris points, into fixed outputs):
-  ``before`` is the level kernel of commit 26f41cc (:mod:`benchmarks.perf.lk_before_kernel`,
-  window patch in global scratch), ``after`` the current one; both with 128 lanes a point.
+  ``before`` is the LK of commit 26f41cc (:mod:`benchmarks.perf.lk_before`: a launch per
+  level, the window patch in global scratch), ``after`` the current one (the window's first
+  samples in registers, the four levels in one launch); both with 128 lanes a point.
   The 64/256-lane rows show the current kernel with other ``BLOCK_DIM``s (their sums are
   reduced in another order: not bit-identical, so the columns give the largest point
   difference and the status changes against ``before``).
@@ -37,7 +38,6 @@ import statistics
 import sys
 import time
 import traceback
-from collections import OrderedDict
 
 import cv2
 import numpy as np
@@ -130,15 +130,15 @@ def frames(device):
 
 def lk_rows(cams, device, timer) -> list:
     """Before/after rows of LK, per camera."""
-    from warpvx.kernels_warp import _launch
     from warpvx.kernels_warp import harris_corners as hc
     from warpvx.kernels_warp import optical_flow_pyr_lk as lk
 
-    from benchmarks.perf.lk_before_kernel import track_points_level as before_kernel
+    from benchmarks.perf import lk_before
 
-    variants = [("before", before_kernel, 128), ("after", lk.track_points_level, 128),
-                ("after, 64 lanes", lk.track_points_level, 64),
-                ("after, 256 lanes", lk.track_points_level, 256)]
+    settings = (*LK["win_size"], LK["max_level"], LK["max_iters"], LK["eps"],
+                LK["min_eig_threshold"])
+    variants = [("before", 128), ("after", 128), ("after, 64 lanes", 64),
+                ("after, 256 lanes", 256)]
     rows = []
     for cam, (prev, nxt) in cams.items():
         pts = hc.harris_corners(prev, POINTS, HARRIS["quality_level"], HARRIS["min_distance"],
@@ -147,18 +147,20 @@ def lk_rows(cams, device, timer) -> list:
         prev_pyr = lk._build_pyramid(prev, LK["max_level"] + 1)
         next_pyr = lk._build_pyramid(nxt, LK["max_level"] + 1)
         results = {}
-        for name, kernel, lanes in variants:
+        for name, lanes in variants:
             print(f"  LK {cam}: {name}", flush=True)
             out = (wp.empty((n, 2), dtype=wp.float32, device=device),
                    wp.empty(n, dtype=wp.uint8, device=device),
                    wp.empty(n, dtype=wp.float32, device=device))
-            # Workspaces of its own: they record the kernel.
-            with patched(_launch, _WORKSPACES=OrderedDict()), \
-                    patched(lk, track_points_level=kernel, BLOCK_DIM=lanes):
-                def call():
-                    lk.optical_flow_pyr_lk(prev_pyr, next_pyr, pts, None, LK["win_size"],
-                                           LK["max_level"], LK["max_iters"], LK["eps"],
-                                           LK["min_eig_threshold"], out=out)
+            with patched(lk, BLOCK_DIM=lanes):
+                if name == "before":
+                    def call():
+                        lk_before.track(prev_pyr, next_pyr, pts, out, settings, lanes)
+                else:
+                    def call():
+                        lk.optical_flow_pyr_lk(prev_pyr, next_pyr, pts, None, LK["win_size"],
+                                               LK["max_level"], LK["max_iters"], LK["eps"],
+                                               LK["min_eig_threshold"], out=out)
                 call()
                 wp.synchronize_device(device)
                 t = timer(call)
@@ -218,10 +220,9 @@ def markdown(rows, device, args) -> str:
     base = {(r["kernel"], r["camera"]): r["us"] for r in rows if r["variant"] == "before"}
     for r in rows:
         ratio = base[(r["kernel"], r["camera"])] / r["us"]
+        moved = f"{r['max_dp']:.3g} | {r['status_changes']}" if "max_dp" in r else "- | -"
         lines.append(f"| {r['kernel']} | {r['camera']} | {r['variant']} | {r['points']} | "
-                     f"{r['us']:.1f} | {ratio:.2f} | {'yes' if r['same'] else 'NO'} | "
-                     f"{r['max_dp']:.3g} | {r['status_changes']} |" if "max_dp" in r else
-                     f"{r['us']:.1f} | {ratio:.2f} | {'yes' if r['same'] else 'NO'} | - | - |")
+                     f"{r['us']:.1f} | {ratio:.2f} | {'yes' if r['same'] else 'NO'} | {moved} |")
     lines += ["", "Two-camera frame (both cameras, LK + Harris):", "",
               "| variant | us/frame |", "|---|---|"]
     for v in ("before", "after"):

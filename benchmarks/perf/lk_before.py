@@ -1,21 +1,36 @@
-"""The pyramidal LK level kernel as of commit 26f41cc (before the window patch moved into
-registers), frozen for :mod:`benchmarks.perf.lk_harris`'s before/after timing.
-
-Only the kernel is kept; its helpers are the current module's (unchanged since). It takes the
-same parameters as :func:`warpvx.kernels_warp.optical_flow_pyr_lk.track_points_level`, so the
-module's workspace records it when its ``track_points_level`` is pointed here.
+"""Pyramidal LK on Warp as of commit 26f41cc (a launch per level, the window patch in global
+scratch), frozen for :mod:`benchmarks.perf.lk_harris`'s before/after timing: the level
+kernel, its workspace and launches. Its helpers are the current module's (unchanged since).
 """
 
 from __future__ import annotations
 
 import warp as wp
 
+from warpvx.kernels_warp._launch import Recorded
 from warpvx.kernels_warp.optical_flow_pyr_lk import (
-    FLT_EPSILON, FLT_SCALE, TrackParams, bilinear_weights, coords_usable, finish_level,
-    first_sample, next_sample, pack_sample, sample_fixed, sample_scharr_fixed,
-    unpack_field, window_outside)
+    FLT_EPSILON, FLT_SCALE, TrackParams, bilinear_weights, coords_usable, first_sample,
+    next_sample, pack_sample, sample_fixed, sample_scharr_fixed, unpack_field,
+    window_outside)
 
 wp.set_module_options({"enable_backward": False})
+
+
+@wp.func
+def finish_level(i: int, lane: int, level: int, res_x: float, res_y: float, alive: bool,
+                 error: float, tracked_pts: wp.array2d(dtype=wp.float32),
+                 status: wp.array(dtype=wp.uint8), err: wp.array(dtype=wp.float32)):
+    """Lane 0 writes the point's result (status and error at level 0 only)."""
+    if lane == 0:
+        tracked_pts[i, 0] = res_x
+        tracked_pts[i, 1] = res_y
+        if level == 0:
+            if alive:
+                status[i] = wp.uint8(1)
+                err[i] = error
+            else:
+                status[i] = wp.uint8(0)
+                err[i] = 0.0
 
 
 @wp.kernel
@@ -191,3 +206,67 @@ def track_points_level(
                 total = wp.tile_extract(wp.tile_sum(wp.tile(esum)), 0)
                 error = total / float(32 * area)
     finish_level(i, lane, level, res_x, res_y, alive, error, tracked_pts, status, err)
+
+
+class _TrackWorkspace:
+    """Scratch of one problem size: pyramid levels for image inputs, coarse-level results,
+    window patches, and one recorded launch per level."""
+
+    def __init__(self, n, win_w, win_h, max_level, sizes, settings, device, block_dim):
+        max_iters, eps, min_eig_threshold, use_initial = settings
+        self.levels = {  # levels 1.. of image inputs (level 0 is the input itself)
+            which: [wp.empty(hw, dtype=wp.uint8, device=device) for hw in sizes[1:]]
+            for which in ("prev", "next")
+        }
+        # Coarser levels' results ping-pong between two buffers (a level never reads what
+        # it writes); `guess` holds a copy of the initial flow (it may alias the output).
+        self.tmp = [wp.empty((n, 2), dtype=wp.float32, device=device) for _ in range(2)]
+        self.guess = wp.empty((n, 2), dtype=wp.float32, device=device)
+        self.patch = wp.empty((n, win_w * win_h), dtype=wp.int64, device=device)
+        self.cmds = []
+        guess = self.guess
+        for level in range(max_level, -1, -1):
+            params = TrackParams()
+            params.win_w = win_w
+            params.win_h = win_h
+            params.level = level
+            params.max_level = max_level
+            params.max_iters = int(max_iters)
+            params.eps2 = float(eps) * float(eps)
+            params.min_eig_threshold = float(min_eig_threshold)
+            params.use_initial_flow = 1 if use_initial else 0
+            # Placeholders for the per-call arrays (set before each launch).
+            img = wp.empty(sizes[level], dtype=wp.uint8, device=device)
+            pts = wp.empty((n, 2), dtype=wp.float32, device=device)
+            target = pts if level == 0 else self.tmp[level % 2]
+            self.cmds.append((level, Recorded(
+                track_points_level, [n], device, block_dim=block_dim, prev_img=img,
+                next_img=img, prev_pts=pts, guess_pts=guess, params=params, patch=self.patch,
+                tracked_pts=target, status=wp.empty(n, dtype=wp.uint8, device=device),
+                err=wp.empty(n, dtype=wp.float32, device=device))))
+            guess = target
+
+
+_WORKSPACES: dict = {}
+
+
+def track(prev_pyr, next_pyr, prev_pts, out, settings, block_dim: int):
+    """The old ``optical_flow_pyr_lk`` on lists of levels (no initial flow) into ``out``
+    (next_pts, status, err); ``settings`` = (win_w, win_h, max_level, max_iters, eps,
+    min_eig_threshold). Recorded once per problem, as the old module did."""
+    win_w, win_h, max_level, max_iters, eps, min_eig = settings
+    n = prev_pts.shape[0]
+    device = prev_pts.device
+    sizes = [tuple(a.shape) for a in prev_pyr[:max_level + 1]]
+    key = (n, tuple(sizes), tuple(settings), block_dim, str(device))
+    ws = _WORKSPACES.get(key)
+    if ws is None:
+        ws = _WORKSPACES[key] = _TrackWorkspace(n, win_w, win_h, max_level, sizes,
+                                          (max_iters, eps, min_eig, False), device, block_dim)
+    res, status, err = out
+    for level, cmd in ws.cmds:
+        if level == 0:
+            cmd.launch(prev_img=prev_pyr[0], next_img=next_pyr[0], prev_pts=prev_pts,
+                       tracked_pts=res, status=status, err=err)
+        else:
+            cmd.launch(prev_img=prev_pyr[level], next_img=next_pyr[level], prev_pts=prev_pts)
