@@ -201,9 +201,10 @@ def harris_rows(cams, device, timer) -> list:
                 wp.synchronize_device(device)
                 t = timer(call)
                 kernels = kernel_breakdown(call, device)
-            count = int(det.result.numpy()[0])
+            count, _, rounds = (int(v) for v in det.result.numpy())
             results[name] = det.points.numpy()[:count]
             rows.append(dict(kernel="Harris", camera=cam, variant=name, points=count,
+                             rounds=rounds,
                              us=t * 1e6, same=np.array_equal(results["before"], results[name]),
                              kernels=kernels))
     return rows
@@ -230,7 +231,8 @@ def markdown(rows, device, args) -> str:
     lines += ["", "## Kernels per eager call (us, camera L)", ""]
     for r in rows:
         if r["camera"] == "L" and r["kernels"]:
-            lines.append(f"- {r['kernel']} {r['variant']}: " + ", ".join(
+            rounds = f" ({r['rounds']} selection rounds had work)" if "rounds" in r else ""
+            lines.append(f"- {r['kernel']} {r['variant']}{rounds}: " + ", ".join(
                 f"{k} {v:.1f}" for k, v in list(r["kernels"].items())[:12]))
     return "\n".join(lines) + "\n"
 
