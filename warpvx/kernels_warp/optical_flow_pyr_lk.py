@@ -47,7 +47,8 @@ wp.set_module_options({"enable_backward": False})
 BLOCK_DIM = 128
 """Lanes per point on CUDA (Warp's CPU device runs one lane per block). The kernel is bound by
 the latency of each point's iterations: on an H200, 1000 points of 21x21 took 743 / 524 /
-437 us over four levels with 32 / 64 / 128 lanes."""
+437 us over four levels with 32 / 64 / 128 lanes (a launch per level, the patch in scratch;
+``benchmarks/perf/lk_harris.py`` times 64 / 128 / 256 lanes of the current kernel)."""
 
 PATCH_REGS = 4
 """Window samples each lane keeps in registers (the rest of its share, for windows larger than
