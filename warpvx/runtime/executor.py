@@ -807,9 +807,10 @@ class Executor(RoleRunner, SegmentRunner):
 
     @staticmethod
     def _unstage(frame: Frame):
-        """Frame over: its staged downloads' buffers may be reused (once their copy is done)."""
-        for staged in frame.staged:
-            staged.free = True
+        """Frame over: its staged downloads' buffers not read yet may be reused (once their
+        copy is done)."""
+        for slot in frame.staged:
+            slot.release_staged()
         frame.staged = []
 
     def _recycle(self, frame: Frame):

@@ -333,7 +333,7 @@ class RoleRunner:
         staged = io.stage_download(slot.value, slot.event)
         if staged is not None:
             slot.staged = staged
-            frame.staged.append(staged)
+            frame.staged.append(slot)
 
     def _run_segment_or_tasks(self, frame: Frame, i: int, seg, state: "GpuState", captures):
         """Capturable GPU segment ``i`` of ``frame``: replayed from its captured graph where

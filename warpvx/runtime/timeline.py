@@ -72,7 +72,7 @@ class Frame:
         self.events = []  # pooled CUDA events this frame recorded
         self.leases = []  # (task, buffer) output buffers taken from the pools
         self.uploads = []  # (key, buffer) upload buffers taken from the pools
-        self.staged = []  # staged downloads (Transfers.stage_download), freed when it is over
+        self.staged = []  # slots with a staged download (Transfers.stage_download), freed by then
         self.capture = False  # replay captured GPU segments
         self.signature = None  # the capture key of its inputs' shapes and dtypes
         self.shares = {}  # captured task -> (start, end) fractions of its segment's interval
