@@ -17,6 +17,20 @@ from .slots import Flag, Slot
 WAIT_SLICE = 0.02
 
 
+def proportional_shares(spans) -> list:
+    """(start, end) fractions of one measured interval for tasks run back to back in it, in
+    proportion to ``spans`` (their scheduled durations; equal parts when all are 0)."""
+    spans = [max(0.0, s) for s in spans]
+    total = sum(spans)
+    if total <= 0:
+        spans, total = [1.0] * len(spans), float(len(spans))
+    out, at = [], 0.0
+    for span in spans:
+        out.append((at / total, (at + span) / total))
+        at += span
+    return out
+
+
 class Cancelled(Exception):
     """The frame a wait belongs to was cancelled (caught inside the executor)."""
 
@@ -75,7 +89,8 @@ class Frame:
         self.staged = []  # slots with a staged download (Transfers.stage_download), freed by then
         self.capture = False  # replay captured GPU segments
         self.signature = None  # the capture key of its inputs' shapes and dtypes
-        self.shares = {}  # captured task -> (start, end) fractions of its segment's interval
+        self.shares = {}  # task -> (start, end) fractions of its segment's or burst's interval
+        self.bursts = False  # CUDA timing "bursts" (Executor.timing)
         self._remaining = n_procs
         self._lock = threading.Lock()
         if n_procs == 0:
@@ -238,4 +253,4 @@ def event_clock(anchor):
 
 
 __all__ = ["WAIT_SLICE", "Cancelled", "EventPool", "Frame", "FrameResult", "frame_result",
-           "event_clock"]
+           "event_clock", "proportional_shares"]
