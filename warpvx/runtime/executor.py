@@ -239,7 +239,7 @@ class Executor(RoleRunner, SegmentRunner):
         # frames on the GPU queue, so with K > 1 nothing is captured (every task runs eagerly).
         self._segments = segments(program, gpu_queue) if self.frames == 1 else []
         self._shares = self._segment_shares()
-        self.timing = _check_timing(timing)
+        self.timing = timing
         # Timing "bursts": GPU tasks whose end needs an event of its own (a value read off
         # the GPU stream: by a CPU task, the caller, a delay; or the GPU queue's last task),
         # and every task's scheduled duration (its share of a burst).
@@ -755,7 +755,7 @@ class Executor(RoleRunner, SegmentRunner):
         frame = Frame(frame_index, slots, self._slot_procs[frame_index % self.frames])
         frame.events.extend(events)
         if self.frames == 1 and self.gpu_device:
-            timing = self.timing
+            timing = self._timing
             frame.bursts = timing == "bursts" or (timing is None and self.cuda and bool(self._inflight))
         capture = check_bool(capture, "capture", allow_none=True)
         frame.capture = bool(self.gpu_device) and self.frames == 1 and \
@@ -915,6 +915,16 @@ class Executor(RoleRunner, SegmentRunner):
             self._unstage(f)
         with self._lock:
             self._inflight = [f for f in self._inflight if f not in frames]
+
+    @property
+    def timing(self) -> str | None:
+        """GPU timing of the frames submitted from now: ``"tasks"``, ``"bursts"`` or None
+        (see the ``timing`` parameter)."""
+        return self._timing
+
+    @timing.setter
+    def timing(self, value: str | None):
+        self._timing = _check_timing(value)
 
     @property
     def in_flight(self) -> int:
