@@ -114,7 +114,7 @@ from ..errors import NodeExecutionError, ScheduleError, WarpvxValueError
 from ..sched.schedule import Schedule
 from .capture import SegmentRunner, segments, signature
 from .cycles import Batch, frames_of
-from .native_copy import record_event, synchronize_event, warp
+from .native_copy import recorder, synchronize_event, warp
 from .program import ExecTask, InputRef, Program, data_graph
 from .roles import DeviceScope, GpuState, RoleRunner, is_gpu_processor
 from .slots import DEVICE, HOST, Slot
@@ -221,6 +221,7 @@ class Executor(RoleRunner, SegmentRunner):
         self._lock = threading.Lock()
         self._local = threading.local()
         self._stream = None
+        self._record = None  # event -> recorded on _stream (CUDA)
         self._anchor = None  # (host seconds, timing event) on CUDA
         self._events = EventPool(gpu_device) if self.cuda else None
         self._out_pools: dict[str, list] = {t: [] for t, task in program.tasks.items()
@@ -342,6 +343,7 @@ class Executor(RoleRunner, SegmentRunner):
             device = wp.get_device(self.gpu_device)
             if self.cuda:
                 self._stream = wp.Stream(device)
+                self._record = recorder(self._stream)
                 self.reanchor()
             self._scope = DeviceScope(device, self._stream)
         loop = self._role_loop if self._roles else self._loop
@@ -516,13 +518,13 @@ class Executor(RoleRunner, SegmentRunner):
             return state.prev_end
         ev0 = self._events.get()
         frame.events.append(ev0)
-        record_event(stream, ev0)
+        self._record(ev0)
         return ev0
 
     def _end_event(self, frame: Frame):
         ev1 = self._events.get()
         frame.events.append(ev1)
-        record_event(self._stream, ev1)
+        self._record(ev1)
         frame.gpu_last_event = ev1
         return ev1
 
@@ -584,7 +586,7 @@ class Executor(RoleRunner, SegmentRunner):
             elif moved >= TIMED_COPY_MIN_BYTES:
                 mid = self._events.get()
                 frame.events.append(mid)
-                record_event(self._stream, mid)
+                self._record(mid)
         if name in self._out_pools:
             result = task.gpu(*values, out=self._lease(frame, task))
         else:

@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from ..sched.schedule import ScheduledTask
-from .native_copy import elapsed_ms, warp
+from .native_copy import elapsed_since, warp
 from .slots import Flag, Slot
 
 #: Seconds between cancellation checks of a blocked wait.
@@ -230,8 +230,8 @@ def frame_result(frame: Frame, outputs: dict, to_host=None) -> FrameResult:
     trace = frame.trace
     if to_host is not None:
         for task, (proc, a, b, mid) in trace.items():
-            if proc.startswith("gpu"):
-                trace[task] = (proc, to_host(a), to_host(b), None if mid is None else to_host(mid))
+            if proc[0] == "g":  # "gpu": events
+                trace[task] = (proc, to_host(a), to_host(b), mid if mid is None else to_host(mid))
     raw = _Trace(frame.t0, trace, frame.host_trace, frame.shares)
     return FrameResult(frame.index, outputs, _Lazy(raw, 0), frame.t0, _Lazy(raw, 1),
                        frame.copied, _Lazy(raw, 2))
@@ -241,12 +241,13 @@ def event_clock(anchor):
     """event -> host seconds through ``anchor`` (``(host seconds, timing event)`` recorded
     while the stream was idle); each event read once."""
     base, anchor_event = anchor
-    seen = {}
+    elapsed = elapsed_since(anchor_event)
+    seen = {}  # Warp events hash by identity
 
     def convert(ev):
-        t = seen.get(id(ev))
+        t = seen.get(ev)
         if t is None:
-            t = seen[id(ev)] = base + elapsed_ms(anchor_event, ev) / 1e3
+            t = seen[ev] = base + elapsed(ev) * 1e-3
         return t
 
     return convert
