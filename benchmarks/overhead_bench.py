@@ -1,8 +1,10 @@
 """Executor overhead per node and pipelined frame rate, captured GPU segments against eager.
 
 1. Trivial chains (identity user nodes, :func:`warpvx.graph.diagnostics.executor_overhead`):
-   CPU-only, GPU-only, alternating CPU/GPU; per node: wall time per frame minus the nodes'
-   own time, over the nodes. These user nodes do not opt in to capture.
+   CPU-only, GPU-only (with the executor's default GPU timing, and with ``timing="bursts"``:
+   one timing event per run of GPU tasks instead of one per task), alternating CPU/GPU; per
+   node: wall time per frame minus the nodes' own time, over the nodes. These user nodes do
+   not opt in to capture.
 2. A GPU-only chain of primitive nodes (3x3 Gaussian blurs of a 16x16 gray image, which the
    runtime may capture), eager and captured: per node = the difference of the frame times of
    a long and a short chain over the difference of their lengths (what one more node costs:

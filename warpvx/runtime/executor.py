@@ -26,7 +26,8 @@ Cross-queue edges
     enqueued (GPU). GPU -> CPU: the producer's end event is recorded on the stream; on CUDA,
     where a CPU task of the frame reads the value, the GPU role then starts its download at
     once (:meth:`Transfers.stage_download`: a pinned buffer, its own copy stream after the
-    producer's event), so the reader waits for one event and copies out; otherwise the
+    producer's event), so the reader waits for one event and copies out (the buffer is free
+    for the next download once copied out: :meth:`Slot.release_staged`); otherwise the
     reader waits for the producer's event and downloads on its thread's copy stream.
     CPU -> GPU: the GPU role uploads on the GPU stream (stream-ordered, so the kernel after
     it sees the data; large arrays go through reusable pinned staging buffers, so the copy is

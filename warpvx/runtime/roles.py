@@ -161,8 +161,8 @@ class RoleRunner:
 
     def _staged_keys(self) -> set:
         """Keys whose download starts as soon as the GPU role publishes them (CUDA): read by
-        a CPU task of the same frame, and by no delay (a staging buffer is reused once its
-        frame is over)."""
+        a CPU task of the same frame, and by no delay (a staging buffer is reused once read,
+        or once its frame is over)."""
         if not self.cuda:
             return set()
         cpu_reads = {r.key for p in self._active if not is_gpu_processor(p)
