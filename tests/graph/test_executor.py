@@ -572,3 +572,46 @@ def test_timing_refuses_unknown_values_by_name():
     with pytest.raises(WarpvxValueError, match="timing"):
         Executor(sched({"a": "cpu0", "b": "cpu0", "c": "cpu0", "d": "cpu0"}), diamond(),
                  timing="events")
+
+
+def test_burst_timing_records_one_start_and_one_end_event_per_run_on_cuda_paths():
+    """The CUDA bookkeeping of timing="bursts", driven directly with stand-in events (no
+    CUDA here): three GPU tasks back to back, the third read by a CPU task, record one start
+    event and one end event (per-task timing: one start and three ends); all three tasks
+    span that one interval, and only the third's value carries an event."""
+    import warp as wp
+
+    from warpvx.runtime.roles import GpuState
+    from warpvx.runtime.timeline import Frame
+    from warpvx.runtime.transfers import Transfers
+    from warpvx.runtime.slots import Slot
+
+    placement = {"g1": "gpu", "g2": "gpu", "g3": "gpu", "c4": "cpu0", "g5": "gpu"}
+    program = _burst_chain()
+    recorded = {}
+    for timing in ("tasks", "bursts"):
+        ex = Executor(sched(placement), program, gpu_device="cpu", timing=timing)
+        ex.cuda = True  # the CUDA path, with events that are plain objects
+
+        class Pool:
+            def get(self):
+                return object()
+
+        ex._events, rec = Pool(), []
+        ex._record = rec.append
+        x = wp.array(np.ones(4, np.float32), dtype=wp.float32, device="cpu")
+        slots = {"x": Slot.ready(x, DEVICE), **{k: Slot() for k in placement}}
+        frame = Frame(0, slots, 1)
+        frame.bursts = timing == "bursts"
+        state = GpuState("gpu", Transfers("cpu"))
+        for name, src in (("g1", "x"), ("g2", "g1"), ("g3", "g2")):
+            ex._run_gpu_task(frame, program.tasks[name], state, [slots[src]])
+        recorded[timing] = len(rec)
+        if timing == "bursts":
+            starts = {frame.trace[n][1] for n in ("g1", "g2", "g3")}
+            ends = {frame.trace[n][2] for n in ("g1", "g2", "g3")}
+            assert starts == {rec[0]} and ends == {rec[1]} and frame.gpu_last_event is rec[1]
+            assert slots["g1"].event is None and slots["g2"].event is None
+            assert slots["g3"].event is rec[1]
+            assert frame.shares["g1"][0] == 0.0 and frame.shares["g3"][1] == 1.0
+    assert recorded == {"tasks": 4, "bursts": 2}

@@ -596,6 +596,8 @@ class Executor(RoleRunner, SegmentRunner):
             frame.trace[name] = (state.proc, ev0, None, mid)  # its end: the burst's
             if not state.burst:
                 state.burst_frame = frame
+                if cuda:
+                    state.prev_end = ev0  # the next tasks start at the burst's start event
             state.burst.append(name)
             # An end event only where a reader off the stream needs one (or the frame ends).
             ev1 = self._close_burst(state) if name in self._leaves_stream else None
