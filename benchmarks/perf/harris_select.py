@@ -1,18 +1,14 @@
-"""Device time of a two-camera frame's LK and Harris corners, before / after (issue 11 item 3).
+"""Device time of a two-camera frame's Harris corners, before / after (issue 11 item 3).
+
+(A faster LK was tried with this bench on the H100 and measured 0.81x: reverted; see
+benchmarks/results/graph/h100-2026-11-24-s4/harris_select.md.)
 
 The graph bench's frames (``benchmarks/graph_bench.make_frames``: two cameras, 1280x720), its
-LK settings (21x21 window, 4 levels, 30 iterations, eps 0.01) and Harris settings (500
+Harris settings (500
 corners, quality 0.01, min distance 7), each call captured as a CUDA graph and replayed (as
 the graph executor replays them), timed with CUDA events: ``--repeat`` trials of
 ``--replays`` replays after a warm-up, the median trial per replay.
 
-- LK (``optical_flow_pyr_lk`` on given pyramids, 500 Harris points, into fixed outputs):
-  ``before`` is the LK of commit 26f41cc (:mod:`benchmarks.perf.lk_before`: a launch per
-  level, the window patch in global scratch), ``after`` the current one (the window's first
-  samples in registers, the four levels in one launch); both with 128 lanes a point.
-  The 64/256-lane rows show the current kernel with other ``BLOCK_DIM``s (their sums are
-  reduced in another order: not bit-identical, so the columns give the largest point
-  difference and the status changes against ``before``).
 - Harris (:class:`~warpvx.kernels_warp.harris_counted.DeviceCorners`, a graph's Counted
   path): ``before`` is the launch geometry of 26f41cc on the current code (a thread per
   candidate slot, i.e. per pixel, for the per-candidate kernels; sentinels over the whole
@@ -22,7 +18,7 @@ Also a per-kernel breakdown of one eager call of each (``wp.timing_begin``).
 
 Run on the GPU machine from the repository root (< 2 min on an H100)::
 
-    PYTHONPATH=. python3 benchmarks/perf/lk_harris.py --out $OUT
+    PYTHONPATH=. python3 benchmarks/perf/harris_select.py --out $OUT
 
 ``--device cpu`` runs it on Warp's CPU device (no capture; host wall time; a smoke test).
 """
@@ -45,9 +41,8 @@ import warp as wp
 
 SIZE = (1280, 720)
 POINTS = 500
-LK = dict(win_size=(21, 21), max_level=3, max_iters=30, eps=0.01, min_eig_threshold=1e-4)
 HARRIS = dict(max_corners=POINTS, quality_level=0.01, min_distance=7)
-COMMAND = "PYTHONPATH=. python3 benchmarks/perf/lk_harris.py --out $OUT"
+COMMAND = "PYTHONPATH=. python3 benchmarks/perf/harris_select.py --out $OUT"
 
 
 @contextlib.contextmanager
@@ -128,56 +123,6 @@ def frames(device):
     return out
 
 
-def lk_rows(cams, device, timer) -> list:
-    """Before/after rows of LK, per camera."""
-    from warpvx.kernels_warp import harris_corners as hc
-    from warpvx.kernels_warp import optical_flow_pyr_lk as lk
-
-    from benchmarks.perf import lk_before
-
-    settings = (*LK["win_size"], LK["max_level"], LK["max_iters"], LK["eps"],
-                LK["min_eig_threshold"])
-    variants = [("before", 128), ("after", 128), ("after, 64 lanes", 64),
-                ("after, 256 lanes", 256)]
-    rows = []
-    for cam, (prev, nxt) in cams.items():
-        pts = hc.harris_corners(prev, POINTS, HARRIS["quality_level"], HARRIS["min_distance"],
-                                3, 0.04)
-        n = pts.shape[0]
-        prev_pyr = lk._build_pyramid(prev, LK["max_level"] + 1)
-        next_pyr = lk._build_pyramid(nxt, LK["max_level"] + 1)
-        results = {}
-        for name, lanes in variants:
-            print(f"  LK {cam}: {name}", flush=True)
-            out = (wp.empty((n, 2), dtype=wp.float32, device=device),
-                   wp.empty(n, dtype=wp.uint8, device=device),
-                   wp.empty(n, dtype=wp.float32, device=device))
-            with patched(lk, BLOCK_DIM=lanes):
-                if name == "before":
-                    def call():
-                        lk_before.track(prev_pyr, next_pyr, pts, out, settings, lanes)
-                else:
-                    def call():
-                        lk.optical_flow_pyr_lk(prev_pyr, next_pyr, pts, None, LK["win_size"],
-                                               LK["max_level"], LK["max_iters"], LK["eps"],
-                                               LK["min_eig_threshold"], out=out)
-                call()
-                wp.synchronize_device(device)
-                t = timer(call)
-                kernels = kernel_breakdown(call, device)
-            results[name] = [a.numpy() for a in out]
-            ref = results["before"]
-            got = results[name]
-            both = (ref[1] == 1) & (got[1] == 1)
-            rows.append(dict(
-                kernel="LK", camera=cam, variant=name, points=n, us=t * 1e6,
-                same=all(np.array_equal(a, b) for a, b in zip(ref, got)),
-                max_dp=float(np.abs(ref[0][both] - got[0][both]).max()) if both.any() else 0.0,
-                status_changes=int((ref[1] != got[1]).sum()), tracked=int(got[1].sum()),
-                kernels=kernels))
-    return rows
-
-
 def harris_rows(cams, device, timer) -> list:
     """Before/after rows of the Counted (capturable) Harris path, per camera."""
     from warpvx.kernels_warp import harris_corners as hc
@@ -212,7 +157,7 @@ def harris_rows(cams, device, timer) -> list:
 
 def markdown(rows, device, args) -> str:
     lines = [f"Regenerate: `{COMMAND}`", "",
-             f"# LK and Harris device time per call, {SIZE[0]}x{SIZE[1]}, {device.name}", "",
+             f"# Harris corners device time per call, {SIZE[0]}x{SIZE[1]}, {device.name}", "",
              f"{'captured graph replays' if not device.is_cpu else 'host wall time'}, "
              f"median of {args.repeat} trials of {args.replays} replays; `same`: outputs "
              "bit-identical to `before`.", "",
@@ -224,7 +169,7 @@ def markdown(rows, device, args) -> str:
         moved = f"{r['max_dp']:.3g} | {r['status_changes']}" if "max_dp" in r else "- | -"
         lines.append(f"| {r['kernel']} | {r['camera']} | {r['variant']} | {r['points']} | "
                      f"{r['us']:.1f} | {ratio:.2f} | {'yes' if r['same'] else 'NO'} | {moved} |")
-    lines += ["", "Two-camera frame (both cameras, LK + Harris):", "",
+    lines += ["", "Two-camera frame (both cameras):", "",
               "| variant | us/frame |", "|---|---|"]
     for v in ("before", "after"):
         lines.append(f"| {v} | {sum(r['us'] for r in rows if r['variant'] == v):.1f} |")
@@ -251,7 +196,7 @@ def main(argv=None) -> None:
     t0 = time.time()
     cams = frames(device)
     rows, failures = [], []
-    for name, part in (("LK", lk_rows), ("Harris", harris_rows)):
+    for name, part in (("Harris", harris_rows),):
         print(name, flush=True)
         try:
             rows += part(cams, device, timer)
@@ -260,9 +205,9 @@ def main(argv=None) -> None:
             print(failures[-1], flush=True)
     text = markdown(rows, device, args) + "\n".join(failures)
     os.makedirs(args.out, exist_ok=True)
-    with open(os.path.join(args.out, "lk_harris.md"), "w") as f:
+    with open(os.path.join(args.out, "harris_select.md"), "w") as f:
         f.write(text)
-    with open(os.path.join(args.out, "lk_harris.json"), "w") as f:
+    with open(os.path.join(args.out, "harris_select.json"), "w") as f:
         json.dump(rows, f, indent=1)
     print(text)
     print(f"done in {time.time() - t0:.0f} s", flush=True)
