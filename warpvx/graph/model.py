@@ -93,13 +93,14 @@ def copied_bytes(reads: dict, placement: dict, order: list, capturable=()) -> di
     """node -> bytes the executor copies for it under ``placement`` (node -> processor).
 
     A value crosses once per side: the first reader on the other side of its producer (in
-    ``order``, the tasks by predicted start) copies it; later readers there reuse the copy.
-    A delayed read is another value (an earlier frame's), copied apart. Graph inputs live
-    on the host. A GPU segment of ``capturable`` tasks (:func:`gpu_segments`) fills fixed
-    buffers of its own before it runs (:mod:`warpvx.runtime.capture`): it copies every host
-    value it reads, reused by no other segment, charged to its first task as the executor
-    records it (one upload per segment: an H100 HEFT frame uploads a CPU-made pyramid twice,
-    this frame's and the delayed one, 5.5 MB at 1920x1080).
+    ``order``, the tasks by predicted start) copies it; later readers there reuse the copy
+    (a delayed read too: the earlier frame's value was copied when that frame read it).
+    Graph inputs live on the host. A GPU segment of ``capturable`` tasks
+    (:func:`gpu_segments`) fills fixed buffers of its own before each run
+    (:mod:`warpvx.runtime.capture`): it copies every host value it reads, a delayed one
+    apart, reused by no other segment, charged to its first task as the executor records it
+    (an H100 HEFT frame at 1920x1080 uploads a CPU-made pyramid twice, this frame's and the
+    delayed one: 5.5 MB).
     """
     gpu_order = [t for t in order if pe_of(placement[t]) == "gpu"]
     owner = {t: seg[0] for seg in gpu_segments(reads, frozenset(capturable), placement, gpu_order)
@@ -110,7 +111,7 @@ def copied_bytes(reads: dict, placement: dict, order: list, capturable=()) -> di
         unit = owner.get(node)
         for r in reads[node]:
             home = "cpu" if r.producer is None else pe_of(placement[r.producer])
-            key = (r.key, r.delayed, side, unit)
+            key = (r.key, r.delayed and unit is not None, side, unit)
             if home != side and key not in done:
                 done.add(key)
                 charged = unit or node
