@@ -21,8 +21,10 @@ reading PNGs is timed separately. Measured, side by side in one run:
 5. the batched front end (warpvx.apps.orbslam_batch, ``--batch B`` frames per graph frame):
    extraction + matching batched (``orb_batch`` + ``match_batch`` on the device: one launch
    matches all consecutive pairs both ways; the mutual pairs on the host), mono and stereo end to end with the pose work on a process pool of all
-   cores, the pool's speed-up on one batch's pose work (``pose_batch`` with no pool vs the
-   pool), and its accuracy (the poses must be the sequential ones).
+   cores, the pool's speed-up on one batch's pose work (``pose_batch`` on one process vs the
+   pool), what the pool did per batch (how long the chain waited on it, for the frame jobs
+   and for the keyframe cores it speculates; jobs started and dropped), and its accuracy
+   (the poses must be the sequential ones).
 
 FPS columns: "wall" counts everything from the call (graph build, verification, calibration:
 cached after the warm-up run; the batched mode's pool is opened once, before); "steady" is
@@ -148,10 +150,12 @@ def bench_extract_match_batched(images, backend, batch, depth=3):
 
 
 def _frontend_result(res, dt, plan, out, name, backend):
-    """FPS (wall, steady), median track ms, stages, the plan's summary and a Gantt chart."""
+    """FPS (wall, steady), median track ms, stages, the plan's summary and a Gantt chart
+    (``gantt_{name}.png``; name None: none)."""
     summary = plan.summary()
     try:
-        plan.gantt(out / f"gantt_{name}.png", frames=3, title=f"ORB-SLAM front end ({name}, {backend})")
+        if name is not None:
+            plan.gantt(out / f"gantt_{name}.png", frames=3, title=f"ORB-SLAM front end ({name}, {backend})")
     except Exception as exc:  # noqa: BLE001 - matplotlib missing: the numbers still count
         summary["gantt_error"] = str(exc)
     track_ms = statistics.median(f.stats["track_ms"] for f in res)
@@ -162,42 +166,87 @@ def _frontend_result(res, dt, plan, out, name, backend):
 
 #: Monocular motion from the previous frame only: every essential matrix worked out ahead.
 PREVIOUS_ONLY = o.TrackerConfig(keyframe_motion=False)
-#: The batched runs: report key, camera, Gantt name, tracker settings.
-BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig()),
-           ("batched_mono_prev", "mono", "batch_mono_prev", PREVIOUS_ONLY),
-           ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig()))
+#: The batched runs: report key, camera, Gantt name (None: none), tracker settings, the pool's
+#: ``ahead`` (False: jobs in submit order and no guessed cores, the scheduling before them).
+BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig(), True),
+           ("batched_mono_fifo", "mono", None, o.TrackerConfig(), False),
+           ("batched_mono_prev", "mono", "batch_mono_prev", PREVIOUS_ONLY, True),
+           ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig(), True))
 
 
-def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth=3, config=o.TrackerConfig()):
-    """The batched front end end to end (``pool``: the pose work's process pool, opened once)."""
+def _pool_counts(pool):
+    return tuple(dict(c) for c in (pool.waited_s, pool.started, pool.cancelled))
+
+
+#: pool_per_batch's counts: key, the pool's counter, the job's function.
+POOL_COUNTS = (("frame_jobs", 1, "frame_job"), ("guess_jobs", 1, "guess_job"),
+               ("guesses_dropped", 2, "guess_job"), ("keyframe_cores", 1, "_essential_job"),
+               ("keyframe_cores_dropped", 2, "_essential_job"))
+
+
+def pool_per_batch(pool, before, batches) -> dict:
+    """What the pool did per batch since ``before`` (:func:`_pool_counts`): ms the chain waited
+    for the frame jobs (``ahead``) and for keyframe cores (speculated or guessed), and
+    computed cores itself (none worked out ahead); jobs started and dropped unstarted
+    (:data:`POOL_COUNTS`)."""
+    now = _pool_counts(pool)
+    row = {f"chain_{key}_ms": 1e3 * (now[0].get(what, 0) - before[0].get(what, 0)) / batches
+           for key, what in (("wait_ahead", "ahead"), ("wait_keyframe", "keyframe"), ("on_the_spot", "on the spot"))}
+    row.update({key: (now[i].get(fn, 0) - before[i].get(fn, 0)) / batches for key, i, fn in POOL_COUNTS})
+    return row
+
+
+def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth=3, config=o.TrackerConfig(),
+                           ahead=True):
+    """The batched front end end to end (``pool``: the pose work's process pool, opened once;
+    its ``ahead`` set to ``ahead`` for the run), with what the pool did per batch
+    (:func:`pool_per_batch`)."""
+    if pool is not None and not ahead:
+        pool.ahead = False
+        try:
+            return bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth, config)
+        finally:
+            pool.ahead = True
     plans = []
     run = functools.partial(ob.track_frames_batched, camera=camera, config=config, batch=batch, pool=pool,
                             backend=backend, depth=depth)
     list(run(frames[:4 * batch]))  # warm-up, calibration
+    before = _pool_counts(pool) if pool is not None else None
     t = time.perf_counter()
     res = list(run(frames, on_finish=plans.append))
-    return _frontend_result(res, time.perf_counter() - t, plans[0], out, name, backend)
+    row, poses = _frontend_result(res, time.perf_counter() - t, plans[0], out, name, backend)
+    if pool is not None:
+        row["pool_per_batch"] = pool_per_batch(pool, before, -(-len(frames) // batch))
+    return row, poses
 
 
 def bench_pose_pool(frames, camera, batch, pool):
-    """``pose_batch`` of one batch (mono), ms per frame: in the calling thread vs on ``pool``."""
+    """``pose_batch`` of one batch (mono), ms per frame: on one process vs on ``pool``, the
+    frame jobs and the guesses (``guess_job``: the core after a keyframe change) both."""
     images = np.stack([f["image"] for f in frames[:batch + 1]])
     config = o.TrackerConfig()
     feats = ob.orb_batch(images, config=config)  # the features only feed the timed pose work
     descs = [d for _, d in feats]
     _, nearest = ob.nearest_batch(descs[1:], descs[0])
     k0 = feats[0][0]
-    tail = (ob._pts(k0), np.asarray(k0.angle, np.float64))
+    tail = (ob._pts(k0), np.asarray(k0.angle, np.float64), None)
     common = dict(K=np.ascontiguousarray(camera.K), config=config, baseline=None, frames=batch)
     row = {}
-    for key, p in (("no_pool_ms", None), ("pool_ms", pool)):
-        ob.ahead_frames(ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1])  # warm
-        t = time.perf_counter()
-        for _ in range(3):
-            ob.ahead_frames(ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1])
-        row[key] = 1e3 * (time.perf_counter() - t) / (3 * batch)
-    row["speedup"] = row["no_pool_ms"] / row["pool_ms"]
-    row["workers"] = pool.workers if pool is not None else 0
+
+    def work(p):
+        ahead = ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1]
+        ob.ahead_frames(ahead)
+        return [g.get() for g in ahead.guesses if g is not None]
+
+    with ob.make_pool(1) as one:
+        for key, p in (("one_process_ms", one), ("pool_ms", pool)):
+            row["guesses"] = len(work(p))  # (warm-up)
+            t = time.perf_counter()
+            for _ in range(3):
+                work(p)
+            row[key] = 1e3 * (time.perf_counter() - t) / (3 * batch)
+    row["speedup"] = row["one_process_ms"] / row["pool_ms"]
+    row["workers"] = pool.workers
     return row
 
 
@@ -362,13 +411,15 @@ def main(argv=None):
             report[key] = attempt(f"batched matching {b}", lambda: bench_extract_match_batched(images, backend, b),
                                   failed)
             progress(f"extraction+matching batched (B={b}) FPS", f"{report[key]['fps']:.1f}")
-        for key, cam, name, config in BATCHED:
+        for key, cam, name, config, ahead in BATCHED:
             camera, frames = (mono, mono_frames) if cam == "mono" else (stereo, stereo_frames)
-            report[key] = attempt(name, lambda: bench_frontend_batched(replay(frames, n), camera, backend, out,
-                                                                       name, batch, pool, config=config)[0], failed)
-            progress(f"front end {name} (B={batch}) FPS", f"{report[key]['fps']:.1f}")
-        report["pose_pool"] = attempt("pose pool", lambda: bench_pose_pool(mono_frames, mono, batch, pool), {})
-        progress("pose_batch alone (ms/frame): no pool vs pool", report["pose_pool"])
+            report[key] = attempt(key, lambda: bench_frontend_batched(replay(frames, n), camera, backend, out, name,
+                                                                      batch, pool, config=config, ahead=ahead)[0],
+                                  failed)
+            progress(f"front end {key} (B={batch}) FPS", f"{report[key]['fps']:.1f}")
+        report["pose_pool"] = attempt("pose pool", lambda: bench_pose_pool(mono_frames, mono, batch, pool), {}) \
+            if pool is not None else {"error": "no pool (--workers 0)"}
+        progress("pose_batch alone (ms/frame): one process vs pool", report["pose_pool"])
         batched = {name: attempt(f"accuracy batched {name}", lambda: np.array(
             [f.pose for f in ob.track_frames_batched(frames, camera, config, batch=batch, pool=pool,
                                                      backend=backend)]), None)
@@ -412,6 +463,8 @@ def main(argv=None):
              for k in report if k.startswith("extract_match_batch")]
     rows += [("front end mono, end to end, frame by frame", "frontend_mono"),
              (f"front end mono, end to end, batched B={batch}", "batched_mono"),
+             (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores",
+              "batched_mono_fifo"),
              (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),
              ("front end stereo, end to end, frame by frame", "frontend_stereo"),
              (f"front end stereo, end to end, batched B={batch}", "batched_stereo")]
@@ -429,8 +482,9 @@ def main(argv=None):
               f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | | |",
               "", "FPS (wall): frames over the whole call (graph build, verification; calibration cached "
               "by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
-              "", f"Pose work of one mono batch (pose_batch, B={batch}), ms per frame: "
-              + (f"{report['pose_pool']['no_pool_ms']:.2f} in one thread, {report['pose_pool']['pool_ms']:.2f} "
+              "", f"Pose work of one mono batch (pose_batch, B={batch}: frame jobs and "
+              f"{report['pose_pool'].get('guesses', '?')} guesses), ms per frame: "
+              + (f"{report['pose_pool']['one_process_ms']:.2f} on one process, {report['pose_pool']['pool_ms']:.2f} "
                  f"on {report['pose_pool']['workers']} processes ({report['pose_pool']['speedup']:.1f}x)"
                  if "speedup" in report["pose_pool"] else f"FAILED ({report['pose_pool'].get('error')})"),
               f"Batched poses vs frame-by-frame poses, largest difference: "
@@ -440,11 +494,23 @@ def main(argv=None):
               "Per node, median ms over the last frames (in a pipelined run a node's interval",
               "includes waiting for the GIL and for copies):", ""]
     lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono",
-                                   "frontend_stereo", "batched_mono", "batched_mono_prev", "batched_stereo"])
+                                   "frontend_stereo", *(key for key, *_ in BATCHED)])
+    lines += ["", "What the pose pool did per batch (the chain's waits: for the batch's frame jobs, and for",
+              "keyframe cores speculated or guessed on the pool; jobs started and dropped unstarted;",
+              "batched_mono_fifo: the pool in submit order, no guessed cores, as before them; counts include",
+              "the verification of the run's graph):", "",
+              "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | chain computes cores "
+              "(ms) | frame jobs | guess jobs | guesses dropped | keyframe cores | keyframe cores dropped |",
+              "| --- |" + " --- |" * 8]
+    for key, *_ in BATCHED:
+        b = report[key].get("pool_per_batch")
+        cells = [f"{b[f'chain_{k}_ms']:.2f}" for k in ("wait_ahead", "wait_keyframe", "on_the_spot")] \
+            + [f"{b[k]:.1f}" for k, *_ in POOL_COUNTS] if b else ["n/a"] + [""] * 7
+        lines.append(f"| {key} | " + " | ".join(cells) + " |")
     lines += ["", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
     for k, v in report["accuracy"].items():
         lines.append(f"| {k} | {v['ate_m']:.4f} | {v['rpe1_t_m']:.4f} | {v['rpe1_r_deg']:.3f} |")
-    for k in ("frontend_mono", "frontend_stereo", "batched_mono", "batched_mono_prev", "batched_stereo"):
+    for k in ("frontend_mono", "frontend_stereo", *(key for key, *_ in BATCHED)):
         s = report[k]["plan"]
         if s is None:
             lines += ["", f"{k}: FAILED ({report[k].get('error')})"]

@@ -1,8 +1,10 @@
 """Executor overhead per node and pipelined frame rate, captured GPU segments against eager.
 
 1. Trivial chains (identity user nodes, :func:`warpvx.graph.diagnostics.executor_overhead`):
-   CPU-only, GPU-only, alternating CPU/GPU; per node: wall time per frame minus the nodes'
-   own time, over the nodes. These user nodes do not opt in to capture.
+   CPU-only, GPU-only (with the executor's default GPU timing, and with ``timing="bursts"``:
+   one timing event per run of GPU tasks instead of one per task), alternating CPU/GPU; per
+   node: wall time per frame minus the nodes' own time, over the nodes. These user nodes do
+   not opt in to capture.
 2. A GPU-only chain of primitive nodes (3x3 Gaussian blurs of a 16x16 gray image, which the
    runtime may capture), eager and captured: per node = the difference of the frame times of
    a long and a short chain over the difference of their lengths (what one more node costs:
@@ -56,9 +58,10 @@ def _chains(args) -> list:
     n, frames = args.nodes, args.frames
     rows = [executor_overhead(n, frames),
             executor_overhead(n, frames, chain="gpu", gpu=args.gpu),
+            executor_overhead(n, frames, chain="gpu", gpu=args.gpu, timing="bursts"),
             executor_overhead(n // 2, frames, chain="mixed", gpu=args.gpu)]
     for r in rows:
-        print(f"  {r['chain']:5s} chain, {r['n_nodes']} identity nodes: "
+        print(f"  {_chain_label(r):5s} chain, {r['n_nodes']} identity nodes: "
               f"{r['per_node_us']:.1f} us/node process, {r['per_node_us_stream']:.1f} stream",
               flush=True)
     for chain, nodes in (("gpu", n), ("mixed", n // 2)):  # where the host time goes
@@ -69,6 +72,11 @@ def _chains(args) -> list:
         (args.out / f"overhead_profile_{chain}.txt").write_text(text)
         print(f"  wrote overhead_profile_{chain}.txt", flush=True)
     return rows
+
+
+def _chain_label(row) -> str:
+    """A chain row's name, with its GPU timing when not the executor's default."""
+    return row["chain"] + (f", timing {row['timing']}" if row.get("timing") else "")
 
 
 def _blur_chain(n: int, gpu: str) -> warpvx.Graph:
@@ -215,10 +223,13 @@ def markdown(report) -> str:
              "|---|---|---|---|---|---|"]
     for r in report["chains"]:
         parts = ", ".join(f"{k} {v:.1f}" for k, v in r.get("breakdown", {}).items() if v is not None)
-        lines.append(f"| {r['chain']} | {r['n_nodes']} | {r['per_node_us']:.1f} | "
+        lines.append(f"| {_chain_label(r)} | {r['n_nodes']} | {r['per_node_us']:.1f} | "
                      f"{r['per_node_us_stream']:.1f} | {parts} | {r.get('inline_units', '')} |")
     lines += ["", "Targets (issue 11): < 5 us/node on the GPU-only chain, < 20 on the alternating "
-              "one. Breakdown (executor_overhead): mixed, one CPU -> GPU -> CPU round: the GPU "
+              "one. GPU timing (CUDA): by default an event per GPU task for a frame alone "
+              "(process: what the cost model learns from) and per run of GPU tasks between "
+              "hand-offs behind frames in flight (stream); 'timing bursts' forces the latter "
+              "(Executor timing=). Breakdown (executor_overhead): mixed, one CPU -> GPU -> CPU round: the GPU "
               "call's host time (gpu_task), a CPU task with its download (cpu_task), the "
               "hand-offs; gpu: a task's host time and the gap to the next; every chain: a "
               "frame's host time before its first task (frame_head) and after its last "

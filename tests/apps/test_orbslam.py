@@ -77,8 +77,9 @@ def test_mono_end_to_end_with_gt(tmp_path, stereo_seq, capsys):
     assert "n/a" in m["warpvx"]["kitti"]
     rows = (out / "frames.csv").read_text().splitlines()
     assert rows[0].split(",") == ["frame", "time", "n_keypoints", "n_matches", "n_inliers",
-                                  "keyframe", "reference", "track_ms", "ms"]
+                                  "keyframe", "reference", "lost", "track_ms", "ms"]
     assert len(rows) == 11 and int(rows[1].split(",")[5]) == 1  # frame 0 is a keyframe
+    assert m["lost_frames"] == 0 and all(r.split(",")[7] == "0" for r in rows[1:])
     assert te.read_kitti(out / "trajectory.kitti.txt").shape == (10, 4, 4)
 
 

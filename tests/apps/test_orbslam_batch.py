@@ -79,12 +79,13 @@ def test_essential_ahead_is_used_only_for_its_own_points(seq):
         np.testing.assert_array_equal(g, w)
 
 
-@pytest.mark.parametrize("keyframe_motion", [True, False])
-def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_motion):
+@pytest.mark.parametrize("keyframe_motion, guesses", [(True, True), (False, True), (True, False)])
+def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_motion, guesses):
     """pose_batch works out every frame's essential matrix to the previous frame ahead (on 2
-    processes); chain then tracks the batch with no essential_core call of its own except for
-    frames tracked from the keyframe (none with keyframe_motion off) and gives the sequential
-    poses."""
+    processes), and with keyframe_motion on a pool with ``ahead`` the one to the frame before it
+    as the keyframe; chain then tracks the batch with no essential_core call of its own
+    (speculating the others on the pool) and gives the sequential poses; with no pool it
+    computes those the pool did not guess."""
     frames, camera = _frames(seq, False)
     config, K = o.TrackerConfig(keyframe_motion=keyframe_motion), np.ascontiguousarray(seq[2], np.float64)
     images = np.stack([f["image"] for f in frames])
@@ -92,9 +93,9 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
     last, nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=FRAMES)
     np.testing.assert_array_equal(last, feats[-1][1])
     common = dict(K=K, config=config, baseline=None, frames=FRAMES)
-    pool = ob.make_pool(2)
+    pool = ob.PosePool(2, ahead=guesses)
     try:
-        tail, ahead = ob.pose_batch(images, feats, nearest, (np.zeros((0, 2)), np.zeros(0)), pool=pool, **common)
+        tail, ahead = ob.pose_batch(images, feats, nearest, ob.NO_TAIL, pool=pool, **common)
         per_frame = ob.ahead_frames(ahead)  # waits for the pool's results
         np.testing.assert_array_equal(tail[0], ob._pts(feats[-1][0]))
         assert sum(a[2] is not None for a in per_frame) >= FRAMES - 2  # frame 0 has no previous frame
@@ -106,14 +107,47 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
         _, poses, stats = ob.chain(o.TrackState(), feats, ahead, pool=pool, **common)
         assert calls == [] and stats.shape == (FRAMES, len(o.STATS))
         if keyframe_motion:
-            assert np.count_nonzero(stats[:, 4] == o.REF_KEYFRAME) > 0
+            from_kf = stats[:, 4] == o.REF_KEYFRAME
+            assert np.count_nonzero(from_kf) > 0
+            # The frames whose keyframe is the one before the previous frame: pose_batch
+            # guessed their cores (on a pool with ahead), those of the keyframe's points.
+            kf = stats[:, 3] == 1
+            guessed = [t for t in range(2, FRAMES) if from_kf[t] and kf[t - 2] and not kf[t - 1]]
+            if guesses:
+                assert guessed
+                for t in guessed:
+                    p1, p2, got = ahead.guesses[t].get()
+                    assert set(map(tuple, p1)) <= set(map(tuple, ob._pts(feats[t - 2][0])))
+                    for g, w in zip(got, core(p1, p2, K, config)):
+                        np.testing.assert_array_equal(g, w)
+            else:
+                assert ahead.guesses == [None] * FRAMES
             # Without the pool, chain works those out itself, on the spot.
             _, poses_here, stats = ob.chain(o.TrackState(), feats, ahead, **common)
-            assert len(calls) == np.count_nonzero(stats[:, 4] == o.REF_KEYFRAME) > 0
+            assert len(calls) == np.count_nonzero(from_kf)
             np.testing.assert_array_equal(poses_here, poses)
     finally:
         pool.shutdown()
     np.testing.assert_allclose(poses, [f.pose for f in o.track_frames(frames, camera, config)], atol=1e-9)
+
+
+def test_slow_motion_takes_the_speculated_keyframe_cores():
+    """Slow motion (0.05 m/frame): keyframes several frames apart, so frames three or more
+    after the keyframe take their motion from it; the chain takes those cores from the ones
+    it speculated on the pool (computing none itself), the rest as guessed, and the poses
+    are the sequential ones."""
+    left, _, K, _ = render_sequence(14, (640, 480), step=0.05, speed_var=0.5, seed=5, supersample=1)
+    frames, camera = [{"image": im} for im in left], o.Camera(K, (640, 480))
+    want = list(o.track_frames(frames, camera))
+    stats = np.array([[f.stats[k] for k in o.STATS] for f in want])
+    kf = stats[:, 3] == 1
+    last_kf = {t: max(k for k in range(t) if kf[k]) for t in range(1, 14)}  # each frame's keyframe
+    assert any(stats[t, 4] == o.REF_KEYFRAME and t - last_kf[t] >= 3 for t in last_kf)  # not guessed
+    with ob.make_pool(2) as pool:
+        got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=7, pool=pool)])
+        assert pool.started["_essential_job"] > 0 and pool.started["guess_job"] > 0
+        assert pool.waited_s["on the spot"] == 0
+    np.testing.assert_allclose(got, [f.pose for f in want], atol=1e-9)
 
 
 def test_cli_batch_flag_end_to_end(tmp_path, seq, capsys):
@@ -144,6 +178,26 @@ def test_bad_input_names_the_argument(seq, tmp_path, capsys):
                              "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "batch" in err[0]
+
+
+def test_pool_starts_urgent_jobs_first_and_drops_cancelled_ones():
+    """One process, busy: queued jobs start by urgency, then in submit order; a cancelled
+    job never starts; wait() books its blocked time."""
+    import time
+
+    with ob.make_pool(1) as pool:
+        busy = pool.submit(time.sleep, 0.5)
+        later = [pool.submit(time.time) for _ in range(3)]
+        dropped = pool.submit(time.time)
+        urgent = pool.submit(time.time, urgent=True)
+        dropped.cancel()
+        busy.cancel()  # already started: still runs
+        assert pool.wait(busy, "busy") is None and pool.waited_s["busy"] > 0.2
+        times = [t.get() for t in later]
+        assert urgent.get() < times[0] < times[1] < times[2]
+        with pytest.raises(WarpvxError, match="cancelled"):
+            dropped.get()
+        assert pool.cancelled == {"time": 1} and pool.started == {"sleep": 1, "time": 4}
 
 
 def test_pool_in_an_unguarded_script(tmp_path):

@@ -483,3 +483,135 @@ def test_spinning_threads_hand_off_the_same_results(ms):
             np.testing.assert_array_equal(ex.wait(f).outputs["y"], _expected(x, n))
     finally:
         ex.close()
+
+
+def _burst_chain(fail_at=None):
+    """x -> g1 -> g2 -> g3 (GPU) -> c4 (CPU) -> g5 (GPU, the output): g1..g3 run back to back
+    on the GPU role and only g3's value leaves the GPU stream before g5's. ``fail_at``: the
+    task that raises."""
+    import warp as wp
+
+    def gpu_fn(name, k):
+        def fn(v):
+            if name == fail_at:
+                raise RuntimeError(f"{name} failed")
+            return wp.array(v.numpy() * k + 1, dtype=wp.float32, device=v.device)
+        return fn
+
+    tasks, prev = {}, "x"
+    for name, k in (("g1", 2), ("g2", 3), ("g3", 5), ("c4", 7), ("g5", 11)):
+        cpu = (lambda v, k=k: v * k + 1) if name == "c4" else None
+        gpu = None if name == "c4" else gpu_fn(name, k)
+        tasks[name] = ExecTask(name, (InputRef(prev),), (name,), cpu, gpu)
+        prev = name
+    return Program(tasks, ("x",), {"y": "g5"})
+
+
+def test_burst_timing_shares_one_interval_per_run_of_gpu_tasks():
+    """timing="bursts" (Warp's CPU device: host times stand in for events): same outputs as
+    per-task timing; the GPU tasks run back to back before a CPU reader share one interval
+    in proportion to their scheduled durations and tile it; a task after a hand-off starts
+    a burst of its own; every node keeps its host time."""
+    placement = {"g1": "gpu", "g2": "gpu", "g3": "gpu", "c4": "cpu0", "g5": "gpu"}
+    spans = {"g1": 1.0, "g2": 3.0, "g3": 4.0, "c4": 1.0, "g5": 1.0}
+    at, placed = 0.0, {}
+    for t, p in placement.items():
+        placed[t] = ScheduledTask(t, p, at, at + spans[t])
+        at += spans[t]
+    schedule = Schedule(placed, PROCS)
+    x = np.arange(4, dtype=np.float32)
+    want = ((((x * 2 + 1) * 3 + 1) * 5 + 1) * 7 + 1) * 11 + 1
+    results = {}
+    for timing in ("tasks", "bursts"):
+        ex = Executor(schedule, _burst_chain(), gpu_device="cpu", timing=timing)
+        try:
+            results[timing] = [ex.wait(ex.submit(f, {"x": (x, HOST)})) for f in range(3)]
+        finally:
+            ex.close()
+    for r in results["tasks"] + results["bursts"]:
+        np.testing.assert_array_equal(r.outputs["y"], want)
+    r = results["bursts"][-1]
+    tl = r.timeline
+    assert set(tl) == set(placement) and set(r.host) == {"g1", "g2", "g3", "g5"}
+    a, b = tl["g1"].start, tl["g3"].finish
+    assert tl["g1"].finish == pytest.approx(a + (b - a) / 8)
+    assert tl["g2"].start == pytest.approx(tl["g1"].finish)
+    assert tl["g2"].finish == pytest.approx(a + (b - a) * 4 / 8)
+    assert tl["g3"].start == pytest.approx(tl["g2"].finish)
+    assert tl["g3"].finish <= tl["c4"].start <= tl["c4"].finish <= tl["g5"].start
+    assert r.host["g1"][0] == pytest.approx(a) and r.host["g1"][1] <= r.host["g2"][0]
+    # Per-task timing: each interval is the task's own host call.
+    t = results["tasks"][-1]
+    assert all(t.timeline[n].start == pytest.approx(t.host[n][0]) for n in ("g1", "g2", "g3"))
+
+
+@pytest.mark.parametrize("fail_at", ["g2", "g5"])
+def test_burst_timing_reports_a_failing_task_and_runs_the_next_frame(fail_at):
+    placement = {"g1": "gpu", "g2": "gpu", "g3": "gpu", "c4": "cpu0", "g5": "gpu"}
+    program = _burst_chain(fail_at)
+    ex = Executor(sched(placement, ms=SHORT), program, gpu_device="cpu", timing="bursts")
+    x = np.ones(4, np.float32)
+    try:
+        with pytest.raises(NodeExecutionError, match=fail_at) as info:
+            ex.wait(ex.submit(0, {"x": (x, HOST)}))
+        assert isinstance(info.value.__cause__, RuntimeError)
+        ok = Executor(sched(placement, ms=SHORT), _burst_chain(), gpu_device="cpu",
+                      timing="bursts")
+        try:
+            r = ok.wait(ok.submit(1, {"x": (x, HOST)}))
+            assert set(r.timeline) == set(placement)
+        finally:
+            ok.close()
+    finally:
+        ex.close()
+
+
+def test_timing_refuses_unknown_values_by_name():
+    from warpvx.errors import WarpvxValueError
+
+    with pytest.raises(WarpvxValueError, match="timing"):
+        Executor(sched({"a": "cpu0", "b": "cpu0", "c": "cpu0", "d": "cpu0"}), diamond(),
+                 timing="events")
+
+
+def test_burst_timing_records_one_start_and_one_end_event_per_run_on_cuda_paths():
+    """The CUDA bookkeeping of timing="bursts", driven directly with stand-in events (no
+    CUDA here): three GPU tasks back to back, the third read by a CPU task, record one start
+    event and one end event (per-task timing: one start and three ends); all three tasks
+    span that one interval, and only the third's value carries an event."""
+    import warp as wp
+
+    from warpvx.runtime.roles import GpuState
+    from warpvx.runtime.timeline import Frame
+    from warpvx.runtime.transfers import Transfers
+    from warpvx.runtime.slots import Slot
+
+    placement = {"g1": "gpu", "g2": "gpu", "g3": "gpu", "c4": "cpu0", "g5": "gpu"}
+    program = _burst_chain()
+    recorded = {}
+    for timing in ("tasks", "bursts"):
+        ex = Executor(sched(placement), program, gpu_device="cpu", timing=timing)
+        ex.cuda = True  # the CUDA path, with events that are plain objects
+
+        class Pool:
+            def get(self):
+                return object()
+
+        ex._events, rec = Pool(), []
+        ex._record = rec.append
+        x = wp.array(np.ones(4, np.float32), dtype=wp.float32, device="cpu")
+        slots = {"x": Slot.ready(x, DEVICE), **{k: Slot() for k in placement}}
+        frame = Frame(0, slots, 1)
+        frame.bursts = timing == "bursts"
+        state = GpuState("gpu", Transfers("cpu"))
+        for name, src in (("g1", "x"), ("g2", "g1"), ("g3", "g2")):
+            ex._run_gpu_task(frame, program.tasks[name], state, [slots[src]])
+        recorded[timing] = len(rec)
+        if timing == "bursts":
+            starts = {frame.trace[n][1] for n in ("g1", "g2", "g3")}
+            ends = {frame.trace[n][2] for n in ("g1", "g2", "g3")}
+            assert starts == {rec[0]} and ends == {rec[1]} and frame.gpu_last_event is rec[1]
+            assert slots["g1"].event is None and slots["g2"].event is None
+            assert slots["g3"].event is rec[1]
+            assert frame.shares["g1"][0] == 0.0 and frame.shares["g3"][1] == 1.0
+    assert recorded == {"tasks": 4, "bursts": 2}

@@ -96,7 +96,7 @@ def test_staged_download_and_native_elapsed_time():
     assert io.stage_download(a, end) is stage  # reused once free and copied
     io.unstage(stage)
     wp.synchronize_event(end)
-    assert nc.elapsed_ms(start, end) == pytest.approx(wp.get_event_elapsed_time(start, end))
+    assert nc.elapsed_since(start)(end) == pytest.approx(wp.get_event_elapsed_time(start, end))
     # Another kind of value (a vector dtype) downloads the usual way.
     assert io.stage_download(wp.zeros(3, dtype=wp.vec2, device="cuda:0")) is None
 
@@ -191,3 +191,25 @@ def test_a_slot_reads_its_staged_download_once_as_a_fresh_copy():
     assert not np.shares_memory(got, stage.view) and io.moved == host.nbytes
     stage.view[:] = -1  # the buffer reused: what was read stays
     assert slot.host(io) is got and got[0, 1] == 1.0
+
+
+def test_a_staged_buffer_is_free_once_read_and_freed_only_by_its_holder():
+    """Reading a staged download frees its buffer at once (a frame with more downloads of
+    one shape than the ring holds would otherwise download the rest synchronously); the
+    frame's end then frees only the buffers its slots still hold, never one that a later
+    download has taken since."""
+    from warpvx.runtime import DEVICE, Slot
+    from warpvx.runtime.transfers import _Staging
+
+    wp = init_warp()
+    stage = _Staging(wp.array(np.ones(4, np.float32), dtype=wp.float32, device="cpu"), None)
+    first = Slot.ready(wp.zeros(4, dtype=wp.float32, device="cpu"), DEVICE)
+    first.staged, stage.free = stage, False
+    first.host(Transfers("cpu"))
+    assert stage.free and first.staged is None
+    later = Slot.ready(wp.zeros(4, dtype=wp.float32, device="cpu"), DEVICE)
+    later.staged, stage.free = stage, False  # the ring hands the buffer to a later download
+    first.release_staged()  # the first frame ends
+    assert not stage.free and later.staged is stage
+    later.release_staged()  # the later frame ends without a reader
+    assert stage.free and later.staged is None

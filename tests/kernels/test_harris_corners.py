@@ -236,6 +236,23 @@ def test_counted_out_count_is_clamped_to_the_rows(warp_backend):
     np.testing.assert_array_equal(out.to("host"), everything[:60])
 
 
+def test_few_threads_stride_over_the_candidates(warp_backend, monkeypatch):
+    """The per-candidate kernels (ranks, conflicts, selection rounds, sentinels, clearing)
+    launched over fewer threads than candidates, each thread taking several: OpenCV's corners
+    as with a thread per candidate, with and without out=."""
+    from warpvx.kernels_warp import harris_corners as hc
+
+    img = gray("coffee")
+    ref = _cv_gftt(img, 300, 0.001, 8.0)
+    src = _on_device(img, warp_backend)
+    monkeypatch.setattr(hc, "CANDIDATE_THREADS", 64)
+    got = _host(warpvx.harris_corners(src, 300, 0.001, 8.0))
+    _assert_parity(got, ref, warp_backend)
+    out = _counted(300, src.device)
+    warpvx.harris_corners(src, 300, 0.001, 8.0, out=out)
+    np.testing.assert_array_equal(out.to("host"), got)
+
+
 @pytest.mark.parametrize("make,kwargs,err,match", [
     (lambda d: np.zeros((50, 2), np.float32), {}, WarpvxTypeError, "out: expected a Counted"),
     (lambda d: _counted(49, d), {}, ShapeError, "out.rows"),

@@ -105,7 +105,8 @@ def test_warp_in_warp_out(warp_backend):
 
 @pytest.mark.parametrize(
     "size, win, max_level",
-    [((640, 480), (21, 21), 3), ((321, 239), (15, 9), 2), ((257, 131), (7, 7), 4), ((200, 151), (31, 31), 0)],
+    [((640, 480), (21, 21), 3), ((321, 239), (15, 9), 2), ((257, 131), (7, 7), 4), ((200, 151), (31, 31), 0),
+     ((640, 480), (7, 7), 6)],  # 7 levels: two launches (the kernel takes 4 levels at most)
 )
 def test_shapes(backend, size, win, max_level):
     a, b = _basketball()

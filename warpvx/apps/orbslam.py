@@ -35,7 +35,14 @@ along the sequence is what ORB-SLAM2's map does; here, without a map, the same i
   matched since then get depths triangulated from the previous frame for the known motion.
 
 Keyframes: every ``keyframe_interval`` frames, when the inliers drop under ``keyframe_ratio``
-of those tracked just after the last keyframe, or after a tracking loss.
+of those tracked just after the last keyframe, or a lost frame that the next one matches
+(a new scene after a cut: the map re-initialises from that pair).
+
+Tracking loss (a cut in a video, a blank or blurred frame), as ORB-SLAM2 detects it: too few
+matches or inliers, no essential matrix, or an implausible jump of the step's scale; the lost
+frame keeps the constant-velocity pose, the next frame relocalises against the last keyframe
+or else re-initialises the depths at the last scene depth (scale continuity); poses stay
+finite and their rotations orthonormal (see :func:`track`).
 
 All tracking state is carried from frame to frame through a delay (:class:`TrackState`,
 immutable), so every node is a pure function: verification and calibration may run them on
@@ -56,13 +63,15 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
-from .orbslam_depths import NEW_VAR, backfill, carry_depths, flow, fuse_depths, log_depth_var, reprojects, step_scale
+from .orbslam_depths import MIN_COMMON, NEW_VAR, backfill, carry_depths, flow, fuse_depths, log_depth_var, reprojects, step_scale
 from .orbslam_match import add_match_node, mutual_pairs, stereo_depth
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
 # ORB-SLAM2's ORBmatcher thresholds (Hamming distance, 256-bit descriptors).
 TH_HIGH, TH_LOW = 100, 50
 REF_PREVIOUS, REF_KEYFRAME, REF_LOST = 0, 1, 2
+# Fewest inliers of a tracked frame (TrackerConfig.min_inliers).
+MIN_INLIERS = 12
 # Depth (in units of the baseline) beyond which cv2.recoverPose does not count a point.
 _FAR = 50.0
 STATS = ("n_keypoints", "n_matches", "n_inliers", "keyframe", "reference", "track_ms")
@@ -106,6 +115,11 @@ class TrackerConfig:
         every frame's motion is from the previous frame, whose essential matrices the
         batched front end (:mod:`~warpvx.apps.orbslam_batch`) works out ahead on its process
         pool: faster there, less accurate on slow, low-parallax motion.
+    min_inliers : int
+        Fewer essential-matrix (or PnP) inliers: the frame is lost (see :func:`track`).
+    max_speed_jump : float
+        Monocular: a step whose length per frame is more than this factor above or below the
+        last step's (:attr:`TrackState.speed`) is an implausible scale jump: the frame is lost.
     """
 
     n_features: int = 2000
@@ -126,6 +140,8 @@ class TrackerConfig:
     keyframe_ratio: float = 0.7
     stereo_max_distance: int = (TH_HIGH + TH_LOW) // 2
     keyframe_motion: bool = True
+    min_inliers: int = MIN_INLIERS
+    max_speed_jump: float = 3.0
 
     def __post_init__(self):
         from ..check import check_bool, check_float, check_int
@@ -138,6 +154,8 @@ class TrackerConfig:
         check_int(self.histo_length, "histo_length", min_value=1)
         check_int(self.min_matches, "min_matches", min_value=5)
         check_int(self.keyframe_interval, "keyframe_interval", min_value=1)
+        check_int(self.min_inliers, "min_inliers", min_value=6)
+        check_float(self.max_speed_jump, "max_speed_jump", min_value=1.0, strict_min=True)
         check_float(self.keyframe_ratio, "keyframe_ratio", min_value=0.0, max_value=1.0)
         check_float(self.ransac_threshold, "ransac_threshold", min_value=0.0, strict_min=True)
 
@@ -230,13 +248,24 @@ class FrameRecord:
 class TrackState:
     """Tracking state carried by a delay from frame to frame: the previous frame, the last
     keyframe, the motion model (``velocity`` = T_prev_prevprev, 4x4), the inliers tracked just
-    after the keyframe (``keyframe_inliers``) and the frame count."""
+    after the keyframe (``keyframe_inliers``), the frame count, and:
+
+    - ``speed``: the length per frame of the last step that moved (at the map's scale; the
+      first step's is 1): the yardstick of an implausible scale jump, and the step a
+      monocular frame whose reference has no depths takes when the motion model's is
+      implausible (~0 after a stop);
+    - ``scene_depth``: the median depth of the last frame with depths (at the map's scale;
+      NaN none yet), the scale a re-initialisation after a loss keeps;
+    - ``lost``: how many frames in a row up to the previous one were lost."""
 
     frames: int = 0
     previous: FrameRecord | None = None
     keyframe: FrameRecord | None = None
     velocity: np.ndarray = dataclasses.field(default_factory=lambda: np.eye(4))
     keyframe_inliers: int = 0
+    speed: float = 1.0
+    scene_depth: float = np.nan
+    lost: int = 0
 
 
 def _inv(T):
@@ -244,6 +273,17 @@ def _inv(T):
     out = np.eye(4)
     out[:3, :3] = R.T
     out[:3, 3] = -R.T @ t
+    return out
+
+
+def _orthonormal(T):
+    """``T`` (4x4) with its rotation projected onto SO(3) (the nearest rotation, by SVD).
+    :func:`_inv` transposes the rotation: on one that is orthonormal only to rounding, a pose
+    composed with its own inverse again and again (lost frames, frames that did not move)
+    doubles the rounding each time, and the rotation blows up within ~50 frames."""
+    u, _, vt = np.linalg.svd(T[:3, :3])
+    out = T.copy()
+    out[:3, :3] = u @ vt
     return out
 
 
@@ -354,13 +394,18 @@ def essential_core(p1, p2, K, config):
     return R, t, inl[front], z_ref[front], z_cur[front]
 
 
-def _pose_essential(ref, cur_pts, pairs, K, step, config, essential=essential_core):
+def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *, step=1.0,
+                    scene_depth=np.nan, bounds=(0.0, np.inf)):
     """T_cur_ref from the essential matrix (:func:`essential_core`, or ``essential`` with its
     signature and results), the translation scaled by the reference's depths
-    (:func:`~warpvx.apps.orbslam_depths.step_scale`; ``step`` when too few are shared);
-    returns (T, inliers, (this frame's indices, depths, log-depth variances)) or None: the
-    depths of the points in front (:func:`~warpvx.apps.orbslam_depths.fuse_depths`), or the
-    reference's when it did not move."""
+    (:func:`~warpvx.apps.orbslam_depths.step_scale`); when too few are shared (the first
+    step, a re-initialisation after a loss), scaled so that the median depth of the points is
+    ``scene_depth`` (that of the last frame with depths, as ORB-SLAM2 scales a new map by its
+    median depth), or to length ``step`` when there is none (NaN). Returns (T, inliers, (this
+    frame's indices, depths, log-depth variances)) or None (no model, or a scale from depths
+    outside ``bounds``, (low, high): an implausible jump): the depths of the points in front
+    (:func:`~warpvx.apps.orbslam_depths.fuse_depths`), or the reference's when it did not
+    move."""
     p1, p2 = ref.pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
     if np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
         return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]], ref.depth_var[pairs[:, 1]])
@@ -371,7 +416,11 @@ def _pose_essential(ref, cur_pts, pairs, K, step, config, essential=essential_co
     Kinv = np.linalg.inv(K)
     x1 = np.c_[p1[inl], np.ones(len(inl))] @ Kinv.T
     x2 = np.c_[p2[inl], np.ones(len(inl))] @ Kinv.T
-    scale = step_scale(ref, pairs[inl], x1, x2, R, z_ref, K[0, 0], step)
+    scale = step_scale(ref, pairs[inl], x1, x2, R, z_ref, K[0, 0], np.nan)
+    if np.isnan(scale):
+        scale = scene_depth / np.median(z_cur) if np.isfinite(scene_depth) else step
+    elif not bounds[0] <= scale <= bounds[1]:
+        return None
     tri = fuse_depths(ref, pairs[inl], x1, x2, R, scale * t, scale * z_cur, K[0, 0])
     return _rt(R, scale * t), len(inl), tri
 
@@ -403,6 +452,15 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
           config: TrackerConfig = TrackerConfig(), essential=essential_core):
     """One frame of tracking (the graph's ``track`` node; pure).
 
+    A frame is lost when it has fewer than 8 good matches, no motion model (no essential
+    matrix, fewer than 8 points in front, PnP failing), fewer than ``config.min_inliers``
+    inliers, a non-finite motion, or (monocular) a step whose length per frame jumps by more
+    than ``config.max_speed_jump`` from :attr:`TrackState.speed`: its pose is then the
+    constant-velocity guess, the velocity and speed are kept, and the last keyframe stays: the
+    next frame, matching the lost one poorly, is matched to that keyframe (relocalised), or
+    else, matching the lost frame (a new scene), makes that frame the keyframe and
+    re-initialises the depths from the pair at the carried scene depth.
+
     Parameters
     ----------
     state : TrackState
@@ -426,7 +484,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         Camera-to-world pose of this frame.
     stats : float64 [6]
         n_keypoints, n_matches, n_inliers, keyframe (0/1), reference (0 previous frame,
-        1 keyframe, 2 lost: motion model), milliseconds in this node.
+        1 keyframe, 2 lost: the motion model's pose), milliseconds in this node.
     """
     t0 = time.perf_counter()
     import warpvx
@@ -446,6 +504,12 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     cur_pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
     angles = np.asarray(kps.angle, np.float64)
     good = filter_matches(pairs, distances, angles, prev.angles, config) if n else np.zeros((0, 2), int)
+    if state.lost and len(good) >= config.min_matches:
+        # Re-initialisation after a loss (a new scene): the lost frame, which this one matches,
+        # becomes the keyframe and gets its depths from this pair (backfill, below).
+        kf, kf_inliers = prev, 0
+    else:
+        kf_inliers = state.keyframe_inliers
     ref, reference, prev_good = prev, REF_PREVIOUS, good
     _, kf_good = keyframe_pairs(kf.pts, prev.pts, prev.kf_index, kf.index == prev.index, cur_pts, good, config)
     if not stereo and kf_good is not None:
@@ -467,17 +531,34 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         if stereo:
             result = _pose_pnp(ref, cur_pts, good, K, guess, config)
         if result is None:
-            step = float(np.linalg.norm(guess[:3, 3])) or 1.0
-            result = _pose_essential(ref, cur_pts, good, K, step, config, essential)
+            expected, jump = state.speed * (state.frames - ref.index), config.max_speed_jump
+            bounds = (expected / jump, expected * jump)
+            # The scale when the reference has no depths: after a loss, the last scene depth's
+            # (the motion model is a guess there); else the motion model's step, unless it is
+            # implausible (a stop gives ~0: carry the last step's length). Measured: the
+            # scene depth in place of the motion model while tracking is worse (ATE 10.6 mm
+            # against 9.3 on the 60-frame seed-5 sequence of benchmarks/orbslam_accuracy.py).
+            step = float(np.linalg.norm(guess[:3, 3]))
+            step = step if bounds[0] <= step <= bounds[1] else expected
+            result = _pose_essential(ref, cur_pts, good, K, config, essential, step=step,
+                                     scene_depth=state.scene_depth if state.lost else np.nan, bounds=bounds)
+    if result is not None and (result[1] < config.min_inliers or not np.isfinite(result[0]).all()):
+        result = None
     if result is None:
-        T, inliers, reference = guess, 0, REF_LOST
+        # Lost (too few matches or inliers, no model, an implausible scale jump): the motion
+        # model's pose, as ORB-SLAM2 keeps it, and no depths. Composed from the
+        # previous pose (not through the reference) and orthonormal: a run of lost frames
+        # must not compound rounding (see _orthonormal).
+        inliers, reference = 0, REF_LOST
+        pose, velocity, speed = _orthonormal(prev.pose @ _inv(state.velocity)), state.velocity, state.speed
     else:
         T, inliers, tri = result
         if not stereo and tri is not None:
             idx, cur_depth[idx], cur_var[idx] = tri
             carry_depths(ref, cur_pts, good, T, K, cur_depth, cur_var)
-            if from_kf:
-                # The points matched since the keyframe only: from the previous frame.
+            if from_kf and not state.lost:
+                # The points matched since the keyframe only: from the previous frame (not a
+                # lost one: its pose is a guess).
                 rest = prev_good[np.isnan(cur_depth[prev_good[:, 0]])]
                 idx, z, v = _triangulate_known(prev, cur_pts, rest, T @ _inv(kf.pose) @ prev.pose, K)
                 cur_depth[idx], cur_var[idx] = z, v
@@ -485,16 +566,24 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
                 # A keyframe without depths (the first, or one after a loss): as ORB-SLAM2's
                 # map initialisation, both frames of its first triangulation get them.
                 kf = backfill(kf, cur_pts, good, T, K, cur_depth, cur_var)
-    pose = ref.pose @ _inv(T)
-    velocity = _inv(pose) @ prev.pose
+        pose = _orthonormal(ref.pose @ _inv(T))
+        velocity = _inv(pose) @ prev.pose
+        moved = float(np.linalg.norm(T[:3, 3])) / (state.frames - ref.index)
+        speed = moved if moved > 0 else state.speed
     since = state.frames - kf.index
-    kf_inliers = state.keyframe_inliers or inliers
-    is_kf = (reference == REF_LOST or since >= config.keyframe_interval
-             or inliers < config.keyframe_ratio * kf_inliers)
+    kf_inliers = kf_inliers or inliers
+    lost = reference == REF_LOST
+    # A lost frame keeps the last keyframe: the next frame relocalises against it, as
+    # ORB-SLAM2 does against its keyframes, unless it matches the lost frame (see above).
+    is_kf = not lost and (since >= config.keyframe_interval or inliers < config.keyframe_ratio * kf_inliers)
     kf_index = np.full(n, -1)
-    kf_index[good[:, 0]] = good[:, 1] if from_kf else prev.kf_index[good[:, 1]]
+    if not lost:  # (no keyframe tracks through a lost frame)
+        kf_index[good[:, 0]] = good[:, 1] if from_kf else prev.kf_index[good[:, 1]]
     rec = _record(kps, desc, cur_depth, cur_var, pose, state.frames, np.arange(n) if is_kf else kf_index)
-    new = TrackState(state.frames + 1, rec, rec if is_kf else kf, velocity, 0 if is_kf else kf_inliers)
+    known = cur_depth[np.isfinite(cur_depth)]
+    scene_depth = float(np.median(known)) if len(known) >= MIN_COMMON else state.scene_depth
+    new = TrackState(state.frames + 1, rec, rec if is_kf else kf, velocity, 0 if is_kf else kf_inliers, speed,
+                     scene_depth, state.lost + 1 if lost else 0)
     stats = np.array([n, len(good), inliers, float(is_kf), reference, 1e3 * (time.perf_counter() - t0)])
     return new, pose, stats
 

@@ -12,13 +12,15 @@ sequence, the stereo matching of frame t (:func:`~warpvx.apps.orbslam_match.ster
     feats, last_desc[-1] -> match_batch (GPU role) -> last_desc, nearest rows both ways between
         consecutive frames, one launch for the batch
         (:func:`~warpvx.apps.orbslam_match.nearest_batch_warp`)
-    images, feats, nearest, tail[-1] -> pose_batch (CPU) -> tail, ahead: the mutual pairs and
-        their filter on the host, then the essential cores (mono) or stereo depths of the B
-        frames in parallel on a process pool
+    images, feats, nearest, tail[-1] -> pose_batch (CPU) -> tail, ahead: per frame on a
+        process pool, the mutual pairs and their filter, then the essential core to the
+        previous frame (mono) or the stereo depths; mono, the core to the frame before the
+        previous one as the keyframe (a guess: right after a keyframe change)
     state[-1], feats, ahead -> chain (CPU) -> state, poses [B, 4, 4], stats [B, 6]: ``track``
         frame by frame, the essential matrix taken from ``ahead`` when its inputs are the
-        ones worked out ahead (the previous frame as the reference; the keyframe fallback is
-        computed on the spot)
+        ones worked out ahead; the cores to the keyframe are speculated on the pool a few
+        frames before the chain needs them (only the chain knows the keyframe), as urgent
+        jobs that start before the next batch's (see :class:`PosePool`)
 
 With ``stream(depth >= 2)`` batch k+1 is extracted and matched on the GPU while batch k is
 tracked. The pool is one of processes (``cv2.setNumThreads(1)`` in each), not threads: the
@@ -34,10 +36,14 @@ of the device matcher's ties, which match the CPU ones (see the tests).
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import functools
+import heapq
+import itertools
 import os
 import sys
+import threading
 import time
 
 import numpy as np
@@ -74,32 +80,98 @@ def _caller_script_hidden():
             setattr(main, k, v)
 
 
+class PoolTask:
+    """One job on a :class:`PosePool`: :meth:`get` waits for its value; :meth:`cancel` drops
+    it if no process has started it yet."""
+
+    def __init__(self, fn, args, lock):
+        self._job, self._result, self.cancelled, self._lock = (fn, args), None, False, lock
+        self._settled = threading.Event()  # started, or cancelled
+
+    def get(self):
+        self._settled.wait()
+        if self._result is None:
+            raise WarpvxValueError("task: cancelled before it started")
+        return self._result.get()
+
+    def cancel(self):
+        with self._lock:
+            self._drop()
+
+    def _drop(self):
+        """Cancel if not started (the caller holds the pool's lock)."""
+        if self._result is None:
+            self.cancelled = True
+            self._settled.set()
+
+
 class PosePool:
     """Processes for :func:`pose_batch`, all started on construction (about a second each;
     spawned, not forked: the parent holds a CUDA context and executor threads), each with
     one OpenCV thread since the pool already spreads the work over the cores. ``workers``:
-    the number of processes. Close it with :meth:`shutdown` (or use it as a context manager)."""
+    the number of processes. Close it with :meth:`shutdown` (or use it as a context manager).
 
-    def __init__(self, workers: int):
+    Jobs wait in the parent, by priority, and go to the processes only as these free up (no
+    more in flight than processes): an ``urgent`` job (what the tracking chain waits on) then
+    starts before every queued non-urgent one (the next batch's work) instead of behind it,
+    and a job cancelled before it starts costs nothing. ``waited_s`` sums the seconds
+    :meth:`wait` spent blocked, by its ``what``; ``started`` counts the jobs started and
+    ``cancelled`` those dropped unstarted, by function name. ``ahead`` False (to measure
+    what it gives): every job in submit order, and :func:`pose_batch` guesses no core."""
+
+    def __init__(self, workers: int, ahead: bool = True):
         from multiprocessing import get_context
 
         with _caller_script_hidden():
             self._pool = get_context("spawn").Pool(workers, initializer=_init_worker)
-        self.workers = workers
+        self.workers, self.ahead = workers, ahead
+        self._lock = threading.Lock()
+        self._queue, self._order, self._running = [], itertools.count(), 0
+        self.waited_s, self.started, self.cancelled = (collections.Counter() for _ in range(3))
+
+    def submit(self, fn, *args, urgent: bool = False) -> PoolTask:
+        """``fn(*args)`` on a process, as soon as one is free and no job more urgent (or
+        submitted earlier at the same urgency) waits."""
+        task = PoolTask(fn, args, self._lock)
+        with self._lock:
+            heapq.heappush(self._queue, (not (urgent and self.ahead), next(self._order), task))
+            self._dispatch()
+        return task
+
+    def _dispatch(self):
+        """Start queued jobs while processes are free (the caller holds the lock)."""
+        while self._running < self.workers and self._queue:
+            task = heapq.heappop(self._queue)[2]
+            if task.cancelled:
+                self.cancelled[task._job[0].__name__] += 1
+                continue
+            self.started[task._job[0].__name__] += 1
+            self._running += 1
+            task._result = self._pool.apply_async(*task._job, callback=self._done, error_callback=self._done)
+            task._settled.set()
+
+    def _done(self, _):
+        with self._lock:
+            self._running -= 1
+            self._dispatch()
 
     def map(self, fn, jobs) -> list:
         """``[fn(*job) for job in jobs]`` on the processes, one job per task."""
-        return self._pool.starmap(fn, jobs, chunksize=1)
+        return [t.get() for t in [self.submit(fn, *job) for job in jobs]]
 
-    def map_async(self, fn, jobs):
-        """:meth:`map` started now; ``.get()`` of the result waits for the list."""
-        return self._pool.starmap_async(fn, jobs, chunksize=1)
-
-    def submit(self, fn, *args):
-        """``fn(*args)`` started now; ``.get()`` of the result waits for it."""
-        return self._pool.apply_async(fn, args)
+    def wait(self, task, what: str):
+        """``task.get()``, its blocked time added to ``waited_s[what]``."""
+        t = time.perf_counter()
+        try:
+            return task.get()
+        finally:
+            self.waited_s[what] += time.perf_counter() - t
 
     def shutdown(self, cancel_futures: bool = False):
+        with self._lock:
+            for *_, task in self._queue:
+                task._drop()
+            self._queue.clear()
         if cancel_futures:
             self._pool.terminate()
         else:
@@ -124,18 +196,20 @@ def make_pool(workers: int | None = None) -> PosePool | None:
 
 
 class _Later:
-    """``[fn(*job) for job in jobs]``: on ``pool``'s processes when given, started now and
-    waited for by :meth:`get` (in the ``chain`` node: the next batch's jobs queue up behind
-    these while the chain waits, so the pool never idles between batches); else in the
+    """``[fn(*job) for job in jobs]``: on ``pool``'s processes when given, submitted now (not
+    urgent: the chain's keyframe jobs go first) and waited for by :meth:`get`; else in the
     calling thread, now."""
 
-    def __init__(self, pool, fn, jobs):
-        self._pending = pool.map_async(fn, jobs) if pool is not None else None
+    def __init__(self, pool, fn, jobs, guesses=()):
+        self._pool = pool
+        self._pending = [pool.submit(fn, *job) for job in jobs] if pool is not None else None
         self._values = None if pool is not None else [fn(*job) for job in jobs]
+        #: Per job, a pending :func:`guess_job` (submitted after all the jobs), or None.
+        self.guesses = [None if g is None else pool.submit(guess_job, *g) for g in guesses] or [None] * len(jobs)
 
     def get(self) -> list:
         if self._values is None:
-            self._values = self._pending.get()
+            self._values = [self._pool.wait(t, "ahead") for t in self._pending]
         return self._values
 
 
@@ -178,12 +252,18 @@ def _pts(kps):
     return np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
 
 
+#: :func:`pose_batch`'s ``tail`` before the first batch: no frame.
+NO_TAIL = (np.zeros((0, 2)), np.zeros(0), None)
+
+
 def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, pool):
     """The state-free tracking work of a batch (CPU, fanned out to ``pool``): per frame the
     mutual pairs to the previous frame and, for a stereo camera, each keypoint's stereo depth;
-    else the essential core of the filtered matches to the previous frame. Each frame is one
-    job (:func:`frame_job`): the calling thread only slices the batch, so the pose work holds
-    the GIL of the process that runs the tracking for none of it.
+    else the essential core of the filtered matches to the previous frame (:func:`frame_job`)
+    and, on a pool with ``ahead`` and ``keyframe_motion`` on, the one to the frame before it
+    as the keyframe (:func:`guess_job`, after the batch's frame jobs: the chain waits for
+    those first). Each is one job: the calling thread only slices the batch, so the pose work
+    holds the GIL of the process that runs the tracking for none of it.
 
     Parameters
     ----------
@@ -192,26 +272,42 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     feats : list of B' (Keypoints, uint8 [N, 32])
     nearest : (nearest, distance, starts)
         :func:`match_batch`'s second output.
-    tail : tuple (float64 [N, 2] points, float64 [N] angles)
-        The previous batch's last frame (empty before the first batch).
+    tail : tuple (float64 [N, 2] points, float64 [N] angles, before)
+        The previous batch's last frame and ``before``, its (nearest, points, angles) of the
+        frame before it (None: none); :data:`NO_TAIL` before the first batch.
 
     Returns
     -------
-    tail : the last frame's (points, angles)
-    ahead : the pool's results, still running: :func:`ahead_frames` waits for them.
+    tail : the last frame's (points, angles, before)
+    ahead : the pool's results, still running: :func:`ahead_frames` waits for them; its
+        ``guesses``: per frame the pending :func:`guess_job` or None.
     """
-    prev_pts, prev_angles = tail
+    prev_pts, prev_angles, before = tail
     fx = float(K[0, 0])
-    jobs = []
+    # The guesses only pay on a pool (without one the chain computes what it needs).
+    guessing = pool is not None and pool.ahead and baseline is None and config.keyframe_motion
+    jobs, guesses = [], []
     for f, (kps, desc) in enumerate(feats[:frames], 1):
         pts, angles = _pts(kps), np.asarray(kps.angle, np.float64)
         stereo = None
         if baseline is not None:
             kr, dr = feats[frames + f - 1]
             stereo = (kps, desc, kr, dr, images[f - 1], images[frames + f - 1], fx, baseline)
-        jobs.append((batch_pairs(*nearest, f), pts, angles, prev_pts, prev_angles, K, config, stereo))
+        near = batch_pairs(*nearest, f)
+        jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo))
+        guesses.append(None if before is None or not guessing else (before, near, pts, angles, prev_pts,
+                                                                    prev_angles, K, config))
+        before = (near, prev_pts, prev_angles)
         prev_pts, prev_angles = pts, angles
-    return (prev_pts, prev_angles), _Later(pool, frame_job, jobs)
+    return (prev_pts, prev_angles, before), _Later(pool, frame_job, jobs, guesses if guessing else ())
+
+
+def _good(nearest, pts, angles, prev_pts, prev_angles, config):
+    """(pairs int32 [M, 2], distances int32 [M], good int [G, 2]): the mutual pairs of
+    :func:`~warpvx.apps.orbslam_match.batch_pairs`' ``nearest`` and those ``track``'s match
+    filter keeps."""
+    p, d = mutual_pairs(*nearest, len(pts), len(prev_pts))
+    return p, d, o.filter_matches(p, d, angles, prev_angles, config) if len(pts) else p[:0]
 
 
 def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
@@ -224,20 +320,52 @@ def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
     :func:`~warpvx.apps.orbslam.essential_core`'s result) for the filtered matches to the
     previous frame, what ``track`` hands to it when that frame is the reference, or None when
     ``track`` will not need one."""
-    idx, dist, back = nearest
-    p, d = mutual_pairs(idx, dist, back, len(pts), len(prev_pts))
     if stereo is not None:
+        p, d = mutual_pairs(*nearest, len(pts), len(prev_pts))
         kl, dl, kr, dr, left, right, fx, baseline = stereo
         return p, d, stereo_depth(kl, dl, kr, dr, left, right, fx=fx, baseline=baseline,
                                   scale_factor=config.scale_factor, max_distance=config.stereo_max_distance), None
-    good = o.filter_matches(p, d, angles, prev_angles, config) if len(pts) else p[:0]
+    p, d, good = _good(nearest, pts, angles, prev_pts, prev_angles, config)
     return p, d, _core_ahead(prev_pts, pts, good, K, config), good
+
+
+def guess_job(before, nearest, pts, angles, prev_pts, prev_angles, K, config):
+    """Monocular (on a pool process): (p1, p2, essential core) for the motion ``track`` takes
+    from the frame before the previous one when that is the keyframe, or None (``track``
+    would not ask for one). That is the core it asks for right after a keyframe change, and
+    keyframes two frames apart are common (the inliers drop there). ``before``: the previous
+    frame's (nearest, points, angles of that frame); the rest as :func:`frame_job`'s."""
+    near, kf_pts, kf_angles = before
+    prev_good = _good(near, prev_pts, prev_angles, kf_pts, kf_angles, config)[2]
+    cursor = _track_step(kf_pts, _keyframe_cursor(kf_pts), prev_pts, prev_good, config)[1]
+    good = _good(nearest, pts, angles, prev_pts, prev_angles, config)[2]
+    return _core_ahead(kf_pts, pts, _track_step(kf_pts, cursor, pts, good, config)[0], K, config)
+
+
+def _keyframe_cursor(kf_pts):
+    """:func:`_track_step`'s cursor at a keyframe with points ``kf_pts``."""
+    return kf_pts, np.arange(len(kf_pts)), True
+
+
+def _track_step(kf_pts, cursor, pts, good, config):
+    """One frame along the keyframe's tracks, as ``track`` takes it when the keyframe stays:
+    ``cursor`` = (previous frame's points, its keypoints' keyframe keypoint (-1 none), whether
+    it is the keyframe); ``pts``, ``good``: this frame's points and filtered matches to the
+    previous frame. Returns (pairs int [M, 2] to the keyframe when ``track`` takes the motion
+    from it, else None (:func:`~warpvx.apps.orbslam.keyframe_pairs`); this frame's cursor)."""
+    prev_pts, kf_index, prev_is_kf = cursor
+    tracked, kf_good = o.keyframe_pairs(kf_pts, prev_pts, kf_index, prev_is_kf, pts, good, config)
+    kf_index = np.full(len(pts), -1)
+    kf_index[good[:, 0]] = tracked
+    return kf_good, (pts, kf_index, False)
 
 
 def _essential_points(ref_pts, pts, pairs, config):
     """(p1, p2) for ``pairs`` (this frame's index, the reference's): what ``track`` hands to
     :func:`~warpvx.apps.orbslam.essential_core` for that reference, or None when it will not
-    call it (too few pairs, too little parallax)."""
+    call it (none, too few pairs, too little parallax)."""
+    if pairs is None:
+        return None
     p1, p2 = ref_pts[pairs[:, 1]], pts[pairs[:, 0]]
     if len(pairs) < 8 or np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
         return None
@@ -250,16 +378,27 @@ def _core_ahead(ref_pts, pts, pairs, K, config):
     return None if points is None else (*points, o.essential_core(*points, K, config))
 
 
-def _essential_ahead(*cores):
+def _essential_ahead(*cores, pool=None, guess=None):
     """An ``essential`` for :func:`~warpvx.apps.orbslam.track`: a core = (p1, p2, result)
-    worked out ahead (the result may be a pending pool result) is returned for those very
-    points, anything else is computed."""
+    worked out ahead (the result may be a :class:`PoolTask`, waited for on ``pool``) is
+    returned for those very points, as is ``guess``'s (a pending :func:`guess_job`: waited for
+    only when no core matches); anything else is computed (its time booked on ``pool`` as
+    ``waited_s["on the spot"]``: nothing ran it ahead)."""
+
+    def guessed():
+        # (Cancelled: the chain ruled it out; track then asks for another keyframe's core.)
+        yield None if guess is None or guess.cancelled else pool.wait(guess, "keyframe")
 
     def essential(p1, p2, K, config):
-        for core in cores:
+        for core in itertools.chain(cores, guessed()):
             if core is not None and np.array_equal(p1, core[0]) and np.array_equal(p2, core[1]):
-                return core[2].get() if hasattr(core[2], "get") else core[2]
-        return o.essential_core(p1, p2, K, config)
+                return pool.wait(core[2], "keyframe") if isinstance(core[2], PoolTask) else core[2]
+        t = time.perf_counter()
+        try:
+            return o.essential_core(p1, p2, K, config)
+        finally:
+            if pool is not None:
+                pool.waited_s["on the spot"] += time.perf_counter() - t
 
     return essential
 
@@ -269,30 +408,58 @@ def _essential_job(p1, p2, K, config):
     return o.essential_core(p1, p2, K, config)
 
 
-def speculate_keyframe(state, frames, pool, K, config) -> dict:
-    """Monocular: the essential cores ``track`` will ask for when it takes a frame's motion
-    from the keyframe, started on ``pool`` before the chain reaches the frame. Which frame is
-    the keyframe is state (only ``chain`` knows it), but from one frame to the next the
-    keypoints' keyframe tracks only compose the frames' filtered matches, so with the current
-    keyframe the tracks, the parallax test and the points of every later frame of the batch
-    are known until the keyframe changes (then the chain speculates again).
+#: Frames ahead of the chain whose keyframe cores :class:`KeyframeSpeculation` keeps started:
+#: ~ a core's latency (one process: ~14 ms on the H100 host) over the chain's time per frame
+#: (~3 ms there).
+SPECULATE_AHEAD = 6
 
-    ``frames``: [(frame index in the batch, points float64 [N, 2], good int [G, 2])] of the
-    frames after ``state.previous``, in order. Returns {frame index: (p1, p2, pending)}."""
-    kf, prev = state.keyframe, state.previous
-    if pool is None or kf is None or prev is None or not config.keyframe_motion:
-        return {}
-    kf_index, prev_pts, prev_is_kf = prev.kf_index, prev.pts, kf.index == prev.index
-    out = {}
-    for f, pts, good in frames:
-        tracked, kf_good = o.keyframe_pairs(kf.pts, prev_pts, kf_index, prev_is_kf, pts, good, config)
-        points = None if kf_good is None else _essential_points(kf.pts, pts, kf_good, config)
-        if points is not None:
-            out[f] = (*points, pool.submit(_essential_job, *points, K, config))
-        kf_index = np.full(len(pts), -1)
-        kf_index[good[:, 0]] = tracked
-        prev_pts, prev_is_kf = pts, False
-    return out
+
+class KeyframeSpeculation:
+    """Monocular: the essential cores ``track`` will ask for when it takes a frame's motion
+    from the current keyframe, started on ``pool`` (urgent) :data:`SPECULATE_AHEAD` frames
+    before the chain reaches the frame. Which frame is the keyframe is state (only ``chain``
+    knows it), but from one frame to the next the keypoints' keyframe tracks only compose the
+    frames' filtered matches, so with the current keyframe the tracks, the parallax test and
+    the points of every later frame of the batch are known until the keyframe changes (then
+    the chain cancels what has not started and speculates again).
+
+    ``state``: the chain's before frame ``first`` of the batch; ``pts``, ``good``, ``guessed``
+    per frame of the batch: points float64 [N, 2], filtered matches int [G, 2] to the previous
+    frame, whether :func:`guess_job` runs for it (then the frame two after the keyframe needs
+    no core started). ``hold``: start none past frame ``first + 1`` (the first that may need
+    one) before the chain reaches frame ``first + 2`` (when the last keyframe lasted two
+    frames: the next change, which drops them, comes as soon)."""
+
+    def __init__(self, state, first, pts, good, guessed, pool, K, config, hold=False):
+        kf, prev = state.keyframe, state.previous
+        self.cores, self._next, self._hold = {}, first, first + 2 if hold else first
+        self._on = pool is not None and kf is not None and prev is not None and config.keyframe_motion
+        if self._on:
+            self._cursor = (prev.pts, prev.kf_index, kf.index == prev.index)
+            # The batch's frame whose guess_job works out this keyframe's core (if in the batch).
+            self._guessed = first + kf.index + 2 - state.frames
+            self._kf_pts, self._args = kf.pts, (pts, good, guessed, pool, K, config)
+
+    def ahead(self, f):
+        """Started up to frame ``f`` + :data:`SPECULATE_AHEAD` (the chain is at frame ``f``;
+        holding, up to ``first + 1``)."""
+        if not self._on:
+            return
+        pts, good, guessed, pool, K, config = self._args
+        end = f + 1 + SPECULATE_AHEAD if f >= self._hold else self._hold
+        while self._next < min(end, len(pts)):
+            u = self._next
+            if u == self._guessed and guessed[u] and end == u + 1:
+                break  # the guess covers it: its tracks only when a later frame needs them
+            kf_good, self._cursor = _track_step(self._kf_pts, self._cursor, pts[u], good[u], config)
+            points = _essential_points(self._kf_pts, pts[u], kf_good, config)
+            if points is not None and not (u == self._guessed and guessed[u]):
+                self.cores[u] = (*points, pool.submit(_essential_job, *points, K, config, urgent=True))
+            self._next += 1
+
+    def cancel(self):
+        for *_, task in self.cores.values():
+            task.cancel()
 
 
 def ahead_frames(ahead) -> list:
@@ -304,22 +471,36 @@ def ahead_frames(ahead) -> list:
 def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
     """Track the batch's frames in order (:func:`~warpvx.apps.orbslam.track`, cheap with the
     work done ahead; monocular, the keyframe's cores speculated on ``pool``, see
-    :func:`speculate_keyframe`): (state, poses float64 [B, 4, 4], stats float64 [B, 6])."""
+    :class:`KeyframeSpeculation`, and ``ahead``'s guesses: one used when the keyframe is two
+    frames back, dropped unstarted once it cannot be): (state, poses float64 [B, 4, 4], stats
+    float64 [B, 6])."""
     poses, stats = [], []
     per_frame = ahead_frames(ahead)
-    pts = [_pts(kps) for kps, _ in feats[:frames]] if baseline is None else None
-    spec, keyframe = {}, -1
+    guesses = ahead.guesses if pool is not None else [None] * frames
+    if baseline is None:
+        pts, good = [_pts(kps) for kps, _ in feats[:frames]], [a[3] for a in per_frame]
+        guessed = [g is not None for g in guesses]
+    spec, keyframe, span = None, -1, 0
     for f, ((kps, desc), (pairs, dist, extra, _)) in enumerate(zip(feats[:frames], per_frame)):
         if baseline is not None:
             state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config)
         else:
             now = None if state.keyframe is None else state.keyframe.index
             if now != keyframe:  # a new keyframe (or the batch's first frame): speculate again
+                if spec is not None:
+                    spec.cancel()
+                    span = now - keyframe if None not in (now, keyframe) else 0
                 keyframe = now
-                spec = speculate_keyframe(state, [(u, pts[u], per_frame[u][3]) for u in range(f, frames)],
-                                          pool, K, config)
+                spec = KeyframeSpeculation(state, f, pts, good, guessed, pool, K, config, hold=span == 2)
+            spec.ahead(f)
+            # The guesses for the keyframe two frames back: this frame's needed only if it is
+            # so; the next frame's only if the previous frame is the keyframe.
+            guess = guesses[f] if now is not None and now == state.frames - 2 else None
+            for u, need in ((f, guess is not None), (f + 1, now is not None and now == state.frames - 1)):
+                if u < frames and guesses[u] is not None and not need:
+                    guesses[u].cancel()
             state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config,
-                                      essential=_essential_ahead(extra, spec.get(f)))
+                                      essential=_essential_ahead(extra, spec.cores.get(f), pool=pool, guess=guess))
         poses.append(pose)
         stats.append(st)
     return state, np.asarray(poses), np.asarray(stats)
@@ -372,7 +553,7 @@ def build_batch_graph(camera: o.Camera, batch: int, config: o.TrackerConfig = o.
     images = g.input("images", shape=(batch * (2 if camera.stereo else 1), h, w), dtype=np.uint8)
     feats, nearest = add_extract_match(g, images, batch, config, target=pin)
     tail = g.virtual("tail")
-    last = g.delay(tail, init=(np.zeros((0, 2)), np.zeros(0)))[-1]
+    last = g.delay(tail, init=NO_TAIL)[-1]
     _, ahead = g.user(functools.partial(pose_batch, pool=pool, **common), [images, feats, nearest, last],
                       [tail, "ahead"], name="pose_batch")
     state = g.virtual("state")

@@ -65,11 +65,30 @@ def _anchor(poses):
     return np.linalg.inv(poses[0]) @ poses
 
 
+def _write_tracked(out, seq, poses, rows):
+    """Write the trajectories (TUM, KITTI) and ``frames.csv`` of the tracked frames into ``out``."""
+    import csv
+
+    from . import trajectory_eval as te
+
+    te.write_tum(out / "trajectory.tum.txt", seq.times[:len(poses)], poses)
+    te.write_kitti(out / "trajectory.kitti.txt", poses)
+    with open(out / "frames.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "time", *app.STATS[:5], "lost", "track_ms", "ms"])
+        w.writerows(rows)
+
+
 def run(args) -> int:
     """Run the front end for parsed ``args`` (see :func:`add_arguments`); returns 0. Raises a
-    warpvx error on bad input (the callers print it as one line, exit status 2)."""
-    import csv
+    warpvx error on bad input (the callers print it as one line, exit status 2). The
+    trajectories and ``frames.csv`` are written for the frames tracked even when reading or
+    tracking stops part way (an error, which then says so, or Ctrl-C). Frames where tracking
+    was lost (their poses the motion model's, see :func:`warpvx.apps.orbslam.track`) are
+    flagged in the ``lost`` column, counted in ``metrics.json`` (``lost_frames``) and the
+    summary line, and listed in a warning on stderr."""
     import json
+    import sys
 
     from tqdm import tqdm
 
@@ -115,26 +134,35 @@ def run(args) -> int:
                                            workers=getattr(args, "pose_workers", None), depth=args.depth)
         else:
             tracked = app.track_frames(feed(), seq.camera, config, backend=args.backend, depth=args.depth)
-        for f in tracked:
-            poses.append(f.pose)
-            rows.append([f.index, f"{seq.times[f.index]:.6f}"]
-                        + [int(f.stats[k]) for k in app.STATS[:5]]
-                        + [f"{f.stats['track_ms']:.3f}", f"{f.ms:.3f}"])
-            bar.update()
+        try:
+            for f in tracked:
+                poses.append(f.pose)
+                lost = int(f.stats["reference"] == app.REF_LOST)
+                rows.append([f.index, f"{seq.times[f.index]:.6f}"]
+                            + [int(f.stats[k]) for k in app.STATS[:5]]
+                            + [lost, f"{f.stats['track_ms']:.3f}", f"{f.ms:.3f}"])
+                bar.update()
+        except BaseException as exc:
+            if not poses:
+                raise
+            _write_tracked(out, seq, np.asarray(poses), rows)
+            if isinstance(exc, WarpvxError):  # (still one line: the callers print it)
+                raise type(exc)(f"{exc} (the {len(poses)} frames before it are tracked in {out})") from exc
+            raise
     poses = np.asarray(poses)
     n = len(poses)
-    te.write_tum(out / "trajectory.tum.txt", seq.times[:n], poses)
-    te.write_kitti(out / "trajectory.kitti.txt", poses)
-    with open(out / "frames.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["frame", "time", *app.STATS[:5], "track_ms", "ms"])
-        w.writerows(rows)
+    _write_tracked(out, seq, poses, rows)
+    lost = [r[0] for r in rows if r[7]]
+    if lost:
+        shown = ", ".join(map(str, lost[:10])) + (", ..." if len(lost) > 10 else "")
+        print(f"warning: tracking lost on {len(lost)} of {n} frames ({shown}): their poses are the "
+              "constant-velocity model's (frames.csv: lost)", file=sys.stderr)
     note = ("monocular: scale is unobservable, the trajectory is right up to one global scale "
             "(ATE after Sim(3) alignment)" if mode == "monocular"
             else "stereo: metric scale from the stereo baseline (ATE after SE(3) alignment)")
     report = {"source": os.fspath(args.source), "kind": seq.kind, "mode": mode, "note": note,
               "frames": n, "backend": args.backend, "batch": batch, "keyframe_motion": config.keyframe_motion,
-              "read_ms_per_frame": seq.read_ms / max(n, 1)}
+              "read_ms_per_frame": seq.read_ms / max(n, 1), "lost_frames": len(lost)}
     gt = None
     if args.gt:
         idx, gt = _ground_truth(args.gt, seq, n)
@@ -151,7 +179,7 @@ def run(args) -> int:
             te.save_plot(out / "trajectory.png", aligned, gt, f"{mode}, aligned to ground truth")
         else:
             te.save_plot(out / "trajectory.png", poses, None, f"{mode} (top view)")
-    msg = f"{n} frames ({mode}; {note}) -> {out}"
+    msg = f"{n} frames ({mode}; {note}; {len(lost)} lost) -> {out}"
     if gt is not None:
         msg += f"; ATE {report['warpvx']['ate']['rmse']:.4g}"
     print(msg)

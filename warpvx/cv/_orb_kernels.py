@@ -6,7 +6,9 @@ compile serves them; imported only when an ORB call runs on a Warp device.
 ``blur_rows7``,         ORB's 7x7, sigma 2 Gaussian as OpenCV's float separable filter takes
 ``blur_columns7``        it (rows, then columns with the symmetric sum, float32, cvRound),
                          BORDER_REFLECT_101, inside an unblurred reflected margin
-``describe_centres``     rotated BRIEF (``describe_byte``) at integer level centres
+
+(Its rotated BRIEF is :func:`warpvx.kernels_warp.orb.brief.describe_points`, shared with the
+ORB stage nodes.)
 """
 
 from __future__ import annotations
@@ -14,7 +16,6 @@ from __future__ import annotations
 import warp as wp
 
 from ..kernels_warp._sampling import BORDER_REFLECT_101, border_index, read_reflect101
-from ..kernels_warp.orb.funcs import describe_byte
 
 wp.set_module_options({"enable_backward": False})
 
@@ -66,11 +67,3 @@ def blur_columns7(src: wp.array2d(dtype=wp.uint8), rows: wp.array2d(dtype=wp.flo
         s += k[HALF + d] * (below + above)
     dst[py, px] = wp.uint8(wp.clamp(int(wp.rint(s)), 0, 255))
 
-
-@wp.kernel
-def describe_centres(img: wp.array2d(dtype=wp.uint8), cx: wp.array(dtype=wp.int32),
-                     cy: wp.array(dtype=wp.int32), angle: wp.array(dtype=wp.float32),
-                     pattern: wp.array2d(dtype=wp.int32), desc: wp.array2d(dtype=wp.uint8)):
-    """Byte j of keypoint i's descriptor, centred at (cx[i], cy[i]) of the blurred level."""
-    i, j = wp.tid()
-    desc[i, j] = wp.uint8(describe_byte(img, cy[i], cx[i], angle[i], pattern, j))

@@ -129,7 +129,7 @@ def describe(blurred, cx: np.ndarray, cy: np.ndarray, angle: np.ndarray) -> np.n
     cy = np.ascontiguousarray(cy + MARGIN, np.int32)
     if isinstance(blurred, np.ndarray):
         return compute_descriptors(blurred, cx, cy, angle)
-    from ._orb_kernels import describe_centres
+    from ..kernels_warp.orb.brief import describe_points
 
     wp = init_warp()
     device = blurred.device
@@ -138,7 +138,7 @@ def describe(blurred, cx: np.ndarray, cy: np.ndarray, angle: np.ndarray) -> np.n
     if n:
         args = [wp.array(a, dtype=t, device=device)
                 for a, t in ((cx, wp.int32), (cy, wp.int32), (angle, wp.float32))]
-        _launch(describe_centres, (n, DESCRIPTOR_BYTES),
+        _launch(describe_points, (n, DESCRIPTOR_BYTES),
                 [blurred, *args, _on_device(str(device), "pattern")], out)
     return out.numpy()
 

@@ -106,7 +106,7 @@ def _chain(n_nodes: int, chain: str) -> Graph:
 
 def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = False,
                       chain: str | None = None, gpu=None, depth: int = 4,
-                      spin: float | None = None) -> dict:
+                      spin: float | None = None, timing: str | None = None) -> dict:
     """Per-node dispatch overhead of the executor, with trivial nodes.
 
     Builds a chain of ``n_nodes`` identity user nodes and runs ``frames`` frames with
@@ -123,13 +123,15 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
       on CUDA, an event, an upload (CPU -> GPU) or a download (GPU -> CPU).
 
     ``gpu`` is the GPU role's backend (default: CUDA when present); ``spin`` the executor's
-    (:data:`warpvx.runtime.executor.SPIN_SECONDS` by default).
+    (:data:`warpvx.runtime.executor.SPIN_SECONDS` by default); ``timing`` its GPU timing
+    (``"tasks"``, ``"bursts"``; None: its default, per task for ``process``, bursts for a
+    pipelined stream: :class:`~warpvx.runtime.Executor`).
 
     Returns
     -------
     dict
         ``chain``, ``mixed``, ``per_node_us`` (process), ``per_node_us_stream``,
-        ``frame_us``, the settings, ``inline_units`` ("short/all": the executor's units
+        ``frame_us``, the settings (``timing`` included), ``inline_units`` ("short/all": the executor's units
         scheduled short enough to run inline, :attr:`Executor.INLINE_MAX_MS`), and a
         ``breakdown`` (medians, us). ``"mixed"``: one
         CPU -> GPU -> CPU round: the GPU thread's time in a task (``gpu_task``), a CPU task's
@@ -153,6 +155,7 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
         _executor.SPIN_SECONDS = spin
     try:
         g.schedule("heft", n_cpus=1, gpu=False if chain == "cpu" else gpu)
+        g.plan.executor().timing = timing
         g.process({"x": x})  # start the threads
     finally:
         _executor.SPIN_SECONDS = saved
@@ -183,6 +186,7 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
         "mixed": chain == "mixed",
         "gpu": plan.gpu,
         "spin_us": spin_used * 1e6,
+        "timing": timing,
         "frame_us": frame_s * 1e6,
         "per_node_us": max(0.0, frame_s - t_call) / n_nodes * 1e6,
         "per_node_us_stream": max(0.0, stream_s - t_call) / n_nodes * 1e6,

@@ -483,9 +483,12 @@ def refine_best(hypotheses: wp.array(dtype=wp.mat33d), count: wp.array(dtype=wp.
 # --- host side -------------------------------------------------------------------------------
 
 
-class _Workspace:
+class Workspace:
     """Buffers and recorded launches for one (N, hypothesis count, point dtype, device): four
-    launches per call (load, sample, score, refine)."""
+    launches per call, named ``load``, ``sample``, ``score`` and ``refine`` (a caller may
+    assign another :class:`Recorded` of the same parameters to one of them, as
+    :class:`~warpvx.kernels_warp.stabilize_points.DeviceRansac` does to ``sample``);
+    ``src_pts``, ``dst_pts`` (vec2d [N]) and ``hypotheses`` (mat33d [n_hyp]) are its buffers."""
 
     def __init__(self, src, dst, n_hyp: int, threshold2: float, seed: int, device):
         n = src.shape[0]
@@ -494,7 +497,7 @@ class _Workspace:
             return wp.empty(shape, dtype=dtype, device=device)
 
         self.src_pts, self.dst_pts = empty(n, wp.vec2d), empty(n, wp.vec2d)
-        hyps = empty(n_hyp, wp.mat33d)
+        self.hypotheses = hyps = empty(n_hyp, wp.mat33d)
         count, cost = empty(n_hyp, wp.int32), empty(n_hyp, wp.float64)
         pts, thr2 = [self.src_pts, self.dst_pts], wp.float64(threshold2)
         # Placeholders for the per-call arrays (set before each launch).
@@ -507,24 +510,20 @@ class _Workspace:
 
         self.load = rec(load_points, n, [src, dst, *pts])
         self.sample = rec(sample_hypotheses, n_hyp, [*pts, int(seed), hyps])
+        self.score = rec(score_hypotheses, [n_hyp], [hyps, *pts, thr2, count, cost], BLOCK)
+        self.refine = rec(refine_best, [1], [hyps, count, cost, *pts, thr2, empty(n, wp.uint8),
+                                             h_out, mask_out], BLOCK)
         self.threshold2 = threshold2
-        self.seed = int(seed)
-        self.thresholded = [  # launches that take the squared threshold
-            rec(score_hypotheses, [n_hyp], [hyps, *pts, thr2, count, cost], BLOCK),
-            rec(refine_best, [1], [hyps, count, cost, *pts, thr2, empty(n, wp.uint8), h_out, mask_out],
-                BLOCK),
-        ]
-        self.ransac = [self.sample, *self.thresholded]
 
     def run(self, src, dst, threshold2: float, seed: int, h_out, mask_out):
         self.load.launch(src=src, dst=dst)
         self.sample.set(seed=int(seed))
         if threshold2 != self.threshold2:
-            for cmd in self.thresholded:
+            for cmd in (self.score, self.refine):  # the launches that take the threshold
                 cmd.set(threshold2=wp.float64(threshold2))
             self.threshold2 = threshold2
-        self.thresholded[-1].set(out=h_out, mask=mask_out)
-        for cmd in self.ransac:
+        self.refine.set(out=h_out, mask=mask_out)
+        for cmd in (self.sample, self.score, self.refine):
             cmd.launch()
 
 
@@ -546,9 +545,9 @@ def find_homography(src, dst, ransac_reproj_threshold: float, max_iters: int, co
         h_out, mask_out = out
     threshold2 = float(ransac_reproj_threshold) ** 2
     ws = workspace("find_homography", (n, int(max_iters), src.dtype, dst.dtype), device,
-                   lambda: _Workspace(src, dst, int(max_iters), threshold2, seed, device))
+                   lambda: Workspace(src, dst, int(max_iters), threshold2, seed, device))
     ws.run(src, dst, threshold2, seed, h_out, mask_out)
     return h_out, mask_out
 
 
-__all__ = ["find_homography", "LM_ITERS", "SAMPLE_TRIES"]
+__all__ = ["find_homography", "LM_ITERS", "SAMPLE_TRIES", "Workspace"]

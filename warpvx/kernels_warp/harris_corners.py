@@ -52,10 +52,18 @@ UNDECIDED = wp.constant(0)
 ACCEPTED = wp.constant(1)
 REJECTED = wp.constant(2)
 
-BLOCK = 256  # lanes of the block reductions and of the output scan
+BLOCK = 256  # lanes of the block reductions
+# Lanes of the output scan (``write_selected``): it walks the ranked candidates a block at a
+# time until ``max_corners`` are accepted, thousands on a real frame: wider blocks, fewer steps.
+SCAN_BLOCK = 1024
 MAX_ROUNDS = 64  # undecided counters per call (rounds launched over all batches)
 FIRST_BATCH = 8  # rounds launched in the first call of a size (later: learnt)
 MAX_CONFLICTS = 16  # better-ranked conflicts listed per candidate (more: walk the window)
+# Threads of a per-candidate launch at most, each taking every CANDIDATE_THREADS-th candidate.
+# A graph's corners are sized for every pixel (a million slots at 1280x720), and a launch over
+# all of them, nearly all idle, cost ~8 us of device time on an H100 (16 selection rounds:
+# 135 us a two-camera frame); real frames have some thousands of candidates.
+CANDIDATE_THREADS = 16384
 NEG_INF = wp.constant(-math.inf)
 
 
@@ -197,23 +205,21 @@ def collect_candidates(
 
 @wp.kernel
 def rank_candidates(keys: CandidateKeys, initial_state: int, cands: Candidates,
-                    conflicts: Conflicts):
+                    conflicts: Conflicts, stride: int):
     """Candidate ``i`` from sorted key ``i``: its position, its rank on the map, its initial
-    state; its conflict count zeroed."""
-    i = wp.tid()
-    if i >= candidate_count(cands):
-        return
-    if i < conflicts.count.shape[0]:
-        conflicts.count[i] = 0
+    state; its conflict count zeroed. Thread ``t`` of ``stride`` takes ``t, t + stride, ..``."""
     width = cands.rank.shape[1]
     mask = (wp.int64(1) << wp.int64(keys.raster_bits)) - wp.int64(1)
-    raster = int(mask - (keys.keys[i] & mask))
-    y = raster // width
-    x = raster - y * width
-    cands.x[i] = x
-    cands.y[i] = y
-    cands.rank[y, x] = i
-    cands.state[i] = initial_state
+    for i in range(wp.tid(), candidate_count(cands), stride):
+        if i < conflicts.count.shape[0]:
+            conflicts.count[i] = 0
+        raster = int(mask - (keys.keys[i] & mask))
+        y = raster // width
+        x = raster - y * width
+        cands.x[i] = x
+        cands.y[i] = y
+        cands.rank[y, x] = i
+        cands.state[i] = initial_state
 
 
 @wp.func
@@ -253,31 +259,24 @@ def conflicts_in_row(i: int, yy: int, cands: Candidates, spacing: Spacing,
 
 @wp.kernel
 def find_conflicts(cands: Candidates, spacing: Spacing, conflicts: Conflicts,
-                   undecided: wp.array(dtype=wp.int32)):
+                   undecided: wp.array(dtype=wp.int32), stride: int):
     """List each candidate's better-ranked conflicts once, a thread per (candidate, window
-    row)."""
-    i, row = wp.tid()
-    if i == 0 and row == 0:
+    row); thread ``(t, row)`` takes candidates ``t, t + stride, ..``."""
+    t, row = wp.tid()
+    if t == 0 and row == 0:
         undecided[0] = 1  # round 1 decides (a candidate without conflicts is accepted there)
-    if i >= candidate_count(cands) or i >= conflicts.count.shape[0]:
-        return
-    yy = cands.y[i] - spacing.radius + row
-    if yy >= 0 and yy < cands.rank.shape[0]:
-        conflicts_in_row(i, yy, cands, spacing, conflicts, True)
+    n = wp.min(candidate_count(cands), conflicts.count.shape[0])
+    for i in range(t, n, stride):
+        yy = cands.y[i] - spacing.radius + row
+        if yy >= 0 and yy < cands.rank.shape[0]:
+            conflicts_in_row(i, yy, cands, spacing, conflicts, True)
 
 
-@wp.kernel
-def select_candidates(cands: Candidates, spacing: Spacing, conflicts: Conflicts,
-                      round_index: int, undecided: wp.array(dtype=wp.int32)):
-    """One round (``round_index`` >= 1) deciding candidates' states; ``undecided[round_index]``
-    counts the candidates it left undecided."""
-    i = wp.tid()
-    if i >= candidate_count(cands):
-        return
-    if undecided[round_index - 1] == 0:
-        return  # the previous round decided everything
-    if cands.state[i] != UNDECIDED:
-        return
+@wp.func
+def decide(i: int, cands: Candidates, spacing: Spacing, conflicts: Conflicts,
+           round_index: int, undecided: wp.array(dtype=wp.int32)):
+    """Undecided candidate ``i``: rejected when a conflict is accepted, accepted when all its
+    conflicts are rejected, else counted in ``undecided[round_index]``."""
     accepted = int(0)
     blocked = int(0)
     listed = conflicts.count[i]
@@ -302,6 +301,18 @@ def select_candidates(cands: Candidates, spacing: Spacing, conflicts: Conflicts,
         wp.atomic_add(undecided, round_index, 1)
     else:
         cands.state[i] = ACCEPTED
+
+
+@wp.kernel
+def select_candidates(cands: Candidates, spacing: Spacing, conflicts: Conflicts,
+                      round_index: int, undecided: wp.array(dtype=wp.int32), stride: int):
+    """One round (``round_index`` >= 1) deciding candidates' states; ``undecided[round_index]``
+    counts the candidates it left undecided. Thread ``t`` takes ``t, t + stride, ..``."""
+    if undecided[round_index - 1] == 0:
+        return  # the previous round decided everything
+    for i in range(wp.tid(), candidate_count(cands), stride):
+        if cands.state[i] == UNDECIDED:
+            decide(i, cands, spacing, conflicts, round_index, undecided)
 
 
 @wp.kernel
@@ -348,10 +359,10 @@ def write_selected(
 
 
 @wp.kernel
-def clear_ranks(cands: Candidates):
-    """Put the rank map back to -1 where this call wrote it."""
-    i = wp.tid()
-    if i < candidate_count(cands):
+def clear_ranks(cands: Candidates, stride: int):
+    """Put the rank map back to -1 where this call wrote it (thread ``t`` takes candidates
+    ``t, t + stride, ..``)."""
+    for i in range(wp.tid(), candidate_count(cands), stride):
         cands.rank[cands.y[i], cands.x[i]] = -1
 
 
@@ -397,10 +408,13 @@ class _CornersWorkspace:
                                     response_bits=self.response.view(wp.int32),
                                     max_value=self.max_value, quality_level=0.0, keys=self.keys)
         self.bucket = 256
-        self.rank_cmd = Recorded(rank_candidates, self.bucket, device, keys=self.keys,
-                                 initial_state=0, cands=self.cands, conflicts=self.conflicts)
-        self.clear_cmd = Recorded(clear_ranks, self.bucket, device, cands=self.cands)
-        self.select_cmd = Recorded(write_selected, [1], device, block_dim=BLOCK, cands=self.cands,
+        self.threads = self.bucket  # of the per-candidate launches (their stride)
+        self.rank_cmd = Recorded(rank_candidates, self.threads, device, keys=self.keys,
+                                 initial_state=0, cands=self.cands, conflicts=self.conflicts,
+                                 stride=self.threads)
+        self.clear_cmd = Recorded(clear_ranks, self.threads, device, cands=self.cands,
+                                  stride=self.threads)
+        self.select_cmd = Recorded(write_selected, [1], device, block_dim=SCAN_BLOCK, cands=self.cands,
                                    undecided=self.undecided, last_round=0,
                                    points=wp.empty((0, 2), dtype=wp.float32, device=device),
                                    result=self.result)
@@ -409,17 +423,22 @@ class _CornersWorkspace:
         self.round_cmds: list = [None]  # recorded per round index (>= 1) on first use
 
     def resize(self, n: int):
-        """Launch the per-candidate kernels over ``_bucket(n)`` threads."""
+        """Size the conflict lists for ``_bucket(n)`` candidates and launch the per-candidate
+        kernels over as many threads, at most :data:`CANDIDATE_THREADS`."""
         b = _bucket(n)
-        if b != self.bucket:
-            self.bucket = b
+        self.bucket = b
+        threads = min(b, CANDIDATE_THREADS)
+        if threads != self.threads:
+            self.threads = threads
             for cmd in [self.rank_cmd, self.clear_cmd, *self.round_cmds]:
                 if cmd is not None:
-                    cmd.set_dim(b)
+                    cmd.set_dim(threads)
+                    cmd.set(stride=threads)
             if self.find_cmd is not None:
-                self.find_cmd.set_dim((b, 2 * self.spacing.radius + 1))
+                self.find_cmd.set_dim((threads, 2 * self.spacing.radius + 1))
+                self.find_cmd.set(stride=threads)
         if self.conflicts.count is None or self.conflicts.count.shape[0] < b:
-            # Sized by the launch bucket; the recorded launches take it at their next use.
+            # Sized by the bucket; the recorded launches take it at their next use.
             self.conflicts = Conflicts()
             self.conflicts.lists = wp.empty((b, MAX_CONFLICTS), dtype=wp.int32, device=self.device)
             self.conflicts.count = wp.empty(b, dtype=wp.int32, device=self.device)
@@ -434,9 +453,10 @@ class _CornersWorkspace:
         self.spacing = Spacing()
         self.spacing.radius, self.spacing.cell, self.spacing.min_dist_sq = values
         self.round_cmds = [None]
-        self.find_cmd = Recorded(find_conflicts, (self.bucket, 2 * radius + 1), self.device,
+        self.find_cmd = Recorded(find_conflicts, (self.threads, 2 * radius + 1), self.device,
                                  cands=self.cands, spacing=self.spacing,
-                                 conflicts=self.conflicts, undecided=self.undecided)
+                                 conflicts=self.conflicts, undecided=self.undecided,
+                                 stride=self.threads)
 
     def find(self):
         self.find_cmd.launch(conflicts=self.conflicts)
@@ -445,9 +465,10 @@ class _CornersWorkspace:
         """Launch round ``r`` >= 1 (recorded on first use)."""
         while len(self.round_cmds) <= r:
             self.round_cmds.append(Recorded(
-                select_candidates, self.bucket, self.device, cands=self.cands,
+                select_candidates, self.threads, self.device, cands=self.cands,
                 spacing=self.spacing, conflicts=self.conflicts,
-                round_index=len(self.round_cmds), undecided=self.undecided))
+                round_index=len(self.round_cmds), undecided=self.undecided,
+                stride=self.threads))
         self.round_cmds[r].launch(conflicts=self.conflicts)
 
 

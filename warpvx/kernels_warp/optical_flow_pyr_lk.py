@@ -1,7 +1,8 @@
 """Pyramidal Lucas-Kanade sparse optical flow on Warp (OpenCV's ``calcOpticalFlowPyrLK``).
 
-One thread block per point (:data:`BLOCK_DIM` lanes; one lane on Warp's CPU device), one
-launch per pyramid level, coarse to fine. The lanes of a block split the integration window
+One thread block per point (:data:`BLOCK_DIM` lanes; one lane on Warp's CPU device) that
+goes down the pyramid levels, coarse to fine, in one launch (one per :data:`LEVELS_PER_LAUNCH`
+levels), each point at its own pace. The lanes of a block split the integration window
 between them and combine their partial sums with block reductions (``wp.tile_sum``); every
 lane then holds the same sums, so the iteration and its exit tests run in lock step.
 
@@ -23,11 +24,13 @@ Arithmetic follows OpenCV's ``LKTrackerInvoker`` (``modules/video/src/lkpyramid.
   ``next`` (in gray levels), 0 for lost points.
 
 Speed: each lane steps through its share of the window without integer divisions; the window
-patch (value, Ix, Iy) is one int64 per sample, read with one load per iteration; windows that
-lie with their derivative margins inside the level read pixels directly (the reflecting reads
-serve the edges only). Scratch (pyramid levels of image inputs, coarse-level results, window patches)
-and the per-level launches are recorded once per problem size and replayed
-(:func:`._launch.workspace`); no host sync.
+patch (value, Ix, Iy) is one int64 per sample, held in registers for the first
+:data:`PATCH_REGS` samples of each lane (unrolled loops: a lane's loads overlap), in scratch
+past them; windows that lie with their derivative margins inside the level read pixels
+directly (the reflecting reads serve the edges only). A point's levels hand their result on
+in registers, so no point waits at a level for the slowest one. Scratch (pyramid levels of
+image inputs, results between launches, window patches) and the launches are recorded once
+per problem size and replayed (:func:`._launch.workspace`); no host sync.
 """
 
 from __future__ import annotations
@@ -44,7 +47,19 @@ wp.set_module_options({"enable_backward": False})
 BLOCK_DIM = 128
 """Lanes per point on CUDA (Warp's CPU device runs one lane per block). The kernel is bound by
 the latency of each point's iterations: on an H200, 1000 points of 21x21 took 743 / 524 /
-437 us over four levels with 32 / 64 / 128 lanes."""
+437 us over four levels with 32 / 64 / 128 lanes (a launch per level, the patch in scratch;
+``benchmarks/perf/lk_harris.py`` times 64 / 128 / 256 lanes of the current kernel)."""
+
+PATCH_REGS = 4
+"""Window samples each lane keeps in registers (the rest of its share, for windows larger than
+``PATCH_REGS * BLOCK_DIM`` = 512 samples on CUDA, go through the ``patch`` scratch). Their loops
+are unrolled, so a lane's loads of one pass are issued together instead of one latency after
+another, and the iterations read no scratch."""
+PatchRegs = wp.types.vector(length=PATCH_REGS, dtype=wp.int64)
+
+LEVELS_PER_LAUNCH = 4
+"""Pyramid levels one launch tracks (its kernel takes that many images of each pyramid;
+deeper pyramids take a launch per 4 levels). The default LK (max_level 3) is one launch."""
 
 FLT_SCALE = wp.constant(1.0 / float(1 << 20))
 FLT_EPSILON = wp.constant(1.1920928955078125e-07)
@@ -53,11 +68,12 @@ COORD_LIMIT = wp.constant(1.0e7)  # beyond this a coordinate is lost before any 
 
 @wp.struct
 class TrackParams:
-    """Per-level parameters of :func:`track_points_level`."""
+    """Parameters of one launch of :func:`track_points_levels`."""
 
     win_w: int
     win_h: int
-    level: int
+    level: int  # the launch's coarsest level
+    levels: int  # levels it tracks, from `level` down
     max_level: int
     max_iters: int
     eps2: wp.float64  # squared step threshold, compared in double as OpenCV's ddot
@@ -180,6 +196,19 @@ def window_outside(ix: int, iy: int, win_w: int, win_h: int, w: int, h: int) -> 
 
 
 @wp.func
+def window_origin(x: float, y: float, win_w: int, win_h: int, w: int, h: int) -> wp.vec3i:
+    """(floor(x), floor(y), 1) for a window with top-left corner (x, y), or (0, 0, 0) when the
+    point is lost there (coordinates unusable, or the window outside the level)."""
+    if not coords_usable(x, y):
+        return wp.vec3i(0, 0, 0)
+    ix = int(wp.floor(x))
+    iy = int(wp.floor(y))
+    if window_outside(ix, iy, win_w, win_h, w, h):
+        return wp.vec3i(0, 0, 0)
+    return wp.vec3i(ix, iy, 1)
+
+
+@wp.func
 def first_sample(lane: int, win_w: int) -> wp.vec2i:
     """(row, column) of window sample ``lane`` (row-major), a lane's first sample."""
     wy = lane // win_w
@@ -211,48 +240,94 @@ def unpack_field(p: wp.int64, shift: int) -> int:
 
 
 @wp.func
-def finish_level(i: int, lane: int, level: int, res_x: float, res_y: float, alive: bool,
-                 error: float, tracked_pts: wp.array2d(dtype=wp.float32),
-                 status: wp.array(dtype=wp.uint8), err: wp.array(dtype=wp.float32)):
-    """Lane 0 writes the point's result (status and error at level 0 only)."""
-    if lane == 0:
-        tracked_pts[i, 0] = res_x
-        tracked_pts[i, 1] = res_y
-        if level == 0:
-            if alive:
-                status[i] = wp.uint8(1)
-                err[i] = error
-            else:
-                status[i] = wp.uint8(0)
-                err[i] = 0.0
+def prev_sample(img: wp.array2d(dtype=wp.uint8), r: int, c: int, wts: wp.vec4i,
+                inner: bool) -> wp.int64:
+    """The window sample of ``prev`` at ``(r, c)`` (+ the bilinear fraction): value * 32, Ix,
+    Iy packed by :func:`pack_sample`."""
+    val = sample_fixed(img, r, c, wts[0], wts[1], wts[2], wts[3])
+    d = sample_scharr_fixed(img, r, c, wts[0], wts[1], wts[2], wts[3], inner)
+    return pack_sample(val, d[0], d[1])
 
 
-@wp.kernel
-def track_points_level(
+@wp.func
+def cov_terms(p: wp.int64) -> wp.vec3:
+    """(Ix^2, Ix Iy, Iy^2) of packed sample ``p``."""
+    dx = unpack_field(p, 16)
+    dy = unpack_field(p, 32)
+    return wp.vec3(float(dx * dx), float(dx * dy), float(dy * dy))
+
+
+@wp.func
+def mismatch(img: wp.array2d(dtype=wp.uint8), r: int, c: int, wts: wp.vec4i,
+             p: wp.int64) -> wp.vec3:
+    """(diff Ix, diff Iy, |diff|) of ``next`` at ``(r, c)`` against packed sample ``p``, diff =
+    next - prev (value * 32)."""
+    diff = sample_fixed(img, r, c, wts[0], wts[1], wts[2], wts[3]) - unpack_field(p, 0)
+    return wp.vec3(float(diff * unpack_field(p, 16)), float(diff * unpack_field(p, 32)),
+                   float(wp.abs(diff)))
+
+
+@wp.func
+def next_mismatch(img: wp.array2d(dtype=wp.uint8), r0: int, c0: int, wts: wp.vec4i,
+                  regs: PatchRegs, patch: wp.array2d(dtype=wp.int64), i: int, lane: int,
+                  nlanes: int, start: wp.vec2i, step: wp.vec2i, win_w: int, area: int) -> wp.vec3:
+    """This lane's sum of :func:`mismatch` over its samples of the window of ``next`` at
+    ``(r0, c0)``, in sample order: the ones held in ``regs``, then those in ``patch``."""
+    total = wp.vec3(0.0, 0.0, 0.0)
+    rc = start
+    for u in range(wp.static(PATCH_REGS)):
+        if lane + u * nlanes < area:
+            total += mismatch(img, r0 + rc[0], c0 + rc[1], wts, regs[u])
+        rc = next_sample(rc, step, win_w)
+    k = lane + PATCH_REGS * nlanes
+    while k < area:
+        total += mismatch(img, r0 + rc[0], c0 + rc[1], wts, patch[i, k])
+        k += nlanes
+        rc = next_sample(rc, step, win_w)
+    return total
+
+
+@wp.func
+def level_image(l: int, a0: wp.array2d(dtype=wp.uint8), a1: wp.array2d(dtype=wp.uint8),
+                a2: wp.array2d(dtype=wp.uint8), a3: wp.array2d(dtype=wp.uint8)
+                ) -> wp.array2d(dtype=wp.uint8):
+    """The ``l``-th image of a launch's levels (coarsest first)."""
+    if l == 0:
+        return a0
+    if l == 1:
+        return a1
+    if l == 2:
+        return a2
+    return a3
+
+
+@wp.func
+def track_level(
     prev_img: wp.array2d(dtype=wp.uint8),
     next_img: wp.array2d(dtype=wp.uint8),
     prev_pts: wp.array2d(dtype=wp.float32),
-    guess_pts: wp.array2d(dtype=wp.float32),
+    i: int,
+    lane: int,
+    level: int,
+    nx: float,
+    ny: float,
     params: TrackParams,
     patch: wp.array2d(dtype=wp.int64),
-    tracked_pts: wp.array2d(dtype=wp.float32),
-    status: wp.array(dtype=wp.uint8),
-    err: wp.array(dtype=wp.float32),
-):
-    """Track point ``i`` on one level; lanes split the window. Points are [N, 2] (x, y).
+) -> wp.vec4:
+    """Track point ``i`` on ``level`` from the guess ``(nx, ny)`` (level coordinates); the
+    block's lanes split the window. Returns (x, y, 1 if tracked else 0, error), the error
+    (mean absolute difference over the window, gray levels) at level 0 only, x and y the
+    guess when the point is lost before the iterations.
 
-    ``guess_pts`` is the previous (coarser) level's result, or the initial flow at the top
-    level; ``tracked_pts`` receives this level's result. ``status`` and ``err`` are written
-    at level 0 only. ``patch[i]`` holds the window of ``prev`` (value * 32, Ix, Iy packed by
-    :func:`pack_sample`) between the covariance pass and the iterations; each lane reads
-    back only what it wrote. Lane ``lane`` takes samples ``lane + j * lanes``.
+    Lane ``lane`` takes samples ``lane + j * lanes``; it keeps those of its window of
+    ``prev`` (value * 32, Ix, Iy packed by :func:`pack_sample`) in registers for
+    ``j < PATCH_REGS`` and in ``patch[i]`` past them (each lane reads back only what it
+    wrote), between the covariance pass and the iterations.
     """
-    i, lane = wp.tid()
     nlanes = wp.block_dim()
     win_w = params.win_w
     win_h = params.win_h
     area = win_w * win_h
-    level = params.level
     h = prev_img.shape[0]
     w = prev_img.shape[1]
     start = first_sample(lane, win_w)
@@ -261,18 +336,6 @@ def track_points_level(
     scale = 1.0 / float(1 << level)
     px = prev_pts[i, 0] * scale
     py = prev_pts[i, 1] * scale
-    nx = float(0.0)
-    ny = float(0.0)
-    if level == params.max_level:
-        if params.use_initial_flow != 0:
-            nx = guess_pts[i, 0] * scale
-            ny = guess_pts[i, 1] * scale
-        else:
-            nx = px
-            ny = py
-    else:
-        nx = guess_pts[i, 0] * 2.0
-        ny = guess_pts[i, 1] * 2.0
     res_x = nx
     res_y = ny
 
@@ -282,17 +345,11 @@ def track_points_level(
     y0 = py - half_y
 
     # Every branch below depends only on block-uniform values, so all lanes take it together.
-    ok = coords_usable(x0, y0)
-    ix0 = int(0)
-    iy0 = int(0)
-    if ok:
-        ix0 = int(wp.floor(x0))
-        iy0 = int(wp.floor(y0))
-        if window_outside(ix0, iy0, win_w, win_h, w, h):
-            ok = False
-    if not ok:
-        finish_level(i, lane, level, res_x, res_y, False, 0.0, tracked_pts, status, err)
-        return
+    o = window_origin(x0, y0, win_w, win_h, w, h)
+    if o[2] == 0:
+        return wp.vec4(res_x, res_y, 0.0, 0.0)
+    ix0 = o[0]
+    iy0 = o[1]
 
     # Window of prev and covariance matrix of its derivatives. Interior: the samples' taps
     # and their Scharr neighbours (rows iy0 - 1 .. iy0 + win_h + 1, same for columns) all
@@ -300,15 +357,18 @@ def track_points_level(
     inner = iy0 >= 1 and ix0 >= 1 and iy0 + win_h + 1 < h and ix0 + win_w + 1 < w
     wts = bilinear_weights(x0 - float(ix0), y0 - float(iy0))
     acc = wp.vec3(0.0, 0.0, 0.0)
-    k = lane
+    regs = PatchRegs()
     rc = start
+    for u in range(wp.static(PATCH_REGS)):
+        if lane + u * nlanes < area:
+            regs[u] = prev_sample(prev_img, iy0 + rc[0], ix0 + rc[1], wts, inner)
+            acc += cov_terms(regs[u])
+        rc = next_sample(rc, step, win_w)
+    k = lane + PATCH_REGS * nlanes
     while k < area:
-        r = iy0 + rc[0]
-        c = ix0 + rc[1]
-        val = sample_fixed(prev_img, r, c, wts[0], wts[1], wts[2], wts[3])
-        d = sample_scharr_fixed(prev_img, r, c, wts[0], wts[1], wts[2], wts[3], inner)
-        patch[i, k] = pack_sample(val, d[0], d[1])
-        acc += wp.vec3(float(d[0] * d[0]), float(d[0] * d[1]), float(d[1] * d[1]))
+        p = prev_sample(prev_img, iy0 + rc[0], ix0 + rc[1], wts, inner)
+        patch[i, k] = p
+        acc += cov_terms(p)
         k += nlanes
         rc = next_sample(rc, step, win_w)
     cov = wp.tile_extract(wp.tile_sum(wp.tile(acc, preserve_type=True)), 0)
@@ -319,8 +379,7 @@ def track_points_level(
     det = a11 * a22 - a12 * a12
     min_eig = (a22 + a11 - wp.sqrt((a11 - a22) * (a11 - a22) + 4.0 * a12 * a12)) / float(2 * area)
     if min_eig < params.min_eig_threshold or det < FLT_EPSILON:
-        finish_level(i, lane, level, res_x, res_y, False, 0.0, tracked_pts, status, err)
-        return
+        return wp.vec4(res_x, res_y, 0.0, 0.0)
     inv_det = 1.0 / det
 
     # Gauss-Newton steps on the window of next.
@@ -331,25 +390,16 @@ def track_points_level(
     prev_dy = float(0.0)
     it = int(0)
     while it < params.max_iters:
-        if not coords_usable(cx, cy):
+        oj = window_origin(cx, cy, win_w, win_h, w, h)
+        if oj[2] == 0:
             alive = False
             break
-        jx = int(wp.floor(cx))
-        jy = int(wp.floor(cy))
-        if window_outside(jx, jy, win_w, win_h, w, h):
-            alive = False
-            break
+        jx = oj[0]
+        jy = oj[1]
         wj = bilinear_weights(cx - float(jx), cy - float(jy))
-        bsum = wp.vec2(0.0, 0.0)
-        k = lane
-        rc = start
-        while k < area:
-            p = patch[i, k]
-            val = sample_fixed(next_img, jy + rc[0], jx + rc[1], wj[0], wj[1], wj[2], wj[3])
-            diff = val - unpack_field(p, 0)
-            bsum += wp.vec2(float(diff * unpack_field(p, 16)), float(diff * unpack_field(p, 32)))
-            k += nlanes
-            rc = next_sample(rc, step, win_w)
+        m = next_mismatch(next_img, jy, jx, wj, regs, patch, i, lane, nlanes, start, step,
+                          win_w, area)
+        bsum = wp.vec2(m[0], m[1])
         b = wp.tile_extract(wp.tile_sum(wp.tile(bsum, preserve_type=True)), 0)
         b1 = b[0] * FLT_SCALE
         b2 = b[1] * FLT_SCALE
@@ -374,37 +424,107 @@ def track_points_level(
         prev_dy = dy
         it += 1
 
+    if not alive:
+        return wp.vec4(res_x, res_y, 0.0, 0.0)
+    if level != 0:
+        return wp.vec4(res_x, res_y, 1.0, 0.0)
     # Final error at level 0 (mean absolute difference over the window).
-    error = float(0.0)
-    if alive and level == 0:
-        ex = res_x - half_x
-        ey = res_y - half_y
-        if not coords_usable(ex, ey):
-            alive = False
+    ex = res_x - half_x
+    ey = res_y - half_y
+    oe = window_origin(ex, ey, win_w, win_h, w, h)
+    if oe[2] == 0:
+        return wp.vec4(res_x, res_y, 0.0, 0.0)
+    we = bilinear_weights(ex - float(oe[0]), ey - float(oe[1]))
+    esum = next_mismatch(next_img, oe[1], oe[0], we, regs, patch, i, lane, nlanes, start, step,
+                         win_w, area)[2]
+    total = wp.tile_extract(wp.tile_sum(wp.tile(esum)), 0)
+    return wp.vec4(res_x, res_y, 1.0, total / float(32 * area))
+
+
+@wp.kernel
+def track_points_levels(
+    prev0: wp.array2d(dtype=wp.uint8),
+    prev1: wp.array2d(dtype=wp.uint8),
+    prev2: wp.array2d(dtype=wp.uint8),
+    prev3: wp.array2d(dtype=wp.uint8),
+    next0: wp.array2d(dtype=wp.uint8),
+    next1: wp.array2d(dtype=wp.uint8),
+    next2: wp.array2d(dtype=wp.uint8),
+    next3: wp.array2d(dtype=wp.uint8),
+    prev_pts: wp.array2d(dtype=wp.float32),
+    guess_pts: wp.array2d(dtype=wp.float32),
+    params: TrackParams,
+    patch: wp.array2d(dtype=wp.int64),
+    tracked_pts: wp.array2d(dtype=wp.float32),
+    status: wp.array(dtype=wp.uint8),
+    err: wp.array(dtype=wp.float32),
+):
+    """Track point ``i`` (a block) down ``params.levels`` levels from ``params.level``,
+    coarse to fine: level ``params.level - l`` of prev / next is ``prev<l>`` / ``next<l>``.
+    Points are [N, 2] (x, y).
+
+    ``guess_pts`` is the result of the level above (a previous launch), or the initial flow
+    when ``params.level`` is the top level; ``tracked_pts`` receives the result of the
+    launch's finest level; ``status`` and ``err`` are written when that is level 0.
+    Levels hand their result on in registers, so a point goes down its levels without
+    waiting for the others.
+    """
+    i, lane = wp.tid()
+    top = params.level
+    nx = float(0.0)
+    ny = float(0.0)
+    scale = 1.0 / float(1 << top)
+    if top == params.max_level:
+        if params.use_initial_flow != 0:
+            nx = guess_pts[i, 0] * scale
+            ny = guess_pts[i, 1] * scale
         else:
-            ejx = int(wp.floor(ex))
-            ejy = int(wp.floor(ey))
-            if window_outside(ejx, ejy, win_w, win_h, w, h):
-                alive = False
+            nx = prev_pts[i, 0] * scale
+            ny = prev_pts[i, 1] * scale
+    else:
+        nx = guess_pts[i, 0] * 2.0
+        ny = guess_pts[i, 1] * 2.0
+    r = wp.vec4(nx, ny, 0.0, 0.0)
+    for l in range(params.levels):
+        if l > 0:
+            nx = r[0] * 2.0
+            ny = r[1] * 2.0
+        r = track_level(level_image(l, prev0, prev1, prev2, prev3),
+                        level_image(l, next0, next1, next2, next3), prev_pts, i, lane,
+                        top - l, nx, ny, params, patch)
+    if lane == 0:
+        tracked_pts[i, 0] = r[0]
+        tracked_pts[i, 1] = r[1]
+        if top - params.levels + 1 == 0:
+            if r[2] != 0.0:
+                status[i] = wp.uint8(1)
+                err[i] = r[3]
             else:
-                we = bilinear_weights(ex - float(ejx), ey - float(ejy))
-                esum = float(0.0)
-                k = lane
-                rc = start
-                while k < area:
-                    val = sample_fixed(next_img, ejy + rc[0], ejx + rc[1], we[0], we[1], we[2], we[3])
-                    diff = val - unpack_field(patch[i, k], 0)
-                    esum += float(wp.abs(diff))
-                    k += nlanes
-                    rc = next_sample(rc, step, win_w)
-                total = wp.tile_extract(wp.tile_sum(wp.tile(esum)), 0)
-                error = total / float(32 * area)
-    finish_level(i, lane, level, res_x, res_y, alive, error, tracked_pts, status, err)
+                status[i] = wp.uint8(0)
+                err[i] = 0.0
+
+
+def _chunks(max_level: int) -> list:
+    """(coarsest level, level count) of each launch, coarse to fine."""
+    return [(top, min(LEVELS_PER_LAUNCH, top + 1))
+            for top in range(max_level, -1, -LEVELS_PER_LAUNCH)]
+
+
+def _level_args(prev_pyr, next_pyr, top: int, count: int) -> dict:
+    """The image parameters of a launch over levels ``top`` .. ``top - count + 1`` (unused
+    slots repeat the finest level)."""
+    args = {}
+    for l in range(LEVELS_PER_LAUNCH):
+        level = top - min(l, count - 1)
+        args[f"prev{l}"] = prev_pyr[level]
+        args[f"next{l}"] = next_pyr[level]
+    return args
 
 
 class _TrackWorkspace:
-    """Scratch of one problem size: pyramid levels for image inputs, coarse-level results,
-    window patches, and one recorded launch per level."""
+    """Scratch of one problem size: pyramid levels for image inputs, the results handed from
+    one launch to the next, window patches, and the recorded launches (one per
+    :data:`LEVELS_PER_LAUNCH` levels)."""
 
     def __init__(self, n, win_w, win_h, max_level, sizes, settings, device, block_dim):
         max_iters, eps, min_eig_threshold, use_initial = settings
@@ -412,31 +532,33 @@ class _TrackWorkspace:
             which: [wp.empty(hw, dtype=wp.uint8, device=device) for hw in sizes[1:]]
             for which in ("prev", "next")
         }
-        # Coarser levels' results ping-pong between two buffers (a level never reads what
+        # Results between launches ping-pong between two buffers (a launch never reads what
         # it writes); `guess` holds a copy of the initial flow (it may alias the output).
         self.tmp = [wp.empty((n, 2), dtype=wp.float32, device=device) for _ in range(2)]
         self.guess = wp.empty((n, 2), dtype=wp.float32, device=device)
         self.patch = wp.empty((n, win_w * win_h), dtype=wp.int64, device=device)
         self.cmds = []
         guess = self.guess
-        for level in range(max_level, -1, -1):
+        # Placeholders for the per-call arrays (set before each launch).
+        images = [wp.empty(hw, dtype=wp.uint8, device=device) for hw in sizes]
+        pts = wp.empty((n, 2), dtype=wp.float32, device=device)
+        for c, (top, count) in enumerate(_chunks(max_level)):
             params = TrackParams()
             params.win_w = win_w
             params.win_h = win_h
-            params.level = level
+            params.level = top
+            params.levels = count
             params.max_level = max_level
             params.max_iters = int(max_iters)
             params.eps2 = float(eps) * float(eps)
             params.min_eig_threshold = float(min_eig_threshold)
             params.use_initial_flow = 1 if use_initial else 0
-            # Placeholders for the per-call arrays (set before each launch).
-            img = wp.empty(sizes[level], dtype=wp.uint8, device=device)
-            pts = wp.empty((n, 2), dtype=wp.float32, device=device)
-            target = pts if level == 0 else self.tmp[level % 2]
-            self.cmds.append((level, Recorded(
-                track_points_level, [n], device, block_dim=block_dim, prev_img=img,
-                next_img=img, prev_pts=pts, guess_pts=guess, params=params, patch=self.patch,
-                tracked_pts=target, status=wp.empty(n, dtype=wp.uint8, device=device),
+            target = pts if top - count + 1 == 0 else self.tmp[c % 2]
+            self.cmds.append((top, count, Recorded(
+                track_points_levels, [n], device, block_dim=block_dim,
+                **_level_args(images, images, top, count), prev_pts=pts, guess_pts=guess,
+                params=params, patch=self.patch, tracked_pts=target,
+                status=wp.empty(n, dtype=wp.uint8, device=device),
                 err=wp.empty(n, dtype=wp.float32, device=device))))
             guess = target
 
@@ -518,12 +640,12 @@ def optical_flow_pyr_lk(
         next, n_levels, ws.levels["next"])
     if use_initial:
         wp.copy(ws.guess, next_pts)
-    for level, cmd in ws.cmds:
-        if level == 0:
-            cmd.launch(prev_img=prev_pyr[0], next_img=next_pyr[0], prev_pts=prev_pts,
+    for top, count, cmd in ws.cmds:
+        if top - count + 1 == 0:
+            cmd.launch(**_level_args(prev_pyr, next_pyr, top, count), prev_pts=prev_pts,
                        tracked_pts=res, status=status, err=err)
         else:
-            cmd.launch(prev_img=prev_pyr[level], next_img=next_pyr[level], prev_pts=prev_pts)
+            cmd.launch(**_level_args(prev_pyr, next_pyr, top, count), prev_pts=prev_pts)
     return result
 
 

@@ -28,9 +28,10 @@ import warp as wp
 from .. import _orb_spec as spec
 from .._orb_quadtree import distribute_octtree
 from .orb.funcs import (C_CAND, C_FINAL, KEY_LEVEL_SHIFT, KEY_X_SHIFT, KEY_Y_SHIFT, PATH_DEPTH,
-                        PATH_ROOT_SHIFT, LevelInfo, candidate_key, describe_byte, ic_angle,
-                        key_field, quadtree_path)
-from .orb.host import _grid_on, _pattern_on, score_cells, suppress_in_cells
+                        PATH_ROOT_SHIFT, LevelInfo, candidate_key, ic_angle, key_field,
+                        quadtree_path)
+from .orb.brief import describe_points
+from .orb.host import _grid_on, _pattern_on, collect_cells, score_cells, suppress_in_cells
 from .orb.kernels import gather_paths
 from .orb.plan import OrbPlan, acquire, release
 
@@ -48,20 +49,6 @@ def cell_of(row_of_y: wp.array(dtype=wp.int32), col_of_x: wp.array(dtype=wp.int3
             x: int, y: int) -> int:
     """The index of the cell owning pixel (x, y) (row-major over the level's cell grid)."""
     return row_of_y[y] * n_cols + col_of_x[x]
-
-
-@wp.kernel
-def collect_survivors(kept: wp.array2d(dtype=wp.int32), row_of_y: wp.array(dtype=wp.int32),
-                      col_of_x: wp.array(dtype=wp.int32), n_cols: int,
-                      count: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int64)):
-    """Append every non-max survivor as a candidate key (sorting the keys orders them)."""
-    y, x = wp.tid()
-    s = kept[y, x]
-    if s > 0:
-        slot = wp.atomic_add(count, 0, 1)
-        # The capacity bounds strict 3x3 maxima; the guard only keeps a bug in bounds.
-        if slot < keys.shape[0]:
-            keys[slot] = candidate_key(0, cell_of(row_of_y, col_of_x, n_cols, x, y), y, x, s)
 
 
 @wp.kernel
@@ -160,15 +147,6 @@ def orient_points(img: wp.array2d(dtype=wp.uint8), x: wp.array(dtype=wp.int32),
 
 
 @wp.kernel
-def describe_points(img: wp.array2d(dtype=wp.uint8), x: wp.array(dtype=wp.int32),
-                    y: wp.array(dtype=wp.int32), angle: wp.array(dtype=wp.float32),
-                    pattern: wp.array2d(dtype=wp.int32), desc: wp.array2d(dtype=wp.uint8)):
-    """Byte ``j`` of point ``i``'s rotated-BRIEF descriptor."""
-    i, j = wp.tid()
-    desc[i, j] = wp.uint8(describe_byte(img, y[i], x[i], angle[i], pattern, j))
-
-
-@wp.kernel
 def level_fields(x: wp.array(dtype=wp.int32), y: wp.array(dtype=wp.int32),
                  score: wp.array(dtype=wp.int32), scale: float, size: float, level: int,
                  out_x: wp.array(dtype=wp.float32), out_y: wp.array(dtype=wp.float32),
@@ -208,19 +186,21 @@ def fast(level, threshold: int) -> tuple:
     grid, row_of_y, col_of_x = _grid_on(w, h, str(device))
     scores = wp.empty((h, w), dtype=wp.int32, device=device)
     kept = wp.empty((h, w), dtype=wp.int32, device=device)
-    # suppress_in_cells also counts strong points per cell (the fused path's grid rule); the
-    # Grid stage recounts them, so any threshold above 255 leaves this scratch count unused.
-    unused = wp.zeros(max(1, grid.n_rows * grid.n_cols), dtype=wp.int32, device=device)
+    # suppress_in_cells and collect_cells apply the fused path's grid rule; the Grid stage
+    # applies it on its own, so here no cell has a strong point (no score reaches 256) and
+    # every survivor passes the threshold of 1.
+    no_strong = wp.zeros(max(1, grid.n_rows * grid.n_cols), dtype=wp.int32, device=device)
     wp.launch(score_cells, dim=(h, w), inputs=[level, row_of_y, col_of_x, int(threshold)],
               outputs=[scores], device=device)
     wp.launch(suppress_in_cells, dim=(h, w), inputs=[scores, row_of_y, col_of_x, grid.n_cols, 256],
-              outputs=[kept, unused], device=device)
+              outputs=[kept, no_strong], device=device)
     # Strict 3x3 maxima cannot touch: at most one pixel in each 2x2 block survives. Twice
     # that for the radix sort's scratch half.
     cap = max(1, ((h + 1) // 2) * ((w + 1) // 2))
     count = wp.zeros(1, dtype=wp.int32, device=device)
     keys = wp.empty(2 * cap, dtype=wp.int64, device=device)
-    wp.launch(collect_survivors, dim=(h, w), inputs=[kept, row_of_y, col_of_x, grid.n_cols],
+    wp.launch(collect_cells, dim=(h, w),
+              inputs=[kept, row_of_y, col_of_x, grid.n_cols, no_strong, 256, 1, 0],
               outputs=[count, keys], device=device)
     n = _count(count)
     out = _points(n, device)

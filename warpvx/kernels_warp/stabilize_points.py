@@ -143,12 +143,10 @@ class DeviceRansac:
     def __init__(self, src, dst, count, threshold: float, iters: int, seed: int, h_out):
         device = src.device
         threshold2 = float(threshold) ** 2
-        self.ws = fh._Workspace(src, dst, int(iters), threshold2, seed, device)
-        old = self.ws.sample
-        sample = Recorded(sample_first, int(iters), device, src_pts=self.ws.src_pts,
-                          dst_pts=self.ws.dst_pts, count=count, seed=int(seed),
-                          hypotheses=old.args["hypotheses"])
-        self.ws.ransac[self.ws.ransac.index(old)] = self.ws.sample = sample
+        self.ws = fh.Workspace(src, dst, int(iters), threshold2, seed, device)
+        self.ws.sample = Recorded(sample_first, int(iters), device, src_pts=self.ws.src_pts,
+                                  dst_pts=self.ws.dst_pts, count=count, seed=int(seed),
+                                  hypotheses=self.ws.hypotheses)
         self.src, self.dst, self.h_out, self.threshold2, self.seed = src, dst, h_out, threshold2, seed
         self.mask = wp.empty(src.shape[0], dtype=wp.uint8, device=device)
 

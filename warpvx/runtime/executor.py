@@ -26,7 +26,8 @@ Cross-queue edges
     enqueued (GPU). GPU -> CPU: the producer's end event is recorded on the stream; on CUDA,
     where a CPU task of the frame reads the value, the GPU role then starts its download at
     once (:meth:`Transfers.stage_download`: a pinned buffer, its own copy stream after the
-    producer's event), so the reader waits for one event and copies out; otherwise the
+    producer's event), so the reader waits for one event and copies out (the buffer is free
+    for the next download once copied out: :meth:`Slot.release_staged`); otherwise the
     reader waits for the producer's event and downloads on its thread's copy stream.
     CPU -> GPU: the GPU role uploads on the GPU stream (stream-ordered, so the kernel after
     it sees the data; large arrays go through reusable pinned staging buffers, so the copy is
@@ -44,7 +45,13 @@ Timing
     syncs inside the primitive) is kept too (:attr:`FrameResult.host`), and so is the time
     each task spent on transfers (:attr:`FrameResult.transfers`). Without CUDA (the
     ``"warp-cpu"`` GPU role) calls are synchronous and host times are used; events are not
-    used at all.
+    used at all. An event costs host time twice, its record and its conversion when the
+    frame's timeline is made (a few us each on an H100's host): with ``timing="bursts"``
+    (:class:`Executor`; by default for frames submitted behind others still in flight) a
+    run of GPU tasks gets one end event, recorded where a value leaves the GPU stream (a
+    CPU task, the caller or a delay reads it), before a task with uploads, at the end of
+    the frame's GPU queue or when its thread leaves the GPU role; the tasks in between
+    share the interval by scheduled durations, as a captured segment's do.
 Buffers
     A task may come with ``gpu_out``, a factory of its output buffer: the executor then calls
     ``gpu(*values, out=buffer)`` with a buffer from the task's pool and returns the buffer to
@@ -108,11 +115,12 @@ from ..errors import NodeExecutionError, ScheduleError, WarpvxValueError
 from ..sched.schedule import Schedule
 from .capture import SegmentRunner, segments, signature
 from .cycles import Batch, frames_of
-from .native_copy import record_event, synchronize_event, warp
+from .native_copy import recorder, synchronize_event, warp
 from .program import ExecTask, InputRef, Program, data_graph
 from .roles import DeviceScope, GpuState, RoleRunner, is_gpu_processor
 from .slots import DEVICE, HOST, Slot
-from .timeline import WAIT_SLICE, Cancelled, EventPool, Frame, FrameResult, event_clock, frame_result
+from .timeline import (WAIT_SLICE, Cancelled, EventPool, Frame, FrameResult, event_clock, frame_result,
+                       proportional_shares)
 from .transfers import Transfers
 
 #: Default of :class:`Executor`'s ``spin``: seconds a thread polls for a value (yielding the
@@ -148,6 +156,15 @@ class Executor(RoleRunner, SegmentRunner):
         Replay GPU segments from captured graphs (:mod:`.capture`) by default: None (the
         default) on CUDA only; True also on Warp's CPU device; False never.
         :meth:`submit` can turn it off (or on) per frame. Never with K > 1 frames.
+    timing : {"tasks", "bursts"}, optional
+        How eager GPU tasks are timed on CUDA (:attr:`timing`; see the module docstring):
+        ``"tasks"``, an end event per task (each task's own device interval: what the cost
+        model learns a node's GPU time from); ``"bursts"``, an end event only where a value
+        leaves the GPU stream or a run of tasks ends, the tasks between two events sharing
+        that interval in proportion to their scheduled durations (a captured segment's
+        rule; host times stay per task). None (default): ``"tasks"`` for a frame submitted
+        alone (``Graph.process``), ``"bursts"`` for one submitted behind frames still in
+        flight (a pipelined stream).
 
     Raises
     ------
@@ -163,7 +180,8 @@ class Executor(RoleRunner, SegmentRunner):
     OUT_POOL = 16
 
     def __init__(self, schedule: Schedule, program: Program, *, gpu_device: str | None = None,
-                 name: str = "graph", spin: float | None = None, capture: bool | None = None):
+                 name: str = "graph", spin: float | None = None, capture: bool | None = None,
+                 timing: str | None = None):
         self.spin = SPIN_SECONDS if spin is None else float(spin)
         self.schedule = schedule
         self.program = program
@@ -204,6 +222,7 @@ class Executor(RoleRunner, SegmentRunner):
         self._lock = threading.Lock()
         self._local = threading.local()
         self._stream = None
+        self._record = None  # event -> recorded on _stream (CUDA)
         self._anchor = None  # (host seconds, timing event) on CUDA
         self._events = EventPool(gpu_device) if self.cuda else None
         self._out_pools: dict[str, list] = {t: [] for t, task in program.tasks.items()
@@ -222,6 +241,12 @@ class Executor(RoleRunner, SegmentRunner):
         # frames on the GPU queue, so with K > 1 nothing is captured (every task runs eagerly).
         self._segments = segments(program, gpu_queue) if self.frames == 1 else []
         self._shares = self._segment_shares()
+        self.timing = timing
+        # Timing "bursts": GPU tasks whose end needs an event of its own (a value read off
+        # the GPU stream: by a CPU task, the caller, a delay; or the GPU queue's last task),
+        # and every task's scheduled duration (its share of a burst).
+        self._leaves_stream = self._off_stream_tasks(gpu_queue)
+        self._spans = {t: st.finish - st.start for (t, f), st in self.placed.items() if f == 0}
         capture = check_bool(capture, "capture", allow_none=True)
         self.capture = bool(gpu_device) and self.frames == 1 and \
             (self.cuda if capture is None else capture)
@@ -319,6 +344,7 @@ class Executor(RoleRunner, SegmentRunner):
             device = wp.get_device(self.gpu_device)
             if self.cuda:
                 self._stream = wp.Stream(device)
+                self._record = recorder(self._stream)
                 self.reanchor()
             self._scope = DeviceScope(device, self._stream)
         loop = self._role_loop if self._roles else self._loop
@@ -493,14 +519,43 @@ class Executor(RoleRunner, SegmentRunner):
             return state.prev_end
         ev0 = self._events.get()
         frame.events.append(ev0)
-        record_event(stream, ev0)
+        self._record(ev0)
         return ev0
 
     def _end_event(self, frame: Frame):
         ev1 = self._events.get()
         frame.events.append(ev1)
-        record_event(self._stream, ev1)
+        self._record(ev1)
         frame.gpu_last_event = ev1
+        return ev1
+
+    def _off_stream_tasks(self, gpu_queue: list) -> set:
+        """GPU tasks of ``gpu_queue`` with an output read off the GPU stream, plus the last."""
+        gpu = set(gpu_queue)
+        off = {r.key for t in self.program.tasks.values() if t.name not in gpu for r in t.inputs}
+        off |= set(self.program.outputs.values()) | set(self.program.rings)
+        leaves = {t for t in gpu_queue if off.intersection(self.program.tasks[t].outputs)}
+        return leaves | set(gpu_queue[-1:])
+
+    def _close_burst(self, state: "GpuState"):
+        """Timing ``"bursts"``: one end event (on Warp's CPU device, a host time) for the
+        tasks run since the burst's start (``state.burst``); they share the interval in
+        proportion to their scheduled durations, as a captured segment's tasks do. Returns
+        the event: the next task's start."""
+        names, frame = state.burst, state.burst_frame
+        state.burst = []
+        if self.cuda:
+            ev1 = state.prev_end = self._end_event(frame)
+        else:
+            ev1 = perf_counter()
+        trace = frame.trace
+        proc, ev0, _, mid = trace[names[0]]  # the burst's start (on CUDA every task's)
+        if len(names) == 1:
+            trace[names[0]] = (proc, ev0, ev1, mid)
+            return ev1
+        for n, share in zip(names, proportional_shares([self._spans[n] for n in names])):
+            trace[n] = (proc, ev0, ev1, trace[n][3])
+            frame.shares[n] = share
         return ev1
 
     def _run_gpu_task(self, frame: Frame, task: ExecTask, state: "GpuState",
@@ -515,6 +570,8 @@ class Executor(RoleRunner, SegmentRunner):
             slots, waited = self._ready_inputs(frame, task.inputs)
         else:
             waited = False
+        if state.burst and (waited or any(s.where != DEVICE or s.external for s in slots)):
+            self._close_burst(state)  # a task with uploads or a wait starts at an event of its own
         h0 = perf_counter()
         ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved
@@ -530,12 +587,24 @@ class Executor(RoleRunner, SegmentRunner):
             elif moved >= TIMED_COPY_MIN_BYTES:
                 mid = self._events.get()
                 frame.events.append(mid)
-                record_event(self._stream, mid)
+                self._record(mid)
         if name in self._out_pools:
             result = task.gpu(*values, out=self._lease(frame, task))
         else:
             result = task.gpu(*values)
-        if cuda:
+        if frame.bursts:
+            frame.trace[name] = (state.proc, ev0, None, mid)  # its end: the burst's
+            if not state.burst:
+                state.burst_frame = frame
+                if cuda:
+                    state.prev_end = ev0  # the next tasks start at the burst's start event
+            state.burst.append(name)
+            # An end event only where a reader off the stream needs one (or the frame ends).
+            ev1 = self._close_burst(state) if name in self._leaves_stream else None
+            h1 = perf_counter()
+            if not cuda:
+                ev1 = None
+        elif cuda:
             ev1 = state.prev_end = self._end_event(frame)
             h1 = perf_counter()
             frame.trace[name] = (state.proc, ev0, ev1, mid)
@@ -690,6 +759,9 @@ class Executor(RoleRunner, SegmentRunner):
             slots[key] = Slot()
         frame = Frame(frame_index, slots, self._slot_procs[frame_index % self.frames])
         frame.events.extend(events)
+        if self.frames == 1 and self.gpu_device:
+            timing = self._timing
+            frame.bursts = timing == "bursts" or (timing is None and self.cuda and bool(self._inflight))
         capture = check_bool(capture, "capture", allow_none=True)
         frame.capture = bool(self.gpu_device) and self.frames == 1 and \
             (self.capture if capture is None else capture)
@@ -807,9 +879,10 @@ class Executor(RoleRunner, SegmentRunner):
 
     @staticmethod
     def _unstage(frame: Frame):
-        """Frame over: its staged downloads' buffers may be reused (once their copy is done)."""
-        for staged in frame.staged:
-            staged.free = True
+        """Frame over: its staged downloads' buffers not read yet may be reused (once their
+        copy is done)."""
+        for slot in frame.staged:
+            slot.release_staged()
         frame.staged = []
 
     def _recycle(self, frame: Frame):
@@ -849,6 +922,16 @@ class Executor(RoleRunner, SegmentRunner):
             self._inflight = [f for f in self._inflight if f not in frames]
 
     @property
+    def timing(self) -> str | None:
+        """GPU timing of the frames submitted from now: ``"tasks"``, ``"bursts"`` or None
+        (see the ``timing`` parameter)."""
+        return self._timing
+
+    @timing.setter
+    def timing(self, value: str | None):
+        self._timing = _check_timing(value)
+
+    @property
     def in_flight(self) -> int:
         with self._lock:
             return len(self._inflight)
@@ -867,6 +950,16 @@ class Executor(RoleRunner, SegmentRunner):
         self._threads.clear()
 
 
+#: Values of :class:`Executor`'s ``timing``.
+TIMINGS = ("tasks", "bursts")
+
+
+def _check_timing(timing):
+    if timing is not None and timing not in TIMINGS:
+        raise WarpvxValueError(f"timing: expected one of {TIMINGS} or None, got {timing!r}")
+    return timing
+
+
 def run_schedule(schedule: Schedule, program: Program, inputs: Mapping, *, gpu_device=None,
                  frame_index: int = 0) -> FrameResult:
     """Run one frame of ``program`` with a throw-away :class:`Executor` (tests, examples)."""
@@ -876,4 +969,4 @@ def run_schedule(schedule: Schedule, program: Program, inputs: Mapping, *, gpu_d
     finally:
         ex.close()
 
-__all__ = ["Executor", "SPIN_SECONDS", "run_schedule"]
+__all__ = ["Executor", "SPIN_SECONDS", "TIMINGS", "run_schedule"]

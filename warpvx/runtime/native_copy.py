@@ -195,6 +195,16 @@ def record_event(stream, event):
         fast.event_record(event.cuda_event, stream.cuda_stream, True)
 
 
+def recorder(stream):
+    """``event -> record_event(stream, event)`` with the native entry point and the stream
+    looked up once: the executor records an event per GPU task on its critical thread."""
+    fast = native_entry_points()
+    if fast is None:
+        return stream.record_event
+    native, cuda_stream = fast.event_record, stream.cuda_stream
+    return lambda event: native(event.cuda_event, cuda_stream, True)
+
+
 def wait_event(stream, event):
     """``stream.wait_event(event)`` (the stream's later work waits for the event, on the
     device) without Warp's Python checks."""
@@ -215,16 +225,19 @@ def synchronize_event(event):
         warp().synchronize_event(event)  # the checked path, which also reports errors
 
 
-def elapsed_ms(start, end) -> float:
-    """``wp.get_event_elapsed_time(start, end, synchronize=False)`` (ms between two completed
-    timing events) without Warp's Python checks: the executor converts every GPU task's
-    events each frame."""
+def elapsed_since(start):
+    """``end -> ms`` from completed timing event ``start`` to completed ``end``
+    (``wp.get_event_elapsed_time(start, end, synchronize=False)``) without Warp's Python
+    checks, the entry point looked up once: the executor converts every GPU timing event of
+    a frame against one anchor."""
     fast = native_entry_points()
     if fast is None:
-        return warp().get_event_elapsed_time(start, end, synchronize=False)
-    return fast.event_elapsed(start.cuda_event, end.cuda_event)
+        wp = warp()
+        return lambda end: wp.get_event_elapsed_time(start, end, synchronize=False)
+    native, cuda_start = fast.event_elapsed, start.cuda_event
+    return lambda end: native(cuda_start, end.cuda_event)
 
 
 __all__ = ["warp", "is_warp_array", "native_entry_points", "numpy_dtype", "to_host",
-           "to_host_async", "to_device", "copy_device", "record_event", "wait_event", "synchronize_event",
-           "elapsed_ms"]
+           "to_host_async", "to_device", "copy_device", "record_event", "recorder", "wait_event",
+           "synchronize_event", "elapsed_since"]

@@ -23,13 +23,17 @@ def is_gpu_processor(name: str) -> bool:
 class GpuState:
     """The GPU role's state through a frame (whichever thread runs it)."""
 
-    __slots__ = ("proc", "io", "prev_end", "task")
+    __slots__ = ("proc", "io", "prev_end", "task", "burst", "burst_frame")
 
     def __init__(self, proc: str, io: Transfers):
         self.proc = proc
         self.io = io
-        self.prev_end = None  # the last task's end event while the thread has not waited since
+        # The event the next task starts at: the last one recorded while the thread has not
+        # waited since (with timing "bursts", the open burst's start).
+        self.prev_end = None
         self.task = "<executor>"  # the task running, for error reports
+        self.burst: list = []  # timing "bursts": tasks enqueued since prev_end, no end event yet
+        self.burst_frame = None  # their frame
 
 
 class DeviceScope:
@@ -157,8 +161,8 @@ class RoleRunner:
 
     def _staged_keys(self) -> set:
         """Keys whose download starts as soon as the GPU role publishes them (CUDA): read by
-        a CPU task of the same frame, and by no delay (a staging buffer is reused once its
-        frame is over)."""
+        a CPU task of the same frame, and by no delay (a staging buffer is reused once read,
+        or once its frame is over)."""
         if not self.cuda:
             return set()
         cpu_reads = {r.key for p in self._active if not is_gpu_processor(p)
@@ -284,6 +288,8 @@ class RoleRunner:
                     if not go:
                         break
         finally:
+            if role.gpu and role.state.burst:  # another thread may run the next units
+                self._close_burst(role.state)
             if scope is not None:
                 scope.__exit__(None, None, None)
             role.token.release()
@@ -310,9 +316,12 @@ class RoleRunner:
         state = role.state
         if role.pos == 0:
             state.prev_end = None  # a fresh start event: the last end event is another frame's
+            state.burst = []  # (a cancelled frame's tasks, never reported)
             role.captures = self._captures_of(frame) if frame.capture else None
         try:
             if seg.captured:
+                if state.burst:  # a segment's replay is timed on its own
+                    self._close_burst(state)
                 self._run_segment_or_tasks(frame, i, seg, state, role.captures)
             else:
                 self._run_gpu_task(frame, seg.tasks[0], state, slots)
@@ -333,7 +342,7 @@ class RoleRunner:
         staged = io.stage_download(slot.value, slot.event)
         if staged is not None:
             slot.staged = staged
-            frame.staged.append(staged)
+            frame.staged.append(slot)
 
     def _run_segment_or_tasks(self, frame: Frame, i: int, seg, state: "GpuState", captures):
         """Capturable GPU segment ``i`` of ``frame``: replayed from its captured graph where

@@ -10,11 +10,25 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from ..sched.schedule import ScheduledTask
-from .native_copy import elapsed_ms, warp
+from .native_copy import elapsed_since, warp
 from .slots import Flag, Slot
 
 #: Seconds between cancellation checks of a blocked wait.
 WAIT_SLICE = 0.02
+
+
+def proportional_shares(spans) -> list:
+    """(start, end) fractions of one measured interval for tasks run back to back in it, in
+    proportion to ``spans`` (their scheduled durations; equal parts when all are 0)."""
+    spans = [max(0.0, s) for s in spans]
+    total = sum(spans)
+    if total <= 0:
+        spans, total = [1.0] * len(spans), float(len(spans))
+    out, at = [], 0.0
+    for span in spans:
+        out.append((at / total, (at + span) / total))
+        at += span
+    return out
 
 
 class Cancelled(Exception):
@@ -72,10 +86,11 @@ class Frame:
         self.events = []  # pooled CUDA events this frame recorded
         self.leases = []  # (task, buffer) output buffers taken from the pools
         self.uploads = []  # (key, buffer) upload buffers taken from the pools
-        self.staged = []  # staged downloads (Transfers.stage_download), freed when it is over
+        self.staged = []  # slots with a staged download (Transfers.stage_download), freed by then
         self.capture = False  # replay captured GPU segments
         self.signature = None  # the capture key of its inputs' shapes and dtypes
-        self.shares = {}  # captured task -> (start, end) fractions of its segment's interval
+        self.shares = {}  # task -> (start, end) fractions of its segment's or burst's interval
+        self.bursts = False  # CUDA timing "bursts" (Executor.timing)
         self._remaining = n_procs
         self._lock = threading.Lock()
         if n_procs == 0:
@@ -215,8 +230,8 @@ def frame_result(frame: Frame, outputs: dict, to_host=None) -> FrameResult:
     trace = frame.trace
     if to_host is not None:
         for task, (proc, a, b, mid) in trace.items():
-            if proc.startswith("gpu"):
-                trace[task] = (proc, to_host(a), to_host(b), None if mid is None else to_host(mid))
+            if proc[0] == "g":  # "gpu": events
+                trace[task] = (proc, to_host(a), to_host(b), mid if mid is None else to_host(mid))
     raw = _Trace(frame.t0, trace, frame.host_trace, frame.shares)
     return FrameResult(frame.index, outputs, _Lazy(raw, 0), frame.t0, _Lazy(raw, 1),
                        frame.copied, _Lazy(raw, 2))
@@ -226,16 +241,17 @@ def event_clock(anchor):
     """event -> host seconds through ``anchor`` (``(host seconds, timing event)`` recorded
     while the stream was idle); each event read once."""
     base, anchor_event = anchor
-    seen = {}
+    elapsed = elapsed_since(anchor_event)
+    seen = {}  # Warp events hash by identity
 
     def convert(ev):
-        t = seen.get(id(ev))
+        t = seen.get(ev)
         if t is None:
-            t = seen[id(ev)] = base + elapsed_ms(anchor_event, ev) / 1e3
+            t = seen[ev] = base + elapsed(ev) * 1e-3
         return t
 
     return convert
 
 
 __all__ = ["WAIT_SLICE", "Cancelled", "EventPool", "Frame", "FrameResult", "frame_result",
-           "event_clock"]
+           "event_clock", "proportional_shares"]

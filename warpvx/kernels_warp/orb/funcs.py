@@ -385,6 +385,15 @@ def batch_image(t: int, batch: int, n: int) -> int:
 
 
 @wp.func
+def batch_item(t: int, batch: int, n: int):
+    """(b, i): item ``t`` of a batch's flat range is item i of image b (:func:`batch_image`).
+    A pair costs a little per thread on the CPU device: kernels of a thread per pixel use
+    :func:`batch_image`."""
+    b = batch_image(t, batch, n)
+    return b, t - b * n
+
+
+@wp.func
 def image_part(a: wp.array(dtype=Any), b: int, batch: int):
     """Image ``b``'s part of a per-image buffer seen flat (``batch`` equal parts): a view,
     no copy; no division for one image."""
@@ -402,3 +411,26 @@ def batch_offset(b: int, size: int, batch: int) -> int:
     if b == 0:
         return 0
     return b * (size // batch)
+
+
+@wp.func
+def batch_candidate(t: int, batch: int, n_cap: int, counters: wp.array(dtype=wp.int32)):
+    """(b, s, n): thread ``t`` of a launch over the batch's candidate slots (``n_cap`` an image)
+    is slot s of image b, which holds n = min(its candidate count, n_cap) candidates (s >= n:
+    no candidate); ``counters`` the batch's counters seen flat."""
+    b, s = batch_item(t, batch, n_cap)
+    return b, s, wp.min(counters[batch_offset(b, counters.shape[0], batch) + C_CAND], n_cap)
+
+
+@wp.func
+def batch_final(t: int, batch: int, final_cap: int, counters: wp.array2d(dtype=wp.int32),
+                final_values: wp.array2d(dtype=wp.int32), cand: wp.array2d(dtype=wp.int64)):
+    """(b, i, key, level, x, y): thread ``t`` of a launch over the batch's final slots
+    (``final_cap`` an image) is final keypoint i of image b: its candidate key, level and
+    level coordinates; i = -1 past the image's keypoints (the rest then 0)."""
+    b, i = batch_item(t, batch, final_cap)
+    if i >= wp.min(counters[b, C_FINAL], final_cap):
+        return b, -1, wp.int64(0), 0, 0, 0
+    key = cand[b, final_values[b, i]]
+    return (b, i, key, key_field(key, KEY_LEVEL_SHIFT, 31), key_field(key, KEY_X_SHIFT, 0xFFFF),
+            key_field(key, KEY_Y_SHIFT, 0xFFFF))

@@ -11,9 +11,9 @@ from .._sampling import read_reflect101
 from ..fast_corners import fast_score
 from .funcs import (C_CAND, C_CAND_R, C_FINAL, C_OVER, C_SURV_R, HALF_PATCH, KEY_CELL_SHIFT,
                     KEY_LEVEL_SHIFT, KEY_X_SHIFT, KEY_Y_SHIFT, N_STRIPES, PATH_DEPTH,
-                    PATH_ROOT_SHIFT, STRIPES, UMAX, LevelInfo, batch_image, batch_key,
-                    batch_level_image, batch_offset, batch_pad, candidate_key, describe_byte,
-                    fast_atan2, key_field, level_holding, quadtree_path)
+                    PATH_ROOT_SHIFT, STRIPES, UMAX, LevelInfo, batch_final, batch_image,
+                    batch_key, batch_level_image, batch_offset, batch_pad, candidate_key,
+                    describe_byte, fast_atan2, key_field, level_holding, quadtree_path)
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
@@ -255,18 +255,12 @@ def accumulate_moments(pyr: wp.uint64, batch: int, levels: wp.array(dtype=LevelI
     m01 += v sum I (integer sums: the order of the atomics does not matter). Keypoint i of
     image b is thread row b * final_cap + i (2-D, as for one image: see ``score_pixels``)."""
     t, r = wp.tid()
-    b = batch_image(t, batch, moments.shape[1])
-    i = t - b * moments.shape[1]
-    if i >= wp.min(counters[b, C_FINAL], moments.shape[1]):
+    b, i, _key, level, cx, cy = batch_final(t, batch, moments.shape[1], counters, final_values,
+                                            cand)
+    if i < 0:
         return
-    final_values = final_values[b]
-    cand = cand[b]
-    moments = moments[b]
-    key = cand[final_values[i]]
-    level = key_field(key, KEY_LEVEL_SHIFT, 31)
-    cx = key_field(key, KEY_X_SHIFT, 0xFFFF)
-    cy = key_field(key, KEY_Y_SHIFT, 0xFFFF)
     img = batch_level_image(pyr, levels, level, batch, b)
+    moments = moments[b]
     v = r - HALF_PATCH
     d = UMAX[wp.abs(v)]
     row = int(0)
@@ -292,18 +286,11 @@ def describe_levels(blurred: wp.uint64, batch: int, levels: wp.array(dtype=Level
     y, response, size, angle as a (5, N) block, so one contiguous copy per output takes the
     whole batch out. Threads as in ``accumulate_moments``."""
     t, j = wp.tid()
-    b = batch_image(t, batch, moments.shape[1])
-    i = t - b * moments.shape[1]
-    if i >= wp.min(counters[b, C_FINAL], moments.shape[1]):
+    b, i, key, level, x, y = batch_final(t, batch, moments.shape[1], counters, final_values,
+                                         cand)
+    if i < 0:
         return
-    final_values = final_values[b]
-    cand = cand[b]
-    moments = moments[b]
-    key = cand[final_values[i]]
-    level = key_field(key, KEY_LEVEL_SHIFT, 31)
-    x = key_field(key, KEY_X_SHIFT, 0xFFFF)
-    y = key_field(key, KEY_Y_SHIFT, 0xFFFF)
-    angle = fast_atan2(float(moments[i, 1]), float(moments[i, 0]))
+    angle = fast_atan2(float(moments[b, i, 1]), float(moments[b, i, 0]))
     img = batch_level_image(blurred, levels, level, batch, b)
     at = starts[b] + i
     desc[at, j] = wp.uint8(describe_byte(img, y, x, angle, pattern, j))

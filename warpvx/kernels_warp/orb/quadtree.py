@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import warp as wp
 
-from .funcs import (C_CAND, C_FINAL, C_NODES, C_OVER, MODE_EMPTY, MODE_FULL, MODE_PARTIAL,
-                    MODE_PASSES, N_DEPTHS, N_RANK_CHUNKS, N_STRIPES, PATH_LEVEL_SHIFT, STRIPES,
-                    Division, LevelInfo, batch_image, batch_key, batch_offset, depth_counts,
-                    flipped_prefix, image_part, key_field, level_holding, node_before,
-                    node_index, quadrant, run_start, shared_depth)
+from .funcs import (C_FINAL, C_NODES, C_OVER, MODE_EMPTY, MODE_FULL, MODE_PARTIAL, MODE_PASSES,
+                    N_DEPTHS, N_RANK_CHUNKS, N_STRIPES, PATH_LEVEL_SHIFT, STRIPES, Division,
+                    LevelInfo, batch_candidate, batch_item, batch_key, batch_offset,
+                    depth_counts, flipped_prefix, image_part, key_field, level_holding,
+                    node_before, node_index, quadrant, run_start, shared_depth)
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
@@ -23,10 +23,7 @@ def count_depths(batch: int, paths: wp.array(dtype=wp.int64), counters: wp.array
     is alone from depth max(lcp[i], lcp[i+1]) + 1 on (one single-point node there); it starts
     a node of several points at each depth in (lcp[i], lcp[i+1]]. Two points sharing all the
     sorted ``digits`` (the plan's bound says they cannot) flag the frame for the host path."""
-    t = wp.tid()
-    b = batch_image(t, batch, n_cap)
-    i = t - b * n_cap
-    n = wp.min(counters[batch_offset(b, counters.shape[0], batch) + C_CAND], n_cap)
+    b, i, n = batch_candidate(wp.tid(), batch, n_cap, counters)
     if i >= n:
         return
     paths = image_part(paths, b, batch)
@@ -135,10 +132,7 @@ def alloc_nodes(batch: int, paths: wp.array(dtype=wp.int64), lcp: wp.array(dtype
     them: consecutive entries of the level's pool, one per depth; their size and the nodes a
     division adds (children - 1, the points inside sharing exactly ``depth`` digits). Each is
     also listed in groups[level, depth] (the nodes rank_nodes compares)."""
-    t = wp.tid()
-    b = batch_image(t, batch, n_cap)
-    s = t - b * n_cap
-    n = wp.min(counters[batch_offset(b, counters.shape[0], batch) + C_CAND], n_cap)
+    b, s, n = batch_candidate(wp.tid(), batch, n_cap, counters)
     if s >= n:
         return
     paths = image_part(paths, b, batch)
@@ -187,16 +181,18 @@ def alloc_nodes(batch: int, paths: wp.array(dtype=wp.int64), lcp: wp.array(dtype
 
 
 @wp.func
-def live_node_level(v: int, levels: wp.array(dtype=LevelInfo), n_levels: int,
-                    counters: wp.array(dtype=wp.int32), b: int, batch: int) -> int:
-    """The level of image b's node slot ``v``, or -1 when the slot holds no node: past the
-    level's used nodes, or the level overflowed its capacity (its frame is then redone on the
-    host)."""
+def live_node(t: int, batch: int, node_cap: int, levels: wp.array(dtype=LevelInfo),
+              n_levels: int, counters: wp.array(dtype=wp.int32)):
+    """(b, v, level): thread ``t`` of a launch over the batch's node slots (``node_cap`` an
+    image) is slot v of image b, of quadtree level ``level``; level -1 when the slot holds no
+    node: past the level's used nodes, or the level overflowed its capacity (its frame is
+    then redone on the host)."""
+    b, v = batch_item(t, batch, node_cap)
     level = level_holding(v, levels, n_levels, True)
     used = counters[batch_offset(b, counters.shape[0], batch) + C_NODES + level]
     if v - levels[level].node >= used or used > levels[level].node_cap:
-        return -1
-    return level
+        return b, v, -1
+    return b, v, level
 
 
 @wp.kernel
@@ -206,10 +202,7 @@ def link_nodes(batch: int, node_cap: int, levels: wp.array(dtype=LevelInfo), n_l
                node_base: wp.array(dtype=wp.int32), node_start: wp.array(dtype=wp.int32),
                node_depth: wp.array(dtype=wp.int32), node_parent: wp.array(dtype=wp.int32)):
     """Each ordered node's parent (a node of the previous round), -1 at depth K."""
-    t = wp.tid()
-    b = batch_image(t, batch, node_cap)
-    v = t - b * node_cap
-    level = live_node_level(v, levels, n_levels, counters, b, batch)
+    b, v, level = live_node(wp.tid(), batch, node_cap, levels, n_levels, counters)
     if level < 0:
         return
     divisions = image_part(divisions, b, batch)
@@ -240,9 +233,7 @@ def rank_nodes(batch: int, node_cap: int, levels: wp.array(dtype=LevelInfo), n_l
     N_RANK_CHUNKS-th member of its group (both arrays zeroed first, sums by atomics); node v
     of image b is thread row b * node_cap + v."""
     t, c = wp.tid()
-    b = batch_image(t, batch, node_cap)
-    v = t - b * node_cap
-    level = live_node_level(v, levels, n_levels, counters, b, batch)
+    b, v, level = live_node(t, batch, node_cap, levels, n_levels, counters)
     if level < 0:
         return
     g = node_depth[b * node_cap + v]
@@ -290,10 +281,7 @@ def emit_finals(batch: int, paths: wp.array(dtype=wp.int64), order: wp.array(dty
     by its parent's division order (reversed) and quadrant (reversed), a node of the first
     loop by ``flipped_prefix``.
     """
-    t = wp.tid()
-    b = batch_image(t, batch, n_cap)
-    s = t - b * n_cap
-    n = wp.min(counters[batch_offset(b, counters.shape[0], batch) + C_CAND], n_cap)
+    b, s, n = batch_candidate(wp.tid(), batch, n_cap, counters)
     if s >= n:
         return
     paths = image_part(paths, b, batch)
