@@ -19,7 +19,8 @@ Steps, per graph and camera size (default 1280x720 and 1920x1080):
 2. the contention model (:mod:`warpvx.graph.model`) is fitted on the first ``--fit-frames``
    frames of ``--train`` (baseline, calibrated costs), run alone after warm-up frames;
    ``best`` takes its candidates (baseline, HEFT and XEFT on the calibrated and on the
-   model's costs) and tries those predicted within 20% of the fastest (the model's error)
+   model's costs) and tries those predicted within 20% of the fastest (the model's error),
+   and the runner-up if within 50% (its worst out-of-sample error on mixed placements),
    in ``--trial-rounds`` interleaved rounds of ``--trial-frames`` frames, keeping the least
    median makespan;
 3. baseline, heft, xeft and best run ``--frames`` frames each, one at a time, in
@@ -519,7 +520,8 @@ def markdown(report) -> str:
         "the policy's own schedule claims (isolated calibration). `best`: the model's "
         "candidates (baseline, HEFT and XEFT on the calibrated DAG and on the model's "
         "in-frame costs); those predicted within 20% of the fastest (closer than the model "
-        f"can tell apart) run {report.get('trial_rounds', 1)} interleaved rounds of "
+        "can tell apart), and the runner-up if within 50% (the model's worst out-of-sample "
+        f"error on mixed placements), run {report.get('trial_rounds', 1)} interleaved rounds of "
         f"{report.get('trial_frames', 0)} frames each ({SWITCH_WARMUP} warm-up frames discarded "
         "after each switch) and the least median makespan is kept.",
         "",
@@ -568,7 +570,7 @@ def markdown(report) -> str:
                       + ("; trial (median ms, frames): " + ", ".join(
                           f"{k} {v:.3f} ({(best.get('trial_frames') or {}).get(k, '-')})"
                           for k, v in trial.items())
-                         if trial else "; no trial (one candidate within the margin)") + ".", ""]
+                         if trial else "; no trial (one candidate within the margins)") + ".", ""]
         lines += ["Per node (out-of-sample frames of each policy): calibrated alone vs measured in "
                   "the frames (interval without transfers; GPU: device interval), ms:", ""]
         for r in e["policies"]:

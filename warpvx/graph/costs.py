@@ -26,6 +26,13 @@ def default_n_cpus() -> int:
 #: 20%, ``benchmarks/graph_bench.py``) is larger than most gaps between candidates.
 TRIAL_MARGIN = 0.2
 
+#: ``schedule("best", ..., trial_inputs=...)`` also tries the runner-up (the second-fastest
+#: distinct candidate) when it is predicted within this fraction of the fastest: the
+#: model's worst out-of-sample errors on mixed placements replayed from the H100 runs were
+#: 27-43% (benchmarks/results/graph/model-replay-2026-11-24-s4.md), and at 1920x1080 the
+#: all-GPU baseline, predicted 23% slower than HEFT, measured 17% faster and went untried.
+TRIAL_RUNNER_UP_MARGIN = 0.5
+
 #: Frames run and discarded each time a trial or :meth:`CostModel.measure_plans` switches
 #: to a plan: its threads wake, and captured segments record on a signature's second frame.
 SWITCH_WARMUP = 2
@@ -167,6 +174,7 @@ class CostModel:
     def schedule(self, policy="best", *, n_cpus: int | None = None, gpu=None,
                  recalibrate: bool = False, costs: str = "calibrated", model=None,
                  trial_inputs=None, trial_frames: int = 5, trial_margin: float = TRIAL_MARGIN,
+                 trial_runner_up: float = TRIAL_RUNNER_UP_MARGIN,
                  trial_rounds: int = TRIAL_ROUNDS, trial_seconds: float | None = None):
         """Calibrate (cached), schedule with ``policy`` and make the result the current plan.
 
@@ -202,6 +210,11 @@ class CostModel:
             gives each tried candidate's median (ms), ``info["trial_frames"]`` how many
             frames each measured. These are real frames: outputs are published and delays
             advance. With one candidate in the margin nothing runs.
+        trial_runner_up : float
+            The second-fastest distinct candidate is tried too when predicted within this
+            fraction of the fastest (default :data:`TRIAL_RUNNER_UP_MARGIN`, the model's
+            worst out-of-sample error seen; 0: only ``trial_margin``), so a winner the model
+            misranks by less than its known error is measured, not assumed.
         trial_rounds : int
             Rounds of the trial (>= 1).
         trial_seconds : float, optional
@@ -226,6 +239,7 @@ class CostModel:
             if isinstance(trial_frames, bool) or not isinstance(trial_frames, int) or trial_frames < 1:
                 raise GraphError(f"trial_frames: expected an int >= 1, got {trial_frames!r}")
         trial_margin = check_float(trial_margin, "trial_margin", min_value=0.0)
+        trial_runner_up = check_float(trial_runner_up, "trial_runner_up", min_value=0.0)
         trial_rounds = check_int(trial_rounds, "trial_rounds", min_value=1)
         if trial_seconds is not None:
             trial_seconds = check_float(trial_seconds, "trial_seconds", min_value=0.0)
@@ -253,7 +267,10 @@ class CostModel:
                 from .model import choose
 
                 cands = choose(model, self._candidate_dags(dag, model, n_cpus))
-                top = [c for c in cands if c[3].makespan <= cands[0][3].makespan * (1 + trial_margin)]
+                fastest = cands[0][3].makespan
+                top = [c for i, c in enumerate(cands)
+                       if c[3].makespan <= fastest * (1 + (max(trial_margin, trial_runner_up) if i == 1
+                                                         else trial_margin))]
                 chosen, trial, plan = cands[0], None, None
                 if trial_inputs is not None and len(top) > 1:
                     chosen, trial, plan = self._trial(
@@ -412,4 +429,4 @@ class CostModel:
         return self._plan
 
 
-__all__ = ["CostModel", "NoCudaWarning", "SWITCH_WARMUP", "TRIAL_MARGIN", "TRIAL_ROUNDS", "default_n_cpus", "gpu_backend", "warn_no_cuda"]
+__all__ = ["CostModel", "NoCudaWarning", "SWITCH_WARMUP", "TRIAL_MARGIN", "TRIAL_ROUNDS", "TRIAL_RUNNER_UP_MARGIN", "default_n_cpus", "gpu_backend", "warn_no_cuda"]

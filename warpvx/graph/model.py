@@ -89,21 +89,33 @@ def graph_reads(graph) -> dict:
     return out
 
 
-def copied_bytes(reads: dict, placement: dict, order: list) -> dict:
+def copied_bytes(reads: dict, placement: dict, order: list, capturable=()) -> dict:
     """node -> bytes the executor copies for it under ``placement`` (node -> processor).
 
     A value crosses once per side: the first reader on the other side of its producer (in
-    ``order``, the tasks by predicted start) copies it; later readers there reuse the copy.
-    Graph inputs live on the host.
+    ``order``, the tasks by predicted start) copies it; later readers there reuse the copy
+    (a delayed read too: the earlier frame's value was copied when that frame read it).
+    Graph inputs live on the host. A GPU segment of ``capturable`` tasks
+    (:func:`gpu_segments`) fills fixed buffers of its own before each run
+    (:mod:`warpvx.runtime.capture`): it copies every host value it reads, a delayed one
+    apart, reused by no other segment, charged to its first task as the executor records it
+    (an H100 HEFT frame at 1920x1080 uploads a CPU-made pyramid twice, this frame's and the
+    delayed one: 5.5 MB).
     """
+    gpu_order = [t for t in order if pe_of(placement[t]) == "gpu"]
+    owner = {t: seg[0] for seg in gpu_segments(reads, frozenset(capturable), placement, gpu_order)
+             if seg[0] in capturable for t in seg}
     done, out = set(), {}
     for node in order:
         side = pe_of(placement[node])
+        unit = owner.get(node)
         for r in reads[node]:
             home = "cpu" if r.producer is None else pe_of(placement[r.producer])
-            if home != side and (r.key, side) not in done:
-                done.add((r.key, side))
-                out[node] = out.get(node, 0) + r.nbytes
+            key = (r.key, r.delayed and unit is not None, side, unit)
+            if home != side and key not in done:
+                done.add(key)
+                charged = unit or node
+                out[charged] = out.get(charged, 0) + r.nbytes
     return out
 
 
@@ -614,7 +626,7 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
     order = sorted(schedule.tasks, key=lambda t: (schedule.tasks[t].start, schedule.tasks[t].finish))
     queues = {p: [t for t in order if placement[t] == p] for p in schedule.processors}
     queues = {p: q for p, q in queues.items() if q}
-    copied = copied_bytes(model.reads, placement, order)
+    copied = copied_bytes(model.reads, placement, order, model.capturable)
     # A GPU segment is one unit: CPU readers see its values when its last task ends.
     segs = [seg for p, q in queues.items() if pe_of(p) == "gpu"
             for seg in gpu_segments(model.reads, model.capturable, placement, q)]

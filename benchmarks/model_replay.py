@@ -1,0 +1,87 @@
+"""The contention model before and after a change, replayed offline on recorded H100 runs.
+
+Each ``graph_bench.json`` holds, per graph, size and policy, the fit frames' timelines,
+the plan and the measured makespans (``benchmarks/graph_bench.py``). For each of two
+checkouts (``--before``: a copy of the older code; ``--after``: this one, by default)
+:func:`graph_bench.replay` refits the model on each training policy's recorded frames
+1-20 and predicts every policy's plan; the table gives the out-of-sample error of each
+cell before and after, and the summary counts the cells within 20%. No GPU: the model's
+fit and simulation only.
+
+Usage::
+
+    mkdir -p /tmp/before && git archive <rev> | tar -x -C /tmp/before
+    PYTHONPATH=. python benchmarks/model_replay.py --before /tmp/before \\
+        benchmarks/results/graph/h100-2026-11-24-s3/graph_bench.json other/graph_bench.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+#: The training policies replayed in turn (each predicts the others out of sample).
+TRAINS = ("baseline", "heft", "xeft")
+
+_DUMP = ("import json, sys; sys.path.insert(0, 'benchmarks'); import graph_bench as gb; "
+         "print(json.dumps({p: {t: gb.replay(json.load(open(p)), t) for t in %r} "
+         "for p in sys.argv[1:]}))" % (TRAINS,))
+
+
+def replay_rows(root: Path, paths) -> dict:
+    """path -> training policy -> :func:`graph_bench.replay` rows, with the code of the
+    checkout at ``root`` (a subprocess, so each side imports its own warpvx)."""
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    out = subprocess.run([sys.executable, "-c", _DUMP, *map(str, paths)], cwd=root, env=env,
+                         check=True, capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def summary(rows, label: str) -> str:
+    errs = [abs(r["error_pct"]) for r in rows if not r["trained_here"]]
+    return (f"{label}: {sum(e <= 20 for e in errs)}/{len(errs)} within 20%, mean |error| "
+            f"{statistics.mean(errs):.1f}%, median {statistics.median(errs):.1f}%, max {max(errs):.1f}%")
+
+
+def markdown(before: dict, after: dict) -> str:
+    lines = []
+    for path in after:
+        lines += [f"## {path}", "",
+                  "| experiment | policy | measured ms | "
+                  + " | ".join(f"trained on {t}: before | after" for t in TRAINS) + " |",
+                  "| --- | --- | ---: | " + " | ".join("---: | ---:" for _ in TRAINS) + " |"]
+        for i, r in enumerate(after[path][TRAINS[0]]):
+            cells = []
+            for t in TRAINS:
+                b, a = before[path][t][i], after[path][t][i]
+                mark = " (trained)" if a["trained_here"] else ""
+                cells += [f"{b['error_pct']:+.1f}%{mark}", f"{a['error_pct']:+.1f}%{mark}"]
+            lines.append(f"| {r['tag']} | {r['policy']} | {r['measured_ms']:.3f} | " + " | ".join(cells) + " |")
+        lines.append("")
+        for t in TRAINS:
+            lines += [f"- trained on {t}, out of sample, " + summary(before[path][t], "before"),
+                      f"- trained on {t}, out of sample, " + summary(after[path][t], "after")]
+        lines.append("")
+    for label, got in (("before", before), ("after", after)):
+        rows = [r for p in got.values() for t in TRAINS for r in p[t]]
+        lines.append(summary(rows, f"All runs, every training policy, out of sample, {label}"))
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("results", nargs="+", type=Path, help="graph_bench.json files")
+    p.add_argument("--before", type=Path, required=True, help="checkout of the older code")
+    p.add_argument("--after", type=Path, default=Path.cwd(), help="checkout of the newer code")
+    args = p.parse_args(argv)
+    paths = [r.resolve() for r in args.results]
+    print(markdown(replay_rows(args.before.resolve(), paths), replay_rows(args.after.resolve(), paths)))
+
+
+if __name__ == "__main__":
+    main()
