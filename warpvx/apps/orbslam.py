@@ -63,7 +63,8 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
-from .orbslam_depths import MIN_COMMON, NEW_VAR, backfill, carry_depths, flow, fuse_depths, log_depth_var, reprojects, step_scale
+from .orbslam_depths import (MIN_COMMON, NEW_VAR, backfill, carry_depths, flow, fuse_depths, inv_k, lengths,
+                             log_depth_var, median, rays, reprojects, step_scale)
 from .orbslam_match import add_match_node, mutual_pairs, stereo_depth
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
@@ -303,8 +304,7 @@ def _pose_pnp(ref, cur_pts, pairs, K, guess, config):
     if ok.sum() < 6:
         return None
     p = ref.pts[pairs[ok, 1]]
-    Kinv = np.linalg.inv(K)
-    X = (np.c_[p, np.ones(len(p))] @ Kinv.T) * z[ok, None]
+    X = rays(p, inv_k(K)) * z[ok, None]
     rvec, _ = cv2.Rodrigues(guess[:3, :3])
     tvec = guess[:3, 3].reshape(3, 1).copy()
     found, rvec, tvec, inliers = cv2.solvePnPRansac(
@@ -352,9 +352,8 @@ def _triangulate_known(ref, cur_pts, pairs, T, K):
     midpoint triangulation of the ``pairs`` (this frame's index, the reference's), kept where
     in front of both cameras, reprojecting near this frame's keypoint (:func:`reprojects`),
     seen under enough parallax (``NEW_VAR``), then :func:`fuse_depths`, whose result it returns."""
-    Kinv = np.linalg.inv(K)
-    x1 = np.c_[ref.pts[pairs[:, 1]], np.ones(len(pairs))] @ Kinv.T
-    x2 = np.c_[cur_pts[pairs[:, 0]], np.ones(len(pairs))] @ Kinv.T
+    Kinv = inv_k(K)
+    x1, x2 = rays(ref.pts[pairs[:, 1]], Kinv), rays(cur_pts[pairs[:, 0]], Kinv)
     R, t = T[:3, :3], T[:3, 3]
     z1, z2 = _ray_depths(x1, x2, R, t)
     X = (x1 * z1[:, None]) @ R.T + t
@@ -380,9 +379,8 @@ def essential_core(p1, p2, K, config):
     if E is None or E.shape != (3, 3):
         return None
     inl = np.flatnonzero(mask.reshape(-1))
-    Kinv = np.linalg.inv(K)
-    x1 = np.c_[p1[inl], np.ones(len(inl))] @ Kinv.T
-    x2 = np.c_[p2[inl], np.ones(len(inl))] @ Kinv.T
+    Kinv = inv_k(K)
+    x1, x2 = rays(p1[inl], Kinv), rays(p2[inl], Kinv)
     R, t = _cheirality(E, x1, x2)
     # The points in front, as recoverPose counts them: DLT triangulation, depth in (0, 50).
     X = cv2.triangulatePoints(np.eye(3, 4), np.c_[R, t], x1[:, :2].T, x2[:, :2].T)
@@ -407,26 +405,24 @@ def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *,
     (:func:`~warpvx.apps.orbslam_depths.fuse_depths`), or the reference's when it did not
     move."""
     p1, p2 = ref.pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
-    if np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
+    if median(lengths(p2 - p1)) < config.min_parallax:
         return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]], ref.depth_var[pairs[:, 1]])
     core = essential(p1, p2, K, config)
     if core is None:
         return None
     R, t, inl, z_ref, z_cur = core
-    Kinv = np.linalg.inv(K)
-    x1 = np.c_[p1[inl], np.ones(len(inl))] @ Kinv.T
-    x2 = np.c_[p2[inl], np.ones(len(inl))] @ Kinv.T
+    Kinv = inv_k(K)
+    x1, x2 = rays(p1[inl], Kinv), rays(p2[inl], Kinv)
     scale = step_scale(ref, pairs[inl], x1, x2, R, z_ref, K[0, 0], np.nan)
     if np.isnan(scale):
-        scale = scene_depth / np.median(z_cur) if np.isfinite(scene_depth) else step
+        scale = scene_depth / median(z_cur) if np.isfinite(scene_depth) else step
     elif not bounds[0] <= scale <= bounds[1]:
         return None
     tri = fuse_depths(ref, pairs[inl], x1, x2, R, scale * t, scale * z_cur, K[0, 0])
     return _rt(R, scale * t), len(inl), tri
 
 
-def _record(kps, desc, depth, depth_var, pose, index, kf_index):
-    pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
+def _record(kps, pts, desc, depth, depth_var, pose, index, kf_index):
     return FrameRecord(pts, np.asarray(kps.angle, np.float64), depth, depth_var, np.asarray(desc),
                        pose, index, kf_index)
 
@@ -449,7 +445,7 @@ def keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf: bool, cur_pts, g
 
 
 def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
-          config: TrackerConfig = TrackerConfig(), essential=essential_core):
+          config: TrackerConfig = TrackerConfig(), essential=essential_core, good=None):
     """One frame of tracking (the graph's ``track`` node; pure).
 
     A frame is lost when it has fewer than 8 good matches, no motion model (no essential
@@ -476,6 +472,9 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     essential : callable
         :func:`essential_core` or a stand-in with its results (the batched front end's look-up
         of cores computed ahead in worker processes).
+    good : int [G, 2], optional
+        ``filter_matches`` of ``pairs`` when already worked out (the batched front end's
+        worker processes do); else filtered here.
 
     Returns
     -------
@@ -496,14 +495,15 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     cur_depth = np.asarray(depth, np.float64) if stereo else np.full(n, np.nan)
     # Stereo depths weigh alike (their disparities are not kept); monocular ones are unknown.
     cur_var = np.full(n, 1.0 / K[0, 0] ** 2 if stereo else np.inf)
+    cur_pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
     if state.previous is None:
-        rec = _record(kps, desc, cur_depth, cur_var, np.eye(4), state.frames, np.arange(n))
+        rec = _record(kps, cur_pts, desc, cur_depth, cur_var, np.eye(4), state.frames, np.arange(n))
         new = TrackState(state.frames + 1, rec, rec, np.eye(4), 0)
         return new, np.eye(4), np.array([n, 0, 0, 1, REF_PREVIOUS, 1e3 * (time.perf_counter() - t0)])
     prev, kf = state.previous, state.keyframe
-    cur_pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
     angles = np.asarray(kps.angle, np.float64)
-    good = filter_matches(pairs, distances, angles, prev.angles, config) if n else np.zeros((0, 2), int)
+    if good is None:
+        good = filter_matches(pairs, distances, angles, prev.angles, config) if n else np.zeros((0, 2), int)
     if state.lost and len(good) >= config.min_matches:
         # Re-initialisation after a loss (a new scene): the lost frame, which this one matches,
         # becomes the keyframe and gets its depths from this pair (backfill, below).
@@ -579,9 +579,9 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     kf_index = np.full(n, -1)
     if not lost:  # (no keyframe tracks through a lost frame)
         kf_index[good[:, 0]] = good[:, 1] if from_kf else prev.kf_index[good[:, 1]]
-    rec = _record(kps, desc, cur_depth, cur_var, pose, state.frames, np.arange(n) if is_kf else kf_index)
+    rec = _record(kps, cur_pts, desc, cur_depth, cur_var, pose, state.frames, np.arange(n) if is_kf else kf_index)
     known = cur_depth[np.isfinite(cur_depth)]
-    scene_depth = float(np.median(known)) if len(known) >= MIN_COMMON else state.scene_depth
+    scene_depth = median(known) if len(known) >= MIN_COMMON else state.scene_depth
     new = TrackState(state.frames + 1, rec, rec if is_kf else kf, velocity, 0 if is_kf else kf_inliers, speed,
                      scene_depth, state.lost + 1 if lost else 0)
     stats = np.array([n, len(good), inliers, float(is_kf), reference, 1e3 * (time.perf_counter() - t0)])

@@ -50,6 +50,7 @@ import numpy as np
 
 from ..errors import WarpvxValueError
 from . import orbslam as o
+from .orbslam_depths import lengths, median
 from .orbslam_match import batch_pairs, mutual_pairs, nearest_batch, nearest_batch_warp, stereo_depth
 
 
@@ -312,20 +313,19 @@ def _good(nearest, pts, angles, prev_pts, prev_angles, config):
 
 def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
     """One frame's state-free work (on a pool process): (pairs int32 [M, 2], distances int32
-    [M], extra, good int [G, 2]: the pairs ``track``'s match filter keeps; monocular only,
-    else None). ``nearest``: :func:`~warpvx.apps.orbslam_match.batch_pairs`' (nearest,
+    [M], extra, good int [G, 2]: the pairs ``track``'s match filter keeps, handed to it).
+    ``nearest``: :func:`~warpvx.apps.orbslam_match.batch_pairs`' (nearest,
     distance, back); ``stereo``: None (monocular), or (left keypoints, left descriptors, right
     keypoints, right descriptors, left image, right image, fx, baseline). ``extra``: stereo,
     the depth float32 [N] of each keypoint (:func:`stereo_depth`); monocular, (p1, p2,
     :func:`~warpvx.apps.orbslam.essential_core`'s result) for the filtered matches to the
     previous frame, what ``track`` hands to it when that frame is the reference, or None when
     ``track`` will not need one."""
+    p, d, good = _good(nearest, pts, angles, prev_pts, prev_angles, config)
     if stereo is not None:
-        p, d = mutual_pairs(*nearest, len(pts), len(prev_pts))
         kl, dl, kr, dr, left, right, fx, baseline = stereo
         return p, d, stereo_depth(kl, dl, kr, dr, left, right, fx=fx, baseline=baseline,
-                                  scale_factor=config.scale_factor, max_distance=config.stereo_max_distance), None
-    p, d, good = _good(nearest, pts, angles, prev_pts, prev_angles, config)
+                                  scale_factor=config.scale_factor, max_distance=config.stereo_max_distance), good
     return p, d, _core_ahead(prev_pts, pts, good, K, config), good
 
 
@@ -367,7 +367,7 @@ def _essential_points(ref_pts, pts, pairs, config):
     if pairs is None:
         return None
     p1, p2 = ref_pts[pairs[:, 1]], pts[pairs[:, 0]]
-    if len(pairs) < 8 or np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax:
+    if len(pairs) < 8 or median(lengths(p2 - p1)) < config.min_parallax:
         return None
     return p1, p2
 
@@ -481,9 +481,9 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
         pts, good = [_pts(kps) for kps, _ in feats[:frames]], [a[3] for a in per_frame]
         guessed = [g is not None for g in guesses]
     spec, keyframe, span = None, -1, 0
-    for f, ((kps, desc), (pairs, dist, extra, _)) in enumerate(zip(feats[:frames], per_frame)):
+    for f, ((kps, desc), (pairs, dist, extra, kept)) in enumerate(zip(feats[:frames], per_frame)):
         if baseline is not None:
-            state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config)
+            state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config, good=kept)
         else:
             now = None if state.keyframe is None else state.keyframe.index
             if now != keyframe:  # a new keyframe (or the batch's first frame): speculate again
@@ -499,7 +499,7 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
             for u, need in ((f, guess is not None), (f + 1, now is not None and now == state.frames - 1)):
                 if u < frames and guesses[u] is not None and not need:
                     guesses[u].cancel()
-            state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config,
+            state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config, good=kept,
                                       essential=_essential_ahead(extra, spec.cores.get(f), pool=pool, guess=guess))
         poses.append(pose)
         stats.append(st)

@@ -28,13 +28,55 @@ CARRY_PX = 2.0
 NEW_VAR = 0.1 ** 2
 
 
+def median(x) -> float:
+    """``np.median`` of a 1-D float array without NaNs (the same value, bit for bit: the middle
+    element, or the mean of the two middle ones), without its generic-axis overhead: the
+    tracking chain takes several per frame. NaN when empty."""
+    n = len(x)
+    if n == 0:
+        return float("nan")
+    k = n // 2
+    if n % 2:
+        return float(np.partition(x, k)[k])
+    part = np.partition(x, (k - 1, k))
+    return float((part[k - 1] + part[k]) / 2)
+
+
+def lengths(v):
+    """Row lengths, float64 [M], of ``v`` float64 [M, D] (``np.linalg.norm(v, axis=1)``, the
+    same sums, without its argument handling)."""
+    return np.sqrt(np.add.reduce(v * v, axis=1))
+
+
+def inv_k(K):
+    """``np.linalg.inv(K)`` of the intrinsics (float64 3x3), computed once per camera: the
+    tracking of one frame needs it several times."""
+    key = K.tobytes()
+    Kinv = _KINV.get(key)
+    if Kinv is None:
+        Kinv = _KINV[key] = np.linalg.inv(K)
+    return Kinv
+
+
+_KINV: dict = {}
+
+
+def rays(pts, Kinv):
+    """Normalised rays (z = 1), float64 [M, 3], of the pixels ``pts`` float64 [M, 2] (``Kinv``:
+    :func:`inv_k`)."""
+    h = np.empty((len(pts), 3))
+    h[:, :2] = pts
+    h[:, 2] = 1.0
+    return h @ Kinv.T
+
+
 def log_depth_var(x1, x2, R, f):
     """Variance of log depth, float64 [M], of points triangulated from the normalised rays
     ``x1`` (reference) and ``x2`` (current), float64 [M, 3], for the rotation ``R``: a ray's
     direction is known to 1 px (1/``f`` rad), so the relative depth error is that over the sine
     of the parallax angle (points near the epipole, seen under little parallax, weigh little)."""
     a = x1 @ R.T
-    cos = (a * x2).sum(1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(x2, axis=1))
+    cos = (a * x2).sum(1) / (lengths(a) * lengths(x2))
     return 1.0 / (f * f * np.maximum(1.0 - cos * cos, 1e-12))
 
 
@@ -96,7 +138,7 @@ def reprojects(X, K, pts):
     """bool [M]: the points ``X`` (float64 [M, 3], camera frame) project within ``CARRY_PX``
     of the keypoints ``pts`` (float64 [M, 2])."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.linalg.norm((X @ K.T)[:, :2] / X[:, 2:] - pts, axis=1) <= CARRY_PX
+        return lengths((X @ K.T)[:, :2] / X[:, 2:] - pts) <= CARRY_PX
 
 
 def carry_depths(ref, cur_pts, pairs, T, K, depth, depth_var):
@@ -111,7 +153,7 @@ def carry_depths(ref, cur_pts, pairs, T, K, depth, depth_var):
     if not ok.any():
         return
     p = pairs[ok]
-    X = (np.c_[ref.pts[p[:, 1]], np.ones(len(p))] @ np.linalg.inv(K).T) * prior[ok, None]
+    X = rays(ref.pts[p[:, 1]], inv_k(K)) * prior[ok, None]
     X = X @ T[:3, :3].T + T[:3, 3]
     near = (X[:, 2] > 0) & reprojects(X, K, cur_pts[p[:, 0]])
     depth[p[near, 0]] = X[near, 2]
@@ -120,7 +162,7 @@ def carry_depths(ref, cur_pts, pairs, T, K, depth, depth_var):
 
 def flow(ref_pts, cur_pts, pairs):
     """Median displacement (px) of the matched keypoints ``pairs`` (this frame's, the reference's)."""
-    return float(np.median(np.linalg.norm(cur_pts[pairs[:, 0]] - ref_pts[pairs[:, 1]], axis=1)))
+    return median(lengths(cur_pts[pairs[:, 0]] - ref_pts[pairs[:, 1]]))
 
 
 def backfill(kf, cur_pts, pairs, T, K, depth, depth_var):
@@ -135,7 +177,7 @@ def backfill(kf, cur_pts, pairs, T, K, depth, depth_var):
     if not ok.any():
         return kf
     i, j = i[ok], j[ok]
-    X = (np.c_[cur_pts[i], np.ones(len(i))] @ np.linalg.inv(K).T) * depth[i, None]
+    X = rays(cur_pts[i], inv_k(K)) * depth[i, None]
     z = (X - T[:3, 3]) @ T[:3, 2]  # z of T^-1 X: R^T (X - t), third row
     front = z > 0
     d, v = kf.depth.copy(), kf.depth_var.copy()
@@ -143,5 +185,5 @@ def backfill(kf, cur_pts, pairs, T, K, depth, depth_var):
     return dataclasses.replace(kf, depth=d, depth_var=v)
 
 
-__all__ = ["backfill", "log_depth_var", "robust_mean", "step_scale", "fuse_depths", "reprojects",
+__all__ = ["median", "lengths", "inv_k", "rays", "backfill", "log_depth_var", "robust_mean", "step_scale", "fuse_depths", "reprojects",
            "carry_depths", "flow"]
