@@ -174,8 +174,38 @@ BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig(), True),
            ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig(), True))
 
 
+#: Per ``orbslam_batch.chain`` call (over all runs): seconds of wall time and of its thread's CPU
+#: time; their gap is what the chain waited for (the pool, the GIL, a core). See :func:`_timed_chain`.
+CHAIN_TIME = {"calls": 0, "wall_s": 0.0, "cpu_s": 0.0}
+
+
+def _timed_chain(fn):
+    """``fn`` (``orbslam_batch.chain``) adding its wall and thread CPU time to :data:`CHAIN_TIME`."""
+
+    @functools.wraps(fn)
+    def timed(*args, **kwargs):
+        w, c = time.perf_counter(), time.thread_time()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            CHAIN_TIME["calls"] += 1
+            CHAIN_TIME["cpu_s"] += time.thread_time() - c
+            CHAIN_TIME["wall_s"] += time.perf_counter() - w
+
+    return timed
+
+
+# The graphs built from here on call the timed chain (build_batch_graph looks it up by name).
+ob.chain = _timed_chain(ob.chain)
+
+
+#: The default batched mono run on a pool of all cores but one (the default before
+#: ``orbslam_batch.default_workers``), run when the default pool is smaller.
+OLD_POOL = "batched_mono_pool_old"
+
+
 def _pool_counts(pool):
-    return tuple(dict(c) for c in (pool.waited_s, pool.started, pool.cancelled))
+    return tuple(dict(c) for c in (pool.waited_s, pool.started, pool.cancelled)) + (dict(CHAIN_TIME),)
 
 
 #: pool_per_batch's counts: key, the pool's counter, the job's function.
@@ -193,6 +223,8 @@ def pool_per_batch(pool, before, batches) -> dict:
     row = {f"chain_{key}_ms": 1e3 * (now[0].get(what, 0) - before[0].get(what, 0)) / batches
            for key, what in (("wait_ahead", "ahead"), ("wait_keyframe", "keyframe"), ("on_the_spot", "on the spot"))}
     row.update({key: (now[i].get(fn, 0) - before[i].get(fn, 0)) / batches for key, i, fn in POOL_COUNTS})
+    calls = now[3]["calls"] - before[3]["calls"]
+    row.update({f"chain_{k}_ms": 1e3 * (now[3][f"{k}_s"] - before[3][f"{k}_s"]) / max(calls, 1) for k in ("wall", "cpu")})
     return row
 
 
@@ -343,7 +375,8 @@ def main(argv=None):
     p.add_argument("--batch", type=int, default=16, help="frames per batch of the batched mode (default 16)")
     p.add_argument("--match-batch", type=int, default=32,
                    help="also time extraction + matching at this batch (0: skip; default 32)")
-    p.add_argument("--workers", type=int, default=None, help="pose processes (default: all cores but one)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="pose processes (default: orbslam_batch.default_workers(), all cores but three)")
     p.add_argument("--out", default=os.path.join(os.environ.get("OUT") or ".", "orbslam"),
                    help="output folder (default: $OUT/orbslam)")
     args = p.parse_args(argv)
@@ -417,6 +450,13 @@ def main(argv=None):
                                                                       batch, pool, config=config, ahead=ahead)[0],
                                   failed)
             progress(f"front end {key} (B={batch}) FPS", f"{report[key]['fps']:.1f}")
+        old = max(2, os.cpu_count() - 1)  # the pool's default before default_workers()
+        if args.workers is None and pool is not None and old != pool.workers:
+            with ob.make_pool(old) as more:
+                report[OLD_POOL] = attempt(OLD_POOL, lambda: bench_frontend_batched(
+                    replay(mono_frames, n), mono, backend, out, None, batch, more)[0], failed)
+            report[OLD_POOL]["workers"] = old
+            progress(f"front end {OLD_POOL} ({old} processes) FPS", f"{report[OLD_POOL]['fps']:.1f}")
         report["pose_pool"] = attempt("pose pool", lambda: bench_pose_pool(mono_frames, mono, batch, pool), {}) \
             if pool is not None else {"error": "no pool (--workers 0)"}
         progress("pose_batch alone (ms/frame): one process vs pool", report["pose_pool"])
@@ -457,6 +497,7 @@ def main(argv=None):
     progress("accuracy", "done")
 
     base = report["opencv_baseline"]["thread_pool_fps"]
+    batched_keys = [key for key, *_ in BATCHED] + [OLD_POOL] * (OLD_POOL in report)
     rows = [("extraction + matching, pipelined (match node)", "extract_match"),
             ("extraction + matching, pipelined (match_hamming primitive, before)", "extract_match_primitive")]
     rows += [(f"extraction + matching, batched B={k[len('extract_match_batch'):]} (orb_batch + match_batch)", k)
@@ -466,6 +507,8 @@ def main(argv=None):
              (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores",
               "batched_mono_fifo"),
              (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),
+             *([(f"front end mono, end to end, batched B={batch}, {report[OLD_POOL].get('workers')} pose processes "
+                 "(all cores but one, the old default)", OLD_POOL)] if OLD_POOL in report else []),
              ("front end stereo, end to end, frame by frame", "frontend_stereo"),
              (f"front end stereo, end to end, batched B={batch}", "batched_stereo")]
     lines = [f"<!-- {command}   (OUT=$OUT) -->",
@@ -494,23 +537,26 @@ def main(argv=None):
               "Per node, median ms over the last frames (in a pipelined run a node's interval",
               "includes waiting for the GIL and for copies):", ""]
     lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono",
-                                   "frontend_stereo", *(key for key, *_ in BATCHED)])
+                                   "frontend_stereo", *batched_keys])
     lines += ["", "What the pose pool did per batch (the chain's waits: for the batch's frame jobs, and for",
               "keyframe cores speculated or guessed on the pool; jobs started and dropped unstarted;",
               "batched_mono_fifo: the pool in submit order, no guessed cores, as before them; counts include",
-              "the verification of the run's graph):", "",
+              "the verification of the run's graph; chain wall and CPU: per chain call, its wall time and",
+              "its thread's CPU time, whose gap is what it waited for: the pool, the GIL, a free core):", "",
               "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | chain computes cores "
-              "(ms) | frame jobs | guess jobs | guesses dropped | keyframe cores | keyframe cores dropped |",
-              "| --- |" + " --- |" * 8]
-    for key, *_ in BATCHED:
+              "(ms) | frame jobs | guess jobs | guesses dropped | keyframe cores | keyframe cores dropped "
+              "| chain wall (ms) | chain CPU (ms) |",
+              "| --- |" + " --- |" * 10]
+    for key in batched_keys:
         b = report[key].get("pool_per_batch")
         cells = [f"{b[f'chain_{k}_ms']:.2f}" for k in ("wait_ahead", "wait_keyframe", "on_the_spot")] \
-            + [f"{b[k]:.1f}" for k, *_ in POOL_COUNTS] if b else ["n/a"] + [""] * 7
+            + [f"{b[k]:.1f}" for k, *_ in POOL_COUNTS] \
+            + [f"{b[f'chain_{k}_ms']:.2f}" for k in ("wall", "cpu")] if b else ["n/a"] + [""] * 9
         lines.append(f"| {key} | " + " | ".join(cells) + " |")
     lines += ["", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
     for k, v in report["accuracy"].items():
         lines.append(f"| {k} | {v['ate_m']:.4f} | {v['rpe1_t_m']:.4f} | {v['rpe1_r_deg']:.3f} |")
-    for k in ("frontend_mono", "frontend_stereo", *(key for key, *_ in BATCHED)):
+    for k in ("frontend_mono", "frontend_stereo", *batched_keys):
         s = report[k]["plan"]
         if s is None:
             lines += ["", f"{k}: FAILED ({report[k].get('error')})"]

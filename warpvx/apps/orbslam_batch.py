@@ -186,13 +186,23 @@ class PosePool:
         self.shutdown(cancel_futures=exc[0] is not None)
 
 
+#: Cores :func:`make_pool` leaves to the calling process: its busy threads (the GPU thread,
+#: ``pose_batch``, ``chain``, the pool's own hand-off threads) take turns on the GIL, and each
+#: hand-off waits for a core when the pose processes take them all.
+SPARE_CORES = 3
+
+
+def default_workers() -> int:
+    """:func:`make_pool`'s default: all cores but :data:`SPARE_CORES`, at least 2."""
+    return max(2, os.cpu_count() - SPARE_CORES)
+
+
 def make_pool(workers: int | None = None) -> PosePool | None:
-    """A :class:`PosePool` for :func:`pose_batch` (``workers`` processes, default: all cores
-    but one, which the calling process's GPU and tracking threads keep, and at least 2; 0:
-    None, the work runs in the calling thread)."""
+    """A :class:`PosePool` for :func:`pose_batch` (``workers`` processes, default
+    :func:`default_workers`; 0: None, the work runs in the calling thread)."""
     from ..check import check_int
 
-    workers = max(2, os.cpu_count() - 1) if workers is None else check_int(workers, "workers", min_value=0)
+    workers = default_workers() if workers is None else check_int(workers, "workers", min_value=0)
     return PosePool(workers) if workers else None
 
 

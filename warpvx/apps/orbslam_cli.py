@@ -32,7 +32,7 @@ def add_arguments(parser):
                              "the pose work over --pose-workers processes (warpvx.apps.orbslam_batch; same "
                              "poses, faster on long sequences; try 16 on a GPU); 1: frame by frame")
     parser.add_argument("--pose-workers", type=int, default=None, metavar="N",
-                        help="with --batch: processes for the pose work (default: all cores but one; 0: none)")
+                        help="with --batch: processes for the pose work (default: all cores but three; 0: none)")
     parser.add_argument("--no-keyframe-motion", action="store_true",
                         help="monocular: motion from the previous frame only, never from the last keyframe "
                              "(faster with --batch, whose pose processes then do all essential matrices; "
