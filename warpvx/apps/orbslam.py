@@ -271,9 +271,10 @@ class TrackState:
 
 def _inv(T):
     R, t = T[:3, :3], T[:3, 3]
-    out = np.eye(4)
+    out = np.empty((4, 4))
     out[:3, :3] = R.T
     out[:3, 3] = -R.T @ t
+    out[3] = (0.0, 0.0, 0.0, 1.0)
     return out
 
 
@@ -358,8 +359,10 @@ def _triangulate_known(ref, cur_pts, pairs, T, K):
     z1, z2 = _ray_depths(x1, x2, R, t)
     X = (x1 * z1[:, None]) @ R.T + t
     ok = (z1 > 0) & (z2 > 0) & reprojects(X, K, cur_pts[pairs[:, 0]])
-    ok[ok] = log_depth_var(x1[ok], x2[ok], R, K[0, 0]) <= NEW_VAR
-    return fuse_depths(ref, pairs[ok], x1[ok], x2[ok], R, t, X[ok, 2], K[0, 0])
+    var = log_depth_var(x1[ok], x2[ok], R, K[0, 0])
+    keep = var <= NEW_VAR
+    ok[ok] = keep
+    return fuse_depths(ref, pairs[ok], x1[ok], x2[ok], R, t, X[ok, 2], K[0, 0], var[keep])
 
 
 def essential_core(p1, p2, K, config):
@@ -413,12 +416,13 @@ def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *,
     R, t, inl, z_ref, z_cur = core
     Kinv = inv_k(K)
     x1, x2 = rays(p1[inl], Kinv), rays(p2[inl], Kinv)
-    scale = step_scale(ref, pairs[inl], x1, x2, R, z_ref, K[0, 0], np.nan)
+    var = log_depth_var(x1, x2, R, K[0, 0])
+    scale = step_scale(ref, pairs[inl], x1, x2, R, z_ref, K[0, 0], np.nan, var)
     if np.isnan(scale):
         scale = scene_depth / median(z_cur) if np.isfinite(scene_depth) else step
     elif not bounds[0] <= scale <= bounds[1]:
         return None
-    tri = fuse_depths(ref, pairs[inl], x1, x2, R, scale * t, scale * z_cur, K[0, 0])
+    tri = fuse_depths(ref, pairs[inl], x1, x2, R, scale * t, scale * z_cur, K[0, 0], var)
     return _rt(R, scale * t), len(inl), tri
 
 

@@ -92,7 +92,7 @@ def robust_mean(r, var):
     return float((w[keep] * r[keep]).sum() / w[keep].sum()) if keep.any() else float("nan")
 
 
-def step_scale(ref, pairs, x1, x2, R, z_ref, f, step):
+def step_scale(ref, pairs, x1, x2, R, z_ref, f, step, var=None):
     """The scale of a monocular step from the essential matrix (unit translation): the
     inverse-variance weighted mean of (reference depth / ``z_ref``) over the ``pairs`` (this
     frame's index, the reference's) whose reference keypoint has a depth (log-depth variances
@@ -104,12 +104,12 @@ def step_scale(ref, pairs, x1, x2, R, z_ref, f, step):
     common = np.isfinite(prior) & (prior > 0) & (z_ref > 0)
     if common.sum() < MIN_COMMON:
         return step
-    var = log_depth_var(x1[common], x2[common], R, f) + ref.depth_var[pairs[common, 1]]
+    var = (log_depth_var(x1[common], x2[common], R, f) if var is None else var[common]) + ref.depth_var[pairs[common, 1]]
     scale = robust_mean(prior[common] / z_ref[common], var)
     return scale if np.isfinite(scale) else step
 
 
-def fuse_depths(ref, pairs, x1, x2, R, t, depth, f):
+def fuse_depths(ref, pairs, x1, x2, R, t, depth, f, var=None):
     """This frame's depths of triangulated points, refined as map points are.
 
     ``pairs`` (this frame's index, the reference's), their rays ``x1``, ``x2`` (float64
@@ -119,8 +119,9 @@ def fuse_depths(ref, pairs, x1, x2, R, t, depth, f):
     inverse-variance weights (:func:`log_depth_var`), unless they differ by more than
     ``GATE`` standard deviations; so depths are refined over the frames a point is tracked
     and the scale stays tied to long-lived points instead of the last triangulation alone (a
-    random walk of the scale). Returns (this frame's indices, depths, log-depth variances)."""
-    var = log_depth_var(x1, x2, R, f)
+    random walk of the scale). ``var``: :func:`log_depth_var` of the rays when the caller has
+    it. Returns (this frame's indices, depths, log-depth variances)."""
+    var = log_depth_var(x1, x2, R, f) if var is None else var.copy()
     prior, prior_var = ref.depth[pairs[:, 1]], ref.depth_var[pairs[:, 1]]
     pred = prior * (x1 @ R[2]) + t[2]  # z of R (prior x1) + t
     ok = np.isfinite(pred) & (pred > 0)
