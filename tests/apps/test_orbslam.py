@@ -303,3 +303,20 @@ def test_camera_path_speed_variation_and_seed():
     for a, b in ((0, 1), (1, 2)):
         np.testing.assert_allclose(np.linalg.inv(poses[a]) @ poses[b], np.linalg.inv(path[a]) @ path[b],
                                    atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 7, 1000, 1001])
+def test_fast_helpers_equal_numpy_bit_for_bit(n):
+    """The tracking chain's median / row lengths / rays stand in for np.median,
+    np.linalg.norm(axis=1) and np.c_[p, 1] @ inv(K).T: the same floats (poses must not move)."""
+    rng = np.random.default_rng(n)
+    v = rng.normal(size=(n, 2)) * 100
+    x = rng.random(n) * 50
+    K = intrinsics_for((640, 480))
+    assert np.array_equal(orbslam_depths.lengths(v), np.linalg.norm(v, axis=1))
+    assert np.array_equal(orbslam_depths.rays(v, orbslam_depths.inv_k(K)),
+                          np.c_[v, np.ones(n)] @ np.linalg.inv(K).T)
+    if n:
+        assert orbslam_depths.median(x) == np.median(x)
+    else:
+        assert np.isnan(orbslam_depths.median(x))

@@ -17,8 +17,8 @@ sequence, the stereo matching of frame t (:func:`~warpvx.apps.orbslam_match.ster
         previous frame (mono) or the stereo depths; mono, the core to the frame before the
         previous one as the keyframe (a guess: right after a keyframe change)
     state[-1], feats, ahead -> chain (CPU) -> state, poses [B, 4, 4], stats [B, 6]: ``track``
-        frame by frame, the essential matrix taken from ``ahead`` when its inputs are the
-        ones worked out ahead; the cores to the keyframe are speculated on the pool a few
+        frame by frame, the filtered matches taken from ``ahead`` and the essential matrix
+        too when its inputs are the ones worked out ahead; the cores to the keyframe are speculated on the pool a few
         frames before the chain needs them (only the chain knows the keyframe), as urgent
         jobs that start before the next batch's (see :class:`PosePool`)
 
