@@ -20,10 +20,12 @@ reading PNGs is timed separately. Measured, side by side in one run:
    predicted vs measured makespan, and a Gantt chart of 3 pipelined frames;
 5. the batched front end (warpvx.apps.orbslam_batch, ``--batch B`` frames per graph frame):
    extraction + matching batched (``orb_batch`` + ``match_batch`` on the device: one launch
-   matches all consecutive pairs both ways; the mutual pairs on the host), mono and stereo end to end with the pose work on a process pool of all
-   cores, the pool's speed-up on one batch's pose work (``pose_batch`` on one process vs the
-   pool), what the pool did per batch (how long the chain waited on it, for the frame jobs
-   and for the keyframe cores it speculates; jobs started and dropped), and its accuracy
+   matches all consecutive pairs both ways; the mutual pairs on the host), mono and stereo
+   end to end with the pose work on a process pool of all cores but three (mono also on one
+   of all cores but one, the default before), the pool's speed-up on one batch's pose work
+   (``pose_batch`` on one process vs the pool), what the pool did per batch (how long the
+   chain waited on it, for the frame jobs and for the keyframe cores it speculates; jobs
+   started and dropped; the chain's wall vs thread CPU time), and its accuracy
    (the poses must be the sequential ones).
 
 FPS columns: "wall" counts everything from the call (graph build, verification, calibration:
@@ -174,9 +176,9 @@ BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig(), True),
            ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig(), True))
 
 
-#: Per ``orbslam_batch.chain`` call (over all runs): seconds of wall time and of its thread's CPU
-#: time; their gap is what the chain waited for (the pool, the GIL, a core). See :func:`_timed_chain`.
-CHAIN_TIME = {"calls": 0, "wall_s": 0.0, "cpu_s": 0.0}
+#: Over all ``orbslam_batch.chain`` calls: seconds of wall time and of its thread's CPU time;
+#: their gap is what the chain waited for (the pool, the GIL, a core). See :func:`_timed_chain`.
+CHAIN_TIME = {"wall_s": 0.0, "cpu_s": 0.0}
 
 
 def _timed_chain(fn):
@@ -188,7 +190,6 @@ def _timed_chain(fn):
         try:
             return fn(*args, **kwargs)
         finally:
-            CHAIN_TIME["calls"] += 1
             CHAIN_TIME["cpu_s"] += time.thread_time() - c
             CHAIN_TIME["wall_s"] += time.perf_counter() - w
 
@@ -223,8 +224,7 @@ def pool_per_batch(pool, before, batches) -> dict:
     row = {f"chain_{key}_ms": 1e3 * (now[0].get(what, 0) - before[0].get(what, 0)) / batches
            for key, what in (("wait_ahead", "ahead"), ("wait_keyframe", "keyframe"), ("on_the_spot", "on the spot"))}
     row.update({key: (now[i].get(fn, 0) - before[i].get(fn, 0)) / batches for key, i, fn in POOL_COUNTS})
-    calls = now[3]["calls"] - before[3]["calls"]
-    row.update({f"chain_{k}_ms": 1e3 * (now[3][f"{k}_s"] - before[3][f"{k}_s"]) / max(calls, 1) for k in ("wall", "cpu")})
+    row.update({f"chain_{k}_ms": 1e3 * (now[3][f"{k}_s"] - before[3][f"{k}_s"]) / batches for k in ("wall", "cpu")})
     return row
 
 
@@ -541,8 +541,8 @@ def main(argv=None):
     lines += ["", "What the pose pool did per batch (the chain's waits: for the batch's frame jobs, and for",
               "keyframe cores speculated or guessed on the pool; jobs started and dropped unstarted;",
               "batched_mono_fifo: the pool in submit order, no guessed cores, as before them; counts include",
-              "the verification of the run's graph; chain wall and CPU: per chain call, its wall time and",
-              "its thread's CPU time, whose gap is what it waited for: the pool, the GIL, a free core):", "",
+              "the verification of the run's graph; chain wall and CPU: the chain's wall time and its",
+              "thread's CPU time, whose gap is what it waited for: the pool, the GIL, a free core):", "",
               "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | chain computes cores "
               "(ms) | frame jobs | guess jobs | guesses dropped | keyframe cores | keyframe cores dropped "
               "| chain wall (ms) | chain CPU (ms) |",

@@ -639,5 +639,6 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
             pool.shutdown(cancel_futures=True)
 
 
-__all__ = ["PosePool", "make_pool", "ahead_frames", "orb_batch", "match_batch", "pose_batch", "chain", "add_extract_match", "build_batch_graph",
+__all__ = ["PosePool", "make_pool", "default_workers", "SPARE_CORES",
+           "ahead_frames", "orb_batch", "match_batch", "pose_batch", "chain", "add_extract_match", "build_batch_graph",
            "track_frames_batched"]

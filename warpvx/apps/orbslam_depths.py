@@ -99,12 +99,14 @@ def step_scale(ref, pairs, x1, x2, R, z_ref, f, step, var=None):
     of both, from the parallax of the rays ``x1``, ``x2``: :func:`log_depth_var`); ``step``
     when fewer than ``MIN_COMMON``. The ratio is linear in the inverse depth, which is linear
     in the parallax: a triangulated depth itself (1 / parallax) is biased long, and log or
-    median ratios of it shrink the scale a little at every step."""
+    median ratios of it shrink the scale a little at every step. ``var``: :func:`log_depth_var`
+    of all the rays when the caller has it."""
     prior = ref.depth[pairs[:, 1]]
     common = np.isfinite(prior) & (prior > 0) & (z_ref > 0)
     if common.sum() < MIN_COMMON:
         return step
-    var = (log_depth_var(x1[common], x2[common], R, f) if var is None else var[common]) + ref.depth_var[pairs[common, 1]]
+    own = log_depth_var(x1[common], x2[common], R, f) if var is None else var[common]
+    var = own + ref.depth_var[pairs[common, 1]]
     scale = robust_mean(prior[common] / z_ref[common], var)
     return scale if np.isfinite(scale) else step
 
@@ -186,5 +188,6 @@ def backfill(kf, cur_pts, pairs, T, K, depth, depth_var):
     return dataclasses.replace(kf, depth=d, depth_var=v)
 
 
-__all__ = ["median", "lengths", "inv_k", "rays", "backfill", "log_depth_var", "robust_mean", "step_scale", "fuse_depths", "reprojects",
+__all__ = ["median", "lengths", "inv_k", "rays", "backfill",
+           "log_depth_var", "robust_mean", "step_scale", "fuse_depths", "reprojects",
            "carry_depths", "flow"]
