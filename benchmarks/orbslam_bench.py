@@ -119,9 +119,10 @@ def bench_extract_match(images, backend, primitive, depth=3):
 
 
 def _pairs_batch(feats, nearest, tail):
-    """The host side of batched matching: each frame's mutual pairs (and the last count)."""
+    """The host side of batched matching: each frame's mutual pairs (and the last count);
+    ``feats`` packed (``orb_batch``'s second output)."""
     prev_n, pairs = tail, []
-    for f, (kps, _) in enumerate(feats, 1):
+    for f, (kps, _) in enumerate(ob.unpack_feats(feats), 1):
         pairs.append(mutual_pairs(*batch_pairs(*nearest, f), len(kps), prev_n)[0])
         prev_n = len(kps)
     return prev_n, pairs
@@ -133,8 +134,8 @@ def bench_extract_match_batched(images, backend, batch, depth=3):
     g = warpvx.Graph("orb_match_batch")
     h, w = images[0].shape
     x = g.input("images", shape=(batch, h, w), dtype=np.uint8)
-    feats, nearest = ob.add_extract_match(g, x, batch, o.TrackerConfig(),
-                                          target=None if backend == "cpu" else "gpu")
+    _, feats, nearest = ob.add_extract_match(g, x, batch, o.TrackerConfig(),
+                                             target=None if backend == "cpu" else "gpu")
     count = g.virtual("count")
     _, pairs = g.user(_pairs_batch, [feats, nearest, g.delay(count, init=0)[-1]], [count, "pairs"],
                       name="pairs")
@@ -257,7 +258,7 @@ def bench_pose_pool(frames, camera, batch, pool):
     frame jobs and the guesses (``guess_job``: the core after a keyframe change) both."""
     images = np.stack([f["image"] for f in frames[:batch + 1]])
     config = o.TrackerConfig()
-    feats = ob.orb_batch(images, config=config)  # the features only feed the timed pose work
+    feats = ob.orb_batch(images, config=config)[0]  # the features only feed the timed pose work
     descs = [d for _, d in feats]
     _, nearest = ob.nearest_batch(descs[1:], descs[0])
     k0 = feats[0][0]

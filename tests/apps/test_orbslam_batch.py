@@ -10,6 +10,7 @@ after Sim(3), stereo 1 cm). 12 frames in batches of 5: the last batch is filled 
 from __future__ import annotations
 
 import json
+import threading
 
 import numpy as np
 import pytest
@@ -89,7 +90,7 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
     frames, camera = _frames(seq, False)
     config, K = o.TrackerConfig(keyframe_motion=keyframe_motion), np.ascontiguousarray(seq[2], np.float64)
     images = np.stack([f["image"] for f in frames])
-    feats = ob.orb_batch(images, config=config)
+    feats = ob.orb_batch(images, config=config)[0]
     last, nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=FRAMES)
     np.testing.assert_array_equal(last, feats[-1][1])
     common = dict(K=K, config=config, baseline=None, frames=FRAMES)
@@ -131,7 +132,7 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
     np.testing.assert_allclose(poses, [f.pose for f in o.track_frames(frames, camera, config)], atol=1e-9)
 
 
-def test_slow_motion_takes_the_speculated_keyframe_cores():
+def test_slow_motion_takes_the_speculated_keyframe_cores(monkeypatch):
     """Slow motion (0.05 m/frame): keyframes several frames apart, so frames three or more
     after the keyframe take their motion from it; the chain takes those cores from the ones
     it speculated on the pool (computing none itself), the rest as guessed, and the poses
@@ -143,10 +144,22 @@ def test_slow_motion_takes_the_speculated_keyframe_cores():
     kf = stats[:, 3] == 1
     last_kf = {t: max(k for k in range(t) if kf[k]) for t in range(1, 14)}  # each frame's keyframe
     assert any(stats[t, 4] == o.REF_KEYFRAME and t - last_kf[t] >= 3 for t in last_kf)  # not guessed
+    # The cores the chain computes itself, by thread: the graph's verification and calibration
+    # run it in the calling thread on samples (a batch's frames after themselves: other
+    # keyframes, so guesses it cancels there may be needed in the next timing run); the
+    # stream runs it on a worker thread.
+    on_the_spot = []
+
+    def essential(*args):
+        on_the_spot.append(threading.current_thread() is threading.main_thread())
+        return core(*args)
+
+    core = o.essential_core
+    monkeypatch.setattr(o, "essential_core", essential)
     with ob.make_pool(2) as pool:
         got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=7, pool=pool)])
         assert pool.started["_essential_job"] > 0 and pool.started["guess_job"] > 0
-        assert pool.waited_s["on the spot"] == 0
+    assert all(on_the_spot)  # none in the stream
     np.testing.assert_allclose(got, [f.pose for f in want], atol=1e-9)
 
 
@@ -243,3 +256,22 @@ def test_new_settings_refuse_bad_values_by_name():
         g.verify({"x": np.zeros(4, np.float32)}, gpu="cpu")
     with pytest.raises(WarpvxError, match="backend|gpu"):
         g.verify({"x": np.zeros(4, np.float32)}, gpu="tpu")
+
+
+def test_packed_features_unpack_to_the_device_ones(seq):
+    """orb_batch_warp's packed features (each field joined on the device, one download each)
+    split back into every frame's keypoints and descriptors, a frame without any included."""
+    import warp as wp
+
+    from warpvx.keypoints import FIELDS
+    from warpvx.runtime.transfers import Transfers
+
+    left = seq[0]
+    images = wp.array(np.stack([left[0], np.zeros_like(left[0]), left[1]]), dtype=wp.uint8, device="cpu")
+    feats, packed = ob.orb_batch_warp(images, config=o.TrackerConfig())
+    host = ob.unpack_feats(Transfers("cpu").download(packed))  # as the executor hands it over
+    assert [len(k.x) for k, _ in host] == [int(d.shape[0]) for _, d in feats]
+    assert len(host[1][0].x) == 0 and len(host[0][0].x) > 0
+    for (k, d), (hk, hd) in zip(feats, host):
+        assert all(np.array_equal(getattr(k, f).numpy(), getattr(hk, f)) for f in FIELDS)
+        assert np.array_equal(d.numpy(), hd)

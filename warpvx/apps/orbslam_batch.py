@@ -49,6 +49,7 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
+from ..keypoints import FIELDS, Keypoints
 from . import orbslam as o
 from .orbslam_depths import lengths, median
 from .orbslam_match import batch_pairs, mutual_pairs, nearest_batch, nearest_batch_warp, stereo_depth
@@ -228,17 +229,43 @@ class _Later:
 
 
 def orb_batch(images, *, config):
-    """``images`` uint8 [B', H, W] -> a list of B' (Keypoints, uint8 [N_i, 32]) (CPU)."""
+    """``images`` uint8 [B', H, W] -> (feats, packed) (CPU): feats a list of B' (Keypoints,
+    uint8 [N_i, 32]); packed the same list (see :func:`orb_batch_warp`)."""
     import warpvx
 
-    return warpvx.orb(np.asarray(images), **config.orb_args(), backend="cpu")
+    feats = warpvx.orb(np.asarray(images), **config.orb_args(), backend="cpu")
+    return feats, feats
 
 
 def orb_batch_warp(images, *, config):
-    """:func:`orb_batch` on the device (one launch set for the batch)."""
+    """:func:`orb_batch` on the device (one launch set for the batch); packed is
+    :func:`pack_feats`' (what the CPU nodes read)."""
     import warpvx
 
-    return warpvx.orb(images, **config.orb_args())
+    feats = warpvx.orb(images, **config.orb_args())
+    return feats, pack_feats(feats)
+
+
+def pack_feats(feats):
+    """Device features -> (fields, descriptors, counts): each keypoint field (:data:`FIELDS`
+    order) and the descriptors of all the batch's frames joined on the device, and the frames'
+    keypoint counts. A CPU node then downloads 7 arrays instead of 7 per frame: each download
+    is a stream sync that hands the GIL over, and the tracking chain shares that GIL.
+    :func:`unpack_feats` splits them again."""
+    from ..kernels_warp.orb_stages import concatenate
+
+    return (tuple(concatenate([getattr(k, f) for k, _ in feats]) for f in FIELDS),
+            concatenate([d for _, d in feats]), tuple(int(d.shape[0]) for _, d in feats))
+
+
+def unpack_feats(packed) -> list:
+    """:func:`pack_feats`' value on the host -> the list of (Keypoints, uint8 [N_i, 32]) per
+    frame (views); a list (:func:`orb_batch`'s) as it is."""
+    if isinstance(packed, list):
+        return packed
+    fields, desc, counts = packed
+    ends = np.cumsum(counts, dtype=np.int64)
+    return [(Keypoints(*(a[e - n:e] for a in fields)), desc[e - n:e]) for n, e in zip(counts, ends)]
 
 
 def _left(feats, frames):
@@ -280,7 +307,7 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     ----------
     images : uint8 [B', H, W]
         The batch (stereo: B left images, then B right ones).
-    feats : list of B' (Keypoints, uint8 [N, 32])
+    feats : list of B' (Keypoints, uint8 [N, 32]), or :func:`pack_feats`' value
     nearest : (nearest, distance, starts)
         :func:`match_batch`'s second output.
     tail : tuple (float64 [N, 2] points, float64 [N] angles, before)
@@ -293,6 +320,7 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     ahead : the pool's results, still running: :func:`ahead_frames` waits for them; its
         ``guesses``: per frame the pending :func:`guess_job` or None.
     """
+    feats = unpack_feats(feats)
     prev_pts, prev_angles, before = tail
     fx = float(K[0, 0])
     # The guesses only pay on a pool (without one the chain computes what it needs).
@@ -484,6 +512,7 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
     :class:`KeyframeSpeculation`, and ``ahead``'s guesses: one used when the keyframe is two
     frames back, dropped unstarted once it cannot be): (state, poses float64 [B, 4, 4], stats
     float64 [B, 6])."""
+    feats = unpack_feats(feats)  # (packed, or a list)
     poses, stats = [], []
     per_frame = ahead_frames(ahead)
     guesses = ahead.guesses if pool is not None else [None] * frames
@@ -522,10 +551,11 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
 def add_extract_match(g, images, batch: int, config: o.TrackerConfig, *, target=None):
     """Add ``orb_batch`` and ``match_batch`` to graph ``g`` for ``images`` (a data object of
     uint8 [B', H, W], the first ``batch`` the left frames); returns the data objects (feats,
-    nearest). ``target="gpu"`` makes both GPU-only nodes (calibration then never times a
+    packed, nearest): CPU nodes read packed (:func:`unpack_feats`), the device one feats. ``target="gpu"`` makes both GPU-only nodes (calibration then never times a
     batch's extraction on the CPU); None: both implementations, placed by the scheduler."""
     cpu = target is None
-    feats = g.user(functools.partial(orb_batch, config=config) if cpu else None, [images], ["feats"],
+    feats, packed = g.user(functools.partial(orb_batch, config=config) if cpu else None, [images],
+                           ["feats", "packed"],
                    warp_fn=functools.partial(orb_batch_warp, config=config), name="orb_batch",
                    target=target)
     last_desc = g.virtual("last_desc")
@@ -534,7 +564,7 @@ def add_extract_match(g, images, batch: int, config: o.TrackerConfig, *, target=
     _, nearest = g.user(functools.partial(match_batch, frames=batch) if cpu else None, [feats, before],
                         [last_desc, "nearest"], warp_fn=functools.partial(match_batch_warp, frames=batch),
                         name="match_batch", target=target)
-    return feats, nearest
+    return feats, packed, nearest
 
 
 def build_batch_graph(camera: o.Camera, batch: int, config: o.TrackerConfig = o.TrackerConfig(), *,
@@ -561,14 +591,14 @@ def build_batch_graph(camera: o.Camera, batch: int, config: o.TrackerConfig = o.
                   frames=batch)
     g = Graph("orbslam_batch")
     images = g.input("images", shape=(batch * (2 if camera.stereo else 1), h, w), dtype=np.uint8)
-    feats, nearest = add_extract_match(g, images, batch, config, target=pin)
+    _, packed, nearest = add_extract_match(g, images, batch, config, target=pin)
     tail = g.virtual("tail")
     last = g.delay(tail, init=NO_TAIL)[-1]
-    _, ahead = g.user(functools.partial(pose_batch, pool=pool, **common), [images, feats, nearest, last],
+    _, ahead = g.user(functools.partial(pose_batch, pool=pool, **common), [images, packed, nearest, last],
                       [tail, "ahead"], name="pose_batch")
     state = g.virtual("state")
     previous = g.delay(state, init=o.TrackState())[-1]
-    _, poses, stats = g.user(functools.partial(chain, pool=pool, **common), [previous, feats, ahead],
+    _, poses, stats = g.user(functools.partial(chain, pool=pool, **common), [previous, packed, ahead],
                              [state, "poses", "stats"], name="chain")
     g.output("poses", poses)
     g.output("stats", stats)
@@ -639,6 +669,6 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
             pool.shutdown(cancel_futures=True)
 
 
-__all__ = ["PosePool", "make_pool", "default_workers", "SPARE_CORES",
+__all__ = ["PosePool", "make_pool", "default_workers", "SPARE_CORES", "pack_feats", "unpack_feats",
            "ahead_frames", "orb_batch", "match_batch", "pose_batch", "chain", "add_extract_match", "build_batch_graph",
            "track_frames_batched"]
