@@ -484,9 +484,9 @@ def _fmt(v, spec=".3f"):
 def markdown(report) -> str:
     si = report["switch_interval"]
     lines = [
-        f"# Graph runtime benchmark ({report['mode']})",
-        "",
         f"Regenerate: `{report['command']}`",
+        "",
+        f"# Graph runtime benchmark ({report['mode']})",
         "",
         f"Machine: {report['machine']}; GPU role: {report['gpu']}; CPU workers: "
         f"{report['n_cpus']}; {report['frames']} frames per policy run one at a time in "
@@ -571,6 +571,7 @@ def markdown(report) -> str:
                           f"{k} {v:.3f} ({(best.get('trial_frames') or {}).get(k, '-')})"
                           for k, v in trial.items())
                          if trial else "; no trial (one candidate within the margins)") + ".", ""]
+        lines += same_placement_lines(e["policies"])
         lines += ["Per node (out-of-sample frames of each policy): calibrated alone vs measured in "
                   "the frames (interval without transfers; GPU: device interval), ms:", ""]
         for r in e["policies"]:
@@ -598,6 +599,23 @@ def markdown(report) -> str:
 
 
 CHAIN_TEXT = {"cpu": "one CPU worker", "gpu": "all on the GPU role", "mixed": "alternating CPU/GPU"}
+
+
+def same_placement_lines(policies) -> list:
+    """A line per group of policies that placed every node alike (HEFT and XEFT often do):
+    their out-of-sample medians differ only by the machine's drift between rounds, a floor
+    under any "within 5% of the fastest" comparison."""
+    groups: dict = {}
+    for r in policies:
+        groups.setdefault(tuple(sorted(r["placement"].items())), []).append(r)
+    lines = []
+    for rows in groups.values():
+        if len(rows) > 1:
+            ms = [r["measured_out_ms"] for r in rows]
+            lines.append("Identical placements: " + ", ".join(
+                f"{r['policy']} {r['measured_out_ms']:.3f} ms" for r in rows)
+                + f" (spread {100 * (max(ms) / min(ms) - 1):.1f}%: one placement measured twice).")
+    return lines + [""] if lines else []
 
 
 def probe_line(probe) -> str:

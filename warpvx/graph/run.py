@@ -242,7 +242,7 @@ class Runner:
             ex = plan.executor()
             feed, all_host = self._frame_inputs(inputs, ex.gpu_device)
             ex.reanchor(max_age=5.0)
-            frame = ex.submit(self._next_frame(), feed, capture=capture)
+            frame = ex.submit(self._next_frame(), feed, capture=capture, wake=False)
             try:
                 result = ex.wait(frame, host=all_host if host is None else host)
             except NodeExecutionError:

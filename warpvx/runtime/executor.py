@@ -727,8 +727,13 @@ class Executor(RoleRunner, SegmentRunner):
 
     # ------------------------------------------------------------------ API
 
-    def submit(self, frame_index: int, inputs: Mapping, *, capture: bool | None = None) -> Frame:
+    def submit(self, frame_index: int, inputs: Mapping, *, capture: bool | None = None,
+               wake: bool = True) -> Frame:
         """Start frame ``frame_index`` with ``inputs``: key -> ``(value, "host" | "device")``.
+
+        ``wake=False``: the caller calls :meth:`wait` at once, which runs the frame's ready
+        units on its own thread when the frame is alone in flight (and wakes the role threads
+        otherwise): no role thread is woken here to contend for the GIL meanwhile.
 
         ``capture``: replay captured GPU segments in this frame (None: the executor's
         :attr:`capture`; True where the GPU role's device can capture). Returns at once; the
@@ -778,7 +783,7 @@ class Executor(RoleRunner, SegmentRunner):
             frame.cancel.set()
         for role in self._roles.values():
             role.frames.append(frame)
-            if self._ready(role):
+            if wake and self._ready(role):
                 role.wake()
         if batch is not None:
             for p in self._active:
@@ -867,15 +872,19 @@ class Executor(RoleRunner, SegmentRunner):
         no wake-up of the caller at its end (each 10-30 us under the GIL). With other frames
         in flight it only waits: its role would go on into their units."""
         with self._lock:
-            if len(self._inflight) != 1:
-                return
-        for role in self._roles.values():
-            if self._ready(role) and not role.token.locked():
-                try:
-                    self._drive(role)
-                except BaseException as exc:  # noqa: BLE001 - an executor bug, reported
-                    self._fail(frame, "<executor>", role.proc, exc)
-                return
+            alone = len(self._inflight) == 1
+        ready = [r for r in self._roles.values() if self._ready(r) and not r.token.locked()]
+        if not alone:
+            for role in ready:  # (a frame submitted without waking them)
+                role.wake()
+            return
+        for role in ready[1:]:  # more than one role with ready units: theirs run beside
+            role.wake()
+        if ready:
+            try:
+                self._drive(ready[0])
+            except BaseException as exc:  # noqa: BLE001 - an executor bug, reported
+                self._fail(frame, "<executor>", ready[0].proc, exc)
 
     @staticmethod
     def _unstage(frame: Frame):
