@@ -265,7 +265,9 @@ def unpack_feats(packed) -> list:
         return packed
     fields, desc, counts = packed
     ends = np.cumsum(counts, dtype=np.int64)
-    return [(Keypoints(*(a[e - n:e] for a in fields)), desc[e - n:e]) for n, e in zip(counts, ends)]
+    # Cuts of validated keypoints' fields: not validated again (as the runtime moves them).
+    return [(Keypoints.__warpvx_unflatten__(None, tuple(a[e - n:e] for a in fields)), desc[e - n:e])
+            for n, e in zip(counts, ends)]
 
 
 def _left(feats, frames):
