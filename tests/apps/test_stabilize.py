@@ -183,7 +183,9 @@ def test_demo_writes_into_a_new_folder(tmp_path):
 
 def test_script_runs(tmp_path):
     out = tmp_path / "out.mp4"
-    env = dict(os.environ, PYTHONPATH=os.path.abspath(ROOT))
+    # The checkout first, then whatever made Warp importable here (a staged PYTHONPATH).
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        p for p in (os.path.abspath(ROOT), os.environ.get("PYTHONPATH", "")) if p))
     res = subprocess.run([sys.executable, os.path.join(ROOT, "apps", "stabilize.py"), CLIP, str(out),
                           "--max-frames", "6", "--window", "3", "--quiet"],
                          capture_output=True, text=True, timeout=120, env=env)
