@@ -152,7 +152,8 @@ def test_cli_writes_the_frames_tracked_before_an_error(tmp_path, moving, capsys)
 @pytest.mark.skipif(not os.path.isfile(BIKES), reason="bikes.mp4 (shared data) not present")
 def test_bikes_clip_with_cuts_through_the_cli_gives_finite_poses(tmp_path):
     out = tmp_path / "bikes"
-    env = {**os.environ, "PYTHONPATH": os.path.abspath(ROOT)}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        p for p in (os.path.abspath(ROOT), os.environ.get("PYTHONPATH", "")) if p)}
     run = subprocess.run([sys.executable, "-m", "warpvx", "orbslam", BIKES, "--intrinsics", "500,500,320,180",
                           "--max-frames", "120", "--out", str(out), "--quiet", "--no-plot"],
                          capture_output=True, text=True, env=env, timeout=600)
@@ -167,7 +168,9 @@ def test_bikes_clip_with_cuts_through_the_cli_gives_finite_poses(tmp_path):
     assert f"{len(lost)} lost" in run.stdout and f"tracking lost on {len(lost)} of 120 frames" in run.stderr
     # Before, the rotation of the poses blew up through the lost and still frames of the
     # hand-held shots (overflow at frame ~106). The scale still drifts on this footage (guessed
-    # intrinsics, moving bikes, little translation; measured: steps up to ~5e3 times the first
-    # one), each frame's step bounded against the last (max_speed_jump).
+    # intrinsics, moving bikes, little translation): a step is bounded against the median of
+    # the last moving steps, a re-initialisation's scene-depth scale too (measured: steps up
+    # to ~180 times the first, the relocalisations' corrections; ~5e3 when the bound was the
+    # last step alone and re-initialisations were unbounded).
     steps = np.linalg.norm(np.diff(kitti[:, :3, 3], axis=0), axis=1)
-    assert steps.max() < 1e5 * steps[0]
+    assert steps.max() < 1e3 * steps[0]

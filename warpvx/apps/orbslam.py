@@ -257,7 +257,11 @@ class TrackState:
       implausible (~0 after a stop);
     - ``scene_depth``: the median depth of the last frame with depths (at the map's scale;
       NaN none yet), the scale a re-initialisation after a loss keeps;
-    - ``lost``: how many frames in a row up to the previous one were lost."""
+    - ``lost``: how many frames in a row up to the previous one were lost;
+    - ``speeds``: the lengths per frame of the last :data:`SPEED_HISTORY` steps that moved:
+      their median is the yardstick of an implausible scale jump (the last step alone let a
+      run of steps, each up to ``max_speed_jump`` times the one before, compound: a hand-held
+      clip's steps grew 5000x in 120 frames)."""
 
     frames: int = 0
     previous: FrameRecord | None = None
@@ -267,6 +271,11 @@ class TrackState:
     speed: float = 1.0
     scene_depth: float = np.nan
     lost: int = 0
+    speeds: tuple = ()
+
+
+#: Moving steps whose median length bounds the next step's (:attr:`TrackState.speeds`).
+SPEED_HISTORY = 10
 
 
 def _inv(T):
@@ -404,7 +413,8 @@ def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *,
     ``scene_depth`` (that of the last frame with depths, as ORB-SLAM2 scales a new map by its
     median depth), or to length ``step`` when there is none (NaN). Returns (T, inliers, (this
     frame's indices, depths, log-depth variances)) or None (no model, or a scale from depths
-    outside ``bounds``, (low, high): an implausible jump): the depths of the points in front
+    outside ``bounds``, (low, high): an implausible jump; a scene depth's scale outside them
+    takes ``step``): the depths of the points in front
     (:func:`~warpvx.apps.orbslam_depths.fuse_depths`), or the reference's when it did not
     move."""
     p1, p2 = ref.pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
@@ -420,6 +430,10 @@ def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *,
     scale = step_scale(ref, pairs[inl], x1, x2, R, z_ref, K[0, 0], np.nan, var)
     if np.isnan(scale):
         scale = scene_depth / median(z_cur) if np.isfinite(scene_depth) else step
+        if not bounds[0] <= scale <= bounds[1]:
+            # A re-initialisation whose scene depth implies an implausible step (the new
+            # scene is nearer or farther): the step the motion model allows, as without depths.
+            scale = step
     elif not bounds[0] <= scale <= bounds[1]:
         return None
     tri = fuse_depths(ref, pairs[inl], x1, x2, R, scale * t, scale * z_cur, K[0, 0], var)
@@ -535,8 +549,10 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         if stereo:
             result = _pose_pnp(ref, cur_pts, good, K, guess, config)
         if result is None:
-            expected, jump = state.speed * (state.frames - ref.index), config.max_speed_jump
-            bounds = (expected / jump, expected * jump)
+            back, jump = state.frames - ref.index, config.max_speed_jump
+            expected = state.speed * back
+            yardstick = (median(np.asarray(state.speeds)) if state.speeds else state.speed) * back
+            bounds = (yardstick / jump, yardstick * jump)
             # The scale when the reference has no depths: after a loss, the last scene depth's
             # (the motion model is a guess there); else the motion model's step, unless it is
             # implausible (a stop gives ~0: carry the last step's length). Measured: the
@@ -574,6 +590,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         velocity = _inv(pose) @ prev.pose
         moved = float(np.linalg.norm(T[:3, 3])) / (state.frames - ref.index)
         speed = moved if moved > 0 else state.speed
+    speeds = (*state.speeds, moved)[-SPEED_HISTORY:] if result is not None and moved > 0 else state.speeds
     since = state.frames - kf.index
     kf_inliers = kf_inliers or inliers
     lost = reference == REF_LOST
@@ -587,7 +604,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     known = cur_depth[np.isfinite(cur_depth)]
     scene_depth = median(known) if len(known) >= MIN_COMMON else state.scene_depth
     new = TrackState(state.frames + 1, rec, rec if is_kf else kf, velocity, 0 if is_kf else kf_inliers, speed,
-                     scene_depth, state.lost + 1 if lost else 0)
+                     scene_depth, state.lost + 1 if lost else 0, speeds)
     stats = np.array([n, len(good), inliers, float(is_kf), reference, 1e3 * (time.perf_counter() - t0)])
     return new, pose, stats
 
