@@ -54,7 +54,7 @@ from .._counted import is_counted
 from .native_copy import copy_device, is_warp_array, to_device, warp
 from .program import InputRef, Program
 from .slots import DEVICE
-from .timeline import Frame
+from .timeline import Frame, proportional_shares
 from .transfers import tree_map
 
 #: Why a segment runs eagerly (``logging.getLogger("warpvx.capture")`` at DEBUG): every
@@ -258,9 +258,6 @@ class SegmentGraph:
                 device=device), v)
         self.sets = [_BufferSet(segment.tasks) for _ in range(2 if segment.swapped else 1)]
         self.last = -1  # the set the last run wrote (the next frame's delayed values)
-        # The next run reads its swapped inputs from `inputs` (filled from the frame), not
-        # from the other set: a delay's initial value (a reset) unlike the outputs swapped in.
-        self.fresh = False
         self.scratch = ()
         self._views = {}  # (id of a copy buffer, part) -> a Counted of views of it
 
@@ -343,25 +340,28 @@ class SegmentGraph:
         b.outputs = outputs
         b.warm = warm
 
-    def read_fresh(self, values) -> bool:
-        """Set and return :attr:`fresh` for the next run, given the frame's ``values`` of
-        ``segment.inputs``: a swapped input unlike the other set's outputs (a delay's initial
-        value after a reset, where this segment's own outputs swap in later) is read, with
-        the other swapped inputs, from ``inputs``; that run is not captured."""
+    def reads_fresh(self, values) -> bool:
+        """Whether the next run, given the frame's ``values`` of ``segment.inputs``, reads
+        its swapped inputs from ``inputs`` (``fresh`` of :meth:`fill` and :meth:`launch`): one
+        of them is unlike the other set's outputs (a delay's initial value after a reset, where
+        this segment's own outputs swap in later); that run is not captured."""
         other = self.sets[1 - self.next].outputs if len(self.sets) == 2 else {}
-        self.fresh = bool(other) and any(
-            ref in self.segment.swapped and not _fits(_leaves(v), _leaves(other[ref.key]))
-            for ref, v in zip(self.segment.inputs, values))
-        return self.fresh
+        if not other:
+            return False
+        published = self.sets[self.last].published  # (the usual value: no leaves to walk)
+        return any(ref in self.segment.swapped and published.get(ref.key) is not v
+                   and not _fits(_leaves(v), _leaves(other[ref.key]))
+                   for ref, v in zip(self.segment.inputs, values))
 
-    def fill(self, ref: InputRef, value, io, stream):
+    def fill(self, ref: InputRef, value, io, stream, fresh: bool = False):
         """Copy this frame's ``value`` of ``ref`` into the fixed buffers the next run reads
-        (on ``stream``); nothing for a swapped input that is what the last run published."""
+        (on ``stream``; ``fresh``: see :meth:`reads_fresh`); nothing for a swapped input that
+        is what the last run published."""
         s = self.next
-        if self.last >= 0 and ref in self.segment.swapped and not self.fresh and \
+        if self.last >= 0 and ref in self.segment.swapped and not fresh and \
                 self.sets[self.last].published.get(ref.key) is value:
             return
-        bufs = _leaves(self.value(ref, s, {}, self.fresh))
+        bufs = _leaves(self.value(ref, s, {}, fresh))
         values = _leaves(value)
         if len(values) != len(bufs):
             raise NotCapturable(f"input {ref.key!r}: {len(values)} arrays, not {len(bufs)}")
@@ -379,12 +379,12 @@ class SegmentGraph:
                 to_device(buf, np.ascontiguousarray(v))
                 io.moved += v.nbytes
 
-    def launch(self, stream) -> dict:
+    def launch(self, stream, fresh: bool = False) -> dict:
         """Replay the next run's captured graph on ``stream`` (or run its tasks uncaptured
-        before it is captured); returns the set's outputs (key -> fixed value)."""
+        before it is captured, or when ``fresh``: :meth:`reads_fresh`); returns the set's
+        outputs (key -> fixed value)."""
         s = self.next
         b = self.sets[s]
-        fresh, self.fresh = self.fresh, False
         if b.graph is None or fresh:
             self._run_tasks(s, fresh)
         else:
@@ -499,14 +499,14 @@ class SegmentRunner:
         h0 = time.perf_counter()
         ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved
-        sg.read_fresh([s.value for s in slots])
+        fresh = sg.reads_fresh([s.value for s in slots])
         for ref, s in zip(seg.inputs, slots):
-            sg.fill(ref, s.value, io, self._stream)
+            sg.fill(ref, s.value, io, self._stream, fresh)
         if io.moved > before:
             frame.copied[seg.tasks[0].name] = io.moved - before
-        replay = sg.sets[sg.next].graph is not None and not sg.fresh
+        replay = sg.sets[sg.next].graph is not None and not fresh
         try:
-            fixed = sg.launch(self._stream)
+            fixed = sg.launch(self._stream, fresh)
         except NotCapturable as exc:  # uncaptured first run: an out= did not fit these inputs
             _log.debug("segment %s runs eagerly: %s", seg.tasks[0].name, exc)
             self._forget(self._captures_of(frame), self._segments.index(seg), sg)
@@ -563,17 +563,9 @@ class SegmentRunner:
         proportion to the schedule's durations (a replay is timed as a whole)."""
         shares = {}
         for seg in self._segments:
-            if not seg.captured:
-                continue
-            spans = [max(0.0, self.placed[t.name, 0].finish - self.placed[t.name, 0].start)
-                     for t in seg.tasks]
-            total = sum(spans)
-            spans = spans if total > 0 else [1.0] * len(spans)
-            total = sum(spans)
-            at = 0.0
-            for task, span in zip(seg.tasks, spans):
-                shares[task.name] = (at / total, (at + span) / total)
-                at += span
+            if seg.captured:
+                names = [t.name for t in seg.tasks]
+                shares.update(zip(names, proportional_shares([self._spans[n] for n in names])))
         return shares
 
 

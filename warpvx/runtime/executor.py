@@ -240,13 +240,14 @@ class Executor(RoleRunner, SegmentRunner):
         # A captured segment is one frame's consecutive GPU tasks; a K-frame order interleaves
         # frames on the GPU queue, so with K > 1 nothing is captured (every task runs eagerly).
         self._segments = segments(program, gpu_queue) if self.frames == 1 else []
+        # Every task's scheduled duration: its share of a captured segment's or a timing
+        # burst's measured interval.
+        self._spans = {t: st.finish - st.start for (t, f), st in self.placed.items() if f == 0}
         self._shares = self._segment_shares()
         self.timing = timing
         # Timing "bursts": GPU tasks whose end needs an event of its own (a value read off
-        # the GPU stream: by a CPU task, the caller, a delay; or the GPU queue's last task),
-        # and every task's scheduled duration (its share of a burst).
+        # the GPU stream: by a CPU task, the caller, a delay; or the GPU queue's last task).
         self._leaves_stream = self._off_stream_tasks(gpu_queue)
-        self._spans = {t: st.finish - st.start for (t, f), st in self.placed.items() if f == 0}
         capture = check_bool(capture, "capture", allow_none=True)
         self.capture = bool(gpu_device) and self.frames == 1 and \
             (self.cuda if capture is None else capture)
