@@ -404,6 +404,14 @@ def essential_core(p1, p2, K, config):
     return R, t, inl[front], z_ref[front], z_cur[front]
 
 
+def parallax_points(ref_pts, cur_pts, pairs, config):
+    """(p1, p2, moved): the reference's and this frame's points float64 [M, 2] of ``pairs``
+    (this frame's index, the reference's), and whether their median displacement reaches
+    ``config.min_parallax`` px (else the frame did not move: no essential matrix)."""
+    p1, p2 = ref_pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
+    return p1, p2, not median(lengths(p2 - p1)) < config.min_parallax
+
+
 def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *, step=1.0,
                     scene_depth=np.nan, bounds=(0.0, np.inf)):
     """T_cur_ref from the essential matrix (:func:`essential_core`, or ``essential`` with its
@@ -417,8 +425,8 @@ def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *,
     takes ``step``): the depths of the points in front
     (:func:`~warpvx.apps.orbslam_depths.fuse_depths`), or the reference's when it did not
     move."""
-    p1, p2 = ref.pts[pairs[:, 1]], cur_pts[pairs[:, 0]]
-    if median(lengths(p2 - p1)) < config.min_parallax:
+    p1, p2, moved = parallax_points(ref.pts, cur_pts, pairs, config)
+    if not moved:
         return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]], ref.depth_var[pairs[:, 1]])
     core = essential(p1, p2, K, config)
     if core is None:
@@ -786,7 +794,7 @@ def opencv_baseline(images, K):
 
 __all__ = [
     "TrackerConfig", "Camera", "TrackState", "FrameRecord", "TrackedFrame", "three_maxima",
-    "rotation_consistent", "filter_matches", "stereo_depth", "essential_core", "track", "track_nearest",
+    "rotation_consistent", "filter_matches", "stereo_depth", "essential_core", "parallax_points", "track", "track_nearest",
     "build_graph",
     "spread_cpu_nodes", "keyframe_pairs", "schedule", "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
 ]

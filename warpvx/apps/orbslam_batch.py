@@ -51,7 +51,6 @@ import numpy as np
 from ..errors import WarpvxValueError
 from ..keypoints import FIELDS, Keypoints
 from . import orbslam as o
-from .orbslam_depths import lengths, median
 from .orbslam_match import batch_pairs, mutual_pairs, nearest_batch, nearest_batch_warp, stereo_depth
 
 
@@ -404,12 +403,10 @@ def _essential_points(ref_pts, pts, pairs, config):
     """(p1, p2) for ``pairs`` (this frame's index, the reference's): what ``track`` hands to
     :func:`~warpvx.apps.orbslam.essential_core` for that reference, or None when it will not
     call it (none, too few pairs, too little parallax)."""
-    if pairs is None:
+    if pairs is None or len(pairs) < 8:
         return None
-    p1, p2 = ref_pts[pairs[:, 1]], pts[pairs[:, 0]]
-    if len(pairs) < 8 or median(lengths(p2 - p1)) < config.min_parallax:
-        return None
-    return p1, p2
+    p1, p2, moved = o.parallax_points(ref_pts, pts, pairs, config)
+    return (p1, p2) if moved else None
 
 
 def _core_ahead(ref_pts, pts, pairs, K, config):
