@@ -15,6 +15,7 @@ tracked instead of re-triangulated from one step. Frames are
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -51,14 +52,14 @@ def lengths(v):
 def inv_k(K):
     """``np.linalg.inv(K)`` of the intrinsics (float64 3x3), computed once per camera: the
     tracking of one frame needs it several times."""
-    key = K.tobytes()
-    Kinv = _KINV.get(key)
-    if Kinv is None:
-        Kinv = _KINV[key] = np.linalg.inv(K)
+    return _inv_of(np.ascontiguousarray(K, np.float64).tobytes())
+
+
+@functools.lru_cache(maxsize=16)  # (a few cameras; bounded, unlike a plain dict)
+def _inv_of(k_bytes: bytes):
+    Kinv = np.linalg.inv(np.frombuffer(k_bytes, np.float64).reshape(3, 3))
+    Kinv.flags.writeable = False  # shared by every caller
     return Kinv
-
-
-_KINV: dict = {}
 
 
 def rays(pts, Kinv):
