@@ -794,7 +794,7 @@ def opencv_baseline(images, K):
 
 __all__ = [
     "TrackerConfig", "Camera", "TrackState", "FrameRecord", "TrackedFrame", "three_maxima",
-    "rotation_consistent", "filter_matches", "stereo_depth", "essential_core", "parallax_points", "track", "track_nearest",
+    "rotation_consistent", "filter_matches", "stereo_depth", "essential_core", "track", "track_nearest",
     "build_graph",
     "spread_cpu_nodes", "keyframe_pairs", "schedule", "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
 ]
