@@ -435,8 +435,9 @@ def test_measure_plans_and_use_plan_switch_between_warm_plans(frames):
         other.use_plan(plans[0])
     with pytest.raises(warpvx.GraphError, match="inputs"):
         g.measure_plans(plans, [])
-    with pytest.raises((warpvx.WarpvxTypeError, warpvx.WarpvxValueError), match="rounds"):
-        g.measure_plans(plans, {"frame": frames[0]}, rounds=0)
+    for name, bad in (("rounds", 0), ("frames", 0), ("warmup", -1), ("rounds", 1.5), ("frames", "3")):
+        with pytest.raises((warpvx.WarpvxTypeError, warpvx.WarpvxValueError), match=name):
+            g.measure_plans(plans, {"frame": frames[0]}, **{name: bad})
     for plan in plans:
         plan.close()
     g.close()
