@@ -26,7 +26,8 @@ reading PNGs is timed separately. Measured, side by side in one run:
    (``pose_batch`` on one process vs the pool), what the pool did per batch (how long the
    chain waited on it, for the frame jobs and for the keyframe cores it speculates; jobs
    started and dropped; the chain's wall vs thread CPU time), and its accuracy
-   (the poses must be the sequential ones).
+   (the poses must be the sequential ones); mono also with Python's GIL switch interval
+   (5 ms) against the batched mode's default (``orbslam_batch.SWITCH_INTERVAL``).
 
 FPS columns: "wall" counts everything from the call (graph build, verification, calibration:
 cached after the warm-up run; the batched mode's pool is opened once, before); "steady" is
@@ -170,11 +171,13 @@ def _frontend_result(res, dt, plan, out, name, backend):
 #: Monocular motion from the previous frame only: every essential matrix worked out ahead.
 PREVIOUS_ONLY = o.TrackerConfig(keyframe_motion=False)
 #: The batched runs: report key, camera, Gantt name (None: none), tracker settings, the pool's
-#: ``ahead`` (False: jobs in submit order and no guessed cores, the scheduling before them).
-BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig(), True),
-           ("batched_mono_fifo", "mono", None, o.TrackerConfig(), False),
-           ("batched_mono_prev", "mono", "batch_mono_prev", PREVIOUS_ONLY, True),
-           ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig(), True))
+#: ``ahead`` (False: jobs in submit order and no guessed cores, the scheduling before them),
+#: the GIL switch interval (s; None: Python's, 5 ms).
+BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig(), True, ob.SWITCH_INTERVAL),
+           ("batched_mono_switch_5ms", "mono", None, o.TrackerConfig(), True, None),
+           ("batched_mono_fifo", "mono", None, o.TrackerConfig(), False, ob.SWITCH_INTERVAL),
+           ("batched_mono_prev", "mono", "batch_mono_prev", PREVIOUS_ONLY, True, ob.SWITCH_INTERVAL),
+           ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig(), True, ob.SWITCH_INTERVAL))
 
 
 #: Over all ``orbslam_batch.chain`` calls: seconds of wall time and of its thread's CPU time;
@@ -230,19 +233,20 @@ def pool_per_batch(pool, before, batches) -> dict:
 
 
 def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth=3, config=o.TrackerConfig(),
-                           ahead=True):
+                           ahead=True, switch=ob.SWITCH_INTERVAL):
     """The batched front end end to end (``pool``: the pose work's process pool, opened once;
-    its ``ahead`` set to ``ahead`` for the run), with what the pool did per batch
-    (:func:`pool_per_batch`)."""
+    its ``ahead`` set to ``ahead`` for the run; ``switch``: the run's GIL switch interval, s),
+    with what the pool did per batch (:func:`pool_per_batch`)."""
     if pool is not None and not ahead:
         pool.ahead = False
         try:
-            return bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth, config)
+            return bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth, config,
+                                          switch=switch)
         finally:
             pool.ahead = True
     plans = []
     run = functools.partial(ob.track_frames_batched, camera=camera, config=config, batch=batch, pool=pool,
-                            backend=backend, depth=depth)
+                            backend=backend, depth=depth, gil_switch_s=switch)
     list(run(frames[:4 * batch]))  # warm-up, calibration
     before = _pool_counts(pool) if pool is not None else None
     t = time.perf_counter()
@@ -445,10 +449,11 @@ def main(argv=None):
             report[key] = attempt(f"batched matching {b}", lambda: bench_extract_match_batched(images, backend, b),
                                   failed)
             progress(f"extraction+matching batched (B={b}) FPS", f"{report[key]['fps']:.1f}")
-        for key, cam, name, config, ahead in BATCHED:
+        for key, cam, name, config, ahead, switch in BATCHED:
             camera, frames = (mono, mono_frames) if cam == "mono" else (stereo, stereo_frames)
             report[key] = attempt(key, lambda: bench_frontend_batched(replay(frames, n), camera, backend, out, name,
-                                                                      batch, pool, config=config, ahead=ahead)[0],
+                                                                      batch, pool, config=config, ahead=ahead,
+                                                                      switch=switch)[0],
                                   failed)
             progress(f"front end {key} (B={batch}) FPS", f"{report[key]['fps']:.1f}")
         old = max(2, os.cpu_count() - 1)  # the pool's default before default_workers()
@@ -505,6 +510,8 @@ def main(argv=None):
              for k in report if k.startswith("extract_match_batch")]
     rows += [("front end mono, end to end, frame by frame", "frontend_mono"),
              (f"front end mono, end to end, batched B={batch}", "batched_mono"),
+             (f"front end mono, end to end, batched B={batch}, GIL switch interval 5 ms (Python's; default "
+              f"{ob.SWITCH_INTERVAL * 1e3:g} ms)", "batched_mono_switch_5ms"),
              (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores",
               "batched_mono_fifo"),
              (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),

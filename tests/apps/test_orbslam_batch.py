@@ -180,17 +180,51 @@ def test_bad_input_names_the_argument(seq, tmp_path, capsys):
     frames, camera = _frames(seq, False)
     cases = [(dict(batch=0), "batch"), (dict(batch=2, workers=-1), "workers"),
              (dict(batch=2, config=o.TrackerConfig(ratio=0.8)), "config"),
-             (dict(batch=2, backend="gpu"), "backend")]
+             (dict(batch=2, backend="gpu"), "backend"), (dict(batch=2, gil_switch_s=0), "gil_switch_s"),
+             (dict(batch=2, gil_switch_s=-1e-3), "gil_switch_s"), (dict(batch=2, gil_switch_s="1ms"), "gil_switch_s")]
     for kwargs, name in cases:
         with pytest.raises(WarpvxError, match=name):
             list(ob.track_frames_batched(frames[:3], camera, **{"workers": 0, **kwargs}))
     with pytest.raises(WarpvxError, match="no frames"):
         list(ob.track_frames_batched([], camera, batch=2, workers=0))
     folder = write_kitti_sequence(tmp_path / "seq", seq[0][:3], seq[2], seq[3][:3])
-    assert orbslam_cli.main([str(folder), "--batch", "0", "--quiet", "--no-plot",
-                             "--out", str(tmp_path / "o")]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "batch" in err[0]
+    for flag, value, name in (("--batch", "0", "batch"), ("--gil-switch-ms", "-1", "gil_switch_ms")):
+        assert orbslam_cli.main([str(folder), flag, value, "--quiet", "--no-plot",
+                                 "--out", str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and name in err[0]
+
+
+def test_switch_interval_is_set_for_the_run_and_the_callers_restored(seq):
+    """The run's interval while frames come out; the caller's after the last one, after an
+    error in the frames, after the caller stops early; None leaves it alone."""
+    import sys
+
+    frames, camera = _frames(seq, False)
+    caller, run = 0.003, 0.0007
+    saved = sys.getswitchinterval()
+
+    def failing():
+        yield from frames[:5]
+        raise RuntimeError("camera unplugged")
+
+    try:
+        sys.setswitchinterval(caller)
+        seen = [sys.getswitchinterval() for _ in ob.track_frames_batched(frames[:6], camera, batch=3, workers=0,
+                                                                          gil_switch_s=run)]
+        assert seen == pytest.approx([run] * 6) and sys.getswitchinterval() == pytest.approx(caller)
+        with pytest.raises(RuntimeError, match="unplugged"):
+            list(ob.track_frames_batched(failing(), camera, batch=2, workers=0, gil_switch_s=run))
+        assert sys.getswitchinterval() == pytest.approx(caller)
+        it = ob.track_frames_batched(frames[:6], camera, batch=2, workers=0, gil_switch_s=run)
+        next(it)
+        it.close()
+        assert sys.getswitchinterval() == pytest.approx(caller)
+        seen = [sys.getswitchinterval() for _ in ob.track_frames_batched(frames[:2], camera, batch=2, workers=0,
+                                                                          gil_switch_s=None)]
+        assert seen == pytest.approx([caller] * 2)
+    finally:
+        sys.setswitchinterval(saved)
 
 
 def test_pool_starts_urgent_jobs_first_and_drops_cancelled_ones():

@@ -224,6 +224,31 @@ class _Later:
         return self._values
 
 
+#: :func:`track_frames_batched`'s default GIL switch interval, seconds (Python's is 5 ms).
+#: NumPy drops the GIL in loops over more than a few hundred elements and must take it back;
+#: with other threads runnable (the GPU thread, the pool's hand-off threads, the executor)
+#: each re-take waits up to the interval: on the H100 host the chain waited for the GIL ~82%
+#: of its wall time. Measured there (mono, B=16, FPS): 5 ms 184 / 194, 1 ms 204 / 228,
+#: 0.2 ms 237 / 225 (two rounds each, one machine).
+SWITCH_INTERVAL = 2e-4
+
+
+@contextlib.contextmanager
+def switch_interval(seconds: float | None):
+    """``sys.setswitchinterval(seconds)`` inside the block, the caller's interval restored on
+    exit (an error included); None: left as it is. Process-global state: every thread of the
+    process switches at this interval meanwhile."""
+    if seconds is None:
+        yield
+        return
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(seconds)
+    try:
+        yield
+    finally:
+        sys.setswitchinterval(before)
+
+
 # --------------------------------------------------------------------------- the nodes
 
 
@@ -624,50 +649,60 @@ def _batches(frames, batch: int, stereo: bool):
 
 def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.TrackerConfig(), *,
                          batch: int = 16, workers: int | None = None, pool=None, backend="cpu",
-                         depth: int = 2, on_finish=None):
+                         depth: int = 2, on_finish=None, gil_switch_s: float | None = SWITCH_INTERVAL):
     """:func:`~warpvx.apps.orbslam.track_frames` in batches of ``batch`` frames
     (:func:`build_batch_graph`), with ``workers`` processes for the pose work (default: see
     :func:`make_pool`; 0: none), or an open ``pool`` (:func:`make_pool`'s, kept open). A
     generator of :class:`~warpvx.apps.orbslam.TrackedFrame` in order; a
     frame's ``ms`` is its batch's interval divided by the batch's frames. ``depth`` batches in
-    flight; ``on_finish(plan)`` as in ``track_frames``."""
-    from ..check import check_int
+    flight; ``on_finish(plan)`` as in ``track_frames``.
 
-    batches = _batches(frames, check_int(batch, "batch", min_value=1), camera.stereo)
+    ``gil_switch_s``: the GIL switch interval (seconds, > 0) while the generator runs, from
+    its first frame until it is exhausted or closed (default :data:`SWITCH_INTERVAL`; None:
+    the caller's). It is process-global: the caller's threads, and the caller's own code
+    between two frames, run with it too; the caller's interval is restored on exit, an
+    error's included (see :func:`switch_interval`)."""
+    from ..check import check_float, check_int
+
+    batch = check_int(batch, "batch", min_value=1)
+    if gil_switch_s is not None:
+        gil_switch_s = check_float(gil_switch_s, "gil_switch_s", min_value=0.0, strict_min=True)
+    batches = _batches(frames, batch, camera.stereo)
     first = next(batches, None)
     if first is None:
         raise WarpvxValueError("frames: the sequence has no frames")
-    own = pool is None
-    if own:
-        pool = make_pool(workers)
-    try:
-        g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
-        g.verify(first[0], gpu=None if backend == "cpu" else backend)
-        plan = o.schedule(g, backend)
-        counts = [first[1]]
+    with switch_interval(gil_switch_s):
+        own = pool is None
+        if own:
+            pool = make_pool(workers)
+        try:
+            g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
+            g.verify(first[0], gpu=None if backend == "cpu" else backend)
+            plan = o.schedule(g, backend)
+            counts = [first[1]]
 
-        def feed():
-            yield first[0]
-            for inputs, n in batches:
-                counts.append(n)
-                yield inputs
+            def feed():
+                yield first[0]
+                for inputs, n in batches:
+                    counts.append(n)
+                    yield inputs
 
-        k, t = 0, time.perf_counter()
-        with g:
-            for i, out in enumerate(g.stream(feed(), depth=depth)):
-                now = time.perf_counter()
-                n = counts[i]
-                for pose, st in zip(out["poses"][:n], out["stats"][:n]):
-                    yield o.TrackedFrame(k, pose, dict(zip(o.STATS, st.tolist())), 1e3 * (now - t) / n)
-                    k += 1
-                t = now
-            if on_finish is not None:
-                on_finish(plan)
-    finally:
-        if own and pool is not None:
-            pool.shutdown(cancel_futures=True)
+            k, t = 0, time.perf_counter()
+            with g:
+                for i, out in enumerate(g.stream(feed(), depth=depth)):
+                    now = time.perf_counter()
+                    n = counts[i]
+                    for pose, st in zip(out["poses"][:n], out["stats"][:n]):
+                        yield o.TrackedFrame(k, pose, dict(zip(o.STATS, st.tolist())), 1e3 * (now - t) / n)
+                        k += 1
+                    t = now
+                if on_finish is not None:
+                    on_finish(plan)
+        finally:
+            if own and pool is not None:
+                pool.shutdown(cancel_futures=True)
 
 
 __all__ = ["PosePool", "make_pool", "default_workers", "SPARE_CORES", "pack_feats", "unpack_feats",
            "ahead_frames", "orb_batch", "match_batch", "pose_batch", "chain", "add_extract_match", "build_batch_graph",
-           "track_frames_batched"]
+           "track_frames_batched", "switch_interval", "SWITCH_INTERVAL"]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..check import check_int
+from ..check import check_float, check_int
 from ..errors import WarpvxError, WarpvxValueError
 from . import orbslam as app
 from .orbslam_sources import Sequence, open_source
@@ -33,6 +33,9 @@ def add_arguments(parser):
                              "poses, faster on long sequences; try 16 on a GPU); 1: frame by frame")
     parser.add_argument("--pose-workers", type=int, default=None, metavar="N",
                         help="with --batch: processes for the pose work (default: all cores but three; 0: none)")
+    parser.add_argument("--gil-switch-ms", type=float, default=None, metavar="MS",
+                        help="with --batch: the GIL switch interval during the run, ms (default 0.2, "
+                             "warpvx.apps.orbslam_batch.SWITCH_INTERVAL; 0: Python's own, 5 ms)")
     parser.add_argument("--no-keyframe-motion", action="store_true",
                         help="monocular: motion from the previous frame only, never from the last keyframe "
                              "(faster with --batch, whose pose processes then do all essential matrices; "
@@ -97,6 +100,9 @@ def run(args) -> int:
     if args.max_frames is not None and args.max_frames < 1:
         raise WarpvxValueError(f"max_frames: expected an int >= 1, got {args.max_frames}")
     batch = check_int(getattr(args, "batch", 1), "batch", min_value=1)
+    switch_ms = getattr(args, "gil_switch_ms", None)
+    if switch_ms is not None:
+        check_float(switch_ms, "gil_switch_ms", min_value=0.0)
     if not args.no_plot:
         try:
             import matplotlib  # noqa: F401
@@ -128,10 +134,12 @@ def run(args) -> int:
 
     with tqdm(total=seq.count, unit="frame", disable=args.quiet, desc=f"orbslam ({mode})") as bar:
         if batch > 1:
-            from .orbslam_batch import track_frames_batched
+            from .orbslam_batch import SWITCH_INTERVAL, track_frames_batched
 
             tracked = track_frames_batched(feed(), seq.camera, config, batch=batch, backend=args.backend,
-                                           workers=getattr(args, "pose_workers", None), depth=args.depth)
+                                           workers=getattr(args, "pose_workers", None), depth=args.depth,
+                                           # (0 ms: Python's own interval)
+                                           gil_switch_s=SWITCH_INTERVAL if switch_ms is None else 1e-3 * switch_ms or None)
         else:
             tracked = app.track_frames(feed(), seq.camera, config, backend=args.backend, depth=args.depth)
         try:
