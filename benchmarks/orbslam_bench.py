@@ -27,7 +27,8 @@ reading PNGs is timed separately. Measured, side by side in one run:
    chain waited on it, for the frame jobs and for the keyframe cores it speculates; jobs
    started and dropped; the chain's wall vs thread CPU time), and its accuracy
    (the poses must be the sequential ones); mono also with Python's GIL switch interval
-   (5 ms) against the batched mode's default (``orbslam_batch.SWITCH_INTERVAL``).
+   (5 ms) against the batched mode's default (``orbslam_batch.SWITCH_INTERVAL``), and with
+   the jobs' arrays pickled with each job against a shared block per batch (the default).
 
 FPS columns: "wall" counts everything from the call (graph build, verification, calibration:
 cached after the warm-up run; the batched mode's pool is opened once, before); "steady" is
@@ -171,13 +172,15 @@ def _frontend_result(res, dt, plan, out, name, backend):
 #: Monocular motion from the previous frame only: every essential matrix worked out ahead.
 PREVIOUS_ONLY = o.TrackerConfig(keyframe_motion=False)
 #: The batched runs: report key, camera, Gantt name (None: none), tracker settings, the pool's
-#: ``ahead`` (False: jobs in submit order and no guessed cores, the scheduling before them),
-#: the GIL switch interval (s; None: Python's, 5 ms).
-BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig(), True, ob.SWITCH_INTERVAL),
-           ("batched_mono_switch_5ms", "mono", None, o.TrackerConfig(), True, None),
-           ("batched_mono_fifo", "mono", None, o.TrackerConfig(), False, ob.SWITCH_INTERVAL),
-           ("batched_mono_prev", "mono", "batch_mono_prev", PREVIOUS_ONLY, True, ob.SWITCH_INTERVAL),
-           ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig(), True, ob.SWITCH_INTERVAL))
+#: settings for the run (``ahead`` False: jobs in submit order and no guessed cores, the
+#: scheduling before them; ``share`` False: the jobs' arrays pickled with each job, the
+#: transport before shared blocks), the GIL switch interval (s; None: Python's, 5 ms).
+BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig(), {}, ob.SWITCH_INTERVAL),
+           ("batched_mono_switch_5ms", "mono", None, o.TrackerConfig(), {}, None),
+           ("batched_mono_pickled", "mono", None, o.TrackerConfig(), {"share": False}, ob.SWITCH_INTERVAL),
+           ("batched_mono_fifo", "mono", None, o.TrackerConfig(), {"ahead": False}, ob.SWITCH_INTERVAL),
+           ("batched_mono_prev", "mono", "batch_mono_prev", PREVIOUS_ONLY, {}, ob.SWITCH_INTERVAL),
+           ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig(), {}, ob.SWITCH_INTERVAL))
 
 
 #: Over all ``orbslam_batch.chain`` calls: seconds of wall time and of its thread's CPU time;
@@ -233,17 +236,21 @@ def pool_per_batch(pool, before, batches) -> dict:
 
 
 def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth=3, config=o.TrackerConfig(),
-                           ahead=True, switch=ob.SWITCH_INTERVAL):
+                           settings=None, switch=ob.SWITCH_INTERVAL):
     """The batched front end end to end (``pool``: the pose work's process pool, opened once;
-    its ``ahead`` set to ``ahead`` for the run; ``switch``: the run's GIL switch interval, s),
-    with what the pool did per batch (:func:`pool_per_batch`)."""
-    if pool is not None and not ahead:
-        pool.ahead = False
+    ``settings``: its attributes for the run, e.g. ``{"ahead": False}``, restored after;
+    ``switch``: the run's GIL switch interval, s), with what the pool did per batch
+    (:func:`pool_per_batch`)."""
+    if pool is not None and settings:
+        saved = {k: getattr(pool, k) for k in settings}
+        for k, v in settings.items():
+            setattr(pool, k, v)
         try:
             return bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth, config,
                                           switch=switch)
         finally:
-            pool.ahead = True
+            for k, v in saved.items():
+                setattr(pool, k, v)
     plans = []
     run = functools.partial(ob.track_frames_batched, camera=camera, config=config, batch=batch, pool=pool,
                             backend=backend, depth=depth, gil_switch_s=switch)
@@ -449,10 +456,10 @@ def main(argv=None):
             report[key] = attempt(f"batched matching {b}", lambda: bench_extract_match_batched(images, backend, b),
                                   failed)
             progress(f"extraction+matching batched (B={b}) FPS", f"{report[key]['fps']:.1f}")
-        for key, cam, name, config, ahead, switch in BATCHED:
+        for key, cam, name, config, settings, switch in BATCHED:
             camera, frames = (mono, mono_frames) if cam == "mono" else (stereo, stereo_frames)
             report[key] = attempt(key, lambda: bench_frontend_batched(replay(frames, n), camera, backend, out, name,
-                                                                      batch, pool, config=config, ahead=ahead,
+                                                                      batch, pool, config=config, settings=settings,
                                                                       switch=switch)[0],
                                   failed)
             progress(f"front end {key} (B={batch}) FPS", f"{report[key]['fps']:.1f}")
@@ -512,6 +519,8 @@ def main(argv=None):
              (f"front end mono, end to end, batched B={batch}", "batched_mono"),
              (f"front end mono, end to end, batched B={batch}, GIL switch interval 5 ms (Python's; default "
               f"{ob.SWITCH_INTERVAL * 1e3:g} ms)", "batched_mono_switch_5ms"),
+             (f"front end mono, end to end, batched B={batch}, jobs' arrays pickled per job (no shared "
+              "block, the transport before)", "batched_mono_pickled"),
              (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores",
               "batched_mono_fifo"),
              (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),

@@ -247,6 +247,42 @@ def test_pool_starts_urgent_jobs_first_and_drops_cancelled_ones():
         assert pool.cancelled == {"time": 1} and pool.started == {"sleep": 1, "time": 4}
 
 
+def test_shared_block_carries_each_array_once_and_is_unlinked_when_its_jobs_are_done():
+    """A batch's jobs' large arrays go once into a shared block: the pickles carry references,
+    the processes read the same values; small arrays stay inline; the block is unlinked once
+    every job holding it is done or dropped unstarted."""
+    import copy
+    import os
+    import pickle
+    import time
+
+    rng = np.random.default_rng(0)
+    pts, angles = rng.random((2000, 2)), rng.random(2000).astype(np.float32)
+    near = (rng.integers(-1, 2000, 1500, dtype=np.int32), np.arange(1500, dtype=np.int32))
+    K = np.eye(3)
+    jobs = [(near, pts, angles, K), (pts, (near, pts), "x")]
+    with ob.make_pool(1) as pool:
+        busy = pool.submit(time.sleep, 0.3)
+        block = pool.shared(jobs)
+        name = block._shm.name
+        refs = [block.refer(j) for j in jobs]
+        assert len(pickle.dumps(refs)) < 1500 < pts.nbytes
+        assert block._shm.size < 2 * (pts.nbytes + angles.nbytes + sum(a.nbytes for a in near))  # each once
+        assert refs[0][3] is K and refs[1][2] == "x"
+        # copy.copy returns its (resolved) argument: what the process read.
+        tasks = [pool.submit(copy.copy, r, block=block) for r in refs]
+        dropped = pool.submit(copy.copy, refs[0], block=block)
+        dropped.cancel()
+        block.release()
+        got = [t.get() for t in tasks]
+        busy.get()
+        for want, have in zip(jobs, got):
+            for a, b in zip(ob._arrays_in(want), ob._arrays_in(have)):
+                assert a.dtype == b.dtype and np.array_equal(a, b)
+        # (A job's release runs in its callback, before get() returns.)
+        assert block._shm is None and not os.path.exists(f"/dev/shm/{name}")
+
+
 def test_pool_in_an_unguarded_script(tmp_path):
     """A script without ``if __name__ == "__main__"`` can open a pool: the spawned processes
     do not re-run it (they would raise, and run its top level once per process)."""

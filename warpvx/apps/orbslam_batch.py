@@ -85,9 +85,12 @@ class PoolTask:
     """One job on a :class:`PosePool`: :meth:`get` waits for its value; :meth:`cancel` drops
     it if no process has started it yet."""
 
-    def __init__(self, fn, args, lock):
+    def __init__(self, fn, args, lock, block=None):
         self._job, self._result, self.cancelled, self._lock = (fn, args), None, False, lock
         self._settled = threading.Event()  # started, or cancelled
+        self._block = block  # the SharedBlock its arguments refer to, held until it is done or dropped
+        if block is not None:
+            block.hold()
 
     def get(self):
         self._settled.wait()
@@ -101,9 +104,144 @@ class PoolTask:
 
     def _drop(self):
         """Cancel if not started (the caller holds the pool's lock)."""
-        if self._result is None:
+        if self._result is None and not self.cancelled:
             self.cancelled = True
             self._settled.set()
+            self._unshare()
+
+    def _unshare(self):
+        block, self._block = self._block, None
+        if block is not None:
+            block.release()
+
+
+#: Arrays of fewer bytes travel in a job's pickle (K, ...), larger ones in a :class:`SharedBlock`.
+SHARE_MIN_BYTES = 1024
+
+
+class SharedRef:
+    """What a job's pickle carries in place of an array of a :class:`SharedBlock`: the block's
+    name, the array's byte offset, shape and dtype (:func:`_resolve` reads it in the worker)."""
+
+    __slots__ = ("name", "offset", "shape", "dtype")
+
+    def __init__(self, name, offset, shape, dtype):
+        self.name, self.offset, self.shape, self.dtype = name, offset, shape, dtype
+
+    def __getstate__(self):
+        return self.name, self.offset, self.shape, self.dtype
+
+    def __setstate__(self, state):
+        self.name, self.offset, self.shape, self.dtype = state
+
+
+def _arrays_in(value):
+    """The NumPy arrays of at least :data:`SHARE_MIN_BYTES` in ``value``, through nested tuples."""
+    if isinstance(value, np.ndarray):
+        return [value] if value.nbytes >= SHARE_MIN_BYTES else []
+    if isinstance(value, tuple):
+        return [a for v in value for a in _arrays_in(v)]
+    return []
+
+
+class SharedBlock:
+    """The large arrays of a batch's jobs, each once (jobs share a frame's points: frame f's
+    job reads them as the current frame's, frame f + 1's as the previous one's, the guesses
+    again), in one shared-memory block: a job's pickle then carries a :class:`SharedRef` per
+    array (bytes) instead of the array (~120 kB for a frame job, ~190 kB for a guess). The
+    pool's task hand-off thread pickles the jobs holding the GIL, the one the tracking chain
+    needs. Values are copied, bit for bit (the arrays C-contiguous in the block).
+
+    Each :class:`PoolTask` holds the block until it is done or dropped unstarted; the creator
+    holds it until its jobs are submitted (:meth:`release`); the last release unlinks it
+    (:meth:`PosePool.shutdown` frees those left by terminated tasks)."""
+
+    def __init__(self, jobs, live: set):
+        from multiprocessing import shared_memory
+
+        unique = {id(a): a for job in jobs for a in _arrays_in(job)}
+        offsets, size = {}, 0
+        for key, a in unique.items():
+            offsets[key] = size
+            size += -(-a.nbytes // 64) * 64  # (64-byte aligned)
+        self._shm = shared_memory.SharedMemory(create=True, size=max(size, 1))
+        self._refs = {}
+        for key, a in unique.items():
+            # A memoryview copy holds the GIL (NumPy's would let it go and wait to take it back).
+            at = offsets[key]
+            self._shm.buf[at:at + a.nbytes] = memoryview(np.ascontiguousarray(a)).cast("B")
+            self._refs[key] = SharedRef(self._shm.name, at, a.shape, a.dtype.str)
+        self._holds, self._lock, self._live = 1, threading.Lock(), live
+        live.add(self)
+
+    def refer(self, value):
+        """``value`` with its shared arrays replaced by their :class:`SharedRef` (nested tuples)."""
+        if isinstance(value, np.ndarray):
+            return self._refs.get(id(value), value)
+        if isinstance(value, tuple):
+            return tuple(self.refer(v) for v in value)
+        return value
+
+    def hold(self):
+        with self._lock:
+            self._holds += 1
+
+    def release(self):
+        with self._lock:
+            self._holds -= 1
+            last = self._holds == 0
+        if last:
+            self.free()
+
+    def free(self):
+        """Close and unlink the block (once)."""
+        with self._lock:
+            shm, self._shm = self._shm, None
+            self._live.discard(self)
+        if shm is not None:
+            shm.close()
+            shm.unlink()
+
+
+#: In a pool process: the blocks last attached (name -> read-only mmap), a few kept open since a
+#: batch's jobs follow one another; an array still viewing a dropped one keeps its mapping.
+_ATTACHED = collections.OrderedDict()
+
+
+def _attached(name: str):
+    """The block ``name`` mapped read-only. Not through ``SharedMemory``: before Python 3.13 it
+    registers every attachment with the resource tracker, which then reports the block
+    leaked, or fails to forget it, once the parent unlinks it."""
+    m = _ATTACHED.get(name)
+    if m is None:
+        import _posixshmem
+        import mmap
+
+        fd = _posixshmem.shm_open("/" + name, os.O_RDONLY, mode=0o600)
+        try:
+            m = mmap.mmap(fd, 0, access=mmap.ACCESS_READ)
+        finally:
+            os.close(fd)
+        _ATTACHED[name] = m
+        while len(_ATTACHED) > 4:
+            _ATTACHED.popitem(last=False)
+    return m
+
+
+def _resolve(value):
+    """:meth:`SharedBlock.refer` undone in a pool process: read-only arrays over the block."""
+    if isinstance(value, SharedRef):
+        dtype = np.dtype(value.dtype)
+        count = int(np.prod(value.shape, dtype=np.int64))
+        return np.frombuffer(_attached(value.name), dtype, count, value.offset).reshape(value.shape)
+    if isinstance(value, tuple):
+        return tuple(_resolve(v) for v in value)
+    return value
+
+
+def _shared_call(fn, *args):
+    """``fn(*args)`` in a pool process, its :class:`SharedRef` arguments read from their block."""
+    return fn(*_resolve(args))
 
 
 class PosePool:
@@ -118,40 +256,53 @@ class PosePool:
     and a job cancelled before it starts costs nothing. ``waited_s`` sums the seconds
     :meth:`wait` spent blocked, by its ``what``; ``started`` counts the jobs started and
     ``cancelled`` those dropped unstarted, by function name. ``ahead`` False (to measure
-    what it gives): every job in submit order, and :func:`pose_batch` guesses no core."""
+    what it gives): every job in submit order, and :func:`pose_batch` guesses no core.
+    ``share`` False (to measure what it gives): a batch's jobs carry their arrays in their
+    pickles instead of a :class:`SharedBlock`."""
 
-    def __init__(self, workers: int, ahead: bool = True):
+    def __init__(self, workers: int, ahead: bool = True, share: bool = True):
         from multiprocessing import get_context
 
         with _caller_script_hidden():
             self._pool = get_context("spawn").Pool(workers, initializer=_init_worker)
-        self.workers, self.ahead = workers, ahead
+        self.workers, self.ahead, self.share = workers, ahead, share
         self._lock = threading.Lock()
         self._queue, self._order, self._running = [], itertools.count(), 0
+        self._blocks = set()  # the SharedBlocks not yet freed
         self.waited_s, self.started, self.cancelled = (collections.Counter() for _ in range(3))
 
-    def submit(self, fn, *args, urgent: bool = False) -> PoolTask:
+    def submit(self, fn, *args, urgent: bool = False, block: SharedBlock | None = None) -> PoolTask:
         """``fn(*args)`` on a process, as soon as one is free and no job more urgent (or
-        submitted earlier at the same urgency) waits."""
-        task = PoolTask(fn, args, self._lock)
+        submitted earlier at the same urgency) waits; ``block``: the :class:`SharedBlock`
+        whose arrays ``args`` refer to (:meth:`SharedBlock.refer`), held until the job is done."""
+        task = PoolTask(fn, args, self._lock, block)
         with self._lock:
             heapq.heappush(self._queue, (not (urgent and self.ahead), next(self._order), task))
             self._dispatch()
         return task
 
+    def shared(self, jobs) -> SharedBlock:
+        """A :class:`SharedBlock` of ``jobs``' arrays (argument tuples), held by the caller
+        until it calls its ``release`` (after submitting them)."""
+        return SharedBlock(jobs, self._blocks)
+
     def _dispatch(self):
         """Start queued jobs while processes are free (the caller holds the lock)."""
         while self._running < self.workers and self._queue:
             task = heapq.heappop(self._queue)[2]
+            fn, args = task._job
             if task.cancelled:
-                self.cancelled[task._job[0].__name__] += 1
+                self.cancelled[fn.__name__] += 1
                 continue
-            self.started[task._job[0].__name__] += 1
+            self.started[fn.__name__] += 1
             self._running += 1
-            task._result = self._pool.apply_async(*task._job, callback=self._done, error_callback=self._done)
+            job = (_shared_call, (fn, *args)) if task._block is not None else task._job
+            done = functools.partial(self._done, task)
+            task._result = self._pool.apply_async(*job, callback=done, error_callback=done)
             task._settled.set()
 
-    def _done(self, _):
+    def _done(self, task, _):
+        task._unshare()
         with self._lock:
             self._running -= 1
             self._dispatch()
@@ -178,6 +329,8 @@ class PosePool:
         else:
             self._pool.close()
         self._pool.join()
+        for block in list(self._blocks):  # (held by tasks terminated before they were done)
+            block.free()
 
     def __enter__(self):
         return self
@@ -213,10 +366,21 @@ class _Later:
 
     def __init__(self, pool, fn, jobs, guesses=()):
         self._pool = pool
-        self._pending = [pool.submit(fn, *job) for job in jobs] if pool is not None else None
         self._values = None if pool is not None else [fn(*job) for job in jobs]
-        #: Per job, a pending :func:`guess_job` (submitted after all the jobs), or None.
-        self.guesses = [None if g is None else pool.submit(guess_job, *g) for g in guesses] or [None] * len(jobs)
+        self._pending, self.guesses = None, [None] * len(jobs)
+        if pool is None:
+            return
+        # The jobs' arrays once in a shared block (see SharedBlock), unless measuring without.
+        block = pool.shared([*jobs, *(g for g in guesses if g is not None)]) if pool.share else None
+        refer = block.refer if block is not None else (lambda job: job)
+        try:
+            self._pending = [pool.submit(fn, *refer(job), block=block) for job in jobs]
+            #: Per job, a pending :func:`guess_job` (submitted after all the jobs), or None.
+            self.guesses = [None if g is None else pool.submit(guess_job, *refer(g), block=block)
+                            for g in guesses] or self.guesses
+        finally:
+            if block is not None:
+                block.release()
 
     def get(self) -> list:
         if self._values is None:
