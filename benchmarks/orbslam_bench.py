@@ -273,7 +273,7 @@ def bench_pose_pool(frames, camera, batch, pool):
     descs = [d for _, d in feats]
     _, nearest = ob.nearest_batch(descs[1:], descs[0])
     k0 = feats[0][0]
-    tail = (ob._pts(k0), np.asarray(k0.angle, np.float64), None)
+    tail = (*o.keypoint_xy(k0), None)
     common = dict(K=np.ascontiguousarray(camera.K), config=config, baseline=None, frames=batch)
     row = {}
 

@@ -69,7 +69,7 @@ def test_essential_ahead_is_used_only_for_its_own_points(seq):
 
     (k0, d0), (k1, d1) = (warpvx.orb(im, backend="cpu") for im in seq[0][:2])
     pairs, _ = warpvx.match_hamming(d1, d0, True, None, backend="cpu")
-    p1, p2 = ob._pts(k0)[pairs[:, 1]], ob._pts(k1)[pairs[:, 0]]
+    p1, p2 = o.keypoint_xy(k0)[0][pairs[:, 1]], o.keypoint_xy(k1)[0][pairs[:, 0]]
     K, config = np.ascontiguousarray(seq[2], np.float64), o.TrackerConfig()
     sentinel = object()
     essential = ob._essential_ahead((p1, p2, sentinel))
@@ -98,7 +98,7 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
     try:
         tail, ahead = ob.pose_batch(images, feats, nearest, ob.NO_TAIL, pool=pool, **common)
         per_frame = ob.ahead_frames(ahead)  # waits for the pool's results
-        np.testing.assert_array_equal(tail[0], ob._pts(feats[-1][0]))
+        np.testing.assert_array_equal(tail[0], o.keypoint_xy(feats[-1][0])[0])
         assert sum(a[2] is not None for a in per_frame) >= FRAMES - 2  # frame 0 has no previous frame
         calls = []
         core = o.essential_core
@@ -118,7 +118,7 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
                 assert guessed
                 for t in guessed:
                     p1, p2, got = ahead.guesses[t].get()
-                    assert set(map(tuple, p1)) <= set(map(tuple, ob._pts(feats[t - 2][0])))
+                    assert set(map(tuple, p1)) <= set(map(tuple, o.keypoint_xy(feats[t - 2][0])[0]))
                     for g, w in zip(got, core(p1, p2, K, config)):
                         np.testing.assert_array_equal(g, w)
             else:

@@ -448,9 +448,15 @@ def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *,
     return _rt(R, scale * t), len(inl), tri
 
 
-def _record(kps, pts, desc, depth, depth_var, pose, index, kf_index):
-    return FrameRecord(pts, np.asarray(kps.angle, np.float64), depth, depth_var, np.asarray(desc),
-                       pose, index, kf_index)
+def _record(pts, angles, desc, depth, depth_var, pose, index, kf_index):
+    return FrameRecord(pts, angles, depth, depth_var, np.asarray(desc), pose, index, kf_index)
+
+
+def keypoint_xy(kps):
+    """(positions float64 [N, 2], angles float64 [N] (deg)) of keypoints ``kps``: what
+    :class:`FrameRecord` keeps of them."""
+    return np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1), \
+        np.asarray(kps.angle, np.float64)
 
 
 def keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf: bool, cur_pts, good, config):
@@ -471,7 +477,7 @@ def keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf: bool, cur_pts, g
 
 
 def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
-          config: TrackerConfig = TrackerConfig(), essential=essential_core, good=None):
+          config: TrackerConfig = TrackerConfig(), essential=essential_core, good=None, points=None):
     """One frame of tracking (the graph's ``track`` node; pure).
 
     A frame is lost when it has fewer than 8 good matches, no motion model (no essential
@@ -501,6 +507,9 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     good : int [G, 2], optional
         ``filter_matches`` of ``pairs`` when already worked out (the batched front end's
         worker processes do); else filtered here.
+    points : tuple, optional
+        :func:`keypoint_xy` of ``kps`` when already worked out (the batched front end's
+        ``pose_batch`` does): its arrays become this frame's record's (not copied).
 
     Returns
     -------
@@ -521,13 +530,12 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     cur_depth = np.asarray(depth, np.float64) if stereo else np.full(n, np.nan)
     # Stereo depths weigh alike (their disparities are not kept); monocular ones are unknown.
     cur_var = np.full(n, 1.0 / K[0, 0] ** 2 if stereo else np.inf)
-    cur_pts = np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
+    cur_pts, angles = keypoint_xy(kps) if points is None else points
     if state.previous is None:
-        rec = _record(kps, cur_pts, desc, cur_depth, cur_var, np.eye(4), state.frames, np.arange(n))
+        rec = _record(cur_pts, angles, desc, cur_depth, cur_var, np.eye(4), state.frames, np.arange(n))
         new = TrackState(state.frames + 1, rec, rec, np.eye(4), 0)
         return new, np.eye(4), np.array([n, 0, 0, 1, REF_PREVIOUS, 1e3 * (time.perf_counter() - t0)])
     prev, kf = state.previous, state.keyframe
-    angles = np.asarray(kps.angle, np.float64)
     if good is None:
         good = filter_matches(pairs, distances, angles, prev.angles, config) if n else np.zeros((0, 2), int)
     if state.lost and len(good) >= config.min_matches:
@@ -605,10 +613,13 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     # A lost frame keeps the last keyframe: the next frame relocalises against it, as
     # ORB-SLAM2 does against its keyframes, unless it matches the lost frame (see above).
     is_kf = not lost and (since >= config.keyframe_interval or inliers < config.keyframe_ratio * kf_inliers)
-    kf_index = np.full(n, -1)
-    if not lost:  # (no keyframe tracks through a lost frame)
-        kf_index[good[:, 0]] = good[:, 1] if from_kf else prev.kf_index[good[:, 1]]
-    rec = _record(kps, cur_pts, desc, cur_depth, cur_var, pose, state.frames, np.arange(n) if is_kf else kf_index)
+    if is_kf:
+        kf_index = np.arange(n)
+    else:
+        kf_index = np.full(n, -1)
+        if not lost:  # (no keyframe tracks through a lost frame)
+            kf_index[good[:, 0]] = good[:, 1] if from_kf else prev.kf_index[good[:, 1]]
+    rec = _record(cur_pts, angles, desc, cur_depth, cur_var, pose, state.frames, kf_index)
     known = cur_depth[np.isfinite(cur_depth)]
     scene_depth = median(known) if len(known) >= MIN_COMMON else state.scene_depth
     new = TrackState(state.frames + 1, rec, rec if is_kf else kf, velocity, 0 if is_kf else kf_inliers, speed,

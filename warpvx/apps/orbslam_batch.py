@@ -81,6 +81,23 @@ def _caller_script_hidden():
             setattr(main, k, v)
 
 
+def _quiet_pool_class():
+    """multiprocessing's ``Pool`` whose worker-handler thread sleeps until a process exits or
+    the pool closes. The stock one also wakes whenever a result waits in the pipe, and loops
+    (poll every process, select) until the result thread has read it: with that thread
+    waiting for the GIL, it spins, taking the GIL again and again from the tracking chain (on
+    the H100 host: 17% of its samples in ``waitpid``; here ~35 ms of CPU per 16-frame batch).
+    It wakes on results only to replace processes retired by ``maxtasksperchild``, which
+    :class:`PosePool` does not set. (Python's ``ThreadPool`` waits on the same one notifier.)"""
+    from multiprocessing.pool import Pool
+
+    class QuietPool(Pool):
+        def _get_sentinels(self):
+            return [self._change_notifier._reader]
+
+    return QuietPool
+
+
 class PoolTask:
     """One job on a :class:`PosePool`: :meth:`get` waits for its value; :meth:`cancel` drops
     it if no process has started it yet."""
@@ -264,7 +281,7 @@ class PosePool:
         from multiprocessing import get_context
 
         with _caller_script_hidden():
-            self._pool = get_context("spawn").Pool(workers, initializer=_init_worker)
+            self._pool = _quiet_pool_class()(workers, initializer=_init_worker, context=get_context("spawn"))
         self.workers, self.ahead, self.share = workers, ahead, share
         self._lock = threading.Lock()
         self._queue, self._order, self._running = [], itertools.count(), 0
@@ -364,7 +381,10 @@ class _Later:
     urgent: the chain's keyframe jobs go first) and waited for by :meth:`get`; else in the
     calling thread, now."""
 
-    def __init__(self, pool, fn, jobs, guesses=()):
+    def __init__(self, pool, fn, jobs, guesses=(), points=None):
+        #: Per job, the frame's :func:`~warpvx.apps.orbslam.keypoint_xy` (:func:`pose_batch`'s;
+        #: the chain's ``track`` takes them as they are).
+        self.points = points
         self._pool = pool
         self._values = None if pool is not None else [fn(*job) for job in jobs]
         self._pending, self.guesses = None, [None] * len(jobs)
@@ -475,11 +495,6 @@ def match_batch_warp(feats, before, *, frames):
     return nearest_batch_warp(_left(feats, frames), before)
 
 
-def _pts(kps):
-    """Keypoint positions, float64 [N, 2] (as track's frame records hold them)."""
-    return np.stack([np.asarray(kps.x, np.float64), np.asarray(kps.y, np.float64)], 1)
-
-
 #: :func:`pose_batch`'s ``tail`` before the first batch: no frame.
 NO_TAIL = (np.zeros((0, 2)), np.zeros(0), None)
 
@@ -515,9 +530,9 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     fx = float(K[0, 0])
     # The guesses only pay on a pool (without one the chain computes what it needs).
     guessing = pool is not None and pool.ahead and baseline is None and config.keyframe_motion
-    jobs, guesses = [], []
+    jobs, guesses, points = [], [], [None] * frames
     for f, (kps, desc) in enumerate(feats[:frames], 1):
-        pts, angles = _pts(kps), np.asarray(kps.angle, np.float64)
+        pts, angles = points[f - 1] = o.keypoint_xy(kps)
         stereo = None
         if baseline is not None:
             kr, dr = feats[frames + f - 1]
@@ -528,7 +543,7 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
                                                                     prev_angles, K, config))
         before = (near, prev_pts, prev_angles)
         prev_pts, prev_angles = pts, angles
-    return (prev_pts, prev_angles, before), _Later(pool, frame_job, jobs, guesses if guessing else ())
+    return (prev_pts, prev_angles, before), _Later(pool, frame_job, jobs, guesses if guessing else (), points)
 
 
 def _good(nearest, pts, angles, prev_pts, prev_angles, config):
@@ -704,13 +719,15 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
     poses, stats = [], []
     per_frame = ahead_frames(ahead)
     guesses = ahead.guesses if pool is not None else [None] * frames
+    points = ahead.points
     if baseline is None:
-        pts, good = [_pts(kps) for kps, _ in feats[:frames]], [a[3] for a in per_frame]
+        pts, good = [xy for xy, _ in points], [a[3] for a in per_frame]
         guessed = [g is not None for g in guesses]
     spec, keyframe, span = None, -1, 0
     for f, ((kps, desc), (pairs, dist, extra, kept)) in enumerate(zip(feats[:frames], per_frame)):
         if baseline is not None:
-            state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config, good=kept)
+            state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config, good=kept,
+                                      points=points[f])
         else:
             now = None if state.keyframe is None else state.keyframe.index
             if now != keyframe:  # a new keyframe (or the batch's first frame): speculate again
@@ -726,7 +743,7 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
             for u, need in ((f, guess is not None), (f + 1, now is not None and now == state.frames - 1)):
                 if u < frames and guesses[u] is not None and not need:
                     guesses[u].cancel()
-            state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config, good=kept,
+            state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config, good=kept, points=points[f],
                                       essential=_essential_ahead(extra, spec.cores.get(f), pool=pool, guess=guess))
         poses.append(pose)
         stats.append(st)
