@@ -164,32 +164,31 @@ def _arrays_in(value):
 class SharedBlock:
     """The large arrays of a batch's jobs, each once (jobs share a frame's points: frame f's
     job reads them as the current frame's, frame f + 1's as the previous one's, the guesses
-    again), in one shared-memory block: a job's pickle then carries a :class:`SharedRef` per
+    again), in one shared-memory segment: a job's pickle then carries a :class:`SharedRef` per
     array (bytes) instead of the array (~120 kB for a frame job, ~190 kB for a guess). The
     pool's task hand-off thread pickles the jobs holding the GIL, the one the tracking chain
-    needs. Values are copied, bit for bit (the arrays C-contiguous in the block).
+    needs. Values are copied, bit for bit (the arrays C-contiguous in the segment).
 
     Each :class:`PoolTask` holds the block until it is done or dropped unstarted; the creator
-    holds it until its jobs are submitted (:meth:`release`); the last release unlinks it
-    (:meth:`PosePool.shutdown` frees those left by terminated tasks)."""
+    holds it until its jobs are submitted (:meth:`release`); the last release hands the
+    segment back to ``segments`` (:class:`Segments`: a later batch reuses it, already mapped
+    in the processes)."""
 
-    def __init__(self, jobs, live: set):
-        from multiprocessing import shared_memory
-
+    def __init__(self, jobs, segments: Segments):
         unique = {id(a): a for job in jobs for a in _arrays_in(job)}
         offsets, size = {}, 0
         for key, a in unique.items():
             offsets[key] = size
             size += -(-a.nbytes // 64) * 64  # (64-byte aligned)
-        self._shm = shared_memory.SharedMemory(create=True, size=max(size, 1))
+        self._segments = segments
+        self._shm = segments.take(size, self)
         self._refs = {}
         for key, a in unique.items():
             # A memoryview copy holds the GIL (NumPy's would let it go and wait to take it back).
             at = offsets[key]
             self._shm.buf[at:at + a.nbytes] = memoryview(np.ascontiguousarray(a)).cast("B")
             self._refs[key] = SharedRef(self._shm.name, at, a.shape, a.dtype.str)
-        self._holds, self._lock, self._live = 1, threading.Lock(), live
-        live.add(self)
+        self._holds, self._lock = 1, threading.Lock()
 
     def refer(self, value):
         """``value`` with its shared arrays replaced by their :class:`SharedRef` (nested tuples)."""
@@ -211,22 +210,74 @@ class SharedBlock:
             self.free()
 
     def free(self):
-        """Close and unlink the block (once)."""
+        """Hand the segment back (once)."""
         with self._lock:
             shm, self._shm = self._shm, None
-            self._live.discard(self)
         if shm is not None:
-            shm.close()
-            shm.unlink()
+            self._segments.give_back(shm, self)
 
 
-#: In a pool process: the blocks last attached (name -> read-only mmap), a few kept open since a
-#: batch's jobs follow one another; an array still viewing a dropped one keeps its mapping.
+class Segments:
+    """The shared-memory segments of a :class:`PosePool`'s blocks: a free one large enough is
+    reused (no new segment, no page faults, no new mapping in the processes), else one a
+    quarter larger than asked is made; at most :data:`FREE_SEGMENTS` kept free. :meth:`close`
+    unlinks them all, those of blocks still held included (their tasks were terminated)."""
+
+    def __init__(self):
+        self._free, self._held, self._closed, self._lock = [], {}, False, threading.Lock()
+
+    def take(self, size: int, block):
+        from multiprocessing import shared_memory
+
+        with self._lock:
+            if self._closed:
+                raise WarpvxValueError("pool: shut down")
+            fits = [shm for shm in self._free if shm.size >= size]
+            shm = min(fits, key=lambda m: m.size) if fits else None
+            if shm is not None:
+                self._free.remove(shm)
+        if shm is None:
+            shm = shared_memory.SharedMemory(create=True, size=max(size + size // 4, 4096))
+        with self._lock:
+            self._held[id(block)] = (block, shm)
+        return shm
+
+    def give_back(self, shm, block):
+        with self._lock:
+            self._held.pop(id(block), None)
+            if not self._closed:
+                self._free.append(shm)
+                if len(self._free) <= FREE_SEGMENTS:
+                    return
+                shm = min(self._free, key=lambda m: m.size)
+                self._free.remove(shm)
+        _unlink(shm)
+
+    def close(self):
+        with self._lock:
+            self._closed = True
+            gone = self._free + [shm for _, shm in self._held.values()]
+            self._free, self._held = [], {}
+        for shm in gone:
+            _unlink(shm)
+
+
+#: Free segments a :class:`Segments` keeps (a few batches in flight, each one block).
+FREE_SEGMENTS = 6
+
+
+def _unlink(shm):
+    shm.close()
+    shm.unlink()
+
+
+#: In a pool process: the segments last attached (name -> read-only mmap), kept open: the pool
+#: reuses its segments (:class:`Segments`); an array still viewing a dropped one keeps its mapping.
 _ATTACHED = collections.OrderedDict()
 
 
 def _attached(name: str):
-    """The block ``name`` mapped read-only. Not through ``SharedMemory``: before Python 3.13 it
+    """The segment ``name`` mapped read-only. Not through ``SharedMemory``: before Python 3.13 it
     registers every attachment with the resource tracker, which then reports the block
     leaked, or fails to forget it, once the parent unlinks it."""
     m = _ATTACHED.get(name)
@@ -240,7 +291,7 @@ def _attached(name: str):
         finally:
             os.close(fd)
         _ATTACHED[name] = m
-        while len(_ATTACHED) > 4:
+        while len(_ATTACHED) > FREE_SEGMENTS + 2:
             _ATTACHED.popitem(last=False)
     return m
 
@@ -285,7 +336,7 @@ class PosePool:
         self.workers, self.ahead, self.share = workers, ahead, share
         self._lock = threading.Lock()
         self._queue, self._order, self._running = [], itertools.count(), 0
-        self._blocks = set()  # the SharedBlocks not yet freed
+        self._segments = Segments()
         self.waited_s, self.started, self.cancelled = (collections.Counter() for _ in range(3))
 
     def submit(self, fn, *args, urgent: bool = False, block: SharedBlock | None = None) -> PoolTask:
@@ -301,7 +352,7 @@ class PosePool:
     def shared(self, jobs) -> SharedBlock:
         """A :class:`SharedBlock` of ``jobs``' arrays (argument tuples), held by the caller
         until it calls its ``release`` (after submitting them)."""
-        return SharedBlock(jobs, self._blocks)
+        return SharedBlock(jobs, self._segments)
 
     def _dispatch(self):
         """Start queued jobs while processes are free (the caller holds the lock)."""
@@ -346,8 +397,7 @@ class PosePool:
         else:
             self._pool.close()
         self._pool.join()
-        for block in list(self._blocks):  # (held by tasks terminated before they were done)
-            block.free()
+        self._segments.close()
 
     def __enter__(self):
         return self
