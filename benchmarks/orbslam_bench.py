@@ -28,7 +28,8 @@ reading PNGs is timed separately. Measured, side by side in one run:
    started and dropped; the chain's wall vs thread CPU time), and its accuracy
    (the poses must be the sequential ones); mono also with Python's GIL switch interval
    (5 ms) against the batched mode's default (``orbslam_batch.SWITCH_INTERVAL``), and with
-   the jobs' arrays pickled with each job against a shared block per batch (the default).
+   the jobs' arrays pickled with each job against a shared block per batch (the default),
+   and on multiprocessing's stock ``Pool`` against the pose pool's (``PosePool(quiet=False)``).
 
 FPS columns: "wall" counts everything from the call (graph build, verification, calibration:
 cached after the warm-up run; the batched mode's pool is opened once, before); "steady" is
@@ -207,6 +208,8 @@ def _timed_chain(fn):
 ob.chain = _timed_chain(ob.chain)
 
 
+#: The default batched mono run on multiprocessing's stock Pool (PosePool(quiet=False)).
+STOCK_POOL = "batched_mono_stock_pool"
 #: The default batched mono run on a pool of all cores but one (the default before
 #: ``orbslam_batch.default_workers``), run when the default pool is smaller.
 OLD_POOL = "batched_mono_pool_old"
@@ -463,6 +466,13 @@ def main(argv=None):
                                                                       switch=switch)[0],
                                   failed)
             progress(f"front end {key} (B={batch}) FPS", f"{report[key]['fps']:.1f}")
+        if pool is not None:
+            # The same pose work on multiprocessing's stock Pool (its handler thread spins
+            # while results wait): a pool of its own, opened before timing.
+            with ob.PosePool(pool.workers, quiet=False) as stock:
+                report[STOCK_POOL] = attempt(STOCK_POOL, lambda: bench_frontend_batched(
+                    replay(mono_frames, n), mono, backend, out, None, batch, stock)[0], failed)
+            progress(f"front end {STOCK_POOL} FPS", f"{report[STOCK_POOL]['fps']:.1f}")
         old = max(2, os.cpu_count() - 1)  # the pool's default before default_workers()
         if args.workers is None and pool is not None and old != pool.workers:
             with ob.make_pool(old) as more:
@@ -510,7 +520,7 @@ def main(argv=None):
     progress("accuracy", "done")
 
     base = report["opencv_baseline"]["thread_pool_fps"]
-    batched_keys = [key for key, *_ in BATCHED] + [OLD_POOL] * (OLD_POOL in report)
+    batched_keys = [key for key, *_ in BATCHED] + [k for k in (STOCK_POOL, OLD_POOL) if k in report]
     rows = [("extraction + matching, pipelined (match node)", "extract_match"),
             ("extraction + matching, pipelined (match_hamming primitive, before)", "extract_match_primitive")]
     rows += [(f"extraction + matching, batched B={k[len('extract_match_batch'):]} (orb_batch + match_batch)", k)
@@ -524,6 +534,8 @@ def main(argv=None):
              (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores",
               "batched_mono_fifo"),
              (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),
+             *([(f"front end mono, end to end, batched B={batch}, multiprocessing's stock Pool (its handler "
+                 "thread spins while results wait)", STOCK_POOL)] if STOCK_POOL in report else []),
              *([(f"front end mono, end to end, batched B={batch}, {report[OLD_POOL].get('workers')} pose processes "
                  "(all cores but one, the old default)", OLD_POOL)] if OLD_POOL in report else []),
              ("front end stereo, end to end, frame by frame", "frontend_stereo"),

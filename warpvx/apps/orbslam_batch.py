@@ -29,6 +29,13 @@ executor runs threads only, so the pool runs *inside* the ``pose_batch`` node (i
 thread waits on the processes with the GIL released); the scheduler places the four nodes and
 records their timeline as for any graph.
 
+The chain is the bottleneck and it shares the GIL with the GPU thread, the executor and the
+pool's hand-off threads; NumPy lets the GIL go in every loop over more than a few hundred
+elements and must take it back. So that the chain waits less for it: the run sets a short
+GIL switch interval (:data:`SWITCH_INTERVAL`, :func:`switch_interval`); a batch's jobs carry
+their arrays once in shared memory (:class:`SharedBlock`), not in each job's pickle; the
+pool's handler thread does not spin while results wait (:func:`_quiet_pool_class`).
+
 Poses equal the sequential front end's (:func:`~warpvx.apps.orbslam.track_frames`, same
 inputs, same per-frame ``track``; OpenCV's USAC draws from a fixed seed), up to the last bits
 of the device matcher's ties, which match the CPU ones (see the tests).
@@ -326,13 +333,16 @@ class PosePool:
     ``cancelled`` those dropped unstarted, by function name. ``ahead`` False (to measure
     what it gives): every job in submit order, and :func:`pose_batch` guesses no core.
     ``share`` False (to measure what it gives): a batch's jobs carry their arrays in their
-    pickles instead of a :class:`SharedBlock`."""
+    pickles instead of a :class:`SharedBlock`. ``quiet`` False (likewise): multiprocessing's
+    stock ``Pool``, whose handler thread spins while results wait (see :func:`_quiet_pool_class`)."""
 
-    def __init__(self, workers: int, ahead: bool = True, share: bool = True):
+    def __init__(self, workers: int, ahead: bool = True, share: bool = True, quiet: bool = True):
         from multiprocessing import get_context
+        from multiprocessing.pool import Pool
 
         with _caller_script_hidden():
-            self._pool = _quiet_pool_class()(workers, initializer=_init_worker, context=get_context("spawn"))
+            self._pool = (_quiet_pool_class() if quiet else Pool)(workers, initializer=_init_worker,
+                                                                  context=get_context("spawn"))
         self.workers, self.ahead, self.share = workers, ahead, share
         self._lock = threading.Lock()
         self._queue, self._order, self._running = [], itertools.count(), 0
