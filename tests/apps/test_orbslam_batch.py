@@ -286,6 +286,7 @@ def test_shared_block_carries_each_array_once_and_its_segment_is_reused_when_its
         assert again._shm.name == name
         np.testing.assert_array_equal(copy.copy(ob._resolve(again.refer(pts))), pts)
     assert not os.path.exists(f"/dev/shm/{name}")
+    again.release()  # (after the shutdown unlinked it: nothing more to do)
 
 
 def _thread_cpu_s(thread) -> float:

@@ -251,13 +251,13 @@ class Segments:
 
     def give_back(self, shm, block):
         with self._lock:
-            self._held.pop(id(block), None)
-            if not self._closed:
-                self._free.append(shm)
-                if len(self._free) <= FREE_SEGMENTS:
-                    return
-                shm = min(self._free, key=lambda m: m.size)
-                self._free.remove(shm)
+            if self._held.pop(id(block), None) is None:
+                return  # (a task dropped after close(), which unlinked it)
+            self._free.append(shm)
+            if len(self._free) <= FREE_SEGMENTS:
+                return
+            shm = min(self._free, key=lambda m: m.size)
+            self._free.remove(shm)
         _unlink(shm)
 
     def close(self):
