@@ -31,6 +31,16 @@ fixed buffers (:meth:`SegmentGraph.launch`), so values have the captured form fr
 first frame (a corner count changing between eager frames would otherwise change the next
 segment's input shapes) and nothing allocates inside the capture.
 
+Lanes: a segment's tasks are spread over up to :data:`MAX_LANES` streams by its own data
+dependencies (:func:`lanes`: list scheduling over the scheduled durations), forked from the
+executor's stream after the copies in and joined back before the copies out; a task waits
+(a device event) for its producers on other lanes. CUDA stream capture follows those events,
+so the graph holds the segment's true dependencies and independent branches (two cameras,
+a detector beside the features) run concurrently; uncaptured runs of a segment's buffer sets
+take the same lanes, so the primitives' per-stream scratch (:func:`~warpvx.kernels_warp.
+_launch.workspace`) exists before the capture and is never shared by concurrent tasks. On
+Warp's CPU device every lane is the one stream.
+
 Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
 code runs there when asked (``capture=True``), which is how it is tested without a GPU.
 
@@ -51,6 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._counted import is_counted
+from ..check import check_int
 from .native_copy import copy_device, is_warp_array, to_device, warp
 from .program import InputRef, Program
 from .slots import DEVICE
@@ -66,6 +77,10 @@ MAX_SIGNATURES = 4
 
 #: Counted views of copy-out buffers a :class:`SegmentGraph` keeps (views cost ~10 us each).
 MAX_VIEWS = 256
+
+#: Streams a captured segment's tasks are spread over by default (1: one chain, as one stream
+#: captures it); an executor's ``max_lanes`` overrides it for the captures it makes after.
+MAX_LANES = 4
 
 
 class NotCapturable(Exception):
@@ -159,6 +174,77 @@ def signature(inputs) -> tuple:
                  for k, (v, _) in inputs.items())
 
 
+@dataclass(frozen=True)
+class Lanes:
+    """Where a segment's tasks run: lane 0 is the executor's stream, the others are forked
+    from it and joined back.
+
+    Attributes
+    ----------
+    of : tuple of int
+        The lane of each task (segment order).
+    waits : tuple of tuple of int
+        For each task, the tasks on other lanes (indices) whose events its lane waits for
+        before it: its producers, less those an earlier wait of its lane already covers.
+    count : int
+        Lanes used.
+    """
+
+    of: tuple
+    waits: tuple
+    count: int
+
+    @property
+    def signals(self) -> frozenset:
+        """Tasks after which an event is recorded (another lane waits for them)."""
+        return frozenset(p for w in self.waits for p in w)
+
+
+def lanes(tasks, durations=None, max_lanes: int = MAX_LANES) -> Lanes:
+    """Assign a segment's ``tasks`` (an :class:`ExecTask` sequence in a dependency order) to
+    at most ``max_lanes`` streams by list scheduling: each task, in order, goes to the lane
+    where it could start first (its lane free and its producers in the segment finished,
+    estimated from ``durations``: task name -> seconds, 1 each when None), a lane whose last
+    task is one of its producers first on ties (no event), then an open lane before a new one.
+
+    Only this frame's reads (offset 0) of values made inside the segment are dependencies: a
+    delayed read of its own output reads the other buffer set, written a replay earlier.
+
+    Raises
+    ------
+    WarpvxTypeError, WarpvxValueError
+        ``max_lanes`` is not an integer, or is < 1.
+    """
+    max_lanes = check_int(max_lanes, "max_lanes", min_value=1)
+    made, of, waits, finish = {}, [], [], []
+    free, tail, covered = [], [], []  # per lane: estimated end, last task, waited per lane
+    for i, task in enumerate(tasks):
+        prods = sorted({made[r.key] for r in task.inputs if r.offset == 0 and r.key in made})
+        ready = max((finish[p] for p in prods), default=0.0)
+        options = [(max(end, ready), last not in prods, 0, k)
+                   for k, (end, last) in enumerate(zip(free, tail))]
+        if len(free) < max_lanes:
+            options.append((ready, True, 1, len(free)))
+        start, _, new, lane = min(options)
+        if new:
+            free.append(0.0)
+            tail.append(-1)
+            covered.append({})
+        latest = {}  # other lane -> its latest producer of this task
+        for p in prods:
+            if of[p] != lane:
+                latest[of[p]] = max(p, latest.get(of[p], -1))
+        wait = tuple(sorted(p for m, p in latest.items() if covered[lane].get(m, -1) < p))
+        covered[lane].update((of[p], p) for p in wait)
+        d = float(durations.get(task.name, 1.0)) if durations else 1.0
+        finish.append(start + d)
+        free[lane], tail[lane] = finish[i], i
+        of.append(lane)
+        waits.append(wait)
+        made.update((k, i) for k in task.outputs)
+    return Lanes(tuple(of), tuple(waits), len(free))
+
+
 def _workspaces() -> list:
     """The kernels' cached scratch state (buffers, recorded launches) alive now. A graph holds
     the raw pointers its kernels were captured with, so it keeps these alive: the kernels'
@@ -245,9 +331,14 @@ class SegmentGraph:
         fix the input buffers' shapes and dtypes.
     device : str
         Warp device of the GPU role.
+    durations : dict, optional
+        Task name -> scheduled duration, to spread the tasks over lanes (:func:`lanes`).
+    max_lanes : int
+        Streams the tasks may take (1: one chain).
     """
 
-    def __init__(self, segment: Segment, values, device: str):
+    def __init__(self, segment: Segment, values, device: str, durations=None,
+                 max_lanes: int = MAX_LANES):
         wp = warp()
         self.segment = segment
         self.inputs = {}
@@ -258,6 +349,9 @@ class SegmentGraph:
                 device=device), v)
         self.sets = [_BufferSet(segment.tasks) for _ in range(2 if segment.swapped else 1)]
         self.last = -1  # the set the last run wrote (the next frame's delayed values)
+        self.lanes = lanes(segment.tasks, durations, max_lanes)
+        self._signals = self.lanes.signals
+        self._events = {}  # (kind, index) -> a wp.Event of the lanes' fork, joins and signals
         self.scratch = ()
         self._views = {}  # (id of a copy buffer, part) -> a Counted of views of it
 
@@ -287,9 +381,9 @@ class SegmentGraph:
                 return other[ref.key]
         return self.inputs[ref]
 
-    def capture(self, device: str, stream):
-        """Capture the tasks writing the next run's buffer set (``stream``: CUDA only), once
-        an uncaptured run has written it. Each task writes its ``gpu_out()`` buffers; its
+    def capture(self, device: str, streams):
+        """Capture the tasks writing the next run's buffer set (``streams``: the lanes' streams,
+        the first the capture's; CUDA only, else None), once an uncaptured run has written it. Each task writes its ``gpu_out()`` buffers; its
         result may also hold a buffer it read (a pyramid's level 0 is its source), but
         nothing else.
 
@@ -302,8 +396,8 @@ class SegmentGraph:
         wp = warp()
         b = self.sets[self.next]
         try:
-            with wp.ScopedCapture(device=device, stream=stream) as cap:
-                self._run_tasks(self.next)
+            with wp.ScopedCapture(device=device, stream=streams and streams[0]) as cap:
+                self._run_tasks(self.next, streams=streams)
         except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
             raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
         if cap.graph is None:
@@ -311,11 +405,20 @@ class SegmentGraph:
         b.graph = cap.graph
         self.scratch = _workspaces()
 
-    def _run_tasks(self, s: int, fresh: bool = False):
-        """Enqueue the tasks, each into its buffers of set ``s``; their results become the
-        set's outputs. Uncaptured (a set's first run) this also builds whatever a primitive
-        makes per set of buffers (workspaces, recorded launches), so nothing allocates
-        inside the capture that follows.
+    def _event(self, kind: str, i: int, device):
+        """The lanes' event ``(kind, i)`` on CUDA ``device``, made on first use (reused by
+        every run: a wait takes the event's state when it is enqueued)."""
+        ev = self._events.get((kind, i))
+        if ev is None:
+            ev = self._events[kind, i] = warp().Event(device)
+        return ev
+
+    def _run_tasks(self, s: int, fresh: bool = False, streams=None):
+        """Enqueue the tasks, each into its buffers of set ``s`` and on its lane's stream of
+        ``streams`` (:attr:`lanes`; None: all on the current stream, as on Warp's CPU
+        device); their results become the set's outputs. Uncaptured (a set's first run) this
+        also builds whatever a primitive makes per set of buffers and stream (workspaces,
+        recorded launches), so nothing allocates inside the capture that follows.
 
         Raises
         ------
@@ -329,14 +432,35 @@ class SegmentGraph:
         outputs = {}
         fixed = {a.ptr for ref in self.segment.inputs
                  for a in _leaves(self.value(ref, s, outputs, fresh))}
-        for task in self.segment.tasks:
-            out = b.outs[task.name]
-            mine = {a.ptr for a in _leaves(out)}
-            result = task.gpu(*[self.value(r, s, outputs, fresh) for r in task.inputs], out=out)
-            if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
-                raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
-            fixed |= mine
-            outputs.update(_per_output(task, result))
+        forked = streams is not None and self.lanes.count > 1
+        if forked:
+            device = streams[0].device
+            main = device.stream
+            fork = streams[0].record_event(self._event("fork", 0, device))
+            for lane in streams[1:self.lanes.count]:
+                lane.wait_event(fork)
+        try:
+            for i, task in enumerate(self.segment.tasks):
+                if forked:
+                    lane = streams[self.lanes.of[i]]
+                    for p in self.lanes.waits[i]:
+                        lane.wait_event(self._event("done", p, device))
+                    device.set_stream(lane, sync=False)
+                out = b.outs[task.name]
+                mine = {a.ptr for a in _leaves(out)}
+                result = task.gpu(*[self.value(r, s, outputs, fresh) for r in task.inputs],
+                                  out=out)
+                if forked and i in self._signals:
+                    lane.record_event(self._event("done", i, device))
+                if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
+                    raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
+                fixed |= mine
+                outputs.update(_per_output(task, result))
+        finally:
+            if forked:  # joined even on an error: a capture must end with every lane joined
+                device.set_stream(main, sync=False)
+                for k, lane in enumerate(streams[1:self.lanes.count], 1):
+                    streams[0].wait_event(lane.record_event(self._event("join", k, device)))
         b.outputs = outputs
         b.warm = warm
 
@@ -379,16 +503,16 @@ class SegmentGraph:
                 to_device(buf, np.ascontiguousarray(v))
                 io.moved += v.nbytes
 
-    def launch(self, stream, fresh: bool = False) -> dict:
-        """Replay the next run's captured graph on ``stream`` (or run its tasks uncaptured
-        before it is captured, or when ``fresh``: :meth:`reads_fresh`); returns the set's
-        outputs (key -> fixed value)."""
+    def launch(self, streams, fresh: bool = False) -> dict:
+        """Replay the next run's captured graph on ``streams[0]`` (or run its tasks uncaptured
+        on the lanes' ``streams``, as :meth:`capture`, before it is captured, or when
+        ``fresh``: :meth:`reads_fresh`); returns the set's outputs (key -> fixed value)."""
         s = self.next
         b = self.sets[s]
         if b.graph is None or fresh:
-            self._run_tasks(s, fresh)
+            self._run_tasks(s, fresh, streams)
         else:
-            warp().capture_launch(b.graph, stream=stream)
+            warp().capture_launch(b.graph, stream=streams and streams[0])
         self.last = s
         return b.outputs
 
@@ -415,7 +539,23 @@ class SegmentGraph:
 
 class SegmentRunner:
     """The executor's captured segments: a mixin of :class:`~warpvx.runtime.Executor`, whose
-    frames' slots, timing events, buffer pools and stream it uses."""
+    frames' slots, timing events, buffer pools and stream it uses.
+
+    ``max_lanes`` (default :data:`MAX_LANES`): the streams a segment captured from now on
+    spreads its tasks over (1: one chain on the executor's stream)."""
+
+    max_lanes = MAX_LANES
+    _lane_streams: tuple = ()  # the streams of lanes 1.. (CUDA), made when first needed
+
+    def _streams(self, sg: SegmentGraph):
+        """The streams of ``sg``'s lanes, the executor's first (None off CUDA)."""
+        if not self.cuda:
+            return None
+        extra = sg.lanes.count - 1 - len(self._lane_streams)
+        if extra > 0:
+            wp = warp()
+            self._lane_streams += tuple(wp.Stream(self._stream.device) for _ in range(extra))
+        return (self._stream, *self._lane_streams)
 
     def _captures_of(self, frame: Frame) -> list:
         """The capture states of ``frame``'s input signature, one per segment: a dict of
@@ -465,7 +605,8 @@ class SegmentRunner:
             return None
         if key not in by_shape:
             try:
-                sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
+                sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device, self._spans,
+                                  self.max_lanes)
             except NotCapturable as exc:
                 _log.debug("segment %s, inputs %s, runs eagerly: %s", seg.tasks[0].name, key, exc)
                 sg = None
@@ -479,7 +620,7 @@ class SegmentRunner:
         first = not sg.captured
         try:
             with self._capture_lock:
-                sg.capture(self.gpu_device, self._stream)
+                sg.capture(self.gpu_device, self._streams(sg))
         except NotCapturable as exc:  # a host sync or read-back inside, a caller's capture
             _log.debug("segment %s, inputs %s, not captured: %s", seg.tasks[0].name, key, exc)
             by_shape[key] = None
@@ -506,7 +647,7 @@ class SegmentRunner:
             frame.copied[seg.tasks[0].name] = io.moved - before
         replay = sg.sets[sg.next].graph is not None and not fresh
         try:
-            fixed = sg.launch(self._stream, fresh)
+            fixed = sg.launch(self._streams(sg), fresh)
         except NotCapturable as exc:  # uncaptured first run: an out= did not fit these inputs
             _log.debug("segment %s runs eagerly: %s", seg.tasks[0].name, exc)
             self._forget(self._captures_of(frame), self._segments.index(seg), sg)
@@ -569,5 +710,5 @@ class SegmentRunner:
         return shares
 
 
-__all__ = ["MAX_SIGNATURES", "NotCapturable", "Segment", "SegmentGraph", "SegmentRunner", "segments",
-           "signature"]
+__all__ = ["MAX_LANES", "MAX_SIGNATURES", "Lanes", "NotCapturable", "Segment", "SegmentGraph",
+           "SegmentRunner", "lanes", "segments", "signature"]
