@@ -158,7 +158,8 @@ def main(argv=None):
     finally:
         for g in graphs.values():
             g.close()
-    cmd = " ".join(["benchmarks/perf/capture_lanes.py", *(argv if argv is not None else sys.argv[1:])])
+    given = argv if argv is not None else sys.argv[1:]
+    cmd = " ".join(["benchmarks/perf/capture_lanes.py", *given])
     lines = [f"<!-- PYTHONPATH=. python3 {cmd} -->",
              f"# Two-camera graph {size[0]}x{size[1]}, baseline placement, captured: its GPU "
              f"segment on one lane vs several ({args.gpu})", "",
@@ -167,9 +168,9 @@ def main(argv=None):
              "the device (`wp.TIMING_GRAPH`); device activity: every kernel, copy and graph "
              f"per frame (sum over streams). Outputs: {args.check} frames, every output bit for "
              "bit against the eager run and the first lane cap's.", "",
-             "| max_lanes | lanes used (0: not captured) | FPS depth 3 | FPS depth 1 | graph replay us/frame "
-             "| graph launches/frame | device activity us/frame | outputs = eager | "
-             f"outputs = max_lanes {caps[0]} |",
+             "| max_lanes | lanes used (0: not captured) | FPS depth 3 | FPS depth 1 "
+             "| graph replay us/frame | graph launches/frame | device activity us/frame "
+             f"| outputs = eager | outputs = max_lanes {caps[0]} |",
              "|---:|---:|---:|---:|---:|---:|---:|---|---|"]
     for r in rows:
         lines.append(

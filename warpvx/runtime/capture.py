@@ -383,9 +383,9 @@ class SegmentGraph:
 
     def capture(self, device: str, streams):
         """Capture the tasks writing the next run's buffer set (``streams``: the lanes' streams,
-        the first the capture's; CUDA only, else None), once an uncaptured run has written it. Each task writes its ``gpu_out()`` buffers; its
-        result may also hold a buffer it read (a pyramid's level 0 is its source), but
-        nothing else.
+        the first the capture's; CUDA only, else None), once an uncaptured run has written it.
+        Each task writes its ``gpu_out()`` buffers; its result may also hold a buffer it read
+        (a pyramid's level 0 is its source), but nothing else.
 
         Raises
         ------
