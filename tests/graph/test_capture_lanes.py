@@ -127,8 +127,11 @@ def test_lanes_random_dags_respect_every_dependency():
             _assert_respects(tasks, assigned)
 
 
-@pytest.mark.parametrize("bad, error", [(0, WarpvxValueError), (-2, WarpvxValueError),
-                                        (2.5, WarpvxTypeError), (True, WarpvxTypeError)])
+BAD_MAX_LANES = [(0, WarpvxValueError), (-2, WarpvxValueError), (2.5, WarpvxTypeError),
+                 (True, WarpvxTypeError)]
+
+
+@pytest.mark.parametrize("bad, error", BAD_MAX_LANES)
 def test_lanes_bad_max_lanes_raises_naming_it(bad, error):
     with pytest.raises(error, match="max_lanes"):
         lanes(TWO_CAMERAS, None, bad)
@@ -248,6 +251,18 @@ def test_lanes_join_even_when_a_task_fails():
 # --------------------------------------------------------------------------- runs
 
 
+def test_executor_bad_max_lanes_raises_naming_it(frames):
+    g = _two_cameras(frames, "warp-cpu")
+    try:
+        ex = g.plan.executor()
+        for bad, error in BAD_MAX_LANES:
+            with pytest.raises(error, match="max_lanes"):
+                ex.max_lanes = bad
+        assert ex.max_lanes == MAX_LANES
+    finally:
+        g.close()
+
+
 def _captured_graph(ex):
     """The executor's captured SegmentGraph (the two-camera graph has one)."""
     (sg,) = [sg for states in ex._captured.values() for by_shape in states if by_shape
@@ -259,7 +274,8 @@ def test_two_cameras_with_lanes_equal_one_lane_and_eager(frames, warp_backend):
     """The 16-node graph on real frames, captured with lanes and with one lane: every output
     equal to the eager run's, frame after frame (many replays: a race between lanes would
     change outputs from run to run); the lanes split the cameras and respect the DAG."""
-    cams = list(itertools.islice(itertools.cycle(_camera_frames(frames)), 24))
+    n = 24 if warp_backend == "warp-cpu" else 120  # more replays where lanes run concurrently
+    cams = list(itertools.islice(itertools.cycle(_camera_frames(frames)), n))
     runs = {}
     for max_lanes in (None, 1, MAX_LANES):  # None: eager
         g = _two_cameras(frames, warp_backend)

@@ -544,8 +544,16 @@ class SegmentRunner:
     ``max_lanes`` (default :data:`MAX_LANES`): the streams a segment captured from now on
     spreads its tasks over (1: one chain on the executor's stream)."""
 
-    max_lanes = MAX_LANES
+    _max_lanes = MAX_LANES
     _lane_streams: tuple = ()  # the streams of lanes 1.. (CUDA), made when first needed
+
+    @property
+    def max_lanes(self) -> int:
+        return self._max_lanes
+
+    @max_lanes.setter
+    def max_lanes(self, n: int):
+        self._max_lanes = check_int(n, "max_lanes", min_value=1)
 
     def _streams(self, sg: SegmentGraph):
         """The streams of ``sg``'s lanes, the executor's first (None off CUDA)."""
