@@ -92,17 +92,24 @@ def build(size, frames, gpu: str, max_lanes: int):
 
 
 def lanes_used(g) -> tuple:
-    """(lanes, tasks per lane) of the executor's captured segment graphs."""
+    """(lanes, tasks per lane in enqueue order) of the executor's captured segment graph;
+    serial tasks (conditional graph nodes: every lane joined) listed after."""
     ex = g.plan.executor()
     found = [sg for states in ex._captured.values() for by_shape in states if by_shape
              for sg in by_shape.values() if sg is not None and sg.captured]
     if not found:
         return 0, ""
     sg = found[0]
+    lanes, tasks = sg.lanes, sg.segment.tasks
     per = collections.defaultdict(list)
-    for task, lane in zip(sg.segment.tasks, sg.lanes.of):
-        per[lane].append(task.name)
-    return sg.lanes.count, "; ".join(f"{k}: {' '.join(v)}" for k, v in sorted(per.items()))
+    for i in lanes.order:
+        if i not in lanes.serial:
+            per[lanes.of[i]].append(tasks[i].name)
+    layout = "; ".join(f"{k}: {' '.join(v)}" for k, v in sorted(per.items()))
+    serial = " ".join(tasks[i].name for i in lanes.order if i in lanes.serial)
+    if serial:
+        layout += f"; then on lane 0, every lane joined: {serial}"
+    return lanes.count, layout
 
 
 def main(argv=None):
@@ -181,7 +188,9 @@ def main(argv=None):
     lines += ["", "FPS of every run (depth 3 / depth 1):", ""]
     lines += [f"- max_lanes {r['max_lanes']}: {', '.join(f'{v:.0f}' for v in r['fps3_all'])} / "
               f"{', '.join(f'{v:.0f}' for v in r['fps1_all'])}" for r in rows]
-    lines += ["", "Lanes of the captured segment (lane: tasks in order):", ""]
+    lines += ["", "Lanes of the captured segment (lane: tasks in enqueue order; serial "
+              "tasks insert conditional graph nodes, so Warp pauses the capture there and "
+              "they run on lane 0 with every lane joined):", ""]
     lines += [f"- max_lanes {r['max_lanes']}: {r['layout']}" for r in rows]
     lines += ["", f"Run time {time.perf_counter() - t_start:.0f} s."]
     (out / "capture_lanes.md").write_text("\n".join(lines) + "\n")

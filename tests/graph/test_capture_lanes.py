@@ -1,5 +1,6 @@
 """Lanes of a captured segment (warpvx.runtime.capture.lanes): its tasks spread over streams
-by their data dependencies, so that its CUDA graph runs independent branches concurrently.
+by their data dependencies, so that its CUDA graph runs independent branches concurrently;
+tasks inserting conditional graph nodes run with every lane joined (Warp pauses the capture).
 
 The rule is checked on hand-built programs (every dependency ordered by a lane or an event,
 independent branches on different lanes), the fork/wait/join protocol on streams that log
@@ -38,13 +39,27 @@ def _dependencies(tasks):
 
 
 def _ordered_by(assigned):
-    """What the lanes order: each lane's tasks one after the other, and each wait."""
+    """What the lanes order, in enqueue order: each lane's tasks one after the other, each
+    wait, a serial task after every task before it and before every task after it (the
+    lanes joined before it and forked from it after)."""
     g = nx.DiGraph()
     g.add_nodes_from(range(len(assigned.of)))
-    for lane in set(assigned.of):
-        mine = [i for i, k in enumerate(assigned.of) if k == lane]
-        g.add_edges_from(zip(mine, mine[1:]))
-    g.add_edges_from((p, i) for i, w in enumerate(assigned.waits) for p in w)
+    assert sorted(assigned.order) == list(range(len(assigned.of)))
+    done, last, fork = [], {}, None
+    for i in assigned.order:
+        if i in assigned.serial:
+            assert assigned.of[i] == 0 and not assigned.waits[i]
+            g.add_edges_from((j, i) for j in done)
+            last, fork = {}, i
+        else:
+            lane = assigned.of[i]
+            if lane in last:
+                g.add_edge(last[lane], i)
+            elif fork is not None:
+                g.add_edge(fork, i)
+            last[lane] = i
+            g.add_edges_from((p, i) for p in assigned.waits[i])
+        done.append(i)
     return g
 
 
@@ -62,9 +77,13 @@ TWO_CAMERAS = [_task(f"{n}{c}", ins) for c in "LR" for n, ins in (
     ("fast", ["blur" + c]))] + [_task("detectorL", ["grayL"])]
 
 
+SORTING = {"fastL", "fastR", "grayR"}  # tasks taken as inserting conditional nodes
+
+
+@pytest.mark.parametrize("serial", [(), SORTING])
 @pytest.mark.parametrize("max_lanes", [1, 2, 3, 4, 8])
-def test_lanes_respect_every_dependency(max_lanes):
-    assigned = lanes(TWO_CAMERAS, None, max_lanes)
+def test_lanes_respect_every_dependency(max_lanes, serial):
+    assigned = lanes(TWO_CAMERAS, None, max_lanes, serial)
     assert len(assigned.of) == len(TWO_CAMERAS)
     assert assigned.count == len(set(assigned.of)) <= max_lanes
     assert set(assigned.of) == set(range(assigned.count))
@@ -80,11 +99,27 @@ def test_lanes_put_independent_branches_on_different_lanes():
     assert not assigned.waits[[t.name for t in TWO_CAMERAS].index("lkL")]
 
 
+def test_lanes_serial_tasks_run_last_on_lane_zero():
+    """Serial tasks (conditional graph nodes: Warp pauses the capture, so every lane is
+    joined) and what reads them are enqueued after the rest, on lane 0 for the serial ones;
+    the rest still spreads over lanes."""
+    names = [t.name for t in TWO_CAMERAS]
+    assigned = lanes(TWO_CAMERAS, None, 4, SORTING)
+    assert {names[i] for i in assigned.serial} == SORTING
+    order = [names[i] for i in assigned.order]
+    after = {"grayR", "pyramidR", "lkR", "blurR", "fastR", "fastL"}  # grayR and its readers
+    assert set(order[-len(after):]) == after
+    assert all(assigned.of[names.index(n)] == 0 for n in SORTING)
+    first = [assigned.of[names.index(n)] for n in order[:-len(after)]]
+    assert len(set(first)) > 1
+    _assert_respects(TWO_CAMERAS, assigned)
+
+
 def test_lanes_one_lane_is_the_chain_and_a_chain_takes_one_lane():
     one = lanes(TWO_CAMERAS, None, 1)
     assert one.of == (0,) * len(TWO_CAMERAS) and not any(one.waits) and one.count == 1
     chain = [_task("a", ["x"]), _task("b", ["a"]), _task("c", ["b", "a"])]
-    assert lanes(chain, None, 4) == Lanes((0, 0, 0), ((), (), ()), 1)
+    assert lanes(chain, None, 4) == Lanes((0, 0, 0), ((), (), ()), 1, (0, 1, 2))
 
 
 def test_lanes_follow_the_durations():
@@ -121,8 +156,9 @@ def test_lanes_random_dags_respect_every_dependency():
                 reads.append(InputRef(f"t{int(rng.integers(0, i))}", -1))
             tasks.append(_task(f"t{i}", reads))
         durations = {t.name: float(rng.random()) for t in tasks}
+        serial = {t.name for t in tasks if rng.random() < 0.15}
         for cap in (1, 2, 4):
-            assigned = lanes(tasks, durations if trial % 2 else None, cap)
+            assigned = lanes(tasks, durations if trial % 2 else None, cap, serial)
             assert assigned.count <= cap
             _assert_respects(tasks, assigned)
 
@@ -179,19 +215,25 @@ def _happens_before(log):
     return g
 
 
-def _logged_segment(tasks, max_lanes, fail=None):
-    """Run segment ``tasks`` uncaptured on logging streams (``fail``: a task that raises);
-    returns (the log, the streams, the SegmentGraph, the error or None)."""
+def _logged_segment(tasks, max_lanes, fail=None, conditional=()):
+    """Run segment ``tasks`` uncaptured on logging streams, after the first run (one
+    stream, finding the tasks that insert conditional nodes: those in ``conditional``
+    call ``wp.capture_if``); ``fail``: a task that raises in the second run. Returns (the
+    second run's log, the streams, the SegmentGraph, the error or None)."""
     import warp as wp
 
     log, device = [], _Device()
     streams = [_Stream(f"lane{k}", log, device) for k in range(max_lanes)]
     device.stream = streams[0]
+    flag = wp.array([1], dtype=wp.int32, device="cpu")
+    second = []
 
     def run(name):
         def gpu(*values, out=None):
-            if name == fail:
+            if name == fail and second:
                 raise RuntimeError(f"{name} failed")
+            if name in conditional:
+                wp.capture_if(flag, on_true=lambda: None)
             log.append(("task", device.stream, name))
             return out
         return gpu
@@ -206,6 +248,11 @@ def _logged_segment(tasks, max_lanes, fail=None):
     sg = SegmentGraph(seg, [x] * len(seg.inputs), "cpu", None, max_lanes)
     events = {}
     sg._event = lambda kind, i, dev: events.setdefault((kind, i), object())
+    sg._run_tasks(0, streams=streams)  # the first run: one stream
+    assert {e[1] for e in log} == {streams[0]}
+    assert {tasks[i].name for i in sg.lanes.serial} == set(conditional)
+    del log[:]
+    second.append(True)
     log.append(("copy in", streams[0], None))
     error = None
     try:
@@ -217,11 +264,13 @@ def _logged_segment(tasks, max_lanes, fail=None):
     return log, streams, sg, error
 
 
+@pytest.mark.parametrize("conditional", [(), SORTING])
 @pytest.mark.parametrize("max_lanes", [1, 2, 4])
-def test_lanes_fork_wait_and_join_order_every_dependency(max_lanes):
+def test_lanes_fork_wait_and_join_order_every_dependency(max_lanes, conditional):
     """Each task runs on its lane's stream, after the copies in and its producers, and
-    before the copies out (the join): what a capture turns into graph edges."""
-    log, streams, sg, error = _logged_segment(TWO_CAMERAS, max_lanes)
+    before the copies out (the join): what a capture turns into graph edges. A task found
+    inserting a conditional node runs on the first stream with every lane joined."""
+    log, streams, sg, error = _logged_segment(TWO_CAMERAS, max_lanes, conditional=conditional)
     assert error is None
     g = _happens_before(log)
     at = {what: k for k, (kind, _, what) in enumerate(log) if kind == "task"}
@@ -235,6 +284,10 @@ def test_lanes_fork_wait_and_join_order_every_dependency(max_lanes):
         assert nx.has_path(g, 0, k) and nx.has_path(g, k, len(log) - 1)
     used = {s for _, s, _ in log}
     assert used == set(streams[:sg.lanes.count])  # no lane beyond the assignment's
+    for name in conditional:  # after everything enqueued before it, on the first stream
+        k = at[name]
+        assert log[k][1] is streams[0]
+        assert all(nx.has_path(g, j, k) for j in range(k))
 
 
 def test_lanes_join_even_when_a_task_fails():
@@ -243,7 +296,9 @@ def test_lanes_join_even_when_a_task_fails():
     log, streams, sg, error = _logged_segment(TWO_CAMERAS, 4, fail="blurL")
     assert error is not None and "blurL" in str(error)
     g = _happens_before(log)
-    for lane in streams[1:sg.lanes.count]:
+    forked = {s for _, s, _ in log} - {streams[0]}  # lanes forked before the failure
+    assert forked
+    for lane in forked:
         last = max(k for k, (_, s, _) in enumerate(log) if s is lane)
         assert nx.has_path(g, last, len(log) - 1), lane.name
 
@@ -295,6 +350,9 @@ def test_two_cameras_with_lanes_equal_one_lane_and_eager(frames, warp_backend):
             assert sg.lanes.count == max_lanes
             of = {t.name: lane for t, lane in zip(tasks, sg.lanes.of)}
             assert max_lanes == 1 or of["grayL"] != of["grayR"]
+            # Harris's selection loops in conditional nodes: found, and run with every lane
+            # joined (FAST's sort too where its capacity passes SMALL, as at 720p).
+            assert {"harrisL", "harrisR"} <= {tasks[i].name for i in sg.lanes.serial}
         finally:
             g.close()
     for lanes_run in (1, MAX_LANES):

@@ -36,10 +36,14 @@ dependencies (:func:`lanes`: list scheduling over the scheduled durations), fork
 executor's stream after the copies in and joined back before the copies out; a task waits
 (a device event) for its producers on other lanes. CUDA stream capture follows those events,
 so the graph holds the segment's true dependencies and independent branches (two cameras,
-a detector beside the features) run concurrently; uncaptured runs of a segment's buffer sets
-take the same lanes, so the primitives' per-stream scratch (:func:`~warpvx.kernels_warp.
-_launch.workspace`) exists before the capture and is never shared by concurrent tasks. On
-Warp's CPU device every lane is the one stream.
+a detector beside the features) run concurrently. A task that inserts a conditional node
+(``wp.capture_if``/``capture_while``: Harris's selection rounds, FAST's counted sort) runs
+with every lane joined, as Warp pauses the capture there; the first run of a segment's
+:class:`SegmentGraph` runs on the one stream and finds those tasks. Later uncaptured runs
+take the lanes, so the primitives' per-stream scratch (:func:`~warpvx.kernels_warp._launch.
+workspace`) exists before the capture and is never shared by concurrent tasks (on CUDA a
+one-set segment is captured on its third sighting, not its second). On Warp's CPU device
+every lane is the one stream.
 
 Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
 code runs there when asked (``capture=True``), which is how it is tested without a GPU.
@@ -55,7 +59,9 @@ Warp's CPU device a capture is process-wide, hence opt-in there.
 from __future__ import annotations
 
 import logging
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -176,8 +182,14 @@ def signature(inputs) -> tuple:
 
 @dataclass(frozen=True)
 class Lanes:
-    """Where a segment's tasks run: lane 0 is the executor's stream, the others are forked
-    from it and joined back.
+    """Where and in which order a segment's tasks are enqueued: lane 0 is the executor's
+    stream, the others are forked from it and joined back.
+
+    A *serial* task (one that inserts a conditional graph node: ``wp.capture_if``,
+    ``wp.capture_while``) runs on lane 0 with every lane joined before it, as Warp pauses
+    the capture there (``cudaStreamEndCapture``, refused while a forked stream has unjoined
+    work); the lanes fork again after it. Serial tasks and what depends on them are
+    enqueued after the others, so that one such barrier serves them all.
 
     Attributes
     ----------
@@ -185,14 +197,21 @@ class Lanes:
         The lane of each task (segment order).
     waits : tuple of tuple of int
         For each task, the tasks on other lanes (indices) whose events its lane waits for
-        before it: its producers, less those an earlier wait of its lane already covers.
+        before it: its producers since the last serial task, less those an earlier wait of
+        its lane already covers (a fork covers everything before it).
     count : int
         Lanes used.
+    order : tuple of int
+        The tasks (indices) in the order they are enqueued: a dependency order.
+    serial : frozenset of int
+        The serial tasks (indices).
     """
 
     of: tuple
     waits: tuple
     count: int
+    order: tuple
+    serial: frozenset = frozenset()
 
     @property
     def signals(self) -> frozenset:
@@ -200,12 +219,14 @@ class Lanes:
         return frozenset(p for w in self.waits for p in w)
 
 
-def lanes(tasks, durations=None, max_lanes: int = MAX_LANES) -> Lanes:
+def lanes(tasks, durations=None, max_lanes: int = MAX_LANES, serial=()) -> Lanes:
     """Assign a segment's ``tasks`` (an :class:`ExecTask` sequence in a dependency order) to
     at most ``max_lanes`` streams by list scheduling: each task, in order, goes to the lane
     where it could start first (its lane free and its producers in the segment finished,
     estimated from ``durations``: task name -> seconds, 1 each when None), a lane whose last
     task is one of its producers first on ties (no event), then an open lane before a new one.
+    Tasks named in ``serial`` run on lane 0 after everything enqueued before them
+    (:class:`Lanes`).
 
     Only this frame's reads (offset 0) of values made inside the segment are dependencies: a
     delayed read of its own output reads the other buffer set, written a replay earlier.
@@ -216,33 +237,81 @@ def lanes(tasks, durations=None, max_lanes: int = MAX_LANES) -> Lanes:
         ``max_lanes`` is not an integer, or is < 1.
     """
     max_lanes = check_int(max_lanes, "max_lanes", min_value=1)
-    made, of, waits, finish = {}, [], [], []
+    made, prods = {}, []
+    for task in tasks:
+        prods.append({made[r.key] for r in task.inputs if r.offset == 0 and r.key in made})
+        made.update((k, len(prods) - 1) for k in task.outputs)
+    barriers = frozenset(i for i, t in enumerate(tasks) if t.name in serial)
+    after = set()  # serial tasks and what depends on them: enqueued last
+    for i, ps in enumerate(prods):
+        if i in barriers or ps & after:
+            after.add(i)
+    order = [i for i in range(len(tasks)) if i not in after] + sorted(after)
+    of, waits, finish, epoch = [0] * len(tasks), [()] * len(tasks), [0.0] * len(tasks), {}
     free, tail, covered = [], [], []  # per lane: estimated end, last task, waited per lane
-    for i, task in enumerate(tasks):
-        prods = sorted({made[r.key] for r in task.inputs if r.offset == 0 and r.key in made})
-        ready = max((finish[p] for p in prods), default=0.0)
-        options = [(max(end, ready), last not in prods, 0, k)
+    start0, count, e = 0.0, 1, 0  # where this epoch (since the last serial task) starts
+    for i in order:
+        d = float(durations.get(tasks[i].name, 1.0)) if durations else 1.0
+        if i in barriers:  # every lane joined, then it alone on lane 0, then a new fork
+            finish[i] = start0 = max([start0, *free]) + d
+            epoch[i], e = e, e + 1
+            free, tail, covered = [], [], []
+            continue
+        inner = sorted(p for p in prods[i] if epoch[p] == e)  # earlier ones: the fork's
+        ready = max([start0, *(finish[p] for p in inner)])
+        options = [(max(end, ready), last not in inner, 0, k)
                    for k, (end, last) in enumerate(zip(free, tail))]
         if len(free) < max_lanes:
             options.append((ready, True, 1, len(free)))
         start, _, new, lane = min(options)
         if new:
-            free.append(0.0)
+            free.append(start0)
             tail.append(-1)
             covered.append({})
         latest = {}  # other lane -> its latest producer of this task
-        for p in prods:
+        for p in inner:
             if of[p] != lane:
                 latest[of[p]] = max(p, latest.get(of[p], -1))
         wait = tuple(sorted(p for m, p in latest.items() if covered[lane].get(m, -1) < p))
         covered[lane].update((of[p], p) for p in wait)
-        d = float(durations.get(task.name, 1.0)) if durations else 1.0
-        finish.append(start + d)
+        finish[i] = start + d
         free[lane], tail[lane] = finish[i], i
-        of.append(lane)
-        waits.append(wait)
-        made.update((k, i) for k in task.outputs)
-    return Lanes(tuple(of), tuple(waits), len(free))
+        of[i], waits[i], epoch[i] = lane, wait, e
+        count = max(count, len(free))
+    return Lanes(tuple(of), tuple(waits), count, tuple(order), barriers)
+
+
+#: Warp's functions that insert a conditional graph node (pausing a capture).
+_CONDITIONALS = ("capture_if", "capture_while")
+_noted = threading.local()
+_noting_lock = threading.Lock()
+
+
+@contextmanager
+def _noting_conditionals():
+    """Count this thread's calls of Warp's conditional-node functions in the block
+    (``_noted.calls``): they are wrapped for the block (other threads' calls pass through),
+    one block at a time."""
+    wp = warp()
+    with _noting_lock:
+        saved = {name: getattr(wp, name) for name in _CONDITIONALS}
+
+        def noted(fn):
+            def call(*args, **kwargs):
+                if getattr(_noted, "on", False):
+                    _noted.calls += 1
+                return fn(*args, **kwargs)
+            return call
+
+        for name, fn in saved.items():
+            setattr(wp, name, noted(fn))
+        _noted.on, _noted.calls = True, 0
+        try:
+            yield
+        finally:
+            _noted.on = False
+            for name, fn in saved.items():
+                setattr(wp, name, fn)
 
 
 def _workspaces() -> list:
@@ -349,9 +418,9 @@ class SegmentGraph:
                 device=device), v)
         self.sets = [_BufferSet(segment.tasks) for _ in range(2 if segment.swapped else 1)]
         self.last = -1  # the set the last run wrote (the next frame's delayed values)
-        self.lanes = lanes(segment.tasks, durations, max_lanes)
-        self._signals = self.lanes.signals
-        self._events = {}  # (kind, index) -> a wp.Event of the lanes' fork, joins and signals
+        self._lane_args = (durations, check_int(max_lanes, "max_lanes", min_value=1))
+        self.lanes = None  # Lanes, from the first run on (which finds the serial tasks)
+        self._events = {}  # (kind, index) -> a wp.Event of the lanes' forks, joins, signals
         self.scratch = ()
         self._views = {}  # (id of a copy buffer, part) -> a Counted of views of it
 
@@ -416,9 +485,11 @@ class SegmentGraph:
     def _run_tasks(self, s: int, fresh: bool = False, streams=None):
         """Enqueue the tasks, each into its buffers of set ``s`` and on its lane's stream of
         ``streams`` (:attr:`lanes`; None: all on the current stream, as on Warp's CPU
-        device); their results become the set's outputs. Uncaptured (a set's first run) this
-        also builds whatever a primitive makes per set of buffers and stream (workspaces,
-        recorded launches), so nothing allocates inside the capture that follows.
+        device); their results become the set's outputs. Uncaptured this also builds
+        whatever a primitive makes per set of buffers and stream (workspaces, recorded
+        launches), so nothing allocates inside the capture that follows. The first run
+        enqueues every task on the current stream and notes which ones insert conditional
+        graph nodes (the serial tasks of :class:`Lanes`), which fixes :attr:`lanes`.
 
         Raises
         ------
@@ -432,37 +503,76 @@ class SegmentGraph:
         outputs = {}
         fixed = {a.ptr for ref in self.segment.inputs
                  for a in _leaves(self.value(ref, s, outputs, fresh))}
-        forked = streams is not None and self.lanes.count > 1
-        if forked:
-            device = streams[0].device
-            main = device.stream
-            fork = streams[0].record_event(self._event("fork", 0, device))
-            for lane in streams[1:self.lanes.count]:
-                lane.wait_event(fork)
-        try:
-            for i, task in enumerate(self.segment.tasks):
-                if forked:
-                    lane = streams[self.lanes.of[i]]
-                    for p in self.lanes.waits[i]:
-                        lane.wait_event(self._event("done", p, device))
-                    device.set_stream(lane, sync=False)
-                out = b.outs[task.name]
-                mine = {a.ptr for a in _leaves(out)}
-                result = task.gpu(*[self.value(r, s, outputs, fresh) for r in task.inputs],
-                                  out=out)
-                if forked and i in self._signals:
-                    lane.record_event(self._event("done", i, device))
-                if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
-                    raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
-                fixed |= mine
-                outputs.update(_per_output(task, result))
-        finally:
-            if forked:  # joined even on an error: a capture must end with every lane joined
-                device.set_stream(main, sync=False)
-                for k, lane in enumerate(streams[1:self.lanes.count], 1):
-                    streams[0].wait_event(lane.record_event(self._event("join", k, device)))
+        tasks = self.segment.tasks
+
+        def run(task):
+            out = b.outs[task.name]
+            mine = {a.ptr for a in _leaves(out)}
+            result = task.gpu(*[self.value(r, s, outputs, fresh) for r in task.inputs], out=out)
+            if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
+                raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
+            fixed.update(mine)
+            outputs.update(_per_output(task, result))
+
+        if self.lanes is None:
+            serial = set()
+            with _noting_conditionals():
+                for task in tasks:
+                    before = _noted.calls
+                    run(task)
+                    if _noted.calls > before:
+                        serial.add(task.name)
+            self.lanes = lanes(tasks, *self._lane_args, serial=serial)
+            # Its scratch is the one stream's: warm only where the lanes are that stream.
+            warm = warm and (streams is None or self.lanes.count == 1)
+        elif streams is None or self.lanes.count == 1:
+            for i in self.lanes.order:
+                run(tasks[i])
+        else:
+            self._run_on_lanes(run, streams)
         b.outputs = outputs
         b.warm = warm
+
+    def _run_on_lanes(self, run, streams):
+        """``run(task)`` for each task in :attr:`lanes` order, on its lane's stream of
+        ``streams`` (the first, the current one, is the fork's and the join's): a lane waits
+        for the fork when it first runs in an epoch (since the run's start or the last serial
+        task), then for its producers' events on other lanes; the lanes are joined before a
+        serial task and at the end, even on an error (a capture ends only with every lane
+        joined)."""
+        device = streams[0].device
+        main = streams[0]
+        lanes_, signals, active = self.lanes, self.lanes.signals, set()
+        tasks = self.segment.tasks
+
+        def join():
+            for k in sorted(active):
+                main.wait_event(streams[k].record_event(self._event("join", k, device)))
+            active.clear()
+
+        fork = main.record_event(self._event("fork", 0, device))
+        try:
+            for i in lanes_.order:
+                if i in lanes_.serial:
+                    join()
+                    device.set_stream(main, sync=False)
+                    run(tasks[i])
+                    fork = main.record_event(self._event("fork", 0, device))
+                    continue
+                k = lanes_.of[i]
+                lane = streams[k]
+                if k and k not in active:
+                    lane.wait_event(fork)
+                    active.add(k)
+                for p in lanes_.waits[i]:
+                    lane.wait_event(self._event("done", p, device))
+                device.set_stream(lane, sync=False)
+                run(tasks[i])
+                if i in signals:
+                    lane.record_event(self._event("done", i, device))
+        finally:
+            device.set_stream(main, sync=False)
+            join()
 
     def reads_fresh(self, values) -> bool:
         """Whether the next run, given the frame's ``values`` of ``segment.inputs``, reads
@@ -559,7 +669,7 @@ class SegmentRunner:
         """The streams of ``sg``'s lanes, the executor's first (None off CUDA)."""
         if not self.cuda:
             return None
-        extra = sg.lanes.count - 1 - len(self._lane_streams)
+        extra = (sg.lanes.count if sg.lanes else 1) - 1 - len(self._lane_streams)
         if extra > 0:
             wp = warp()
             self._lane_streams += tuple(wp.Stream(self._stream.device) for _ in range(extra))
