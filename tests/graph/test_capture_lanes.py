@@ -20,7 +20,7 @@ import pytest
 from tests.graph.test_capture import _camera_frames, _capture_arg, _same, _two_cameras
 from warpvx.errors import WarpvxTypeError, WarpvxValueError
 from warpvx.runtime import ExecTask, InputRef, Program
-from warpvx.runtime.capture import MAX_LANES, Lanes, SegmentGraph, lanes, segments
+from warpvx.runtime.capture import MAX_LANES, Lanes, NotCapturable, SegmentGraph, lanes, segments
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -360,3 +360,31 @@ def test_two_cameras_with_lanes_equal_one_lane_and_eager(frames, warp_backend):
             assert e.keys() == c.keys()
             for k in e:
                 assert _same(e[k], c[k]), (lanes_run, i, k)
+
+
+def test_capture_refused_on_lanes_falls_back_to_one_lane(frames, monkeypatch):
+    """A capture on several lanes that fails (as Warp may refuse one) is made again on one
+    lane instead of the segment turning eager; outputs equal the eager run's."""
+    real = SegmentGraph.capture
+    refused = []
+
+    def capture(self, device, streams):
+        if self.lanes.count > 1:
+            refused.append(self.lanes.count)
+            raise NotCapturable("refused on lanes (test)")
+        return real(self, device, streams)
+
+    monkeypatch.setattr(SegmentGraph, "capture", capture)
+    cams = _camera_frames(frames) * 3
+    g = _two_cameras(frames, "warp-cpu")
+    try:
+        eager = [g.process(f, capture=False) for f in cams]
+        g.reset()
+        got = [g.process(f, capture=True) for f in cams]
+        sg = _captured_graph(g.plan.executor())
+        assert refused and sg.lanes.count == 1 and all(b.graph is not None for b in sg.sets)
+        for i, (e, c) in enumerate(zip(eager, got)):
+            for k in e:
+                assert _same(e[k], c[k]), (i, k)
+    finally:
+        g.close()

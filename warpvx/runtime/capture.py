@@ -474,6 +474,15 @@ class SegmentGraph:
         b.graph = cap.graph
         self.scratch = _workspaces()
 
+    def single_lane(self) -> bool:
+        """Run on one lane from now on (after a capture on several failed); False if it
+        already does. The first run, on that one stream, made its scratch."""
+        if self.lanes is None or self.lanes.count == 1:
+            return False
+        tasks = self.segment.tasks
+        self.lanes = lanes(tasks, self._lane_args[0], 1, {tasks[i].name for i in self.lanes.serial})
+        return True
+
     def _event(self, kind: str, i: int, device):
         """The lanes' event ``(kind, i)`` on CUDA ``device``, made on first use (reused by
         every run: a wait takes the event's state when it is enqueued)."""
@@ -738,7 +747,14 @@ class SegmentRunner:
         first = not sg.captured
         try:
             with self._capture_lock:
-                sg.capture(self.gpu_device, self._streams(sg))
+                try:
+                    sg.capture(self.gpu_device, self._streams(sg))
+                except NotCapturable as exc:  # lanes refused: one chain, as before lanes
+                    if not sg.single_lane():
+                        raise
+                    _log.debug("segment %s, inputs %s, captured on one lane: %s",
+                               seg.tasks[0].name, key, exc)
+                    sg.capture(self.gpu_device, self._streams(sg))
         except NotCapturable as exc:  # a host sync or read-back inside, a caller's capture
             _log.debug("segment %s, inputs %s, not captured: %s", seg.tasks[0].name, key, exc)
             by_shape[key] = None
