@@ -20,7 +20,8 @@ import pytest
 from tests.graph.test_capture import _camera_frames, _capture_arg, _same, _two_cameras
 from warpvx.errors import WarpvxTypeError, WarpvxValueError
 from warpvx.runtime import ExecTask, InputRef, Program
-from warpvx.runtime.capture import MAX_LANES, Lanes, NotCapturable, SegmentGraph, lanes, segments
+from warpvx.runtime.capture import NotCapturable, SegmentGraph, segments
+from warpvx.runtime.lanes import MAX_LANES, Lanes, lanes
 
 pytestmark = pytest.mark.timeout(300)
 
