@@ -8,12 +8,14 @@ calls (the imperative "model", :func:`stabilize_model`, thesis §2's multi-level
     pyramid[-1], points[-1] (delays) -> pyramidal LK -> [park_lost -> ransac]
     tracked + detections -> refresh_points -> points (delayed to the next frame)
     motion (one host node, :func:`follow_motion`): estimate_motion (H: k-1 -> k),
-      accumulate (trajectory T_k: frame 0 -> frame k, with T over N frames in a delay),
+      cut test, accumulate (trajectory T_k: the shot's first frame -> frame k, T and shot index
+      over N frames in delays),
       smooth, truncate (crop) -> warp_perspective
 
 Conventions: images are BGR uint8 HxWx3; points float32 [N, 2] (x, y), pixel centres at
 integers; matrices float64 3x3 mapping column vectors (x, y, 1). ``H_k`` maps frame k-1 to frame
-k, ``T_k = H_k ... H_1`` maps frame 0 to frame k. The stabilizing warp of frame j is
+k, ``T_k = H_k ... H_1`` maps frame 0 (the first frame of k's shot, after a scene cut) to
+frame k. The stabilizing warp of frame j is
 ``S_j = (sum_i w_i T_i T_j^-1) / sum_i w_i`` (the smoothed path over the actual one, averaged
 element-wise as VisionWorks' matrix smoother does), then scaled about the centre by
 ``1 / (1 - 2 crop)`` and, if it would uncover the border, pulled towards the identity.
@@ -23,7 +25,7 @@ by more than ``cut_threshold`` of the frame diagonal, or sent to or past the lin
 is the jump between two shots, not shake. There the trajectory restarts (``T_k = I``) and
 the segment index (0 for the first shot) steps up; each segment is smoothed on its own, the
 frames of other segments in the window counting as absent, as frames beyond the clip's ends
-do. Without cuts, every output is what it was before this test existed.
+do. A clip without cuts is one segment, smoothed as a whole.
 
 Smoothing windows (``window`` N frames, ``r = N // 2``, Gaussian weights of sigma 0.7 r):
 
@@ -410,9 +412,10 @@ def follow_motion(*inputs, motion_fn, n_motion, config, size):
            and is_cut(motion, size, config.cut_threshold))
     T = accumulate(motion, slots[-1], live, cut)
     segment = segments[-1] + int(cut)
-    n = len(config.weights())
-    transform = smooth_transform(*slots[m + 1 - n:], T, weights=config.weights(), lag=config.lag,
-                                 segments=segments[m + 1 - n:] + [segment])
+    weights = config.weights()
+    first = m + 1 - len(weights)  # the window: the last len(weights) - 1 slots, then frame k
+    transform = smooth_transform(*slots[first:], T, weights=weights, lag=config.lag,
+                                 segments=segments[first:] + [segment])
     return (motion, T, np.array([segment], np.int64), transform,
             truncate_transform(transform, size=size, crop=config.crop))
 

@@ -40,7 +40,7 @@ def save_plot(path, before, after):
         axes[i].set_ylabel(label)
     axes[0].legend()
     axes[-1].set_xlabel("frame")
-    fig.suptitle("camera trajectory (frame 0 -> frame k)")
+    fig.suptitle("camera trajectory (first frame of the shot -> frame k)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
