@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.images import CLIP, clip_frames, gray
+from tests.images import CLIP, bgr, clip_frames, gray
 from warpvx import cli
 from warpvx.apps import stabilize as st
 from warpvx.apps import stabilize_device as sd
@@ -46,6 +46,20 @@ def test_device_engine_gives_the_graph_frames(warp_backend, mode, window, n):
     cfg = st.StabilizerConfig(window=window, mode=mode)
     graph = list(st.stabilize(frames, cfg, backend=warp_backend, engine="graph"))
     device = list(st.stabilize(frames, cfg, backend=warp_backend, engine="device"))
+    _assert_same_frames(graph, device, warp_backend)
+
+
+@pytest.mark.parametrize("mode, window", [("centered", 15), ("causal", 7)])
+def test_device_engine_gives_the_graph_frames_across_a_scene_cut(warp_backend, mode, window):
+    """Street frames then a shaken real photo: both engines restart the path at the cut."""
+    from warpvx.apps import stabilize_metrics as sm
+
+    photo, _, _ = sm.shaky_clip(bgr("astronaut"), 12, (320, 136), seed=1)
+    frames = clip_frames(12) + photo
+    cfg = st.StabilizerConfig(window=window, mode=mode)
+    graph = list(st.stabilize(frames, cfg, backend=warp_backend, engine="graph"))
+    device = list(st.stabilize(frames, cfg, backend=warp_backend, engine="device"))
+    assert [o.segment for o in device] == [o.segment for o in graph] == [0] * 12 + [1] * 12
     _assert_same_frames(graph, device, warp_backend)
 
 

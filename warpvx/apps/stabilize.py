@@ -407,7 +407,7 @@ def follow_motion(*inputs, motion_fn, n_motion, config, size):
     motion = motion_fn(*inputs[:n_motion])
     live, slots = inputs[n_motion], inputs[n_motion + 1:]
     m = len(slots) // 2
-    slots, segments = slots[:m], [int(np.asarray(s).reshape(-1)[0]) for s in slots[m:]]
+    slots, segments = slots[:m], [int(s[0]) for s in slots[m:]]
     cut = (bool(np.asarray(live).reshape(-1)[0]) and np.isfinite(slots[-1]).all()
            and is_cut(motion, size, config.cut_threshold))
     T = accumulate(motion, slots[-1], live, cut)
