@@ -4,8 +4,10 @@ Usage (from the repository root, CPU only, about two minutes on 2 cores):
 
     PYTHONPATH=. python benchmarks/stabilize_quality.py --out benchmarks/results/stabilize
 
-Clips: the bundled real hand-held clip (``warpvx/data/bikes_shaky.mp4``, 46 frames 640x272)
-and known-jitter clips: a random similarity shake per frame (``shaky_clip``: +-4 px, +-1 deg,
+Clips: the bundled real hand-held clip (``warpvx/data/bikes_shaky.mp4``, 46 frames 640x272),
+the first ``--montage-frames`` frames of ``bikes.mp4`` (its 6-shot montage, scene cuts at 30, 76
+and 137; from ``../shared/data/real/`` when present; also run with cut detection off) and
+known-jitter clips: a random similarity shake per frame (``shaky_clip``: +-4 px, +-1 deg,
 +-1% zoom) applied to real static photos (the bundled astronaut; ``leuvenA.jpg`` from
 ``../shared/data/real/`` when present). Methods: the input; ``vidstab`` (PyPI, MIT licence;
 skipped with the reason when it does not import) with the same smoothing window and black
@@ -36,9 +38,19 @@ import cv2
 from warpvx.apps import stabilize as st
 from warpvx.apps import stabilize_metrics as sm
 
-# ../shared/data/real/ beside the checkout (or beside the folder of git worktrees).
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-LEUVEN = [os.path.join(ROOT, *up, "shared", "data", "real", "leuvenA.jpg") for up in ([".."], ["..", ".."])]
+
+
+def shared_file(name):
+    """The path of ``name`` in ../shared/data/real/ beside the checkout (or beside the folder
+    of git worktrees), or None."""
+    for up in ([".."], ["..", ".."]):
+        path = os.path.join(ROOT, *up, "shared", "data", "real", name)
+        if os.path.exists(path):
+            return path
+    return None
+
+MONTAGE = "bikes.mp4 montage (real, scene cuts)"
 COLUMNS = ("mad10", "mad10_in", "mad100", "mad100_in", "itf", "stability", "cropping_ratio", "distortion",
            "shake")
 
@@ -55,14 +67,16 @@ def write_lossless(path, frames, fps=25.0):
     w.release()
 
 
-def clips(n_jitter):
+def clips(n_jitter, n_montage):
     """(name, frames, reference image or None) of every clip."""
     out = [("bikes_shaky (real)", read_video(str(files("warpvx") / "data" / "bikes_shaky.mp4")), None)]
+    montage = shared_file("bikes.mp4")
+    if montage is not None:
+        out.append((MONTAGE, read_video(montage, n_montage), None))
     photos = [("astronaut", cv2.imread(str(files("warpvx") / "data" / "astronaut_448.png")), (320, 240))]
-    for path in LEUVEN:
-        if os.path.exists(path):
-            photos.append(("leuvenA", cv2.imread(path), (640, 480)))
-            break
+    leuven = shared_file("leuvenA.jpg")
+    if leuven is not None:
+        photos.append(("leuvenA", cv2.imread(leuven), (640, 480)))
     for name, image, size in photos:
         frames, ref, _ = sm.shaky_clip(image, n_jitter, size, shift=4.0, angle=1.0, zoom=0.01, seed=0)
         out.append((f"{name} + known jitter", frames, ref))
@@ -108,6 +122,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=os.environ.get("OUT"), help="results folder (default $OUT)")
     parser.add_argument("--frames", type=int, default=60, help="frames of each known-jitter clip")
+    parser.add_argument("--montage-frames", type=int, default=150,
+                        help="frames of bikes.mp4's montage (cuts at 30, 76, 137)")
     parser.add_argument("--window", type=int, default=st.StabilizerConfig().window)
     args = parser.parse_args(argv)
     if not args.out:
@@ -115,7 +131,7 @@ def main(argv=None):
     os.makedirs(args.out, exist_ok=True)
     vidstab, why = vidstab_runner(args.window)
     results = []
-    for clip, frames, ref in clips(args.frames):
+    for clip, frames, ref in clips(args.frames, args.montage_frames):
         print(f"{clip}: {len(frames)} frames {frames[0].shape[1]}x{frames[0].shape[0]}", flush=True)
         inp = sm.evaluate(frames, frames)["input"]
         inp.update(mad10_in=inp["mad10"], mad100_in=inp["mad100"], cropping_ratio=1.0, distortion=1.0,
@@ -130,6 +146,10 @@ def main(argv=None):
             for backend in ("cpu", "warp-cpu"):
                 runs.append((f"warpvx {backend} ({motion})",
                              lambda f, c=cfg, b=backend: _unpack(st.stabilize(f, c, backend=b))))
+        if clip == MONTAGE:  # what the scene cut detection is worth
+            cfg = st.StabilizerConfig(window=args.window, cut_threshold=None)
+            runs.append(("warpvx cpu (homography, cuts not detected)",
+                         lambda f, c=cfg: _unpack(st.stabilize(f, c, backend="cpu"))))
         for method, fn in runs:
             t = time.perf_counter()
             out, warps = fn(frames)

@@ -19,6 +19,8 @@ valid region (the borders a warp uncovers).
 * :func:`shake_rms` -- with a known static scene: the high-passed RMS displacement (px) of a grid
   of points between each frame and the reference image; run on the shaken input (the applied
   shake) and on the output (the residual shake). :func:`shaky_clip` makes such clips.
+* :func:`evaluate_shots` -- ITF and stability per shot of a clip with scene cuts (the clip-wide
+  ones chain motion across the cuts).
 """
 
 from __future__ import annotations
@@ -227,5 +229,24 @@ def evaluate(inputs, outputs, homographies=None):
     return report
 
 
+def evaluate_shots(inputs, outputs, cuts):
+    """ITF (dB) and stability of each shot of a clip with scene cuts, input and output: a list
+    of ``{"frames": [first, last], "input": {...}, "output": {...}}`` (JSON-ready).
+
+    ``cuts``: the frames starting a new shot, ascending (``scene_cuts``). The clip-wide
+    figures of :func:`evaluate` chain motion across the cuts, where it means nothing; these
+    do not. A shot of under 3 frames has no stability (NaN).
+    """
+    edges = [0, *cuts, len(inputs)]
+    shots = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        shot = {"frames": [a, b - 1]}
+        for key, frames in (("input", inputs[a:b]), ("output", outputs[a:b])):
+            shot[key] = {"itf": itf(frames),
+                         "stability": stability_score(frames) if b - a >= 3 else float("nan")}
+        shots.append(shot)
+    return shots
+
+
 __all__ = ["PSNR_MAX", "track_points", "mad", "itf", "similarity", "stability_score",
-           "cropping_distortion", "shake_rms", "shaky_clip", "evaluate"]
+           "cropping_distortion", "shake_rms", "shaky_clip", "evaluate", "evaluate_shots"]
