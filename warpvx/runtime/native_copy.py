@@ -114,21 +114,26 @@ def to_host(a, stream=None, *, native: bool = True) -> np.ndarray:
 
 
 def to_host_async(dst, a, stream=None, *, native: bool = True):
-    """Queue a copy of contiguous ``wp.array`` ``a`` into ``dst``, a host ``wp.array`` of the
-    same size and dtype (pinned, for the copy to be asynchronous), on ``stream`` (a
-    ``wp.Stream``; CUDA), without waiting for it: the caller records an event after it. On
-    Warp's CPU device the copy is done on return. ``native=False`` takes ``wp.copy``."""
+    """Queue a copy of contiguous ``wp.array`` ``a`` into ``dst``, host memory of the same
+    size and dtype (a host ``wp.array`` or a NumPy array; pinned, for the copy to be
+    asynchronous), on ``stream`` (a ``wp.Stream``; CUDA), without waiting for it: the caller
+    records an event after it. On Warp's CPU device the copy is done on return.
+    ``native=False`` takes ``wp.copy``."""
+    host = isinstance(dst, np.ndarray)
     fast = _fast(native, a)
     if fast is None:
-        warp().copy(dst, a, stream=stream if a.device.is_cuda else None)
+        wp = warp()
+        if host:
+            dst = wp.array(ptr=dst.ctypes.data, shape=dst.shape, dtype=a.dtype, device="cpu")
+        wp.copy(dst, a, stream=stream if a.device.is_cuda else None)
         return
-    n = dst.capacity
+    ptr, n = (dst.ctypes.data, dst.nbytes) if host else (dst.ptr, dst.capacity)
     if not n:
         return
     if a.device.is_cuda:
-        ok = fast.d2h(a.device.context, dst.ptr, a.ptr, n, stream.cuda_stream)
+        ok = fast.d2h(a.device.context, ptr, a.ptr, n, stream.cuda_stream)
     else:
-        ok = fast.h2h(dst.ptr, a.ptr, n)
+        ok = fast.h2h(ptr, a.ptr, n)
     if not ok:
         raise RuntimeError(f"download of {n} bytes failed")
 

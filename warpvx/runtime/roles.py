@@ -141,7 +141,7 @@ class RoleRunner:
                 units = list(enumerate(self._segments))
                 refs = [seg.inputs if seg.captured else seg.tasks[0].inputs for seg in self._segments]
                 roles[p] = Role(p, units, refs, [short(seg.tasks) for seg in self._segments],
-                                GpuState(p, Transfers(self.gpu_device)))
+                                GpuState(p, Transfers(self.gpu_device, self._host_pool)))
             else:
                 units = self.queues[p]
                 roles[p] = Role(p, units, [t.inputs for t in units], [short([t]) for t in units],
@@ -160,14 +160,14 @@ class RoleRunner:
         return roles
 
     def _staged_keys(self) -> set:
-        """Keys whose download starts as soon as the GPU role publishes them (CUDA): read by
-        a CPU task of the same frame, and by no delay (a staging buffer is reused once read,
-        or once its frame is over)."""
-        if not self.cuda:
+        """Keys whose download starts as soon as the GPU role publishes them (with a host
+        pool): read by a CPU task of the same frame or by the caller (a graph output), and
+        by no delay (a later frame may read a delay's value after its frame)."""
+        if self._host_pool is None:
             return set()
-        cpu_reads = {r.key for p in self._active if not is_gpu_processor(p)
-                     for t in self.queues[p] for r in t.inputs if r.offset == 0}
-        return cpu_reads - set(self.program.rings)
+        reads = {r.key for p in self._active if not is_gpu_processor(p)
+                 for t in self.queues[p] for r in t.inputs if r.offset == 0}
+        return (reads | set(self.program.outputs.values())) - set(self.program.rings)
 
     def _role_loop(self, proc: str):
         home = self._roles[proc]

@@ -13,6 +13,7 @@ import numpy as np
 from .._counted import download, map_counted
 from .native_copy import (is_warp_array, numpy_dtype, record_event, synchronize_event, to_device,
                           to_host, to_host_async, wait_event, warp)
+from .pinned import HostPool
 
 
 def tree_map(fn, obj):
@@ -38,17 +39,48 @@ def tree_map(fn, obj):
     return obj
 
 
-class _Staging:
-    """A pinned host buffer of one shape and dtype and the event of its last copy; for
-    downloads also whether its reader is done with it (``free``)."""
+def host_value(value, fetch):
+    """The host value of device value ``value`` (a tree, see :func:`tree_map`) made from
+    ``fetch(a)``, a host copy (NumPy) of each device array ``a`` it is built from: a
+    :class:`~warpvx._counted.Counted` with a block from one copy of its whole block, any
+    other Counted cut to its count on the host (its flatten protocol)."""
+    if is_warp_array(value):
+        return fetch(value)
+    value = map_counted(lambda c: c.block.host_value(fetch(c.block.array))
+                        if c.block is not None and is_warp_array(c.count) else c, value)
+    return tree_map(lambda a: fetch(a) if is_warp_array(a) else a, value)
 
-    __slots__ = ("buffer", "view", "event", "free")
 
-    def __init__(self, buffer, event):
+class _UploadStage:
+    """A pinned host buffer of one shape and dtype an upload goes through, and the event of
+    its last copy (None: never used)."""
+
+    __slots__ = ("buffer", "view", "event")
+
+    def __init__(self, buffer):
         self.buffer = buffer
         self.view = buffer.numpy()  # aliases the pinned memory
-        self.event = event
-        self.free = True
+        self.event = None
+
+
+class _Unstageable(Exception):
+    """A leaf :meth:`Transfers.stage_download` cannot copy asynchronously, or no pool room."""
+
+
+class _Staged:
+    """A download under way (:meth:`Transfers.stage_download`): the device value, the host
+    arrays its device arrays are being copied into (id of the device array -> (it, its host
+    copy)), the event after the copies (None on Warp's CPU device: done) and their bytes."""
+
+    __slots__ = ("value", "copies", "event", "nbytes")
+
+    def __init__(self, value, copies: dict, event, nbytes: int):
+        self.value, self.copies, self.event, self.nbytes = value, copies, event, nbytes
+
+    def host(self):
+        """The host value, its arrays views of the pool's buffers (call after the copy)."""
+        copies = self.copies
+        return host_value(self.value, lambda a: copies[id(a)][1])
 
 
 class Transfers:
@@ -57,7 +89,10 @@ class Transfers:
     On CUDA each thread that downloads owns a ``wp.Stream``: a download makes that stream wait
     for the producer's event, copies, and synchronises only that stream, so it never touches
     the device's current stream (which belongs to the GPU thread) and never waits for
-    unrelated kernels. Uploads run on the device's current stream (the GPU thread's), so
+    unrelated kernels. A download can also be started as soon as its producer is enqueued
+    (:meth:`stage_download`): queued on that copy stream into pinned buffers of a
+    :class:`~.pinned.HostPool`, which the reader gets as NumPy arrays without a host copy.
+    Uploads run on the device's current stream (the GPU thread's), so
     the device buffer is filled in that stream's order. An upload of
     :attr:`PINNED_MIN_BYTES` or more goes through a pinned staging buffer (one per shape and
     dtype, a few in rotation, reused once their copy has completed): the host copies into it
@@ -68,27 +103,35 @@ class Transfers:
 
     Uploads take the device buffer from ``into`` when given (the executor's per-edge pools:
     allocating a ``wp.array`` costs ~10 us of Python, more than a small copy); downloads make
-    fresh NumPy arrays.
+    fresh NumPy arrays, or views of the pool's buffers (staged).
 
     Parameters
     ----------
     device : str or None
         Warp device of the GPU role (``"cuda:N"``, ``"cpu"``), or None (no GPU role: only
         host values, which pass through).
+    pool : HostPool, optional
+        Host buffers for :meth:`stage_download` (None: downloads are never staged).
     """
 
     #: Uploads from this size (bytes) on use pinned staging buffers.
     PINNED_MIN_BYTES = 1 << 16
     #: Staging buffers per shape and dtype before an upload waits for the oldest one.
     STAGING_DEPTH = 4
+    #: Events of staged downloads, recorded in turn: one is recorded again this many staged
+    #: downloads later, by when its copy is long done (a reader waiting on it then would
+    #: wait for the later copy of the same stream: never too early).
+    STAGED_EVENTS = 64
 
-    def __init__(self, device: str | None):
+    def __init__(self, device: str | None, pool: HostPool | None = None):
         self.device = device
         self.cuda = bool(device) and device.startswith("cuda")
+        self.pool = pool
         self._stream = None
         self._dev = None
         self._staging: dict = {}
-        self._unstaging: dict = {}  # (shape, dtype) -> pinned download buffers
+        self._events: list = []  # staged downloads' events (CUDA), made with the stream
+        self._next_event = 0
         self._wp_dtypes: dict = {}  # NumPy dtype -> Warp dtype, looked up once
         self.moved = 0  # bytes copied so far, both ways
 
@@ -96,7 +139,9 @@ class Transfers:
     def stream(self):
         """This thread's copy stream (CUDA; None otherwise)."""
         if self._stream is None and self.cuda:
-            self._stream = warp().Stream(self.device)
+            wp = warp()
+            self._stream = wp.Stream(self.device)
+            self._events = [wp.Event(self.device) for _ in range(self.STAGED_EVENTS)]
         return self._stream
 
     def download(self, value, event=None):
@@ -132,42 +177,59 @@ class Transfers:
         self.moved += out.nbytes
         return out
 
-    def stage_download(self, a, event=None):
-        """Start downloading ``a``, a contiguous CUDA ``wp.array`` of a scalar dtype, into a
-        pinned host buffer on this thread's copy stream, after ``event`` (the producer's):
-        the reader then waits for one event, the copy's, and copies out of the buffer
-        (:meth:`unstage`), instead of waiting for the producer, then copying and waiting
-        again. Returns the staging buffer, or None (another kind of value, or every buffer of
-        that shape still in use: download as usual). The caller sets its ``free`` once no
-        reader can take it any more."""
-        if not (self.cuda and is_warp_array(a) and a.device.is_cuda and a.is_contiguous
-                and numpy_dtype(a.dtype) is not None):
-            return None
-        wp = warp()
-        ring = self._unstaging.setdefault((a.shape, a.dtype), [])
-        stage = next((s for s in ring if s.free and s.event.is_complete), None)
-        if stage is None:
-            if len(ring) >= self.STAGING_DEPTH * 2:  # readers hold them all
-                return None
-            stage = _Staging(wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True),
-                             wp.Event(self.device))
-            ring.append(stage)
-        stream = self.stream
-        if event is not None:
-            wait_event(stream, event)
-        to_host_async(stage.buffer, a, stream)
-        record_event(stream, stage.event)
-        stage.free = False
-        return stage
+    def stage_download(self, value, event=None):
+        """Start downloading device value ``value`` (any tree of contiguous scalar-dtype
+        arrays) into buffers of :attr:`pool`, after ``event`` (the producer's), on this
+        thread's copy stream: the compute stream goes on meanwhile, and the reader waits for
+        the copy's event only (:meth:`unstage`). Returns the download, or None (no pool, no
+        device array, a leaf of another kind, or the pool full: download as usual).
 
-    def unstage(self, stage, *, ready: bool = False):
-        """A fresh host array with what :meth:`stage_download` copied into ``stage`` (waiting
-        for that copy unless ``ready``: the caller did)."""
-        if not ready:
-            synchronize_event(stage.event)
-        out = stage.view.copy()
-        self.moved += out.nbytes
-        return out
+        Every staged copy goes on this one stream (see :class:`~.pinned.HostPool`)."""
+        pool = self.pool
+        if pool is None:
+            return None
+        copies: dict = {}
+
+        def take(a):
+            got = copies.get(id(a))
+            if got is None:
+                dtype = numpy_dtype(a.dtype)
+                if dtype is None or not a.is_contiguous:
+                    raise _Unstageable
+                host = pool.take(a.shape, dtype)
+                if host is None:
+                    raise _Unstageable
+                got = copies[id(a)] = (a, host)
+            return got[1]
+
+        try:
+            # Builds a throw-away value from the (unfilled) buffers: the walk that lists the
+            # arrays to copy is the one that builds the value once they are copied.
+            host_value(value, take)
+        except _Unstageable:
+            return None  # the buffers taken are garbage: back to the pool
+        if not copies:
+            return None
+        stream = self.stream
+        if stream is not None and event is not None:
+            wait_event(stream, event)
+        for a, host in copies.values():
+            to_host_async(host, a, stream)
+        done = None
+        if stream is not None:
+            done = self._events[self._next_event]
+            self._next_event = (self._next_event + 1) % len(self._events)
+            record_event(stream, done)
+        return _Staged(value, copies, done, sum(h.nbytes for _, h in copies.values()))
+
+    def unstage(self, staged, *, ready: bool = False):
+        """The host value of download ``staged`` (:meth:`stage_download`), waiting for its copy
+        unless ``ready`` (the caller did). Its arrays are views of the pool's buffers, which
+        go back to the pool once they (and every view of them) are garbage: no copy."""
+        if not ready and staged.event is not None:
+            synchronize_event(staged.event)
+        self.moved += staged.nbytes
+        return staged.host()
 
     def upload(self, value, into=None):
         """``value`` with every host array copied to the device (on its current stream).
@@ -229,7 +291,7 @@ class Transfers:
                 break
         if stage is None:
             if len(ring) < self.STAGING_DEPTH:
-                stage = _Staging(wp.empty(a.shape, dtype=dst.dtype, device="cpu", pinned=True), None)
+                stage = _UploadStage(wp.empty(a.shape, dtype=dst.dtype, device="cpu", pinned=True))
                 ring.append(stage)
             else:  # all in flight: wait for the oldest (the first recorded)
                 stage = ring.pop(0)
@@ -242,4 +304,4 @@ class Transfers:
         stream.record_event(stage.event)
 
 
-__all__ = ["Transfers", "tree_map"]
+__all__ = ["Transfers", "host_value", "tree_map"]
