@@ -53,7 +53,9 @@ class HostPool:
         self.pinned = bool(pinned)
         self.allocated = 0  # bytes, free and lent
         self._free: dict[int, list] = {}  # nbytes -> free buffers (host wp.arrays of uint8)
-        self._lock = threading.Lock()
+        # Reentrant: a finalizer (_give_back) may run inside a locked region, on a garbage
+        # collection triggered by an allocation there.
+        self._lock = threading.RLock()
         self._closed = False
 
     def take(self, shape: tuple, dtype) -> np.ndarray | None:
@@ -73,7 +75,7 @@ class HostPool:
         if buf is None:
             buf = warp().empty(max(nbytes, 1), dtype=warp().uint8, device="cpu", pinned=self.pinned)
         lease = _Lease(buf.ptr, tuple(shape), dtype)
-        weakref.finalize(lease, self._give_back, buf, nbytes)
+        weakref.finalize(lease, self._give_back, buf, nbytes).atexit = False  # Warp may be gone
         return np.asarray(lease)
 
     def _give_back(self, buf, nbytes: int):
