@@ -127,6 +127,29 @@ def test_a_slot_reads_its_staged_download_as_views_of_the_pool():
     assert Transfers("cpu").stage_download(c) is None  # no pool
 
 
+def test_a_large_counted_block_stages_its_count_and_copies_only_its_counted_rows():
+    """A Counted whose block is past ONE_COPY_MAX_BYTES (FAST's keypoints) stages its count
+    and copies the rows it counts when read (not the whole capacity), the same value as the
+    synchronous download."""
+    from warpvx._counted import ONE_COPY_MAX_BYTES, Block
+
+    wp = init_warp()
+    cap = ONE_COPY_MAX_BYTES // 8 + 100
+    rows = np.random.default_rng(4).standard_normal((cap, 2)).astype(np.float32)
+    (c,) = Block.layout([rows], cap, "cpu")
+    c.rows.assign(rows)
+    c.count.assign(np.int32([7]))
+    assert c.block.array.shape[0] > ONE_COPY_MAX_BYTES
+    pool = HostPool(1 << 22, pinned=False)
+    io = Transfers("cpu", pool)
+    staged = io.stage_download(c)
+    assert staged.nbytes == 4 and pool.lent() == 4  # the count only
+    got = io.unstage(staged)
+    np.testing.assert_array_equal(got, rows[:7])
+    np.testing.assert_array_equal(got, Transfers("cpu").download(c))
+    assert pool.lent() == 4 + got.nbytes and io.moved == 4 + got.nbytes
+
+
 @pytest.mark.parametrize("capture", [False, True], ids=["eager", "captured"])
 def test_staged_stream_gives_the_unstaged_outputs(capture, monkeypatch):
     cams = _cams(16)

@@ -346,7 +346,7 @@ class Executor(RoleRunner, SegmentRunner):
     def _io(self) -> Transfers:
         io = getattr(self._local, "io", None)
         if io is None:
-            io = self._local.io = Transfers(self.gpu_device)
+            io = self._local.io = Transfers(self.gpu_device, self._host_pool)
         return io
 
     def _start(self):

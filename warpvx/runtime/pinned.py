@@ -34,10 +34,10 @@ class HostPool:
     Warp's CPU device), at most ``cap`` bytes allocated at a time, free or lent.
 
     :meth:`take` lends a buffer as a NumPy array; when the array and all its views are
-    garbage the buffer returns to the pool (reused for a download of the same size). A
-    buffer given back before the copy into it completed is safe to lend again as long as
-    every copy into the pool's buffers is queued on one stream (the later copy runs after
-    the earlier one): :class:`~.transfers.Transfers` stages on its own copy stream.
+    garbage the buffer returns to the pool (reused for a download of the same size). The
+    borrower lets its arrays go only once no copy into them may still run (a reader has
+    waited for the copy; :meth:`~.slots.Slot.release_staged` waits for a download nobody
+    read).
 
     Parameters
     ----------

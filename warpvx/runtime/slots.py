@@ -7,6 +7,8 @@ from __future__ import annotations
 import threading
 from typing import TYPE_CHECKING
 
+from .native_copy import synchronize_event
+
 if TYPE_CHECKING:
     from .transfers import Transfers
 
@@ -118,9 +120,13 @@ class Slot:
 
     def release_staged(self):
         """Drop the staged download not read (the frame is over): its buffers go back to the
-        pool (a buffer whose copy is still running is only ever lent to a later copy of the
-        same stream)."""
-        self.staged = None
+        pool once its copy is done (waited for here: a buffer is never lent again while a
+        copy into it may run)."""
+        staged = self.staged
+        if staged is not None:
+            self.staged = None
+            if staged.event is not None:
+                synchronize_event(staged.event)
 
     def ready_event(self):
         """The CUDA event after which :meth:`host` copies without waiting: the staged

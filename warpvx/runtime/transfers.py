@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._counted import download, map_counted
-from .native_copy import (is_warp_array, numpy_dtype, record_event, synchronize_event, to_device,
-                          to_host, to_host_async, wait_event, warp)
+from .._counted import ONE_COPY_MAX_BYTES, Counted, download, map_counted
+from .native_copy import (bytes_to_host_async, is_warp_array, numpy_dtype, record_event,
+                          synchronize_event, synchronize_stream, to_device, to_host,
+                          to_host_async, wait_event, warp)
 from .pinned import HostPool
 
 
@@ -39,15 +40,24 @@ def tree_map(fn, obj):
     return obj
 
 
-def host_value(value, fetch):
+def host_value(value, fetch, large=None):
     """The host value of device value ``value`` (a tree, see :func:`tree_map`) made from
     ``fetch(a)``, a host copy (NumPy) of each device array ``a`` it is built from: a
-    :class:`~warpvx._counted.Counted` with a block from one copy of its whole block, any
-    other Counted cut to its count on the host (its flatten protocol)."""
+    :class:`~warpvx._counted.Counted` with a block from one copy of its whole block (or
+    ``large(c)`` when given and the block is larger than ``ONE_COPY_MAX_BYTES``: its counted
+    rows only), any other Counted cut to its count on the host (its flatten protocol)."""
     if is_warp_array(value):
         return fetch(value)
-    value = map_counted(lambda c: c.block.host_value(fetch(c.block.array))
-                        if c.block is not None and is_warp_array(c.count) else c, value)
+
+    def counted(c):
+        block = c.block
+        if block is None or not is_warp_array(c.count):
+            return c
+        if large is not None and block.array.shape[0] > ONE_COPY_MAX_BYTES:
+            return large(c)
+        return block.host_value(fetch(block.array))
+
+    value = map_counted(counted, value)
     return tree_map(lambda a: fetch(a) if is_warp_array(a) else a, value)
 
 
@@ -70,17 +80,20 @@ class _Unstageable(Exception):
 class _Staged:
     """A download under way (:meth:`Transfers.stage_download`): the device value, the host
     arrays its device arrays are being copied into (id of the device array -> (it, its host
-    copy)), the event after the copies (None on Warp's CPU device: done) and their bytes."""
+    copy); of a large Counted block only its count so far), the event after the copies
+    (None on Warp's CPU device: done) and their bytes."""
 
     __slots__ = ("value", "copies", "event", "nbytes")
 
     def __init__(self, value, copies: dict, event, nbytes: int):
         self.value, self.copies, self.event, self.nbytes = value, copies, event, nbytes
 
-    def host(self):
-        """The host value, its arrays views of the pool's buffers (call after the copy)."""
+    def host(self, io: "Transfers"):
+        """The host value, its arrays views of the pool's buffers (call after the copy; the
+        rows of a large Counted block are copied now, on ``io``'s stream: the reader's)."""
         copies = self.copies
-        return host_value(self.value, lambda a: copies[id(a)][1])
+        return host_value(self.value, lambda a: copies[id(a)][1],
+                          lambda c: io.counted_rows(c, copies[id(c.count)][1]))
 
 
 class Transfers:
@@ -204,8 +217,10 @@ class Transfers:
 
         try:
             # Builds a throw-away value from the (unfilled) buffers: the walk that lists the
-            # arrays to copy is the one that builds the value once they are copied.
-            host_value(value, take)
+            # arrays to copy is the one that builds the value once they are copied. A large
+            # Counted block (FAST's keypoints: rows for every pixel pair) copies its count
+            # now, its counted rows when read.
+            host_value(value, take, lambda c: take(c.count))
         except _Unstageable:
             return None  # the buffers taken are garbage: back to the pool
         if not copies:
@@ -229,7 +244,29 @@ class Transfers:
         if not ready and staged.event is not None:
             synchronize_event(staged.event)
         self.moved += staged.nbytes
-        return staged.host()
+        return staged.host(self)
+
+    def counted_rows(self, c, count: np.ndarray):
+        """The host value of Counted ``c`` (with a block) from its ``count`` already on the
+        host: its counted rows copied into buffers of the pool (fresh arrays past its cap),
+        on this thread's copy stream, waited for."""
+        block = c.block
+        n = max(0, min(int(count[0]), block.part[0][2][0]))
+        src = block.array
+        stream = self.stream
+        leaves = []
+        for offset, _, shape, dtype in block.part:
+            rows = (n,) + shape[1:]
+            host = self.pool.take(rows, dtype) if self.pool is not None else None
+            if host is None:
+                host = np.empty(rows, dtype)
+            bytes_to_host_async(host.ctypes.data, src.device, src.ptr + offset, host.nbytes,
+                                stream)
+            leaves.append(host)
+            self.moved += host.nbytes
+        if stream is not None:
+            synchronize_stream(stream)
+        return Counted.__warpvx_unflatten__(block.aux, tuple(leaves) + (count,))
 
     def upload(self, value, into=None):
         """``value`` with every host array copied to the device (on its current stream).
