@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import graph_bench  # noqa: E402
 
-from warpvx.runtime import Executor, Transfers  # noqa: E402
+from warpvx.runtime import Executor, Transfers, tree_map  # noqa: E402
 
 #: Downloads so far: staged (the GPU role's copy stream, pinned) and synchronous (the reader's).
 COUNTS = collections.Counter()
@@ -37,6 +37,7 @@ COUNTS = collections.Counter()
 def _count_downloads():
     """Count the downloads of each kind (instrumentation of this benchmark only)."""
     stage, download = Transfers.stage_download, Transfers._download_array
+    counted_rows = Transfers.counted_rows
 
     def staged(self, value, event=None):
         got = stage(self, value, event)
@@ -51,7 +52,16 @@ def _count_downloads():
         COUNTS["synchronous bytes"] += out.nbytes
         return out
 
+    def rows(self, c, count):  # a large Counted's rows, copied when read: the reader waits
+        out = counted_rows(self, c, count)
+        COUNTS["synchronous"] += 1
+        sizes = []
+        tree_map(lambda a: sizes.append(a.nbytes) or a, out)
+        COUNTS["synchronous bytes"] += sum(sizes)
+        return out
+
     Transfers.stage_download, Transfers._download_array = staged, synchronous
+    Transfers.counted_rows = rows
 
 
 def stream_of(name: str, staged: bool) -> str:
