@@ -10,27 +10,18 @@ Without CUDA the staged path runs on Warp's CPU device through ``Executor.STAGE_
 from __future__ import annotations
 
 import gc
-import importlib.util
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from tests.graph.test_capture import _bench
 from tests.images import bgr
 from warpvx.backend import init_warp
 from warpvx.runtime import DEVICE, Executor, Slot, Transfers
 from warpvx.runtime.pinned import HostPool
 
-BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "graph_bench.py"
 SIZE = (128, 96)
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("graph_bench", BENCH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _cams(n):
@@ -59,13 +50,23 @@ def _same(a, b):
         np.array_equal(a, b)
 
 
-def _stream(cams, *, staged, capture, monkeypatch, depth=3):
-    """Outputs (host) of the two-camera graph streamed over ``cams`` on warp-cpu, and the
-    executor's host pool (None unless ``staged``)."""
-    monkeypatch.setattr(Executor, "STAGE_ON_HOST", staged)
+#: The executors' host pool size (tests set it to 0 for unstaged runs on CUDA).
+POOL_BYTES = Executor.HOST_POOL_BYTES
+
+
+def _graph(cams, gpu):
     g = _bench().build_graph(SIZE, max_corners=100)
     g.verify(cams[:2])
-    g.schedule("baseline", n_cpus=2, gpu="warp-cpu")
+    g.schedule("baseline", n_cpus=2, gpu=gpu)
+    return g
+
+
+def _stream(cams, gpu, *, staged, capture, monkeypatch, depth=3):
+    """Outputs (host) of the two-camera graph streamed over ``cams``, and the executor's host
+    pool (None without one). Unstaged: no pool on warp-cpu, an empty one on CUDA."""
+    monkeypatch.setattr(Executor, "STAGE_ON_HOST", staged)
+    monkeypatch.setattr(Executor, "HOST_POOL_BYTES", POOL_BYTES if staged else 0)
+    g = _graph(cams, gpu)
     try:
         outs = list(g.stream(cams, depth=depth, capture=capture))
         return outs, g.plan.executor()._host_pool
@@ -151,36 +152,36 @@ def test_a_large_counted_block_stages_its_count_and_copies_only_its_counted_rows
 
 
 @pytest.mark.parametrize("capture", [False, True], ids=["eager", "captured"])
-def test_staged_stream_gives_the_unstaged_outputs(capture, monkeypatch):
+def test_staged_stream_gives_the_unstaged_outputs(capture, warp_backend, monkeypatch):
     cams = _cams(16)
-    ref, none = _stream(cams, staged=False, capture=capture, monkeypatch=monkeypatch)
-    got, pool = _stream(cams, staged=True, capture=capture, monkeypatch=monkeypatch)
-    assert none is None and pool.allocated > 0  # the staged path ran
+    ref, unstaged = _stream(cams, warp_backend, staged=False, capture=capture,
+                            monkeypatch=monkeypatch)
+    got, pool = _stream(cams, warp_backend, staged=True, capture=capture,
+                        monkeypatch=monkeypatch)
+    assert unstaged is None or unstaged.allocated == 0
+    assert pool.allocated > 0  # the staged path ran
     assert len(got) == len(ref) == 16
     for a, b in zip(got, ref):
         assert _same(a, b)
 
 
-def test_outputs_kept_across_many_frames_keep_their_values(monkeypatch):
+def test_outputs_kept_across_many_frames_keep_their_values(warp_backend, monkeypatch):
     """A caller keeping the first 10 frames' outputs while 50 more run sees their values
     (a pool buffer is never lent again while an array on it lives), and a small pool stays
     within its cap (past it, downloads are the usual fresh arrays)."""
     cams = _cams(60)
-    ref, _ = _stream(cams, staged=False, capture=True, monkeypatch=monkeypatch)
+    ref, _ = _stream(cams, warp_backend, staged=False, capture=True, monkeypatch=monkeypatch)
     ref = ref[:10]
     cap = 64 << 10
     monkeypatch.setattr(Executor, "STAGE_ON_HOST", True)
     monkeypatch.setattr(Executor, "HOST_POOL_BYTES", cap)
-    g = _bench().build_graph(SIZE, max_corners=100)
-    g.verify(cams[:2])
-    g.schedule("baseline", n_cpus=2, gpu="warp-cpu")
+    g = _graph(cams, warp_backend)
     try:
         kept, most = [], 0
-        for i, r in enumerate(g.stream(cams, depth=3, capture=True)):
+        for i, outputs in enumerate(g.stream(cams, depth=3, capture=True)):
             if i < 10:
-                kept.append(r)
-            pool = g.plan.executor()._host_pool
-            most = max(most, pool.allocated)
+                kept.append(outputs)
+            most = max(most, g.plan.executor()._host_pool.allocated)
         assert 0 < most <= cap
     finally:
         g.close()
