@@ -10,8 +10,8 @@ never before.
 
 from __future__ import annotations
 
+import math
 import threading
-import weakref
 
 import numpy as np
 
@@ -20,13 +20,18 @@ from .native_copy import warp
 
 class _Lease:
     """Owns one pool buffer while a NumPy array (its ``base``) or a view of it lives; exposes
-    the buffer's first ``shape``/``dtype`` bytes through the array interface."""
+    the buffer's first ``shape``/``dtype`` bytes through the array interface, and gives the
+    buffer back when garbage (``__del__``: a tenth of ``weakref.finalize``'s cost)."""
 
-    __slots__ = ("__array_interface__", "__weakref__")
+    __slots__ = ("__array_interface__", "pool", "buf", "nbytes")
 
-    def __init__(self, ptr: int, shape: tuple, dtype: np.dtype):
-        self.__array_interface__ = {"data": (ptr, False), "shape": shape,
+    def __init__(self, pool, buf, nbytes: int, shape: tuple, dtype: np.dtype):
+        self.pool, self.buf, self.nbytes = pool, buf, nbytes
+        self.__array_interface__ = {"data": (buf.ptr, False), "shape": shape,
                                     "typestr": dtype.str, "version": 3}
+
+    def __del__(self):
+        self.pool._give_back(self.buf, self.nbytes)
 
 
 class HostPool:
@@ -53,8 +58,8 @@ class HostPool:
         self.pinned = bool(pinned)
         self.allocated = 0  # bytes, free and lent
         self._free: dict[int, list] = {}  # nbytes -> free buffers (host wp.arrays of uint8)
-        # Reentrant: a finalizer (_give_back) may run inside a locked region, on a garbage
-        # collection triggered by an allocation there.
+        # Reentrant: a lease's __del__ (_give_back) may run inside a locked region, on a
+        # garbage collection triggered by an allocation there.
         self._lock = threading.RLock()
         self._closed = False
 
@@ -62,7 +67,7 @@ class HostPool:
         """A NumPy array of ``shape`` and ``dtype`` (contents undefined) in a pool buffer, or
         None (the pool is full of lent buffers, or closed)."""
         dtype = np.dtype(dtype)
-        nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        nbytes = math.prod(shape) * dtype.itemsize
         with self._lock:
             if self._closed:
                 return None
@@ -74,9 +79,7 @@ class HostPool:
                 self.allocated += nbytes
         if buf is None:
             buf = warp().empty(max(nbytes, 1), dtype=warp().uint8, device="cpu", pinned=self.pinned)
-        lease = _Lease(buf.ptr, tuple(shape), dtype)
-        weakref.finalize(lease, self._give_back, buf, nbytes).atexit = False  # Warp may be gone
-        return np.asarray(lease)
+        return np.asarray(_Lease(self, buf, nbytes, tuple(shape), dtype))
 
     def _give_back(self, buf, nbytes: int):
         """A lent buffer is garbage: back to the pool, or freed once the pool is closed."""

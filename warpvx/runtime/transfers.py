@@ -40,25 +40,22 @@ def tree_map(fn, obj):
     return obj
 
 
-def host_value(value, fetch, large=None):
+def host_value(value, fetch, counted):
     """The host value of device value ``value`` (a tree, see :func:`tree_map`) made from
-    ``fetch(a)``, a host copy (NumPy) of each device array ``a`` it is built from: a
-    :class:`~warpvx._counted.Counted` with a block from one copy of its whole block (or
-    ``large(c)`` when given and the block is larger than ``ONE_COPY_MAX_BYTES``: its counted
-    rows only), any other Counted cut to its count on the host (its flatten protocol)."""
+    ``fetch(a)``, a host copy (NumPy) of each device array ``a`` in it, and ``counted(c)``,
+    the host value of each :class:`~warpvx._counted.Counted` with a block (a graph node's);
+    any other Counted is cut to its count on the host (its flatten protocol)."""
     if is_warp_array(value):
         return fetch(value)
-
-    def counted(c):
-        block = c.block
-        if block is None or not is_warp_array(c.count):
-            return c
-        if large is not None and block.array.shape[0] > ONE_COPY_MAX_BYTES:
-            return large(c)
-        return block.host_value(fetch(block.array))
-
-    value = map_counted(counted, value)
+    value = map_counted(lambda c: c if c.block is None or not is_warp_array(c.count)
+                        else counted(c), value)
     return tree_map(lambda a: fetch(a) if is_warp_array(a) else a, value)
+
+
+def _large(c) -> bool:
+    """Counted ``c``'s block is too large to copy whole (FAST's keypoints: rows for every
+    pixel pair): its count is copied first, then the rows it counts."""
+    return c.block.array.shape[0] > ONE_COPY_MAX_BYTES
 
 
 class _UploadStage:
@@ -92,8 +89,13 @@ class _Staged:
         """The host value, its arrays views of the pool's buffers (call after the copy; the
         rows of a large Counted block are copied now, on ``io``'s stream: the reader's)."""
         copies = self.copies
-        return host_value(self.value, lambda a: copies[id(a)][1],
-                          lambda c: io.counted_rows(c, copies[id(c.count)][1]))
+
+        def counted(c):
+            if _large(c):
+                return io.counted_rows(c, copies[id(c.count)][1])
+            return c.block.host_value(copies[id(c.block.array)][1])
+
+        return host_value(self.value, lambda a: copies[id(a)][1], counted)
 
 
 class Transfers:
@@ -216,11 +218,9 @@ class Transfers:
             return got[1]
 
         try:
-            # Builds a throw-away value from the (unfilled) buffers: the walk that lists the
-            # arrays to copy is the one that builds the value once they are copied. A large
-            # Counted block (FAST's keypoints: rows for every pixel pair) copies its count
-            # now, its counted rows when read.
-            host_value(value, take, lambda c: take(c.count))
+            # The walk that builds the value once copied (_Staged.host) lists what to copy; a
+            # large Counted block copies its count now, its counted rows when read.
+            host_value(value, take, lambda c: take(c.count if _large(c) else c.block.array))
         except _Unstageable:
             return None  # the buffers taken are garbage: back to the pool
         if not copies:
