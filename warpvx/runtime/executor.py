@@ -777,6 +777,9 @@ class Executor(RoleRunner, SegmentRunner):
             slots[key] = Slot()
         frame = Frame(frame_index, slots, self._slot_procs[frame_index % self.frames])
         frame.events.extend(events)
+        # A caller passing device inputs gets device outputs (Graph.process, stream): no
+        # downloads of them to stage.
+        frame.stage_outputs = all(inputs[k][1] == HOST for k in self.program.inputs)
         if self.frames == 1 and self.gpu_device:
             timing = self._timing
             frame.bursts = timing == "bursts" or (timing is None and self.cuda and bool(self._inflight))

@@ -161,13 +161,18 @@ class RoleRunner:
 
     def _staged_keys(self) -> set:
         """Keys whose download starts as soon as the GPU role publishes them (with a host
-        pool): read by a CPU task of the same frame or by the caller (a graph output), and
-        by no delay (a later frame may read a delay's value after its frame)."""
+        pool): read by a CPU task of the same frame, or by the caller (a graph output; those
+        only, :attr:`_outputs_staged`, in frames whose caller wants host data:
+        ``Frame.stage_outputs``), and by no delay (a later frame may read a delay's value
+        after its frame)."""
+        self._outputs_staged = set()
         if self._host_pool is None:
             return set()
         reads = {r.key for p in self._active if not is_gpu_processor(p)
                  for t in self.queues[p] for r in t.inputs if r.offset == 0}
-        return (reads | set(self.program.outputs.values())) - set(self.program.rings)
+        outputs = set(self.program.outputs.values())
+        self._outputs_staged = outputs - reads - set(self.program.rings)
+        return (reads | outputs) - set(self.program.rings)
 
     def _role_loop(self, proc: str):
         home = self._roles[proc]
@@ -326,7 +331,8 @@ class RoleRunner:
             else:
                 self._run_gpu_task(frame, seg.tasks[0], state, slots)
             for key in role.stage[role.pos]:
-                self._stage(frame, frame.slots[key], io)
+                if frame.stage_outputs or key not in self._outputs_staged:
+                    self._stage(frame, frame.slots[key], io)
         except Cancelled:
             return False
         except BaseException as exc:  # noqa: BLE001 - reported to the caller
