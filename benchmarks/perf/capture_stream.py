@@ -65,10 +65,12 @@ def _count_downloads():
 
 
 def stream_of(name: str, staged: bool) -> str:
-    """Where an activity of ``wp.timing`` ran: device-to-host copies on a copy stream (the GPU
-    role's when staged, else the reader thread's), everything else on the compute stream."""
+    """Where an activity of ``wp.timing`` ran (Warp does not say: by what queued it):
+    device-to-host copies on copy streams (staged: the GPU role's, and the reader's for a
+    large Counted's rows, into pinned memory; else the reader's, pageable), everything else
+    on the compute stream."""
     if name.startswith("memcpy DtoH"):
-        return "copy (GPU role, pinned)" if staged else "copy (reader, pageable)"
+        return "copy, pinned" if staged else "copy, pageable"
     return "compute"
 
 
