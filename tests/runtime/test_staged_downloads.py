@@ -187,3 +187,27 @@ def test_outputs_kept_across_many_frames_keep_their_values(warp_backend, monkeyp
         g.close()
     for a, b in zip(kept, ref):
         assert _same(a, b)
+
+
+def test_outputs_are_staged_only_for_a_caller_wanting_host_data(monkeypatch):
+    """Device inputs give device outputs (Graph.process): their downloads are not staged,
+    those of the GPU -> CPU edges still are."""
+    wp = init_warp()
+    staged = []
+    stage = Transfers.stage_download
+    monkeypatch.setattr(Transfers, "stage_download",
+                        lambda self, v, e=None: staged.append(v) or stage(self, v, e))
+    monkeypatch.setattr(Executor, "STAGE_ON_HOST", True)
+    cams = _cams(3)
+    g = _graph(cams, "warp-cpu")
+    try:
+        staged.clear()  # (verify's)
+        g.process(cams[0])
+        on_host = len(staged)
+        staged.clear()
+        device = {k: wp.array(v, dtype=wp.uint8, device="cpu") for k, v in cams[1].items()}
+        out = g.process(device)
+    finally:
+        g.close()
+    assert 0 < len(staged) < on_host
+    assert any(not isinstance(v, np.ndarray) for v in out.values())  # device outputs
