@@ -159,7 +159,7 @@ def run(args) -> int:
         report = {"source": args.input, "frames": len(keep_in), "config": {
             k: v for k, v in dataclasses.asdict(config).items() if k not in ("camera_matrix", "dist_coeffs")},
             "backend": "model" if args.model else args.backend, "scene_cuts": cuts}
-        report.update(evaluate(keep_in, keep_out, warps))
+        report.update(evaluate(keep_in, keep_out, warps, cuts))
         if cuts:
             report["shots"] = evaluate_shots(keep_in, keep_out, cuts)
         with open(args.metrics, "w") as f:
