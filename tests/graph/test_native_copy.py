@@ -95,9 +95,11 @@ def test_staged_download_and_native_elapsed_time():
     a.fill_(2.0)
     stream.record_event(end)
     staged = io.stage_download(a, end)  # waits for the fill on the device, not on the host
+    staged_event = staged.event
     got = io.unstage(staged)
     np.testing.assert_array_equal(got, np.full_like(host, 2.0))
     assert pool.lent() == host.nbytes  # a view of the pinned buffer, lent while it lives
+    assert list(io._events) == [staged_event] and staged.event is None  # read: event free
     del got
     assert pool.lent() == 0
     wp.synchronize_event(end)

@@ -127,6 +127,7 @@ class Slot:
             self.staged = None
             if staged.event is not None:
                 synchronize_event(staged.event)
+            staged.close()
 
     def ready_event(self):
         """The CUDA event after which :meth:`host` copies without waiting: the staged

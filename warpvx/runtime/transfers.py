@@ -8,6 +8,8 @@ copies every leaf of a tree between host memory and the GPU role's device, throu
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 from .._counted import ONE_COPY_MAX_BYTES, Counted, download, map_counted
@@ -78,12 +80,19 @@ class _Staged:
     """A download under way (:meth:`Transfers.stage_download`): the device value, the host
     arrays its device arrays are being copied into (id of the device array -> (it, its host
     copy); of a large Counted block only its count so far), the event after the copies
-    (None on Warp's CPU device: done) and their bytes."""
+    (None on Warp's CPU device: done, or once closed) and their bytes."""
 
-    __slots__ = ("value", "copies", "event", "nbytes")
+    __slots__ = ("value", "copies", "event", "nbytes", "_events")
 
-    def __init__(self, value, copies: dict, event, nbytes: int):
+    def __init__(self, value, copies: dict, event, nbytes: int, events: deque):
         self.value, self.copies, self.event, self.nbytes = value, copies, event, nbytes
+        self._events = events  # where its event goes back to
+
+    def close(self):
+        """Read or dropped, its copy waited for: its event may be recorded again."""
+        if self.event is not None:
+            self._events.append(self.event)
+            self.event = None
 
     def host(self, io: "Transfers"):
         """The host value, its arrays views of the pool's buffers (call after the copy; the
@@ -133,10 +142,6 @@ class Transfers:
     PINNED_MIN_BYTES = 1 << 16
     #: Staging buffers per shape and dtype before an upload waits for the oldest one.
     STAGING_DEPTH = 4
-    #: Events of staged downloads, recorded in turn: one is recorded again this many staged
-    #: downloads later, by when its copy is long done (a reader waiting on it then would
-    #: wait for the later copy of the same stream: never too early).
-    STAGED_EVENTS = 64
 
     def __init__(self, device: str | None, pool: HostPool | None = None):
         self.device = device
@@ -145,8 +150,9 @@ class Transfers:
         self._stream = None
         self._dev = None
         self._staging: dict = {}
-        self._events: list = []  # staged downloads' events (CUDA), made with the stream
-        self._next_event = 0
+        # Staged downloads' events (CUDA) free to record: one goes back once its download is
+        # read or dropped (_Staged.close), from any thread (deque: atomic append and pop).
+        self._events: deque = deque()
         self._wp_dtypes: dict = {}  # NumPy dtype -> Warp dtype, looked up once
         self.moved = 0  # bytes copied so far, both ways
 
@@ -154,9 +160,7 @@ class Transfers:
     def stream(self):
         """This thread's copy stream (CUDA; None otherwise)."""
         if self._stream is None and self.cuda:
-            wp = warp()
-            self._stream = wp.Stream(self.device)
-            self._events = [wp.Event(self.device) for _ in range(self.STAGED_EVENTS)]
+            self._stream = warp().Stream(self.device)
         return self._stream
 
     def download(self, value, event=None):
@@ -232,10 +236,10 @@ class Transfers:
             to_host_async(host, a, stream)
         done = None
         if stream is not None:
-            done = self._events[self._next_event]
-            self._next_event = (self._next_event + 1) % len(self._events)
+            done = self._events.pop() if self._events else warp().Event(self.device)
             record_event(stream, done)
-        return _Staged(value, copies, done, sum(h.nbytes for _, h in copies.values()))
+        return _Staged(value, copies, done, sum(h.nbytes for _, h in copies.values()),
+                       self._events)
 
     def unstage(self, staged, *, ready: bool = False):
         """The host value of download ``staged`` (:meth:`stage_download`), waiting for its copy
@@ -243,6 +247,7 @@ class Transfers:
         go back to the pool once they (and every view of them) are garbage: no copy."""
         if not ready and staged.event is not None:
             synchronize_event(staged.event)
+        staged.close()
         self.moved += staged.nbytes
         return staged.host(self)
 
