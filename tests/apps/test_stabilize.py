@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from tests.apps.conftest import CLIP, static_frames
+from tests.images import clip_frames
 from warpvx import cli
 from warpvx.apps import stabilize as st
 from warpvx.apps import stabilize_metrics as sm
@@ -23,6 +24,8 @@ ROOT = os.path.join(os.path.dirname(__file__), "..", "..")
     ({"window": 0}, "window"), ({"crop": 0.5}, "crop"), ({"crop": -0.1}, "crop"),
     ({"mode": "future"}, "mode"), ({"motion": "affine"}, "motion"),
     ({"camera_matrix": np.eye(3)}, "dist_coeffs"),
+    ({"cut_threshold": 0}, "cut_threshold"), ({"cut_threshold": -0.2}, "cut_threshold"),
+    ({"cut_threshold": float("inf")}, "cut_threshold"), ({"cut_threshold": "0.3"}, "cut_threshold"),
 ])
 def test_config_bad_input_names_the_field(kwargs, field):
     with pytest.raises(WarpvxError, match=field):
@@ -193,7 +196,8 @@ def test_script_runs(tmp_path):
     assert int(cv2.VideoCapture(str(out)).get(cv2.CAP_PROP_FRAME_COUNT)) == 6
 
 
-@pytest.mark.parametrize("case", ["missing", "unreadable", "empty", "window", "crop", "no output"])
+@pytest.mark.parametrize("case", ["missing", "unreadable", "empty", "window", "crop", "no output",
+                                  "cut_threshold"])
 def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, case):
     src, extra = CLIP, []
     if case == "missing":
@@ -208,6 +212,8 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, case):
         extra = ["--window", "0"]
     elif case == "no output":
         extra = None
+    elif case == "cut_threshold":
+        extra = ["--cut-threshold", "0"]
     else:
         extra = ["--crop", "0.5"]
     argv = [str(src), "--quiet"] if extra is None else [str(src), str(tmp_path / "o.mp4"), "--quiet"] + extra
@@ -216,4 +222,97 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, case):
     assert rc == 2
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert {"missing": "input", "unreadable": "input", "empty": "input", "window": "window",
-            "crop": "crop", "no output": "output"}[case] in err
+            "crop": "crop", "no output": "output", "cut_threshold": "cut_threshold"}[case] in err
+
+
+# --------------------------------------------------------------------------- scene cuts
+
+BIKES = "/work/shared/data/real/bikes.mp4"  # a montage of 6 real shots (shared data)
+CARPHONE = "/work/shared/data/real/carphone_pristine.mp4"  # one real in-car shot (shared data)
+ENGINES = [("model", None), ("cpu", "graph"), ("warp-cpu", "graph"), ("warp-cpu", "device")]
+
+
+def _run(frames, backend="cpu", engine="graph", **config):
+    cfg = st.StabilizerConfig(**config)
+    if backend == "model":
+        return list(st.stabilize_model(frames, cfg))
+    return list(st.stabilize(frames, cfg, backend=backend, engine=engine))
+
+
+@pytest.fixture(scope="module")
+def two_shots(astronaut):
+    """20 frames of the bundled hand-held street clip, then 20 of a real photo shaken (a
+    cut at frame 20): (first shot, whole clip)."""
+    first = clip_frames(20)
+    second, _, _ = sm.shaky_clip(astronaut, 20, (320, 136), shift=4.0, angle=1.0, zoom=0.01, seed=0)
+    return first, first + second
+
+
+@pytest.mark.parametrize("shift, cut", [(0.29, False), (0.31, True)])
+def test_a_motion_moving_a_corner_past_the_threshold_is_a_cut(shift, cut):
+    size = (320, 240)
+    diagonal = np.hypot(*size)
+    move = np.array([[1, 0, shift * diagonal * 0.6], [0, 1, shift * diagonal * 0.8], [0, 0, 1]])
+    assert st.is_cut(move, size, 0.3) is cut
+    assert st.is_cut(move, size, None) is False  # no detection
+
+
+def test_a_mirror_and_a_corner_past_infinity_are_cuts():
+    size = (320, 240)
+    assert st.is_cut(np.array([[-1.0, 0, 319], [0, 1, 0], [0, 0, 1]]), size, 0.3)
+    assert st.is_cut(np.array([[1.0, 0, 0], [0, 1, 0], [-0.01, 0, 1]]), size, 0.3)
+    assert not st.is_cut(np.eye(3), size, 0.3)
+
+
+@pytest.mark.parametrize("backend, engine", ENGINES)
+def test_scene_cut_is_found_where_the_shots_meet(two_shots, backend, engine):
+    out = _run(two_shots[1], backend, engine)
+    assert [o.segment for o in out] == [0] * 20 + [1] * 20
+    assert np.allclose(out[20].trajectory, np.eye(3))  # the path restarts at the cut
+
+
+@pytest.mark.parametrize("backend, engine", [("cpu", "graph"), ("warp-cpu", "device")])
+def test_frames_before_a_cut_are_the_first_shot_stabilized_alone(two_shots, backend, engine):
+    """The smoothing window stops at the cut as it stops at the clip's end."""
+    first, clip = two_shots
+    alone, together = _run(first, backend, engine), _run(clip, backend, engine)[:20]
+    for a, b in zip(alone, together):
+        np.testing.assert_array_equal(b.image, a.image, err_msg=f"frame {a.index}")
+        np.testing.assert_array_equal(b.warp, a.warp)
+
+
+def test_each_shot_is_steadier_than_the_input_after_a_cut(two_shots):
+    clip = two_shots[1]
+    out = [o.image for o in _run(clip)]
+    for shot in sm.evaluate_shots(clip, out, [20]):
+        assert shot["output"]["stability"] >= shot["input"]["stability"], shot
+        assert shot["output"]["itf"] >= shot["input"]["itf"], shot
+    # Smoothing across the cut warps frames towards the other shot's path.
+    across = [o.image for o in _run(clip, cut_threshold=None)]
+    assert sm.itf(out) > sm.itf(across) + 1.0
+
+
+def test_one_shot_has_no_cut():
+    assert {o.segment for o in _run(clip_frames(46))} == {0}
+
+
+@pytest.mark.skipif(not os.path.isfile(CARPHONE), reason="carphone_pristine.mp4 (shared data) not present")
+def test_carphone_has_no_cut():
+    frames = list(st.VideoSource(CARPHONE))
+    assert {o.segment for o in _run(frames)} == {0}
+
+
+@pytest.mark.skipif(not os.path.isfile(BIKES), reason="bikes.mp4 (shared data) not present")
+def test_montage_cuts_are_found_and_the_clip_is_steadier(tmp_path, capsys):
+    """bikes.mp4's first 150 frames hold cuts at 30, 76 and 137 (the data's README)."""
+    import json
+
+    metrics = tmp_path / "m.json"
+    assert cli.main(["stabilize", BIKES, str(tmp_path / "o.mp4"), "--max-frames", "150",
+                     "--metrics", str(metrics)]) == 0
+    assert "scene cuts before frames 30, 76, 137" in capsys.readouterr().out
+    report = json.loads(metrics.read_text())
+    assert report["scene_cuts"] == [30, 76, 137]
+    assert [s["frames"] for s in report["shots"]] == [[0, 29], [30, 75], [76, 136], [137, 149]]
+    for key in ("stability", "itf"):
+        assert report["output"][key] >= report["input"][key], key

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.images import CLIP, clip_frames, gray
+from tests.images import CLIP, bgr, clip_frames, gray
 from warpvx import cli
 from warpvx.apps import stabilize as st
 from warpvx.apps import stabilize_device as sd
@@ -46,6 +46,20 @@ def test_device_engine_gives_the_graph_frames(warp_backend, mode, window, n):
     cfg = st.StabilizerConfig(window=window, mode=mode)
     graph = list(st.stabilize(frames, cfg, backend=warp_backend, engine="graph"))
     device = list(st.stabilize(frames, cfg, backend=warp_backend, engine="device"))
+    _assert_same_frames(graph, device, warp_backend)
+
+
+@pytest.mark.parametrize("mode, window", [("centered", 15), ("causal", 7)])
+def test_device_engine_gives_the_graph_frames_across_a_scene_cut(warp_backend, mode, window):
+    """Street frames then a shaken real photo: both engines restart the path at the cut."""
+    from warpvx.apps import stabilize_metrics as sm
+
+    photo, _, _ = sm.shaky_clip(bgr("astronaut"), 12, (320, 136), seed=1)
+    frames = clip_frames(12) + photo
+    cfg = st.StabilizerConfig(window=window, mode=mode)
+    graph = list(st.stabilize(frames, cfg, backend=warp_backend, engine="graph"))
+    device = list(st.stabilize(frames, cfg, backend=warp_backend, engine="device"))
+    assert [o.segment for o in device] == [o.segment for o in graph] == [0] * 12 + [1] * 12
     _assert_same_frames(graph, device, warp_backend)
 
 
@@ -215,23 +229,32 @@ def test_follow_motion_kernel_equals_the_host_chain(warp_backend, mode, window, 
     slots = max(1, len(cfg.weights()) - 1)
     chain = sd.make_chain(cfg, size, device)
     history = wp.array(np.full((slots, 3, 3), np.nan), dtype=wp.mat33d, device=device)
-    record = wp.empty(4, dtype=wp.mat33d, device=device)
+    segments = wp.zeros(slots, dtype=wp.int32, device=device)
+    record = wp.empty(sd.RECORDS, dtype=wp.mat33d, device=device)
     sampling = wp.empty(1, dtype=wp.mat33, device=device)
-    host = [np.full((3, 3), np.nan)] * slots
+    host, host_segments = [np.full((3, 3), np.nan)] * slots, [np.zeros(1, np.int64)] * slots
     rng = np.random.default_rng(window)
-    for k, h in enumerate(_random_walk(rng, 20)):
+    walk = _random_walk(rng, 20)
+    walk[4] = np.array([[0.6, 0, 150.0], [0, 0.6, 20.0], [0, 0, 1]])  # a scene cut: a jump
+    walk[9] = np.array([[1, 0, 0], [0, 1, 0], [-0.01, 0, 1]])  # a cut: corners past infinity
+    segment = 0
+    for k, h in enumerate(walk):
         live = k < 20 - cfg.lag  # the centred window's flush at the end
         wp.launch(km.follow_motion, 1, [wp.array(h, dtype=wp.float64, device=device),
                                         wp.array([int(live)], dtype=wp.int32, device=device), chain,
-                                        history, record, sampling], device=device)
-        want = st.follow_motion(h, np.uint8([live]), *host, motion_fn=st.as_motion, n_motion=1,
-                                config=cfg, size=size)
-        got = record.numpy().reshape(4, 3, 3)
-        for g, w in zip(got, want):
+                                        history, segments, record, sampling], device=device)
+        motion, T, seg, transform, warp = st.follow_motion(
+            h, np.uint8([live]), *host, *host_segments, motion_fn=st.as_motion, n_motion=1,
+            config=cfg, size=size)
+        segment += k in (4, 9)  # the two cuts, and no other frame
+        assert seg[0] == segment
+        got = record.numpy().reshape(sd.RECORDS, 3, 3)
+        for g, w in zip(got, (motion, T, transform, warp)):
             np.testing.assert_allclose(g, w, rtol=1e-10, atol=1e-10, equal_nan=True)
+        assert got[4, 0, 0] == segment
         np.testing.assert_allclose(sampling.numpy().reshape(3, 3),
-                                   np.linalg.inv(want[3]).astype(np.float32), rtol=1e-6, atol=1e-6)
-        host = host[1:] + [want[1]]
+                                   np.linalg.inv(warp).astype(np.float32), rtol=1e-6, atol=1e-6)
+        host, host_segments = host[1:] + [T], host_segments[1:] + [seg]
 
 
 def test_ransac_on_the_first_count_points_equals_find_homography(warp_backend):

@@ -80,3 +80,23 @@ def test_evaluate_reports_every_metric(astronaut):
     report = sm.evaluate(frames, frames)
     assert set(report["input"]) == {"mad10", "mad100", "itf", "stability"}
     assert report["output"]["cropping_ratio"] == pytest.approx(1.0, abs=1e-3)
+
+
+def test_cuts_leave_the_pairs_across_them_out_of_itf_and_stability(astronaut):
+    # Two static shots of different photos: every pair inside a shot matches exactly, the pair
+    # across the cut does not. With the cut, ITF is the shots' (PSNR_MAX) and stability theirs
+    # (1, a flat path); without it, the jump between the photos counts.
+    other = cv2.flip(astronaut, 1)
+    frames = static_frames(astronaut, 5) + static_frames(other, 6)
+    assert sm.itf(frames, cuts=[5]) == sm.PSNR_MAX
+    assert sm.itf(frames) < sm.PSNR_MAX
+    assert sm.stability_score(frames, cuts=[5]) == pytest.approx(1.0)
+    shaky, _, _ = sm.shaky_clip(astronaut, 9, (160, 120), shift=4.0, seed=4)
+    pan = [cv2.warpAffine(astronaut, np.float32([[1, 0, -100 - 2 * k], [0, 1, -100]]), (160, 120))
+           for k in range(12)]
+    mixed = shaky + pan
+    # frame-weighted mean of the shots' scores (9 and 12 frames)
+    want = (9 * sm.stability_score(shaky) + 12 * sm.stability_score(pan)) / 21
+    assert sm.stability_score(mixed, cuts=[9]) == pytest.approx(want, rel=1e-12)
+    report = sm.evaluate(frames, frames, cuts=[5])
+    assert report["input"]["itf"] == sm.PSNR_MAX and report["output"]["stability"] == pytest.approx(1.0)

@@ -65,13 +65,16 @@ def test_native_and_public_copies_give_the_same_bytes(device, host):
 
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("native", [True, False])
-def test_asynchronous_downloads_give_the_same_bytes(device, native):
+@pytest.mark.parametrize("into", ["warp", "numpy"])
+def test_asynchronous_downloads_give_the_same_bytes(device, native, into):
+    """Into a host wp.array or a NumPy array (a HostPool's lent buffer)."""
     wp = init_warp()
     host = np.random.default_rng(3).integers(-1000, 1000, (67, 5), dtype=np.int32)
     src = wp.array(host, dtype=wp.int32, device=device)
     dst = wp.empty(host.shape, dtype=wp.int32, device="cpu", pinned=device != "cpu")
+    got = dst.numpy() if into == "numpy" else dst
     stream = _stream(wp, device)
-    nc.to_host_async(dst, src, stream, native=native)
+    nc.to_host_async(got, src, stream, native=native)
     if stream is not None:
         wp.synchronize_event(stream.record_event())
     np.testing.assert_array_equal(dst.numpy(), host)
@@ -79,22 +82,26 @@ def test_asynchronous_downloads_give_the_same_bytes(device, native):
 
 @pytest.mark.skipif(not cuda_available(), reason="CUDA staging and events")
 def test_staged_download_and_native_elapsed_time():
+    from warpvx.runtime.pinned import HostPool
+
     wp = init_warp()
     host = np.arange(1000, dtype=np.float32) * 0.25
     a = wp.array(host, dtype=wp.float32, device="cuda:0")
-    io = Transfers("cuda:0")
+    pool = HostPool(1 << 20, pinned=True)
+    io = Transfers("cuda:0", pool)
     start, end = (wp.Event("cuda:0", enable_timing=True) for _ in range(2))
     stream = wp.get_stream("cuda:0")
     stream.record_event(start)
     a.fill_(2.0)
     stream.record_event(end)
-    stage = io.stage_download(a, end)  # waits for the fill on the device, not on the host
-    got = io.unstage(stage)
+    staged = io.stage_download(a, end)  # waits for the fill on the device, not on the host
+    staged_event = staged.event
+    got = io.unstage(staged)
     np.testing.assert_array_equal(got, np.full_like(host, 2.0))
-    assert not np.shares_memory(got, stage.view)
-    stage.free = True
-    assert io.stage_download(a, end) is stage  # reused once free and copied
-    io.unstage(stage)
+    assert pool.lent() == host.nbytes  # a view of the pinned buffer, lent while it lives
+    assert list(io._events) == [staged_event] and staged.event is None  # read: event free
+    del got
+    assert pool.lent() == 0
     wp.synchronize_event(end)
     assert nc.elapsed_since(start)(end) == pytest.approx(wp.get_event_elapsed_time(start, end))
     # Another kind of value (a vector dtype) downloads the usual way.
@@ -170,46 +177,3 @@ def test_keypoints_and_user_types_round_trip_through_transfers(device):
     assert isinstance(back[1], Pair) and back[1].label == "lbl"
     np.testing.assert_array_equal(back[1].a, pair.a)
     np.testing.assert_array_equal(back[1].b, pair.b)
-
-
-def test_a_slot_reads_its_staged_download_once_as_a_fresh_copy():
-    """Slot.host takes a staged download (here one already complete, on Warp's CPU device:
-    no event) instead of downloading again, copies it out once, and never hands out the
-    staging buffer itself (it is reused by later frames)."""
-    from warpvx.runtime import DEVICE, Slot
-    from warpvx.runtime.transfers import _Staging
-
-    wp = init_warp()
-    host = np.arange(12, dtype=np.float32).reshape(3, 4)
-    stage = _Staging(wp.array(host, dtype=wp.float32, device="cpu"), None)
-    slot = Slot.ready(wp.zeros((3, 4), dtype=wp.float32, device="cpu"), DEVICE)  # not what is read
-    slot.staged = stage
-    assert slot.ready_event() is None
-    io = Transfers("cpu")
-    got = slot.host(io, waited=slot.ready_event())
-    np.testing.assert_array_equal(got, host)
-    assert not np.shares_memory(got, stage.view) and io.moved == host.nbytes
-    stage.view[:] = -1  # the buffer reused: what was read stays
-    assert slot.host(io) is got and got[0, 1] == 1.0
-
-
-def test_a_staged_buffer_is_free_once_read_and_freed_only_by_its_holder():
-    """Reading a staged download frees its buffer at once (a frame with more downloads of
-    one shape than the ring holds would otherwise download the rest synchronously); the
-    frame's end then frees only the buffers its slots still hold, never one that a later
-    download has taken since."""
-    from warpvx.runtime import DEVICE, Slot
-    from warpvx.runtime.transfers import _Staging
-
-    wp = init_warp()
-    stage = _Staging(wp.array(np.ones(4, np.float32), dtype=wp.float32, device="cpu"), None)
-    first = Slot.ready(wp.zeros(4, dtype=wp.float32, device="cpu"), DEVICE)
-    first.staged, stage.free = stage, False
-    first.host(Transfers("cpu"))
-    assert stage.free and first.staged is None
-    later = Slot.ready(wp.zeros(4, dtype=wp.float32, device="cpu"), DEVICE)
-    later.staged, stage.free = stage, False  # the ring hands the buffer to a later download
-    first.release_staged()  # the first frame ends
-    assert not stage.free and later.staged is stage
-    later.release_staged()  # the later frame ends without a reader
-    assert stage.free and later.staged is None

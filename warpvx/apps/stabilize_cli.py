@@ -40,10 +40,16 @@ def save_plot(path, before, after):
         axes[i].set_ylabel(label)
     axes[0].legend()
     axes[-1].set_xlabel("frame")
-    fig.suptitle("camera trajectory (frame 0 -> frame k)")
+    fig.suptitle("camera trajectory (first frame of the shot -> frame k)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def scene_cuts(segments):
+    """The frames that start a new shot (a scene cut between frame k-1 and k), from the
+    per-frame segment indices (:attr:`StabilizedFrame.segment`), ascending."""
+    return [k for k in range(1, len(segments)) if segments[k] != segments[k - 1]]
 
 # --------------------------------------------------------------------------- command line
 
@@ -71,6 +77,12 @@ def add_arguments(parser):
     parser.add_argument("--crop", type=float, default=d.crop, help="fraction cut from each side, [0, 0.5)")
     parser.add_argument("--motion", choices=app.MOTIONS, default=d.motion)
     parser.add_argument("--detector", choices=app.DETECTORS, default=d.detector)
+    parser.add_argument("--cut-threshold", type=float, default=d.cut_threshold, metavar="FRACTION",
+                        help="scene cut: an inter-frame motion moving a frame corner by more than "
+                             "this fraction of the diagonal restarts the smoothing (default "
+                             "%(default)s)")
+    parser.add_argument("--no-cuts", action="store_true",
+                        help="no scene cut detection: smooth the clip as one shot")
     parser.add_argument("--max-frames", type=int, default=None)
     parser.add_argument("--model", action="store_true", help="run the imperative OpenCV model instead of the graph")
     parser.add_argument("--compare", action="store_true", help="write input and output side by side")
@@ -92,7 +104,8 @@ def run(args) -> int:
     from tqdm import tqdm
 
     config = app.StabilizerConfig(window=args.window, mode=args.mode, crop=args.crop,
-                              motion=args.motion, detector=args.detector)
+                                  motion=args.motion, detector=args.detector,
+                                  cut_threshold=None if args.no_cuts else args.cut_threshold)
     if getattr(args, "demo", False):
         args = _demo_args(args)
     elif args.input is None or args.output is None:
@@ -108,7 +121,7 @@ def run(args) -> int:
     w, h = source.size
     writer = open_writer(args.output, (2 * w if args.compare else w, h), source.fps)
     keep_in, keep_out = [], []
-    before, after, warps = [], [], []
+    before, after, warps, segments = [], [], [], []
     inputs = deque()
 
     def tee():
@@ -127,21 +140,28 @@ def run(args) -> int:
                 before.append(sf.trajectory)
                 after.append(sf.transform @ sf.trajectory)
                 warps.append(sf.warp)
+                segments.append(sf.segment)
                 if args.metrics:
                     keep_in.append(src)
                     keep_out.append(sf.image)
                 bar.update()
     finally:
         writer.release()
+    cuts = scene_cuts(segments)
+    if cuts and not args.quiet:
+        print(f"stabilize: scene cuts before frames {', '.join(map(str, cuts))}: "
+              f"{len(cuts) + 1} shots smoothed apart")
     if args.plot:
         save_plot(args.plot, before, after)
     if args.metrics:
-        from .stabilize_metrics import evaluate
+        from .stabilize_metrics import evaluate, evaluate_shots
 
         report = {"source": args.input, "frames": len(keep_in), "config": {
             k: v for k, v in dataclasses.asdict(config).items() if k not in ("camera_matrix", "dist_coeffs")},
-            "backend": "model" if args.model else args.backend}
-        report.update(evaluate(keep_in, keep_out, warps))
+            "backend": "model" if args.model else args.backend, "scene_cuts": cuts}
+        report.update(evaluate(keep_in, keep_out, warps, cuts))
+        if cuts:
+            report["shots"] = evaluate_shots(keep_in, keep_out, cuts)
         with open(args.metrics, "w") as f:
             json.dump(report, f, indent=2)
     return 0
@@ -199,4 +219,4 @@ def run_cli(args, prog="stabilize") -> int:
         return 2
 
 
-__all__ = ["trajectory_params", "save_plot", "add_arguments", "run", "main", "run_cli"]
+__all__ = ["trajectory_params", "save_plot", "scene_cuts", "add_arguments", "run", "main", "run_cli"]

@@ -6,7 +6,7 @@ step runs on the device, in one fixed sequence of launches per frame (:meth:`Dev
 
     frame (ring slot s) -> [undistort: remap] -> gray -> pyramid -> LK from slot s-1's pyramid -> park_lost ->
     RANSAC (first ``count`` points) -> keep_tracked -> [if the device's flag says so:
-    detect + merge_fresh] -> pad -> follow_motion (H, T, smoothing, truncation) ->
+    detect + merge_fresh] -> pad -> follow_motion (H, cut test, T, smoothing, truncation) ->
     warp of slot s - lag -> output slot s
 
 (:mod:`warpvx.kernels_warp.stabilize_points`, :mod:`warpvx.kernels_warp.stabilize_motion`).
@@ -54,6 +54,9 @@ LK_ITERS, LK_EPS, LK_MIN_EIG = 30, 0.01, 1e-4  # optical_flow_pyr_lk's defaults 
 # of a 1000 FPS budget); frames under BAND_BYTES per thread are copied on the calling thread.
 COPY_THREADS = 4
 BAND_BYTES = 1 << 19
+# Matrices follow_motion records per step: H, T, transform, warp and the segment index (in a
+# matrix, so one download carries all).
+RECORDS = 5
 
 
 class FrameCopier:
@@ -118,6 +121,7 @@ def make_chain(config: StabilizerConfig, size, device):
     chain.lag, chain.crop = config.lag, float(config.crop)
     chain.crop_matrix = wp.mat33d(*_crop_matrix(size, config.crop).ravel())
     chain.width, chain.height = float(size[0]), float(size[1])
+    chain.cut_threshold = float("inf") if config.cut_threshold is None else float(config.cut_threshold)
     return chain
 
 
@@ -129,8 +133,9 @@ class DevicePlan:
     capture replays the same launches, which the tests use to check the captured program);
     ``copy_threads``: host threads of the frame copies (:class:`FrameCopier`; 1: none).
     :meth:`run` consumes feed dicts ({"frame": uint8 HxWx3, "live": uint8 [1]}) and yields,
-    per step, a dict of ``stabilized`` (uint8 HxWx3, the frame ``lag`` steps back) and
-    float64 3x3 ``motion``, ``trajectory``, ``transform``, ``warp`` (as the graph's outputs).
+    per step, a dict of ``stabilized`` (uint8 HxWx3, the frame ``lag`` steps back),
+    float64 3x3 ``motion``, ``trajectory``, ``transform``, ``warp`` and the int ``segment``
+    (as the graph's outputs).
     """
 
     def __init__(self, size, config: StabilizerConfig, device, *, depth: int = 3,
@@ -169,7 +174,7 @@ class DevicePlan:
             self.maps = [wp.array(m, dtype=wp.float32, device=dev) for m in undistort_maps(c, (w, h))]
             self.sources = [wp.zeros((h, w, 3), dtype=wp.uint8, device=dev) for _ in range(R)]
         self.outs = [empty((h, w, 3)) for _ in range(R)]
-        self.records = [empty(4, wp.mat33d) for _ in range(R)]
+        self.records = [empty(RECORDS, wp.mat33d) for _ in range(R)]
         self.pyramids = []
         for _ in range(R):
             pyr = [wp.zeros((h, w), dtype=wp.uint8, device=dev)]
@@ -191,6 +196,7 @@ class DevicePlan:
         weights = c.weights()
         self.history = wp.array(np.full((max(1, len(weights) - 1), 3, 3), np.nan), dtype=wp.mat33d,
                                 device=dev)
+        self.segments = wp.zeros(self.history.shape[0], dtype=wp.int32, device=dev)
         self.sampling_matrix = empty(1, wp.mat33)
 
         chain = make_chain(c, (w, h), dev)
@@ -209,7 +215,7 @@ class DevicePlan:
                               points=self.points, count=self.count)
         self.pad = Recorded(kp.pad_points, P, dev, count=self.count, points=self.points)
         self.follow = [Recorded(km.follow_motion, 1, dev, homography=self.homography, live=self.live,
-                                chain=chain, history=self.history, record=rec,
+                                chain=chain, history=self.history, segments=self.segments, record=rec,
                                 sampling_matrix=self.sampling_matrix) for rec in self.records]
         self.warps = [km.warp_by_device_matrix(self.sources[(s - self.lag) % R], self.sampling_matrix,
                                                self.outs[s]) for s in range(R)]
@@ -240,7 +246,7 @@ class DevicePlan:
         pinned = {"device": "cpu", "pinned": True}
         self.pin_in = [wp.empty((h, w, 3), dtype=wp.uint8, **pinned) for _ in range(self.depth)]
         self.pin_out = [wp.empty((h, w, 3), dtype=wp.uint8, **pinned) for _ in range(self.depth)]
-        self.pin_rec = [wp.empty(4, dtype=wp.mat33d, **pinned) for _ in range(self.depth)]
+        self.pin_rec = [wp.empty(RECORDS, dtype=wp.mat33d, **pinned) for _ in range(self.depth)]
         self.host_in = [a.numpy() for a in self.pin_in]
         self.host_out = [a.numpy() for a in self.pin_out]
         self.host_rec = [a.numpy() for a in self.pin_rec]
@@ -401,9 +407,10 @@ class DevicePlan:
             image, rec = self.host_out[p], self.host_rec[p]
         else:
             image, rec = self.host_out[t % self.slots], self.host_rec[t % self.slots]
-        rec = np.array(rec, np.float64).reshape(4, 3, 3)
+        rec = np.array(rec, np.float64).reshape(RECORDS, 3, 3)
         return {"stabilized": self.copier.copy(image) if copy else image, "motion": rec[0],
-                "trajectory": rec[1], "transform": rec[2], "warp": rec[3]}
+                "trajectory": rec[1], "transform": rec[2], "warp": rec[3],
+                "segment": int(rec[4, 0, 0])}
 
     def run(self, feed, copy: bool = True):
         """Outputs of every step of ``feed`` in order, ``depth`` steps in flight. The next

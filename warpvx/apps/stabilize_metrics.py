@@ -19,6 +19,8 @@ valid region (the borders a warp uncovers).
 * :func:`shake_rms` -- with a known static scene: the high-passed RMS displacement (px) of a grid
   of points between each frame and the reference image; run on the shaken input (the applied
   shake) and on the output (the residual shake). :func:`shaky_clip` makes such clips.
+* :func:`evaluate_shots` -- ITF and stability per shot of a clip with scene cuts (``evaluate``
+  with ``cuts`` leaves the pairs across the cuts out of the clip-wide ones).
 """
 
 from __future__ import annotations
@@ -79,11 +81,21 @@ def mad(frames, n_points=10):
     return float(dev.mean())
 
 
-def itf(frames):
+def _shots(n, cuts):
+    """``[(first, end)]`` frame ranges of the shots of an ``n``-frame clip cut before ``cuts``."""
+    edges = [0, *[c for c in sorted(cuts) if 0 < c < n], n]
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def itf(frames, cuts=()):
     """Mean PSNR (dB) of consecutive gray frames over the pixels valid in both; pairs that
-    match exactly count :data:`PSNR_MAX`."""
+    match exactly count :data:`PSNR_MAX`. ``cuts``: frames starting a new shot; the pairs
+    across a cut are left out (two shots' frames, not motion)."""
     values = []
-    for a, b in zip(frames[:-1], frames[1:]):
+    cut = set(cuts)
+    for i, (a, b) in enumerate(zip(frames[:-1], frames[1:])):
+        if i + 1 in cut:
+            continue
         region = (_valid(a, 0) & _valid(b, 0)).astype(bool)
         if not region.any():
             continue
@@ -119,8 +131,19 @@ def _low_frequency_share(seq):
     return 1.0 if total <= 1e-12 else float(power[:5].sum() / total)
 
 
-def stability_score(frames):
-    """Liu et al. 2013 stability score in [0, 1] of a video (needs >= 3 frames)."""
+def stability_score(frames, cuts=()):
+    """Liu et al. 2013 stability score in [0, 1] of a video (needs >= 3 frames).
+
+    ``cuts``: frames starting a new shot; the score is then the mean of the shots' scores
+    weighted by their frames, shots of under 3 frames left out (NaN if none is left): chaining
+    the motion across a cut would measure the jump between two shots.
+    """
+    if len(cuts):
+        shots = [(a, b) for a, b in _shots(len(frames), cuts) if b - a >= 3]
+        if not shots:
+            return float("nan")
+        return float(sum((b - a) * stability_score(frames[a:b]) for a, b in shots)
+                     / sum(b - a for a, b in shots))
     P = np.eye(3)
     trans, rot = [], []
     for a, b in zip(frames[:-1], frames[1:]):
@@ -204,21 +227,23 @@ def shaky_clip(image, n_frames, size, *, shift=4.0, angle=1.0, zoom=0.01, seed=0
     return frames, reference, transforms
 
 
-def evaluate(inputs, outputs, homographies=None):
+def evaluate(inputs, outputs, homographies=None, cuts=()):
     """All metrics of one input/output pair as a dict (JSON-ready): for ``"input"`` and
     ``"output"`` MAD10/MAD100 (px), ITF (dB) and stability; for the output also the cropping
     ratio, distortion and ``mad10_input_px``/``mad100_input_px`` (MAD times the cropping ratio).
 
     ``homographies``: the per-frame input -> output warps when known (the stabilizer's
-    ``warp``); else estimated from the frames (RANSAC similarity).
+    ``warp``); else estimated from the frames (RANSAC similarity). ``cuts``: the frames
+    starting a new shot (``scene_cuts``): ITF and stability then leave out the pairs across
+    the cuts, for the input and the output alike (:func:`itf`, :func:`stability_score`).
     """
     if homographies is None:
         homographies = [similarity(a, b) for a, b in zip(inputs, outputs)]
     crop, distortion = cropping_distortion(homographies)
     report = {}
     for key, frames in (("input", inputs), ("output", outputs)):
-        report[key] = {"mad10": mad(frames, 10), "mad100": mad(frames, 100), "itf": itf(frames),
-                       "stability": stability_score(frames)}
+        report[key] = {"mad10": mad(frames, 10), "mad100": mad(frames, 100), "itf": itf(frames, cuts),
+                       "stability": stability_score(frames, cuts)}
     out = report["output"]
     # The crop's zoom scales every output motion by 1 / crop: MAD in input pixels compares
     # with the input and with stabilizers that do not zoom.
@@ -227,5 +252,22 @@ def evaluate(inputs, outputs, homographies=None):
     return report
 
 
+def evaluate_shots(inputs, outputs, cuts):
+    """ITF (dB) and stability of each shot of a clip with scene cuts, input and output: a list
+    of ``{"frames": [first, last], "input": {...}, "output": {...}}`` (JSON-ready).
+
+    ``cuts``: the frames starting a new shot, ascending (``scene_cuts``). A shot of under 3
+    frames has no stability (NaN).
+    """
+    shots = []
+    for a, b in _shots(len(inputs), cuts):
+        shot = {"frames": [a, b - 1]}
+        for key, frames in (("input", inputs[a:b]), ("output", outputs[a:b])):
+            shot[key] = {"itf": itf(frames),
+                         "stability": stability_score(frames) if b - a >= 3 else float("nan")}
+        shots.append(shot)
+    return shots
+
+
 __all__ = ["PSNR_MAX", "track_points", "mad", "itf", "similarity", "stability_score",
-           "cropping_distortion", "shake_rms", "shaky_clip", "evaluate"]
+           "cropping_distortion", "shake_rms", "shaky_clip", "evaluate", "evaluate_shots"]

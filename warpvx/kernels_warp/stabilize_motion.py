@@ -33,7 +33,7 @@ TRUNCATE_STEPS = 12  # truncate_transform's bisection steps
 class Chain:
     """Constants of the chain: ``weights`` (float64 [L], oldest first), ``lag`` (frames),
     ``crop`` (fraction) with its matrix ``crop_matrix`` (float64 3x3), frame ``width`` and
-    ``height`` (px)."""
+    ``height`` (px), ``cut_threshold`` (``is_cut``'s, a fraction of the diagonal; inf: none)."""
 
     weights: wp.array(dtype=wp.float64)
     lag: int
@@ -41,6 +41,7 @@ class Chain:
     crop_matrix: wp.mat33d
     width: wp.float64
     height: wp.float64
+    cut_threshold: wp.float64
 
 
 @wp.func
@@ -86,6 +87,25 @@ def covers(m: wp.mat33d, chain: Chain) -> bool:
 
 
 @wp.func
+def is_cut(m: wp.mat33d, chain: Chain) -> bool:
+    """``is_cut``: a frame corner moved by more than ``cut_threshold`` of the diagonal, or
+    sent to or past the line at infinity."""
+    w1 = chain.width - wp.float64(1.0)
+    h1 = chain.height - wp.float64(1.0)
+    limit = chain.cut_threshold * wp.sqrt(chain.width * chain.width + chain.height * chain.height)
+    cut = False
+    for k in range(4):
+        x = wp.where(k == 1 or k == 2, w1, wp.float64(0.0))
+        y = wp.where(k >= 2, h1, wp.float64(0.0))
+        p = m * wp.vec3d(x, y, wp.float64(1.0))
+        if not p[2] > wp.float64(0.0):
+            cut = True
+        elif wp.length(wp.vec2d(p[0] / p[2] - x, p[1] / p[2] - y)) > limit:
+            cut = True
+    return cut and wp.isfinite(chain.cut_threshold)
+
+
+@wp.func
 def window_entry(history: wp.array(dtype=wp.mat33d), t: wp.mat33d, i: int, n: int) -> wp.mat33d:
     """Entry ``i`` of the smoothing window of ``n`` matrices: the last ``n - 1`` of ``history``
     then ``t``."""
@@ -94,13 +114,22 @@ def window_entry(history: wp.array(dtype=wp.mat33d), t: wp.mat33d, i: int, n: in
     return history[history.shape[0] + 1 - n + i]
 
 
+@wp.func
+def window_entry(history: wp.array(dtype=wp.int32), t: int, i: int, n: int) -> int:
+    """The same entry of the window's segment indices."""
+    if i == n - 1:
+        return t
+    return history[history.shape[0] + 1 - n + i]
+
+
 @wp.kernel
 def follow_motion(homography: wp.array2d(dtype=wp.float64), live: wp.array(dtype=wp.int32),
-                  chain: Chain, history: wp.array(dtype=wp.mat33d),
+                  chain: Chain, history: wp.array(dtype=wp.mat33d), segments: wp.array(dtype=wp.int32),
                   record: wp.array(dtype=wp.mat33d), sampling_matrix: wp.array(dtype=wp.mat33)):
-    """One thread: record = (H_k, T_k, smoothing transform, warp); ``history`` (T_{k-m} ..
-    T_{k-1}, NaN before the video) shifted by one with T_k; ``sampling_matrix[0]`` the
-    float32 dst->src matrix of the warp."""
+    """One thread: record = (H_k, T_k, smoothing transform, warp, segment index of frame k in
+    [0, 0] of a mat33d); ``history`` (T_{k-m} .. T_{k-1}, NaN before the video) and
+    ``segments`` (their segment indices, 0 before the video) shifted by one with frame k;
+    ``sampling_matrix[0]`` the float32 dst->src matrix of the warp."""
     one = wp.float64(1.0)
     h = wp.mat33d()
     for i in range(3):
@@ -108,22 +137,27 @@ def follow_motion(homography: wp.array2d(dtype=wp.float64), live: wp.array(dtype
             h[i, j] = homography[i, j]
     motion = motion_of(h)
     prev = history[history.shape[0] - 1]
+    segment = segments[segments.shape[0] - 1]
     t = wp.identity(3, dtype=wp.float64)
     if live[0] == 0:
         t = nan_matrix()
     elif all_finite(prev):
-        t = motion * prev
-        t = t / t[2, 2]
+        if is_cut(motion, chain):
+            segment = segment + 1  # t restarts at the identity
+        else:
+            t = motion * prev
+            t = t / t[2, 2]
     n = chain.weights.shape[0]
     s = wp.identity(3, dtype=wp.float64)
     tj = window_entry(history, t, n - 1 - chain.lag, n)
+    sj = window_entry(segments, segment, n - 1 - chain.lag, n)
     if all_finite(tj):
         inv = wp.inverse(tj)
         acc = wp.mat33d()
         total = wp.float64(0.0)
         for i in range(n):
             ti = window_entry(history, t, i, n)
-            if all_finite(ti):
+            if all_finite(ti) and window_entry(segments, segment, i, n) == sj:
                 m = ti * inv
                 wi = chain.weights[i]
                 acc = acc + wi * (m / m[2, 2])
@@ -144,11 +178,16 @@ def follow_motion(homography: wp.array2d(dtype=wp.float64), live: wp.array(dtype
         warp = c * ((one - hi) * s + hi * eye)
     for i in range(history.shape[0] - 1):
         history[i] = history[i + 1]
+        segments[i] = segments[i + 1]
     history[history.shape[0] - 1] = t
+    segments[segments.shape[0] - 1] = segment
     record[0] = motion
     record[1] = t
     record[2] = s
     record[3] = warp
+    record[4] = wp.mat33d(wp.float64(segment), wp.float64(0.0), wp.float64(0.0), wp.float64(0.0),
+                          wp.float64(0.0), wp.float64(0.0), wp.float64(0.0), wp.float64(0.0),
+                          wp.float64(0.0))
     sampling_matrix[0] = wp.mat33(wp.inverse(warp))
 
 

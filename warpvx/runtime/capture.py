@@ -31,6 +31,20 @@ fixed buffers (:meth:`SegmentGraph.launch`), so values have the captured form fr
 first frame (a corner count changing between eager frames would otherwise change the next
 segment's input shapes) and nothing allocates inside the capture.
 
+Lanes: a segment's tasks are spread over up to :data:`MAX_LANES` streams by its own data
+dependencies (:mod:`.lanes`: list scheduling over the scheduled durations), forked from
+the executor's stream after the copies in and joined back before the copies out; a task waits
+(a device event) for its producers on other lanes. CUDA stream capture follows those events,
+so the graph holds the segment's true dependencies and independent branches (two cameras,
+a detector beside the features) run concurrently. A task that inserts a conditional node
+(``wp.capture_if``/``capture_while``: Harris's selection rounds, FAST's counted sort) runs
+with every lane joined, as Warp pauses the capture there; the first run of a segment's
+:class:`SegmentGraph` runs on the one stream and finds those tasks. Later uncaptured runs
+take the lanes, so the primitives' per-stream scratch (:func:`~warpvx.kernels_warp._launch.
+workspace`) exists before the capture and is never shared by concurrent tasks (on CUDA a
+one-set segment is captured on its third sighting, not its second). On Warp's CPU device
+every lane is the one stream.
+
 Warp 1.19 captures on its CPU device too (an operation stream replayed in C++), so the same
 code runs there when asked (``capture=True``), which is how it is tested without a GPU.
 
@@ -51,6 +65,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._counted import is_counted
+from ..check import check_int
+from .lanes import MAX_LANES, Lanes, lanes, noted, noting_conditionals
 from .native_copy import copy_device, is_warp_array, to_device, warp
 from .program import InputRef, Program
 from .slots import DEVICE
@@ -245,9 +261,14 @@ class SegmentGraph:
         fix the input buffers' shapes and dtypes.
     device : str
         Warp device of the GPU role.
+    durations : dict, optional
+        Task name -> scheduled duration, to spread the tasks over lanes (:func:`lanes`).
+    max_lanes : int
+        Streams the tasks may take (1: one chain).
     """
 
-    def __init__(self, segment: Segment, values, device: str):
+    def __init__(self, segment: Segment, values, device: str, durations=None,
+                 max_lanes: int = MAX_LANES):
         wp = warp()
         self.segment = segment
         self.inputs = {}
@@ -258,6 +279,9 @@ class SegmentGraph:
                 device=device), v)
         self.sets = [_BufferSet(segment.tasks) for _ in range(2 if segment.swapped else 1)]
         self.last = -1  # the set the last run wrote (the next frame's delayed values)
+        self._lane_args = (durations, check_int(max_lanes, "max_lanes", min_value=1))
+        self.lanes = None  # Lanes, from the first run on (which finds the serial tasks)
+        self._events = {}  # (kind, index) -> a wp.Event of the lanes' forks, joins, signals
         self.scratch = ()
         self._views = {}  # (id of a copy buffer, part) -> a Counted of views of it
 
@@ -287,11 +311,11 @@ class SegmentGraph:
                 return other[ref.key]
         return self.inputs[ref]
 
-    def capture(self, device: str, stream):
-        """Capture the tasks writing the next run's buffer set (``stream``: CUDA only), once
-        an uncaptured run has written it. Each task writes its ``gpu_out()`` buffers; its
-        result may also hold a buffer it read (a pyramid's level 0 is its source), but
-        nothing else.
+    def capture(self, device: str, streams):
+        """Capture the tasks writing the next run's buffer set (``streams``: the lanes' streams,
+        the first the capture's; CUDA only, else None), once an uncaptured run has written it.
+        Each task writes its ``gpu_out()`` buffers; its result may also hold a buffer it read
+        (a pyramid's level 0 is its source), but nothing else.
 
         Raises
         ------
@@ -302,8 +326,8 @@ class SegmentGraph:
         wp = warp()
         b = self.sets[self.next]
         try:
-            with wp.ScopedCapture(device=device, stream=stream) as cap:
-                self._run_tasks(self.next)
+            with wp.ScopedCapture(device=device, stream=streams and streams[0]) as cap:
+                self._run_tasks(self.next, streams=streams)
         except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
             raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
         if cap.graph is None:
@@ -311,11 +335,31 @@ class SegmentGraph:
         b.graph = cap.graph
         self.scratch = _workspaces()
 
-    def _run_tasks(self, s: int, fresh: bool = False):
-        """Enqueue the tasks, each into its buffers of set ``s``; their results become the
-        set's outputs. Uncaptured (a set's first run) this also builds whatever a primitive
-        makes per set of buffers (workspaces, recorded launches), so nothing allocates
-        inside the capture that follows.
+    def single_lane(self) -> bool:
+        """Run on one lane from now on (after a capture on several failed); False if it
+        already does. The first run, on that one stream, made its scratch."""
+        if self.lanes is None or self.lanes.count == 1:
+            return False
+        tasks = self.segment.tasks
+        self.lanes = lanes(tasks, self._lane_args[0], 1, {tasks[i].name for i in self.lanes.serial})
+        return True
+
+    def _event(self, kind: str, i: int, device):
+        """The lanes' event ``(kind, i)`` on CUDA ``device``, made on first use (reused by
+        every run: a wait takes the event's state when it is enqueued)."""
+        ev = self._events.get((kind, i))
+        if ev is None:
+            ev = self._events[kind, i] = warp().Event(device)
+        return ev
+
+    def _run_tasks(self, s: int, fresh: bool = False, streams=None):
+        """Enqueue the tasks, each into its buffers of set ``s`` and on its lane's stream of
+        ``streams`` (:attr:`lanes`; None: all on the current stream, as on Warp's CPU
+        device); their results become the set's outputs. Uncaptured this also builds
+        whatever a primitive makes per set of buffers and stream (workspaces, recorded
+        launches), so nothing allocates inside the capture that follows. The first run
+        enqueues every task on the current stream and notes which ones insert conditional
+        graph nodes (the serial tasks of :class:`Lanes`), which fixes :attr:`lanes`.
 
         Raises
         ------
@@ -329,16 +373,76 @@ class SegmentGraph:
         outputs = {}
         fixed = {a.ptr for ref in self.segment.inputs
                  for a in _leaves(self.value(ref, s, outputs, fresh))}
-        for task in self.segment.tasks:
+        tasks = self.segment.tasks
+
+        def run(task):
             out = b.outs[task.name]
             mine = {a.ptr for a in _leaves(out)}
             result = task.gpu(*[self.value(r, s, outputs, fresh) for r in task.inputs], out=out)
             if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
                 raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
-            fixed |= mine
+            fixed.update(mine)
             outputs.update(_per_output(task, result))
+
+        if self.lanes is None:
+            serial = set()
+            with noting_conditionals():
+                for task in tasks:
+                    before = noted.calls
+                    run(task)
+                    if noted.calls > before:
+                        serial.add(task.name)
+            self.lanes = lanes(tasks, *self._lane_args, serial=serial)
+            # Its scratch is the one stream's: warm only where the lanes are that stream.
+            warm = warm and (streams is None or self.lanes.count == 1)
+        elif streams is None or self.lanes.count == 1:
+            for i in self.lanes.order:
+                run(tasks[i])
+        else:
+            self._run_on_lanes(run, streams)
         b.outputs = outputs
         b.warm = warm
+
+    def _run_on_lanes(self, run, streams):
+        """``run(task)`` for each task in :attr:`lanes` order, on its lane's stream of
+        ``streams`` (the first, the current one, is the fork's and the join's): a lane waits
+        for the fork when it first runs in an epoch (since the run's start or the last serial
+        task), then for its producers' events on other lanes; the lanes are joined before a
+        serial task and at the end, even on an error (a capture ends only with every lane
+        joined)."""
+        device = streams[0].device
+        main = streams[0]
+        lanes_, signals, active = self.lanes, self.lanes.signals, set()
+        tasks = self.segment.tasks
+
+        def join():
+            for k in sorted(active):
+                main.wait_event(streams[k].record_event(self._event("join", k, device)))
+            active.clear()
+
+        fork = main.record_event(self._event("fork", 0, device))
+        try:
+            for i in lanes_.order:
+                if i in lanes_.serial:
+                    join()
+                    device.set_stream(main, sync=False)
+                    run(tasks[i])
+                    fork = main.record_event(self._event("fork", 0, device))
+                    continue
+                k = lanes_.of[i]
+                lane = streams[k]
+                if k and k not in active:
+                    lane.wait_event(fork)
+                    active.add(k)
+                for p in lanes_.waits[i]:
+                    lane.wait_event(self._event("done", p, device))
+                device.set_stream(lane, sync=False)
+                run(tasks[i])
+                if i in signals:
+                    lane.record_event(self._event("done", i, device))
+        finally:
+            device.set_stream(main, sync=False)
+            join()
 
     def reads_fresh(self, values) -> bool:
         """Whether the next run, given the frame's ``values`` of ``segment.inputs``, reads
@@ -379,16 +483,16 @@ class SegmentGraph:
                 to_device(buf, np.ascontiguousarray(v))
                 io.moved += v.nbytes
 
-    def launch(self, stream, fresh: bool = False) -> dict:
-        """Replay the next run's captured graph on ``stream`` (or run its tasks uncaptured
-        before it is captured, or when ``fresh``: :meth:`reads_fresh`); returns the set's
-        outputs (key -> fixed value)."""
+    def launch(self, streams, fresh: bool = False) -> dict:
+        """Replay the next run's captured graph on ``streams[0]`` (or run its tasks uncaptured
+        on the lanes' ``streams``, as :meth:`capture`, before it is captured, or when
+        ``fresh``: :meth:`reads_fresh`); returns the set's outputs (key -> fixed value)."""
         s = self.next
         b = self.sets[s]
         if b.graph is None or fresh:
-            self._run_tasks(s, fresh)
+            self._run_tasks(s, fresh, streams)
         else:
-            warp().capture_launch(b.graph, stream=stream)
+            warp().capture_launch(b.graph, stream=streams and streams[0])
         self.last = s
         return b.outputs
 
@@ -415,7 +519,31 @@ class SegmentGraph:
 
 class SegmentRunner:
     """The executor's captured segments: a mixin of :class:`~warpvx.runtime.Executor`, whose
-    frames' slots, timing events, buffer pools and stream it uses."""
+    frames' slots, timing events, buffer pools and stream it uses.
+
+    ``max_lanes`` (default :data:`MAX_LANES`): the streams a segment captured from now on
+    spreads its tasks over (1: one chain on the executor's stream)."""
+
+    _max_lanes = MAX_LANES
+    _lane_streams: tuple = ()  # the streams of lanes 1.. (CUDA), made when first needed
+
+    @property
+    def max_lanes(self) -> int:
+        return self._max_lanes
+
+    @max_lanes.setter
+    def max_lanes(self, n: int):
+        self._max_lanes = check_int(n, "max_lanes", min_value=1)
+
+    def _streams(self, sg: SegmentGraph):
+        """The streams of ``sg``'s lanes, the executor's first (None off CUDA)."""
+        if not self.cuda:
+            return None
+        extra = (sg.lanes.count if sg.lanes else 1) - 1 - len(self._lane_streams)
+        if extra > 0:
+            wp = warp()
+            self._lane_streams += tuple(wp.Stream(self._stream.device) for _ in range(extra))
+        return (self._stream, *self._lane_streams)
 
     def _captures_of(self, frame: Frame) -> list:
         """The capture states of ``frame``'s input signature, one per segment: a dict of
@@ -465,7 +593,8 @@ class SegmentRunner:
             return None
         if key not in by_shape:
             try:
-                sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device)
+                sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device, self._spans,
+                                  self.max_lanes)
             except NotCapturable as exc:
                 _log.debug("segment %s, inputs %s, runs eagerly: %s", seg.tasks[0].name, key, exc)
                 sg = None
@@ -479,7 +608,14 @@ class SegmentRunner:
         first = not sg.captured
         try:
             with self._capture_lock:
-                sg.capture(self.gpu_device, self._stream)
+                try:
+                    sg.capture(self.gpu_device, self._streams(sg))
+                except NotCapturable as exc:  # lanes refused: one chain, as before lanes
+                    if not sg.single_lane():
+                        raise
+                    _log.debug("segment %s, inputs %s, captured on one lane: %s",
+                               seg.tasks[0].name, key, exc)
+                    sg.capture(self.gpu_device, self._streams(sg))
         except NotCapturable as exc:  # a host sync or read-back inside, a caller's capture
             _log.debug("segment %s, inputs %s, not captured: %s", seg.tasks[0].name, key, exc)
             by_shape[key] = None
@@ -506,7 +642,7 @@ class SegmentRunner:
             frame.copied[seg.tasks[0].name] = io.moved - before
         replay = sg.sets[sg.next].graph is not None and not fresh
         try:
-            fixed = sg.launch(self._stream, fresh)
+            fixed = sg.launch(self._streams(sg), fresh)
         except NotCapturable as exc:  # uncaptured first run: an out= did not fit these inputs
             _log.debug("segment %s runs eagerly: %s", seg.tasks[0].name, exc)
             self._forget(self._captures_of(frame), self._segments.index(seg), sg)
@@ -569,5 +705,5 @@ class SegmentRunner:
         return shares
 
 
-__all__ = ["MAX_SIGNATURES", "NotCapturable", "Segment", "SegmentGraph", "SegmentRunner", "segments",
-           "signature"]
+__all__ = ["MAX_LANES", "MAX_SIGNATURES", "Lanes", "NotCapturable", "Segment", "SegmentGraph",
+           "SegmentRunner", "lanes", "segments", "signature"]

@@ -23,12 +23,15 @@ Roles and threads
     runs its own role and blocks on each value it needs.
 Cross-queue edges
     Every (frame, value) pair is a :class:`Slot`, set when its producer has finished (CPU) or
-    enqueued (GPU). GPU -> CPU: the producer's end event is recorded on the stream; on CUDA,
-    where a CPU task of the frame reads the value, the GPU role then starts its download at
-    once (:meth:`Transfers.stage_download`: a pinned buffer, its own copy stream after the
-    producer's event), so the reader waits for one event and copies out (the buffer is free
-    for the next download once copied out: :meth:`Slot.release_staged`); otherwise the
-    reader waits for the producer's event and downloads on its thread's copy stream.
+    enqueued (GPU). GPU -> CPU: the producer's end event is recorded on the stream; on
+    CUDA, where a CPU task of the frame or the caller (a graph output) reads the value, the
+    GPU role then starts its download at once (:meth:`Transfers.stage_download`: pinned
+    buffers of the executor's :class:`~.pinned.HostPool`, on the GPU role's copy stream
+    after the producer's event), so the compute stream runs on while the DMA runs and the
+    reader waits for the copy's event only, then gets NumPy views of the pinned buffers (no
+    host copy; a buffer returns to the pool once every array on it is garbage); otherwise
+    (the pool full, a delay's value, a vector dtype) the reader waits for the producer's
+    event and downloads on its thread's copy stream.
     CPU -> GPU: the GPU role uploads on the GPU stream (stream-ordered, so the kernel after
     it sees the data; large arrays go through reusable pinned staging buffers, so the copy is
     asynchronous and the host does not wait for the kernels queued before it). Between two
@@ -116,6 +119,7 @@ from ..sched.schedule import Schedule
 from .capture import SegmentRunner, segments, signature
 from .cycles import Batch, frames_of
 from .native_copy import recorder, synchronize_event, warp
+from .pinned import HostPool
 from .program import ExecTask, InputRef, Program, data_graph
 from .roles import DeviceScope, GpuState, RoleRunner, is_gpu_processor
 from .slots import DEVICE, HOST, Slot
@@ -178,6 +182,12 @@ class Executor(RoleRunner, SegmentRunner):
     UPLOAD_POOL = 16
     #: Output buffers kept per pooled GPU task (a few frames in flight).
     OUT_POOL = 16
+    #: Bytes of pinned host memory for staged downloads (:class:`~.pinned.HostPool`), free
+    #: and lent to the caller's outputs together; past it, downloads are synchronous.
+    HOST_POOL_BYTES = 256 << 20
+    #: Stage downloads on Warp's CPU device too, into plain host buffers (the copies are
+    #: synchronous there: no gain; for tests of the staged path without CUDA).
+    STAGE_ON_HOST = False
 
     def __init__(self, schedule: Schedule, program: Program, *, gpu_device: str | None = None,
                  name: str = "graph", spin: float | None = None, capture: bool | None = None,
@@ -272,6 +282,8 @@ class Executor(RoleRunner, SegmentRunner):
         # The slots a frame's events may outlive it in (_recycle): the caller's inputs and
         # the delays' (kept by their rings); the others go with the frame.
         self._outliving = list(dict.fromkeys([*program.inputs, *program.rings]))
+        stage = self.cuda or (bool(gpu_device) and self.STAGE_ON_HOST)
+        self._host_pool = HostPool(self.HOST_POOL_BYTES, pinned=self.cuda) if stage else None
         self._roles = self._make_roles() if self.frames == 1 else {}
         self._scope: DeviceScope | None = None  # the GPU role's device/stream (set by _start)
 
@@ -334,7 +346,7 @@ class Executor(RoleRunner, SegmentRunner):
     def _io(self) -> Transfers:
         io = getattr(self._local, "io", None)
         if io is None:
-            io = self._local.io = Transfers(self.gpu_device)
+            io = self._local.io = Transfers(self.gpu_device, self._host_pool)
         return io
 
     def _start(self):
@@ -765,6 +777,9 @@ class Executor(RoleRunner, SegmentRunner):
             slots[key] = Slot()
         frame = Frame(frame_index, slots, self._slot_procs[frame_index % self.frames])
         frame.events.extend(events)
+        # A caller passing device inputs gets device outputs (Graph.process, stream): no
+        # downloads of them to stage.
+        frame.stage_outputs = all(inputs[k][1] == HOST for k in self.program.inputs)
         if self.frames == 1 and self.gpu_device:
             timing = self._timing
             frame.bursts = timing == "bursts" or (timing is None and self.cuda and bool(self._inflight))
@@ -958,6 +973,8 @@ class Executor(RoleRunner, SegmentRunner):
         for th in self._threads.values():
             th.join(timeout=5.0)
         self._threads.clear()
+        if self._host_pool is not None:
+            self._host_pool.close()
 
 
 #: Values of :class:`Executor`'s ``timing``.

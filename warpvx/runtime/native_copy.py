@@ -114,23 +114,51 @@ def to_host(a, stream=None, *, native: bool = True) -> np.ndarray:
 
 
 def to_host_async(dst, a, stream=None, *, native: bool = True):
-    """Queue a copy of contiguous ``wp.array`` ``a`` into ``dst``, a host ``wp.array`` of the
-    same size and dtype (pinned, for the copy to be asynchronous), on ``stream`` (a
-    ``wp.Stream``; CUDA), without waiting for it: the caller records an event after it. On
-    Warp's CPU device the copy is done on return. ``native=False`` takes ``wp.copy``."""
+    """Queue a copy of contiguous ``wp.array`` ``a`` into ``dst``, host memory of the same
+    size and dtype (a host ``wp.array`` or a NumPy array; pinned, for the copy to be
+    asynchronous), on ``stream`` (a ``wp.Stream``; CUDA), without waiting for it: the caller
+    records an event after it. On Warp's CPU device the copy is done on return.
+    ``native=False`` takes ``wp.copy``."""
+    host = isinstance(dst, np.ndarray)
     fast = _fast(native, a)
     if fast is None:
-        warp().copy(dst, a, stream=stream if a.device.is_cuda else None)
+        wp = warp()
+        if host:
+            dst = wp.array(ptr=dst.ctypes.data, shape=dst.shape, dtype=a.dtype, device="cpu")
+        wp.copy(dst, a, stream=stream if a.device.is_cuda else None)
         return
-    n = dst.capacity
+    ptr, n = (dst.ctypes.data, dst.nbytes) if host else (dst.ptr, dst.capacity)
+    bytes_to_host_async(ptr, a.device, a.ptr, n, stream, fast)
+
+
+def bytes_to_host_async(dst_ptr: int, device, src_ptr: int, n: int, stream=None, fast=None):
+    """Queue a copy of ``n`` bytes at ``src_ptr`` in the memory of Warp device ``device`` into
+    host memory at ``dst_ptr`` (pinned, for it to be asynchronous) on ``stream`` (CUDA), as
+    :func:`to_host_async` does for whole arrays: for a part of an allocation without making a
+    ``wp.array`` of it (~10 us of Python). ``fast``: the native entry points (looked up when
+    None; without them, Warp's public API)."""
     if not n:
         return
-    if a.device.is_cuda:
-        ok = fast.d2h(a.device.context, dst.ptr, a.ptr, n, stream.cuda_stream)
+    fast = fast if fast is not None else native_entry_points()
+    if fast is None:
+        wp = warp()
+        src = wp.array(ptr=src_ptr, shape=(n,), dtype=wp.uint8, device=device)
+        dst = wp.array(ptr=dst_ptr, shape=(n,), dtype=wp.uint8, device="cpu")
+        wp.copy(dst, src, stream=stream if device.is_cuda else None)
+        return
+    if device.is_cuda:
+        ok = fast.d2h(device.context, dst_ptr, src_ptr, n, stream.cuda_stream)
     else:
-        ok = fast.h2h(dst.ptr, a.ptr, n)
+        ok = fast.h2h(dst_ptr, src_ptr, n)
     if not ok:
         raise RuntimeError(f"download of {n} bytes failed")
+
+
+def synchronize_stream(stream):
+    """Wait on the host for what is queued on ``stream`` (a ``wp.Stream``)."""
+    fast = native_entry_points()
+    if fast is None or not fast.stream_sync(stream.cuda_stream):
+        warp().synchronize_stream(stream)
 
 
 def to_device(dst, src, stream=None, *, native: bool = True):
@@ -239,5 +267,6 @@ def elapsed_since(start):
 
 
 __all__ = ["warp", "is_warp_array", "native_entry_points", "numpy_dtype", "to_host",
-           "to_host_async", "to_device", "copy_device", "record_event", "recorder", "wait_event",
-           "synchronize_event", "elapsed_since"]
+           "to_host_async", "bytes_to_host_async", "synchronize_stream", "to_device",
+           "copy_device", "record_event", "recorder", "wait_event", "synchronize_event",
+           "elapsed_since"]

@@ -141,7 +141,7 @@ class RoleRunner:
                 units = list(enumerate(self._segments))
                 refs = [seg.inputs if seg.captured else seg.tasks[0].inputs for seg in self._segments]
                 roles[p] = Role(p, units, refs, [short(seg.tasks) for seg in self._segments],
-                                GpuState(p, Transfers(self.gpu_device)))
+                                GpuState(p, Transfers(self.gpu_device, self._host_pool)))
             else:
                 units = self.queues[p]
                 roles[p] = Role(p, units, [t.inputs for t in units], [short([t]) for t in units],
@@ -160,14 +160,19 @@ class RoleRunner:
         return roles
 
     def _staged_keys(self) -> set:
-        """Keys whose download starts as soon as the GPU role publishes them (CUDA): read by
-        a CPU task of the same frame, and by no delay (a staging buffer is reused once read,
-        or once its frame is over)."""
-        if not self.cuda:
+        """Keys whose download starts as soon as the GPU role publishes them (with a host
+        pool): read by a CPU task of the same frame, or by the caller (a graph output; those
+        only, :attr:`_outputs_staged`, in frames whose caller wants host data:
+        ``Frame.stage_outputs``), and by no delay (a later frame may read a delay's value
+        after its frame)."""
+        self._outputs_staged = set()
+        if self._host_pool is None:
             return set()
-        cpu_reads = {r.key for p in self._active if not is_gpu_processor(p)
-                     for t in self.queues[p] for r in t.inputs if r.offset == 0}
-        return cpu_reads - set(self.program.rings)
+        reads = {r.key for p in self._active if not is_gpu_processor(p)
+                 for t in self.queues[p] for r in t.inputs if r.offset == 0}
+        outputs = set(self.program.outputs.values())
+        self._outputs_staged = outputs - reads - set(self.program.rings)
+        return (reads | outputs) - set(self.program.rings)
 
     def _role_loop(self, proc: str):
         home = self._roles[proc]
@@ -326,7 +331,8 @@ class RoleRunner:
             else:
                 self._run_gpu_task(frame, seg.tasks[0], state, slots)
             for key in role.stage[role.pos]:
-                self._stage(frame, frame.slots[key], io)
+                if frame.stage_outputs or key not in self._outputs_staged:
+                    self._stage(frame, frame.slots[key], io)
         except Cancelled:
             return False
         except BaseException as exc:  # noqa: BLE001 - reported to the caller

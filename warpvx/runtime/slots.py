@@ -7,6 +7,8 @@ from __future__ import annotations
 import threading
 from typing import TYPE_CHECKING
 
+from .native_copy import synchronize_event
+
 if TYPE_CHECKING:
     from .transfers import Transfers
 
@@ -108,24 +110,24 @@ class Slot:
             if self._host is None:
                 staged = self.staged
                 if staged is not None:
+                    # Views of the pool's buffers, lent for as long as the value lives.
                     self._host = (io.unstage(staged, ready=waited is staged.event),)
-                    # Copied out: the buffer may take the next download at once (a frame's
-                    # downloads of one shape can outnumber the ring, whose overflow then
-                    # downloads synchronously); later readers find the host copy.
-                    self.release_staged()
+                    self.staged = None
                 else:
                     event = self.event
                     self._host = (io.download(self.value, None if waited is event else event),)
             return self._host[0]
 
     def release_staged(self):
-        """Let go of the staged download's buffer (copied out, or the frame is over): the
-        ring may reuse it once its copy is done. Only the slot holding it frees it, so a
-        buffer already taken by a later download is never freed twice."""
+        """Drop the staged download not read (the frame is over): its buffers go back to the
+        pool once its copy is done (waited for here: a buffer is never lent again while a
+        copy into it may run)."""
         staged = self.staged
         if staged is not None:
             self.staged = None
-            staged.free = True
+            if staged.event is not None:
+                synchronize_event(staged.event)
+            staged.close()
 
     def ready_event(self):
         """The CUDA event after which :meth:`host` copies without waiting: the staged

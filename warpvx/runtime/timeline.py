@@ -87,6 +87,7 @@ class Frame:
         self.leases = []  # (task, buffer) output buffers taken from the pools
         self.uploads = []  # (key, buffer) upload buffers taken from the pools
         self.staged = []  # slots with a staged download (Transfers.stage_download), freed by then
+        self.stage_outputs = True  # the caller reads host outputs: stage their downloads
         self.capture = False  # replay captured GPU segments
         self.signature = None  # the capture key of its inputs' shapes and dtypes
         self.shares = {}  # task -> (start, end) fractions of its segment's or burst's interval

@@ -8,11 +8,15 @@ copies every leaf of a tree between host memory and the GPU role's device, throu
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
-from .._counted import download, map_counted
-from .native_copy import (is_warp_array, numpy_dtype, record_event, synchronize_event, to_device,
-                          to_host, to_host_async, wait_event, warp)
+from .._counted import ONE_COPY_MAX_BYTES, Counted, download, map_counted
+from .native_copy import (bytes_to_host_async, is_warp_array, numpy_dtype, record_event,
+                          synchronize_event, synchronize_stream, to_device, to_host,
+                          to_host_async, wait_event, warp)
+from .pinned import HostPool
 
 
 def tree_map(fn, obj):
@@ -38,17 +42,69 @@ def tree_map(fn, obj):
     return obj
 
 
-class _Staging:
-    """A pinned host buffer of one shape and dtype and the event of its last copy; for
-    downloads also whether its reader is done with it (``free``)."""
+def host_value(value, fetch, counted):
+    """The host value of device value ``value`` (a tree, see :func:`tree_map`) made from
+    ``fetch(a)``, a host copy (NumPy) of each device array ``a`` in it, and ``counted(c)``,
+    the host value of each :class:`~warpvx._counted.Counted` with a block (a graph node's);
+    any other Counted is cut to its count on the host (its flatten protocol)."""
+    if is_warp_array(value):
+        return fetch(value)
+    value = map_counted(lambda c: c if c.block is None or not is_warp_array(c.count)
+                        else counted(c), value)
+    return tree_map(lambda a: fetch(a) if is_warp_array(a) else a, value)
 
-    __slots__ = ("buffer", "view", "event", "free")
 
-    def __init__(self, buffer, event):
+def _large(c) -> bool:
+    """Counted ``c``'s block is too large to copy whole (FAST's keypoints: rows for every
+    pixel pair): its count is copied first, then the rows it counts."""
+    return c.block.array.shape[0] > ONE_COPY_MAX_BYTES
+
+
+class _UploadStage:
+    """A pinned host buffer of one shape and dtype an upload goes through, and the event of
+    its last copy (None: never used)."""
+
+    __slots__ = ("buffer", "view", "event")
+
+    def __init__(self, buffer):
         self.buffer = buffer
         self.view = buffer.numpy()  # aliases the pinned memory
-        self.event = event
-        self.free = True
+        self.event = None
+
+
+class _Unstageable(Exception):
+    """A leaf :meth:`Transfers.stage_download` cannot copy asynchronously, or no pool room."""
+
+
+class _Staged:
+    """A download under way (:meth:`Transfers.stage_download`): the device value, the host
+    arrays its device arrays are being copied into (id of the device array -> (it, its host
+    copy); of a large Counted block only its count so far), the event after the copies
+    (None on Warp's CPU device: done, or once closed) and their bytes."""
+
+    __slots__ = ("value", "copies", "event", "nbytes", "_events")
+
+    def __init__(self, value, copies: dict, event, nbytes: int, events: deque):
+        self.value, self.copies, self.event, self.nbytes = value, copies, event, nbytes
+        self._events = events  # where its event goes back to
+
+    def close(self):
+        """Read or dropped, its copy waited for: its event may be recorded again."""
+        if self.event is not None:
+            self._events.append(self.event)
+            self.event = None
+
+    def host(self, io: "Transfers"):
+        """The host value, its arrays views of the pool's buffers (call after the copy; the
+        rows of a large Counted block are copied now, on ``io``'s stream: the reader's)."""
+        copies = self.copies
+
+        def counted(c):
+            if _large(c):
+                return io.counted_rows(c, copies[id(c.count)][1])
+            return c.block.host_value(copies[id(c.block.array)][1])
+
+        return host_value(self.value, lambda a: copies[id(a)][1], counted)
 
 
 class Transfers:
@@ -57,7 +113,10 @@ class Transfers:
     On CUDA each thread that downloads owns a ``wp.Stream``: a download makes that stream wait
     for the producer's event, copies, and synchronises only that stream, so it never touches
     the device's current stream (which belongs to the GPU thread) and never waits for
-    unrelated kernels. Uploads run on the device's current stream (the GPU thread's), so
+    unrelated kernels. A download can also be started as soon as its producer is enqueued
+    (:meth:`stage_download`): queued on that copy stream into pinned buffers of a
+    :class:`~.pinned.HostPool`, which the reader gets as NumPy arrays without a host copy.
+    Uploads run on the device's current stream (the GPU thread's), so
     the device buffer is filled in that stream's order. An upload of
     :attr:`PINNED_MIN_BYTES` or more goes through a pinned staging buffer (one per shape and
     dtype, a few in rotation, reused once their copy has completed): the host copies into it
@@ -68,13 +127,15 @@ class Transfers:
 
     Uploads take the device buffer from ``into`` when given (the executor's per-edge pools:
     allocating a ``wp.array`` costs ~10 us of Python, more than a small copy); downloads make
-    fresh NumPy arrays.
+    fresh NumPy arrays, or views of the pool's buffers (staged).
 
     Parameters
     ----------
     device : str or None
         Warp device of the GPU role (``"cuda:N"``, ``"cpu"``), or None (no GPU role: only
         host values, which pass through).
+    pool : HostPool, optional
+        Host buffers for :meth:`stage_download` (None: downloads are never staged).
     """
 
     #: Uploads from this size (bytes) on use pinned staging buffers.
@@ -82,13 +143,16 @@ class Transfers:
     #: Staging buffers per shape and dtype before an upload waits for the oldest one.
     STAGING_DEPTH = 4
 
-    def __init__(self, device: str | None):
+    def __init__(self, device: str | None, pool: HostPool | None = None):
         self.device = device
         self.cuda = bool(device) and device.startswith("cuda")
+        self.pool = pool
         self._stream = None
         self._dev = None
         self._staging: dict = {}
-        self._unstaging: dict = {}  # (shape, dtype) -> pinned download buffers
+        # Staged downloads' events (CUDA) free to record: one goes back once its download is
+        # read or dropped (_Staged.close), from any thread (deque: atomic append and pop).
+        self._events: deque = deque()
         self._wp_dtypes: dict = {}  # NumPy dtype -> Warp dtype, looked up once
         self.moved = 0  # bytes copied so far, both ways
 
@@ -132,42 +196,82 @@ class Transfers:
         self.moved += out.nbytes
         return out
 
-    def stage_download(self, a, event=None):
-        """Start downloading ``a``, a contiguous CUDA ``wp.array`` of a scalar dtype, into a
-        pinned host buffer on this thread's copy stream, after ``event`` (the producer's):
-        the reader then waits for one event, the copy's, and copies out of the buffer
-        (:meth:`unstage`), instead of waiting for the producer, then copying and waiting
-        again. Returns the staging buffer, or None (another kind of value, or every buffer of
-        that shape still in use: download as usual). The caller sets its ``free`` once no
-        reader can take it any more."""
-        if not (self.cuda and is_warp_array(a) and a.device.is_cuda and a.is_contiguous
-                and numpy_dtype(a.dtype) is not None):
-            return None
-        wp = warp()
-        ring = self._unstaging.setdefault((a.shape, a.dtype), [])
-        stage = next((s for s in ring if s.free and s.event.is_complete), None)
-        if stage is None:
-            if len(ring) >= self.STAGING_DEPTH * 2:  # readers hold them all
-                return None
-            stage = _Staging(wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True),
-                             wp.Event(self.device))
-            ring.append(stage)
-        stream = self.stream
-        if event is not None:
-            wait_event(stream, event)
-        to_host_async(stage.buffer, a, stream)
-        record_event(stream, stage.event)
-        stage.free = False
-        return stage
+    def stage_download(self, value, event=None):
+        """Start downloading device value ``value`` (any tree of contiguous scalar-dtype
+        arrays) into buffers of :attr:`pool`, after ``event`` (the producer's), on this
+        thread's copy stream: the compute stream goes on meanwhile, and the reader waits for
+        the copy's event only (:meth:`unstage`). Returns the download, or None (no pool, no
+        device array, a leaf of another kind, or the pool full: download as usual).
 
-    def unstage(self, stage, *, ready: bool = False):
-        """A fresh host array with what :meth:`stage_download` copied into ``stage`` (waiting
-        for that copy unless ``ready``: the caller did)."""
-        if not ready:
-            synchronize_event(stage.event)
-        out = stage.view.copy()
-        self.moved += out.nbytes
-        return out
+        Every staged copy goes on this one stream (see :class:`~.pinned.HostPool`)."""
+        pool = self.pool
+        if pool is None:
+            return None
+        copies: dict = {}
+
+        def take(a):
+            got = copies.get(id(a))
+            if got is None:
+                dtype = numpy_dtype(a.dtype)
+                if dtype is None or not a.is_contiguous:
+                    raise _Unstageable
+                host = pool.take(a.shape, dtype)
+                if host is None:
+                    raise _Unstageable
+                got = copies[id(a)] = (a, host)
+            return got[1]
+
+        try:
+            # The walk that builds the value once copied (_Staged.host) lists what to copy; a
+            # large Counted block copies its count now, its counted rows when read.
+            host_value(value, take, lambda c: take(c.count if _large(c) else c.block.array))
+        except _Unstageable:
+            return None  # the buffers taken are garbage: back to the pool
+        if not copies:
+            return None
+        stream = self.stream
+        if stream is not None and event is not None:
+            wait_event(stream, event)
+        for a, host in copies.values():
+            to_host_async(host, a, stream)
+        done = None
+        if stream is not None:
+            done = self._events.pop() if self._events else warp().Event(self.device)
+            record_event(stream, done)
+        return _Staged(value, copies, done, sum(h.nbytes for _, h in copies.values()),
+                       self._events)
+
+    def unstage(self, staged, *, ready: bool = False):
+        """The host value of download ``staged`` (:meth:`stage_download`), waiting for its copy
+        unless ``ready`` (the caller did). Its arrays are views of the pool's buffers, which
+        go back to the pool once they (and every view of them) are garbage: no copy."""
+        if not ready and staged.event is not None:
+            synchronize_event(staged.event)
+        staged.close()
+        self.moved += staged.nbytes
+        return staged.host(self)
+
+    def counted_rows(self, c, count: np.ndarray):
+        """The host value of Counted ``c`` (with a block) from its ``count`` already on the
+        host: its counted rows copied into buffers of the pool (fresh arrays past its cap),
+        on this thread's copy stream, waited for."""
+        block = c.block
+        n = max(0, min(int(count[0]), block.part[0][2][0]))
+        src = block.array
+        stream = self.stream
+        leaves = []
+        for offset, _, shape, dtype in block.part:
+            rows = (n,) + shape[1:]
+            host = self.pool.take(rows, dtype) if self.pool is not None else None
+            if host is None:
+                host = np.empty(rows, dtype)
+            bytes_to_host_async(host.ctypes.data, src.device, src.ptr + offset, host.nbytes,
+                                stream)
+            leaves.append(host)
+            self.moved += host.nbytes
+        if stream is not None:
+            synchronize_stream(stream)
+        return Counted.__warpvx_unflatten__(block.aux, tuple(leaves) + (count,))
 
     def upload(self, value, into=None):
         """``value`` with every host array copied to the device (on its current stream).
@@ -229,7 +333,7 @@ class Transfers:
                 break
         if stage is None:
             if len(ring) < self.STAGING_DEPTH:
-                stage = _Staging(wp.empty(a.shape, dtype=dst.dtype, device="cpu", pinned=True), None)
+                stage = _UploadStage(wp.empty(a.shape, dtype=dst.dtype, device="cpu", pinned=True))
                 ring.append(stage)
             else:  # all in flight: wait for the oldest (the first recorded)
                 stage = ring.pop(0)
@@ -242,4 +346,4 @@ class Transfers:
         stream.record_event(stage.event)
 
 
-__all__ = ["Transfers", "tree_map"]
+__all__ = ["Transfers", "host_value", "tree_map"]

@@ -1,0 +1,213 @@
+"""Staged downloads (Transfers.stage_download into a HostPool): the pool lends buffers as NumPy
+arrays and recycles one only once every array on it is garbage, within its cap; a graph
+streamed with staged downloads gives the unstaged run's outputs bit for bit, also to a
+caller that keeps them across many frames.
+
+Without CUDA the staged path runs on Warp's CPU device through ``Executor.STAGE_ON_HOST``
+(plain host buffers, synchronous copies): the same code, minus the DMA.
+"""
+
+from __future__ import annotations
+
+import gc
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.graph.test_capture import _bench
+from tests.images import bgr
+from warpvx.backend import init_warp
+from warpvx.runtime import DEVICE, Executor, Slot, Transfers
+from warpvx.runtime.pinned import HostPool
+
+SIZE = (128, 96)
+
+
+def _cams(n):
+    """``n`` two-camera frames of a real photo panning (the right camera mirrored)."""
+    src = cv2.resize(bgr("astronaut"), (SIZE[0] + 32, SIZE[1] + 32), interpolation=cv2.INTER_AREA)
+    out = []
+    for i in range(n):
+        M = np.float32([[1, 0, -16 + 1.5 * (i % 12)], [0, 1, -16 + 0.75 * (i % 12)]])
+        f = cv2.warpAffine(src, M, SIZE, borderMode=cv2.BORDER_REFLECT)
+        out.append({"frameL": f, "frameR": np.ascontiguousarray(f[:, ::-1])})
+    return out
+
+
+def _same(a, b):
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return type(a) is type(b) and len(a) == len(b) and all(map(_same, a, b))
+    flat = getattr(a, "__warpvx_flatten__", None)
+    if flat is not None:
+        (xa, _), (xb, _) = flat(), b.__warpvx_flatten__()
+        return type(a) is type(b) and all(_same(u, v) for u, v in zip(xa, xb))
+    if not isinstance(a, np.ndarray):
+        return type(a) is type(b) and a == b
+    return isinstance(b, np.ndarray) and a.shape == b.shape and a.dtype == b.dtype and \
+        np.array_equal(a, b)
+
+
+#: The executors' host pool size (tests set it to 0 for unstaged runs on CUDA).
+POOL_BYTES = Executor.HOST_POOL_BYTES
+
+
+def _graph(cams, gpu):
+    g = _bench().build_graph(SIZE, max_corners=100)
+    g.verify(cams[:2])
+    g.schedule("baseline", n_cpus=2, gpu=gpu)
+    return g
+
+
+def _stream(cams, gpu, *, staged, capture, monkeypatch, depth=3):
+    """Outputs (host) of the two-camera graph streamed over ``cams``, and the executor's host
+    pool (None without one). Unstaged: no pool on warp-cpu, an empty one on CUDA."""
+    monkeypatch.setattr(Executor, "STAGE_ON_HOST", staged)
+    monkeypatch.setattr(Executor, "HOST_POOL_BYTES", POOL_BYTES if staged else 0)
+    g = _graph(cams, gpu)
+    try:
+        outs = list(g.stream(cams, depth=depth, capture=capture))
+        return outs, g.plan.executor()._host_pool
+    finally:
+        g.close()
+
+
+def test_pool_recycles_a_buffer_only_once_every_array_on_it_is_garbage():
+    pool = HostPool(1 << 20, pinned=False)
+    a = pool.take((4, 3), np.dtype(np.float32))
+    assert a.shape == (4, 3) and a.dtype == np.float32 and pool.lent() == 48
+    a[:] = 7
+    view = a[1:, :2]
+    del a
+    gc.collect()
+    b = pool.take((4, 3), np.dtype(np.float32))  # the first buffer is still held by `view`
+    b[:] = -1
+    assert np.all(view == 7) and pool.allocated == 96
+    del view
+    gc.collect()
+    assert pool.lent() == 48
+    c = pool.take((12,), np.dtype(np.float32))  # same bytes: the freed buffer again
+    assert pool.allocated == 96 and pool.lent() == 96 and not np.shares_memory(b, c)
+
+
+def test_pool_stays_within_its_cap_and_frees_on_close():
+    pool = HostPool(100, pinned=False)
+    held = [pool.take((10,), np.dtype(np.float64)) for _ in range(2)]
+    assert held[0] is not None and held[1] is None and pool.allocated == 80
+    pool.close()
+    assert pool.allocated == 80  # lent: freed once garbage, never under the caller
+    held[0][:] = 1.0
+    del held
+    gc.collect()
+    assert pool.allocated == 0 and pool.take((1,), np.dtype(np.uint8)) is None
+
+
+def test_a_slot_reads_its_staged_download_as_views_of_the_pool():
+    """Slot.host takes a staged download instead of downloading again: a Counted with a
+    block cut to its count on the host, views of the pool's buffers (no copy), read once."""
+    from warpvx._counted import Block
+
+    wp = init_warp()
+    rows = np.arange(10, dtype=np.float32).reshape(5, 2)
+    (c,) = Block.layout([rows], 5, "cpu")
+    c.rows.assign(rows)
+    c.count.assign(np.int32([3]))
+    pool = HostPool(1 << 20, pinned=False)
+    io = Transfers("cpu", pool)
+    slot = Slot.ready(c, DEVICE)
+    slot.staged = io.stage_download(c)
+    assert slot.ready_event() is None  # done on return on Warp's CPU device
+    c.rows.assign(np.zeros_like(rows))  # after the copy: not what is read
+    got = slot.host(io, waited=None)
+    np.testing.assert_array_equal(got, rows[:3])
+    assert slot.staged is None and slot.host(io) is got and io.moved == c.block.array.shape[0]
+    assert pool.lent() == c.block.array.shape[0]
+    assert io.stage_download(wp.zeros(3, dtype=wp.vec2, device="cpu")) is None  # a vector dtype
+    assert Transfers("cpu").stage_download(c) is None  # no pool
+
+
+def test_a_large_counted_block_stages_its_count_and_copies_only_its_counted_rows():
+    """A Counted whose block is past ONE_COPY_MAX_BYTES (FAST's keypoints) stages its count
+    and copies the rows it counts when read (not the whole capacity), the same value as the
+    synchronous download."""
+    from warpvx._counted import ONE_COPY_MAX_BYTES, Block
+
+    wp = init_warp()
+    cap = ONE_COPY_MAX_BYTES // 8 + 100
+    rows = np.random.default_rng(4).standard_normal((cap, 2)).astype(np.float32)
+    (c,) = Block.layout([rows], cap, "cpu")
+    c.rows.assign(rows)
+    c.count.assign(np.int32([7]))
+    assert c.block.array.shape[0] > ONE_COPY_MAX_BYTES
+    pool = HostPool(1 << 22, pinned=False)
+    io = Transfers("cpu", pool)
+    staged = io.stage_download(c)
+    assert staged.nbytes == 4 and pool.lent() == 4  # the count only
+    got = io.unstage(staged)
+    np.testing.assert_array_equal(got, rows[:7])
+    np.testing.assert_array_equal(got, Transfers("cpu").download(c))
+    assert pool.lent() == 4 + got.nbytes and io.moved == 4 + got.nbytes
+
+
+@pytest.mark.parametrize("capture", [False, True], ids=["eager", "captured"])
+def test_staged_stream_gives_the_unstaged_outputs(capture, warp_backend, monkeypatch):
+    cams = _cams(16)
+    ref, unstaged = _stream(cams, warp_backend, staged=False, capture=capture,
+                            monkeypatch=monkeypatch)
+    got, pool = _stream(cams, warp_backend, staged=True, capture=capture,
+                        monkeypatch=monkeypatch)
+    assert unstaged is None or unstaged.allocated == 0
+    assert pool.allocated > 0  # the staged path ran
+    assert len(got) == len(ref) == 16
+    for a, b in zip(got, ref):
+        assert _same(a, b)
+
+
+def test_outputs_kept_across_many_frames_keep_their_values(warp_backend, monkeypatch):
+    """A caller keeping the first 10 frames' outputs while 50 more run sees their values
+    (a pool buffer is never lent again while an array on it lives), and a small pool stays
+    within its cap (past it, downloads are the usual fresh arrays)."""
+    cams = _cams(60)
+    ref, _ = _stream(cams, warp_backend, staged=False, capture=True, monkeypatch=monkeypatch)
+    ref = ref[:10]
+    cap = 64 << 10
+    monkeypatch.setattr(Executor, "STAGE_ON_HOST", True)
+    monkeypatch.setattr(Executor, "HOST_POOL_BYTES", cap)
+    g = _graph(cams, warp_backend)
+    try:
+        kept, most = [], 0
+        for i, outputs in enumerate(g.stream(cams, depth=3, capture=True)):
+            if i < 10:
+                kept.append(outputs)
+            most = max(most, g.plan.executor()._host_pool.allocated)
+        assert 0 < most <= cap
+    finally:
+        g.close()
+    for a, b in zip(kept, ref):
+        assert _same(a, b)
+
+
+def test_outputs_are_staged_only_for_a_caller_wanting_host_data(monkeypatch):
+    """Device inputs give device outputs (Graph.process): their downloads are not staged,
+    those of the GPU -> CPU edges still are."""
+    wp = init_warp()
+    staged = []
+    stage = Transfers.stage_download
+    monkeypatch.setattr(Transfers, "stage_download",
+                        lambda self, v, e=None: staged.append(v) or stage(self, v, e))
+    monkeypatch.setattr(Executor, "STAGE_ON_HOST", True)
+    cams = _cams(3)
+    g = _graph(cams, "warp-cpu")
+    try:
+        staged.clear()  # (verify's)
+        g.process(cams[0])
+        on_host = len(staged)
+        staged.clear()
+        device = {k: wp.array(v, dtype=wp.uint8, device="cpu") for k, v in cams[1].items()}
+        out = g.process(device)
+    finally:
+        g.close()
+    assert 0 < len(staged) < on_host
+    assert any(not isinstance(v, np.ndarray) for v in out.values())  # device outputs

@@ -1,0 +1,106 @@
+"""Host buffers for downloads, handed to readers as NumPy arrays and recycled only once garbage.
+
+A download into page-locked (pinned) host memory is a DMA the device runs asynchronously, at
+full bus speed, on a stream of its own; into pageable memory the driver copies through its
+own staging, synchronously and several times slower. :class:`HostPool` lends pinned buffers
+as NumPy arrays whose base owns the buffer: the buffer goes back to the pool when that array
+and every view of it are garbage (a caller may keep a frame's outputs as long as it likes),
+never before.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+
+from .native_copy import warp
+
+
+class _Lease:
+    """Owns one pool buffer while a NumPy array (its ``base``) or a view of it lives; exposes
+    the buffer's first ``shape``/``dtype`` bytes through the array interface, and gives the
+    buffer back when garbage (``__del__``: a tenth of ``weakref.finalize``'s cost)."""
+
+    __slots__ = ("__array_interface__", "pool", "buf", "nbytes")
+
+    def __init__(self, pool, buf, nbytes: int, shape: tuple, dtype: np.dtype):
+        self.pool, self.buf, self.nbytes = pool, buf, nbytes
+        self.__array_interface__ = {"data": (buf.ptr, False), "shape": shape,
+                                    "typestr": dtype.str, "version": 3}
+
+    def __del__(self):
+        self.pool._give_back(self.buf, self.nbytes)
+
+
+class HostPool:
+    """Host buffers of one executor for downloads: pinned where CUDA is (plain host memory on
+    Warp's CPU device), at most ``cap`` bytes allocated at a time, free or lent.
+
+    :meth:`take` lends a buffer as a NumPy array; when the array and all its views are
+    garbage the buffer returns to the pool (reused for a download of the same size). The
+    borrower lets its arrays go only once no copy into them may still run (a reader has
+    waited for the copy; :meth:`~.slots.Slot.release_staged` waits for a download nobody
+    read).
+
+    Parameters
+    ----------
+    cap : int
+        Bytes of buffers allocated at most (free and lent); beyond it :meth:`take` returns
+        None and the caller downloads the usual way.
+    pinned : bool
+        Page-locked memory (needs CUDA).
+    """
+
+    def __init__(self, cap: int, pinned: bool):
+        self.cap = int(cap)
+        self.pinned = bool(pinned)
+        self.allocated = 0  # bytes, free and lent
+        self._free: dict[int, list] = {}  # nbytes -> free buffers (host wp.arrays of uint8)
+        # Reentrant: a lease's __del__ (_give_back) may run inside a locked region, on a
+        # garbage collection triggered by an allocation there.
+        self._lock = threading.RLock()
+        self._closed = False
+
+    def take(self, shape: tuple, dtype) -> np.ndarray | None:
+        """A NumPy array of ``shape`` and ``dtype`` (contents undefined) in a pool buffer, or
+        None (the pool is full of lent buffers, or closed)."""
+        dtype = np.dtype(dtype)
+        nbytes = math.prod(shape) * dtype.itemsize
+        with self._lock:
+            if self._closed:
+                return None
+            free = self._free.get(nbytes)
+            buf = free.pop() if free else None
+            if buf is None:
+                if self.allocated + nbytes > self.cap:
+                    return None
+                self.allocated += nbytes
+        if buf is None:
+            buf = warp().empty(max(nbytes, 1), dtype=warp().uint8, device="cpu", pinned=self.pinned)
+        return np.asarray(_Lease(self, buf, nbytes, tuple(shape), dtype))
+
+    def _give_back(self, buf, nbytes: int):
+        """A lent buffer is garbage: back to the pool, or freed once the pool is closed."""
+        with self._lock:
+            if not self._closed:
+                self._free.setdefault(nbytes, []).append(buf)
+                return
+            self.allocated -= nbytes
+
+    def lent(self) -> int:
+        """Bytes lent now (allocated and not free)."""
+        with self._lock:
+            return self.allocated - sum(n * len(b) for n, b in self._free.items())
+
+    def close(self):
+        """Free the buffers not lent; lent ones are freed when their arrays are garbage."""
+        with self._lock:
+            self._closed = True
+            for n, bufs in self._free.items():
+                self.allocated -= n * len(bufs)
+            self._free.clear()
+
+
+__all__ = ["HostPool"]
