@@ -18,6 +18,7 @@ import pytest
 from warpvx.apps import orbslam as o
 from warpvx.apps import orbslam_batch as ob
 from warpvx.apps import orbslam_cli
+from warpvx.apps import orbslam_pool as op
 from warpvx.apps import trajectory_eval as te
 from warpvx.apps.orbslam_synth import render_sequence, write_kitti_sequence
 from warpvx.errors import WarpvxError
@@ -278,13 +279,13 @@ def test_shared_block_carries_each_array_once_and_its_segment_is_reused_when_its
         got = [t.get() for t in tasks]
         busy.get()
         for want, have in zip(jobs, got):
-            for a, b in zip(ob._arrays_in(want), ob._arrays_in(have)):
+            for a, b in zip(op._arrays_in(want), op._arrays_in(have)):
                 assert a.dtype == b.dtype and np.array_equal(a, b)
         # (A job's release runs in its callback, before get() returns.)
         assert block._shm is None
         again = pool.shared(jobs[:1])
         assert again._shm.name == name
-        np.testing.assert_array_equal(copy.copy(ob._resolve(again.refer(pts))), pts)
+        np.testing.assert_array_equal(copy.copy(op._resolve(again.refer(pts))), pts)
     assert not os.path.exists(f"/dev/shm/{name}")
     again.release()  # (after the shutdown unlinked it: nothing more to do)
 
