@@ -282,10 +282,11 @@ def _shared_call(fn, *args):
 
 
 class PosePool:
-    """Processes for :func:`pose_batch`, all started on construction (about a second each;
-    spawned, not forked: the parent holds a CUDA context and executor threads), each with
-    one OpenCV thread since the pool already spreads the work over the cores. ``workers``:
-    the number of processes. Close it with :meth:`shutdown` (or use it as a context manager).
+    """Processes for :func:`~warpvx.apps.orbslam_batch.pose_batch`, all started on
+    construction (about a second each; spawned, not forked: the parent holds a CUDA context
+    and executor threads), each with one OpenCV thread since the pool already spreads the
+    work over the cores. ``workers``: the number of processes. Close it with
+    :meth:`shutdown` (or use it as a context manager).
 
     Jobs wait in the parent, by priority, and go to the processes only as these free up (no
     more in flight than processes): an ``urgent`` job (what the tracking chain waits on) then
@@ -293,7 +294,7 @@ class PosePool:
     and a job cancelled before it starts costs nothing. ``waited_s`` sums the seconds
     :meth:`wait` spent blocked, by its ``what``; ``started`` counts the jobs started and
     ``cancelled`` those dropped unstarted, by function name. ``ahead`` False (to measure
-    what it gives): every job in submit order, and :func:`pose_batch` guesses no core.
+    what it gives): every job in submit order, and ``pose_batch`` guesses no core.
     ``share`` False (to measure what it gives): a batch's jobs carry their arrays in their
     pickles instead of a :class:`SharedBlock`. ``quiet`` False (likewise): multiprocessing's
     stock ``Pool``, whose handler thread spins while results wait (see :func:`_quiet_pool_class`)."""
@@ -390,8 +391,8 @@ def default_workers() -> int:
 
 
 def make_pool(workers: int | None = None) -> PosePool | None:
-    """A :class:`PosePool` for :func:`pose_batch` (``workers`` processes, default
-    :func:`default_workers`; 0: None, the work runs in the calling thread)."""
+    """A :class:`PosePool` for :func:`~warpvx.apps.orbslam_batch.pose_batch` (``workers``
+    processes, default :func:`default_workers`; 0: None, the work runs in the calling thread)."""
     from ..check import check_int
 
     workers = default_workers() if workers is None else check_int(workers, "workers", min_value=0)
