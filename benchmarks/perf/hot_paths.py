@@ -54,7 +54,7 @@ def cap(rounds: int, frames: int = 1500):
     g.schedule("baseline", n_cpus=4, gpu="cuda")
     try:
         for r in range(rounds):
-            fps, replays, _ = capture_stream.stream_fps(g, images, True, 3, frames)
+            fps, replays = capture_stream.stream_fps(g, images, True, 3, frames)[:2]
             print(f"cap round {r}: {fps:.1f} FPS ({replays} captured graphs launched)", flush=True)
     finally:
         g.close()

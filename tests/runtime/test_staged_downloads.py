@@ -148,7 +148,8 @@ def test_a_large_counted_block_stages_its_count_and_copies_only_its_counted_rows
     got = io.unstage(staged)
     np.testing.assert_array_equal(got, rows[:7])
     np.testing.assert_array_equal(got, Transfers("cpu").download(c))
-    assert pool.lent() == 4 + got.nbytes and io.moved == 4 + got.nbytes
+    # the count's buffer went back once read (the value holds its rows only)
+    assert pool.lent() == got.nbytes and io.moved == 4 + got.nbytes
 
 
 @pytest.mark.parametrize("capture", [False, True], ids=["eager", "captured"])

@@ -249,7 +249,9 @@ class Transfers:
             synchronize_event(staged.event)
         staged.close()
         self.moved += staged.nbytes
-        return staged.host(self)
+        value = staged.host(self)
+        staged.copies = None  # the value holds the pool's buffers now, not the download
+        return value
 
     def counted_rows(self, c, count: np.ndarray):
         """The host value of Counted ``c`` (with a block) from its ``count`` already on the
