@@ -302,7 +302,15 @@ class HostReadback:
 
     def __init__(self, n: int, dtype, device):
         self.device = device
+        if not device.is_cpu and device.stream.is_capturing:
+            # CUDA refuses a page-locked allocation inside a capture and Warp then hands back a
+            # null buffer, which a later read-back would write through: fail the capture
+            # instead (the executor runs the call uncaptured, which builds this, and captures
+            # the next frame).
+            raise RuntimeError("a read-back buffer cannot be allocated inside a CUDA graph capture")
         self.host = wp.empty(n, dtype=dtype, device="cpu", pinned=not device.is_cpu)
+        if n and not self.host.ptr:
+            raise RuntimeError(f"pinned allocation of a {n}-element read-back buffer failed")
         self.view = self.host.numpy()
 
     def read(self, src):
