@@ -60,6 +60,9 @@ def _quiet_pool_class():
     :class:`PosePool` does not set. (Python's ``ThreadPool`` waits on the same one notifier.)"""
     from multiprocessing.pool import Pool
 
+    if not (hasattr(Pool, "_get_sentinels") and hasattr(Pool, "_wait_for_updates")):
+        return Pool  # a Python whose Pool has other internals: the stock one, correct if busier
+
     class QuietPool(Pool):
         def _get_sentinels(self):
             return [self._change_notifier._reader]
@@ -306,7 +309,8 @@ class PosePool:
         with _caller_script_hidden():
             self._pool = (_quiet_pool_class() if quiet else Pool)(workers, initializer=_init_worker,
                                                                   context=get_context("spawn"))
-        self.workers, self.ahead, self.share = workers, ahead, share
+        # the shared blocks are POSIX shared memory (read through _posixshmem in the workers)
+        self.workers, self.ahead, self.share = workers, ahead, share and os.name == "posix"
         self._lock = threading.Lock()
         self._queue, self._order, self._running = [], itertools.count(), 0
         self._segments = Segments()
