@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT / "benchmarks" / "perf"))
 
 
-def orb(rounds: int, frames: int = 600):
+def orb(rounds: int, switch, frames: int = 600):
     import orbslam_bench as bench
 
     from warpvx.apps import orbslam as o
@@ -39,11 +39,12 @@ def orb(rounds: int, frames: int = 600):
     feed = bench.replay([{"image": im} for im in left], frames)
     with ob.make_pool(None) as pool, tempfile.TemporaryDirectory() as out:
         for r in range(rounds):
-            row, _ = bench.bench_frontend_batched(feed, camera, "cuda", Path(out), None, 16, pool)
+            row, _ = bench.bench_frontend_batched(feed, camera, "cuda", Path(out), None, 16, pool,
+                                                  switch=ob.SWITCH_INTERVAL if switch is None else switch)
             print(f"orb round {r}: {row['fps']:.1f} FPS", flush=True)
 
 
-def cap(rounds: int, frames: int = 1500):
+def cap(rounds: int, switch=None, frames: int = 1500):
     import capture_stream
     import graph_bench
 
@@ -64,13 +65,14 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("path", choices=("orb", "cap"))
     p.add_argument("--switch-interval", type=float, default=None,
-                   help="sys.setswitchinterval for the run, seconds (default: Python's, 0.005)")
+                   help="GIL switch interval for the run, seconds (default: Python's, 0.005; orb: "
+                        "the batched front end's own, orbslam_batch.SWITCH_INTERVAL)")
     p.add_argument("--rounds", type=int, default=2)
     args = p.parse_args(argv)
     if args.switch_interval is not None:
         sys.setswitchinterval(args.switch_interval)
     print(f"GIL switch interval {sys.getswitchinterval() * 1e3:g} ms, pid {os.getpid()}", flush=True)
-    {"orb": orb, "cap": cap}[args.path](args.rounds)
+    {"orb": orb, "cap": cap}[args.path](args.rounds, args.switch_interval)
 
 
 if __name__ == "__main__":
