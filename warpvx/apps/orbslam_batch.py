@@ -95,8 +95,9 @@ class _Later:
 #: NumPy drops the GIL in loops over more than a few hundred elements and must take it back;
 #: with other threads runnable (the GPU thread, the pool's hand-off threads, the executor)
 #: each re-take waits up to the interval: on the H100 host the chain waited for the GIL ~82%
-#: of its wall time. Measured there (mono, B=16, FPS): 5 ms 184 / 194, 1 ms 204 / 228,
-#: 0.2 ms 237 / 225 (two rounds each, one machine).
+#: of its wall time. Measured there (mono, B=16, FPS), interleaved, a fresh process per run:
+#: 5 ms 226 / 232 / 249, 0.2 ms 247 / 233 / 251
+#: (benchmarks/results/orbslam/h100-2026-11-24-s5/switch-interval-ab.md).
 SWITCH_INTERVAL = 2e-4
 
 

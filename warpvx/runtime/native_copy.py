@@ -91,25 +91,18 @@ def to_host(a, stream=None, *, native: bool = True) -> np.ndarray:
     ``native=False`` takes Warp's public API (the fallback, for tests).
     """
     fast = _fast(native, a)
-    if not a.device.is_cuda:
-        if fast is None:
-            return a.numpy().copy()
-        out = np.empty(a.shape, dtype=numpy_dtype(a.dtype))
-        if out.nbytes and not fast.h2h(out.ctypes.data, a.ptr, out.nbytes):
-            raise RuntimeError(f"host copy of {out.nbytes} bytes failed")
-        return out
     if fast is None:
+        if not a.device.is_cuda:
+            return a.numpy().copy()
         wp = warp()
         host = wp.empty(a.shape, dtype=a.dtype, device="cpu")
         wp.copy(host, a, stream=stream)
         wp.synchronize_stream(stream)
         return host.numpy()
     out = np.empty(a.shape, dtype=numpy_dtype(a.dtype))
-    if out.nbytes:
-        if not fast.d2h(a.device.context, out.ctypes.data, a.ptr, out.nbytes, stream.cuda_stream):
-            raise RuntimeError(f"download of {out.nbytes} bytes failed")
-        if not fast.stream_sync(stream.cuda_stream):
-            raise RuntimeError("download: stream synchronisation failed")
+    bytes_to_host_async(out.ctypes.data, a.device, a.ptr, out.nbytes, stream, fast)
+    if a.device.is_cuda and out.nbytes:
+        synchronize_stream(stream)
     return out
 
 

@@ -134,7 +134,7 @@ class RoleRunner:
             ms = sum(self.placed[t.name, 0].finish - self.placed[t.name, 0].start for t in tasks)
             return ms <= self.INLINE_MAX_MS
 
-        staged = self._staged_keys()
+        staged, self._outputs_staged = self._staged_keys()
         roles = {}
         for p in self._active:
             if is_gpu_processor(p):
@@ -159,20 +159,19 @@ class RoleRunner:
                 role.stage.append(tuple(k for k in keys if k in staged))
         return roles
 
-    def _staged_keys(self) -> set:
-        """Keys whose download starts as soon as the GPU role publishes them (with a host
-        pool): read by a CPU task of the same frame, or by the caller (a graph output; those
-        only, :attr:`_outputs_staged`, in frames whose caller wants host data:
-        ``Frame.stage_outputs``), and by no delay (a later frame may read a delay's value
+    def _staged_keys(self) -> tuple:
+        """(keys whose download starts as soon as the GPU role publishes them (with a host
+        pool), the graph outputs among them no CPU task reads): read by a CPU task of the same
+        frame, or by the caller (a graph output; staged only in frames whose caller wants host
+        data: ``Frame.stage_outputs``), and by no delay (a later frame may read a delay's value
         after its frame)."""
-        self._outputs_staged = set()
         if self._host_pool is None:
-            return set()
+            return set(), set()
         reads = {r.key for p in self._active if not is_gpu_processor(p)
                  for t in self.queues[p] for r in t.inputs if r.offset == 0}
         outputs = set(self.program.outputs.values())
-        self._outputs_staged = outputs - reads - set(self.program.rings)
-        return (reads | outputs) - set(self.program.rings)
+        rings = set(self.program.rings)
+        return (reads | outputs) - rings, outputs - reads - rings
 
     def _role_loop(self, proc: str):
         home = self._roles[proc]
