@@ -10,6 +10,7 @@ import pytest
 
 from tests.apps.conftest import static_frames
 from warpvx.apps import stabilize_metrics as sm
+from warpvx.errors import WarpvxError
 
 
 def test_static_clip_has_zero_mad_max_itf_full_stability(astronaut):
@@ -100,3 +101,16 @@ def test_cuts_leave_the_pairs_across_them_out_of_itf_and_stability(astronaut):
     assert sm.stability_score(mixed, cuts=[9]) == pytest.approx(want, rel=1e-12)
     report = sm.evaluate(frames, frames, cuts=[5])
     assert report["input"]["itf"] == sm.PSNR_MAX and report["output"]["stability"] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("cuts, error", [([0], "WarpvxValueError"), ([5, 11], "WarpvxValueError"),
+                                         ([-2], "WarpvxValueError"), ([2.5], "WarpvxTypeError"),
+                                         (["3"], "WarpvxTypeError"), (5, "WarpvxTypeError"),
+                                         ([True], "WarpvxTypeError")])
+def test_bad_cuts_are_refused_by_name(astronaut, cuts, error):
+    frames = static_frames(astronaut, 11)  # cuts may be 1 .. 10
+    for fn in (lambda: sm.itf(frames, cuts), lambda: sm.stability_score(frames, cuts),
+               lambda: sm.evaluate(frames, frames, cuts=cuts), lambda: sm.evaluate_shots(frames, frames, cuts)):
+        with pytest.raises(WarpvxError, match="cuts") as info:
+            fn()
+        assert type(info.value).__name__ == error

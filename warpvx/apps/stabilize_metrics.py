@@ -29,6 +29,9 @@ import math
 
 import numpy as np
 
+from ..check import check_int
+from ..errors import WarpvxTypeError
+
 #: ITF of identical consecutive frames (their PSNR is infinite).
 PSNR_MAX = 100.0
 
@@ -81,10 +84,20 @@ def mad(frames, n_points=10):
     return float(dev.mean())
 
 
+def _cuts(cuts, n) -> list:
+    """``cuts`` checked for an ``n``-frame clip: frame indices 1 .. n-1 (a cut before frame 0
+    or past the clip is a caller's mistake, not a cut to ignore), ascending, no repeats."""
+    try:
+        values = list(cuts)
+    except TypeError:
+        raise WarpvxTypeError(f"cuts: expected a sequence of frame indices, got {type(cuts).__name__}") from None
+    return sorted({check_int(c, "cuts", min_value=1, max_value=n - 1) for c in values})
+
+
 def _shots(n, cuts):
     """``[(first, end)]`` frame ranges of the shots of an ``n``-frame clip cut before ``cuts``."""
-    edges = [0, *[c for c in sorted(cuts) if 0 < c < n], n]
-    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+    edges = [0, *_cuts(cuts, n), n]
+    return list(zip(edges[:-1], edges[1:]))
 
 
 def itf(frames, cuts=()):
@@ -92,7 +105,7 @@ def itf(frames, cuts=()):
     match exactly count :data:`PSNR_MAX`. ``cuts``: frames starting a new shot; the pairs
     across a cut are left out (two shots' frames, not motion)."""
     values = []
-    cut = set(cuts)
+    cut = set(_cuts(cuts, len(frames)))
     for i, (a, b) in enumerate(zip(frames[:-1], frames[1:])):
         if i + 1 in cut:
             continue
@@ -138,8 +151,9 @@ def stability_score(frames, cuts=()):
     weighted by their frames, shots of under 3 frames left out (NaN if none is left): chaining
     the motion across a cut would measure the jump between two shots.
     """
-    if len(cuts):
-        shots = [(a, b) for a, b in _shots(len(frames), cuts) if b - a >= 3]
+    shots = _shots(len(frames), cuts)
+    if len(shots) > 1:
+        shots = [(a, b) for a, b in shots if b - a >= 3]
         if not shots:
             return float("nan")
         return float(sum((b - a) * stability_score(frames[a:b]) for a, b in shots)
