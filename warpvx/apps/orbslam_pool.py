@@ -268,14 +268,16 @@ def _attached(name: str):
     return m
 
 
-def _resolve(value):
-    """:meth:`SharedBlock.refer` undone in a pool process: read-only arrays over the block."""
+def _resolve(value, copy: bool = False):
+    """:meth:`SharedBlock.refer` undone in another process: read-only arrays over the block,
+    or ``copy``: copies (what outlives the block's reuse)."""
     if isinstance(value, SharedRef):
         dtype = np.dtype(value.dtype)
         count = int(np.prod(value.shape, dtype=np.int64))
-        return np.frombuffer(_attached(value.name), dtype, count, value.offset).reshape(value.shape)
+        a = np.frombuffer(_attached(value.name), dtype, count, value.offset).reshape(value.shape)
+        return a.copy() if copy else a
     if isinstance(value, tuple):
-        return tuple(_resolve(v) for v in value)
+        return tuple(_resolve(v, copy) for v in value)
     return value
 
 
@@ -394,12 +396,18 @@ def default_workers() -> int:
     return max(2, os.cpu_count() - SPARE_CORES)
 
 
-def make_pool(workers: int | None = None) -> PosePool | None:
+def make_pool(workers: int | None = None, chain_process: bool = False):
     """A :class:`PosePool` for :func:`~warpvx.apps.orbslam_batch.pose_batch` (``workers``
-    processes, default :func:`default_workers`; 0: None, the work runs in the calling thread)."""
+    processes, default :func:`default_workers`; 0: None, the work runs in the calling thread);
+    ``chain_process``: a :class:`~warpvx.apps.orbslam_chain.ChainProcess` with such a pool
+    (0: none, the work in that process), on POSIX (elsewhere the pool as without it)."""
     from ..check import check_int
 
     workers = default_workers() if workers is None else check_int(workers, "workers", min_value=0)
+    if chain_process and os.name == "posix":
+        from .orbslam_chain import ChainProcess
+
+        return ChainProcess(workers)
     return PosePool(workers) if workers else None
 
 
