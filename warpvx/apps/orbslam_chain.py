@@ -118,7 +118,7 @@ def _serve(inbox, outbox, workers: int, quiet: bool):
 
     # SIGTERM (the parent's last resort) unwinds through the finally: the pool goes too.
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
-    pool = PosePool(workers, quiet=quiet) if workers else None
+    pool = PosePool(workers, quiet=quiet, bound=True) if workers else None
     timing = collections.Counter()
     try:
         jobs, stopping = queue.SimpleQueue(), threading.Event()
