@@ -29,9 +29,13 @@ executor runs threads only, so the pool runs *inside* the ``pose_batch`` node (i
 thread waits on the processes with the GIL released); the scheduler places the four nodes and
 records their timeline as for any graph.
 
-The chain is the bottleneck and it shares the GIL with the GPU thread, the executor and the
-pool's hand-off threads; NumPy lets the GIL go in every loop over more than a few hundred
-elements and must take it back. So that the chain waits less for it: the run sets a short
+The chain is the bottleneck. By default (``chain_process``) it runs, with ``pose_batch`` and
+the pool, in a process of its own (:mod:`warpvx.apps.orbslam_chain`: the graph's two CPU
+nodes there only hand each batch over through shared memory and take the poses back), so
+it no longer shares a GIL with the GPU thread and the executor. In process, it shares the
+GIL with them and the pool's hand-off threads; NumPy lets the GIL go in every loop over more
+than a few hundred elements and must take it back. So that the chain waits less for it (in
+either process): the run sets a short
 GIL switch interval (:data:`SWITCH_INTERVAL`, :func:`switch_interval`); a batch's jobs carry
 their arrays once in shared memory (:class:`~warpvx.apps.orbslam_pool.SharedBlock`), not in
 each job's pickle; the pool's handler thread does not spin while results wait (see
