@@ -23,7 +23,7 @@ import pytest
 
 from warpvx.apps import orbslam as o
 from warpvx.apps import orbslam_batch as ob
-from warpvx.apps import orbslam_cli
+from warpvx.apps import orbslam_chain, orbslam_cli
 from warpvx.apps import orbslam_pool as op
 from warpvx.apps import trajectory_eval as te
 from warpvx.apps.orbslam_synth import render_sequence, write_kitti_sequence
@@ -171,15 +171,25 @@ def test_slow_motion_takes_the_speculated_keyframe_cores(monkeypatch):
     np.testing.assert_allclose(got, [f.pose for f in want], atol=1e-9)
 
 
-def test_cli_batch_flag_end_to_end(tmp_path, seq, capsys):
+@pytest.mark.parametrize("flags", [[], ["--chain-in-process"]], ids=["chain_process", "chain_in_process"])
+def test_cli_batch_flag_end_to_end(tmp_path, seq, capsys, flags, monkeypatch):
+    opened = []
+
+    class Spied(orbslam_chain.ChainProcess):
+        def __init__(self, *args, **kwargs):
+            opened.append(args)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(orbslam_chain, "ChainProcess", Spied)
     left, right, K, poses = seq
     folder = write_kitti_sequence(tmp_path / "seq", left, K, poses)
     out = tmp_path / "out"
     status = orbslam_cli.main([str(folder), "--gt", str(folder / "poses.txt"), "--out", str(out),
-                               "--quiet", "--no-plot", "--batch", str(BATCH), "--pose-workers", "1"])
+                               "--quiet", "--no-plot", "--batch", str(BATCH), "--pose-workers", "1", *flags])
     assert status == 0, capsys.readouterr().err
     m = json.loads((out / "metrics.json").read_text())
     assert m["batch"] == BATCH and m["frames"] == FRAMES
+    assert opened == ([] if flags else [(1,)])
     assert m["warpvx"]["ate"]["rmse"] < 0.04
     assert len((out / "frames.csv").read_text().splitlines()) == FRAMES + 1
 
@@ -410,7 +420,7 @@ def _running(pid) -> bool:
         return False
 
 
-def _gone(pids, within_s=20.0) -> bool:
+def _gone(pids, within_s=60.0) -> bool:
     end = time.monotonic() + within_s
     while any(_running(p) for p in pids) and time.monotonic() < end:
         time.sleep(0.1)
@@ -418,7 +428,7 @@ def _gone(pids, within_s=20.0) -> bool:
 
 
 def _segments() -> set:
-    return {name for name in os.listdir("/dev/shm") if name.startswith("psm_")}
+    return {name.lstrip("/") for name in os.listdir("/dev/shm")}
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc and /dev/shm")
@@ -428,7 +438,6 @@ def test_chain_process_survives_stopped_runs_and_leaves_no_process_or_segment(se
     and its pool's processes and unlinks its shared blocks (stereo: the images travel too)."""
     frames, camera = _frames(seq, True)
     want = np.array([f.pose for f in o.track_frames(frames, camera)])
-    before = _segments()
 
     def failing():
         yield from frames[:7]
@@ -446,7 +455,11 @@ def test_chain_process_survives_stopped_runs_and_leaves_no_process_or_segment(se
         got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=proc)])
         np.testing.assert_allclose(got, want, atol=1e-9)
         assert proc.started["frame_job"] > 0 and proc.counts()[3]["wall_s"] > 0
-    assert _gone(pids) and _segments() <= before
+        # The batches' blocks (other processes on this machine may make segments meanwhile).
+        mine = {shm.name for shm in proc._segments._free} | {shm.name for _, shm in proc._segments._held.values()}
+        assert mine
+    assert _gone(pids)
+    assert not mine & _segments()
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")

@@ -187,7 +187,7 @@ class ChainProcess:
         child_in.close()
         child_out.close()
         self._segments, self._blocks = Segments(), {}
-        self._results, self._next = collections.OrderedDict(), 0
+        self._results, self._next, self._counts = collections.OrderedDict(), 0, collections.deque()
         # (send posts under the send lock: the tickets reach the process in order)
         self._send_lock, self._read_lock = threading.RLock(), threading.Lock()
         self._stop = util.Finalize(self, _stop, args=(self._to_child, self._from_child, self._process,
@@ -218,10 +218,7 @@ class ChainProcess:
             while ticket not in self._results:
                 if self._results and ticket < next(iter(self._results)):
                     raise WarpvxValueError(f"ticket: batch {ticket}'s result is no longer kept")
-                msg = self._read()
-                if msg[0] not in ("done", "error"):
-                    raise NodeExecutionError(f"chain process: unexpected message {msg[0]!r}")
-                self._keep(msg[1], msg)
+                self._file(self._read())
             msg = self._results[ticket]
         if msg[0] == "error":
             exc, text = msg[2], msg[3]
@@ -236,8 +233,9 @@ class ChainProcess:
         the chain's batches. Between runs (results still to come are kept)."""
         self._post(("counts",))
         with self._read_lock:
-            while (msg := self._read())[0] != "counts":
-                self._keep(msg[1], msg)
+            while not self._counts:
+                self._file(self._read())
+            msg = self._counts.popleft()
         return tuple(collections.Counter(c) for c in msg[1:4]) + ({"wall_s": 0.0, "cpu_s": 0.0, **msg[4]},)
 
     @property
@@ -252,8 +250,15 @@ class ChainProcess:
     def cancelled(self):
         return self.counts()[2]
 
-    def _keep(self, ticket, msg):
-        """Keep a result; its block goes back (the process copied what it keeps)."""
+    def _file(self, msg):
+        """File a message from the process: a result (its block goes back: the process copied
+        what it keeps) or a counts reply (the caller holds the read lock)."""
+        if msg[0] == "counts":
+            self._counts.append(msg)
+            return
+        if msg[0] not in ("done", "error"):
+            raise NodeExecutionError(f"chain process: unexpected message {msg[0]!r}")
+        ticket = msg[1]
         block = self._blocks.pop(ticket, None)
         if block is not None:
             block.release()
