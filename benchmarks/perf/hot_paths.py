@@ -16,7 +16,9 @@ round. Under py-spy (staged beside Warp by ``warp-pack ... py-spy``)::
 
     py-spy record -r 200 --threads --gil -f raw -o orb_gil.txt -- python3 benchmarks/perf/hot_paths.py orb
 
-and ``benchmarks/perf/pyspy_summary.py orb_gil.txt`` for a per-thread summary.
+and ``benchmarks/perf/pyspy_summary.py orb_gil.txt`` for a per-thread summary (``orb`` runs the
+chain in a process of its own: add ``--subprocesses`` to sample it, or profile
+``--chain-in-process``).
 """
 
 from __future__ import annotations
