@@ -410,6 +410,59 @@ def test_frame_result_reports_transfers_copies_and_host_times():
         assert 0 <= h0 <= h1
 
 
+class _Clock:
+    """Stand-in CUDA timing events (no GPU here): an event is its device time in ms."""
+
+    def __init__(self, ms):
+        self.ms = ms
+
+
+def test_gpu_events_are_read_with_the_timeline_and_only_then_recycled(monkeypatch):
+    """CUDA timelines are read lazily: a frame's events go back to the pool when its
+    timeline is first read, when its result is garbage unread, or when MAX_UNREAD newer
+    results hold theirs; never before (a re-recorded event would give another time)."""
+    import gc
+
+    from warpvx.runtime import timeline as tl
+
+    monkeypatch.setattr(tl, "elapsed_since", lambda start: lambda end: end.ms - start.ms)
+    anchor = (100.0, _Clock(0.0))  # host second 100.0 is device ms 0
+
+    def frame(i):
+        f = tl.Frame(i, {}, 1)
+        a, b = _Clock(2.0 + i), _Clock(5.0 + i)
+        f.trace = {"g": ("gpu", a, b, None), "c": ("cpu0", 100.01, 100.02, None)}
+        f.t0 = 100.0
+        f.events = [a, b]
+        return f
+
+    pool = tl.EventPool("cuda:0")
+    res = tl.frame_result(frame(0), {}, anchor, pool.put)
+    pool.lend(res)
+    assert len(pool) == 0  # unread: the events are still the trace's
+    assert res.timeline["g"].start == pytest.approx(2.0)  # ms from t0: device ms + anchor
+    assert res.timeline["g"].finish == pytest.approx(5.0)
+    assert res.timeline["c"].finish == pytest.approx(20.0)
+    assert len(pool) == 2
+    assert res.makespan == pytest.approx(20.0)  # read again: built once, recycled once
+    assert len(pool) == 2
+
+    pool = tl.EventPool("cuda:0")
+    res = tl.frame_result(frame(1), {}, anchor, pool.put)
+    del res
+    gc.collect()
+    assert len(pool) == 2  # garbage unread
+
+    pool = tl.EventPool("cuda:0")
+    kept = []
+    for i in range(pool.MAX_UNREAD + 2):
+        kept.append(tl.frame_result(frame(i), {}, anchor, pool.put))
+        pool.lend(kept[-1])
+    assert len(pool) == 2 * 2  # the two oldest were read to free their events
+    assert kept[0].timeline["g"].start == pytest.approx(2.0)
+    assert kept[-1].timeline["g"].finish == pytest.approx(5.0 + pool.MAX_UNREAD + 1)
+
+
 def _blur_program():
     """x (host uint8 16x16) -> a = blur(x), b = blur(a) on the GPU role (one capturable
     segment) -> c = b + 1 on a CPU worker; d reads a one frame late (a delay)."""

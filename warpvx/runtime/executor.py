@@ -44,7 +44,9 @@ Timing
     interval is when the device ran it, not when the host enqueued it. When the GPU role
     did not have to wait between two tasks, the first one's end event is the second one's
     start (one event per task, not two). Events come from a pool and return to it once their
-    frame has been waited for. The host-side time of each GPU call (enqueue plus any host
+    frame has been waited for and its timeline read: the timeline is read lazily (a native
+    call per event, on the caller's thread at the end of every frame otherwise, while most
+    timelines are never read; see :meth:`~.timeline.EventPool.lend`). The host-side time of each GPU call (enqueue plus any host
     syncs inside the primitive) is kept too (:attr:`FrameResult.host`), and so is the time
     each task spent on transfers (:attr:`FrameResult.transfers`). Without CUDA (the
     ``"warp-cpu"`` GPU role) calls are synchronous and host times are used; events are not
@@ -123,7 +125,7 @@ from .pinned import HostPool
 from .program import ExecTask, InputRef, Program, data_graph
 from .roles import DeviceScope, GpuState, RoleRunner, is_gpu_processor
 from .slots import DEVICE, HOST, Slot
-from .timeline import (WAIT_SLICE, Cancelled, EventPool, Frame, FrameResult, event_clock, frame_result,
+from .timeline import (WAIT_SLICE, Cancelled, EventPool, Frame, FrameResult, frame_result,
                        proportional_shares)
 from .transfers import Transfers
 
@@ -279,7 +281,7 @@ class Executor(RoleRunner, SegmentRunner):
                     self._up_pools.pop(key, None)
         self._null_stream = None  # the device's legacy stream (CUDA), looked up once
         self._task_keys = [k for t in program.tasks.values() for k in t.outputs]
-        # The slots a frame's events may outlive it in (_recycle): the caller's inputs and
+        # The slots a frame's events may outlive it in (_forget_events): the caller's inputs and
         # the delays' (kept by their rings); the others go with the frame.
         self._outliving = list(dict.fromkeys([*program.inputs, *program.rings]))
         stage = self.cuda or (bool(gpu_device) and self.STAGE_ON_HOST)
@@ -868,9 +870,13 @@ class Executor(RoleRunner, SegmentRunner):
             for name, key in self.program.outputs.items():
                 slot = frame.slots[key]
                 outputs[name] = slot.host(io) if host else slot.value
-            result = frame_result(frame, outputs,
-                                  event_clock(self._anchor) if self.cuda else None)
-            self._recycle(frame)
+            self._forget_events(frame)
+            # The events go back to the pool once the timeline is read (or never will be).
+            if self.cuda:
+                result = frame_result(frame, outputs, self._anchor, self._events.put)
+                self._events.lend(result)
+            else:
+                result = frame_result(frame, outputs)
             self._release(frame, host)
             for ring in self.program.rings.values():
                 ring.age(frame.index)
@@ -910,9 +916,10 @@ class Executor(RoleRunner, SegmentRunner):
             slot.release_staged()
         frame.staged = []
 
-    def _recycle(self, frame: Frame):
-        """Every GPU task of the frame has completed: its events go back to the pool. Slots
-        that outlive the frame (delays) forget them: their data is ready for any reader."""
+    def _forget_events(self, frame: Frame):
+        """Every GPU task of the frame has completed: slots that outlive the frame (delays,
+        the caller's inputs) forget its events, which go back to the pool with its timeline
+        (:func:`~.timeline.frame_result`): their data is ready for any reader."""
         if not frame.events:
             return
         mine = {id(e) for e in frame.events}
@@ -924,8 +931,6 @@ class Executor(RoleRunner, SegmentRunner):
                     synchronize_event(slot.event)
                 slot.event = None
                 slot.external = False
-        self._events.put(frame.events)
-        frame.events = []
         frame.gpu_last_event = None
 
     def abort(self):
