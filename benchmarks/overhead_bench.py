@@ -14,6 +14,11 @@
    the report names the captured segments and the GPU nodes that still run eagerly, and
    first checks that captured frames give the eager outputs bit for bit (16 frames).
 
+4. With ``--ab TREE`` (another checkout of warpvx, e.g. the code before a change): the identity
+   chains of section 1 run in fresh processes alternating between TREE and this tree
+   (``--ab-pairs`` pairs, the order swapped every pair), so both see the same machine state;
+   the table gives each tree's median and the change.
+
 On Warp's CPU device (``--gpu warp-cpu``) "captured" rows replay Warp's CPU graphs (Warp 1.19
 captures there too, ``capture=True``); on CUDA they are CUDA graphs (the default there).
 
@@ -21,6 +26,8 @@ Usage::
 
     PYTHONPATH=. python3 benchmarks/overhead_bench.py --gpu cuda --out $OUT/overhead   # GPU
     PYTHONPATH=. python benchmarks/overhead_bench.py --gpu warp-cpu --quick            # anywhere
+    mkdir -p /tmp/base && git archive BASE | tar -x -C /tmp/base &&
+    PYTHONPATH=. python3 benchmarks/overhead_bench.py --gpu cuda --out $OUT/o --ab /tmp/base  # A/B
 
 Writes ``overhead_bench.md`` (its first line is the command), ``overhead_bench.json``, and ``overhead_profile_gpu.txt`` and ``overhead_profile_mixed.txt``: the
 GPU-only and alternating chains under cProfile, every thread
@@ -33,6 +40,7 @@ import argparse
 import json
 import platform
 import statistics
+import subprocess
 import sys
 import time
 import traceback
@@ -72,6 +80,54 @@ def _chains(args) -> list:
         (args.out / f"overhead_profile_{chain}.txt").write_text(text)
         print(f"  wrote overhead_profile_{chain}.txt", flush=True)
     return rows
+
+
+#: One A/B run (a fresh process importing warpvx from argv[1]): the identity chains as JSON.
+_AB_RUN = """
+import json, sys
+sys.path.insert(0, sys.argv[1])
+import cv2
+import warpvx
+from warpvx.graph.diagnostics import executor_overhead
+if not warpvx.__file__.startswith(sys.argv[1]):
+    raise SystemExit(f"imported {warpvx.__file__}, not the tree's")
+cv2.setNumThreads(1)
+n, frames, gpu = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+rows = [executor_overhead(n, frames, chain="gpu", gpu=gpu),
+        executor_overhead(n // 2, frames, chain="mixed", gpu=gpu),
+        executor_overhead(n, frames)]
+print(json.dumps([{k: r[k] for k in ("chain", "n_nodes", "per_node_us", "per_node_us_stream",
+                                     "breakdown")} for r in rows]))
+"""
+
+
+def _ab(args) -> list:
+    """Section 4: the identity chains of ``args.ab`` (a tree) and of this tree, in fresh
+    processes, alternating (ABBA...); rows of per-tree medians."""
+    trees = {"before": str(Path(args.ab).resolve()), "after": str(ROOT.parent)}
+    runs = {k: [] for k in trees}
+    for pair in range(args.ab_pairs):
+        order = ("before", "after") if pair % 2 == 0 else ("after", "before")
+        for k in order:
+            out = subprocess.run([sys.executable, "-c", _AB_RUN, trees[k], str(args.nodes),
+                                  str(args.frames), args.gpu], capture_output=True, text=True,
+                                 timeout=300)
+            if out.returncode:
+                raise RuntimeError(f"{k} ({trees[k]}): {out.stderr.strip()[-2000:]}")
+            runs[k].append(json.loads(out.stdout.strip().splitlines()[-1]))
+            print(f"  pair {pair + 1}/{args.ab_pairs} {k}: " + ", ".join(
+                f"{r['chain']} {r['per_node_us']:.1f}" for r in runs[k][-1]) + " us/node",
+                flush=True)
+    rows = []
+    for i, chain in enumerate(r["chain"] for r in runs["after"][0]):
+        row = {"chain": chain, "n_nodes": runs["after"][0][i]["n_nodes"], "pairs": args.ab_pairs}
+        for k in trees:
+            row[k] = {m: statistics.median(run[i][m] for run in runs[k])
+                      for m in ("per_node_us", "per_node_us_stream")}
+            row[k]["breakdown"] = {p: statistics.median(run[i]["breakdown"][p] for run in runs[k])
+                                   for p, v in runs[k][0][i]["breakdown"].items() if v is not None}
+        rows.append(row)
+    return [{"trees": trees, "rows": rows}]
 
 
 def _chain_label(row) -> str:
@@ -267,6 +323,21 @@ def markdown(report) -> str:
                   "process's over the timed frames (every thread, CPU nodes included). On "
                   "warp-cpu both include the kernels; on CUDA the CPU time includes any spin "
                   "in a synchronisation."]
+    for e in report.get("ab", []):
+        lines += ["", f"## A/B, identity chains, fresh processes alternating: before = "
+                      f"{e['trees']['before']}, after = {e['trees']['after']}", "",
+                  "| chain | nodes | us/node before | after | change | stream before | after | "
+                  "breakdown before (median us) | after |", "|---|---|---|---|---|---|---|---|---|"]
+        for r in e["rows"]:
+            b, a = r["before"], r["after"]
+            change = (a["per_node_us"] / b["per_node_us"] - 1) * 100 if b["per_node_us"] else 0.0
+            parts = [", ".join(f"{k} {v:.1f}" for k, v in x["breakdown"].items()) for x in (b, a)]
+            lines.append(f"| {r['chain']} | {r['n_nodes']} | {b['per_node_us']:.1f} | "
+                         f"{a['per_node_us']:.1f} | {change:+.0f}% | {b['per_node_us_stream']:.1f} | "
+                         f"{a['per_node_us_stream']:.1f} | {parts[0]} | {parts[1]} |")
+        lines += ["", f"Medians of {e['rows'][0]['pairs'] if e['rows'] else 0} runs per tree "
+                      "(each a fresh process: the process and stream us/node, and the breakdown, "
+                      "as in the first table)."]
     for key, err in report["errors"].items():
         lines += ["", f"**{key} failed**: {err}"]
     return "\n".join(lines) + "\n"
@@ -285,6 +356,10 @@ def main(argv=None):
     p.add_argument("--graph-frames", type=int, default=None,
                    help="timed frames per two-camera row (default 300; quick 16)")
     p.add_argument("--n-cpus", type=int, default=None, help="CPU workers (default: cores - 1, max 4)")
+    p.add_argument("--ab", default=None,
+                   help="another warpvx tree (the code before a change): its identity chains "
+                        "and this tree's, alternating in fresh processes")
+    p.add_argument("--ab-pairs", type=int, default=5, help="A/B runs per tree (default 5)")
     args = p.parse_args(argv)
     command = "PYTHONPATH=. python3 benchmarks/overhead_bench.py " + " ".join(
         argv if argv is not None else sys.argv[1:])
@@ -306,7 +381,10 @@ def main(argv=None):
     try:
         for key, title, run in (("chains", "identity chains", _chains),
                                 ("primitive_chain", "primitive chain", _primitive_chain),
-                                ("two_cameras", "two-camera graph", _two_cameras)):
+                                ("two_cameras", "two-camera graph", _two_cameras),
+                                ("ab", "A/B of the identity chains", _ab)):
+            if key == "ab" and not args.ab:
+                continue
             print(title, flush=True)
             try:
                 sections[key] = run(args)
