@@ -274,6 +274,91 @@ def test_alternating_chain_runs_short_tasks_inline_and_long_ones_on_their_thread
         assert elsewhere >= len(ran) // 4
 
 
+class _Device:
+    """A stand-in Warp CUDA device: its current stream, the process's default device, and
+    a per-thread count of pushed contexts."""
+
+    def __init__(self):
+        self.runtime = type("Runtime", (), {"default_device": "user-default"})()
+        self.stream = "user-stream"
+        self.pushed = threading.local()
+        device = self
+
+        class Guard:
+            def __enter__(self):
+                device.pushed.n = getattr(device.pushed, "n", 0) + 1
+
+            def __exit__(self, *exc):
+                device.pushed.n -= 1
+
+        self.context_guard = Guard()
+
+    def set_stream(self, stream, sync=True):
+        assert sync is False  # the executor's stream orders its own work only
+        self.stream = stream
+
+
+def test_device_scope_is_shared_by_threads_and_restored_by_the_last_holder():
+    """The GPU role's DeviceScope (Warp's device and stream are the process's) may be held by
+    a thread running an alternating chain inline and by the GPU role's thread at once: the
+    first holder makes them current, the last one restores the user's, and each thread
+    pushes and pops its own context."""
+    from warpvx.runtime.roles import DeviceScope
+
+    dev = _Device()
+    scope = DeviceScope(dev, "executor-stream")
+    scope.acquire()
+    assert (dev.stream, dev.runtime.default_device, dev.pushed.n) == ("executor-stream", dev, 1)
+    other = {}
+
+    def hold():
+        with scope:
+            other["inside"] = (dev.stream, dev.pushed.n)
+        other["after"] = (dev.stream, dev.pushed.n)
+
+    th = threading.Thread(target=hold)
+    th.start()
+    th.join()
+    assert other == {"inside": ("executor-stream", 1), "after": ("executor-stream", 0)}
+    assert dev.runtime.default_device is dev  # still held here
+    scope.release()
+    assert (dev.stream, dev.runtime.default_device, dev.pushed.n) == ("user-stream", "user-default", 0)
+
+
+@pytest.mark.parametrize("ms", [LONG, SHORT])
+def test_gpu_units_run_with_the_gpu_device_current_and_the_default_comes_back(ms):
+    """GPU units see the GPU role's device as Warp's default whichever thread runs them
+    (inline ones included: the scope is held across short CPU units); after each frame the
+    caller's default device is back."""
+    import warp as wp
+
+    n = 6
+    prog, placement, ran = _alternating(n)
+    seen = []
+    for name, task in prog.tasks.items():
+        if placement[name] == "gpu":
+            inner = task.gpu
+            task.gpu = lambda v, inner=inner: (seen.append(str(wp.get_device())), inner(v))[1]
+    ex = Executor(sched(placement, ms=ms), prog, gpu_device="cpu")
+    ex._start()
+    dev = ex._scope.device
+    saved = dev.runtime.default_device
+    dev.runtime.default_device = None  # the caller's: anything but the GPU role's device
+    try:
+        for i in range(3):
+            x = np.full(3, i, np.float32)
+            np.testing.assert_array_equal(ex.wait(ex.submit(i, {"x": (x, HOST)})).outputs["y"],
+                                          _expected(x, n))
+        deadline = time.perf_counter() + 5.0  # a role's thread may still be leaving its run
+        while ex._scope.holders and time.perf_counter() < deadline:
+            time.sleep(0.001)
+        assert ex._scope.holders == 0 and dev.runtime.default_device is None
+    finally:
+        dev.runtime.default_device = saved
+        ex.close()
+    assert seen == ["cpu"] * (3 * (n // 2))
+
+
 @pytest.mark.parametrize("ms", [LONG, SHORT])
 def test_caller_runs_units_while_it_waits_for_a_frame_alone_in_flight(ms):
     """One frame at a time, the waiting caller runs the ready units itself as a role's

@@ -142,6 +142,10 @@ class Transfers:
     PINNED_MIN_BYTES = 1 << 16
     #: Staging buffers per shape and dtype before an upload waits for the oldest one.
     STAGING_DEPTH = 4
+    #: Staged downloads below this size (bytes) may go on the producer's stream
+    #: (:meth:`stage_download`'s ``after``): the copy delays the producer's next kernels by
+    #: about a microsecond, a cross-stream wait would delay the reader by more.
+    SAME_STREAM_MAX_BYTES = 1 << 12
 
     def __init__(self, device: str | None, pool: HostPool | None = None):
         self.device = device
@@ -196,14 +200,20 @@ class Transfers:
         self.moved += out.nbytes
         return out
 
-    def stage_download(self, value, event=None):
+    def stage_download(self, value, event=None, *, after=None):
         """Start downloading device value ``value`` (any tree of contiguous scalar-dtype
         arrays) into buffers of :attr:`pool`, after ``event`` (the producer's), on this
         thread's copy stream: the compute stream goes on meanwhile, and the reader waits for
         the copy's event only (:meth:`unstage`). Returns the download, or None (no pool, no
         device array, a leaf of another kind, or the pool full: download as usual).
 
-        Every staged copy goes on this one stream (see :class:`~.pinned.HostPool`)."""
+        ``after``: the stream the producer was queued on, with nothing queued behind it yet
+        (CUDA). A download of fewer than :attr:`SAME_STREAM_MAX_BYTES` goes there, in stream
+        order, with no event wait between streams (a native call, and the device's latency
+        of a cross-stream wait, on a GPU -> CPU hand-off).
+
+        Every other staged copy goes on this thread's copy stream (see
+        :class:`~.pinned.HostPool`)."""
         pool = self.pool
         if pool is None:
             return None
@@ -229,8 +239,11 @@ class Transfers:
             return None  # the buffers taken are garbage: back to the pool
         if not copies:
             return None
+        nbytes = sum(h.nbytes for _, h in copies.values())
         stream = self.stream
-        if stream is not None and event is not None:
+        if after is not None and stream is not None and nbytes < self.SAME_STREAM_MAX_BYTES:
+            stream = after
+        elif stream is not None and event is not None:
             wait_event(stream, event)
         for a, host in copies.values():
             to_host_async(host, a, stream)
@@ -238,8 +251,7 @@ class Transfers:
         if stream is not None:
             done = self._events.pop() if self._events else warp().Event(self.device)
             record_event(stream, done)
-        return _Staged(value, copies, done, sum(h.nbytes for _, h in copies.values()),
-                       self._events)
+        return _Staged(value, copies, done, nbytes, self._events)
 
     def unstage(self, staged, *, ready: bool = False):
         """The host value of download ``staged`` (:meth:`stage_download`), waiting for its copy
