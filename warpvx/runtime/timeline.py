@@ -47,9 +47,9 @@ class EventPool:
     soft bound)."""
 
     MAX_FREE = 4096
-    #: Unread timelines that may hold their frame's events; past it, the oldest is read (its
-    #: events go back): a caller keeping every result must not make the pool create events
-    #: for every frame (creating one costs more than reading one).
+    #: Unread timelines that may hold their frame's events; past it, the oldest one's events
+    #: are read and go back: a caller keeping every result must not make the pool create
+    #: events for every frame (creating one costs more than reading one).
     MAX_UNREAD = 16
 
     def __init__(self, device: str):
@@ -71,13 +71,13 @@ class EventPool:
     def lend(self, result: "FrameResult"):
         """``result``'s unread timeline holds its frame's events (:func:`frame_result`): they
         come back when it is read or garbage, or here once :attr:`MAX_UNREAD` newer results
-        hold theirs."""
+        hold theirs (their times read into the trace, the timeline still built lazily)."""
         unread = self._unread
         unread.append(weakref.ref(result.timeline._trace))
         while len(unread) > self.MAX_UNREAD:
             trace = unread.popleft()()
             if trace is not None:
-                trace.build()
+                trace.read_events()
 
     def __len__(self):
         return len(self._free)
@@ -143,7 +143,7 @@ class _Trace:
     """A frame's raw trace (host seconds, or CUDA events for GPU tasks), turned into its
     result's dicts (ms from submission) on the first read: results are kept by the dozen
     (``Plan.last_run``) and most are never read, while building one :class:`ScheduledTask`
-    per task cost ~1 us a task, and reading a CUDA event's time ~2 us (an H100's host), on
+    per task cost ~1 us a task, and reading a CUDA event's time a native call per event, on
     the critical path of every frame.
 
     ``anchor``: the ``(host seconds, timing event)`` the GPU events are read against
@@ -167,19 +167,29 @@ class _Trace:
             return built
         with _BUILD_LOCK:  # events go back to their pool after one read: one build at a time
             if self.built is None:
+                self._read_events()
                 self.built = self._build()
-                self._recycle()
         return self.built
 
-    def _build(self) -> tuple:
+    def read_events(self):
+        """Read the GPU events' times into the trace (host seconds) and let the events go."""
+        with _BUILD_LOCK:
+            self._read_events()
+
+    def _read_events(self):
+        if self.anchor is None:
+            return
+        to_host = event_clock(self.anchor)
         trace = self.trace
-        if self.anchor is not None:
-            to_host = event_clock(self.anchor)
-            for task, (proc, a, b, mid) in trace.items():
-                if proc[0] == "g":  # "gpu": events
-                    trace[task] = (proc, to_host(a), to_host(b),
-                                   mid if mid is None else to_host(mid))
+        for task, (proc, a, b, mid) in trace.items():
+            if proc[0] == "g":  # "gpu": events
+                trace[task] = (proc, to_host(a), to_host(b), mid if mid is None else to_host(mid))
+        self.anchor = None
+        self._recycle()
+
+    def _build(self) -> tuple:
         timeline, transfers, host = {}, {}, {}
+        trace = self.trace
         t0, shares = self.t0, self.shares
         for task, (proc, a, b, mid) in trace.items():
             share = shares.get(task)
@@ -197,8 +207,15 @@ class _Trace:
         if events:
             self.recycle(events)
 
+
+class _EventTrace(_Trace):
+    """A :class:`_Trace` holding CUDA events: garbage unread, it lets them go (a ``__del__``
+    only where there are events: it costs every other frame's result too)."""
+
+    __slots__ = ()
+
     def __del__(self):
-        self._recycle()  # unread: its events are free again
+        self._recycle()
 
 
 class _Lazy(Mapping):
@@ -280,10 +297,12 @@ def frame_result(frame: Frame, outputs: dict, anchor=None, recycle=None) -> Fram
     host time); the frame's events (``frame.events``, taken from it) go to ``recycle`` (a
     pool's ``put``) then, or once the result is garbage unread.
     """
-    events = None
-    if anchor is not None:
+    if anchor is None:
+        raw = _Trace(frame.t0, frame.trace, frame.host_trace, frame.shares)
+    else:
         events, frame.events = frame.events, []
-    raw = _Trace(frame.t0, frame.trace, frame.host_trace, frame.shares, anchor, events, recycle)
+        raw = _EventTrace(frame.t0, frame.trace, frame.host_trace, frame.shares, anchor, events,
+                          recycle)
     return FrameResult(frame.index, outputs, _Lazy(raw, 0), frame.t0, _Lazy(raw, 1),
                        frame.copied, _Lazy(raw, 2))
 
