@@ -15,7 +15,8 @@ Roles and threads
     thread whose output made it ready when that thread's own role has nothing ready and the
     unit is short (:attr:`Executor.INLINE_MAX_MS`): a serial chain alternating CPU and GPU
     tasks then runs on one thread, with no thread wake-up per hand-off (10-30 us each under
-    the GIL). Nobody blocks on a value: a role's thread sleeps on its signal until a producer
+    the GIL), and keeps the GPU role's device and stream current across its short CPU units
+    (:class:`~.roles.DeviceScope`: no stream and context switch per hand-off). Nobody blocks on a value: a role's thread sleeps on its signal until a producer
     finds the role ready and not taken; a producer going on with its own work wakes the
     ready readers of what it published at once. A caller waiting for a frame alone in
     flight runs its ready units itself first (:meth:`Executor._help`), so a frame run one at
@@ -27,8 +28,10 @@ Cross-queue edges
     CUDA, where a CPU task of the frame or the caller (a graph output) reads the value, the
     GPU role then starts its download at once (:meth:`Transfers.stage_download`: pinned
     buffers of the executor's :class:`~.pinned.HostPool`, on the GPU role's copy stream
-    after the producer's event), so the compute stream runs on while the DMA runs and the
-    reader waits for the copy's event only, then gets NumPy views of the pinned buffers (no
+    after the producer's event, or for a value under
+    :attr:`Transfers.SAME_STREAM_MAX_BYTES` on the compute stream right behind its
+    producer), so the compute stream runs on while the DMA runs and the reader waits for
+    the copy's event only, then gets NumPy views of the pinned buffers (no
     host copy; a buffer returns to the pool once every array on it is garbage); otherwise
     (the pool full, a delay's value, a vector dtype) the reader waits for the producer's
     event and downloads on its thread's copy stream.
