@@ -8,6 +8,7 @@ copies every leaf of a tree between host memory and the GPU role's device, throu
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 
 import numpy as np
@@ -98,6 +99,8 @@ class _Staged:
         """The host value, its arrays views of the pool's buffers (call after the copy; the
         rows of a large Counted block are copied now, on ``io``'s stream: the reader's)."""
         copies = self.copies
+        if is_warp_array(self.value):  # the usual value: no tree to walk
+            return copies[id(self.value)][1]
 
         def counted(c):
             if _large(c):
@@ -214,32 +217,24 @@ class Transfers:
 
         Every other staged copy goes on this thread's copy stream (see
         :class:`~.pinned.HostPool`)."""
-        pool = self.pool
-        if pool is None:
+        if self.pool is None:
             return None
         copies: dict = {}
-
-        def take(a):
-            got = copies.get(id(a))
-            if got is None:
-                dtype = numpy_dtype(a.dtype)
-                if dtype is None or not a.is_contiguous:
-                    raise _Unstageable
-                host = pool.take(a.shape, dtype)
-                if host is None:
-                    raise _Unstageable
-                got = copies[id(a)] = (a, host)
-            return got[1]
-
         try:
-            # The walk that builds the value once copied (_Staged.host) lists what to copy; a
-            # large Counted block copies its count now, its counted rows when read.
-            host_value(value, take, lambda c: take(c.count if _large(c) else c.block.array))
+            if is_warp_array(value):  # the usual value: no tree to walk
+                self._take(copies, value)
+            else:
+                # The walk that builds the value once copied (_Staged.host) lists what to
+                # copy; a large Counted block copies its count now, its counted rows when read.
+                take = functools.partial(self._take, copies)
+                host_value(value, take, lambda c: take(c.count if _large(c) else c.block.array))
         except _Unstageable:
             return None  # the buffers taken are garbage: back to the pool
         if not copies:
             return None
-        nbytes = sum(h.nbytes for _, h in copies.values())
+        nbytes = 0
+        for _, host in copies.values():
+            nbytes += host.nbytes
         stream = self.stream
         if after is not None and stream is not None and nbytes < self.SAME_STREAM_MAX_BYTES:
             stream = after
@@ -252,6 +247,20 @@ class Transfers:
             done = self._events.pop() if self._events else warp().Event(self.device)
             record_event(stream, done)
         return _Staged(value, copies, done, nbytes, self._events)
+
+    def _take(self, copies: dict, a):
+        """The pool's host buffer device array ``a`` of a staged download is copied into (one
+        per array: ``copies``, id -> (it, its buffer)); :class:`_Unstageable` when none."""
+        got = copies.get(id(a))
+        if got is None:
+            dtype = numpy_dtype(a.dtype)
+            if dtype is None or not a.is_contiguous:
+                raise _Unstageable
+            host = self.pool.take(a.shape, dtype)
+            if host is None:
+                raise _Unstageable
+            got = copies[id(a)] = (a, host)
+        return got[1]
 
     def unstage(self, staged, *, ready: bool = False):
         """The host value of download ``staged`` (:meth:`stage_download`), waiting for its copy
