@@ -14,7 +14,8 @@
    the report names the captured segments and the GPU nodes that still run eagerly, and
    first checks that captured frames give the eager outputs bit for bit (16 frames).
 
-4. With ``--ab TREE`` (another checkout of warpvx, e.g. the code before a change): the identity
+4. With ``--ab TREE`` (another checkout of warpvx, e.g. the code before a change, or a git
+   revision of this checkout, extracted into a temporary folder): the identity
    chains of section 1 run in fresh processes alternating between TREE and this tree
    (``--ab-pairs`` pairs, the order swapped every pair), so both see the same machine state;
    the table gives each tree's median and the change.
@@ -26,8 +27,7 @@ Usage::
 
     PYTHONPATH=. python3 benchmarks/overhead_bench.py --gpu cuda --out $OUT/overhead   # GPU
     PYTHONPATH=. python benchmarks/overhead_bench.py --gpu warp-cpu --quick            # anywhere
-    mkdir -p /tmp/base && git archive BASE | tar -x -C /tmp/base &&
-    PYTHONPATH=. python3 benchmarks/overhead_bench.py --gpu cuda --out $OUT/o --ab /tmp/base  # A/B
+    PYTHONPATH=. python3 benchmarks/overhead_bench.py --gpu cuda --out $OUT/o --ab REV  # A/B
 
 Writes ``overhead_bench.md`` (its first line is the command), ``overhead_bench.json``, and ``overhead_profile_gpu.txt`` and ``overhead_profile_mixed.txt``: the
 GPU-only and alternating chains under cProfile, every thread
@@ -39,9 +39,11 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shutil
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 import traceback
 from pathlib import Path
@@ -120,10 +122,20 @@ print(json.dumps(rows))
 """
 
 
-def _ab(args) -> list:
-    """Section 4: the identity chains of ``args.ab`` (a tree) and of this tree, in fresh
-    processes, alternating (ABBA...); rows of per-tree medians."""
-    trees = {"before": str(Path(args.ab).resolve()), "after": str(ROOT.parent)}
+def _tree(ab: str) -> str:
+    """``--ab``'s tree: a folder, or a git revision of this checkout extracted (git archive)
+    into a temporary folder (not the results folder: what comes back is a few files)."""
+    if Path(ab).is_dir():
+        return str(Path(ab).resolve())
+    dest = Path(tempfile.mkdtemp(prefix="warpvx-ab-")).resolve()
+    archive = subprocess.run(["git", "-C", str(ROOT.parent), "archive", ab],
+                             capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    return str(dest)
+
+
+def _ab_runs(args, trees: dict) -> dict:
+    """tree name -> its runs (each a list of chain rows), ABBA order, fresh processes."""
     runs = {k: [] for k in trees}
     for pair in range(args.ab_pairs):
         order = ("before", "after") if pair % 2 == 0 else ("after", "before")
@@ -137,6 +149,18 @@ def _ab(args) -> list:
             print(f"  pair {pair + 1}/{args.ab_pairs} {k}: " + ", ".join(
                 f"{r['chain']} {r['per_node_us']:.1f}" for r in runs[k][-1]) + " us/node",
                 flush=True)
+    return runs
+
+
+def _ab(args) -> list:
+    """Section 4: the identity chains of ``args.ab`` (a tree) and of this tree, in fresh
+    processes, alternating (ABBA...); rows of per-tree medians."""
+    trees = {"before": _tree(args.ab), "after": str(ROOT.parent)}
+    try:
+        runs = _ab_runs(args, trees)
+    finally:
+        if not Path(args.ab).is_dir():  # a revision, extracted for this run
+            shutil.rmtree(trees["before"], ignore_errors=True)
     rows = []
     for i, first in enumerate(runs["after"][0]):
         row = {"chain": first["chain"], "n_nodes": first["n_nodes"], "pairs": args.ab_pairs}
@@ -375,8 +399,8 @@ def main(argv=None):
                    help="timed frames per two-camera row (default 300; quick 16)")
     p.add_argument("--n-cpus", type=int, default=None, help="CPU workers (default: cores - 1, max 4)")
     p.add_argument("--ab", default=None,
-                   help="another warpvx tree (the code before a change): its identity chains "
-                        "and this tree's, alternating in fresh processes")
+                   help="another warpvx tree (a folder, or a git revision of this checkout): "
+                        "its identity chains and this tree's, alternating in fresh processes")
     p.add_argument("--ab-pairs", type=int, default=5, help="A/B runs per tree (default 5)")
     args = p.parse_args(argv)
     command = "PYTHONPATH=. python3 benchmarks/overhead_bench.py " + " ".join(
