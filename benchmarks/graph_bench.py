@@ -16,15 +16,15 @@ Steps, per graph and camera size (default 1280x720 and 1920x1080):
 
 1. verify on two real consecutive frames and calibrate (cached per machine); once, the GIL
    switch interval and executor spin are chosen (``--switch-interval``, ``--spin`` fix them);
-2. the contention model (:mod:`warpvx.graph.model`) is fitted on the first ``--fit-frames``
-   frames of ``--train`` (baseline, calibrated costs), run alone after warm-up frames;
-   ``best`` takes its candidates (baseline, HEFT and XEFT on the calibrated and on the
+2. baseline, heft and xeft run their first ``--fit-frames`` frames in interleaved rounds (as
+   in step 3); the contention model (:mod:`warpvx.graph.model`) is fitted on ``--train``'s
+   (baseline, calibrated costs); ``best`` takes its candidates (baseline, HEFT and XEFT on the calibrated and on the
    model's costs) and tries those predicted within 20% of the fastest (the model's error),
    and the runner-up if within 50% (its worst out-of-sample error on mixed placements),
    in ``--trial-rounds`` interleaved rounds of ``--trial-frames`` frames, keeping the least
    median makespan;
-3. baseline, heft, xeft and best run ``--frames`` frames each, one at a time, in
-   interleaved rounds of ``--block`` frames (A B C D, D C B A, ...; warm-up frames after
+3. baseline, heft, xeft and best (joining here) run the later rounds up to ``--frames``
+   frames each, one at a time, in interleaved rounds of ``--block`` frames (A B C D, D C B A, ...; warm-up frames after
    each switch discarded): a drift of the machine (the same placement measured 30-40%
    apart minutes later on the H100) falls on every policy alike; then each is pipelined
    (``--depth`` in flight, FPS);
@@ -77,6 +77,8 @@ from warpvx.graph.diagnostics import executor_overhead, soak  # noqa: E402
 from warpvx.runtime import executor  # noqa: E402
 
 POLICIES = ("baseline", "heft", "xeft", "best")
+#: The policies run from the first rounds on (best is chosen after them).
+SCHEDULERS = POLICIES[:-1]
 #: Gantt PNGs go to this folder of --out, packed into gantt.tar at the end (results come
 #: back from the GPU machine as at most 8 files); each graph's best chart stays beside it.
 GANTT_DIR = "gantt"
@@ -332,10 +334,11 @@ def _err(pred, meas) -> float:
 
 
 def experiment(g, frames, args, out_dir, tag: str) -> dict:
-    """One graph at one size. The contention model learns from the first
-    ``args.fit_frames`` frames of the training policy (run alone, after warm-up);
+    """One graph at one size. baseline, heft and xeft run their first ``args.fit_frames``
+    frames in interleaved rounds; the contention model learns from the training policy's;
     ``best`` is chosen with it (its trial interleaves its candidates); then the four
-    policies run ``len(frames)`` frames each in interleaved rounds of ``args.block``
+    policies run the later rounds, up to ``len(frames)`` frames each (best: less the first
+    rounds), in interleaved rounds of ``args.block``
     (:meth:`~warpvx.graph.Graph.measure_plans`: A B C D, D C B A, ...; warm-up frames after
     each switch discarded), so a drift of the machine falls on every policy alike, and
     the drift between a policy's even and odd rounds is the noise floor. Each policy is
@@ -344,24 +347,32 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     sample (the training model against its frames after the first ``fit_frames``); Gantt
     charts (predicted over measured, one frame and pipelined)."""
     fit_n = min(args.fit_frames, len(frames) - 1)
-    plans = {p: g.schedule(p, n_cpus=args.n_cpus, gpu=args.gpu) for p in ("baseline", "heft", "xeft")}
-    train = plans[args.train]
-    g.use_plan(train)
-    run_frames(g, train, frames[:SWITCH_WARMUP])
-    train_runs = run_frames(g, train, frames[:fit_n])
-    model = g.fit_model(train, runs=train_runs)
+    plans = {p: g.schedule(p, n_cpus=args.n_cpus, gpu=args.gpu) for p in SCHEDULERS}
+    block = min(args.block, len(frames))
+    # Training frames in the regime they predict: the policies' first rounds interleaved as
+    # later (frames run alone before the others measured 13-18% faster or 10% slower than the
+    # same placement interleaved on the H100: s3-s5 of benchmarks/results/graph/).
+    fit_rounds = -(-fit_n // block)
+    first = g.measure_plans([plans[p] for p in SCHEDULERS], frames, rounds=fit_rounds,
+                            frames=block, warmup=SWITCH_WARMUP)
+    train_runs = dict(zip(SCHEDULERS, first))[args.train][:fit_n]
+    model = g.fit_model(plans[args.train], runs=train_runs)
     # The GIL-weighted model, reported beside, not used; not in --quick: its probe times each
     # node beside a Python loop, minutes on Warp's CPU device (calls there hand the GIL over
     # per launch, each waiting a switch interval).
-    model_gil = None if args.quick else g.fit_model(train, runs=train_runs, gil=True)
+    model_gil = None if args.quick else g.fit_model(plans[args.train], runs=train_runs, gil=True)
     # best: the model's candidates; those it cannot tell apart are tried in rounds.
     trial = {"trial_inputs": frames, "trial_frames": args.trial_frames,
              "trial_rounds": args.trial_rounds} if args.trial_frames else {}
     plans["best"] = g.schedule("best", n_cpus=args.n_cpus, gpu=args.gpu, model=model, **trial)
-    block = min(args.block, len(frames))
-    measured = g.measure_plans([plans[p] for p in POLICIES], frames, rounds=-(-len(frames) // block),
-                               frames=block, warmup=SWITCH_WARMUP)
-    seq = {p: runs[:len(frames)] for p, runs in zip(POLICIES, measured)}
+    # best joins the later rounds; the inputs go on where the first rounds stopped.
+    done = fit_rounds * len(SCHEDULERS) * (block + SWITCH_WARMUP)
+    later = g.measure_plans([plans[p] for p in POLICIES], frames[done % len(frames):] +
+                            frames[:done % len(frames)],
+                            rounds=max(1, -(-len(frames) // block) - fit_rounds), frames=block,
+                            warmup=SWITCH_WARMUP)
+    seq = {p: (runs if p == "best" else first[i] + runs)[:len(frames)]
+           for i, (p, runs) in enumerate(zip(POLICIES, later))}
     piped, fps = {}, {}
     for policy in POLICIES:
         piped[policy], fps[policy] = pipelined(g, plans[policy], frames, args.depth)
@@ -507,7 +518,8 @@ def markdown(report) -> str:
         "turn; the heavy CPU nodes also beside each other). A captured GPU segment is played as "
         "one replay: a ratio times its nodes' calibrated device times plus a fixed cost, fitted on "
         "the training frames' segments. "
-        "*Training*: the first frames of the training policy, run alone before the others. "
+        "*Training*: the training policy's first frames, in the first rounds (baseline, heft and "
+        "xeft interleaved; best joins the later rounds). "
         "*In sample*: a model against the frames it learnt from (the training model for the "
         "training policy, each other policy's own model fitted on its first interleaved "
         "frames). *Out of sample*: the training model against every policy's interleaved "
