@@ -356,11 +356,15 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     first = g.measure_plans([plans[p] for p in SCHEDULERS], frames, rounds=fit_rounds,
                             frames=block, warmup=SWITCH_WARMUP)
     train_runs = dict(zip(SCHEDULERS, first))[args.train][:fit_n]
-    model = g.fit_model(plans[args.train], runs=train_runs)
-    # The GIL-weighted model, reported beside, not used; not in --quick: its probe times each
-    # node beside a Python loop, minutes on Warp's CPU device (calls there hand the GIL over
-    # per launch, each waiting a switch interval).
-    model_gil = None if args.quick else g.fit_model(plans[args.train], runs=train_runs, gil=True)
+    # The model: GIL-weighted (busy neighbours counted by their GIL shares), the unweighted
+    # one reported beside (replayed on the H100 runs s3-s5, trained on each of baseline, heft
+    # and xeft: 78 of 108 cells within 20% out of sample against 70,
+    # benchmarks/results/graph/model-replay-s6.md); not in --quick: its probe times each node
+    # beside a Python loop, minutes on Warp's CPU device (calls there hand the GIL over per
+    # launch, each waiting a switch interval), so there the unweighted one.
+    gil = not args.quick
+    plain = g.fit_model(plans[args.train], runs=train_runs)
+    model = g.fit_model(plans[args.train], runs=train_runs, gil=True) if gil else plain
     # best: the model's candidates; those it cannot tell apart are tried in rounds.
     trial = {"trial_inputs": frames, "trial_frames": args.trial_frames,
              "trial_rounds": args.trial_rounds} if args.trial_frames else {}
@@ -380,10 +384,10 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     for policy in POLICIES:
         plan, runs = plans[policy], seq[policy]
         fit_runs = train_runs if policy == args.train else runs[:fit_n]
-        own = model if policy == args.train else g.fit_model(plan, runs=fit_runs)
+        own = model if policy == args.train else g.fit_model(plan, runs=fit_runs, gil=gil)
         pred_in, meas_in = own.makespan(plan), median_span(fit_runs)
         pred_out, meas_out = model.makespan(plan), median_span(runs[fit_n:])
-        pred_gil = model_gil.makespan(plan) if model_gil is not None else None
+        pred_plain = plain.makespan(plan) if gil else None
         rows.append({
             "policy": policy,
             "chosen": plan.schedule.info.get("chosen", policy),
@@ -392,8 +396,8 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
             "pred_in_ms": pred_in, "measured_in_ms": meas_in, "error_in_pct": _err(pred_in, meas_in),
             "pred_out_ms": pred_out, "measured_out_ms": meas_out,
             "error_out_pct": _err(pred_out, meas_out),
-            "pred_out_gil_ms": pred_gil,
-            "error_out_gil_pct": _err(pred_gil, meas_out) if pred_gil is not None else None,
+            "pred_out_plain_ms": pred_plain,
+            "error_out_plain_pct": _err(pred_plain, meas_out) if gil else None,
             "measured_p90_ms": float(np.percentile([r.makespan for r in runs[fit_n:]], 90)),
             "noise_pct": halves_drift_pct(runs, block),
             "sequential_fps": sequential_fps(runs),
@@ -525,10 +529,10 @@ def markdown(report) -> str:
         "frames). *Out of sample*: the training model against every policy's interleaved "
         "frames after the first ones (target: within 20%). *noise*: the same placement's "
         "median makespan in its even against its odd rounds (two interleaved runs of one "
-        "placement): an error below it cannot be told from drift. *GIL-weighted*: the same "
-        "training frames fitted with each busy neighbour counted by its node's GIL pressure "
-        "and each victim by its sensitivity (`warpvx.graph.calibration.measure_gil`; not "
-        "used by best yet). *scheduler*: the makespan "
+        "placement): an error below it cannot be told from drift. The model counts each busy "
+        "neighbour by its node's GIL pressure and each victim by its sensitivity "
+        "(`warpvx.graph.calibration.measure_gil`; not in a quick run); *unweighted*: the same "
+        "training frames fitted with every busy thread counted alike. *scheduler*: the makespan "
         "the policy's own schedule claims (isolated calibration). `best`: the model's "
         "candidates (baseline, HEFT and XEFT on the calibrated DAG and on the model's "
         "in-frame costs); those predicted within 20% of the fastest (closer than the model "
@@ -556,7 +560,7 @@ def markdown(report) -> str:
                f"{m.get('segment_fixed_us', 0):.0f} us" if m.get("segment_ratio") else "")
             + ".", "", probe_line(e.get("probe") or []), "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
-            "of sample | measured | error | noise | GIL-weighted: predicted | error | p90 ms | "
+            "of sample | measured | error | noise | unweighted: predicted | error | p90 ms | "
             "sequential FPS | pipelined FPS | GPU nodes |",
             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
             "| ---: | --- |",
@@ -567,8 +571,8 @@ def markdown(report) -> str:
                 f"| {name} | {r['scheduler_ms']:.3f} | {r['pred_in_ms']:.3f} | "
                 f"{r['measured_in_ms']:.3f} | {r['error_in_pct']:+.1f}% | {r['pred_out_ms']:.3f} | "
                 f"{r['measured_out_ms']:.3f} | {r['error_out_pct']:+.1f}% | "
-                f"{_pct(r.get('noise_pct'))} | {_fmt(r.get('pred_out_gil_ms'))} | "
-                f"{_pct(r.get('error_out_gil_pct'))} | {r['measured_p90_ms']:.3f} | "
+                f"{_pct(r.get('noise_pct'))} | {_fmt(r.get('pred_out_plain_ms'))} | "
+                f"{_pct(r.get('error_out_plain_pct'))} | {r['measured_p90_ms']:.3f} | "
                 f"{r['sequential_fps']:.1f} | "
                 f"{r['pipelined_fps']:.1f} | {len(r['gpu_nodes'])}: {', '.join(r['gpu_nodes'])} |")
         best = e["policies"][-1]

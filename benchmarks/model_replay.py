@@ -13,6 +13,10 @@ Usage::
     mkdir -p /tmp/before && git archive <rev> | tar -x -C /tmp/before
     PYTHONPATH=. python benchmarks/model_replay.py --before /tmp/before \\
         benchmarks/results/graph/h100-2026-11-24-s3/graph_bench.json other/graph_bench.json
+
+``--after-gil`` (``--before-gil``) replays that side with busy neighbours weighed by the
+recorded GIL shares, as ``graph_bench.py`` fits its model on CUDA; ``--before .
+--after-gil`` compares the unweighted and the GIL-weighted model of one checkout.
 """
 
 from __future__ import annotations
@@ -29,15 +33,18 @@ from pathlib import Path
 TRAINS = ("baseline", "heft", "xeft")
 
 _DUMP = ("import json, sys; sys.path.insert(0, 'benchmarks'); import graph_bench as gb; "
-         "print(json.dumps({p: {t: gb.replay(json.load(open(p)), t) for t in %r} "
-         "for p in sys.argv[1:]}))" % (TRAINS,))
+         "kw = {'gil': True} if sys.argv[1] == 'gil' else {}; "
+         "print(json.dumps({p: {t: gb.replay(json.load(open(p)), t, **kw) for t in %r} "
+         "for p in sys.argv[2:]}))" % (TRAINS,))
 
 
-def replay_rows(root: Path, paths) -> dict:
+def replay_rows(root: Path, paths, gil: bool = False) -> dict:
     """path -> training policy -> :func:`graph_bench.replay` rows, with the code of the
-    checkout at ``root`` (a subprocess, so each side imports its own warpvx)."""
+    checkout at ``root`` (a subprocess, so each side imports its own warpvx); ``gil``: busy
+    neighbours weighed by the recorded GIL shares (``graph_bench.replay(..., gil=True)``)."""
     env = {**os.environ, "PYTHONPATH": str(root)}
-    out = subprocess.run([sys.executable, "-c", _DUMP, *map(str, paths)], cwd=root, env=env,
+    out = subprocess.run([sys.executable, "-c", _DUMP, "gil" if gil else "-", *map(str, paths)],
+                         cwd=root, env=env,
                          check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -78,9 +85,22 @@ def main(argv=None):
     p.add_argument("results", nargs="+", type=Path, help="graph_bench.json files")
     p.add_argument("--before", type=Path, required=True, help="checkout of the older code")
     p.add_argument("--after", type=Path, default=Path.cwd(), help="checkout of the newer code")
+    p.add_argument("--before-gil", action="store_true",
+                   help="the before side weighs busy neighbours by their GIL shares")
+    p.add_argument("--after-gil", action="store_true",
+                   help="the after side weighs busy neighbours by their GIL shares (as the "
+                        "bench's model does on CUDA)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="also write the table here (markdown, its first line the command)")
     args = p.parse_args(argv)
     paths = [r.resolve() for r in args.results]
-    print(markdown(replay_rows(args.before.resolve(), paths), replay_rows(args.after.resolve(), paths)))
+    text = markdown(replay_rows(args.before.resolve(), paths, args.before_gil),
+                    replay_rows(args.after.resolve(), paths, args.after_gil))
+    print(text)
+    if args.out:
+        command = "PYTHONPATH=. python benchmarks/model_replay.py " + " ".join(
+            argv if argv is not None else sys.argv[1:])
+        args.out.write_text(f"Regenerate: `{command}`\n\n{text}\n")
 
 
 if __name__ == "__main__":
