@@ -58,7 +58,7 @@ def summary(rows, label: str) -> str:
 def markdown(before: dict, after: dict) -> str:
     lines = []
     for path in after:
-        lines += [f"## {path}", "",
+        lines += [f"## {os.path.relpath(path)}", "",
                   "| experiment | policy | measured ms | "
                   + " | ".join(f"trained on {t}: before | after" for t in TRAINS) + " |",
                   "| --- | --- | ---: | " + " | ".join("---: | ---:" for _ in TRAINS) + " |"]
@@ -80,6 +80,44 @@ def markdown(before: dict, after: dict) -> str:
     return "\n".join(lines)
 
 
+def regime(paths, gil: bool = False) -> str:
+    """The training frames' regime against the interleaved rounds', with this checkout.
+
+    Per experiment whose best ran baseline's placement (one placement, two series): the
+    median makespan of baseline's training frames (run alone before the others, as the
+    bench did until s5), of baseline's later interleaved frames and of best's first
+    interleaved frames; and the out-of-sample error of every policy predicted by a model
+    trained on baseline's training frames against one trained on best's first interleaved
+    frames (the bench's training design since s6: training frames in the rounds)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import graph_bench as gb
+
+    lines = ["| run | experiment | baseline training ms | baseline interleaved ms | same placement "
+             "interleaved (best) ms | step | "
+             + " | ".join(f"{p}: trained alone | in the rounds" for p in TRAINS) + " |",
+             "| --- | --- | ---: | ---: | ---: | ---: | " + " | ".join("---: | ---:" for _ in TRAINS) + " |"]
+    for path in paths:
+        report = json.loads(Path(path).read_text())
+        alone = {(r["tag"], r["policy"]): r for r in gb.replay(report, "baseline", gil=gil)}
+        rounds = {(r["tag"], r["policy"]): r for r in gb.replay(report, "best", gil=gil)}
+        for e in gb.experiments_of(report):
+            pol = {p["policy"]: p for p in e["policies"]}
+            if pol["best"]["placement"] != pol["baseline"]["placement"]:
+                continue
+            train = statistics.median(max(t[2] for t in f.values())
+                                      for f in pol["baseline"]["fit_frames_data"])
+            inter = pol["baseline"]["measured_out_ms"]
+            cells = [f"{alone[e['tag'], p]['error_pct']:+.1f}% | {rounds[e['tag'], p]['error_pct']:+.1f}%"
+                     for p in TRAINS]
+            lines.append(f"| {Path(path).parent.name} | {e['tag']} | {train:.3f} | {inter:.3f} | "
+                         f"{pol['best']['measured_in_ms']:.3f} | {_pct(inter, train)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _pct(a, b) -> str:
+    return f"{100.0 * (a - b) / b:+.1f}%"
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("results", nargs="+", type=Path, help="graph_bench.json files")
@@ -96,6 +134,10 @@ def main(argv=None):
     paths = [r.resolve() for r in args.results]
     text = markdown(replay_rows(args.before.resolve(), paths, args.before_gil),
                     replay_rows(args.after.resolve(), paths, args.after_gil))
+    text += ("\n\n## Training frames alone or in the rounds (this checkout"
+             + (", GIL-weighted" if args.after_gil else "") + ")\n\n"
+             + (regime.__doc__.split("\n\n")[1].replace("\n    ", " ").strip()) + "\n\n"
+             + regime(paths, args.after_gil))
     print(text)
     if args.out:
         command = "PYTHONPATH=. python benchmarks/model_replay.py " + " ".join(
