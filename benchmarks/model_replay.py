@@ -10,8 +10,7 @@ fit and simulation only.
 
 Usage::
 
-    mkdir -p /tmp/before && git archive <rev> | tar -x -C /tmp/before
-    PYTHONPATH=. python benchmarks/model_replay.py --before /tmp/before \\
+    PYTHONPATH=. python benchmarks/model_replay.py --before <rev or folder> \\
         benchmarks/results/graph/h100-2026-11-24-s3/graph_bench.json other/graph_bench.json
 
 ``--after-gil`` (``--before-gil``) replays that side with busy neighbours weighed by the
@@ -27,6 +26,7 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 #: The training policies replayed in turn (each predicts the others out of sample).
@@ -121,7 +121,8 @@ def _pct(a, b) -> str:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("results", nargs="+", type=Path, help="graph_bench.json files")
-    p.add_argument("--before", type=Path, required=True, help="checkout of the older code")
+    p.add_argument("--before", required=True,
+                   help="checkout of the older code: a folder, or a git revision of this one")
     p.add_argument("--after", type=Path, default=Path.cwd(), help="checkout of the newer code")
     p.add_argument("--before-gil", action="store_true",
                    help="the before side weighs busy neighbours by their GIL shares")
@@ -132,7 +133,14 @@ def main(argv=None):
                    help="also write the table here (markdown, its first line the command)")
     args = p.parse_args(argv)
     paths = [r.resolve() for r in args.results]
-    text = markdown(replay_rows(args.before.resolve(), paths, args.before_gil),
+    with tempfile.TemporaryDirectory() as tmp:
+        before = Path(args.before)
+        if not before.is_dir():  # a revision: its tree, as git archive gives it
+            before = Path(tmp)
+            tree = subprocess.run(["git", "archive", args.before], check=True, capture_output=True).stdout
+            subprocess.run(["tar", "-x", "-C", tmp], input=tree, check=True)
+        rows = replay_rows(before.resolve(), paths, args.before_gil)
+    text = markdown(rows,
                     replay_rows(args.after.resolve(), paths, args.after_gil))
     text += ("\n\n## Training frames alone or in the rounds (this checkout"
              + (", GIL-weighted" if args.after_gil else "") + ")\n\n"

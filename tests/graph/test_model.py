@@ -167,10 +167,11 @@ def test_captured_segment_replay_is_learnt_from_its_intervals():
     # a CPU worker. The frames time the replay as one interval, 0.5 ms per calibrated ms
     # plus 0.2 ms per replay (no launch gaps: shorter than the eager calls); the fit learns
     # it and the simulation plays the segment so. One segment size alone cannot tell the
-    # fixed cost from the ratio; segments of several sizes do.
+    # fixed cost from the ratio: the prior fixed cost, the rest as the ratio; segments of
+    # several sizes tell them apart.
     import types
 
-    from warpvx.graph.model import fit, fit_segments, segment_samples
+    from warpvx.graph.model import SEGMENT_FIXED_PRIOR, fit, fit_segments, segment_samples
     from warpvx.runtime.timeline import FrameResult
 
     alone = {"g1": {"cpu": None, "gpu": 0.1, "device": 1.0},
@@ -190,8 +191,8 @@ def test_captured_segment_replay_is_learnt_from_its_intervals():
                                            "gpu_host": t["gpu"]} for n, t in alone.items()},
                                 gpu="cuda:0", transfer=TransferModel(), dispatch={})
     model = fit(cal, reads, frames, placement, capturable={"g1", "g2"})
-    assert model.segment_ratio == pytest.approx(replay / 3.0, rel=0.01)
-    assert model.segment_fixed == 0.0
+    assert model.segment_fixed == SEGMENT_FIXED_PRIOR
+    assert model.segment_ratio == pytest.approx((replay - SEGMENT_FIXED_PRIOR) / 3.0, rel=0.01)
     pred = model.predict(_sched([("g1", "gpu"), ("g2", "gpu"), ("x", "cpu0")]))
     assert pred.tasks["g2"].finish == pytest.approx(replay, rel=0.02)
     # Eager (nothing capturable), the device times add up: 3 ms.
@@ -205,6 +206,8 @@ def test_captured_segment_replay_is_learnt_from_its_intervals():
     sizes = [(b, 0.5 * b + 0.2) for b in (0.3, 0.6, 1.2, 3.0)]
     assert fit_segments(sizes) == pytest.approx((0.5, 0.2))
     assert fit_segments([]) == (None, 0.0)
+    # One size with replays shorter than twice the prior: at most half of the shortest.
+    assert fit_segments([(0.1, 0.08), (0.1, 0.1)])[1] == pytest.approx(0.04)
 
 
 def test_simulate_refuses_an_order_that_deadlocks():
