@@ -366,8 +366,8 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     train_runs = dict(zip(SCHEDULERS, first))[args.train][:fit_n]
     # The model: GIL-weighted (busy neighbours counted by their GIL shares), the unweighted
     # one reported beside (replayed on the H100 runs s3-s5, trained on each of baseline, heft
-    # and xeft: 78 of 108 cells within 20% out of sample against 70,
-    # benchmarks/results/graph/model-replay-s6.md); not in --quick: its probe times each node
+    # and xeft: 78 of 108 cells within 20% out of sample against 70, 81 with the segment
+    # prior: benchmarks/results/graph/model-replay-s6.md); not in --quick: its probe times each node
     # beside a Python loop, minutes on Warp's CPU device (calls there hand the GIL over per
     # launch, each waiting a switch interval), so there the unweighted one.
     gil = not args.quick
