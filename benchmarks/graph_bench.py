@@ -16,15 +16,15 @@ Steps, per graph and camera size (default 1280x720 and 1920x1080):
 
 1. verify on two real consecutive frames and calibrate (cached per machine); once, the GIL
    switch interval and executor spin are chosen (``--switch-interval``, ``--spin`` fix them);
-2. the contention model (:mod:`warpvx.graph.model`) is fitted on the first ``--fit-frames``
-   frames of ``--train`` (baseline, calibrated costs), run alone after warm-up frames;
-   ``best`` takes its candidates (baseline, HEFT and XEFT on the calibrated and on the
+2. baseline, heft and xeft run their first ``--fit-frames`` frames in interleaved rounds (as
+   in step 3); the contention model (:mod:`warpvx.graph.model`) is fitted on ``--train``'s
+   (baseline, calibrated costs); ``best`` takes its candidates (baseline, HEFT and XEFT on the calibrated and on the
    model's costs) and tries those predicted within 20% of the fastest (the model's error),
    and the runner-up if within 50% (its worst out-of-sample error on mixed placements),
    in ``--trial-rounds`` interleaved rounds of ``--trial-frames`` frames, keeping the least
    median makespan;
-3. baseline, heft, xeft and best run ``--frames`` frames each, one at a time, in
-   interleaved rounds of ``--block`` frames (A B C D, D C B A, ...; warm-up frames after
+3. baseline, heft, xeft and best (joining here) run the later rounds up to ``--frames``
+   frames each, one at a time, in interleaved rounds of ``--block`` frames (A B C D, D C B A, ...; warm-up frames after
    each switch discarded): a drift of the machine (the same placement measured 30-40%
    apart minutes later on the H100) falls on every policy alike; then each is pipelined
    (``--depth`` in flight, FPS);
@@ -77,6 +77,13 @@ from warpvx.graph.diagnostics import executor_overhead, soak  # noqa: E402
 from warpvx.runtime import executor  # noqa: E402
 
 POLICIES = ("baseline", "heft", "xeft", "best")
+#: The policies run from the first rounds on (best is chosen after them).
+SCHEDULERS = POLICIES[:-1]
+#: Frames of each plan in a first interleaved round, discarded: a new plan's first 4-6
+#: frames (its captures recorded) and the first frames after the first switches ran 7-22 ms
+#: against 4-5 on the H100 (s3-s5 at 1920x1080), beyond the SWITCH_WARMUP frames discarded
+#: after a switch: 4 of the 20 training frames there.
+PLAN_WARMUP = 8
 #: Gantt PNGs go to this folder of --out, packed into gantt.tar at the end (results come
 #: back from the GPU machine as at most 8 files); each graph's best chart stays beside it.
 GANTT_DIR = "gantt"
@@ -332,10 +339,11 @@ def _err(pred, meas) -> float:
 
 
 def experiment(g, frames, args, out_dir, tag: str) -> dict:
-    """One graph at one size. The contention model learns from the first
-    ``args.fit_frames`` frames of the training policy (run alone, after warm-up);
+    """One graph at one size. baseline, heft and xeft run their first ``args.fit_frames``
+    frames in interleaved rounds; the contention model learns from the training policy's;
     ``best`` is chosen with it (its trial interleaves its candidates); then the four
-    policies run ``len(frames)`` frames each in interleaved rounds of ``args.block``
+    policies run the later rounds, up to ``len(frames)`` frames each (best: less the first
+    rounds), in interleaved rounds of ``args.block``
     (:meth:`~warpvx.graph.Graph.measure_plans`: A B C D, D C B A, ...; warm-up frames after
     each switch discarded), so a drift of the machine falls on every policy alike, and
     the drift between a policy's even and odd rounds is the noise floor. Each policy is
@@ -344,24 +352,39 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     sample (the training model against its frames after the first ``fit_frames``); Gantt
     charts (predicted over measured, one frame and pipelined)."""
     fit_n = min(args.fit_frames, len(frames) - 1)
-    plans = {p: g.schedule(p, n_cpus=args.n_cpus, gpu=args.gpu) for p in ("baseline", "heft", "xeft")}
-    train = plans[args.train]
-    g.use_plan(train)
-    run_frames(g, train, frames[:SWITCH_WARMUP])
-    train_runs = run_frames(g, train, frames[:fit_n])
-    model = g.fit_model(train, runs=train_runs)
-    # The GIL-weighted model, reported beside, not used; not in --quick: its probe times each
-    # node beside a Python loop, minutes on Warp's CPU device (calls there hand the GIL over
-    # per launch, each waiting a switch interval).
-    model_gil = None if args.quick else g.fit_model(train, runs=train_runs, gil=True)
+    plans = {p: g.schedule(p, n_cpus=args.n_cpus, gpu=args.gpu) for p in SCHEDULERS}
+    block = min(args.block, len(frames))
+    # Training frames in the regime they predict: the policies' first rounds interleaved as
+    # later (frames run alone before the others measured 13-18% faster or 10% slower than the
+    # same placement interleaved on the H100: s3-s5 of benchmarks/results/graph/).
+    fit_rounds = -(-fit_n // block)
+    # A round discarded first: the plans record their captures and switch once.
+    g.measure_plans([plans[p] for p in SCHEDULERS], frames, rounds=1, frames=PLAN_WARMUP,
+                    warmup=SWITCH_WARMUP)
+    first = g.measure_plans([plans[p] for p in SCHEDULERS], frames, rounds=fit_rounds,
+                            frames=block, warmup=SWITCH_WARMUP)
+    train_runs = dict(zip(SCHEDULERS, first))[args.train][:fit_n]
+    # The model: GIL-weighted (busy neighbours counted by their GIL shares), the unweighted
+    # one reported beside (replayed on the H100 runs s3-s5, trained on each of baseline, heft
+    # and xeft: 78 of 108 cells within 20% out of sample against 70, 81 with the segment
+    # prior: benchmarks/results/graph/model-replay-s6.md); not in --quick: its probe times each node
+    # beside a Python loop, minutes on Warp's CPU device (calls there hand the GIL over per
+    # launch, each waiting a switch interval), so there the unweighted one.
+    gil = not args.quick
+    plain = g.fit_model(plans[args.train], runs=train_runs)
+    model = g.fit_model(plans[args.train], runs=train_runs, gil=True) if gil else plain
     # best: the model's candidates; those it cannot tell apart are tried in rounds.
     trial = {"trial_inputs": frames, "trial_frames": args.trial_frames,
              "trial_rounds": args.trial_rounds} if args.trial_frames else {}
     plans["best"] = g.schedule("best", n_cpus=args.n_cpus, gpu=args.gpu, model=model, **trial)
-    block = min(args.block, len(frames))
-    measured = g.measure_plans([plans[p] for p in POLICIES], frames, rounds=-(-len(frames) // block),
-                               frames=block, warmup=SWITCH_WARMUP)
-    seq = {p: runs[:len(frames)] for p, runs in zip(POLICIES, measured)}
+    # best joins the later rounds; the inputs go on where the first rounds stopped.
+    done = fit_rounds * len(SCHEDULERS) * (block + SWITCH_WARMUP)
+    later = g.measure_plans([plans[p] for p in POLICIES], frames[done % len(frames):] +
+                            frames[:done % len(frames)],
+                            rounds=max(1, -(-len(frames) // block) - fit_rounds), frames=block,
+                            warmup=SWITCH_WARMUP)
+    seq = {p: (runs if p == "best" else first[i] + runs)[:len(frames)]
+           for i, (p, runs) in enumerate(zip(POLICIES, later))}
     piped, fps = {}, {}
     for policy in POLICIES:
         piped[policy], fps[policy] = pipelined(g, plans[policy], frames, args.depth)
@@ -369,10 +392,10 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     for policy in POLICIES:
         plan, runs = plans[policy], seq[policy]
         fit_runs = train_runs if policy == args.train else runs[:fit_n]
-        own = model if policy == args.train else g.fit_model(plan, runs=fit_runs)
+        own = model if policy == args.train else g.fit_model(plan, runs=fit_runs, gil=gil)
         pred_in, meas_in = own.makespan(plan), median_span(fit_runs)
         pred_out, meas_out = model.makespan(plan), median_span(runs[fit_n:])
-        pred_gil = model_gil.makespan(plan) if model_gil is not None else None
+        pred_plain = plain.makespan(plan) if gil else None
         rows.append({
             "policy": policy,
             "chosen": plan.schedule.info.get("chosen", policy),
@@ -381,8 +404,8 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
             "pred_in_ms": pred_in, "measured_in_ms": meas_in, "error_in_pct": _err(pred_in, meas_in),
             "pred_out_ms": pred_out, "measured_out_ms": meas_out,
             "error_out_pct": _err(pred_out, meas_out),
-            "pred_out_gil_ms": pred_gil,
-            "error_out_gil_pct": _err(pred_gil, meas_out) if pred_gil is not None else None,
+            "pred_out_plain_ms": pred_plain,
+            "error_out_plain_pct": _err(pred_plain, meas_out) if gil else None,
             "measured_p90_ms": float(np.percentile([r.makespan for r in runs[fit_n:]], 90)),
             "noise_pct": halves_drift_pct(runs, block),
             "sequential_fps": sequential_fps(runs),
@@ -506,17 +529,19 @@ def markdown(report) -> str:
         "from a contention probe (mixes of the graph's nodes run beside each other, alone and loaded in "
         "turn; the heavy CPU nodes also beside each other). A captured GPU segment is played as "
         "one replay: a ratio times its nodes' calibrated device times plus a fixed cost, fitted on "
-        "the training frames' segments. "
-        "*Training*: the first frames of the training policy, run alone before the others. "
+        "the training frames' segments (all of one size: the fixed cost a prior, "
+        "`SEGMENT_FIXED_PRIOR`). "
+        "*Training*: the training policy's first frames, in the first rounds (baseline, heft and "
+        "xeft interleaved; best joins the later rounds). "
         "*In sample*: a model against the frames it learnt from (the training model for the "
         "training policy, each other policy's own model fitted on its first interleaved "
         "frames). *Out of sample*: the training model against every policy's interleaved "
         "frames after the first ones (target: within 20%). *noise*: the same placement's "
         "median makespan in its even against its odd rounds (two interleaved runs of one "
-        "placement): an error below it cannot be told from drift. *GIL-weighted*: the same "
-        "training frames fitted with each busy neighbour counted by its node's GIL pressure "
-        "and each victim by its sensitivity (`warpvx.graph.calibration.measure_gil`; not "
-        "used by best yet). *scheduler*: the makespan "
+        "placement): an error below it cannot be told from drift. The model counts each busy "
+        "neighbour by its node's GIL pressure and each victim by its sensitivity "
+        "(`warpvx.graph.calibration.measure_gil`; not in a quick run); *unweighted*: the same "
+        "training frames fitted with every busy thread counted alike. *scheduler*: the makespan "
         "the policy's own schedule claims (isolated calibration). `best`: the model's "
         "candidates (baseline, HEFT and XEFT on the calibrated DAG and on the model's "
         "in-frame costs); those predicted within 20% of the fastest (closer than the model "
@@ -544,7 +569,7 @@ def markdown(report) -> str:
                f"{m.get('segment_fixed_us', 0):.0f} us" if m.get("segment_ratio") else "")
             + ".", "", probe_line(e.get("probe") or []), "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
-            "of sample | measured | error | noise | GIL-weighted: predicted | error | p90 ms | "
+            "of sample | measured | error | noise | unweighted: predicted | error | p90 ms | "
             "sequential FPS | pipelined FPS | GPU nodes |",
             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
             "| ---: | --- |",
@@ -555,8 +580,8 @@ def markdown(report) -> str:
                 f"| {name} | {r['scheduler_ms']:.3f} | {r['pred_in_ms']:.3f} | "
                 f"{r['measured_in_ms']:.3f} | {r['error_in_pct']:+.1f}% | {r['pred_out_ms']:.3f} | "
                 f"{r['measured_out_ms']:.3f} | {r['error_out_pct']:+.1f}% | "
-                f"{_pct(r.get('noise_pct'))} | {_fmt(r.get('pred_out_gil_ms'))} | "
-                f"{_pct(r.get('error_out_gil_pct'))} | {r['measured_p90_ms']:.3f} | "
+                f"{_pct(r.get('noise_pct'))} | {_fmt(r.get('pred_out_plain_ms'))} | "
+                f"{_pct(r.get('error_out_plain_pct'))} | {r['measured_p90_ms']:.3f} | "
                 f"{r['sequential_fps']:.1f} | "
                 f"{r['pipelined_fps']:.1f} | {len(r['gpu_nodes'])}: {', '.join(r['gpu_nodes'])} |")
         best = e["policies"][-1]

@@ -10,9 +10,12 @@ fit and simulation only.
 
 Usage::
 
-    mkdir -p /tmp/before && git archive <rev> | tar -x -C /tmp/before
-    PYTHONPATH=. python benchmarks/model_replay.py --before /tmp/before \\
+    PYTHONPATH=. python benchmarks/model_replay.py --before <rev or folder> \\
         benchmarks/results/graph/h100-2026-11-24-s3/graph_bench.json other/graph_bench.json
+
+``--after-gil`` (``--before-gil``) replays that side with busy neighbours weighed by the
+recorded GIL shares, as ``graph_bench.py`` fits its model on CUDA; ``--before .
+--after-gil`` compares the unweighted and the GIL-weighted model of one checkout.
 """
 
 from __future__ import annotations
@@ -23,21 +26,25 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 #: The training policies replayed in turn (each predicts the others out of sample).
 TRAINS = ("baseline", "heft", "xeft")
 
 _DUMP = ("import json, sys; sys.path.insert(0, 'benchmarks'); import graph_bench as gb; "
-         "print(json.dumps({p: {t: gb.replay(json.load(open(p)), t) for t in %r} "
-         "for p in sys.argv[1:]}))" % (TRAINS,))
+         "kw = {'gil': True} if sys.argv[1] == 'gil' else {}; "
+         "print(json.dumps({p: {t: gb.replay(json.load(open(p)), t, **kw) for t in %r} "
+         "for p in sys.argv[2:]}))" % (TRAINS,))
 
 
-def replay_rows(root: Path, paths) -> dict:
+def replay_rows(root: Path, paths, gil: bool = False) -> dict:
     """path -> training policy -> :func:`graph_bench.replay` rows, with the code of the
-    checkout at ``root`` (a subprocess, so each side imports its own warpvx)."""
+    checkout at ``root`` (a subprocess, so each side imports its own warpvx); ``gil``: busy
+    neighbours weighed by the recorded GIL shares (``graph_bench.replay(..., gil=True)``)."""
     env = {**os.environ, "PYTHONPATH": str(root)}
-    out = subprocess.run([sys.executable, "-c", _DUMP, *map(str, paths)], cwd=root, env=env,
+    out = subprocess.run([sys.executable, "-c", _DUMP, "gil" if gil else "-", *map(str, paths)],
+                         cwd=root, env=env,
                          check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -51,7 +58,7 @@ def summary(rows, label: str) -> str:
 def markdown(before: dict, after: dict) -> str:
     lines = []
     for path in after:
-        lines += [f"## {path}", "",
+        lines += [f"## {os.path.relpath(path)}", "",
                   "| experiment | policy | measured ms | "
                   + " | ".join(f"trained on {t}: before | after" for t in TRAINS) + " |",
                   "| --- | --- | ---: | " + " | ".join("---: | ---:" for _ in TRAINS) + " |"]
@@ -73,14 +80,77 @@ def markdown(before: dict, after: dict) -> str:
     return "\n".join(lines)
 
 
+def regime(paths, gil: bool = False) -> str:
+    """The training frames' regime against the interleaved rounds', with this checkout.
+
+    Per experiment whose best ran baseline's placement (one placement, two series): the
+    median makespan of baseline's training frames (run alone before the others, as the
+    bench did until s5), of baseline's later interleaved frames and of best's first
+    interleaved frames; and the out-of-sample error of every policy predicted by a model
+    trained on baseline's training frames against one trained on best's first interleaved
+    frames (the bench's training design since s6: training frames in the rounds)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import graph_bench as gb
+
+    lines = ["| run | experiment | baseline training ms | baseline interleaved ms | same placement "
+             "interleaved (best) ms | step | "
+             + " | ".join(f"{p}: trained alone | in the rounds" for p in TRAINS) + " |",
+             "| --- | --- | ---: | ---: | ---: | ---: | " + " | ".join("---: | ---:" for _ in TRAINS) + " |"]
+    for path in paths:
+        report = json.loads(Path(path).read_text())
+        alone = {(r["tag"], r["policy"]): r for r in gb.replay(report, "baseline", gil=gil)}
+        rounds = {(r["tag"], r["policy"]): r for r in gb.replay(report, "best", gil=gil)}
+        for e in gb.experiments_of(report):
+            pol = {p["policy"]: p for p in e["policies"]}
+            if pol["best"]["placement"] != pol["baseline"]["placement"]:
+                continue
+            train = statistics.median(max(t[2] for t in f.values())
+                                      for f in pol["baseline"]["fit_frames_data"])
+            inter = pol["baseline"]["measured_out_ms"]
+            cells = [f"{alone[e['tag'], p]['error_pct']:+.1f}% | {rounds[e['tag'], p]['error_pct']:+.1f}%"
+                     for p in TRAINS]
+            lines.append(f"| {Path(path).parent.name} | {e['tag']} | {train:.3f} | {inter:.3f} | "
+                         f"{pol['best']['measured_in_ms']:.3f} | {_pct(inter, train)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _pct(a, b) -> str:
+    return f"{100.0 * (a - b) / b:+.1f}%"
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("results", nargs="+", type=Path, help="graph_bench.json files")
-    p.add_argument("--before", type=Path, required=True, help="checkout of the older code")
+    p.add_argument("--before", required=True,
+                   help="checkout of the older code: a folder, or a git revision of this one")
     p.add_argument("--after", type=Path, default=Path.cwd(), help="checkout of the newer code")
+    p.add_argument("--before-gil", action="store_true",
+                   help="the before side weighs busy neighbours by their GIL shares")
+    p.add_argument("--after-gil", action="store_true",
+                   help="the after side weighs busy neighbours by their GIL shares (as the "
+                        "bench's model does on CUDA)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="also write the table here (markdown, its first line the command)")
     args = p.parse_args(argv)
     paths = [r.resolve() for r in args.results]
-    print(markdown(replay_rows(args.before.resolve(), paths), replay_rows(args.after.resolve(), paths)))
+    with tempfile.TemporaryDirectory() as tmp:
+        before = Path(args.before)
+        if not before.is_dir():  # a revision: its tree, as git archive gives it
+            before = Path(tmp)
+            tree = subprocess.run(["git", "archive", args.before], check=True, capture_output=True).stdout
+            subprocess.run(["tar", "-x", "-C", tmp], input=tree, check=True)
+        rows = replay_rows(before.resolve(), paths, args.before_gil)
+    text = markdown(rows,
+                    replay_rows(args.after.resolve(), paths, args.after_gil))
+    text += ("\n\n## Training frames alone or in the rounds (this checkout"
+             + (", GIL-weighted" if args.after_gil else "") + ")\n\n"
+             + (regime.__doc__.split("\n\n")[1].replace("\n    ", " ").strip()) + "\n\n"
+             + regime(paths, args.after_gil))
+    print(text)
+    if args.out:
+        command = "PYTHONPATH=. python benchmarks/model_replay.py " + " ".join(
+            argv if argv is not None else sys.argv[1:])
+        args.out.write_text(f"Regenerate: `{command}`\n\n{text}\n")
 
 
 if __name__ == "__main__":

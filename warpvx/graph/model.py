@@ -133,6 +133,13 @@ OVERHEAD_GRID = np.linspace(0.0, 0.1, 11)
 #: apart (the transfer model can overestimate a copy; the node's own work stays positive).
 UNTIMED_COPY_SHARE = 0.9
 
+#: The fixed cost (ms) of a captured segment's replay where the training frames' segments
+#: are all one size (the all-GPU baseline: one segment a frame), which cannot tell it from
+#: the ratio: what the fit finds where sizes differ (100-200 us on the H100's heft and xeft
+#: placements, s3-s5). Without it a baseline-trained model played heft's one-node segments
+#: at a ratio of their device time (a 0.06 ms blur measured 0.27 ms, s4 1280x720).
+SEGMENT_FIXED_PRIOR = 0.1
+
 #: Weight of a contention probe (:func:`~warpvx.graph.calibration.measure_contention`)
 #: measurement in the fit, in training samples.
 PROBE_WEIGHT = 8
@@ -455,13 +462,14 @@ def fit_segments(samples) -> tuple:
     """``(ratio, fixed ms per segment)`` of ``replay = ratio * calibrated + fixed`` over
     :func:`segment_samples`: least absolute deviations on :data:`OVERHEAD_GRID` x 10 (the
     fixed cost of a replay: input fills, launch, copy-out) where the segments differ in
-    size, else the median ratio and no fixed cost (one size cannot tell them apart);
-    ``(None, 0)`` without samples."""
+    size, else (one size cannot tell them apart) :data:`SEGMENT_FIXED_PRIOR`, at most half
+    the shortest replay, and the median ratio of the rest; ``(None, 0)`` without samples."""
     if not samples:
         return None, 0.0
     base, meas = (np.array(v, np.float64) for v in zip(*samples))
     if np.ptp(base) <= 0.05 * base.max():
-        return float(np.median(meas / base)), 0.0
+        c = min(SEGMENT_FIXED_PRIOR, 0.5 * float(meas.min()))
+        return float(np.median((meas - c) / base)), c
     best = None
     for c in np.asarray(OVERHEAD_GRID) * 10:
         if c >= meas.min():
