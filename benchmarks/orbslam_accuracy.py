@@ -25,6 +25,10 @@ from warpvx.apps import orbslam as o  # noqa: E402
 from warpvx.apps import trajectory_eval as te  # noqa: E402
 from warpvx.apps.orbslam_synth import render_sequence  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+# (the bench's castle_simu: next to the main checkout, else the dev machine's copy; a worktree has none beside it)
+from orbslam_bench import CASTLE  # noqa: E402
+
 #: (label, frames, size, mean step m/frame, speed variation, seed): the bench's sequence first.
 SEQUENCES = (
     ("bench: 60 f 1241x376, 0.25 m/f", 60, (1241, 376), 0.25, 0.0, None),
@@ -34,7 +38,6 @@ SEQUENCES = (
     ("60 f 640x480, 0.05 m/f +-50%, seed 5", 60, (640, 480), 0.05, 0.5, 5),
     ("30 f 640x480, 0.05 m/f", 30, (640, 480), 0.05, 0.0, None),
 )
-CASTLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "castle_simu"
 
 
 def scores(est, gt):

@@ -21,8 +21,10 @@ reading PNGs is timed separately. Measured, side by side in one run:
 5. the batched front end (warpvx.apps.orbslam_batch, ``--batch B`` frames per graph frame):
    extraction + matching batched (``orb_batch`` + ``match_batch`` on the device: one launch
    matches all consecutive pairs both ways; the mutual pairs on the host), mono and stereo
-   end to end with the pose work on a process pool of all cores but three (mono also on one
-   of all cores but one, the default before), the pool's speed-up on one batch's pose work
+   end to end with the tracking chain and the pose work in a process of their own
+   (``orbslam_chain.ChainProcess``, the default) and the pose work on a process pool of all
+   cores but three (mono also on one of all cores but one, the default before; and with the
+   chain in this process, the path before), the pool's speed-up on one batch's pose work
    (``pose_batch`` on one process vs the pool), what the pool did per batch (how long the
    chain waited on it, for the frame jobs and for the keyframe cores it speculates; jobs
    started and dropped; the chain's wall vs thread CPU time), and its accuracy
@@ -215,7 +217,15 @@ STOCK_POOL = "batched_mono_stock_pool"
 OLD_POOL = "batched_mono_pool_old"
 
 
+#: The default batched mono run with the chain in this process (the pose pool alone, no chain process).
+CHAIN_IN_PROCESS = "batched_mono_chain_in_process"
+
+
 def _pool_counts(pool):
+    """(waited_s, started, cancelled, chain time) so far: a chain process's from it (timed
+    there), a pose pool's with :data:`CHAIN_TIME`."""
+    if isinstance(pool, ob.ChainProcess):
+        return pool.counts()
     return tuple(dict(c) for c in (pool.waited_s, pool.started, pool.cancelled)) + (dict(CHAIN_TIME),)
 
 
@@ -240,7 +250,8 @@ def pool_per_batch(pool, before, batches) -> dict:
 
 def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, depth=3, config=o.TrackerConfig(),
                            settings=None, switch=ob.SWITCH_INTERVAL):
-    """The batched front end end to end (``pool``: the pose work's process pool, opened once;
+    """The batched front end end to end (``pool``: a chain process or the pose work's process
+    pool (the chain in this process), opened once (None: neither, ``--workers 0``);
     ``settings``: its attributes for the run, e.g. ``{"ahead": False}``, restored after;
     ``switch``: the run's GIL switch interval, s), with what the pool did per batch
     (:func:`pool_per_batch`)."""
@@ -256,7 +267,8 @@ def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, dept
                 setattr(pool, k, v)
     plans = []
     run = functools.partial(ob.track_frames_batched, camera=camera, config=config, batch=batch, pool=pool,
-                            backend=backend, depth=depth, gil_switch_s=switch)
+                            workers=0 if pool is None else None, chain_process=False, backend=backend,
+                            depth=depth, gil_switch_s=switch)
     list(run(frames[:4 * batch]))  # warm-up, calibration
     before = _pool_counts(pool) if pool is not None else None
     t = time.perf_counter()
@@ -449,8 +461,10 @@ def main(argv=None):
         report[key] = attempt(name, lambda: bench_frontend(replay(frames, n), camera, backend, out, name)[0],
                               failed)
         progress(f"front end {name} FPS", f"{report[key]['fps']:.1f}")
-    # The batched mode: one pool of pose processes for all its runs (opened before timing).
-    pool = ob.make_pool(args.workers)
+    # The batched mode: one chain process with its pool of pose processes for all its runs
+    # (opened before timing).
+    # (--workers 0: neither, the pose work and the chain in this process)
+    pool = ob.make_pool(args.workers, chain_process=True) if args.workers != 0 else None
     report["batch"] = {"batch": batch, "workers": 0 if pool is None else pool.workers}
     progress("pose pool", f"{report['batch']['workers']} processes")
     try:
@@ -469,29 +483,42 @@ def main(argv=None):
         if pool is not None:
             # The same pose work on multiprocessing's stock Pool (its handler thread spins
             # while results wait): a pool of its own, opened before timing.
-            with ob.PosePool(pool.workers, quiet=False) as stock:
+            with ob.ChainProcess(pool.workers, quiet=False) as stock:
                 report[STOCK_POOL] = attempt(STOCK_POOL, lambda: bench_frontend_batched(
                     replay(mono_frames, n), mono, backend, out, None, batch, stock)[0], failed)
             progress(f"front end {STOCK_POOL} FPS", f"{report[STOCK_POOL]['fps']:.1f}")
         old = max(2, os.cpu_count() - 1)  # the pool's default before default_workers()
         if args.workers is None and pool is not None and old != pool.workers:
-            with ob.make_pool(old) as more:
+            with ob.make_pool(old, chain_process=True) as more:
                 report[OLD_POOL] = attempt(OLD_POOL, lambda: bench_frontend_batched(
                     replay(mono_frames, n), mono, backend, out, None, batch, more)[0], failed)
             report[OLD_POOL]["workers"] = old
             progress(f"front end {OLD_POOL} ({old} processes) FPS", f"{report[OLD_POOL]['fps']:.1f}")
-        report["pose_pool"] = attempt("pose pool", lambda: bench_pose_pool(mono_frames, mono, batch, pool), {}) \
-            if pool is not None else {"error": "no pool (--workers 0)"}
-        progress("pose_batch alone (ms/frame): one process vs pool", report["pose_pool"])
         batched = {name: attempt(f"accuracy batched {name}", lambda: np.array(
             [f.pose for f in ob.track_frames_batched(frames, camera, config, batch=batch, pool=pool,
-                                                     backend=backend)]), None)
+                                                     workers=0, chain_process=False, backend=backend)]), None)
             for name, frames, camera, config in (("mono", mono_frames, mono, o.TrackerConfig()),
                                                  ("stereo", stereo_frames, stereo, o.TrackerConfig()),
                                                  ("mono_prev", mono_frames, mono, PREVIOUS_ONLY))}
     finally:
         if pool is not None:
             pool.shutdown()
+    # The chain in this process (the path before the chain process): its own pose pool.
+    inproc = ob.make_pool(args.workers) if pool is not None else None
+    try:
+        if inproc is not None:
+            report[CHAIN_IN_PROCESS] = attempt(CHAIN_IN_PROCESS, lambda: bench_frontend_batched(
+                replay(mono_frames, n), mono, backend, out, None, batch, inproc)[0], failed)
+            progress(f"front end {CHAIN_IN_PROCESS} FPS", f"{report[CHAIN_IN_PROCESS]['fps']:.1f}")
+            batched["mono_in_process"] = attempt("accuracy batched mono in process", lambda: np.array(
+                [f.pose for f in ob.track_frames_batched(mono_frames, mono, batch=batch, pool=inproc,
+                                                         backend=backend)]), None)
+        report["pose_pool"] = attempt("pose pool", lambda: bench_pose_pool(mono_frames, mono, batch, inproc), {}) \
+            if inproc is not None else {"error": "no pool (--workers 0)"}
+        progress("pose_batch alone (ms/frame): one process vs pool", report["pose_pool"])
+    finally:
+        if inproc is not None:
+            inproc.shutdown()
     report["opencv_baseline"] = bench_opencv(replay(left, min(n, 200)), K)
     progress("opencv", report["opencv_baseline"])
     # Accuracy on the rendered sequence itself (no replay), and on castle_simu when present.
@@ -513,6 +540,9 @@ def main(argv=None):
         name: float(np.abs(batched[name] - sequential[name]).max())
         if isinstance(batched[name], np.ndarray) and isinstance(sequential[name], np.ndarray) else None
         for name in ("mono", "stereo")}
+    ok = [isinstance(batched.get(k), np.ndarray) for k in ("mono", "mono_in_process")]
+    report["batch"]["max_pose_difference_chain_process_vs_in_process"] = \
+        float(np.abs(batched["mono"] - batched["mono_in_process"]).max()) if all(ok) else None
     if os.path.isdir(args.castle):
         for k, v in attempt("castle", lambda: castle_accuracy(args.castle, backend), {}).items():
             if k != "error":
@@ -520,13 +550,16 @@ def main(argv=None):
     progress("accuracy", "done")
 
     base = report["opencv_baseline"]["thread_pool_fps"]
-    batched_keys = [key for key, *_ in BATCHED] + [k for k in (STOCK_POOL, OLD_POOL) if k in report]
+    batched_keys = [key for key, *_ in BATCHED] + [k for k in (STOCK_POOL, OLD_POOL, CHAIN_IN_PROCESS)
+                                                   if k in report]
     rows = [("extraction + matching, pipelined (match node)", "extract_match"),
             ("extraction + matching, pipelined (match_hamming primitive, before)", "extract_match_primitive")]
     rows += [(f"extraction + matching, batched B={k[len('extract_match_batch'):]} (orb_batch + match_batch)", k)
              for k in report if k.startswith("extract_match_batch")]
     rows += [("front end mono, end to end, frame by frame", "frontend_mono"),
-             (f"front end mono, end to end, batched B={batch}", "batched_mono"),
+             (f"front end mono, end to end, batched B={batch} (chain in its own process)", "batched_mono"),
+             *([(f"front end mono, end to end, batched B={batch}, chain in this process (the path before)",
+                 CHAIN_IN_PROCESS)] if CHAIN_IN_PROCESS in report else []),
              (f"front end mono, end to end, batched B={batch}, GIL switch interval 5 ms (Python's; default "
               f"{ob.SWITCH_INTERVAL * 1e3:g} ms)", "batched_mono_switch_5ms"),
              (f"front end mono, end to end, batched B={batch}, jobs' arrays pickled per job (no shared "
@@ -560,7 +593,8 @@ def main(argv=None):
                  f"on {report['pose_pool']['workers']} processes ({report['pose_pool']['speedup']:.1f}x)"
                  if "speedup" in report["pose_pool"] else f"FAILED ({report['pose_pool'].get('error')})"),
               f"Batched poses vs frame-by-frame poses, largest difference: "
-              f"{report['batch']['max_pose_difference_vs_sequential']}.",
+              f"{report['batch']['max_pose_difference_vs_sequential']}; mono, chain process vs chain in "
+              f"this process: {report['batch']['max_pose_difference_chain_process_vs_in_process']}.",
               "", f"Tracking node alone, median: mono {report['frontend_mono']['track_ms_median']:.2f} ms, "
               f"stereo {report['frontend_stereo']['track_ms_median']:.2f} ms.", "",
               "Per node, median ms over the last frames (in a pipelined run a node's interval",
@@ -571,7 +605,8 @@ def main(argv=None):
               "keyframe cores speculated or guessed on the pool; jobs started and dropped unstarted;",
               "batched_mono_fifo: the pool in submit order, no guessed cores, as before them; counts include",
               "the verification of the run's graph; chain wall and CPU: the chain's wall time and its",
-              "thread's CPU time, whose gap is what it waited for: the pool, the GIL, a free core):", "",
+              "thread's CPU time, whose gap is what it waited for: the pool, the GIL, a free core; measured",
+              "in the chain process but for the chain-in-this-process row):", "",
               "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | chain computes cores "
               "(ms) | frame jobs | guess jobs | guesses dropped | keyframe cores | keyframe cores dropped "
               "| chain wall (ms) | chain CPU (ms) |",

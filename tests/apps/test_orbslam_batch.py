@@ -10,14 +10,20 @@ after Sim(3), stereo 1 cm). 12 frames in batches of 5: the last batch is filled 
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
 import threading
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from warpvx.apps import orbslam as o
 from warpvx.apps import orbslam_batch as ob
-from warpvx.apps import orbslam_cli
+from warpvx.apps import orbslam_chain, orbslam_cli
 from warpvx.apps import orbslam_pool as op
 from warpvx.apps import trajectory_eval as te
 from warpvx.apps.orbslam_synth import render_sequence, write_kitti_sequence
@@ -39,11 +45,12 @@ def _frames(seq, stereo):
     return [{"image": a, "right": b} if stereo else {"image": a} for a, b in zip(left, right)], camera
 
 
+@pytest.mark.parametrize("chain_process", [True, False], ids=["chain_process", "chain_in_process"])
 @pytest.mark.parametrize("stereo", [False, True], ids=["mono", "stereo"])
-def test_batched_poses_are_the_sequential_ones(seq, stereo):
+def test_batched_poses_are_the_sequential_ones(seq, stereo, chain_process):
     frames, camera = _frames(seq, stereo)
     want = np.array([f.pose for f in o.track_frames(frames, camera)])
-    got = list(ob.track_frames_batched(frames, camera, batch=BATCH, workers=2))
+    got = list(ob.track_frames_batched(frames, camera, batch=BATCH, workers=2, chain_process=chain_process))
     assert [f.index for f in got] == list(range(FRAMES))
     got = np.array([f.pose for f in got])
     np.testing.assert_allclose(got, want, atol=1e-9)
@@ -164,15 +171,25 @@ def test_slow_motion_takes_the_speculated_keyframe_cores(monkeypatch):
     np.testing.assert_allclose(got, [f.pose for f in want], atol=1e-9)
 
 
-def test_cli_batch_flag_end_to_end(tmp_path, seq, capsys):
+@pytest.mark.parametrize("flags", [[], ["--chain-in-process"]], ids=["chain_process", "chain_in_process"])
+def test_cli_batch_flag_end_to_end(tmp_path, seq, capsys, flags, monkeypatch):
+    opened = []
+
+    class Spied(orbslam_chain.ChainProcess):
+        def __init__(self, *args, **kwargs):
+            opened.append(args)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(orbslam_chain, "ChainProcess", Spied)
     left, right, K, poses = seq
     folder = write_kitti_sequence(tmp_path / "seq", left, K, poses)
     out = tmp_path / "out"
     status = orbslam_cli.main([str(folder), "--gt", str(folder / "poses.txt"), "--out", str(out),
-                               "--quiet", "--no-plot", "--batch", str(BATCH), "--pose-workers", "1"])
+                               "--quiet", "--no-plot", "--batch", str(BATCH), "--pose-workers", "1", *flags])
     assert status == 0, capsys.readouterr().err
     m = json.loads((out / "metrics.json").read_text())
     assert m["batch"] == BATCH and m["frames"] == FRAMES
+    assert opened == ([] if flags else [(1,)])
     assert m["warpvx"]["ate"]["rmse"] < 0.04
     assert len((out / "frames.csv").read_text().splitlines()) == FRAMES + 1
 
@@ -383,3 +400,99 @@ def test_packed_features_unpack_to_the_device_ones(seq):
     for (k, d), (hk, hd) in zip(feats, host):
         assert all(np.array_equal(getattr(k, f).numpy(), getattr(hk, f)) for f in FIELDS)
         assert np.array_equal(d.numpy(), hd)
+
+
+def _children(pid) -> list:
+    """``pid``'s child processes (Linux /proc)."""
+    kids = []
+    for task in os.listdir(f"/proc/{pid}/task"):
+        with open(f"/proc/{pid}/task/{task}/children") as f:
+            kids += [int(k) for k in f.read().split()]
+    return kids
+
+
+def _running(pid) -> bool:
+    """Whether ``pid`` exists and is not a zombie."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def _gone(pids, within_s=60.0) -> bool:
+    end = time.monotonic() + within_s
+    while any(_running(p) for p in pids) and time.monotonic() < end:
+        time.sleep(0.1)
+    return not any(_running(p) for p in pids)
+
+
+def _segments() -> set:
+    return {name.lstrip("/") for name in os.listdir("/dev/shm")}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc and /dev/shm")
+def test_chain_process_survives_stopped_runs_and_leaves_no_process_or_segment(seq):
+    """One chain process for several runs: a run closed early and one whose frames fail leave
+    batches in flight there, yet the next run gives the sequential poses; its shutdown ends it
+    and its pool's processes and unlinks its shared blocks (stereo: the images travel too)."""
+    frames, camera = _frames(seq, True)
+    want = np.array([f.pose for f in o.track_frames(frames, camera)])
+
+    def failing():
+        yield from frames[:7]
+        raise RuntimeError("camera unplugged")
+
+    with ob.make_pool(2, chain_process=True) as proc:
+        assert isinstance(proc, ob.ChainProcess)
+        pids = [proc._process.pid, *_children(proc._process.pid)]  # the pool's processes among them
+        assert len(pids) >= 3
+        it = ob.track_frames_batched(frames, camera, batch=3, pool=proc)
+        next(it)
+        it.close()
+        with pytest.raises(RuntimeError, match="unplugged"):
+            list(ob.track_frames_batched(failing(), camera, batch=2, pool=proc))
+        got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=proc)])
+        np.testing.assert_allclose(got, want, atol=1e-9)
+        assert proc.started["frame_job"] > 0 and proc.counts()[3]["wall_s"] > 0
+        # The batches' blocks (other processes on this machine may make segments meanwhile).
+        mine = {shm.name for shm in proc._segments._free} | {shm.name for _, shm in proc._segments._held.values()}
+        assert mine
+    assert _gone(pids)
+    assert not mine & _segments()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_chain_process_killed_is_an_error_and_its_pool_goes_with_it(seq):
+    """The chain process killed outright mid-run: the caller gets an error, not a hang, and
+    the pool's processes (which wait on a queue they hold both ends of) end too."""
+    frames, camera = _frames(seq, False)
+    with ob.make_pool(2, chain_process=True) as proc:
+        pids = [proc._process.pid, *_children(proc._process.pid)]
+        it = ob.track_frames_batched(frames, camera, batch=2, pool=proc)
+        next(it)
+        os.kill(proc._process.pid, signal.SIGKILL)
+        with pytest.raises(WarpvxError, match="chain process"):
+            list(it)
+    assert _gone(pids)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_chain_process_ends_when_its_parent_dies(tmp_path):
+    """A caller that exits without shutting the chain process down (killed, os._exit): the
+    process sees its pipe close and ends with its pool."""
+    script = tmp_path / "orphan.py"
+    script.write_text(
+        "import os\n"
+        "from warpvx.apps import orbslam_pool as op\n"
+        "proc = op.make_pool(2, chain_process=True)\n"
+        "pid = proc._process.pid\n"
+        "kids = [k for t in os.listdir(f'/proc/{pid}/task') for k in open(f'/proc/{pid}/task/{t}/children').read().split()]\n"
+        "print(pid, *kids, flush=True)\n"
+        "os._exit(0)\n")
+    root = Path(__file__).resolve().parents[2]
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "PYTHONPATH": str(root)})
+    pids = [int(p) for p in run.stdout.split()]
+    assert len(pids) >= 3, run.stderr
+    assert _gone(pids)

@@ -29,9 +29,13 @@ executor runs threads only, so the pool runs *inside* the ``pose_batch`` node (i
 thread waits on the processes with the GIL released); the scheduler places the four nodes and
 records their timeline as for any graph.
 
-The chain is the bottleneck and it shares the GIL with the GPU thread, the executor and the
-pool's hand-off threads; NumPy lets the GIL go in every loop over more than a few hundred
-elements and must take it back. So that the chain waits less for it: the run sets a short
+The chain is the bottleneck. By default (``chain_process``) it runs, with ``pose_batch`` and
+the pool, in a process of its own (:mod:`warpvx.apps.orbslam_chain`: the graph's two CPU
+nodes there only hand each batch over through shared memory and take the poses back), so
+it no longer shares a GIL with the GPU thread and the executor. In process, it shares the
+GIL with them and the pool's hand-off threads; NumPy lets the GIL go in every loop over more
+than a few hundred elements and must take it back. So that the chain waits less for it (in
+either process): the run sets a short
 GIL switch interval (:data:`SWITCH_INTERVAL`, :func:`switch_interval`); a batch's jobs carry
 their arrays once in shared memory (:class:`~warpvx.apps.orbslam_pool.SharedBlock`), not in
 each job's pickle; the pool's handler thread does not spin while results wait (see
@@ -56,6 +60,7 @@ from ..errors import WarpvxValueError
 from ..keypoints import FIELDS, Keypoints
 from . import orbslam as o
 from .orbslam_match import batch_pairs, mutual_pairs, nearest_batch, nearest_batch_warp, stereo_depth
+from .orbslam_chain import ChainProcess, receive_batch, send_batch
 from .orbslam_pool import SPARE_CORES, PoolTask, PosePool, default_workers, make_pool
 
 
@@ -462,7 +467,10 @@ def build_batch_graph(camera: o.Camera, batch: int, config: o.TrackerConfig = o.
     graph frame: input ``images`` uint8 [B, H, W] (stereo [2B, H, W]: the left images, then the
     right ones); outputs ``poses`` float64 [B, 4, 4] (camera to world) and ``stats`` float64
     [B, 6] (see :func:`~warpvx.apps.orbslam.track`). ``pool``: :func:`make_pool`'s, or None
-    (pose work in the node's thread). ``backend`` as in
+    (pose work in the node's thread); a :class:`~warpvx.apps.orbslam_chain.ChainProcess`: the
+    pose work and the chain there, ``pose_batch`` and ``chain`` only hand batches over and
+    take the poses back (:func:`~warpvx.apps.orbslam_chain.send_batch`,
+    :func:`~warpvx.apps.orbslam_chain.receive_batch`). ``backend`` as in
     :func:`~warpvx.apps.orbslam.build_graph`. Needs ``cross_check`` and no ``ratio`` (the
     defaults: the match node's mutual pairs)."""
     from ..check import check_choice, check_int
@@ -481,6 +489,15 @@ def build_batch_graph(camera: o.Camera, batch: int, config: o.TrackerConfig = o.
     g = Graph("orbslam_batch")
     images = g.input("images", shape=(batch * (2 if camera.stereo else 1), h, w), dtype=np.uint8)
     _, packed, nearest = add_extract_match(g, images, batch, config, target=pin)
+    if isinstance(pool, ChainProcess):
+        # The tracking in the chain process: the nodes hand batches over and take poses back.
+        sent = g.virtual("sent")
+        _, ticket = g.user(functools.partial(send_batch, proc=pool, **common),
+                           [images, packed, nearest, g.delay(sent, init=0)[-1]], [sent, "ticket"], name="pose_batch")
+        poses, stats = g.user(functools.partial(receive_batch, proc=pool), [ticket], ["poses", "stats"], name="chain")
+        g.output("poses", poses)
+        g.output("stats", stats)
+        return g
     tail = g.virtual("tail")
     last = g.delay(tail, init=NO_TAIL)[-1]
     _, ahead = g.user(functools.partial(pose_batch, pool=pool, **common), [images, packed, nearest, last],
@@ -514,10 +531,14 @@ def _batches(frames, batch: int, stereo: bool):
 
 def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.TrackerConfig(), *,
                          batch: int = 16, workers: int | None = None, pool=None, backend="cpu",
-                         depth: int = 2, on_finish=None, gil_switch_s: float | None = SWITCH_INTERVAL):
+                         depth: int = 2, on_finish=None, gil_switch_s: float | None = SWITCH_INTERVAL,
+                         chain_process: bool = True):
     """:func:`~warpvx.apps.orbslam.track_frames` in batches of ``batch`` frames
     (:func:`build_batch_graph`), with ``workers`` processes for the pose work (default: see
-    :func:`make_pool`; 0: none), or an open ``pool`` (:func:`make_pool`'s, kept open). A
+    :func:`make_pool`; 0: none), or an open ``pool`` (:func:`make_pool`'s, kept open). The
+    tracking chain (and the pose work) in a process of its own when ``chain_process`` (the
+    default, on POSIX; see :mod:`warpvx.apps.orbslam_chain`), else in this one; an open
+    ``pool`` decides by its kind (a :class:`~warpvx.apps.orbslam_chain.ChainProcess`: there). A
     generator of :class:`~warpvx.apps.orbslam.TrackedFrame` in order; a
     frame's ``ms`` is its batch's interval divided by the batch's frames. ``depth`` batches in
     flight; ``on_finish(plan)`` as in ``track_frames``.
@@ -539,7 +560,7 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
     with switch_interval(gil_switch_s):
         own = pool is None
         if own:
-            pool = make_pool(workers)
+            pool = make_pool(workers, chain_process=chain_process)
         try:
             g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
             g.verify(first[0], gpu=None if backend == "cpu" else backend)
@@ -568,6 +589,6 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
                 pool.shutdown(cancel_futures=True)
 
 
-__all__ = ["PosePool", "make_pool", "default_workers", "SPARE_CORES", "pack_feats", "unpack_feats",
+__all__ = ["PosePool", "ChainProcess", "make_pool", "default_workers", "SPARE_CORES", "pack_feats", "unpack_feats",
            "ahead_frames", "orb_batch", "match_batch", "pose_batch", "chain", "add_extract_match", "build_batch_graph",
            "track_frames_batched", "switch_interval", "SWITCH_INTERVAL"]

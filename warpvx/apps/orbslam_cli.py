@@ -33,6 +33,9 @@ def add_arguments(parser):
                              "poses, faster on long sequences; try 16 on a GPU); 1: frame by frame")
     parser.add_argument("--pose-workers", type=int, default=None, metavar="N",
                         help="with --batch: processes for the pose work (default: all cores but three; 0: none)")
+    parser.add_argument("--chain-in-process", action="store_true",
+                        help="with --batch: track in this process (the default: a process of its own, with "
+                             "the pose workers, warpvx.apps.orbslam_chain; same poses)")
     parser.add_argument("--gil-switch-ms", type=float, default=None, metavar="MS",
                         help="with --batch: the GIL switch interval during the run, ms (default 0.2, "
                              "warpvx.apps.orbslam_batch.SWITCH_INTERVAL; 0: Python's own, 5 ms)")
@@ -138,6 +141,7 @@ def run(args) -> int:
 
             tracked = track_frames_batched(feed(), seq.camera, config, batch=batch, backend=args.backend,
                                            workers=getattr(args, "pose_workers", None), depth=args.depth,
+                                           chain_process=not getattr(args, "chain_in_process", False),
                                            # (0 ms: Python's own interval)
                                            gil_switch_s=SWITCH_INTERVAL if switch_ms is None else 1e-3 * switch_ms or None)
         else:

@@ -23,11 +23,27 @@ import numpy as np
 from ..errors import WarpvxValueError
 
 
-def _init_worker():
+def _init_worker(bound: bool = False):
     import cv2
 
     # One OpenCV thread per process: the pool already spreads the work over the cores.
     cv2.setNumThreads(1)
+    if bound:
+        _die_with_parent()
+
+
+def _die_with_parent():
+    """Linux: SIGTERM to this process when the thread that started it exits (a pool's workers
+    wait on a queue whose write end they hold too: a parent killed outright would leave them
+    waiting for ever). Elsewhere nothing."""
+    import ctypes
+    import signal
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
 
 
 @contextlib.contextmanager
@@ -268,14 +284,16 @@ def _attached(name: str):
     return m
 
 
-def _resolve(value):
-    """:meth:`SharedBlock.refer` undone in a pool process: read-only arrays over the block."""
+def _resolve(value, copy: bool = False):
+    """:meth:`SharedBlock.refer` undone in another process: read-only arrays over the block,
+    or ``copy``: copies (what outlives the block's reuse)."""
     if isinstance(value, SharedRef):
         dtype = np.dtype(value.dtype)
         count = int(np.prod(value.shape, dtype=np.int64))
-        return np.frombuffer(_attached(value.name), dtype, count, value.offset).reshape(value.shape)
+        a = np.frombuffer(_attached(value.name), dtype, count, value.offset).reshape(value.shape)
+        return a.copy() if copy else a
     if isinstance(value, tuple):
-        return tuple(_resolve(v) for v in value)
+        return tuple(_resolve(v, copy) for v in value)
     return value
 
 
@@ -300,15 +318,18 @@ class PosePool:
     what it gives): every job in submit order, and ``pose_batch`` guesses no core.
     ``share`` False (to measure what it gives): a batch's jobs carry their arrays in their
     pickles instead of a :class:`SharedBlock`. ``quiet`` False (likewise): multiprocessing's
-    stock ``Pool``, whose handler thread spins while results wait (see :func:`_quiet_pool_class`)."""
+    stock ``Pool``, whose handler thread spins while results wait (see :func:`_quiet_pool_class`).
+    ``bound`` (Linux): the processes end when the thread that opened the pool does (for a
+    process's own thread that lives as long as the pool: the chain process's main thread)."""
 
-    def __init__(self, workers: int, ahead: bool = True, share: bool = True, quiet: bool = True):
+    def __init__(self, workers: int, ahead: bool = True, share: bool = True, quiet: bool = True,
+                 bound: bool = False):
         from multiprocessing import get_context
         from multiprocessing.pool import Pool
 
         with _caller_script_hidden():
             self._pool = (_quiet_pool_class() if quiet else Pool)(workers, initializer=_init_worker,
-                                                                  context=get_context("spawn"))
+                                                                  initargs=(bound,), context=get_context("spawn"))
         # the shared blocks are POSIX shared memory (read through _posixshmem in the workers)
         self.workers, self.ahead, self.share = workers, ahead, share and os.name == "posix"
         self._lock = threading.Lock()
@@ -394,12 +415,18 @@ def default_workers() -> int:
     return max(2, os.cpu_count() - SPARE_CORES)
 
 
-def make_pool(workers: int | None = None) -> PosePool | None:
+def make_pool(workers: int | None = None, chain_process: bool = False):
     """A :class:`PosePool` for :func:`~warpvx.apps.orbslam_batch.pose_batch` (``workers``
-    processes, default :func:`default_workers`; 0: None, the work runs in the calling thread)."""
+    processes, default :func:`default_workers`; 0: None, the work runs in the calling thread);
+    ``chain_process``: a :class:`~warpvx.apps.orbslam_chain.ChainProcess` with such a pool
+    (0: none, the work in that process), on POSIX (elsewhere the pool as without it)."""
     from ..check import check_int
 
     workers = default_workers() if workers is None else check_int(workers, "workers", min_value=0)
+    if chain_process and os.name == "posix":
+        from .orbslam_chain import ChainProcess
+
+        return ChainProcess(workers)
     return PosePool(workers) if workers else None
 
 
