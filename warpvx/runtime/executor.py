@@ -863,6 +863,8 @@ class Executor(RoleRunner, SegmentRunner):
                 )
             if self.cuda and frame.gpu_last_event is not None:
                 synchronize_event(frame.gpu_last_event)
+            for ev in frame.forked:  # (the events of a captured segment's own stream)
+                synchronize_event(ev)
             io = self._io()
             outputs = {}
             for name, key in self.program.outputs.items():
@@ -926,6 +928,7 @@ class Executor(RoleRunner, SegmentRunner):
                 slot.external = False
         self._events.put(frame.events)
         frame.events = []
+        frame.forked = []
         frame.gpu_last_event = None
 
     def abort(self):
