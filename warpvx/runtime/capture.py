@@ -528,21 +528,27 @@ class SegmentGraph:
             self._run_tasks(s, fresh, streams)
         else:
             warp().capture_launch(b.graph, stream=streams and streams[0])
-        if b.done is not None:
-            record_event(streams[0], b.done)
         self.last = s
         return b.outputs
 
     def wait_previous(self, stream):
         """Make ``stream`` (the next run's, CUDA) wait on the device for the previous run, on
-        another stream, whose set holds the delayed values the next run reads and may still
-        be read by the run before it (which the previous run waited for in turn)."""
+        another stream: its set holds the delayed values the next run reads (or overwrites,
+        :meth:`fill`), and the run before it read the next run's set (the previous run
+        waited for that one in turn). :meth:`finish` marks the run's end."""
         prev = self.previous(self.next)
         if self.last >= 0 and prev.done is not None:
             wait_event(stream, prev.done)
         b = self.sets[self.next]
         if b.done is None:
             b.done = warp().Event(stream.device)
+
+    def finish(self, stream):
+        """The last run, on ``stream``, is over once what is queued there now is: its copies
+        out included, which read its set (see :meth:`wait_previous`)."""
+        done = self.sets[self.last].done
+        if done is not None:
+            record_event(stream, done)
 
     def block_view(self, block, array, pooled: bool):
         """The Counted of ``block`` as views of ``array`` (a copy of its allocation); made
@@ -796,6 +802,8 @@ class SegmentRunner:
             outs[key] = self._copy_out(frame, key, fixed[key], sg, blocks, stream)
         sg.publish(outs)
         ev1 = None
+        if streams and stream is not self._stream:
+            sg.finish(stream)
         if self.cuda:
             ev1 = self._end_event(frame) if stream is self._stream else \
                 self._forked_end(frame, stream)
