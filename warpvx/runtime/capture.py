@@ -309,6 +309,8 @@ class SegmentGraph:
         self.lanes = None  # Lanes, from the first run on (which finds the serial tasks)
         self._events = {}  # (kind, index) -> a wp.Event of the lanes' forks, joins, signals
         self.scratch = ()
+        self.links = None  # per set: producing task -> its event (link)
+        self._producer = {}  # swapped InputRef -> the task making it
         self._views = {}  # (id of a copy buffer, part) -> a Counted of views of it
 
     @property
@@ -355,11 +357,20 @@ class SegmentGraph:
         """
         wp = warp()
         b = self.sets[self.next]
+        # The tasks launch on the device's current stream: the capture's (a set's own stream
+        # need not be the current one; ScopedCapture does not make it so).
+        dev = streams[0].device if streams else None
+        current = dev.stream if dev is not None else None
         try:
+            if dev is not None:
+                dev.set_stream(streams[0], sync=False)
             with wp.ScopedCapture(device=device, stream=streams and streams[0]) as cap:
                 self._run_tasks(self.next, streams=streams)
         except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
             raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
+        finally:
+            if dev is not None:
+                dev.set_stream(current, sync=False)
         if cap.graph is None:
             raise NotCapturable("the capture produced no graph")
         b.graph = cap.graph
@@ -404,13 +415,25 @@ class SegmentGraph:
         fixed = {a.ptr for ref in self.segment.inputs
                  for a in _leaves(self.value(ref, s, outputs, fresh))}
         tasks = self.segment.tasks
+        links = self.links
+        if links is not None:
+            device, producer = streams[0].device, self._producer
+            made, reads = links[s], links[(s - 1) % len(self.sets)]
 
         def run(task):
             out = b.outs[task.name]
             mine = {a.ptr for a in _leaves(out)}
+            if links is not None:
+                stream = device.stream  # the task's lane
+                if not fresh:
+                    for r in task.inputs:
+                        if r in producer:
+                            stream.wait_event(reads[producer[r]], external=True)
             result = task.gpu(*[self.value(r, s, outputs, fresh) for r in task.inputs], out=out)
             if any(a.ptr not in mine and a.ptr not in fixed for a in _leaves(result)):
                 raise NotCapturable(f"task {task.name!r} did not write its out= buffer")
+            if links is not None and task.name in made:
+                stream.record_event(made[task.name], external=True)
             fixed.update(mine)
             outputs.update(_per_output(task, result))
 
@@ -531,15 +554,40 @@ class SegmentGraph:
         self.last = s
         return b.outputs
 
-    def wait_previous(self, stream):
-        """Make ``stream`` (the next run's, CUDA) wait on the device for the previous run, on
-        another stream: its set holds the delayed values the next run reads (or overwrites,
-        :meth:`fill`), and the run before it read the next run's set (the previous run
-        waited for that one in turn). :meth:`finish` marks the run's end."""
-        prev = self.previous(self.next)
-        if self.last >= 0 and prev.done is not None:
-            wait_event(stream, prev.done)
-        b = self.sets[self.next]
+    def link(self, device):
+        """Mark, in each run (inside its graph), when each delayed value the next run reads
+        is made: an event per set and producing task, recorded right after the task (an
+        external event node of the graph); the next run's tasks that read the value wait for
+        that event (an external wait node) rather than the whole run for the previous one
+        (:meth:`wait_previous`), so the tasks before them (a frame's grays, pyramids, corners)
+        run beside the previous frame's. Needs swapped inputs and three sets or more (with
+        two, a run writes the set the previous run is still reading); CUDA ``device``."""
+        if not self.segment.swapped or len(self.sets) < 3 or self.links is not None:
+            return
+        made_by = {k: t.name for t in self.segment.tasks for k in t.outputs}
+        self._producer = {r: made_by[r.key] for r in self.segment.swapped}
+        wp = warp()
+        self.links = [{name: wp.Event(device) for name in set(self._producer.values())}
+                      for _ in self.sets]
+
+    def wait_previous(self, stream, rewrites: bool):
+        """Make ``stream`` (the next run's, CUDA) wait on the device for the runs on other
+        streams it depends on. Unlinked (:meth:`link`): the previous run, whose set holds
+        the delayed values the next run reads, and which waited for the run before it, the
+        last to read the next run's set. Linked: that last reader only (its tasks wait for
+        the delayed values themselves), and the previous run too where the next run
+        ``rewrites`` the previous set's delayed values (:meth:`fill`: a frame run eagerly
+        left its own). :meth:`finish` marks a run's end."""
+        s = self.next
+        if self.last >= 0:
+            n = len(self.sets)
+            waits = (self.previous(s),) if self.links is None else \
+                (self.sets[(s + 1) % n], self.previous(s)) if rewrites else \
+                (self.sets[(s + 1) % n],)
+            for b in waits:
+                if b.done is not None:
+                    wait_event(stream, b.done)
+        b = self.sets[s]
         if b.done is None:
             b.done = warp().Event(stream.device)
 
@@ -597,6 +645,11 @@ class SegmentRunner:
     @max_lanes.setter
     def max_lanes(self, n: int):
         self._max_lanes = check_int(n, "max_lanes", min_value=1)
+
+    #: With :attr:`instances` > 1 on CUDA, a run's tasks that read the previous frame's
+    #: delayed values wait for those inside the graph, not the whole run for the previous
+    #: run (:meth:`SegmentGraph.link`); False: the whole run waits (for comparisons).
+    linked = True
 
     @property
     def instances(self) -> int:
@@ -680,6 +733,8 @@ class SegmentRunner:
             try:
                 sg = SegmentGraph(seg, [s.value for s in slots], self.gpu_device, self._spans,
                                   self.max_lanes, self.instances)
+                if self.cuda and self.instances > 1 and self.linked:
+                    sg.link(self._stream.device)
             except NotCapturable as exc:
                 _log.debug("segment %s, inputs %s, runs eagerly: %s", seg.tasks[0].name, key, exc)
                 sg = None
@@ -758,8 +813,9 @@ class SegmentRunner:
         wait_event(stream, fork)
         swapped = sg.segment.swapped
         if swapped:
-            sg.wait_previous(stream)
             published = sg.sets[sg.last].published if sg.last >= 0 else {}
+            sg.wait_previous(stream, any(ref in swapped and published.get(ref.key) is not s.value
+                                         for ref, s in zip(sg.segment.inputs, slots)))
         for ref, s in zip(sg.segment.inputs, slots):
             if s.external and s.event is not None and not (
                     swapped and published.get(ref.key) is s.value):  # (the previous run's)
