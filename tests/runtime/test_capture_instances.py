@@ -151,3 +151,46 @@ def test_pinned_frames_give_the_pageable_outputs(warp_backend):
             assert _same(e, c), i
     finally:
         g.close()
+
+
+def test_linked_must_be_a_bool():
+    g = _graph("warp-cpu", 1)
+    try:
+        with pytest.raises(WarpvxError, match="linked"):
+            g.plan.executor().linked = 1
+    finally:
+        g.close()
+
+
+@pytest.mark.parametrize("linked, rewrites, waits", [
+    (False, False, ["previous"]),
+    (False, True, ["previous"]),
+    (True, False, ["last reader"]),
+    (True, True, ["last reader", "previous"]),
+])
+def test_a_run_waits_for_the_runs_touching_its_set(monkeypatch, linked, rewrites, waits):
+    """Which earlier runs, on other streams, a run of set s waits for (three sets): unlinked,
+    the previous run (set s-1: the delayed values; it waited for the one before); linked, the
+    run of set s+1 (two frames back: the last to read set s, as its delayed values), plus the
+    previous run where this run rewrites the previous set's delayed values (an eager frame
+    left its own)."""
+    from warpvx.runtime import capture
+
+    g = _graph("warp-cpu", 3)
+    try:
+        ex = g.plan.executor()
+        list(g.stream(_cams(6), depth=3, capture=True))
+        (sg,) = [sg for sg in _segment_graphs(ex) if sg.captured]
+        names = {}
+        for i, b in enumerate(sg.sets):
+            b.done = object()
+            names[id(b.done)] = i
+        sg.links = [{} for _ in sg.sets] if linked else None
+        got = []
+        monkeypatch.setattr(capture, "wait_event", lambda stream, ev: got.append(names[id(ev)]))
+        s = sg.next
+        label = {(s - 1) % 3: "previous", (s + 1) % 3: "last reader"}
+        sg.wait_previous(None, rewrites)
+        assert [label[i] for i in got] == waits
+    finally:
+        g.close()

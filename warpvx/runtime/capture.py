@@ -18,7 +18,11 @@ by the segment one frame later) are neither copied in nor out: the segment has t
 sets, and a frame reads the set the previous frame wrote and writes the other (two captures
 per signature, on the fourth and fifth sightings); a delayed value read elsewhere too is
 still copied out for those readers.
-Copies and replay run on the executor's stream, in frame order. A value may be any tree of
+Copies and replay run on the executor's stream, in frame order; or, with buffer sets per
+frame in flight (:attr:`SegmentRunner.instances`, CUDA), each set's on streams of its own,
+forked from the executor's, so frames overlap on the device where no data flows between them
+(:attr:`SegmentRunner.linked`: a frame's readers of the previous frame's delayed values wait
+for them inside the graph, through external event nodes). A value may be any tree of
 arrays (:func:`.transfers.tree_map`): a pyramid's list of levels, a task's several outputs,
 a :class:`~warpvx._counted.Counted` (corners, keypoints, tracked points: fixed rows and a
 device count, so data-dependent results need no host sync; a node's Counted outputs are
@@ -65,7 +69,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._counted import is_counted
-from ..check import check_int
+from ..check import check_bool, check_int
 from .lanes import MAX_LANES, Lanes, lanes, noted, noting_conditionals
 from .native_copy import (copy_device, is_warp_array, record_event, to_device, wait_event,
                           warp)
@@ -646,10 +650,20 @@ class SegmentRunner:
     def max_lanes(self, n: int):
         self._max_lanes = check_int(n, "max_lanes", min_value=1)
 
-    #: With :attr:`instances` > 1 on CUDA, a run's tasks that read the previous frame's
-    #: delayed values wait for those inside the graph, not the whole run for the previous
-    #: run (:meth:`SegmentGraph.link`); False: the whole run waits (for comparisons).
-    linked = True
+    _linked = True
+
+    @property
+    def linked(self) -> bool:
+        """With :attr:`instances` > 1 on CUDA, a run's tasks that read the previous frame's
+        delayed values wait for those inside the graph, not the whole run for the previous
+        run (:meth:`SegmentGraph.link`); False: the whole run waits (for comparisons). Set
+        before frames are in flight: the segments' graphs are made again."""
+        return self._linked
+
+    @linked.setter
+    def linked(self, on: bool):
+        self._linked = check_bool(on, "linked")
+        self._captured.clear()
 
     @property
     def instances(self) -> int:
