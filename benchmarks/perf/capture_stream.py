@@ -27,14 +27,12 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import graph_bench  # noqa: E402
 
-from warpvx.runtime import Executor, Transfers, pinned_array, tree_map  # noqa: E402
+from warpvx.runtime import Executor, Transfers, pinned_copy, tree_map  # noqa: E402
 
 #: Downloads so far: staged (the GPU role's copy stream, pinned) and synchronous (the reader's).
 COUNTS = collections.Counter()
@@ -124,18 +122,6 @@ def overlap(g) -> tuple:
     return statistics.median(b - a for a, b in spans), total / covered if covered > 0 else float("nan")
 
 
-def pinned_frames(frames) -> list:
-    """Copies of ``frames`` (dicts of arrays) in pinned host memory."""
-    out = []
-    for f in frames:
-        p = {}
-        for k, v in f.items():
-            p[k] = pinned_array(v.shape, v.dtype)
-            np.copyto(p[k], v)
-        out.append(p)
-    return out
-
-
 #: (instances, linked) configurations of the captured runs: one stream (before), sets on
 #: streams of their own, each frame's whole run waiting for the previous one, and linked.
 CONFIGS = ((1, False), (3, False), (3, True), (6, True))
@@ -145,7 +131,7 @@ def device_activities(g, frames, capture: bool, n: int = 10) -> list:
     """One frame's device activities (name, launches per frame, us per frame), most first."""
     import warp as wp
 
-    for i in range(8):  # warm, and the captures
+    for i in range(8 + 3 * g.plan.executor().instances):  # warm, and every set's capture
         g.process(frames[i % len(frames)], capture=capture)
     wp.timing_begin(cuda_filter=wp.TIMING_ALL)
     for i in range(n):
@@ -175,7 +161,8 @@ def main(argv=None):
         Executor.STAGE_ON_HOST = True
     t_start = time.perf_counter()
     frames = graph_bench.make_frames(size, 16)
-    memories = {"pageable": frames, "pinned": pinned_frames(frames)}
+    memories = {"pageable": frames,
+                "pinned": [{k: pinned_copy(v) for k, v in f.items()} for f in frames]}
     g = graph_bench.build_graph(size, max_corners=500)
     g.verify(frames[:2])
     g.schedule("baseline", n_cpus=4, gpu=args.gpu)

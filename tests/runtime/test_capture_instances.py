@@ -16,7 +16,7 @@ import pytest
 from tests.graph.test_capture import _bench, _capture_arg
 from tests.runtime.test_staged_downloads import SIZE, _cams, _same
 from warpvx.errors import WarpvxError
-from warpvx.runtime import is_pinned, pinned_array
+from warpvx.runtime import is_pinned, pinned_array, pinned_copy
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -134,13 +134,8 @@ def test_pinned_frames_give_the_pageable_outputs(warp_backend):
     """A stream of frames in pinned memory (copied to the device straight from there on
     CUDA) gives the outputs of the same frames in pageable memory."""
     cams = _cams(12)
-    pinned = []
-    for c in cams:
-        p = {}
-        for k, v in c.items():
-            p[k] = pinned_array(v.shape, v.dtype)
-            np.copyto(p[k], v)
-        pinned.append(p)
+    pinned = [{k: pinned_copy(v) for k, v in c.items()} for c in cams]
+    assert all(np.array_equal(p[k], c[k]) for p, c in zip(pinned, cams) for k in c)
     g = _graph(warp_backend, 3)
     cap = _capture_arg(warp_backend)
     try:

@@ -180,8 +180,9 @@ def _segment(program: Program, tasks: list) -> Segment:
 
 
 def signature(inputs) -> tuple:
-    """The capture key of a frame's inputs (key -> ``(value, where)``): shapes and dtypes."""
-    return tuple((k, getattr(v, "shape", None), str(getattr(v, "dtype", type(v))))
+    """The capture key of a frame's inputs (key -> ``(value, where)``): shapes and dtypes
+    (the dtype objects, hashable: ``str`` of a NumPy dtype costs ~4 us, per input and frame)."""
+    return tuple((k, getattr(v, "shape", None), getattr(v, "dtype", type(v)))
                  for k, (v, _) in inputs.items())
 
 
@@ -574,6 +575,15 @@ class SegmentGraph:
         self.links = [{name: wp.Event(device) for name in set(self._producer.values())}
                       for _ in self.sets]
 
+    def unlink(self) -> bool:
+        """Undo :meth:`link` (a capture with its event nodes failed); False if not linked.
+        Safe with sets already captured linked: every run now waits for the whole previous
+        one before it starts, so their waits inside the graph are met already."""
+        if self.links is None:
+            return False
+        self.links = None
+        return True
+
     def wait_previous(self, stream, rewrites: bool):
         """Make ``stream`` (the next run's, CUDA) wait on the device for the runs on other
         streams it depends on. Unlinked (:meth:`link`): the previous run, whose set holds
@@ -762,14 +772,17 @@ class SegmentRunner:
         first = not sg.captured
         try:
             with self._capture_lock:
-                try:
-                    sg.capture(self.gpu_device, self._streams(sg, sg.next))
-                except NotCapturable as exc:  # lanes refused: one chain, as before lanes
-                    if not sg.single_lane():
-                        raise
-                    _log.debug("segment %s, inputs %s, captured on one lane: %s",
-                               seg.tasks[0].name, key, exc)
-                    sg.capture(self.gpu_device, self._streams(sg, sg.next))
+                while True:
+                    try:
+                        sg.capture(self.gpu_device, self._streams(sg, sg.next))
+                        break
+                    except NotCapturable as exc:  # refused: unlinked, then on one chain
+                        how = "unlinked" if sg.unlink() else \
+                            "on one lane" if sg.single_lane() else None
+                        if how is None:
+                            raise
+                        _log.debug("segment %s, inputs %s, captured again %s: %s",
+                                   seg.tasks[0].name, key, how, exc)
         except NotCapturable as exc:  # a host sync or read-back inside, a caller's capture
             _log.debug("segment %s, inputs %s, not captured: %s", seg.tasks[0].name, key, exc)
             by_shape[key] = None
@@ -785,7 +798,6 @@ class SegmentRunner:
         :attr:`instances` > 1) all of it runs there (:meth:`_fork`)."""
         state.task = seg.tasks[0].name
         cuda = self.cuda
-        io = state.io
         slots, waited = self._ready_inputs(frame, seg.inputs)
         h0 = time.perf_counter()
         streams = self._streams(sg, sg.next)

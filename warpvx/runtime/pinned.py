@@ -145,6 +145,14 @@ def pinned_array(shape, dtype=np.uint8) -> np.ndarray:
     return np.asarray(_Pinned(buf, shape, dtype))
 
 
+def pinned_copy(a) -> np.ndarray:
+    """A copy of NumPy array ``a`` in pinned memory (:func:`pinned_array`)."""
+    a = np.asarray(a)
+    out = pinned_array(a.shape, a.dtype)
+    np.copyto(out, a)
+    return out
+
+
 def is_pinned(a) -> bool:
     """``a`` is a C-contiguous NumPy array in page-locked memory of :func:`pinned_array` (or a
     view of one)."""
@@ -156,4 +164,4 @@ def is_pinned(a) -> bool:
     return type(base) is _Pinned and base.buf.pinned
 
 
-__all__ = ["HostPool", "is_pinned", "pinned_array"]
+__all__ = ["HostPool", "is_pinned", "pinned_array", "pinned_copy"]
