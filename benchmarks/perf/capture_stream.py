@@ -13,7 +13,9 @@ memory (staged through pinned buffers on the host first) or in pinned memory
 (``warpvx.runtime.pinned_array``: one DMA); the captured graphs launched per run; how the
 last frames' device intervals (a captured segment's start and end events, on its set's
 stream) overlap: their sum over the time the device had one or more of them (1.0: one after
-the other); the downloads per frame; one frame's activities on the device
+the other); the GPU role's thread's host time per frame (its calls for the frame's GPU work:
+copies in and their staging, launch, copies out); the downloads per frame; one frame's
+activities on the device
 (``wp.timing_begin``: kernels, copies, graph launches), eager and captured, each with its
 stream.
 """
@@ -98,20 +100,24 @@ def stream_fps(g, frames, capture: bool, depth: int, n: int) -> tuple:
 
 
 def overlap(g) -> tuple:
-    """The last frames' GPU intervals (their GPU tasks' earliest start to latest finish, on
-    the device's clock): (median interval ms, their sum over the time covered by one or more
-    of them). Off CUDA (host times) (nan, nan)."""
+    """The last frames' GPU work: (median device interval ms (their GPU tasks' earliest start
+    to latest finish, on the device's clock: nan off CUDA), the intervals' sum over the time
+    covered by one or more of them (1.0: one after the other; nan off CUDA), median host ms
+    the GPU role's thread spent on them (its calls: enqueue, copies in, staging))."""
     ex = g.plan.executor()
-    if not ex.cuda:
-        return float("nan"), float("nan")
     gpu = {t.name for seg in ex._segments for t in seg.tasks}
-    spans = []
+    spans, host = [], []
     for r in list(g.plan.last_run)[-48:]:
-        ts = [r.timeline[n] for n in gpu if n in r.timeline]
-        if ts:
+        names = [n for n in gpu if n in r.timeline]
+        if names:
+            ts = [r.timeline[n] for n in names]
             spans.append((r.t0 * 1e3 + min(t.start for t in ts), r.t0 * 1e3 + max(t.finish for t in ts)))
-    if not spans:
-        return float("nan"), float("nan")
+            hs = [r.host[n] for n in names if n in r.host]
+            if hs:
+                host.append(max(b for _, b in hs) - min(a for a, _ in hs))
+    host_ms = statistics.median(host) if host else float("nan")
+    if not spans or not ex.cuda:
+        return float("nan"), float("nan"), host_ms
     spans.sort()
     covered, end = 0.0, -float("inf")
     for a, b in spans:
@@ -119,7 +125,8 @@ def overlap(g) -> tuple:
             covered += b - max(a, end)
             end = b
     total = sum(b - a for a, b in spans)
-    return statistics.median(b - a for a, b in spans), total / covered if covered > 0 else float("nan")
+    return (statistics.median(b - a for a, b in spans),
+            total / covered if covered > 0 else float("nan"), host_ms)
 
 
 #: (instances, linked) configurations of the captured runs: one stream (before), sets on
@@ -174,8 +181,9 @@ def main(argv=None):
              "pinned frames", "",
              "| run | capture | depth | instances | linked | frames in | FPS | captured graphs "
              "launched | frames | frame's GPU interval (ms, median) | overlap (sum / covered) | "
+             "GPU thread host ms / frame (median) | "
              "staged downloads / frame (KB) | synchronous downloads / frame (KB) |",
-             "|---:|---|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---:|---|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     runs = [(False, 3, 1, False, "pageable")]
     runs += [(True, depth, k, linked, mem) for mem in memories for depth in (3, 6)
              for k, linked in CONFIGS]
@@ -184,13 +192,13 @@ def main(argv=None):
             ex.instances, ex.linked = k, linked
             row = f"| {len(lines) - 4} | {capture} | {depth} | {k} | {linked} | {mem} | "
             try:
-                fps, replays, done, moved, (span, lap) = stream_fps(
+                fps, replays, done, moved, (span, lap, host) = stream_fps(
                     g, memories[mem], capture, depth, args.frames)
-                row += (f"{fps:.1f} | {replays} | {done} | {span:.3f} | {lap:.2f} | "
+                row += (f"{fps:.1f} | {replays} | {done} | {span:.3f} | {lap:.2f} | {host:.3f} | "
                         f"{moved['staged']:.1f} ({moved['staged bytes'] / 1e3:.0f}) | "
                         f"{moved['synchronous']:.1f} ({moved['synchronous bytes'] / 1e3:.0f}) |")
             except Exception as exc:  # noqa: BLE001 - a failed configuration is a result too
-                row += f"failed: {type(exc).__name__}: {str(exc)[:120]} | | | | | | |"
+                row += f"failed: {type(exc).__name__}: {str(exc)[:120]} | | | | | | | |"
             lines.append(row)
             print(row, flush=True)
         acts = {}
