@@ -10,6 +10,8 @@ same outputs as pageable ones.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -187,5 +189,43 @@ def test_a_run_waits_for_the_runs_touching_its_set(monkeypatch, linked, rewrites
         label = {(s - 1) % 3: "previous", (s + 1) % 3: "last reader"}
         sg.wait_previous(None, rewrites)
         assert [label[i] for i in got] == waits
+    finally:
+        g.close()
+
+
+def test_a_graph_reading_its_own_delays_is_found_without_the_shapes(warp_backend, monkeypatch):
+    """Frames whose segment inputs are the graph inputs and the delayed values the segment's
+    last run published find that graph without walking the inputs' shapes (per frame on the
+    GPU thread); a delayed value from elsewhere (after a reset: the initial one) is walked
+    again, and every output stays the eager run's."""
+    from warpvx.runtime import capture
+
+    cams = _cams(12)
+    g = _graph(warp_backend, 3)
+    cap = _capture_arg(warp_backend)
+    try:
+        eager = list(g.stream(cams, depth=3, capture=False))
+        walks = []  # the walks of an input's leaves for its shapes (the key)
+        walk = capture._leaves
+
+        def counted(v):
+            if sys._getframe(2).f_code.co_name == "_inputs_key":  # (through its genexpr)
+                walks.append(1)
+            return walk(v)
+
+        monkeypatch.setattr(capture, "_leaves", counted)
+        for _ in range(2):
+            g.reset()
+            before = len(walks)
+            got = list(g.stream(cams, depth=3, capture=cap))
+            for i, (e, c) in enumerate(zip(eager, got)):
+                assert _same(e, c), i
+        ex = g.plan.executor()
+        (sg,) = [sg for sg in _segment_graphs(ex) if sg.captured]
+        assert sg.self_keyed and ex._last_graphs
+        n_inputs = len(sg.segment.inputs)
+        # The second pass: the shapes walked for the first frames only (the initial values,
+        # then the first frame reading the graph's own), not once per frame.
+        assert 0 < len(walks) - before <= 3 * n_inputs
     finally:
         g.close()

@@ -315,6 +315,10 @@ class SegmentGraph:
         self._events = {}  # (kind, index) -> a wp.Event of the lanes' forks, joins, signals
         self.scratch = ()
         self.links = None  # per set: producing task -> its event (link)
+        self.key = None  # the shapes of its inputs it was found by last (SegmentRunner)
+        #: Its own published delayed values (and the graph inputs) led to it: a frame reading
+        #: those finds it without its inputs' shapes (SegmentRunner._inputs_key).
+        self.self_keyed = False
         self._producer = {}  # swapped InputRef -> the task making it
         self._views = {}  # (id of a copy buffer, part) -> a Counted of views of it
 
@@ -653,6 +657,14 @@ class SegmentRunner:
     _fork_events = None  # a set's stream -> the event it waits for on the executor's
 
     @property
+    def _last_graphs(self) -> dict:
+        """Segment index -> the SegmentGraph its last frame ran (:meth:`_inputs_key`)."""
+        d = self.__dict__.get("_last_graphs_")
+        if d is None:
+            d = self.__dict__["_last_graphs_"] = {}
+        return d
+
+    @property
     def max_lanes(self) -> int:
         return self._max_lanes
 
@@ -674,6 +686,7 @@ class SegmentRunner:
     def linked(self, on: bool):
         self._linked = check_bool(on, "linked")
         self._captured.clear()
+        self._last_graphs.clear()
 
     @property
     def instances(self) -> int:
@@ -686,6 +699,7 @@ class SegmentRunner:
         """Set before frames are in flight: the segments' graphs are made again."""
         self._instances = None if n is None else check_int(n, "instances", min_value=1)
         self._captured.clear()
+        self._last_graphs.clear()
 
     def _streams(self, sg: SegmentGraph, s: int):
         """The streams of ``sg``'s lanes for a run of its set ``s``, the run's own first (the
@@ -748,7 +762,7 @@ class SegmentRunner:
         if waited:
             state.prev_end = None  # the stream may idle while we waited: a fresh start event
         try:
-            key = tuple(tuple(tuple(a.shape) for a in _leaves(s.value)) for s in slots)
+            key = self._inputs_key(by_shape, i, seg, slots)
         except NotCapturable as exc:
             _log.debug("segment %s runs eagerly: %s", seg.tasks[0].name, exc)
             states[i] = None
@@ -765,8 +779,11 @@ class SegmentRunner:
             by_shape[key] = sg
             while len(by_shape) > MAX_SIGNATURES:
                 del by_shape[next(iter(by_shape))]
-            return sg
-        sg = by_shape[key]
+        else:
+            sg = by_shape[key]
+        if sg is not None:
+            sg.key = key
+            self._last_graphs[i] = sg
         if sg is None or not sg.due():
             return sg
         first = not sg.captured
@@ -790,6 +807,39 @@ class SegmentRunner:
         self.captures += first
         state.prev_end = None  # the stream idled while the host captured
         return sg
+
+    def _inputs_key(self, by_shape: dict, i: int, seg: Segment, slots) -> tuple:
+        """The shapes of segment ``i``'s input values (``slots``): the key of ``by_shape``.
+        Per frame on the GPU thread, so the last graph's key is taken as it is (no walk of
+        the values' trees: ~20-40 us a frame) where nothing can have changed it: every input
+        is a graph input (its shape is the signature's) or a delayed value that graph
+        published, and those led to that graph once before (:attr:`SegmentGraph.self_keyed`).
+
+        Raises
+        ------
+        NotCapturable
+            An input holds no array.
+        """
+        last = self._last_graphs.get(i)
+        if last is not None and last.self_keyed and by_shape.get(last.key) is last and \
+                self._reads_own(last, seg, slots):
+            return last.key
+        key = tuple(tuple(tuple(a.shape) for a in _leaves(s.value)) for s in slots)
+        if last is not None and by_shape.get(key) is last and self._reads_own(last, seg, slots):
+            last.self_keyed = True
+        return key
+
+    def _reads_own(self, sg: SegmentGraph, seg: Segment, slots) -> bool:
+        """Every input of ``seg`` (``slots``) is a graph input or what ``sg``'s last run
+        published for it."""
+        published = sg.sets[sg.last].published if sg.last >= 0 else None
+        if not published:
+            return False
+        inputs = self.program.inputs
+        for ref, s in zip(seg.inputs, slots):
+            if not (ref.offset == 0 and ref.key in inputs) and published.get(ref.key) is not s.value:
+                return False
+        return True
 
     def _run_segment(self, frame: Frame, seg: Segment, sg: SegmentGraph, state):
         """Replay ``sg``: inputs copied into its fixed buffers, one graph launch, the values
