@@ -111,7 +111,8 @@ def overlap(g) -> tuple:
         names = [n for n in gpu if n in r.timeline]
         if names:
             ts = [r.timeline[n] for n in names]
-            spans.append((r.t0 * 1e3 + min(t.start for t in ts), r.t0 * 1e3 + max(t.finish for t in ts)))
+            t0 = r.t0 * 1e3
+            spans.append((t0 + min(t.start for t in ts), t0 + max(t.finish for t in ts)))
             hs = [r.host[n] for n in names if n in r.host]
             if hs:
                 host.append(max(b for _, b in hs) - min(a for a, _ in hs))

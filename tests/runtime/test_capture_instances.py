@@ -222,7 +222,7 @@ def test_a_graph_reading_its_own_delays_is_found_without_the_shapes(warp_backend
                 assert _same(e, c), i
         ex = g.plan.executor()
         (sg,) = [sg for sg in _segment_graphs(ex) if sg.captured]
-        assert sg.self_keyed and ex._last_graphs
+        assert sg.self_keyed and ex._recent
         n_inputs = len(sg.segment.inputs)
         # The second pass: the shapes walked for the first frames only (the initial values,
         # then the first frame reading the graph's own), not once per frame.

@@ -248,8 +248,9 @@ class _BufferSet:
         InputRef -> the fixed buffers its run's inputs are copied into (one dict shared by
         every set of a segment whose runs share one stream; a set's own where frames overlap).
     done : wp.Event or None
-        Recorded after this set's last replay (CUDA, overlapping frames): the next frame's
-        run, which reads its outputs as delayed values, waits for it on the device.
+        Recorded after this set's last run and its copies out (CUDA, overlapping frames):
+        the runs that read or write its buffers next wait for it on the device
+        (:meth:`SegmentGraph.wait_previous`).
     """
 
     __slots__ = ("outs", "outputs", "graph", "published", "warm", "inputs", "done")
@@ -509,8 +510,9 @@ class SegmentGraph:
     def reads_fresh(self, values) -> bool:
         """Whether the next run, given the frame's ``values`` of ``segment.inputs``, reads
         its swapped inputs from its input buffers (``fresh`` of :meth:`fill` and
-        :meth:`launch`): one of them is unlike the previous set's outputs (a delay's initial value after a reset, where
-        this segment's own outputs swap in later); that run is not captured."""
+        :meth:`launch`): one of them is unlike the previous set's outputs (a delay's initial
+        value after a reset, where this segment's own outputs swap in later); that run is not
+        captured."""
         other = self.previous(self.next).outputs if self.segment.swapped else {}
         if not other:
             return False
@@ -655,14 +657,8 @@ class SegmentRunner:
     _instances = None
     _set_streams = None  # set index (-1: the executor's) -> its stream and lanes' (CUDA)
     _fork_events = None  # a set's stream -> the event it waits for on the executor's
-
-    @property
-    def _last_graphs(self) -> dict:
-        """Segment index -> the SegmentGraph its last frame ran (:meth:`_inputs_key`)."""
-        d = self.__dict__.get("_last_graphs_")
-        if d is None:
-            d = self.__dict__["_last_graphs_"] = {}
-        return d
+    _recent = None  # segment index -> the SegmentGraph its last frame ran (_inputs_key)
+    _linked = True
 
     @property
     def max_lanes(self) -> int:
@@ -671,8 +667,6 @@ class SegmentRunner:
     @max_lanes.setter
     def max_lanes(self, n: int):
         self._max_lanes = check_int(n, "max_lanes", min_value=1)
-
-    _linked = True
 
     @property
     def linked(self) -> bool:
@@ -686,7 +680,7 @@ class SegmentRunner:
     def linked(self, on: bool):
         self._linked = check_bool(on, "linked")
         self._captured.clear()
-        self._last_graphs.clear()
+        self._recent = None
 
     @property
     def instances(self) -> int:
@@ -699,7 +693,7 @@ class SegmentRunner:
         """Set before frames are in flight: the segments' graphs are made again."""
         self._instances = None if n is None else check_int(n, "instances", min_value=1)
         self._captured.clear()
-        self._last_graphs.clear()
+        self._recent = None
 
     def _streams(self, sg: SegmentGraph, s: int):
         """The streams of ``sg``'s lanes for a run of its set ``s``, the run's own first (the
@@ -783,7 +777,9 @@ class SegmentRunner:
             sg = by_shape[key]
         if sg is not None:
             sg.key = key
-            self._last_graphs[i] = sg
+            if self._recent is None:
+                self._recent = {}
+            self._recent[i] = sg
         if sg is None or not sg.due():
             return sg
         first = not sg.captured
@@ -820,7 +816,7 @@ class SegmentRunner:
         NotCapturable
             An input holds no array.
         """
-        last = self._last_graphs.get(i)
+        last = self._recent.get(i) if self._recent is not None else None
         if last is not None and last.self_keyed and by_shape.get(last.key) is last and \
                 self._reads_own(last, seg, slots):
             return last.key
@@ -837,7 +833,8 @@ class SegmentRunner:
             return False
         inputs = self.program.inputs
         for ref, s in zip(seg.inputs, slots):
-            if not (ref.offset == 0 and ref.key in inputs) and published.get(ref.key) is not s.value:
+            graph_input = ref.offset == 0 and ref.key in inputs
+            if not graph_input and published.get(ref.key) is not s.value:
                 return False
         return True
 
