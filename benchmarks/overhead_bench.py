@@ -14,6 +14,12 @@
    the report names the captured segments and the GPU nodes that still run eagerly, and
    first checks that captured frames give the eager outputs bit for bit (16 frames).
 
+4. With ``--ab TREE`` (another checkout of warpvx, e.g. the code before a change, or a git
+   revision of this checkout, extracted into a temporary folder): the identity
+   chains of section 1 run in fresh processes alternating between TREE and this tree
+   (``--ab-pairs`` pairs, the order swapped every pair), so both see the same machine state;
+   the table gives each tree's median and the change.
+
 On Warp's CPU device (``--gpu warp-cpu``) "captured" rows replay Warp's CPU graphs (Warp 1.19
 captures there too, ``capture=True``); on CUDA they are CUDA graphs (the default there).
 
@@ -21,6 +27,7 @@ Usage::
 
     PYTHONPATH=. python3 benchmarks/overhead_bench.py --gpu cuda --out $OUT/overhead   # GPU
     PYTHONPATH=. python benchmarks/overhead_bench.py --gpu warp-cpu --quick            # anywhere
+    PYTHONPATH=. python3 benchmarks/overhead_bench.py --gpu cuda --out $OUT/o --ab REV  # A/B
 
 Writes ``overhead_bench.md`` (its first line is the command), ``overhead_bench.json``, and ``overhead_profile_gpu.txt`` and ``overhead_profile_mixed.txt``: the
 GPU-only and alternating chains under cProfile, every thread
@@ -32,8 +39,11 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shutil
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 import traceback
 from pathlib import Path
@@ -72,6 +82,94 @@ def _chains(args) -> list:
         (args.out / f"overhead_profile_{chain}.txt").write_text(text)
         print(f"  wrote overhead_profile_{chain}.txt", flush=True)
     return rows
+
+
+#: One A/B run, in a fresh process importing warpvx from argv[1]: the identity chains timed
+#: by this code whatever the tree (a tree's own diagnostics may differ), JSON on stdout.
+_AB_RUN = """
+import json, statistics, sys, time
+sys.path.insert(0, sys.argv[1])
+import cv2
+import numpy as np
+import warpvx
+from warpvx.graph.diagnostics import _chain, _time_direct
+if not warpvx.__file__.startswith(sys.argv[1]):
+    raise SystemExit(f"imported {warpvx.__file__}, not the tree's")
+cv2.setNumThreads(1)
+n, frames, gpu = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+x = np.arange(4, dtype=np.float32)
+rows = []
+for chain, nodes in (("gpu", n), ("mixed", n // 2), ("cpu", n)):
+    g = _chain(nodes, chain)
+    g.schedule("heft", n_cpus=1, gpu=False if chain == "cpu" else gpu)
+    for _ in range(10):
+        g.process({"x": x})
+    wall = []
+    for _ in range(frames):  # as a caller keeping no results
+        t0 = time.perf_counter()
+        g.process({"x": x})
+        wall.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    for _ in g.stream(({"x": x} for _ in range(frames)), depth=4):
+        pass
+    stream = (time.perf_counter() - t0) / frames
+    g.close()
+    t_call = _time_direct(nodes)
+    rows.append({"chain": chain, "n_nodes": nodes,
+                 "per_node_us": (statistics.median(wall) - t_call) / nodes * 1e6,
+                 "per_node_us_stream": (stream - t_call) / nodes * 1e6})
+print(json.dumps(rows))
+"""
+
+
+def _tree(ab: str) -> str:
+    """``--ab``'s tree: a folder, or a git revision of this checkout extracted (git archive)
+    into a temporary folder (not the results folder: what comes back is a few files)."""
+    if Path(ab).is_dir():
+        return str(Path(ab).resolve())
+    dest = Path(tempfile.mkdtemp(prefix="warpvx-ab-")).resolve()
+    archive = subprocess.run(["git", "-C", str(ROOT.parent), "archive", ab],
+                             capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    return str(dest)
+
+
+def _ab_runs(args, trees: dict) -> dict:
+    """tree name -> its runs (each a list of chain rows), ABBA order, fresh processes."""
+    runs = {k: [] for k in trees}
+    for pair in range(args.ab_pairs):
+        order = ("before", "after") if pair % 2 == 0 else ("after", "before")
+        for k in order:
+            out = subprocess.run([sys.executable, "-c", _AB_RUN, trees[k], str(args.nodes),
+                                  str(args.frames), args.gpu], capture_output=True, text=True,
+                                 timeout=300)
+            if out.returncode:
+                raise RuntimeError(f"{k} ({trees[k]}): {out.stderr.strip()[-2000:]}")
+            runs[k].append(json.loads(out.stdout.strip().splitlines()[-1]))
+            print(f"  pair {pair + 1}/{args.ab_pairs} {k}: " + ", ".join(
+                f"{r['chain']} {r['per_node_us']:.1f}" for r in runs[k][-1]) + " us/node",
+                flush=True)
+    return runs
+
+
+def _ab(args) -> list:
+    """Section 4: the identity chains of ``args.ab`` (a tree) and of this tree, in fresh
+    processes, alternating (ABBA...); rows of per-tree medians."""
+    trees = {"before": _tree(args.ab), "after": str(ROOT.parent)}
+    try:
+        runs = _ab_runs(args, trees)
+    finally:
+        if not Path(args.ab).is_dir():  # a revision, extracted for this run
+            shutil.rmtree(trees["before"], ignore_errors=True)
+    rows = []
+    for i, first in enumerate(runs["after"][0]):
+        row = {"chain": first["chain"], "n_nodes": first["n_nodes"], "pairs": args.ab_pairs}
+        for k in trees:
+            row[k] = {m: statistics.median(run[i][m] for run in runs[k])
+                      for m in ("per_node_us", "per_node_us_stream")}
+            row[k]["all"] = [round(run[i]["per_node_us"], 2) for run in runs[k]]
+        rows.append(row)
+    return [{"trees": trees, "rows": rows}]
 
 
 def _chain_label(row) -> str:
@@ -267,6 +365,21 @@ def markdown(report) -> str:
                   "process's over the timed frames (every thread, CPU nodes included). On "
                   "warp-cpu both include the kernels; on CUDA the CPU time includes any spin "
                   "in a synchronisation."]
+    for e in report.get("ab", []):
+        lines += ["", f"## A/B, identity chains, fresh processes alternating: before = "
+                      f"{e['trees']['before']}, after = {e['trees']['after']}", "",
+                  "| chain | nodes | us/node before | after | change | stream before | after | "
+                  "runs before | runs after |", "|---|---|---|---|---|---|---|---|---|"]
+        for r in e["rows"]:
+            b, a = r["before"], r["after"]
+            change = (a["per_node_us"] / b["per_node_us"] - 1) * 100 if b["per_node_us"] else 0.0
+            lines.append(f"| {r['chain']} | {r['n_nodes']} | {b['per_node_us']:.1f} | "
+                         f"{a['per_node_us']:.1f} | {change:+.0f}% | {b['per_node_us_stream']:.1f} | "
+                         f"{a['per_node_us_stream']:.1f} | {b['all']} | {a['all']} |")
+        lines += ["", f"Medians of {e['rows'][0]['pairs'] if e['rows'] else 0} runs per tree, each "
+                      "a fresh process timing both trees with the same code: process (one frame "
+                      "at a time, no result kept: as a caller) and stream (4 in flight) us/node, "
+                      "the nodes' own time taken off."]
     for key, err in report["errors"].items():
         lines += ["", f"**{key} failed**: {err}"]
     return "\n".join(lines) + "\n"
@@ -285,6 +398,10 @@ def main(argv=None):
     p.add_argument("--graph-frames", type=int, default=None,
                    help="timed frames per two-camera row (default 300; quick 16)")
     p.add_argument("--n-cpus", type=int, default=None, help="CPU workers (default: cores - 1, max 4)")
+    p.add_argument("--ab", default=None,
+                   help="another warpvx tree (a folder, or a git revision of this checkout): "
+                        "its identity chains and this tree's, alternating in fresh processes")
+    p.add_argument("--ab-pairs", type=int, default=5, help="A/B runs per tree (default 5)")
     args = p.parse_args(argv)
     command = "PYTHONPATH=. python3 benchmarks/overhead_bench.py " + " ".join(
         argv if argv is not None else sys.argv[1:])
@@ -306,7 +423,10 @@ def main(argv=None):
     try:
         for key, title, run in (("chains", "identity chains", _chains),
                                 ("primitive_chain", "primitive chain", _primitive_chain),
-                                ("two_cameras", "two-camera graph", _two_cameras)):
+                                ("two_cameras", "two-camera graph", _two_cameras),
+                                ("ab", "A/B of the identity chains", _ab)):
+            if key == "ab" and not args.ab:
+                continue
             print(title, flush=True)
             try:
                 sections[key] = run(args)

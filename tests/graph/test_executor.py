@@ -274,6 +274,91 @@ def test_alternating_chain_runs_short_tasks_inline_and_long_ones_on_their_thread
         assert elsewhere >= len(ran) // 4
 
 
+class _Device:
+    """A stand-in Warp CUDA device: its current stream, the process's default device, and
+    a per-thread count of pushed contexts."""
+
+    def __init__(self):
+        self.runtime = type("Runtime", (), {"default_device": "user-default"})()
+        self.stream = "user-stream"
+        self.pushed = threading.local()
+        device = self
+
+        class Guard:
+            def __enter__(self):
+                device.pushed.n = getattr(device.pushed, "n", 0) + 1
+
+            def __exit__(self, *exc):
+                device.pushed.n -= 1
+
+        self.context_guard = Guard()
+
+    def set_stream(self, stream, sync=True):
+        assert sync is False  # the executor's stream orders its own work only
+        self.stream = stream
+
+
+def test_device_scope_is_shared_by_threads_and_restored_by_the_last_holder():
+    """The GPU role's DeviceScope (Warp's device and stream are the process's) may be held by
+    a thread running an alternating chain inline and by the GPU role's thread at once: the
+    first holder makes them current, the last one restores the user's, and each thread
+    pushes and pops its own context."""
+    from warpvx.runtime.roles import DeviceScope
+
+    dev = _Device()
+    scope = DeviceScope(dev, "executor-stream")
+    scope.acquire()
+    assert (dev.stream, dev.runtime.default_device, dev.pushed.n) == ("executor-stream", dev, 1)
+    other = {}
+
+    def hold():
+        with scope:
+            other["inside"] = (dev.stream, dev.pushed.n)
+        other["after"] = (dev.stream, dev.pushed.n)
+
+    th = threading.Thread(target=hold)
+    th.start()
+    th.join()
+    assert other == {"inside": ("executor-stream", 1), "after": ("executor-stream", 0)}
+    assert dev.runtime.default_device is dev  # still held here
+    scope.release()
+    assert (dev.stream, dev.runtime.default_device, dev.pushed.n) == ("user-stream", "user-default", 0)
+
+
+@pytest.mark.parametrize("ms", [LONG, SHORT])
+def test_gpu_units_run_with_the_gpu_device_current_and_the_default_comes_back(ms):
+    """GPU units see the GPU role's device as Warp's default whichever thread runs them
+    (inline ones included: the scope is held across short CPU units); after each frame the
+    caller's default device is back."""
+    import warp as wp
+
+    n = 6
+    prog, placement, ran = _alternating(n)
+    seen = []
+    for name, task in prog.tasks.items():
+        if placement[name] == "gpu":
+            inner = task.gpu
+            task.gpu = lambda v, inner=inner: (seen.append(str(wp.get_device())), inner(v))[1]
+    ex = Executor(sched(placement, ms=ms), prog, gpu_device="cpu")
+    ex._start()
+    dev = ex._scope.device
+    saved = dev.runtime.default_device
+    dev.runtime.default_device = None  # the caller's: anything but the GPU role's device
+    try:
+        for i in range(3):
+            x = np.full(3, i, np.float32)
+            np.testing.assert_array_equal(ex.wait(ex.submit(i, {"x": (x, HOST)})).outputs["y"],
+                                          _expected(x, n))
+        deadline = time.perf_counter() + 5.0  # a role's thread may still be leaving its run
+        while ex._scope.holders and time.perf_counter() < deadline:
+            time.sleep(0.001)
+        assert ex._scope.holders == 0 and dev.runtime.default_device is None
+    finally:
+        dev.runtime.default_device = saved
+        ex.close()
+    assert seen == ["cpu"] * (3 * (n // 2))
+
+
 @pytest.mark.parametrize("ms", [LONG, SHORT])
 def test_caller_runs_units_while_it_waits_for_a_frame_alone_in_flight(ms):
     """One frame at a time, the waiting caller runs the ready units itself as a role's
@@ -408,6 +493,59 @@ def test_frame_result_reports_transfers_copies_and_host_times():
     for t in ("a", "d"):
         h0, h1 = res.host[t]
         assert 0 <= h0 <= h1
+
+
+class _Clock:
+    """Stand-in CUDA timing events (no GPU here): an event is its device time in ms."""
+
+    def __init__(self, ms):
+        self.ms = ms
+
+
+def test_gpu_events_are_read_with_the_timeline_and_only_then_recycled(monkeypatch):
+    """CUDA timelines are read lazily: a frame's events go back to the pool when its
+    timeline is first read, when its result is garbage unread, or when MAX_UNREAD newer
+    results hold theirs; never before (a re-recorded event would give another time)."""
+    import gc
+
+    from warpvx.runtime import timeline as tl
+
+    monkeypatch.setattr(tl, "elapsed_since", lambda start: lambda end: end.ms - start.ms)
+    anchor = (100.0, _Clock(0.0))  # host second 100.0 is device ms 0
+
+    def frame(i):
+        f = tl.Frame(i, {}, 1)
+        a, b = _Clock(2.0 + i), _Clock(5.0 + i)
+        f.trace = {"g": ("gpu", a, b, None), "c": ("cpu0", 100.01, 100.02, None)}
+        f.t0 = 100.0
+        f.events = [a, b]
+        return f
+
+    pool = tl.EventPool("cuda:0")
+    res = tl.frame_result(frame(0), {}, anchor, pool.put)
+    pool.lend(res)
+    assert len(pool) == 0  # unread: the events are still the trace's
+    assert res.timeline["g"].start == pytest.approx(2.0)  # ms from t0: device ms + anchor
+    assert res.timeline["g"].finish == pytest.approx(5.0)
+    assert res.timeline["c"].finish == pytest.approx(20.0)
+    assert len(pool) == 2
+    assert res.makespan == pytest.approx(20.0)  # read again: built once, recycled once
+    assert len(pool) == 2
+
+    pool = tl.EventPool("cuda:0")
+    res = tl.frame_result(frame(1), {}, anchor, pool.put)
+    del res
+    gc.collect()
+    assert len(pool) == 2  # garbage unread
+
+    pool = tl.EventPool("cuda:0")
+    kept = []
+    for i in range(pool.MAX_UNREAD + 2):
+        kept.append(tl.frame_result(frame(i), {}, anchor, pool.put))
+        pool.lend(kept[-1])
+    assert len(pool) == 2 * 2  # the two oldest were read to free their events
+    assert kept[0].timeline["g"].start == pytest.approx(2.0)
+    assert kept[-1].timeline["g"].finish == pytest.approx(5.0 + pool.MAX_UNREAD + 1)
 
 
 def _blur_program():

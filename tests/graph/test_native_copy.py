@@ -106,6 +106,13 @@ def test_staged_download_and_native_elapsed_time():
     assert nc.elapsed_since(start)(end) == pytest.approx(wp.get_event_elapsed_time(start, end))
     # Another kind of value (a vector dtype) downloads the usual way.
     assert io.stage_download(wp.zeros(3, dtype=wp.vec2, device="cuda:0")) is None
+    # A small one goes on the producer's stream after its kernels (no event between streams).
+    small = wp.zeros(16, dtype=wp.int32, device="cuda:0")
+    assert small.capacity < io.SAME_STREAM_MAX_BYTES
+    with wp.ScopedStream(stream):
+        small.fill_(7)
+        staged = io.stage_download(small, after=stream)
+    np.testing.assert_array_equal(io.unstage(staged), np.full(16, 7, np.int32))
 
 
 @pytest.mark.parametrize("device", DEVICES)

@@ -197,7 +197,7 @@ def test_outputs_are_staged_only_for_a_caller_wanting_host_data(monkeypatch):
     staged = []
     stage = Transfers.stage_download
     monkeypatch.setattr(Transfers, "stage_download",
-                        lambda self, v, e=None: staged.append(v) or stage(self, v, e))
+                        lambda self, v, e=None, **kw: staged.append(v) or stage(self, v, e, **kw))
     monkeypatch.setattr(Executor, "STAGE_ON_HOST", True)
     cams = _cams(3)
     g = _graph(cams, "warp-cpu")

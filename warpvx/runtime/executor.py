@@ -15,7 +15,8 @@ Roles and threads
     thread whose output made it ready when that thread's own role has nothing ready and the
     unit is short (:attr:`Executor.INLINE_MAX_MS`): a serial chain alternating CPU and GPU
     tasks then runs on one thread, with no thread wake-up per hand-off (10-30 us each under
-    the GIL). Nobody blocks on a value: a role's thread sleeps on its signal until a producer
+    the GIL), and keeps the GPU role's device and stream current across its short CPU units
+    (:class:`~.roles.DeviceScope`: no stream and context switch per hand-off). Nobody blocks on a value: a role's thread sleeps on its signal until a producer
     finds the role ready and not taken; a producer going on with its own work wakes the
     ready readers of what it published at once. A caller waiting for a frame alone in
     flight runs its ready units itself first (:meth:`Executor._help`), so a frame run one at
@@ -27,8 +28,10 @@ Cross-queue edges
     CUDA, where a CPU task of the frame or the caller (a graph output) reads the value, the
     GPU role then starts its download at once (:meth:`Transfers.stage_download`: pinned
     buffers of the executor's :class:`~.pinned.HostPool`, on the GPU role's copy stream
-    after the producer's event), so the compute stream runs on while the DMA runs and the
-    reader waits for the copy's event only, then gets NumPy views of the pinned buffers (no
+    after the producer's event, or for a value under
+    :attr:`Transfers.SAME_STREAM_MAX_BYTES` on the compute stream right behind its
+    producer), so the compute stream runs on while the DMA runs and the reader waits for
+    the copy's event only, then gets NumPy views of the pinned buffers (no
     host copy; a buffer returns to the pool once every array on it is garbage); otherwise
     (the pool full, a delay's value, a vector dtype) the reader waits for the producer's
     event and downloads on its thread's copy stream.
@@ -44,7 +47,9 @@ Timing
     interval is when the device ran it, not when the host enqueued it. When the GPU role
     did not have to wait between two tasks, the first one's end event is the second one's
     start (one event per task, not two). Events come from a pool and return to it once their
-    frame has been waited for. The host-side time of each GPU call (enqueue plus any host
+    frame has been waited for and its timeline read: the timeline is read lazily (a native
+    call per event, on the caller's thread at the end of every frame otherwise, while most
+    timelines are never read; see :meth:`~.timeline.EventPool.lend`). The host-side time of each GPU call (enqueue plus any host
     syncs inside the primitive) is kept too (:attr:`FrameResult.host`), and so is the time
     each task spent on transfers (:attr:`FrameResult.transfers`). Without CUDA (the
     ``"warp-cpu"`` GPU role) calls are synchronous and host times are used; events are not
@@ -123,7 +128,7 @@ from .pinned import HostPool
 from .program import ExecTask, InputRef, Program, data_graph
 from .roles import DeviceScope, GpuState, RoleRunner, is_gpu_processor
 from .slots import DEVICE, HOST, Slot
-from .timeline import (WAIT_SLICE, Cancelled, EventPool, Frame, FrameResult, event_clock, frame_result,
+from .timeline import (WAIT_SLICE, Cancelled, EventPool, Frame, FrameResult, frame_result,
                        proportional_shares)
 from .transfers import Transfers
 
@@ -279,7 +284,7 @@ class Executor(RoleRunner, SegmentRunner):
                     self._up_pools.pop(key, None)
         self._null_stream = None  # the device's legacy stream (CUDA), looked up once
         self._task_keys = [k for t in program.tasks.values() for k in t.outputs]
-        # The slots a frame's events may outlive it in (_recycle): the caller's inputs and
+        # The slots a frame's events may outlive it in (_forget_events): the caller's inputs and
         # the delays' (kept by their rings); the others go with the frame.
         self._outliving = list(dict.fromkeys([*program.inputs, *program.rings]))
         stage = self.cuda or (bool(gpu_device) and self.STAGE_ON_HOST)
@@ -870,9 +875,13 @@ class Executor(RoleRunner, SegmentRunner):
             for name, key in self.program.outputs.items():
                 slot = frame.slots[key]
                 outputs[name] = slot.host(io) if host else slot.value
-            result = frame_result(frame, outputs,
-                                  event_clock(self._anchor) if self.cuda else None)
-            self._recycle(frame)
+            self._forget_events(frame)
+            # The events go back to the pool once the timeline is read (or never will be).
+            if self.cuda:
+                result = frame_result(frame, outputs, self._anchor, self._events.put)
+                self._events.lend(result)
+            else:
+                result = frame_result(frame, outputs)
             self._release(frame, host)
             for ring in self.program.rings.values():
                 ring.age(frame.index)
@@ -912,9 +921,10 @@ class Executor(RoleRunner, SegmentRunner):
             slot.release_staged()
         frame.staged = []
 
-    def _recycle(self, frame: Frame):
-        """Every GPU task of the frame has completed: its events go back to the pool. Slots
-        that outlive the frame (delays) forget them: their data is ready for any reader."""
+    def _forget_events(self, frame: Frame):
+        """Every GPU task of the frame has completed: slots that outlive the frame (delays,
+        the caller's inputs) forget its events, which go back to the pool with its timeline
+        (:func:`~.timeline.frame_result`): their data is ready for any reader."""
         if not frame.events:
             return
         mine = {id(e) for e in frame.events}
@@ -926,8 +936,6 @@ class Executor(RoleRunner, SegmentRunner):
                     synchronize_event(slot.event)
                 slot.event = None
                 slot.external = False
-        self._events.put(frame.events)
-        frame.events = []
         frame.forked = []
         frame.gpu_last_event = None
 

@@ -37,39 +37,60 @@ class GpuState:
 
 
 class DeviceScope:
-    """The GPU role's device, and on CUDA its stream, made current around a run of its units
-    on whichever thread runs them: ``wp.ScopedStream(stream, sync_enter=False)`` (the
-    stream's order is ours; the user's stream is no producer), or ``wp.ScopedDevice`` on
-    Warp's CPU device without saving the thread's CUDA context (~4 us a run, paid on each
-    hand-off of an alternating chain). Warp's current device and stream are the process's,
-    so one run at a time: the GPU role's token holder's."""
+    """The GPU role's device, and on CUDA its stream, made current around runs of its units
+    on whichever threads run them: the stream set with ``sync=False`` (the stream's order is
+    ours; the user's stream is no producer), or on Warp's CPU device only the default
+    device, without saving the thread's CUDA context (~4 us a run).
 
-    __slots__ = ("device", "stream", "saved")
+    Warp's current device and stream are the process's, so the scope is shared: the first
+    holder (:meth:`acquire`) makes them current, the last to :meth:`release` restores the
+    previous ones; each holding thread pushes the device's CUDA context (thread-local). A
+    thread running an alternating chain inline holds it across its short CPU units
+    (:meth:`RoleRunner._drive`): without it, every hand-off to a GPU unit paid setting and
+    restoring the stream and context (four native calls)."""
+
+    __slots__ = ("device", "stream", "saved", "holders", "_lock")
 
     def __init__(self, device, stream):
         self.device = device
         self.stream = stream
         self.saved = None
+        self.holders = 0
+        self._lock = threading.Lock()
+
+    def acquire(self):
+        dev = self.device
+        stream = self.stream
+        if stream is not None:
+            dev.context_guard.__enter__()
+        with self._lock:
+            if not self.holders:
+                runtime = dev.runtime
+                if stream is None:
+                    self.saved = (runtime.default_device, None)
+                else:
+                    self.saved = (runtime.default_device, dev.stream)
+                    dev.set_stream(stream, sync=False)
+                runtime.default_device = dev
+            self.holders += 1
+
+    def release(self):
+        dev = self.device
+        with self._lock:
+            self.holders -= 1
+            if not self.holders:
+                default, stream = self.saved
+                if stream is not None:
+                    dev.set_stream(stream, sync=False)
+                dev.runtime.default_device = default
+        if self.stream is not None:
+            dev.context_guard.__exit__(None, None, None)
 
     def __enter__(self):
-        dev = self.device
-        runtime = dev.runtime
-        stream = self.stream
-        if stream is None:
-            self.saved = (runtime.default_device, None)
-        else:
-            dev.context_guard.__enter__()
-            self.saved = (runtime.default_device, dev.stream)
-            dev.set_stream(stream, sync=False)
-        runtime.default_device = dev
+        self.acquire()
 
     def __exit__(self, *exc):
-        dev = self.device
-        default, stream = self.saved
-        if stream is not None:
-            dev.set_stream(stream, sync=False)
-            dev.context_guard.__exit__(*exc)
-        dev.runtime.default_device = default
+        self.release()
 
 
 class Role:
@@ -202,23 +223,31 @@ class RoleRunner:
         role that this thread's work made ready, inline; wake the roles it made ready and
         does not run."""
         role = home
-        while True:
-            touched: list = []
-            self._advance(role, home, touched)
-            if role is not home and self._ready(role):
-                role.wake()  # left for a ready home unit, or a long one
-            role = None
-            if self._ready(home) and not home.token.locked():
-                role = home
-            for r in touched:
-                if r is role or r is home or r.token.locked() or not self._ready(r):
-                    continue
-                if role is None and r.short[r.pos]:
-                    role = r
-                else:
-                    r.wake()
-            if role is None:
-                return
+        scoped = False  # this thread holds the GPU role's DeviceScope
+        try:
+            while True:
+                touched: list = []
+                scoped = self._advance(role, home, touched, scoped)
+                if role is not home and self._ready(role):
+                    role.wake()  # left for a ready home unit, or a long one
+                role = None
+                if self._ready(home) and not home.token.locked():
+                    role = home
+                for r in touched:
+                    if r is role or r is home or r.token.locked() or not self._ready(r):
+                        continue
+                    if role is None and r.short[r.pos]:
+                        role = r
+                    else:
+                        r.wake()
+                if role is None:
+                    return
+                if scoped and not role.gpu and not role.short[role.pos]:
+                    scoped = False  # kept across short CPU units only
+                    self._scope.release()
+        finally:
+            if scoped:
+                self._scope.release()
 
     def _ready(self, role: Role) -> bool:
         """``role`` has work: its next unit's inputs are all set, or its frame was cancelled.
@@ -245,15 +274,17 @@ class RoleRunner:
                 return None
         return slots
 
-    def _advance(self, role: Role, home: Role, touched: list):
+    def _advance(self, role: Role, home: Role, touched: list, scoped: bool) -> bool:
         """Holding ``role``'s token (if free), run its units while they may run here
         (:meth:`_may_run`). After a unit, the roles that read what it published are woken
         when this thread goes on with ``role`` (at once: a producer does not sit on a ready
         consumer while it runs its next unit), else appended to ``touched`` (the caller may
-        run one of them inline)."""
+        run one of them inline). ``scoped``: this thread holds the GPU role's
+        :class:`DeviceScope`; returned, acquired here before a GPU unit if not (the caller
+        releases it)."""
         if not role.token.acquire(False):
-            return
-        scope = None
+            return scoped
+        held = scoped
         try:
             frames = role.frames
             io = role.state.io if role.gpu else self._io()
@@ -270,9 +301,9 @@ class RoleRunner:
                 if slots is None or (role is not home and (
                         not role.short[role.pos] or self._ready(home))):
                     break
-                if role.gpu and scope is None and self._scope is not None:
-                    scope = self._scope
-                    scope.__enter__()
+                if role.gpu and not scoped and self._scope is not None:
+                    self._scope.acquire()
+                    scoped = True
                 pos = role.pos
                 ok = self._run_unit(role, frame, slots, io)
                 if pos + 1 == len(role.units):
@@ -291,12 +322,15 @@ class RoleRunner:
                             r.wake()
                     if not go:
                         break
+        except BaseException:
+            if scoped and not held:
+                self._scope.release()  # raising: the caller never learns it holds the scope
+            raise
         finally:
             if role.gpu and role.state.burst:  # another thread may run the next units
                 self._close_burst(role.state)
-            if scope is not None:
-                scope.__exit__(None, None, None)
             role.token.release()
+        return scoped
 
     def _may_run(self, role: Role, home: Role) -> bool:
         """``role``'s next unit may run on the thread of ``home``: it is ready, and it is
@@ -344,7 +378,9 @@ class RoleRunner:
         :meth:`Transfers.stage_download`."""
         if slot.where != DEVICE or slot.staged is not None:
             return
-        staged = io.stage_download(slot.value, slot.event)
+        # (A value made on another stream, a captured segment's set's: no stream order.)
+        staged = io.stage_download(slot.value, slot.event,
+                                   after=None if slot.external else self._stream)
         if staged is not None:
             slot.staged = staged
             frame.staged.append(slot)

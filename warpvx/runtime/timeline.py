@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import threading
 import time
+import weakref
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -15,6 +17,8 @@ from .slots import Flag, Slot
 
 #: Seconds between cancellation checks of a blocked wait.
 WAIT_SLICE = 0.02
+
+_BUILD_LOCK = threading.Lock()  # see _Trace.build
 
 
 def proportional_shares(spans) -> list:
@@ -38,14 +42,20 @@ class Cancelled(Exception):
 class EventPool:
     """Reusable CUDA timing events of one device (creating events per task costs more than
     recording them). :meth:`get` hands out a free one; :meth:`put` takes back events whose
-    frame is over. No lock: a list's ``pop`` and ``extend`` are atomic (one per GPU task on
-    the critical thread; ``MAX_FREE`` is a soft bound)."""
+    frame is over and whose timeline has been read (:meth:`lend`). No lock: a list's ``pop``
+    and ``extend`` are atomic (one per GPU task on the critical thread; ``MAX_FREE`` is a
+    soft bound)."""
 
     MAX_FREE = 4096
+    #: Unread timelines that may hold their frame's events; past it, the oldest one's events
+    #: are read and go back: a caller keeping every result must not make the pool create
+    #: events for every frame (creating one costs more than reading one).
+    MAX_UNREAD = 16
 
     def __init__(self, device: str):
         self.device = device
         self._free: list = []
+        self._unread: deque = deque()  # weak references to the timelines lent events, oldest first
 
     def get(self):
         try:
@@ -57,6 +67,17 @@ class EventPool:
         room = self.MAX_FREE - len(self._free)
         if room > 0:
             self._free.extend(events[:room])
+
+    def lend(self, result: "FrameResult"):
+        """``result``'s unread timeline holds its frame's events (:func:`frame_result`): they
+        come back when it is read or garbage, or here once :attr:`MAX_UNREAD` newer results
+        hold theirs (their times read into the trace, the timeline still built lazily)."""
+        unread = self._unread
+        unread.append(weakref.ref(result.timeline._trace))
+        while len(unread) > self.MAX_UNREAD:
+            trace = unread.popleft()()
+            if trace is not None:
+                trace.read_events()
 
     def __len__(self):
         return len(self._free)
@@ -120,25 +141,58 @@ class Frame:
 
 
 class _Trace:
-    """A frame's raw trace (host seconds), turned into its result's dicts (ms from
-    submission) on the first read: results are kept by the dozen (``Plan.last_run``) and most
-    are never read, while building one :class:`ScheduledTask` per task cost ~1 us a task on
-    the critical path of every frame."""
+    """A frame's raw trace (host seconds, or CUDA events for GPU tasks), turned into its
+    result's dicts (ms from submission) on the first read: results are kept by the dozen
+    (``Plan.last_run``) and most are never read, while building one :class:`ScheduledTask`
+    per task cost ~1 us a task, and reading a CUDA event's time a native call per event, on
+    the critical path of every frame.
 
-    __slots__ = ("t0", "trace", "host", "shares", "built")
+    ``anchor``: the ``(host seconds, timing event)`` the GPU events are read against
+    (:func:`event_clock`; None when every time is a host time). ``events``: the frame's
+    pooled CUDA events, handed to ``recycle`` once read, or once the trace is garbage
+    unread: a pooled event is never recorded again while a trace may still read it."""
 
-    def __init__(self, t0: float, trace: dict, host: dict, shares: dict):
+    __slots__ = ("t0", "trace", "host", "shares", "built", "anchor", "events", "recycle",
+                 "__weakref__")
+
+    def __init__(self, t0: float, trace: dict, host: dict, shares: dict, anchor=None,
+                 events: list | None = None, recycle=None):
         self.t0, self.trace, self.host, self.shares = t0, trace, host, shares
+        self.anchor, self.events, self.recycle = anchor, events, recycle
         self.built = None
 
     def build(self) -> tuple:
-        """``(timeline, transfers, host)`` (built once; a race builds equal dicts twice)."""
+        """``(timeline, transfers, host)`` (built once)."""
         built = self.built
         if built is not None:
             return built
+        with _BUILD_LOCK:  # events go back to their pool after one read: one build at a time
+            if self.built is None:
+                self._read_events()
+                self.built = self._build()
+        return self.built
+
+    def read_events(self):
+        """Read the GPU events' times into the trace (host seconds) and let the events go."""
+        with _BUILD_LOCK:
+            self._read_events()
+
+    def _read_events(self):
+        if self.anchor is None:
+            return
+        to_host = event_clock(self.anchor)
+        trace = self.trace
+        for task, (proc, a, b, mid) in trace.items():
+            if proc[0] == "g":  # "gpu": events
+                trace[task] = (proc, to_host(a), to_host(b), mid if mid is None else to_host(mid))
+        self.anchor = None
+        self._recycle()
+
+    def _build(self) -> tuple:
         timeline, transfers, host = {}, {}, {}
+        trace = self.trace
         t0, shares = self.t0, self.shares
-        for task, (proc, a, b, mid) in self.trace.items():
+        for task, (proc, a, b, mid) in trace.items():
             share = shares.get(task)
             if share is not None:  # a task of a captured segment: its part of the replay
                 a, b = a + share[0] * (b - a), a + share[1] * (b - a)
@@ -147,8 +201,22 @@ class _Trace:
                 transfers[task] = (mid - a) * 1e3
         for task, (a, b) in self.host.items():
             host[task] = ((a - t0) * 1e3, (b - t0) * 1e3)
-        built = self.built = (timeline, transfers, host)
-        return built
+        return timeline, transfers, host
+
+    def _recycle(self):
+        events, self.events = self.events, None
+        if events:
+            self.recycle(events)
+
+
+class _EventTrace(_Trace):
+    """A :class:`_Trace` holding CUDA events: garbage unread, it lets them go (a ``__del__``
+    only where there are events: it costs every other frame's result too)."""
+
+    __slots__ = ()
+
+    def __del__(self):
+        self._recycle()
 
 
 class _Lazy(Mapping):
@@ -222,19 +290,20 @@ class FrameResult:
         return max((t.finish for t in self.timeline.values()), default=0.0)
 
 
-def frame_result(frame: Frame, outputs: dict, to_host=None) -> FrameResult:
+def frame_result(frame: Frame, outputs: dict, anchor=None, recycle=None) -> FrameResult:
     """``frame``'s outputs plus its measured timeline (ms from submission), built lazily.
 
-    ``to_host``: event -> host seconds (:func:`event_clock`) when GPU tasks were timed with
-    CUDA events (read now: the events go back to their pool once the frame is over); None
-    when every time is a host time.
+    ``anchor``: ``(host seconds, timing event)`` (:func:`event_clock`) when GPU tasks were
+    timed with CUDA events, read when the timeline is first read (None when every time is a
+    host time); the frame's events (``frame.events``, taken from it) go to ``recycle`` (a
+    pool's ``put``) then, or once the result is garbage unread.
     """
-    trace = frame.trace
-    if to_host is not None:
-        for task, (proc, a, b, mid) in trace.items():
-            if proc[0] == "g":  # "gpu": events
-                trace[task] = (proc, to_host(a), to_host(b), mid if mid is None else to_host(mid))
-    raw = _Trace(frame.t0, trace, frame.host_trace, frame.shares)
+    if anchor is None:
+        raw = _Trace(frame.t0, frame.trace, frame.host_trace, frame.shares)
+    else:
+        events, frame.events = frame.events, []
+        raw = _EventTrace(frame.t0, frame.trace, frame.host_trace, frame.shares, anchor, events,
+                          recycle)
     return FrameResult(frame.index, outputs, _Lazy(raw, 0), frame.t0, _Lazy(raw, 1),
                        frame.copied, _Lazy(raw, 2))
 

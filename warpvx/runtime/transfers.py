@@ -8,6 +8,7 @@ copies every leaf of a tree between host memory and the GPU role's device, throu
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 
 import numpy as np
@@ -98,6 +99,8 @@ class _Staged:
         """The host value, its arrays views of the pool's buffers (call after the copy; the
         rows of a large Counted block are copied now, on ``io``'s stream: the reader's)."""
         copies = self.copies
+        if is_warp_array(self.value):  # the usual value: no tree to walk
+            return copies[id(self.value)][1]
 
         def counted(c):
             if _large(c):
@@ -142,6 +145,10 @@ class Transfers:
     PINNED_MIN_BYTES = 1 << 16
     #: Staging buffers per shape and dtype before an upload waits for the oldest one.
     STAGING_DEPTH = 4
+    #: Staged downloads below this size (bytes) may go on the producer's stream
+    #: (:meth:`stage_download`'s ``after``): the copy delays the producer's next kernels by
+    #: about a microsecond, a cross-stream wait would delay the reader by more.
+    SAME_STREAM_MAX_BYTES = 1 << 12
 
     def __init__(self, device: str | None, pool: HostPool | None = None):
         self.device = device
@@ -196,41 +203,42 @@ class Transfers:
         self.moved += out.nbytes
         return out
 
-    def stage_download(self, value, event=None):
+    def stage_download(self, value, event=None, *, after=None):
         """Start downloading device value ``value`` (any tree of contiguous scalar-dtype
         arrays) into buffers of :attr:`pool`, after ``event`` (the producer's), on this
         thread's copy stream: the compute stream goes on meanwhile, and the reader waits for
         the copy's event only (:meth:`unstage`). Returns the download, or None (no pool, no
         device array, a leaf of another kind, or the pool full: download as usual).
 
-        Every staged copy goes on this one stream (see :class:`~.pinned.HostPool`)."""
-        pool = self.pool
-        if pool is None:
+        ``after``: the stream the producer was queued on, with nothing queued behind it yet
+        (CUDA). A download of fewer than :attr:`SAME_STREAM_MAX_BYTES` goes there, in stream
+        order, with no event wait between streams (a native call, and the device's latency
+        of a cross-stream wait, on a GPU -> CPU hand-off).
+
+        Every other staged copy goes on this thread's copy stream (see
+        :class:`~.pinned.HostPool`)."""
+        if self.pool is None:
             return None
         copies: dict = {}
-
-        def take(a):
-            got = copies.get(id(a))
-            if got is None:
-                dtype = numpy_dtype(a.dtype)
-                if dtype is None or not a.is_contiguous:
-                    raise _Unstageable
-                host = pool.take(a.shape, dtype)
-                if host is None:
-                    raise _Unstageable
-                got = copies[id(a)] = (a, host)
-            return got[1]
-
         try:
-            # The walk that builds the value once copied (_Staged.host) lists what to copy; a
-            # large Counted block copies its count now, its counted rows when read.
-            host_value(value, take, lambda c: take(c.count if _large(c) else c.block.array))
+            if is_warp_array(value):  # the usual value: no tree to walk
+                self._take(copies, value)
+            else:
+                # The walk that builds the value once copied (_Staged.host) lists what to
+                # copy; a large Counted block copies its count now, its counted rows when read.
+                take = functools.partial(self._take, copies)
+                host_value(value, take, lambda c: take(c.count if _large(c) else c.block.array))
         except _Unstageable:
             return None  # the buffers taken are garbage: back to the pool
         if not copies:
             return None
+        nbytes = 0
+        for _, host in copies.values():
+            nbytes += host.nbytes
         stream = self.stream
-        if stream is not None and event is not None:
+        if after is not None and stream is not None and nbytes < self.SAME_STREAM_MAX_BYTES:
+            stream = after
+        elif stream is not None and event is not None:
             wait_event(stream, event)
         for a, host in copies.values():
             to_host_async(host, a, stream)
@@ -238,8 +246,21 @@ class Transfers:
         if stream is not None:
             done = self._events.pop() if self._events else warp().Event(self.device)
             record_event(stream, done)
-        return _Staged(value, copies, done, sum(h.nbytes for _, h in copies.values()),
-                       self._events)
+        return _Staged(value, copies, done, nbytes, self._events)
+
+    def _take(self, copies: dict, a):
+        """The pool's host buffer device array ``a`` of a staged download is copied into (one
+        per array: ``copies``, id -> (it, its buffer)); :class:`_Unstageable` when none."""
+        got = copies.get(id(a))
+        if got is None:
+            dtype = numpy_dtype(a.dtype)
+            if dtype is None or not a.is_contiguous:
+                raise _Unstageable
+            host = self.pool.take(a.shape, dtype)
+            if host is None:
+                raise _Unstageable
+            got = copies[id(a)] = (a, host)
+        return got[1]
 
     def unstage(self, staged, *, ready: bool = False):
         """The host value of download ``staged`` (:meth:`stage_download`), waiting for its copy
