@@ -45,8 +45,8 @@ def _count_downloads():
     stage, download = Transfers.stage_download, Transfers._download_array
     counted_rows = Transfers.counted_rows
 
-    def staged(self, value, event=None):
-        got = stage(self, value, event)
+    def staged(self, value, event=None, **kw):
+        got = stage(self, value, event, **kw)
         if got is not None:
             COUNTS["staged"] += len(got.copies)
             COUNTS["staged bytes"] += got.nbytes
