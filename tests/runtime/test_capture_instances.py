@@ -229,3 +229,24 @@ def test_a_graph_reading_its_own_delays_is_found_without_the_shapes(warp_backend
         assert 0 < len(walks) - before <= 3 * n_inputs
     finally:
         g.close()
+
+
+def test_capture_refused_on_lanes_with_sets(monkeypatch):
+    """A capture refused on several lanes falls back to one lane with sets of their own too:
+    each set first runs once on one lane (its scratch, per stream on CUDA), then is captured;
+    every set ends captured and every output equals the eager run's."""
+    from tests.graph.test_capture_lanes import refuse_lanes
+
+    refused = refuse_lanes(monkeypatch)
+    cams = _cams(16)
+    g = _graph("warp-cpu", 3)
+    try:
+        eager = [g.process(f, capture=False) for f in cams]
+        g.reset()
+        got = [g.process(f, capture=True) for f in cams]
+        (sg,) = [sg for sg in _segment_graphs(g.plan.executor()) if sg.captured]
+        assert refused and sg.lanes.count == 1 and all(b.graph is not None for b in sg.sets)
+        for i, (e, c) in enumerate(zip(eager, got)):
+            assert _same(e, c), i
+    finally:
+        g.close()

@@ -388,11 +388,16 @@ class SegmentGraph:
 
     def single_lane(self) -> bool:
         """Run on one lane from now on (after a capture on several failed); False if it
-        already does. The first run, on that one stream, made its scratch."""
+        already does. The first run, on that one stream, made its scratch; where the sets
+        have streams of their own (own input buffers), the others' first run on one lane
+        makes theirs: they are not warm (:meth:`due`) until then."""
         if self.lanes is None or self.lanes.count == 1:
             return False
         tasks = self.segment.tasks
         self.lanes = lanes(tasks, self._lane_args[0], 1, {tasks[i].name for i in self.lanes.serial})
+        if self.sets[0].inputs is not self.sets[-1].inputs:
+            for b in self.sets:
+                b.warm = b.warm and b.graph is not None
         return True
 
     def _event(self, kind: str, i: int, device):
@@ -796,6 +801,8 @@ class SegmentRunner:
                             raise
                         _log.debug("segment %s, inputs %s, captured again %s: %s",
                                    seg.tasks[0].name, key, how, exc)
+                        if not sg.due():  # (one lane: a run first makes this set's scratch)
+                            return sg
         except NotCapturable as exc:  # a host sync or read-back inside, a caller's capture
             _log.debug("segment %s, inputs %s, not captured: %s", seg.tasks[0].name, key, exc)
             by_shape[key] = None
