@@ -70,7 +70,8 @@ def replay_times(g, frames, n: int = 20) -> tuple:
     per frame over ``n`` frames after the captures."""
     import warp as wp
 
-    for i in range(8):  # the captures (two buffer sets) and a few replays
+    # The captures (a buffer set per frame in flight, two at least) and a few replays.
+    for i in range(8 + 3 * g.plan.executor().instances):
         g.process(frames[i % len(frames)], capture=True)
     per = {}
     for kind, flt in (("graph", wp.TIMING_GRAPH), ("all", wp.TIMING_ALL)):

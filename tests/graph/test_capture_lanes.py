@@ -363,9 +363,9 @@ def test_two_cameras_with_lanes_equal_one_lane_and_eager(frames, warp_backend):
                 assert _same(e[k], c[k]), (lanes_run, i, k)
 
 
-def test_capture_refused_on_lanes_falls_back_to_one_lane(frames, monkeypatch):
-    """A capture on several lanes that fails (as Warp may refuse one) is made again on one
-    lane instead of the segment turning eager; outputs equal the eager run's."""
+def refuse_lanes(monkeypatch) -> list:
+    """Make every capture on several lanes fail (as Warp may refuse one); returns the list
+    of the lane counts refused, filled as it happens."""
     real = SegmentGraph.capture
     refused = []
 
@@ -376,6 +376,13 @@ def test_capture_refused_on_lanes_falls_back_to_one_lane(frames, monkeypatch):
         return real(self, device, streams)
 
     monkeypatch.setattr(SegmentGraph, "capture", capture)
+    return refused
+
+
+def test_capture_refused_on_lanes_falls_back_to_one_lane(frames, monkeypatch):
+    """A capture on several lanes that fails (as Warp may refuse one) is made again on one
+    lane instead of the segment turning eager; outputs equal the eager run's."""
+    refused = refuse_lanes(monkeypatch)
     cams = _camera_frames(frames) * 3
     g = _two_cameras(frames, "warp-cpu")
     try:

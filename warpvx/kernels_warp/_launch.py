@@ -209,7 +209,9 @@ __all__ = [
 # and thread (the feature kernels: FAST, Harris, LK, matching) -------------------------------
 
 _WORKSPACES: OrderedDict = OrderedDict()
-_WORKSPACES_MAX = 32
+# (A captured segment's buffer sets each run on streams of their own, warpvx.runtime.capture:
+# one workspace per set, lane and kind; an eviction before the set's capture fails it.)
+_WORKSPACES_MAX = 256
 _workspaces_lock = threading.Lock()
 
 

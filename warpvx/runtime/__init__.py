@@ -17,6 +17,7 @@ worker threads beside one GPU queue (SPEC §7). It knows nothing of graphs: the 
 """
 
 from .executor import SPIN_SECONDS, Executor, run_schedule
+from .pinned import is_pinned, pinned_array, pinned_copy
 from .program import ExecTask, InputRef, Program, data_graph
 from .slots import DEVICE, HOST, Flag, Ring, Slot
 from .timeline import WAIT_SLICE, EventPool, Frame, FrameResult
@@ -39,6 +40,9 @@ __all__ = [
     "Slot",
     "Transfers",
     "data_graph",
+    "is_pinned",
+    "pinned_array",
+    "pinned_copy",
     "run_schedule",
     "tree_map",
 ]

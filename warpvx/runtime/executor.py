@@ -868,6 +868,8 @@ class Executor(RoleRunner, SegmentRunner):
                 )
             if self.cuda and frame.gpu_last_event is not None:
                 synchronize_event(frame.gpu_last_event)
+            for ev in frame.forked:  # (the events of a captured segment's own stream)
+                synchronize_event(ev)
             io = self._io()
             outputs = {}
             for name, key in self.program.outputs.items():
@@ -934,6 +936,7 @@ class Executor(RoleRunner, SegmentRunner):
                     synchronize_event(slot.event)
                 slot.event = None
                 slot.external = False
+        frame.forked = []
         frame.gpu_last_event = None
 
     def abort(self):

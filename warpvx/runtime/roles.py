@@ -378,7 +378,9 @@ class RoleRunner:
         :meth:`Transfers.stage_download`."""
         if slot.where != DEVICE or slot.staged is not None:
             return
-        staged = io.stage_download(slot.value, slot.event, after=self._stream)
+        # (A value made on another stream, a captured segment's set's: no stream order.)
+        staged = io.stage_download(slot.value, slot.event,
+                                   after=None if slot.external else self._stream)
         if staged is not None:
             slot.staged = staged
             frame.staged.append(slot)

@@ -104,6 +104,7 @@ class Frame:
         self.copied = {}  # task -> bytes it moved between host and device
         self.t0 = time.perf_counter()
         self.gpu_last_event = None
+        self.forked = []  # end events of its work on other streams (captured segments' sets)
         self.events = []  # pooled CUDA events this frame recorded
         self.leases = []  # (task, buffer) output buffers taken from the pools
         self.uploads = []  # (key, buffer) upload buffers taken from the pools
