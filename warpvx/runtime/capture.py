@@ -90,8 +90,12 @@ MAX_SIGNATURES = 4
 MAX_VIEWS = 256
 
 #: Buffer sets (and graphs) per captured segment on CUDA, frames going round them on streams
-#: of their own (:attr:`SegmentRunner.instances`): frames in flight overlap on the device.
-INSTANCES = 3
+#: of their own (:attr:`SegmentRunner.instances`), for frames in flight to overlap on the
+#: device. 1 by default: on the H100 (session 6, `capture_stream.py`, two-camera graph at
+#: 1280x720, depth 3 and 6) 3 or 6 sets measured no overlap (frames' GPU intervals summed /
+#: covered 1.00-1.01) and FPS within the runs' spread (pinned frames, depth 3: 408 with one
+#: set, 399-402 with 3 or 6); the host, not the device, bounds that stream.
+INSTANCES = 1
 
 
 class NotCapturable(Exception):
