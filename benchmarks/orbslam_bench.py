@@ -391,6 +391,94 @@ def _stage_table(report, keys):
     return lines
 
 
+def markdown(report: dict) -> list:
+    """The result file's lines from a report (``orbslam_bench.json``; also re-rendered by
+    ``--markdown JSON``)."""
+    command, backend, n = report["command"], report["backend"], report["frames_timed"]
+    size, batch = report["size"], report["batch"]["batch"]
+    base = report["opencv_baseline"]["thread_pool_fps"]
+    batched_keys = [key for key, *_ in BATCHED] + [k for k in (STOCK_POOL, OLD_POOL, CHAIN_IN_PROCESS)
+                                                   if k in report]
+    rows = [("extraction + matching, pipelined (match node)", "extract_match"),
+            ("extraction + matching, pipelined (match_hamming primitive, before)", "extract_match_primitive")]
+    rows += [(f"extraction + matching, batched B={k[len('extract_match_batch'):]} (orb_batch + match_batch)", k)
+             for k in report if k.startswith("extract_match_batch")]
+    rows += [("front end mono, end to end, frame by frame", "frontend_mono"),
+             (f"front end mono, end to end, batched B={batch} (chain in its own process)", "batched_mono"),
+             *([(f"front end mono, end to end, batched B={batch}, chain in this process (the path before)",
+                 CHAIN_IN_PROCESS)] if CHAIN_IN_PROCESS in report else []),
+             (f"front end mono, end to end, batched B={batch}, GIL switch interval 5 ms (Python's; default "
+              f"{ob.SWITCH_INTERVAL * 1e3:g} ms)", "batched_mono_switch_5ms"),
+             (f"front end mono, end to end, batched B={batch}, jobs' arrays pickled per job (no shared "
+              "block, the transport before)", "batched_mono_pickled"),
+             (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores",
+              "batched_mono_fifo"),
+             (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),
+             *([(f"front end mono, end to end, batched B={batch}, multiprocessing's stock Pool (its handler "
+                 "thread spins while results wait)", STOCK_POOL)] if STOCK_POOL in report else []),
+             *([(f"front end mono, end to end, batched B={batch}, {report[OLD_POOL].get('workers')} pose processes "
+                 "(all cores but one, the old default)", OLD_POOL)] if OLD_POOL in report else []),
+             ("front end stereo, end to end, frame by frame", "frontend_stereo"),
+             (f"front end stereo, end to end, batched B={batch}", "batched_stereo")]
+    lines = [f"<!-- {command}   (OUT=$OUT) -->",
+             f"# ORB-SLAM front end at {size[0]}x{size[1]} ({backend}, {n} frames, "
+             f"{report['cpu_count']} CPU threads; batched mode: {report['batch']['workers']} pose processes)", "",
+             "| what | FPS (wall) | FPS (steady) | vs OpenCV (thread pool) |", "| --- | --- | --- | --- |"]
+    for label, k in rows:
+        r = report[k]
+        steady = f"{r['steady_fps']:.1f}" if "steady_fps" in r else ""
+        lines.append(f"| {label}" + (f" (FAILED: {r['error']})" if "error" in r else "")
+                     + f" | {r['fps']:.1f} | {steady} | {r['fps'] / base:.1f}x |")
+    lines += [f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | | |",
+              f"| OpenCV baseline, thread-pool extraction | {base:.1f} | | 1.0x |",
+              f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | | |",
+              "", "FPS (wall): frames over the whole call (graph build, verification; calibration cached "
+              "by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
+              "", f"Pose work of one mono batch (pose_batch, B={batch}: frame jobs and "
+              f"{report['pose_pool'].get('guesses', '?')} guesses), ms per frame: "
+              + (f"{report['pose_pool']['one_process_ms']:.2f} on one process, {report['pose_pool']['pool_ms']:.2f} "
+                 f"on {report['pose_pool']['workers']} processes ({report['pose_pool']['speedup']:.1f}x)"
+                 if "speedup" in report["pose_pool"] else f"FAILED ({report['pose_pool'].get('error')})"),
+              f"Batched poses vs frame-by-frame poses, largest difference: "
+              f"{report['batch']['max_pose_difference_vs_sequential']}; mono, chain process vs chain in "
+              f"this process: {report['batch']['max_pose_difference_chain_process_vs_in_process']}.",
+              "", f"Tracking node alone, median: mono {report['frontend_mono']['track_ms_median']:.2f} ms, "
+              f"stereo {report['frontend_stereo']['track_ms_median']:.2f} ms.", "",
+              "Per node, median ms over the last frames (in a pipelined run a node's interval",
+              "includes waiting for the GIL and for copies):", ""]
+    lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono",
+                                   "frontend_stereo", *batched_keys])
+    lines += ["", "What the pose pool did per batch (the chain's waits: for the batch's frame jobs, and for",
+              "keyframe cores speculated or guessed on the pool; jobs started and dropped unstarted;",
+              "batched_mono_fifo: the pool in submit order, no guessed cores, as before them; counts include",
+              "the verification of the run's graph; chain wall and CPU: the chain's wall time and its",
+              "thread's CPU time, whose gap is what it waited for: the pool, the GIL, a free core; measured",
+              "in the chain process but for the chain-in-this-process row):", "",
+              "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | chain computes cores "
+              "(ms) | frame jobs | guess jobs | guesses dropped | keyframe cores | keyframe cores dropped "
+              "| chain wall (ms) | chain CPU (ms) |",
+              "| --- |" + " --- |" * 10]
+    for key in batched_keys:
+        b = report[key].get("pool_per_batch")
+        cells = [f"{b[f'chain_{k}_ms']:.2f}" for k in ("wait_ahead", "wait_keyframe", "on_the_spot")] \
+            + [f"{b[k]:.1f}" for k, *_ in POOL_COUNTS] \
+            + [f"{b[f'chain_{k}_ms']:.2f}" for k in ("wall", "cpu")] if b else ["n/a"] + [""] * 9
+        lines.append(f"| {key} | " + " | ".join(cells) + " |")
+    lines += ["", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
+    for k, v in report["accuracy"].items():
+        lines.append(f"| {k} | {v['ate_m']:.4f} | {v['rpe1_t_m']:.4f} | {v['rpe1_r_deg']:.3f} |")
+    for k in ("frontend_mono", "frontend_stereo", *batched_keys):
+        s = report[k]["plan"]
+        if s is None:
+            lines += ["", f"{k}: FAILED ({report[k].get('error')})"]
+            continue
+        measured = s["measured_makespan_ms"]
+        lines += ["", f"{k}: placement {s['placement']}; predicted makespan "
+                      f"{s['predicted_makespan_ms']:.2f} ms, measured (median frame latency, "
+                      f"pipelined) {measured:.2f} ms" if measured is not None else "n/a"]
+    return lines
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="warp-cpu, 12 unique frames, 30 timed")
@@ -406,7 +494,14 @@ def main(argv=None):
                    help="pose processes (default: orbslam_batch.default_workers(), all cores but three)")
     p.add_argument("--out", default=os.path.join(os.environ.get("OUT") or ".", "orbslam"),
                    help="output folder (default: $OUT/orbslam)")
+    p.add_argument("--markdown", type=Path, default=None, metavar="JSON",
+                   help="only write orbslam_bench.md (into --out) from a run's orbslam_bench.json")
     args = p.parse_args(argv)
+    if args.markdown is not None:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "orbslam_bench.md").write_text("\n".join(markdown(json.loads(args.markdown.read_text()))) + "\n")
+        return 0
     backend = args.backend or ("warp-cpu" if args.quick else "cuda")
     n_unique, n = (12, 32) if args.quick else (args.unique, args.frames)
     batch = 4 if args.quick else args.batch
@@ -549,86 +644,7 @@ def main(argv=None):
                 report["accuracy"][f"castle_simu: {k}"] = v
     progress("accuracy", "done")
 
-    base = report["opencv_baseline"]["thread_pool_fps"]
-    batched_keys = [key for key, *_ in BATCHED] + [k for k in (STOCK_POOL, OLD_POOL, CHAIN_IN_PROCESS)
-                                                   if k in report]
-    rows = [("extraction + matching, pipelined (match node)", "extract_match"),
-            ("extraction + matching, pipelined (match_hamming primitive, before)", "extract_match_primitive")]
-    rows += [(f"extraction + matching, batched B={k[len('extract_match_batch'):]} (orb_batch + match_batch)", k)
-             for k in report if k.startswith("extract_match_batch")]
-    rows += [("front end mono, end to end, frame by frame", "frontend_mono"),
-             (f"front end mono, end to end, batched B={batch} (chain in its own process)", "batched_mono"),
-             *([(f"front end mono, end to end, batched B={batch}, chain in this process (the path before)",
-                 CHAIN_IN_PROCESS)] if CHAIN_IN_PROCESS in report else []),
-             (f"front end mono, end to end, batched B={batch}, GIL switch interval 5 ms (Python's; default "
-              f"{ob.SWITCH_INTERVAL * 1e3:g} ms)", "batched_mono_switch_5ms"),
-             (f"front end mono, end to end, batched B={batch}, jobs' arrays pickled per job (no shared "
-              "block, the transport before)", "batched_mono_pickled"),
-             (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores",
-              "batched_mono_fifo"),
-             (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),
-             *([(f"front end mono, end to end, batched B={batch}, multiprocessing's stock Pool (its handler "
-                 "thread spins while results wait)", STOCK_POOL)] if STOCK_POOL in report else []),
-             *([(f"front end mono, end to end, batched B={batch}, {report[OLD_POOL].get('workers')} pose processes "
-                 "(all cores but one, the old default)", OLD_POOL)] if OLD_POOL in report else []),
-             ("front end stereo, end to end, frame by frame", "frontend_stereo"),
-             (f"front end stereo, end to end, batched B={batch}", "batched_stereo")]
-    lines = [f"<!-- {command}   (OUT=$OUT) -->",
-             f"# ORB-SLAM front end at {size[0]}x{size[1]} ({backend}, {n} frames, "
-             f"{os.cpu_count()} CPU threads; batched mode: {report['batch']['workers']} pose processes)", "",
-             "| what | FPS (wall) | FPS (steady) | vs OpenCV (thread pool) |", "| --- | --- | --- | --- |"]
-    for label, k in rows:
-        r = report[k]
-        steady = f"{r['steady_fps']:.1f}" if "steady_fps" in r else ""
-        lines.append(f"| {label}" + (f" (FAILED: {r['error']})" if "error" in r else "")
-                     + f" | {r['fps']:.1f} | {steady} | {r['fps'] / base:.1f}x |")
-    lines += [f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | | |",
-              f"| OpenCV baseline, thread-pool extraction | {base:.1f} | | 1.0x |",
-              f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | | |",
-              "", "FPS (wall): frames over the whole call (graph build, verification; calibration cached "
-              "by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
-              "", f"Pose work of one mono batch (pose_batch, B={batch}: frame jobs and "
-              f"{report['pose_pool'].get('guesses', '?')} guesses), ms per frame: "
-              + (f"{report['pose_pool']['one_process_ms']:.2f} on one process, {report['pose_pool']['pool_ms']:.2f} "
-                 f"on {report['pose_pool']['workers']} processes ({report['pose_pool']['speedup']:.1f}x)"
-                 if "speedup" in report["pose_pool"] else f"FAILED ({report['pose_pool'].get('error')})"),
-              f"Batched poses vs frame-by-frame poses, largest difference: "
-              f"{report['batch']['max_pose_difference_vs_sequential']}; mono, chain process vs chain in "
-              f"this process: {report['batch']['max_pose_difference_chain_process_vs_in_process']}.",
-              "", f"Tracking node alone, median: mono {report['frontend_mono']['track_ms_median']:.2f} ms, "
-              f"stereo {report['frontend_stereo']['track_ms_median']:.2f} ms.", "",
-              "Per node, median ms over the last frames (in a pipelined run a node's interval",
-              "includes waiting for the GIL and for copies):", ""]
-    lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono",
-                                   "frontend_stereo", *batched_keys])
-    lines += ["", "What the pose pool did per batch (the chain's waits: for the batch's frame jobs, and for",
-              "keyframe cores speculated or guessed on the pool; jobs started and dropped unstarted;",
-              "batched_mono_fifo: the pool in submit order, no guessed cores, as before them; counts include",
-              "the verification of the run's graph; chain wall and CPU: the chain's wall time and its",
-              "thread's CPU time, whose gap is what it waited for: the pool, the GIL, a free core; measured",
-              "in the chain process but for the chain-in-this-process row):", "",
-              "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | chain computes cores "
-              "(ms) | frame jobs | guess jobs | guesses dropped | keyframe cores | keyframe cores dropped "
-              "| chain wall (ms) | chain CPU (ms) |",
-              "| --- |" + " --- |" * 10]
-    for key in batched_keys:
-        b = report[key].get("pool_per_batch")
-        cells = [f"{b[f'chain_{k}_ms']:.2f}" for k in ("wait_ahead", "wait_keyframe", "on_the_spot")] \
-            + [f"{b[k]:.1f}" for k, *_ in POOL_COUNTS] \
-            + [f"{b[f'chain_{k}_ms']:.2f}" for k in ("wall", "cpu")] if b else ["n/a"] + [""] * 9
-        lines.append(f"| {key} | " + " | ".join(cells) + " |")
-    lines += ["", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
-    for k, v in report["accuracy"].items():
-        lines.append(f"| {k} | {v['ate_m']:.4f} | {v['rpe1_t_m']:.4f} | {v['rpe1_r_deg']:.3f} |")
-    for k in ("frontend_mono", "frontend_stereo", *batched_keys):
-        s = report[k]["plan"]
-        if s is None:
-            lines += ["", f"{k}: FAILED ({report[k].get('error')})"]
-            continue
-        measured = s["measured_makespan_ms"]
-        lines += ["", f"{k}: placement {s['placement']}; predicted makespan "
-                      f"{s['predicted_makespan_ms']:.2f} ms, measured (median frame latency, "
-                      f"pipelined) {measured:.2f} ms" if measured is not None else "n/a"]
+    lines = markdown(report)
     (out / "orbslam_bench.md").write_text("\n".join(lines) + "\n")
     (out / "orbslam_bench.json").write_text(json.dumps(report, indent=2, default=str))
     print("\n".join(lines))

@@ -54,7 +54,8 @@ def _rendered(cache):
     return left, K
 
 
-def orb(rounds: int, switch, frames: int = 600, chain_process: bool = True, cache=None, backend="cuda"):
+def orb(rounds: int, switch, frames: int = 600, chain_process: bool = True, cache=None, backend="cuda",
+        batch: int = 16):
     import orbslam_bench as bench
 
     from warpvx.apps import orbslam as o
@@ -65,27 +66,36 @@ def orb(rounds: int, switch, frames: int = 600, chain_process: bool = True, cach
     feed = bench.replay([{"image": im} for im in left], frames)
     with ob.make_pool(None, chain_process=chain_process) as pool, tempfile.TemporaryDirectory() as out:
         for r in range(rounds):
-            row, _ = bench.bench_frontend_batched(feed, camera, backend, Path(out), None, 16, pool,
+            row, _ = bench.bench_frontend_batched(feed, camera, backend, Path(out), None, batch, pool,
                                                   switch=ob.SWITCH_INTERVAL if switch is None else switch)
             print(f"orb round {r}: {row['fps']:.1f} FPS", flush=True)
 
 
-#: orb-ab's two arms: label, extra arguments of ``orb``.
-ARMS = (("chain in this process (before)", ["--chain-in-process"]), ("chain in its own process (default)", []))
+#: orb-ab's experiments: name -> (title, its two arms: label, extra arguments of ``orb``).
+EXPERIMENTS = {
+    "chain": ("the chain in this process vs in its own process",
+              (("chain in this process (before)", ["--chain-in-process"]),
+               ("chain in its own process (default)", []))),
+    "batch": ("16 frames per batch (default) vs 32",
+              (("B=16 (default)", []), ("B=32", ["--batch", "32"]))),
+}
 
 
-def orb_ab(pairs: int, out: str, frames: int = 600, backend="cuda"):
-    """The chain-process A/B (see the module's docstring); returns the markdown lines."""
+def orb_ab(pairs: int, out: str, frames: int = 600, backend="cuda", experiment: str = "chain"):
+    """An interleaved A/B of the batched front end (``EXPERIMENTS[experiment]``, see the
+    module's docstring), written to ``out/<experiment>-ab.md``; returns the markdown lines."""
+    title, arms = EXPERIMENTS[experiment]
     command = (f"PYTHONPATH=. python3 benchmarks/perf/hot_paths.py orb-ab --pairs {pairs}"
+               + (f" --experiment {experiment}" if experiment != "chain" else "")
                + (f" --frames {frames}" if frames != 600 else "") + (f" --backend {backend}" if backend != "cuda" else ""))
-    fps = {label: [] for label, _ in ARMS}
+    fps = {label: [] for label, _ in arms}
     with tempfile.TemporaryDirectory() as tmp:
         cache = os.path.join(tmp, "frames.npz")
         t = time.perf_counter()
         _rendered(cache)
         print(f"rendered in {time.perf_counter() - t:.1f} s", flush=True)
         for pair in range(1, pairs + 1):
-            for label, extra in ARMS:
+            for label, extra in arms:
                 run = subprocess.run([sys.executable, __file__, "orb", "--rounds", "1", "--frames-cache", cache,
                                       "--frames", str(frames), "--backend", backend, *extra], capture_output=True, text=True, timeout=240)
                 found = re.search(r"orb round 0: ([0-9.]+) FPS", run.stdout)
@@ -99,14 +109,14 @@ def orb_ab(pairs: int, out: str, frames: int = 600, backend="cuda"):
              f"(A fresh process per run on {backend}: pose pool (and chain process) start, warm-up, then {frames} "
              "frames timed; the "
              "frames rendered once, before.)", "",
-             "# ORB-SLAM batched front end (mono, default settings, B=16, 1241x376): the chain in this process "
-             "vs in its own process, interleaved", "",
+             f"# ORB-SLAM batched front end (mono, default settings, 1241x376): {title}, interleaved", "",
              f"| pair | {a} FPS | {b} FPS |", "|---:|---:|---:|"]
     lines += [f"| {i} | {x:.1f} | {y:.1f} |" for i, (x, y) in enumerate(zip(fa, fb), 1)]
     lines += [f"| median | {ma:.1f} | {mb:.1f} ({100 * (mb / ma - 1):+.1f}%) |", "",
-              f"Own process ahead in {sum(y > x for x, y in zip(fa, fb))} of {pairs} pairs."]
+              f"{b} ahead in {sum(y > x for x, y in zip(fa, fb))} of {pairs} pairs."]
     os.makedirs(out, exist_ok=True)
-    Path(out, "chain-process-ab.md").write_text("\n".join(lines) + "\n")
+    Path(out, "chain-process-ab.md" if experiment == "chain" else f"{experiment}-ab.md").write_text(
+        "\n".join(lines) + "\n")
     print("\n".join(lines), flush=True)
     return lines
 
@@ -140,16 +150,19 @@ def main(argv=None):
     p.add_argument("--frames", type=int, default=600, help="orb, orb-ab: frames timed")
     p.add_argument("--backend", default="cuda", help="orb, orb-ab: the batched front end's backend")
     p.add_argument("--pairs", type=int, default=3, help="orb-ab: pairs of runs")
+    p.add_argument("--experiment", default="chain", choices=sorted(EXPERIMENTS), help="orb-ab: which A/B")
+    p.add_argument("--batch", type=int, default=16, help="orb: frames per batch")
     p.add_argument("--out", default=os.environ.get("OUT") or ".", help="orb-ab: output folder (default $OUT)")
     args = p.parse_args(argv)
     if args.path == "orb-ab":
-        orb_ab(args.pairs, args.out, args.frames, args.backend)
+        orb_ab(args.pairs, args.out, args.frames, args.backend, args.experiment)
         return
     if args.switch_interval is not None:
         sys.setswitchinterval(args.switch_interval)
     print(f"GIL switch interval {sys.getswitchinterval() * 1e3:g} ms, pid {os.getpid()}", flush=True)
     if args.path == "orb":
-        orb(args.rounds, args.switch_interval, args.frames, not args.chain_in_process, args.frames_cache, args.backend)
+        orb(args.rounds, args.switch_interval, args.frames, not args.chain_in_process, args.frames_cache, args.backend,
+            args.batch)
     else:
         cap(args.rounds, args.switch_interval)
 

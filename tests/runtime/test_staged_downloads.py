@@ -19,7 +19,7 @@ from tests.graph.test_capture import _bench
 from tests.images import bgr
 from warpvx.backend import init_warp
 from warpvx.runtime import DEVICE, Executor, Slot, Transfers
-from warpvx.runtime.pinned import HostPool
+from warpvx.runtime.pinned import HostPool, size_class
 
 SIZE = (128, 96)
 
@@ -90,6 +90,24 @@ def test_pool_recycles_a_buffer_only_once_every_array_on_it_is_garbage():
     assert pool.lent() == 48
     c = pool.take((12,), np.dtype(np.float32))  # same bytes: the freed buffer again
     assert pool.allocated == 96 and pool.lent() == 96 and not np.shares_memory(b, c)
+
+
+def test_pool_reuses_a_buffer_for_counted_rows_of_another_count():
+    """Downloads of a few KB whose size changes every frame (a detector's counted rows) share
+    buffers of a size class: one allocation, not one per count."""
+    pool = HostPool(1 << 20, pinned=False)
+    a = pool.take((700, 2), np.dtype(np.float32))  # 5600 bytes
+    assert a.shape == (700, 2) and pool.allocated == size_class(5600) >= 5600
+    a[:] = 3
+    del a
+    gc.collect()
+    b = pool.take((690, 2), np.dtype(np.float32))  # 5520 bytes: the same class
+    assert b.shape == (690, 2) and pool.allocated == size_class(5600) == size_class(5520)
+    c = pool.take((690, 2), np.dtype(np.float32))  # b is lent: a new buffer
+    assert pool.allocated == 2 * size_class(5520) and not np.shares_memory(b, c)
+    assert size_class(48) == 48 and size_class(4096) == 4096  # small ones exact
+    for n in (4097, 5000, 65537, 3686400):
+        assert n <= size_class(n) <= 1.125 * n
 
 
 def test_pool_stays_within_its_cap_and_frees_on_close():
