@@ -63,8 +63,8 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
-from .orbslam_depths import (MIN_COMMON, NEW_VAR, backfill, carry_depths, flow, fuse_depths, inv_k, lengths,
-                             log_depth_var, median, rays, reprojects, step_scale)
+from .orbslam_depths import (MIN_COMMON, NEW_VAR, backfill, carry_depths, flow, fuse_depths, inv_k, length,
+                             lengths, log_depth_var, median, rays, reprojects, row_dots, step_scale)
 from .orbslam_match import add_match_node, mutual_pairs, stereo_depth
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
@@ -333,7 +333,7 @@ def _ray_depths(x1, x2, R, t):
     triangulation); z2 is the current depth of the point on the reference ray. NaN when the
     rays are parallel."""
     a = x1 @ R.T
-    aa, bb, ab = (a * a).sum(1), (x2 * x2).sum(1), (a * x2).sum(1)
+    aa, bb, ab = row_dots(a, a), row_dots(x2, x2), row_dots(a, x2)
     at, bt = a @ t, x2 @ t
     with np.errstate(divide="ignore", invalid="ignore"):
         z1 = (ab * bt - bb * at) / (aa * bb - ab * ab)
@@ -468,16 +468,18 @@ def keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf: bool, cur_pts, g
     than the previous frame's matches), else None. Points float64 [N, 2]."""
     tracked = prev_kf_index[good[:, 1]]
     on = tracked >= 0
-    if not config.keyframe_motion or prev_is_kf or on.sum() < config.min_matches:
+    count = np.count_nonzero(on)
+    if not config.keyframe_motion or prev_is_kf or count < config.min_matches:
         return tracked, None
     pairs = np.stack([good[on, 0], tracked[on]], 1)
-    if flow(kf_pts, cur_pts, pairs) * np.sqrt(on.sum()) > flow(prev_pts, cur_pts, good) * np.sqrt(len(good)):
+    if flow(kf_pts, cur_pts, pairs) * np.sqrt(count) > flow(prev_pts, cur_pts, good) * np.sqrt(len(good)):
         return tracked, pairs
     return tracked, None
 
 
 def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
-          config: TrackerConfig = TrackerConfig(), essential=essential_core, good=None, points=None):
+          config: TrackerConfig = TrackerConfig(), essential=essential_core, good=None, points=None,
+          tracks=keyframe_pairs):
     """One frame of tracking (the graph's ``track`` node; pure).
 
     A frame is lost when it has fewer than 8 good matches, no motion model (no essential
@@ -504,6 +506,9 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     essential : callable
         :func:`essential_core` or a stand-in with its results (the batched front end's look-up
         of cores computed ahead in worker processes).
+    tracks : callable
+        :func:`keyframe_pairs` or a stand-in with its signature and results (the batched front
+        end's look-up of the tracks its keyframe speculation worked out).
     good : int [G, 2], optional
         ``filter_matches`` of ``pairs`` when already worked out (the batched front end's
         worker processes do); else filtered here.
@@ -521,8 +526,6 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         1 keyframe, 2 lost: the motion model's pose), milliseconds in this node.
     """
     t0 = time.perf_counter()
-    import warpvx
-
     # Contiguous: OpenCV's USAC estimators return no model for a strided K (a view of P0).
     K = np.ascontiguousarray(K, np.float64)
     n = len(kps)
@@ -545,13 +548,15 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     else:
         kf_inliers = state.keyframe_inliers
     ref, reference, prev_good = prev, REF_PREVIOUS, good
-    _, kf_good = keyframe_pairs(kf.pts, prev.pts, prev.kf_index, kf.index == prev.index, cur_pts, good, config)
+    _, kf_good = tracks(kf.pts, prev.pts, prev.kf_index, kf.index == prev.index, cur_pts, good, config)
     if not stereo and kf_good is not None:
         # Monocular motion from the last keyframe, through the keypoints tracked since, as
         # ORB-SLAM2 triangulates against keyframes: several frames of parallax where the
         # previous frame alone gives little (the essential matrix then degenerates).
         good, ref, reference = kf_good, kf, REF_KEYFRAME
     elif len(good) < config.min_matches and kf.index != prev.index and n:
+        import warpvx
+
         kp, kd = warpvx.match_hamming(np.asarray(desc), kf.desc, config.cross_check, config.ratio,
                                       backend="cpu")
         kgood = filter_matches(kp, kd, angles, kf.angles, config)
@@ -574,7 +579,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
             # implausible (a stop gives ~0: carry the last step's length). Measured: the
             # scene depth in place of the motion model while tracking is worse (ATE 10.6 mm
             # against 9.3 on the 60-frame seed-5 sequence of benchmarks/orbslam_accuracy.py).
-            step = float(np.linalg.norm(guess[:3, 3]))
+            step = length(guess[:3, 3])
             step = step if bounds[0] <= step <= bounds[1] else expected
             result = _pose_essential(ref, cur_pts, good, K, config, essential, step=step,
                                      scene_depth=state.scene_depth if state.lost else np.nan, bounds=bounds)
@@ -604,7 +609,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
                 kf = backfill(kf, cur_pts, good, T, K, cur_depth, cur_var)
         pose = _orthonormal(ref.pose @ _inv(T))
         velocity = _inv(pose) @ prev.pose
-        moved = float(np.linalg.norm(T[:3, 3])) / (state.frames - ref.index)
+        moved = length(T[:3, 3]) / (state.frames - ref.index)
         speed = moved if moved > 0 else state.speed
     speeds = (*state.speeds, moved)[-SPEED_HISTORY:] if result is not None and moved > 0 else state.speeds
     since = state.frames - kf.index

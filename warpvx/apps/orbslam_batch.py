@@ -284,12 +284,13 @@ def _track_step(kf_pts, cursor, pts, good, config):
     ``cursor`` = (previous frame's points, its keypoints' keyframe keypoint (-1 none), whether
     it is the keyframe); ``pts``, ``good``: this frame's points and filtered matches to the
     previous frame. Returns (pairs int [M, 2] to the keyframe when ``track`` takes the motion
-    from it, else None (:func:`~warpvx.apps.orbslam.keyframe_pairs`); this frame's cursor)."""
+    from it, else None (:func:`~warpvx.apps.orbslam.keyframe_pairs`); this frame's cursor;
+    the tracked keyframe keypoint int [G] of each pair of ``good``)."""
     prev_pts, kf_index, prev_is_kf = cursor
     tracked, kf_good = o.keyframe_pairs(kf_pts, prev_pts, kf_index, prev_is_kf, pts, good, config)
     kf_index = np.full(len(pts), -1)
     kf_index[good[:, 0]] = tracked
-    return kf_good, (pts, kf_index, False)
+    return kf_good, (pts, kf_index, False), tracked
 
 
 def _essential_points(ref_pts, pts, pairs, config):
@@ -321,7 +322,7 @@ def _essential_ahead(*cores, pool=None, guess=None):
 
     def essential(p1, p2, K, config):
         for core in itertools.chain(cores, guessed()):
-            if core is not None and np.array_equal(p1, core[0]) and np.array_equal(p2, core[1]):
+            if core is not None and _same(p1, core[0]) and _same(p2, core[1]):
                 return pool.wait(core[2], "keyframe") if isinstance(core[2], PoolTask) else core[2]
         t = time.perf_counter()
         try:
@@ -331,6 +332,12 @@ def _essential_ahead(*cores, pool=None, guess=None):
                 pool.waited_s["on the spot"] += time.perf_counter() - t
 
     return essential
+
+
+def _same(a, b) -> bool:
+    """``np.array_equal`` of two float arrays, without its argument handling (the chain
+    compares a frame's points with each core worked out ahead)."""
+    return a.shape == b.shape and bool((a == b).all())
 
 
 def _essential_job(p1, p2, K, config):
@@ -363,6 +370,8 @@ class KeyframeSpeculation:
     def __init__(self, state, first, pts, good, guessed, pool, K, config, hold=False):
         kf, prev = state.keyframe, state.previous
         self.cores, self._next, self._hold = {}, first, first + 2 if hold else first
+        #: Per frame reached: (cursor before it, keyframe_pairs' result), see :meth:`tracks`.
+        self._tracks = {}
         self._on = pool is not None and kf is not None and prev is not None and config.keyframe_motion
         if self._on:
             self._cursor = (prev.pts, prev.kf_index, kf.index == prev.index)
@@ -381,11 +390,31 @@ class KeyframeSpeculation:
             u = self._next
             if u == self._guessed and guessed[u] and end == u + 1:
                 break  # the guess covers it: its tracks only when a later frame needs them
-            kf_good, self._cursor = _track_step(self._kf_pts, self._cursor, pts[u], good[u], config)
+            before = self._cursor
+            kf_good, self._cursor, tracked = _track_step(self._kf_pts, before, pts[u], good[u], config)
+            self._tracks[u] = before, (tracked, kf_good)
             points = _essential_points(self._kf_pts, pts[u], kf_good, config)
             if points is not None and not (u == self._guessed and guessed[u]):
                 self.cores[u] = (*points, pool.submit(_essential_job, *points, K, config, urgent=True))
             self._next += 1
+
+    def tracks(self, f):
+        """A ``tracks`` for :func:`~warpvx.apps.orbslam.track` at frame ``f``: the
+        :func:`~warpvx.apps.orbslam.keyframe_pairs` result worked out for it by :meth:`ahead`
+        when ``track`` asks with the very same inputs (the same keyframe and frames, the
+        previous frame's tracks equal: none lost since), else computed."""
+        done = self._tracks.get(f)
+
+        def tracks(kf_pts, prev_pts, prev_kf_index, prev_is_kf, cur_pts, good, config):
+            if done is not None:
+                (pts, kf_index, is_kf), result = done
+                if (kf_pts is self._kf_pts and prev_pts is pts and prev_is_kf == is_kf
+                        and cur_pts is self._args[0][f] and good is self._args[1][f]
+                        and _same(prev_kf_index, kf_index)):
+                    return result
+            return o.keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf, cur_pts, good, config)
+
+        return tracks
 
     def cancel(self):
         for *_, task in self.cores.values():
@@ -433,7 +462,8 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
                 if u < frames and guesses[u] is not None and not need:
                     guesses[u].cancel()
             state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config, good=kept, points=points[f],
-                                      essential=_essential_ahead(extra, spec.cores.get(f), pool=pool, guess=guess))
+                                      essential=_essential_ahead(extra, spec.cores.get(f), pool=pool, guess=guess),
+                                      tracks=spec.tracks(f))
         poses.append(pose)
         stats.append(st)
     return state, np.asarray(poses), np.asarray(stats)
