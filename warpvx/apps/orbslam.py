@@ -412,10 +412,11 @@ def parallax_points(ref_pts, cur_pts, pairs, config):
     return p1, p2, not median(lengths(p2 - p1)) < config.min_parallax
 
 
-def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *, step=1.0,
-                    scene_depth=np.nan, bounds=(0.0, np.inf)):
+def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *, parallax=parallax_points,
+                    step=1.0, scene_depth=np.nan, bounds=(0.0, np.inf)):
     """T_cur_ref from the essential matrix (:func:`essential_core`, or ``essential`` with its
-    signature and results), the translation scaled by the reference's depths
+    signature and results; the points by :func:`parallax_points` or ``parallax``, likewise),
+    the translation scaled by the reference's depths
     (:func:`~warpvx.apps.orbslam_depths.step_scale`); when too few are shared (the first
     step, a re-initialisation after a loss), scaled so that the median depth of the points is
     ``scene_depth`` (that of the last frame with depths, as ORB-SLAM2 scales a new map by its
@@ -425,7 +426,7 @@ def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *,
     takes ``step``): the depths of the points in front
     (:func:`~warpvx.apps.orbslam_depths.fuse_depths`), or the reference's when it did not
     move."""
-    p1, p2, moved = parallax_points(ref.pts, cur_pts, pairs, config)
+    p1, p2, moved = parallax(ref.pts, cur_pts, pairs, config)
     if not moved:
         return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]], ref.depth_var[pairs[:, 1]])
     core = essential(p1, p2, K, config)
@@ -479,7 +480,7 @@ def keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf: bool, cur_pts, g
 
 def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
           config: TrackerConfig = TrackerConfig(), essential=essential_core, good=None, points=None,
-          tracks=keyframe_pairs):
+          tracks=keyframe_pairs, parallax=parallax_points):
     """One frame of tracking (the graph's ``track`` node; pure).
 
     A frame is lost when it has fewer than 8 good matches, no motion model (no essential
@@ -509,6 +510,9 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     tracks : callable
         :func:`keyframe_pairs` or a stand-in with its signature and results (the batched front
         end's look-up of the tracks its keyframe speculation worked out).
+    parallax : callable
+        :func:`parallax_points` or a stand-in with its signature and results (the batched front
+        end's look-up of those worked out ahead with the cores).
     good : int [G, 2], optional
         ``filter_matches`` of ``pairs`` when already worked out (the batched front end's
         worker processes do); else filtered here.
@@ -581,7 +585,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
             # against 9.3 on the 60-frame seed-5 sequence of benchmarks/orbslam_accuracy.py).
             step = length(guess[:3, 3])
             step = step if bounds[0] <= step <= bounds[1] else expected
-            result = _pose_essential(ref, cur_pts, good, K, config, essential, step=step,
+            result = _pose_essential(ref, cur_pts, good, K, config, essential, parallax=parallax, step=step,
                                      scene_depth=state.scene_depth if state.lost else np.nan, bounds=bounds)
     if result is not None and (result[1] < config.min_inliers or not np.isfinite(result[0]).all()):
         result = None

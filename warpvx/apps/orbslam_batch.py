@@ -336,8 +336,23 @@ def _essential_ahead(*cores, pool=None, guess=None):
 
 def _same(a, b) -> bool:
     """``np.array_equal`` of two float arrays, without its argument handling (the chain
-    compares a frame's points with each core worked out ahead)."""
-    return a.shape == b.shape and bool((a == b).all())
+    compares a frame's points with each core worked out ahead; often the very arrays)."""
+    return a is b or (a.shape == b.shape and bool((a == b).all()))
+
+
+def _parallax_ahead(*known):
+    """A ``parallax`` for :func:`~warpvx.apps.orbslam.track`: for each of ``known`` = (reference
+    points, this frame's points, pairs, p1, p2), :func:`~warpvx.apps.orbslam.parallax_points`'
+    result worked out ahead for those very arrays (moved: the cores are worked out only then),
+    the points of a core; anything else (None entries skipped) is computed."""
+
+    def parallax(ref_pts, cur_pts, pairs, config):
+        for k in known:
+            if k is not None and ref_pts is k[0] and cur_pts is k[1] and pairs is k[2]:
+                return k[3], k[4], True
+        return o.parallax_points(ref_pts, cur_pts, pairs, config)
+
+    return parallax
 
 
 def _essential_job(p1, p2, K, config):
@@ -416,6 +431,12 @@ class KeyframeSpeculation:
 
         return tracks
 
+    def known(self, f):
+        """(keyframe points, frame ``f``'s points, its pairs to the keyframe, p1, p2) of the core
+        started for frame ``f`` (see :func:`_parallax_ahead`), or None."""
+        core = self.cores.get(f)
+        return None if core is None else (self._kf_pts, self._args[0][f], self._tracks[f][1][1], *core[:2])
+
     def cancel(self):
         for *_, task in self.cores.values():
             task.cancel()
@@ -461,9 +482,12 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
             for u, need in ((f, guess is not None), (f + 1, now is not None and now == state.frames - 1)):
                 if u < frames and guesses[u] is not None and not need:
                     guesses[u].cancel()
+            # The points of the core to the previous frame worked out ahead (the pool took them
+            # from the previous batch's points at f = 0: not these very arrays, computed again).
+            previous = None if f == 0 or extra is None else (pts[f - 1], pts[f], kept, *extra[:2])
             state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config, good=kept, points=points[f],
                                       essential=_essential_ahead(extra, spec.cores.get(f), pool=pool, guess=guess),
-                                      tracks=spec.tracks(f))
+                                      tracks=spec.tracks(f), parallax=_parallax_ahead(spec.known(f), previous))
         poses.append(pose)
         stats.append(st)
     return state, np.asarray(poses), np.asarray(stats)
