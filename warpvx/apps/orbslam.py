@@ -380,7 +380,10 @@ def essential_core(p1, p2, K, config):
     contiguous): the essential matrix by MAGSAC++, the cheirality check and the DLT
     triangulation of its inliers. Returns (R float64 3x3, t float64 [3] unit length, inl int
     [F] indices into the matches of the F points in front of both cameras, z_ref, z_cur
-    float64 [F] their depths in units of the baseline) or None (no model, fewer than 8 in
+    float64 [F] their depths in units of the baseline, x1, x2 float64 [F, 3] their normalised
+    rays (:func:`~warpvx.apps.orbslam_depths.rays`) in the reference and current camera, var
+    float64 [F] their log-depth variances (:func:`~warpvx.apps.orbslam_depths.log_depth_var`):
+    what the tracking chain needs of them, worked out off it) or None (no model, fewer than 8 in
     front). Depends only on its arguments (the batched front end runs it in worker processes:
     :mod:`warpvx.apps.orbslam_batch`)."""
     import cv2
@@ -399,9 +402,11 @@ def essential_core(p1, p2, K, config):
     X = (X[:3] / X[3]).T
     z_ref, z_cur = X[:, 2], X @ R[2] + t[2]
     front = (z_ref > 0) & (z_ref < _FAR) & (z_cur > 0) & (z_cur < _FAR)
-    if front.sum() < 8:
+    if np.count_nonzero(front) < 8:
         return None
-    return R, t, inl[front], z_ref[front], z_cur[front]
+    inl = inl[front]
+    x1, x2 = rays(p1[inl], Kinv), rays(p2[inl], Kinv)
+    return R, t, inl, z_ref[front], z_cur[front], x1, x2, log_depth_var(x1, x2, R, K[0, 0])
 
 
 def parallax_points(ref_pts, cur_pts, pairs, config):
@@ -432,10 +437,7 @@ def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *,
     core = essential(p1, p2, K, config)
     if core is None:
         return None
-    R, t, inl, z_ref, z_cur = core
-    Kinv = inv_k(K)
-    x1, x2 = rays(p1[inl], Kinv), rays(p2[inl], Kinv)
-    var = log_depth_var(x1, x2, R, K[0, 0])
+    R, t, inl, z_ref, z_cur, x1, x2, var = core
     scale = step_scale(ref, pairs[inl], x1, x2, R, z_ref, K[0, 0], np.nan, var)
     if np.isnan(scale):
         scale = scene_depth / median(z_cur) if np.isfinite(scene_depth) else step
