@@ -125,7 +125,7 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
             if guesses:
                 assert guessed
                 for t in guessed:
-                    p1, p2, got = ahead.guesses[t].get()
+                    p1, p2, got = ahead.guesses[t].get()[0]
                     assert set(map(tuple, p1)) <= set(map(tuple, o.keypoint_xy(feats[t - 2][0])[0]))
                     for g, w in zip(got, core(p1, p2, K, config)):
                         np.testing.assert_array_equal(g, w)

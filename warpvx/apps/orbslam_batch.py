@@ -262,16 +262,20 @@ def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
 
 
 def guess_job(before, nearest, pts, angles, prev_pts, prev_angles, K, config):
-    """Monocular (on a pool process): (p1, p2, essential core) for the motion ``track`` takes
-    from the frame before the previous one when that is the keyframe, or None (``track``
-    would not ask for one). That is the core it asks for right after a keyframe change, and
-    keyframes two frames apart are common (the inliers drop there). ``before``: the previous
-    frame's (nearest, points, angles of that frame); the rest as :func:`frame_job`'s."""
+    """Monocular (on a pool process): (ahead, (kf_index, tracks)) for the frame before the
+    previous one as the keyframe. ``ahead``: (p1, p2, essential core) for the motion ``track``
+    takes from it, or None (``track`` would not ask for one). That is the core it asks for
+    right after a keyframe change, and keyframes two frames apart are common (the inliers drop
+    there). ``kf_index`` int [N']: the previous frame's keyframe keypoints, tracked from it;
+    ``tracks``: :func:`~warpvx.apps.orbslam.keyframe_pairs`' result for this frame from them.
+    ``before``: the previous frame's (nearest, points, angles of that frame); the rest as
+    :func:`frame_job`'s."""
     near, kf_pts, kf_angles = before
     prev_good = _good(near, prev_pts, prev_angles, kf_pts, kf_angles, config)[2]
     cursor = _track_step(kf_pts, _keyframe_cursor(kf_pts), prev_pts, prev_good, config)[1]
     good = _good(nearest, pts, angles, prev_pts, prev_angles, config)[2]
-    return _core_ahead(kf_pts, pts, _track_step(kf_pts, cursor, pts, good, config)[0], K, config)
+    kf_good, _, tracked = _track_step(kf_pts, cursor, pts, good, config)
+    return _core_ahead(kf_pts, pts, kf_good, K, config), (cursor[1], (tracked, kf_good))
 
 
 def _keyframe_cursor(kf_pts):
@@ -318,7 +322,7 @@ def _essential_ahead(*cores, pool=None, guess=None):
 
     def guessed():
         # (Cancelled: the chain ruled it out; track then asks for another keyframe's core.)
-        yield None if guess is None or guess.cancelled else pool.wait(guess, "keyframe")
+        yield None if guess is None or guess.cancelled else pool.wait(guess, "keyframe")[0]
 
     def essential(p1, p2, K, config):
         for core in itertools.chain(cores, guessed()):
@@ -353,6 +357,35 @@ def _parallax_ahead(*known):
         return o.parallax_points(ref_pts, cur_pts, pairs, config)
 
     return parallax
+
+
+def _tracks_ahead(cur_pts, good, *known):
+    """A ``tracks`` for :func:`~warpvx.apps.orbslam.track` at a frame with points ``cur_pts``
+    and filtered matches ``good`` (the very arrays track gets): for each of ``known`` = (keyframe
+    points, previous frame's points, its keyframe keypoints, whether it is the keyframe,
+    result), the :func:`~warpvx.apps.orbslam.keyframe_pairs` result worked out ahead when
+    ``track`` asks with those inputs (the same frames' arrays, the keypoints equal: none lost
+    since); anything else (None entries skipped) is computed."""
+
+    def tracks(kf_pts, prev_pts, prev_kf_index, prev_is_kf, pts, pairs, config):
+        if pts is cur_pts and pairs is good:
+            for k in known:
+                if (k is not None and kf_pts is k[0] and prev_pts is k[1] and prev_is_kf == k[3]
+                        and _same(prev_kf_index, k[2])):
+                    return k[4]
+        return o.keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf, pts, pairs, config)
+
+    return tracks
+
+
+def _guessed_tracks(guess, pts, f):
+    """:func:`_tracks_ahead`'s entry for frame ``f`` from its :func:`guess_job` (the frame two
+    back as the keyframe) when that has finished (never waited for: the chain computes them
+    sooner), else None; ``pts``: the batch's points per frame."""
+    if f < 2 or guess is None or not guess.ready():
+        return None
+    kf_index, result = guess.get()[1]
+    return pts[f - 2], pts[f - 1], kf_index, False, result
 
 
 def _essential_job(p1, p2, K, config):
@@ -413,23 +446,12 @@ class KeyframeSpeculation:
                 self.cores[u] = (*points, pool.submit(_essential_job, *points, K, config, urgent=True))
             self._next += 1
 
-    def tracks(self, f):
-        """A ``tracks`` for :func:`~warpvx.apps.orbslam.track` at frame ``f``: the
-        :func:`~warpvx.apps.orbslam.keyframe_pairs` result worked out for it by :meth:`ahead`
-        when ``track`` asks with the very same inputs (the same keyframe and frames, the
-        previous frame's tracks equal: none lost since), else computed."""
+    def tracked(self, f):
+        """(keyframe points, the previous frame's points, its keyframe keypoints, whether it
+        is the keyframe, :func:`~warpvx.apps.orbslam.keyframe_pairs`' result) that
+        :meth:`ahead` worked out for frame ``f`` (see :func:`_tracks_ahead`), or None."""
         done = self._tracks.get(f)
-
-        def tracks(kf_pts, prev_pts, prev_kf_index, prev_is_kf, cur_pts, good, config):
-            if done is not None:
-                (pts, kf_index, is_kf), result = done
-                if (kf_pts is self._kf_pts and prev_pts is pts and prev_is_kf == is_kf
-                        and cur_pts is self._args[0][f] and good is self._args[1][f]
-                        and _same(prev_kf_index, kf_index)):
-                    return result
-            return o.keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf, cur_pts, good, config)
-
-        return tracks
+        return None if done is None else (self._kf_pts, *done[0], done[1])
 
     def known(self, f):
         """(keyframe points, frame ``f``'s points, its pairs to the keyframe, p1, p2) of the core
@@ -487,7 +509,9 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
             previous = None if f == 0 or extra is None else (pts[f - 1], pts[f], kept, *extra[:2])
             state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config, good=kept, points=points[f],
                                       essential=_essential_ahead(extra, spec.cores.get(f), pool=pool, guess=guess),
-                                      tracks=spec.tracks(f), parallax=_parallax_ahead(spec.known(f), previous))
+                                      tracks=_tracks_ahead(pts[f], kept, spec.tracked(f),
+                                                           _guessed_tracks(guesses[f], pts, f)),
+                                      parallax=_parallax_ahead(spec.known(f), previous))
         poses.append(pose)
         stats.append(st)
     return state, np.asarray(poses), np.asarray(stats)
