@@ -88,6 +88,31 @@ def test_essential_ahead_is_used_only_for_its_own_points(seq):
         np.testing.assert_array_equal(g, w)
 
 
+def test_tracks_and_parallax_ahead_are_used_only_for_their_own_inputs(seq):
+    """The look-ups track() gets for keyframe_pairs and parallax_points: the result worked out
+    ahead (a sentinel, so its use shows) for exactly those arrays (the keyframe keypoints
+    compared by value), the function's own result for any others."""
+    import warpvx
+
+    (k0, d0), (k1, d1) = (warpvx.orb(im, backend="cpu") for im in seq[0][:2])
+    pairs, _ = warpvx.match_hamming(d1, d0, True, None, backend="cpu")
+    kf_pts, pts = o.keypoint_xy(k0)[0], o.keypoint_xy(k1)[0]
+    config, kf_index, sentinel = o.TrackerConfig(), np.arange(len(kf_pts)), object()
+    # Previous frame = the keyframe (k0): its keypoints track to themselves.
+    tracks = ob._tracks_ahead(pts, pairs, (kf_pts, kf_pts, kf_index, False, sentinel))
+    assert tracks(kf_pts, kf_pts, kf_index.copy(), False, pts, pairs, config) is sentinel
+    for args in ((kf_pts.copy(), kf_pts, kf_index, False, pts, pairs),  # other arrays
+                 (kf_pts, kf_pts, kf_index[::-1].copy(), False, pts, pairs),  # other tracks
+                 (kf_pts, kf_pts, kf_index, False, pts, pairs.copy())):
+        want = o.keyframe_pairs(*args, config)
+        for g, w in zip(tracks(*args, config), want):
+            np.testing.assert_array_equal(g, w)
+    parallax = ob._parallax_ahead(None, (kf_pts, pts, pairs, sentinel, sentinel))
+    assert parallax(kf_pts, pts, pairs, config) == (sentinel, sentinel, True)
+    for g, w in zip(parallax(kf_pts, pts, pairs.copy(), config), o.parallax_points(kf_pts, pts, pairs, config)):
+        np.testing.assert_array_equal(g, w)
+
+
 @pytest.mark.parametrize("keyframe_motion, guesses", [(True, True), (False, True), (True, False)])
 def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_motion, guesses):
     """pose_batch works out every frame's essential matrix to the previous frame ahead (on 2
@@ -125,7 +150,7 @@ def test_chain_computes_no_essential_matrix_itself(seq, monkeypatch, keyframe_mo
             if guesses:
                 assert guessed
                 for t in guessed:
-                    p1, p2, got = ahead.guesses[t].get()
+                    p1, p2, got = ahead.guesses[t].get()[0]
                     assert set(map(tuple, p1)) <= set(map(tuple, o.keypoint_xy(feats[t - 2][0])[0]))
                     for g, w in zip(got, core(p1, p2, K, config)):
                         np.testing.assert_array_equal(g, w)

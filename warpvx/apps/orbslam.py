@@ -63,8 +63,8 @@ import time
 import numpy as np
 
 from ..errors import WarpvxValueError
-from .orbslam_depths import (MIN_COMMON, NEW_VAR, backfill, carry_depths, flow, fuse_depths, inv_k, lengths,
-                             log_depth_var, median, rays, reprojects, step_scale)
+from .orbslam_depths import (MIN_COMMON, NEW_VAR, backfill, carry_depths, flow, fuse_depths, inv_k, length,
+                             lengths, log_depth_var, median, rays, reprojects, row_dots, step_scale)
 from .orbslam_match import add_match_node, mutual_pairs, stereo_depth
 
 BACKENDS = ("cpu", "warp-cpu", "cuda")
@@ -333,7 +333,7 @@ def _ray_depths(x1, x2, R, t):
     triangulation); z2 is the current depth of the point on the reference ray. NaN when the
     rays are parallel."""
     a = x1 @ R.T
-    aa, bb, ab = (a * a).sum(1), (x2 * x2).sum(1), (a * x2).sum(1)
+    aa, bb, ab = row_dots(a, a), row_dots(x2, x2), row_dots(a, x2)
     at, bt = a @ t, x2 @ t
     with np.errstate(divide="ignore", invalid="ignore"):
         z1 = (ab * bt - bb * at) / (aa * bb - ab * ab)
@@ -380,7 +380,10 @@ def essential_core(p1, p2, K, config):
     contiguous): the essential matrix by MAGSAC++, the cheirality check and the DLT
     triangulation of its inliers. Returns (R float64 3x3, t float64 [3] unit length, inl int
     [F] indices into the matches of the F points in front of both cameras, z_ref, z_cur
-    float64 [F] their depths in units of the baseline) or None (no model, fewer than 8 in
+    float64 [F] their depths in units of the baseline, x1, x2 float64 [F, 3] their normalised
+    rays (:func:`~warpvx.apps.orbslam_depths.rays`) in the reference and current camera, var
+    float64 [F] their log-depth variances (:func:`~warpvx.apps.orbslam_depths.log_depth_var`):
+    what the tracking chain needs of them, worked out off it) or None (no model, fewer than 8 in
     front). Depends only on its arguments (the batched front end runs it in worker processes:
     :mod:`warpvx.apps.orbslam_batch`)."""
     import cv2
@@ -399,9 +402,11 @@ def essential_core(p1, p2, K, config):
     X = (X[:3] / X[3]).T
     z_ref, z_cur = X[:, 2], X @ R[2] + t[2]
     front = (z_ref > 0) & (z_ref < _FAR) & (z_cur > 0) & (z_cur < _FAR)
-    if front.sum() < 8:
+    if np.count_nonzero(front) < 8:
         return None
-    return R, t, inl[front], z_ref[front], z_cur[front]
+    inl = inl[front]
+    x1, x2 = rays(p1[inl], Kinv), rays(p2[inl], Kinv)
+    return R, t, inl, z_ref[front], z_cur[front], x1, x2, log_depth_var(x1, x2, R, K[0, 0])
 
 
 def parallax_points(ref_pts, cur_pts, pairs, config):
@@ -412,10 +417,11 @@ def parallax_points(ref_pts, cur_pts, pairs, config):
     return p1, p2, not median(lengths(p2 - p1)) < config.min_parallax
 
 
-def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *, step=1.0,
-                    scene_depth=np.nan, bounds=(0.0, np.inf)):
+def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *, parallax=parallax_points,
+                    step=1.0, scene_depth=np.nan, bounds=(0.0, np.inf)):
     """T_cur_ref from the essential matrix (:func:`essential_core`, or ``essential`` with its
-    signature and results), the translation scaled by the reference's depths
+    signature and results; the points by :func:`parallax_points` or ``parallax``, likewise),
+    the translation scaled by the reference's depths
     (:func:`~warpvx.apps.orbslam_depths.step_scale`); when too few are shared (the first
     step, a re-initialisation after a loss), scaled so that the median depth of the points is
     ``scene_depth`` (that of the last frame with depths, as ORB-SLAM2 scales a new map by its
@@ -425,16 +431,13 @@ def _pose_essential(ref, cur_pts, pairs, K, config, essential=essential_core, *,
     takes ``step``): the depths of the points in front
     (:func:`~warpvx.apps.orbslam_depths.fuse_depths`), or the reference's when it did not
     move."""
-    p1, p2, moved = parallax_points(ref.pts, cur_pts, pairs, config)
+    p1, p2, moved = parallax(ref.pts, cur_pts, pairs, config)
     if not moved:
         return np.eye(4), len(pairs), (pairs[:, 0], ref.depth[pairs[:, 1]], ref.depth_var[pairs[:, 1]])
     core = essential(p1, p2, K, config)
     if core is None:
         return None
-    R, t, inl, z_ref, z_cur = core
-    Kinv = inv_k(K)
-    x1, x2 = rays(p1[inl], Kinv), rays(p2[inl], Kinv)
-    var = log_depth_var(x1, x2, R, K[0, 0])
+    R, t, inl, z_ref, z_cur, x1, x2, var = core
     scale = step_scale(ref, pairs[inl], x1, x2, R, z_ref, K[0, 0], np.nan, var)
     if np.isnan(scale):
         scale = scene_depth / median(z_cur) if np.isfinite(scene_depth) else step
@@ -468,16 +471,18 @@ def keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf: bool, cur_pts, g
     than the previous frame's matches), else None. Points float64 [N, 2]."""
     tracked = prev_kf_index[good[:, 1]]
     on = tracked >= 0
-    if not config.keyframe_motion or prev_is_kf or on.sum() < config.min_matches:
+    count = np.count_nonzero(on)
+    if not config.keyframe_motion or prev_is_kf or count < config.min_matches:
         return tracked, None
     pairs = np.stack([good[on, 0], tracked[on]], 1)
-    if flow(kf_pts, cur_pts, pairs) * np.sqrt(on.sum()) > flow(prev_pts, cur_pts, good) * np.sqrt(len(good)):
+    if flow(kf_pts, cur_pts, pairs) * np.sqrt(count) > flow(prev_pts, cur_pts, good) * np.sqrt(len(good)):
         return tracked, pairs
     return tracked, None
 
 
 def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
-          config: TrackerConfig = TrackerConfig(), essential=essential_core, good=None, points=None):
+          config: TrackerConfig = TrackerConfig(), essential=essential_core, good=None, points=None,
+          tracks=keyframe_pairs, parallax=parallax_points):
     """One frame of tracking (the graph's ``track`` node; pure).
 
     A frame is lost when it has fewer than 8 good matches, no motion model (no essential
@@ -504,6 +509,12 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     essential : callable
         :func:`essential_core` or a stand-in with its results (the batched front end's look-up
         of cores computed ahead in worker processes).
+    tracks : callable
+        :func:`keyframe_pairs` or a stand-in with its signature and results (the batched front
+        end's look-up of the tracks its keyframe speculation worked out).
+    parallax : callable
+        :func:`parallax_points` or a stand-in with its signature and results (the batched front
+        end's look-up of those worked out ahead with the cores).
     good : int [G, 2], optional
         ``filter_matches`` of ``pairs`` when already worked out (the batched front end's
         worker processes do); else filtered here.
@@ -521,8 +532,6 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
         1 keyframe, 2 lost: the motion model's pose), milliseconds in this node.
     """
     t0 = time.perf_counter()
-    import warpvx
-
     # Contiguous: OpenCV's USAC estimators return no model for a strided K (a view of P0).
     K = np.ascontiguousarray(K, np.float64)
     n = len(kps)
@@ -545,13 +554,15 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     else:
         kf_inliers = state.keyframe_inliers
     ref, reference, prev_good = prev, REF_PREVIOUS, good
-    _, kf_good = keyframe_pairs(kf.pts, prev.pts, prev.kf_index, kf.index == prev.index, cur_pts, good, config)
+    _, kf_good = tracks(kf.pts, prev.pts, prev.kf_index, kf.index == prev.index, cur_pts, good, config)
     if not stereo and kf_good is not None:
         # Monocular motion from the last keyframe, through the keypoints tracked since, as
         # ORB-SLAM2 triangulates against keyframes: several frames of parallax where the
         # previous frame alone gives little (the essential matrix then degenerates).
         good, ref, reference = kf_good, kf, REF_KEYFRAME
     elif len(good) < config.min_matches and kf.index != prev.index and n:
+        import warpvx
+
         kp, kd = warpvx.match_hamming(np.asarray(desc), kf.desc, config.cross_check, config.ratio,
                                       backend="cpu")
         kgood = filter_matches(kp, kd, angles, kf.angles, config)
@@ -574,9 +585,9 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
             # implausible (a stop gives ~0: carry the last step's length). Measured: the
             # scene depth in place of the motion model while tracking is worse (ATE 10.6 mm
             # against 9.3 on the 60-frame seed-5 sequence of benchmarks/orbslam_accuracy.py).
-            step = float(np.linalg.norm(guess[:3, 3]))
+            step = length(guess[:3, 3])
             step = step if bounds[0] <= step <= bounds[1] else expected
-            result = _pose_essential(ref, cur_pts, good, K, config, essential, step=step,
+            result = _pose_essential(ref, cur_pts, good, K, config, essential, parallax=parallax, step=step,
                                      scene_depth=state.scene_depth if state.lost else np.nan, bounds=bounds)
     if result is not None and (result[1] < config.min_inliers or not np.isfinite(result[0]).all()):
         result = None
@@ -604,7 +615,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
                 kf = backfill(kf, cur_pts, good, T, K, cur_depth, cur_var)
         pose = _orthonormal(ref.pose @ _inv(T))
         velocity = _inv(pose) @ prev.pose
-        moved = float(np.linalg.norm(T[:3, 3])) / (state.frames - ref.index)
+        moved = length(T[:3, 3]) / (state.frames - ref.index)
         speed = moved if moved > 0 else state.speed
     speeds = (*state.speeds, moved)[-SPEED_HISTORY:] if result is not None and moved > 0 else state.speeds
     since = state.frames - kf.index

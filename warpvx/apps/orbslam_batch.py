@@ -262,16 +262,20 @@ def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
 
 
 def guess_job(before, nearest, pts, angles, prev_pts, prev_angles, K, config):
-    """Monocular (on a pool process): (p1, p2, essential core) for the motion ``track`` takes
-    from the frame before the previous one when that is the keyframe, or None (``track``
-    would not ask for one). That is the core it asks for right after a keyframe change, and
-    keyframes two frames apart are common (the inliers drop there). ``before``: the previous
-    frame's (nearest, points, angles of that frame); the rest as :func:`frame_job`'s."""
+    """Monocular (on a pool process): (ahead, (kf_index, tracks)) for the frame before the
+    previous one as the keyframe. ``ahead``: (p1, p2, essential core) for the motion ``track``
+    takes from it, or None (``track`` would not ask for one). That is the core it asks for
+    right after a keyframe change, and keyframes two frames apart are common (the inliers drop
+    there). ``kf_index`` int [N']: the previous frame's keyframe keypoints, tracked from it;
+    ``tracks``: :func:`~warpvx.apps.orbslam.keyframe_pairs`' result for this frame from them.
+    ``before``: the previous frame's (nearest, points, angles of that frame); the rest as
+    :func:`frame_job`'s."""
     near, kf_pts, kf_angles = before
     prev_good = _good(near, prev_pts, prev_angles, kf_pts, kf_angles, config)[2]
     cursor = _track_step(kf_pts, _keyframe_cursor(kf_pts), prev_pts, prev_good, config)[1]
     good = _good(nearest, pts, angles, prev_pts, prev_angles, config)[2]
-    return _core_ahead(kf_pts, pts, _track_step(kf_pts, cursor, pts, good, config)[0], K, config)
+    kf_good, _, tracked = _track_step(kf_pts, cursor, pts, good, config)
+    return _core_ahead(kf_pts, pts, kf_good, K, config), (cursor[1], (tracked, kf_good))
 
 
 def _keyframe_cursor(kf_pts):
@@ -284,12 +288,13 @@ def _track_step(kf_pts, cursor, pts, good, config):
     ``cursor`` = (previous frame's points, its keypoints' keyframe keypoint (-1 none), whether
     it is the keyframe); ``pts``, ``good``: this frame's points and filtered matches to the
     previous frame. Returns (pairs int [M, 2] to the keyframe when ``track`` takes the motion
-    from it, else None (:func:`~warpvx.apps.orbslam.keyframe_pairs`); this frame's cursor)."""
+    from it, else None (:func:`~warpvx.apps.orbslam.keyframe_pairs`); this frame's cursor;
+    the tracked keyframe keypoint int [G] of each pair of ``good``)."""
     prev_pts, kf_index, prev_is_kf = cursor
     tracked, kf_good = o.keyframe_pairs(kf_pts, prev_pts, kf_index, prev_is_kf, pts, good, config)
     kf_index = np.full(len(pts), -1)
     kf_index[good[:, 0]] = tracked
-    return kf_good, (pts, kf_index, False)
+    return kf_good, (pts, kf_index, False), tracked
 
 
 def _essential_points(ref_pts, pts, pairs, config):
@@ -317,11 +322,11 @@ def _essential_ahead(*cores, pool=None, guess=None):
 
     def guessed():
         # (Cancelled: the chain ruled it out; track then asks for another keyframe's core.)
-        yield None if guess is None or guess.cancelled else pool.wait(guess, "keyframe")
+        yield None if guess is None or guess.cancelled else pool.wait(guess, "keyframe")[0]
 
     def essential(p1, p2, K, config):
         for core in itertools.chain(cores, guessed()):
-            if core is not None and np.array_equal(p1, core[0]) and np.array_equal(p2, core[1]):
+            if core is not None and _same(p1, core[0]) and _same(p2, core[1]):
                 return pool.wait(core[2], "keyframe") if isinstance(core[2], PoolTask) else core[2]
         t = time.perf_counter()
         try:
@@ -331,6 +336,56 @@ def _essential_ahead(*cores, pool=None, guess=None):
                 pool.waited_s["on the spot"] += time.perf_counter() - t
 
     return essential
+
+
+def _same(a, b) -> bool:
+    """``np.array_equal`` of two float arrays, without its argument handling (the chain
+    compares a frame's points with each core worked out ahead; often the very arrays)."""
+    return a is b or (a.shape == b.shape and bool((a == b).all()))
+
+
+def _parallax_ahead(*known):
+    """A ``parallax`` for :func:`~warpvx.apps.orbslam.track`: for each of ``known`` = (reference
+    points, this frame's points, pairs, p1, p2), :func:`~warpvx.apps.orbslam.parallax_points`'
+    result worked out ahead for those very arrays (moved: the cores are worked out only then),
+    the points of a core; anything else (None entries skipped) is computed."""
+
+    def parallax(ref_pts, cur_pts, pairs, config):
+        for k in known:
+            if k is not None and ref_pts is k[0] and cur_pts is k[1] and pairs is k[2]:
+                return k[3], k[4], True
+        return o.parallax_points(ref_pts, cur_pts, pairs, config)
+
+    return parallax
+
+
+def _tracks_ahead(cur_pts, good, *known):
+    """A ``tracks`` for :func:`~warpvx.apps.orbslam.track` at a frame with points ``cur_pts``
+    and filtered matches ``good`` (the very arrays track gets): for each of ``known`` = (keyframe
+    points, previous frame's points, its keyframe keypoints, whether it is the keyframe,
+    result), the :func:`~warpvx.apps.orbslam.keyframe_pairs` result worked out ahead when
+    ``track`` asks with those inputs (the same frames' arrays, the keypoints equal: none lost
+    since); anything else (None entries skipped) is computed."""
+
+    def tracks(kf_pts, prev_pts, prev_kf_index, prev_is_kf, pts, pairs, config):
+        if pts is cur_pts and pairs is good:
+            for k in known:
+                if (k is not None and kf_pts is k[0] and prev_pts is k[1] and prev_is_kf == k[3]
+                        and _same(prev_kf_index, k[2])):
+                    return k[4]
+        return o.keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf, pts, pairs, config)
+
+    return tracks
+
+
+def _guessed_tracks(guess, pts, f):
+    """:func:`_tracks_ahead`'s entry for frame ``f`` from its :func:`guess_job` (the frame two
+    back as the keyframe) when that has finished (never waited for: the chain computes them
+    sooner), else None; ``pts``: the batch's points per frame."""
+    if f < 2 or guess is None or not guess.ready():
+        return None
+    kf_index, result = guess.get()[1]
+    return pts[f - 2], pts[f - 1], kf_index, False, result
 
 
 def _essential_job(p1, p2, K, config):
@@ -363,6 +418,8 @@ class KeyframeSpeculation:
     def __init__(self, state, first, pts, good, guessed, pool, K, config, hold=False):
         kf, prev = state.keyframe, state.previous
         self.cores, self._next, self._hold = {}, first, first + 2 if hold else first
+        #: Per frame reached: (cursor before it, keyframe_pairs' result), see :meth:`tracks`.
+        self._tracks = {}
         self._on = pool is not None and kf is not None and prev is not None and config.keyframe_motion
         if self._on:
             self._cursor = (prev.pts, prev.kf_index, kf.index == prev.index)
@@ -381,11 +438,26 @@ class KeyframeSpeculation:
             u = self._next
             if u == self._guessed and guessed[u] and end == u + 1:
                 break  # the guess covers it: its tracks only when a later frame needs them
-            kf_good, self._cursor = _track_step(self._kf_pts, self._cursor, pts[u], good[u], config)
+            before = self._cursor
+            kf_good, self._cursor, tracked = _track_step(self._kf_pts, before, pts[u], good[u], config)
+            self._tracks[u] = before, (tracked, kf_good)
             points = _essential_points(self._kf_pts, pts[u], kf_good, config)
             if points is not None and not (u == self._guessed and guessed[u]):
                 self.cores[u] = (*points, pool.submit(_essential_job, *points, K, config, urgent=True))
             self._next += 1
+
+    def tracked(self, f):
+        """(keyframe points, the previous frame's points, its keyframe keypoints, whether it
+        is the keyframe, :func:`~warpvx.apps.orbslam.keyframe_pairs`' result) that
+        :meth:`ahead` worked out for frame ``f`` (see :func:`_tracks_ahead`), or None."""
+        done = self._tracks.get(f)
+        return None if done is None else (self._kf_pts, *done[0], done[1])
+
+    def known(self, f):
+        """(keyframe points, frame ``f``'s points, its pairs to the keyframe, p1, p2) of the core
+        started for frame ``f`` (see :func:`_parallax_ahead`), or None."""
+        core = self.cores.get(f)
+        return None if core is None else (self._kf_pts, self._args[0][f], self._tracks[f][1][1], *core[:2])
 
     def cancel(self):
         for *_, task in self.cores.values():
@@ -432,8 +504,14 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
             for u, need in ((f, guess is not None), (f + 1, now is not None and now == state.frames - 1)):
                 if u < frames and guesses[u] is not None and not need:
                     guesses[u].cancel()
+            # The points of the core to the previous frame worked out ahead (the pool took them
+            # from the previous batch's points at f = 0: not these very arrays, computed again).
+            previous = None if f == 0 or extra is None else (pts[f - 1], pts[f], kept, *extra[:2])
             state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config, good=kept, points=points[f],
-                                      essential=_essential_ahead(extra, spec.cores.get(f), pool=pool, guess=guess))
+                                      essential=_essential_ahead(extra, spec.cores.get(f), pool=pool, guess=guess),
+                                      tracks=_tracks_ahead(pts[f], kept, spec.tracked(f),
+                                                           _guessed_tracks(guesses[f], pts, f)),
+                                      parallax=_parallax_ahead(spec.known(f), previous))
         poses.append(pose)
         stats.append(st)
     return state, np.asarray(poses), np.asarray(stats)

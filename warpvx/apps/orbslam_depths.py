@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 
 import numpy as np
 
@@ -43,10 +44,23 @@ def median(x) -> float:
     return float((part[k - 1] + part[k]) / 2)
 
 
+def row_dots(a, b):
+    """Row dot products, float64 [M], of ``a`` and ``b`` float64 [M, D] (``(a * b).sum(1)``, the
+    same sums, without the method's Python wrapper: the chain takes several per frame)."""
+    return np.add.reduce(a * b, axis=1)
+
+
 def lengths(v):
     """Row lengths, float64 [M], of ``v`` float64 [M, D] (``np.linalg.norm(v, axis=1)``, the
     same sums, without its argument handling)."""
-    return np.sqrt(np.add.reduce(v * v, axis=1))
+    return np.sqrt(row_dots(v, v))
+
+
+def length(v) -> float:
+    """``float(np.linalg.norm(v))`` of a float64 vector (a translation), bit for bit (the same
+    contiguous copy and dot product), without its argument handling."""
+    v = v.ravel(order="K")
+    return math.sqrt(v.dot(v))
 
 
 def inv_k(K):
@@ -77,7 +91,7 @@ def log_depth_var(x1, x2, R, f):
     direction is known to 1 px (1/``f`` rad), so the relative depth error is that over the sine
     of the parallax angle (points near the epipole, seen under little parallax, weigh little)."""
     a = x1 @ R.T
-    cos = (a * x2).sum(1) / (lengths(a) * lengths(x2))
+    cos = row_dots(a, x2) / (lengths(a) * lengths(x2))
     return 1.0 / (f * f * np.maximum(1.0 - cos * cos, 1e-12))
 
 
@@ -104,7 +118,7 @@ def step_scale(ref, pairs, x1, x2, R, z_ref, f, step, var=None):
     of all the rays when the caller has it."""
     prior = ref.depth[pairs[:, 1]]
     common = np.isfinite(prior) & (prior > 0) & (z_ref > 0)
-    if common.sum() < MIN_COMMON:
+    if np.count_nonzero(common) < MIN_COMMON:
         return step
     own = log_depth_var(x1[common], x2[common], R, f) if var is None else var[common]
     var = own + ref.depth_var[pairs[common, 1]]
@@ -189,6 +203,6 @@ def backfill(kf, cur_pts, pairs, T, K, depth, depth_var):
     return dataclasses.replace(kf, depth=d, depth_var=v)
 
 
-__all__ = ["median", "lengths", "inv_k", "rays", "backfill",
+__all__ = ["median", "row_dots", "lengths", "length", "inv_k", "rays", "backfill",
            "log_depth_var", "robust_mean", "step_scale", "fuse_depths", "reprojects",
            "carry_depths", "flow"]

@@ -103,6 +103,10 @@ class PoolTask:
             raise WarpvxValueError("task: cancelled before it started")
         return self._result.get()
 
+    def ready(self) -> bool:
+        """Whether its value is there (:meth:`get` would not wait)."""
+        return self._result is not None and self._result.ready()
+
     def cancel(self):
         with self._lock:
             self._drop()
