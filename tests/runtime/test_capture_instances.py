@@ -134,6 +134,12 @@ def test_pinned_array_bad_shape(bad):
         pinned_array(bad)
 
 
+@pytest.mark.parametrize("bad", ["no-such-type", object, "O"])
+def test_pinned_array_bad_dtype(bad):
+    with pytest.raises(WarpvxError, match="dtype"):
+        pinned_array((2, 2), bad)
+
+
 def test_pinned_frames_give_the_pageable_outputs(warp_backend):
     """A stream of frames in pinned memory (copied to the device straight from there on
     CUDA) gives the outputs of the same frames in pageable memory."""

@@ -20,20 +20,32 @@ import threading
 import numpy as np
 
 from ..check import check_int
+from ..errors import WarpvxTypeError
 from .native_copy import warp
 
 
-class _Lease:
-    """Owns one pool buffer while a NumPy array (its ``base``) or a view of it lives; exposes
-    the buffer's first ``shape``/``dtype`` bytes through the array interface, and gives the
-    buffer back when garbage (``__del__``: a tenth of ``weakref.finalize``'s cost)."""
+class _Pinned:
+    """Owns one pinned host ``wp.array`` (``buf``) while a NumPy array on it (its ``base``),
+    or a view of it, lives, exposing its first ``shape``/``dtype`` bytes through the array
+    interface; marks that array as pinned (:func:`is_pinned`)."""
 
-    __slots__ = ("__array_interface__", "pool", "buf", "nbytes")
+    __slots__ = ("__array_interface__", "buf")
 
-    def __init__(self, pool, buf, nbytes: int, shape: tuple, dtype: np.dtype):
-        self.pool, self.buf, self.nbytes = pool, buf, nbytes
+    def __init__(self, buf, shape: tuple, dtype: np.dtype):
+        self.buf = buf
         self.__array_interface__ = {"data": (buf.ptr, False), "shape": shape,
                                     "typestr": dtype.str, "version": 3}
+
+
+class _Lease(_Pinned):
+    """A :class:`_Pinned` on one pool buffer that gives the buffer back when garbage
+    (``__del__``: a tenth of ``weakref.finalize``'s cost)."""
+
+    __slots__ = ("pool", "nbytes")
+
+    def __init__(self, pool, buf, nbytes: int, shape: tuple, dtype: np.dtype):
+        super().__init__(buf, shape, dtype)
+        self.pool, self.nbytes = pool, nbytes
 
     def __del__(self):
         self.pool._give_back(self.buf, self.nbytes)
@@ -125,18 +137,6 @@ class HostPool:
             self._free.clear()
 
 
-class _Pinned:
-    """Owns one pinned host ``wp.array`` (``buf``) while a NumPy array on it (its ``base``),
-    or a view of it, lives; marks that array as pinned (:func:`is_pinned`)."""
-
-    __slots__ = ("__array_interface__", "buf")
-
-    def __init__(self, buf, shape: tuple, dtype: np.dtype):
-        self.buf = buf
-        self.__array_interface__ = {"data": (buf.ptr, False), "shape": shape,
-                                    "typestr": dtype.str, "version": 3}
-
-
 def pinned_array(shape, dtype=np.uint8) -> np.ndarray:
     """A C-contiguous NumPy array of ``shape`` and ``dtype`` (zeros) in page-locked host
     memory, for input frames: write a frame into it (``np.copyto``, ``cv2.cvtColor(...,
@@ -152,10 +152,17 @@ def pinned_array(shape, dtype=np.uint8) -> np.ndarray:
     ------
     WarpvxValueError
         ``shape`` is not a tuple of non-negative ints.
+    WarpvxTypeError
+        ``dtype`` is no NumPy dtype, or one of Python objects.
     """
     shape = tuple(check_int(n, "shape", min_value=0) for n in
                   (shape if isinstance(shape, (tuple, list)) else (shape,)))
-    dtype = np.dtype(dtype)
+    try:
+        dtype = np.dtype(dtype)
+    except TypeError as exc:
+        raise WarpvxTypeError(f"dtype: {dtype!r} is not a NumPy dtype ({exc})") from None
+    if dtype.hasobject:
+        raise WarpvxTypeError(f"dtype: {dtype} holds Python objects; pinned frames hold numbers")
     wp = warp()
     buf = wp.zeros(max(math.prod(shape) * dtype.itemsize, 1), dtype=wp.uint8, device="cpu",
                    pinned=wp.is_cuda_available())
