@@ -399,6 +399,11 @@ def test_new_settings_refuse_bad_values_by_name():
     for bad in (-1, 1.5, "2"):
         with pytest.raises(WarpvxError, match="workers"):
             ob.make_pool(bad)
+    for bad in ("no", 1, None):
+        with pytest.raises(WarpvxError, match="chain_process"):
+            ob.make_pool(0, chain_process=bad)
+        with pytest.raises(WarpvxError, match="chain_process"):
+            next(ob.track_frames_batched([np.zeros((8, 8), np.uint8)], None, chain_process=bad))
     g = warpvx.Graph("g")
     x = g.input("x", shape=(4,), dtype=np.float32)
     g.output("y", g.user(np.negative, [x], name="neg"))

@@ -626,9 +626,10 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
     the caller's). It is process-global: the caller's threads, and the caller's own code
     between two frames, run with it too; the caller's interval is restored on exit, an
     error's included (see :func:`switch_interval`)."""
-    from ..check import check_float, check_int
+    from ..check import check_bool, check_float, check_int
 
     batch = check_int(batch, "batch", min_value=1)
+    chain_process = check_bool(chain_process, "chain_process")
     if gil_switch_s is not None:
         gil_switch_s = check_float(gil_switch_s, "gil_switch_s", min_value=0.0, strict_min=True)
     batches = _batches(frames, batch, camera.stereo)

@@ -424,10 +424,10 @@ def make_pool(workers: int | None = None, chain_process: bool = False):
     processes, default :func:`default_workers`; 0: None, the work runs in the calling thread);
     ``chain_process``: a :class:`~warpvx.apps.orbslam_chain.ChainProcess` with such a pool
     (0: none, the work in that process), on POSIX (elsewhere the pool as without it)."""
-    from ..check import check_int
+    from ..check import check_bool, check_int
 
     workers = default_workers() if workers is None else check_int(workers, "workers", min_value=0)
-    if chain_process and os.name == "posix":
+    if check_bool(chain_process, "chain_process") and os.name == "posix":
         from .orbslam_chain import ChainProcess
 
         return ChainProcess(workers)
