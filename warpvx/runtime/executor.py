@@ -472,7 +472,7 @@ class Executor(RoleRunner, SegmentRunner):
         slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref) for ref in refs]
         waited = False
         for s in slots:
-            if not s.done.is_set():
+            if not s.ready:
                 waited = True
                 frame.wait_slot(s, self._closing, self.spin)
         return slots, waited
@@ -767,7 +767,7 @@ class Executor(RoleRunner, SegmentRunner):
         events = []
         for key in self.program.inputs:
             value, where = inputs[key]
-            slot = slots[key] = Slot.ready(value, where)
+            slot = slots[key] = Slot.holding(value, where)
             if where == DEVICE and self.cuda:
                 # The caller's device data may still be in flight on any stream: an event on
                 # the legacy default stream completes after all work queued so far.

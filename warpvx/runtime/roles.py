@@ -256,11 +256,11 @@ class RoleRunner:
             frame = role.frames[0]
         except IndexError:
             return False
-        if frame.cancel.is_set():
+        if frame.cancel.ready:
             return True
         fs = frame.slots
         for ref in role.refs[role.pos]:  # no list: several checks per hand-off
-            if not (fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)).done.is_set():
+            if not (fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)).ready:
                 return False
         return True
 
@@ -270,7 +270,7 @@ class RoleRunner:
         slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)
                  for ref in role.refs[role.pos]]
         for s in slots:
-            if not s.done.is_set():
+            if not s.ready:
                 return None
         return slots
 
@@ -292,7 +292,7 @@ class RoleRunner:
                 role.state.prev_end = None  # the stream may have idled since the last unit
             while frames:
                 frame = frames[0]
-                if frame.cancel.is_set():
+                if frame.cancel.ready:
                     self._end_frame(role, frame)
                     continue
                 # Checked under the token: another thread may have run what made the caller

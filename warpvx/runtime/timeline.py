@@ -126,16 +126,15 @@ class Frame:
                 self.finished.set()
 
     def wait_slot(self, slot: Slot, closing: threading.Event, spin: float = 0.0):
-        done = slot.done
-        if done.is_set():
+        if slot.ready:
             return
         if spin > 0:
             deadline = time.perf_counter() + spin
             while time.perf_counter() < deadline:
                 time.sleep(0)  # lets the producer have the GIL
-                if done.is_set():
+                if slot.ready:
                     return
-        while not done.wait(WAIT_SLICE):
+        while not slot.wait(WAIT_SLICE):
             if self.cancel.is_set() or closing.is_set():
                 raise Cancelled()
 
