@@ -266,6 +266,10 @@ class Executor(RoleRunner, SegmentRunner):
         capture = check_bool(capture, "capture", allow_none=True)
         self.capture = bool(gpu_device) and self.frames == 1 and \
             (self.cuda if capture is None else capture)
+        # A one-frame GPU queue with a segment that may be captured (a frame's capture flag is
+        # False without one).
+        self._capturable = bool(gpu_device) and self.frames == 1 and \
+            any(seg.captured for seg in self._segments)
         self.captures = 0  # segments captured so far (each signature's once)
         self.replays = 0  # captured graphs launched (frames x segments)
         self._captured: OrderedDict = OrderedDict()  # input signature -> per-segment state
@@ -507,7 +511,9 @@ class Executor(RoleRunner, SegmentRunner):
                 if io.moved > before:
                     frame.copied[task.name] = io.moved - before
             else:
-                values = [s.value for s in slots]
+                values = []
+                for s in slots:  # a loop, not a comprehension: no function call
+                    values.append(s.value)
             result = task.cpu(*values)
             t1 = perf_counter()
             outputs = task.outputs
@@ -593,9 +599,9 @@ class Executor(RoleRunner, SegmentRunner):
         h0 = perf_counter()
         ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved
-        values = [s.value if s.where == DEVICE else
-                  s.device(io, self._upload_into(frame, ref))
-                  for ref, s in zip(task.inputs, slots)]
+        values = []
+        for ref, s in zip(task.inputs, slots):  # a loop, not a comprehension: no function call
+            values.append(s.value if s.where == DEVICE else s.device(io, self._upload_into(frame, ref)))
         mid = None
         moved = io.moved - before
         if moved:
@@ -760,14 +766,20 @@ class Executor(RoleRunner, SegmentRunner):
         if self._closing.is_set():
             raise RuntimeError(f"executor {self.name!r} is closed")
         self._start()
-        missing = [k for k in self.program.inputs if k not in inputs]
-        if missing:
-            raise WarpvxValueError(f"inputs: missing {missing} for frame {frame_index}")
         slots = {}
         events = []
+        # A caller passing device inputs gets device outputs (Graph.process, stream): no
+        # downloads of them to stage.
+        stage_outputs = True
         for key in self.program.inputs:
-            value, where = inputs[key]
+            try:
+                value, where = inputs[key]
+            except KeyError:
+                missing = [k for k in self.program.inputs if k not in inputs]
+                raise WarpvxValueError(f"inputs: missing {missing} for frame {frame_index}") from None
             slot = slots[key] = Slot.holding(value, where)
+            if where != HOST:
+                stage_outputs = False
             if where == DEVICE and self.cuda:
                 # The caller's device data may still be in flight on any stream: an event on
                 # the legacy default stream completes after all work queued so far.
@@ -781,16 +793,16 @@ class Executor(RoleRunner, SegmentRunner):
         for key in self._task_keys:
             slots[key] = Slot()
         frame = Frame(frame_index, slots, self._slot_procs[frame_index % self.frames])
-        frame.events.extend(events)
-        # A caller passing device inputs gets device outputs (Graph.process, stream): no
-        # downloads of them to stage.
-        frame.stage_outputs = all(inputs[k][1] == HOST for k in self.program.inputs)
+        if events:
+            frame.events.extend(events)
+        frame.stage_outputs = stage_outputs
         if self.frames == 1 and self.gpu_device:
             timing = self._timing
             frame.bursts = timing == "bursts" or (timing is None and self.cuda and bool(self._inflight))
-        capture = check_bool(capture, "capture", allow_none=True)
-        frame.capture = bool(self.gpu_device) and self.frames == 1 and \
-            (self.capture if capture is None else capture)
+        if capture is not None:
+            capture = check_bool(capture, "capture", allow_none=True)
+        # (Nothing capturable: no signature to make, no capture state to look up per frame.)
+        frame.capture = self._capturable and (self.capture if capture is None else capture)
         if frame.capture:
             frame.signature = signature(inputs)
         for key, ring in self.program.rings.items():
@@ -927,11 +939,15 @@ class Executor(RoleRunner, SegmentRunner):
         (:func:`~.timeline.frame_result`): their data is ready for any reader."""
         if not frame.events:
             return
-        mine = {id(e) for e in frame.events}
+        mine = None  # the frame's events by id, made only when an outliving slot holds one
         slots = frame.slots
         for key in self._outliving:
             slot = slots[key]
-            if slot.event is not None and id(slot.event) in mine:
+            if slot.event is None:
+                continue
+            if mine is None:
+                mine = {id(e) for e in frame.events}
+            if id(slot.event) in mine:
                 if slot.external:  # the caller's copy, which no task of the frame may have awaited
                     synchronize_event(slot.event)
                 slot.event = None

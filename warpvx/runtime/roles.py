@@ -267,11 +267,12 @@ class RoleRunner:
     def _inputs_if_ready(self, role: Role, frame: Frame):
         """The slots of ``role``'s next unit's inputs in ``frame`` when all are set, else None."""
         fs = frame.slots
-        slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)
-                 for ref in role.refs[role.pos]]
-        for s in slots:
+        slots = []
+        for ref in role.refs[role.pos]:  # a loop, not a comprehension: no function call
+            s = fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)
             if not s.ready:
                 return None
+            slots.append(s)
         return slots
 
     def _advance(self, role: Role, home: Role, touched: list, scoped: bool) -> bool:

@@ -46,11 +46,15 @@ class EventPool:
     and ``extend`` are atomic (one per GPU task on the critical thread; ``MAX_FREE`` is a
     soft bound)."""
 
-    MAX_FREE = 4096
+    MAX_FREE = 8192
     #: Unread timelines that may hold their frame's events; past it, the oldest one's events
     #: are read and go back: a caller keeping every result must not make the pool create
-    #: events for every frame (creating one costs more than reading one).
-    MAX_UNREAD = 16
+    #: events for every frame (creating one costs more than reading one). Above a plan's
+    #: window of kept results (``Plan.last_run``, 64 frames) plus frames in flight: a stream
+    #: then reads no event on its frames' critical path (a result leaving the window is
+    #: garbage, its events go back unread); below it, every frame read an old frame's
+    #: events (a native call each) before returning.
+    MAX_UNREAD = 96
 
     def __init__(self, device: str):
         self.device = device
