@@ -158,3 +158,26 @@ def test_calls_split_into_per_node_and_per_frame():
     assert split["python"] == (3, 20)
     assert split["native"] == (1, 2)
     assert split["by_name"] == {"event": (1, 0), "sync": (0, 2)}
+
+
+def test_address_is_numpys_data_pointer_for_every_kind_of_array():
+    from warpvx.runtime.native_copy import address
+
+    a = np.arange(12, dtype=np.float32)
+    ro = a.copy()
+    ro.flags.writeable = False
+    empty = np.empty(0, np.uint8)
+    strided = a.reshape(3, 4)[:, ::2]  # (callers pass contiguous arrays; still the right pointer)
+    for x in (a, a[3:], ro, empty, strided):
+        assert address(x) == x.ctypes.data
+
+
+def test_is_warp_array_tells_warp_arrays_from_the_rest():
+    from warpvx.backend import init_warp
+    from warpvx.runtime.native_copy import is_warp_array
+
+    wp = init_warp()
+    w = wp.zeros(3, dtype=wp.float32, device="cpu")
+    assert is_warp_array(w) and is_warp_array(w)  # found, then remembered
+    for other in (np.zeros(3), [1, 2], None, 3.0, wp.float32):
+        assert not is_warp_array(other)

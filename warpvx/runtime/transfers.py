@@ -14,9 +14,9 @@ from collections import deque
 import numpy as np
 
 from .._counted import ONE_COPY_MAX_BYTES, Counted, download, map_counted
-from .native_copy import (bytes_to_host_async, is_warp_array, numpy_dtype, record_event,
-                          synchronize_event, synchronize_stream, to_device, to_host,
-                          to_host_async, wait_event, warp)
+from .native_copy import (address, bytes_to_host_async, is_warp_array, numpy_dtype,
+                          record_event, synchronize_event, synchronize_stream, to_device,
+                          to_host, to_host_async, wait_event, warp)
 from .pinned import HostPool
 
 
@@ -290,7 +290,7 @@ class Transfers:
             host = self.pool.take(rows, dtype) if self.pool is not None else None
             if host is None:
                 host = np.empty(rows, dtype)
-            bytes_to_host_async(host.ctypes.data, src.device, src.ptr + offset, host.nbytes,
+            bytes_to_host_async(address(host), src.device, src.ptr + offset, host.nbytes,
                                 stream)
             leaves.append(host)
             self.moved += host.nbytes
