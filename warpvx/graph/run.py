@@ -106,6 +106,11 @@ class RunLock:
 
     def __enter__(self):
         self.refuse()
+        # The usual case first: no stream, the lock free (or this thread's): taken at once.
+        if self.stream is None and self._lock.acquire(False):
+            if self.stream is None:
+                return self
+            self._lock.release()  # a stream started meanwhile
         me, waited_from = threading.get_ident(), None
         while True:
             if self._free_for(me):
