@@ -5,6 +5,9 @@
    one timing event per run of GPU tasks instead of one per task), alternating CPU/GPU; per
    node: wall time per frame minus the nodes' own time, over the nodes. These user nodes do
    not opt in to capture.
+   Then the calls a frame makes on those chains, counted rather than timed (``Graph.process``;
+   :mod:`native_counts`): Python function calls and native Warp calls (CUDA events, stream
+   waits and syncs, copies, context and stream switches, by name), per node and per frame.
 2. A GPU-only chain of primitive nodes (3x3 Gaussian blurs of a 16x16 gray image, which the
    runtime may capture), eager and captured: per node = the difference of the frame times of
    a long and a short chain over the difference of their lengths (what one more node costs:
@@ -18,7 +21,8 @@
    revision of this checkout, extracted into a temporary folder): the identity
    chains of section 1 run in fresh processes alternating between TREE and this tree
    (``--ab-pairs`` pairs, the order swapped every pair), so both see the same machine state;
-   the table gives each tree's median and the change.
+   the table gives each tree's median and the change, and each tree's calls per node and per
+   frame (counted once per tree, after its timings).
 
 On Warp's CPU device (``--gpu warp-cpu``) "captured" rows replay Warp's CPU graphs (Warp 1.19
 captures there too, ``capture=True``); on CUDA they are CUDA graphs (the default there).

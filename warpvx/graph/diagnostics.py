@@ -141,7 +141,9 @@ def executor_overhead(n_nodes: int = 100, frames: int = 50, *, mixed: bool = Fal
         ``"gpu"``: the GPU thread's time in a task (``gpu_task``; the first one, with the
         upload, left out) and between two tasks (``gpu_gap``). Every chain: the frame's host
         time before its first task and after its last (``frame_head``, ``frame_tail``:
-        :func:`_frame_ends`).
+        :func:`_frame_ends`). Each ``process`` frame's timeline is read right after its
+        timed call, as a caller learning from it would (on CUDA its events then go back to
+        the pool; results kept unread would make later frames read them).
     """
     from ..runtime import executor as _executor
 
