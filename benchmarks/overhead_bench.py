@@ -196,12 +196,12 @@ def _calls(args) -> list:
         out[chain] = native_counts.chain_calls(_chain, chain, nodes, args.gpu)
         print(f"  {chain}: per node / per frame: python {out[chain]['python']}, native "
               f"{out[chain]['native']}", flush=True)
-    return [{"trees": {"after": str(ROOT.parent)}, "calls": out}]
+    return [{"trees": {"this tree": str(ROOT.parent)}, "calls": {"this tree": out}}]
 
 
 def _calls_table(trees: dict, calls: dict) -> list:
     """Markdown lines: calls per node and per frame by chain, for each tree of ``calls``."""
-    names = [k for k in ("before", "after") if k in calls]
+    names = [k for k in ("before", "after", "this tree") if k in calls]
     if not names:
         return []
     head = " | ".join(f"{what} per {unit} ({k})" for what in ("python", "native")
