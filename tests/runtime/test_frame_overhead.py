@@ -181,3 +181,27 @@ def test_is_warp_array_tells_warp_arrays_from_the_rest():
     assert is_warp_array(w) and is_warp_array(w)  # found, then remembered
     for other in (np.zeros(3), [1, 2], None, 3.0, wp.float32):
         assert not is_warp_array(other)
+
+
+def test_event_pool_makes_reserved_events_ahead_and_gets_them_without_making_any(monkeypatch):
+    made = []
+
+    class _Warp:
+        @staticmethod
+        def Event(device, enable_timing=False):  # noqa: N802 - Warp's name
+            made.append((device, enable_timing))
+            return _Clock(len(made))
+
+    monkeypatch.setattr(tl, "warp", lambda: _Warp)
+    pool = tl.EventPool("cuda:0")
+    pool.reserve(5)
+    assert len(made) == 5 and made[0] == ("cuda:0", True) and len(pool) == 5
+    pool.reserve(3)  # enough already
+    assert len(made) == 5
+    got = [pool.get() for _ in range(5)]
+    assert len(made) == 5 and len({id(e) for e in got}) == 5 and len(pool) == 0
+    pool.get()  # the pool empty: made on the spot, as before
+    assert len(made) == 6
+    pool.put(got)
+    pool.reserve(4)
+    assert len(made) == 6 and len(pool) == 5

@@ -253,6 +253,9 @@ class Executor(RoleRunner, SegmentRunner):
                                            if rule != "never"}
         self._up_lock = threading.Lock()  # the GPU role leases, wait() returns
         gpu_queue = [t.name for p in self.processors if is_gpu_processor(p) for t in self.queues[p]]
+        # Timing events a frame may take at most (CUDA): a start, an end and an upload's per
+        # GPU task, one per device input; made ahead at submission (EventPool.reserve).
+        self._events_per_frame = 3 * len(gpu_queue) + len(program.inputs)
         # A captured segment is one frame's consecutive GPU tasks; a K-frame order interleaves
         # frames on the GPU queue, so with K > 1 nothing is captured (every task runs eagerly).
         self._segments = segments(program, gpu_queue) if self.frames == 1 else []
@@ -767,6 +770,8 @@ class Executor(RoleRunner, SegmentRunner):
         if self._closing.is_set():
             raise RuntimeError(f"executor {self.name!r} is closed")
         self._start()
+        if self._events is not None:
+            self._events.reserve(self._events_per_frame)
         slots = {}
         events = []
         # A caller passing device inputs gets device outputs (Graph.process, stream): no

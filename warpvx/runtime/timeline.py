@@ -42,9 +42,10 @@ class Cancelled(Exception):
 class EventPool:
     """Reusable CUDA timing events of one device (creating events per task costs more than
     recording them). :meth:`get` hands out a free one; :meth:`put` takes back events whose
-    frame is over and whose timeline has been read (:meth:`lend`). No lock: a list's ``pop``
-    and ``extend`` are atomic (one per GPU task on the critical thread; ``MAX_FREE`` is a
-    soft bound)."""
+    frame is over and whose timeline has been read (:meth:`lend`); :meth:`reserve` makes
+    events ahead, where their creation is timed by nobody. No lock: a list's ``pop`` and
+    ``extend`` are atomic (one per GPU task on the critical thread; ``MAX_FREE`` is a soft
+    bound)."""
 
     MAX_FREE = 8192
     #: Unread timelines that may hold their frame's events; past it, the oldest one's events
@@ -65,7 +66,19 @@ class EventPool:
         try:
             return self._free.pop()
         except IndexError:
-            return warp().Event(self.device, enable_timing=True)
+            return self._make()
+
+    def reserve(self, n: int):
+        """At least ``n`` free events: the executor asks for a frame's worth at its
+        submission, so that no event is made inside a GPU task's timed host call (one
+        creation, a few us, is more than the task's own enqueue of an identity node), as
+        happened on every frame while the kept timelines held the pool's events."""
+        free = self._free
+        while len(free) < n:
+            free.append(self._make())
+
+    def _make(self):
+        return warp().Event(self.device, enable_timing=True)
 
     def put(self, events):
         room = self.MAX_FREE - len(self._free)
