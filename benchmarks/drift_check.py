@@ -46,6 +46,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 #: The rounds of each policy's makespans that trained the model (graph_bench: fit frames
 #: 1-20 in rounds of 10; best joins later and has none).
 FIT_ROUNDS = 2
+#: Rounds right after training that the near error is taken on (graph_bench.NEAR_ROUNDS).
+NEAR_ROUNDS = 2
+POLICIES = ("baseline", "heft", "xeft", "best")
 #: Nodes whose per-worker time is compared (long single-threaded OpenCV calls).
 HEAVY = ("denoiseL", "denoiseR", "edgesL", "edgesR")
 
@@ -84,13 +87,21 @@ def shape(report: dict) -> list:
         steps = {p["policy"]: statistics.median(p["makespans"][FIT_ROUNDS * block:])
                  / statistics.median(p["makespans"][:FIT_ROUNDS * block])
                  for p in e["policies"] if p["policy"] != "best"}
+        # The recorded out-of-sample prediction against the rounds right after training
+        # (graph_bench's NEAR_ROUNDS; best joined there: its first rounds).
+        near = {}
+        for p in e["policies"]:
+            lo = 0 if p["policy"] == "best" else FIT_ROUNDS * block
+            meas = statistics.median(p["makespans"][lo:lo + NEAR_ROUNDS * block])
+            near[p["policy"]] = (p["error_out_pct"], 100 * (p["pred_out_ms"] / meas - 1))
         out.append({"tag": e["tag"], "rounds": rows, "index": index, "steps": steps,
-                    "heavy": nodes})
+                    "heavy": nodes, "near": near})
     return out
 
 
 def analyse_markdown(named: dict) -> str:
-    lines = ["# Drift of the graph bench's rounds", "",
+    lines = [f"Regenerate: `python benchmarks/drift_check.py {' '.join(sys.argv[1:])}`", "",
+             "# Drift of the graph bench's rounds", "",
              "Per run and experiment: the round index (mean over baseline, heft, xeft of each "
              "round's median makespan over the policy's own median; rounds 1-2 trained the "
              "model, then the probe and best's trial ran, then rounds 3-10), and each "
@@ -104,6 +115,18 @@ def analyse_markdown(named: dict) -> str:
             steps = ", ".join(f"{x['steps'][p]:.2f}" for p in ("baseline", "heft", "xeft")
                               if p in x["steps"])
             lines.append(f"| {run} | {x['tag']} | {idx} | {steps} |")
+    lines += ["", "The recorded out-of-sample error (training model against frames 21-100) and "
+              f"the same prediction against the {NEAR_ROUNDS} rounds right after training "
+              "(nearest in time; best: its first rounds), per policy.", "",
+              "| run | experiment | " + " | ".join(f"{p}: all / near" for p in POLICIES) + " | within 20%: all / near |",
+              "| --- | --- |" + " ---: |" * (len(POLICIES) + 1)]
+    for run, exps in named.items():
+        for x in exps:
+            cells = [x["near"].get(p) for p in POLICIES]
+            ok = [sum(abs(c[i]) <= 20 for c in cells if c) for i in (0, 1)]
+            lines.append(f"| {run} | {x['tag']} | " + " | ".join(
+                f"{c[0]:+.1f} / {c[1]:+.1f}%" if c else "-" for c in cells)
+                + f" | {ok[0]} / {ok[1]} |")
     lines += ["", "Heavy OpenCV nodes (one OpenCV thread each), median ms per frame: training "
               "frames -> later frames, per policy and worker.", "",
               "| run | experiment | policy | node | worker | training | later | later/training |",
@@ -141,7 +164,7 @@ def analyse_plot(named: dict, path: Path):
                 ax.set_ylabel("round median / policy median", fontsize=7)
     axes[0][0].legend(fontsize=6)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=72)
     plt.close(fig)
     return path
 

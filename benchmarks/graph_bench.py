@@ -405,11 +405,21 @@ def round_sample(before, after) -> dict:
             "process_cores": d[1] / max(d[0], 1e-9)}
 
 
+def work_cores(runs) -> float:
+    """Cores the frames' tasks kept busy on average: the CPU tasks' intervals and the GPU
+    tasks' host calls over the makespans (beside a round's ``process_cores``: what the
+    process burnt beyond its tasks, a spinning wait say)."""
+    busy = sum((r.host[t][1] - r.host[t][0]) if tl.processor == "gpu" and t in r.host else
+               (0.0 if tl.processor == "gpu" else tl.finish - tl.start)
+               for r in runs for t, tl in r.timeline.items())
+    return busy / max(sum(r.makespan for r in runs), 1e-9)
+
+
 def rounds(g, plans, frames, n, block, *, start=0, flip=False, log=None) -> list:
     """:meth:`~warpvx.graph.Graph.measure_plans` one round at a time (A B C, C B A, ...;
     ``flip``: C B A first), the inputs going on from ``start``. Appended to ``log`` per
     round: the :func:`reference_ms` and :func:`idle_cpu_pct` before it, its
-    :func:`round_sample` and its median makespan per plan. Per plan, its FrameResults."""
+    :func:`round_sample`, its :func:`work_cores` and its median makespan per plan. Per plan, its FrameResults."""
     out = [[] for _ in plans]
     k = start
     for r in range(n):
@@ -426,6 +436,7 @@ def rounds(g, plans, frames, n, block, *, start=0, flip=False, log=None) -> list
         if log is not None:
             log.append({"reference_ms": ref, "idle_cpu_pct": idle,
                         **round_sample(c0, cpu_counters()),
+                        "work_cores": work_cores([x for runs in got for x in runs]),
                         "medians": [median_span(out[i][-block:]) for i in range(len(plans))]})
     return out
 
@@ -787,7 +798,8 @@ def same_placement_lines(policies) -> list:
 ROUND_FIELDS = (("reference_ms", "CPU reference ms", ".2f"),
                 ("idle_cpu_pct", "our CPU % between rounds", ".0f"),
                 ("busy_pct", "machine busy %", ".0f"), ("steal_pct", "steal %", ".1f"),
-                ("process_cores", "our busy cores", ".2f"))
+                ("process_cores", "our busy cores", ".2f"),
+                ("work_cores", "cores our tasks' intervals span", ".2f"))
 
 
 def drift_line(e) -> str:

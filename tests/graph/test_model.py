@@ -542,8 +542,8 @@ class _ScriptedGraph:
         call = len(self.orders)
         self.orders.append(list(plans))
         self.first_inputs.append(inputs[0])
-        return [[type("Run", (), {"makespan": self.spans[call % len(self.spans)][p]})()] * frames
-                for p in plans]
+        return [[type("Run", (), {"makespan": self.spans[call % len(self.spans)][p],
+                                  "timeline": {}, "host": {}})()] * frames for p in plans]
 
 
 def test_bench_rounds_alternate_plans_and_go_on_through_the_inputs():
@@ -619,3 +619,15 @@ def test_bench_idle_cpu_sees_a_spinning_thread():
     finally:
         stop.set()
         spinner.join()
+
+
+def test_bench_work_cores_counts_cpu_tasks_and_gpu_host_calls():
+    # Two frames of 10 ms: a CPU task of 4 ms beside a GPU task whose host call took 1 ms
+    # (its 10 ms on the device use no core), then 6 + 2 ms: (4 + 1 + 6 + 2) / 20 cores.
+    bench = _graph_bench()
+    frames = [bench.recorded_frame({"a": ["cpu0", 0.0, 4.0, 0.0, 0, None, None],
+                                    "b": ["gpu", 0.0, 10.0, 0.0, 0, 0.0, 1.0]}),
+              bench.recorded_frame({"a": ["cpu1", 1.0, 7.0, 0.0, 0, None, None],
+                                    "b": ["gpu", 0.0, 10.0, 0.0, 0, 3.0, 5.0]})]
+    assert [f.makespan for f in frames] == [10.0, 10.0]
+    assert bench.work_cores(frames) == pytest.approx(13.0 / 20.0)
