@@ -541,6 +541,10 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
             "drift_pct": drift.get(policy),
             "measured_near_ms": median_span(near[policy]),
             "error_near_pct": _err(pred_out, median_span(near[policy])),
+            # The training policy as the reference clock: its drift taken out of the
+            # prediction (a machine that slowed down slows every placement alike).
+            "error_dedrift_pct": None if policy == args.train else
+            _err(pred_out * (1 + drift[args.train] / 100), meas_out),
             "sequential_fps": sequential_fps(runs),
             "pipelined_fps": fps[policy],
             "gpu_nodes": sorted(t for t, p in plan.placement.items() if p == "gpu"),
@@ -685,7 +689,8 @@ def markdown(report) -> str:
         "later rounds' median over its training rounds' (the training policy's is the "
         "machine's drift as the model sees it: it reproduces those training rounds); *near*: the "
         f"out-of-sample prediction against the {NEAR_ROUNDS} rounds right after training "
-        "(nearest in time). *reference*: a fixed single-threaded OpenCV call timed in the "
+        "(nearest in time); *drift out*: the out-of-sample error of the prediction times the "
+        "training policy's drift (that policy as the reference clock; not for itself). *reference*: a fixed single-threaded OpenCV call timed in the "
         "caller's thread before each round (the CPU's speed then, none of the runtime's "
         "work). The model counts each busy "
         "neighbour by its node's GIL pressure and each victim by its sensitivity "
@@ -718,10 +723,10 @@ def markdown(report) -> str:
                f"{m.get('segment_fixed_us', 0):.0f} us" if m.get("segment_ratio") else "")
             + ".", "", probe_line(e.get("probe") or []), "", drift_line(e), "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
-            "of sample | measured | error | noise | drift | near: measured | error | "
+            "of sample | measured | error | noise | drift | near: measured | error | drift out | "
             "unweighted: predicted | error | p90 ms | sequential FPS | pipelined FPS | GPU nodes |",
             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
-            "| ---: | ---: | ---: | ---: | ---: | --- |",
+            "| ---: | ---: | ---: | ---: | ---: | ---: | --- |",
         ]
         for r in e["policies"]:
             name = r["policy"] + (f" ({r['chosen']})" if r["chosen"] != r["policy"] else "")
@@ -731,6 +736,7 @@ def markdown(report) -> str:
                 f"{r['measured_out_ms']:.3f} | {r['error_out_pct']:+.1f}% | "
                 f"{_pct(r.get('noise_pct'))} | {_signed(r.get('drift_pct'))} | "
                 f"{_fmt(r.get('measured_near_ms'))} | {_signed(r.get('error_near_pct'))} | "
+                f"{_signed(r.get('error_dedrift_pct'))} | "
                 f"{_fmt(r.get('pred_out_plain_ms'))} | "
                 f"{_pct(r.get('error_out_plain_pct'))} | {r['measured_p90_ms']:.3f} | "
                 f"{r['sequential_fps']:.1f} | "

@@ -599,8 +599,14 @@ def test_bench_reports_drift_and_nearest_rounds(tmp_path):
         assert r["error_near_pct"] == pytest.approx(
             100 * (r["pred_out_ms"] - r["measured_near_ms"]) / r["measured_near_ms"])
     assert e["drift_pct"] == next(r["drift_pct"] for r in e["policies"] if r["policy"] == e["train"])
+    for r in e["policies"]:  # the training policy as the reference clock of the others
+        if r["policy"] == e["train"]:
+            assert r["error_dedrift_pct"] is None
+        else:
+            assert r["error_dedrift_pct"] == pytest.approx(
+                100 * (r["pred_out_ms"] * (1 + e["drift_pct"] / 100) / r["measured_out_ms"] - 1))
     md = (tmp_path / "graph_bench.md").read_text()
-    assert "Settle: " in md and "| drift | near: measured | error |" in md
+    assert "Settle: " in md and "| drift | near: measured | error | drift out |" in md
     assert "CPU reference ms (median settle / training / later)" in md
 
 
