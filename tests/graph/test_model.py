@@ -612,16 +612,17 @@ def test_bench_reports_drift_and_nearest_rounds(tmp_path):
 
 def test_bench_idle_cpu_sees_a_spinning_thread():
     # The bench's check for a thread of ours burning CPU between rounds: near zero when
-    # every other thread blocks, most of a core beside a thread that spins.
+    # every other thread blocks, a good share of a core beside a thread that spins (on a
+    # loaded 2-core machine the spinner gets a third of a core or less).
     bench = _graph_bench()
     import threading
 
-    assert bench.idle_cpu_pct(0.05) < 50.0
+    assert bench.idle_cpu_pct(0.2) < 10.0
     stop = threading.Event()
     spinner = threading.Thread(target=lambda: [None for _ in iter(stop.is_set, True)], daemon=True)
     spinner.start()
     try:
-        assert bench.idle_cpu_pct(0.05) > 50.0
+        assert bench.idle_cpu_pct(0.2) > 10.0
     finally:
         stop.set()
         spinner.join()
