@@ -281,7 +281,8 @@ def soak_main(args):
     (args.out / "soak.json").write_text(json.dumps(samples, indent=1))
     keys = ["round", "t_s", "median_ms", "rss_mb", "objects", "threads", "gc_counts", "gc_ms",
             "event_pool", "cv_threads", "last_run"]
-    lines = [f"# Soak: {args.graph} {args.size}, {args.policy}, {args.frames} frames in rounds of "
+    lines = [f"Regenerate: `python benchmarks/drift_check.py {' '.join(sys.argv[1:])}`", "",
+             f"# Soak: {args.graph} {args.size}, {args.policy}, {args.frames} frames in rounds of "
              f"{args.block}{', the model probe half-way' if args.probe else ''}", "",
              "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
     for s in samples:
