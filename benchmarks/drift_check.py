@@ -21,8 +21,8 @@ bench between the training and the later rounds. Writes ``soak.md``/``soak.json`
 
 Usage::
 
-    python benchmarks/drift_check.py analyse benchmarks/results/graph/h100-2026-11-24-s6b/graph_bench.json.gz \\
-        --out /tmp/drift
+    python benchmarks/drift_check.py analyse \\
+        benchmarks/results/graph/h100-2026-11-24-s6b/graph_bench.json.gz --out /tmp/drift
     python benchmarks/drift_check.py soak --graph two-cameras-cv --size 640x360 --frames 300 \\
         --policy baseline --probe --out /tmp/drift
 """
@@ -109,7 +109,8 @@ def analyse_markdown(named: dict) -> str:
              "round's median makespan over the policy's own median; rounds 1-2 trained the "
              "model, then the probe and best's trial ran, then rounds 3-10), and each "
              "policy's later rounds over its training rounds (median makespans).", "",
-             "| run | experiment | round index 1 2 \\| 3 ... 10 | later / training: baseline, heft, xeft |",
+             "| run | experiment | round index 1 2 \\| 3 ... 10 | later / training: baseline, "
+             "heft, xeft |",
              "| --- | --- | --- | --- |"]
     for run, exps in named.items():
         for x in exps:

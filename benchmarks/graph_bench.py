@@ -20,7 +20,8 @@ Steps, per graph and camera size (default 1280x720 and 1920x1080):
    every core for seconds; run between the training and the later rounds, the later rounds
    started 14-17% slower on the H100), then interleaved rounds, discarded, until the
    machine settles (``SETTLE_PCT``, at most ``SETTLE_ROUNDS``); baseline, heft and xeft run
-   their first ``--fit-frames`` frames in interleaved rounds (as in step 3); the contention model (:mod:`warpvx.graph.model`) is fitted on ``--train``'s
+   their first ``--fit-frames`` frames in interleaved rounds (as in step 3); the contention
+   model (:mod:`warpvx.graph.model`) is fitted on ``--train``'s
    (baseline, calibrated costs); ``best`` takes its candidates (baseline, HEFT and XEFT on the calibrated and on the
    model's costs) and tries those predicted within 20% of the fastest (the model's error),
    and the runner-up if within 50% (its worst out-of-sample error on mixed placements),
@@ -419,7 +420,8 @@ def rounds(g, plans, frames, n, block, *, start=0, flip=False, log=None) -> list
     """:meth:`~warpvx.graph.Graph.measure_plans` one round at a time (A B C, C B A, ...;
     ``flip``: C B A first), the inputs going on from ``start``. Appended to ``log`` per
     round: the :func:`reference_ms` and :func:`idle_cpu_pct` before it, its
-    :func:`round_sample`, its :func:`work_cores` and its median makespan per plan. Per plan, its FrameResults."""
+    :func:`round_sample`, its :func:`work_cores` and its median makespan per plan. Per
+    plan, its FrameResults."""
     out = [[] for _ in plans]
     k = start
     for r in range(n):
@@ -676,8 +678,8 @@ def markdown(report) -> str:
         "the training frames' segments (all of one size: the fixed cost a prior, "
         "`SEGMENT_FIXED_PRIOR`). "
         "*Settle*: before training, the model's probes run (they load every core for seconds), "
-        f"then interleaved rounds, discarded, until each plan's round median is within {SETTLE_PCT:g}% "
-        f"of its round before (at most {SETTLE_ROUNDS} rounds). "
+        "then interleaved rounds, discarded, until each plan's round median is within "
+        f"{SETTLE_PCT:g}% of its round before (at most {SETTLE_ROUNDS} rounds). "
         "*Training*: the training policy's first frames, in the first rounds (baseline, heft and "
         "xeft interleaved; best joins the later rounds). "
         "*In sample*: a model against the frames it learnt from (the training model for the "
@@ -690,7 +692,8 @@ def markdown(report) -> str:
         "machine's drift as the model sees it: it reproduces those training rounds); *near*: the "
         f"out-of-sample prediction against the {NEAR_ROUNDS} rounds right after training "
         "(nearest in time); *drift out*: the out-of-sample error of the prediction times the "
-        "training policy's drift (that policy as the reference clock; not for itself). *reference*: a fixed single-threaded OpenCV call timed in the "
+        "training policy's drift (that policy as the reference clock; not for itself). "
+        "*reference*: a fixed single-threaded OpenCV call timed in the "
         "caller's thread before each round (the CPU's speed then, none of the runtime's "
         "work). The model counts each busy "
         "neighbour by its node's GIL pressure and each victim by its sensitivity "
