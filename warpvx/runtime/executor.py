@@ -121,7 +121,8 @@ import networkx as nx
 from ..check import check_bool
 from ..errors import NodeExecutionError, ScheduleError, WarpvxValueError
 from ..sched.schedule import Schedule
-from .capture import SegmentRunner, segments, signature
+from .capture import segments, signature
+from .segment_runner import SegmentRunner
 from .cycles import Batch, frames_of
 from .native_copy import recorder, synchronize_event, warp
 from .pinned import HostPool
