@@ -887,18 +887,15 @@ class Executor(RoleRunner, SegmentRunner):
                     f"{self.name}: frame {frame.index} was cancelled after frame "
                     f"{frame.cancelled_by} failed"
                 )
-            last = frame.gpu_last_event if self.cuda else None
-            if last is not None:
-                synchronize_event(last)
+            if self.cuda and frame.gpu_last_event is not None:
+                synchronize_event(frame.gpu_last_event)
             for ev in frame.forked:  # (the events of a captured segment's own stream)
                 synchronize_event(ev)
             io = self._io()
             outputs = {}
             for name, key in self.program.outputs.items():
                 slot = frame.slots[key]
-                # (An output whose producer's event or staged download's is ``last``: no
-                # second wait for it.)
-                outputs[name] = slot.host(io, waited=last) if host else slot.value
+                outputs[name] = slot.host(io) if host else slot.value
             self._forget_events(frame)
             # The events go back to the pool once the timeline is read (or never will be).
             if self.cuda:

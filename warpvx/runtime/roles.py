@@ -365,10 +365,8 @@ class RoleRunner:
             else:
                 self._run_gpu_task(frame, seg.tasks[0], state, slots)
             for key in role.stage[role.pos]:
-                if key not in self._outputs_staged:
+                if frame.stage_outputs or key not in self._outputs_staged:
                     self._stage(frame, frame.slots[key], io)
-                elif frame.stage_outputs:
-                    self._stage(frame, frame.slots[key], io, output=True)
         except Cancelled:
             return False
         except BaseException as exc:  # noqa: BLE001 - reported to the caller
@@ -376,22 +374,17 @@ class RoleRunner:
             return False
         return True
 
-    def _stage(self, frame: Frame, slot: Slot, io: Transfers, output: bool = False):
-        """Start the download of a GPU value a CPU task of the frame, or only the caller
-        (``output``), reads (CUDA): see :meth:`Transfers.stage_download`."""
+    def _stage(self, frame: Frame, slot: Slot, io: Transfers):
+        """Start the download of a GPU value a CPU task of the frame reads (CUDA): see
+        :meth:`Transfers.stage_download`."""
         if slot.where != DEVICE or slot.staged is not None:
             return
         # (A value made on another stream, a captured segment's set's: no stream order.)
-        stream = self._stream
-        staged = io.stage_download(slot.value, slot.event, after=None if slot.external else stream)
+        staged = io.stage_download(slot.value, slot.event,
+                                   after=None if slot.external else self._stream)
         if staged is not None:
             slot.staged = staged
             frame.staged.append(slot)
-            if output and stream is not None and staged.stream is stream:
-                # Queued on the GPU stream behind every GPU task so far, and read by the
-                # caller's wait only (which keeps its event until then): the frame's last
-                # event, which wait() synchronises once for the GPU work and this copy both.
-                frame.gpu_last_event = staged.event
 
     def _run_segment_or_tasks(self, frame: Frame, i: int, seg, state: "GpuState", captures):
         """Capturable GPU segment ``i`` of ``frame``: replayed from its captured graph where

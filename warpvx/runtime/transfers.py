@@ -81,14 +81,12 @@ class _Staged:
     """A download under way (:meth:`Transfers.stage_download`): the device value, the host
     arrays its device arrays are being copied into (id of the device array -> (it, its host
     copy); of a large Counted block only its count so far), the event after the copies
-    (None on Warp's CPU device: done, or once closed), their bytes and the stream they were
-    queued on (None on Warp's CPU device)."""
+    (None on Warp's CPU device: done, or once closed) and their bytes."""
 
-    __slots__ = ("value", "copies", "event", "nbytes", "stream", "_events")
+    __slots__ = ("value", "copies", "event", "nbytes", "_events")
 
-    def __init__(self, value, copies: dict, event, nbytes: int, events: deque, stream=None):
+    def __init__(self, value, copies: dict, event, nbytes: int, events: deque):
         self.value, self.copies, self.event, self.nbytes = value, copies, event, nbytes
-        self.stream = stream
         self._events = events  # where its event goes back to
 
     def close(self):
@@ -248,7 +246,7 @@ class Transfers:
         if stream is not None:
             done = self._events.pop() if self._events else warp().Event(self.device)
             record_event(stream, done)
-        return _Staged(value, copies, done, nbytes, self._events, stream)
+        return _Staged(value, copies, done, nbytes, self._events)
 
     def _take(self, copies: dict, a):
         """The pool's host buffer device array ``a`` of a staged download is copied into (one
