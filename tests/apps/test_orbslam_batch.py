@@ -399,6 +399,9 @@ def test_new_settings_refuse_bad_values_by_name():
     for bad in (-1, 1.5, "2"):
         with pytest.raises(WarpvxError, match="workers"):
             ob.make_pool(bad)
+    for bad in (-1, 20, 1.5, None):
+        with pytest.raises(WarpvxError, match="nice"):
+            ob.make_pool(0, nice=bad)
     for bad in ("no", 1, None):
         with pytest.raises(WarpvxError, match="chain_process"):
             ob.make_pool(0, chain_process=bad)
@@ -490,6 +493,25 @@ def test_chain_process_survives_stopped_runs_and_leaves_no_process_or_segment(se
         assert mine
     assert _gone(pids)
     assert not mine & _segments()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_nice_lowers_the_pose_processes_priority_only():
+    """make_pool(nice=N): the pose processes run N nicer than the caller, in this process's
+    pool and in a chain process's (whose own priority stays the caller's)."""
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    want = min(19, base + 3)
+    with ob.make_pool(1, nice=3) as pool:
+        assert pool.submit(os.getpriority, os.PRIO_PROCESS, 0).get() == want
+    with ob.make_pool(1, chain_process=True, nice=3) as proc:
+        # (its pose processes; not the resource tracker it may have started)
+        kids = [k for k in _children(proc._process.pid) if b"spawn_main" in Path(f"/proc/{k}/cmdline").read_bytes()]
+        assert kids
+        assert os.getpriority(os.PRIO_PROCESS, proc._process.pid) == base
+        deadline = time.monotonic() + 60  # (set by the processes' initializer, once they have started)
+        while {os.getpriority(os.PRIO_PROCESS, k) for k in kids} != {want} and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert {os.getpriority(os.PRIO_PROCESS, k) for k in kids} == {want}
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")

@@ -610,10 +610,11 @@ def _batches(frames, batch: int, stereo: bool):
 def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.TrackerConfig(), *,
                          batch: int = 16, workers: int | None = None, pool=None, backend="cpu",
                          depth: int = 2, on_finish=None, gil_switch_s: float | None = SWITCH_INTERVAL,
-                         chain_process: bool = True):
+                         chain_process: bool = True, nice: int = 0):
     """:func:`~warpvx.apps.orbslam.track_frames` in batches of ``batch`` frames
     (:func:`build_batch_graph`), with ``workers`` processes for the pose work (default: see
-    :func:`make_pool`; 0: none), or an open ``pool`` (:func:`make_pool`'s, kept open). The
+    :func:`make_pool`; 0: none; ``nice``: their niceness increment, see :func:`make_pool`),
+    or an open ``pool`` (:func:`make_pool`'s, kept open; ``nice`` then unused). The
     tracking chain (and the pose work) in a process of its own when ``chain_process`` (the
     default, on POSIX; see :mod:`warpvx.apps.orbslam_chain`), else in this one; an open
     ``pool`` decides by its kind (a :class:`~warpvx.apps.orbslam_chain.ChainProcess`: there). A
@@ -639,7 +640,7 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
     with switch_interval(gil_switch_s):
         own = pool is None
         if own:
-            pool = make_pool(workers, chain_process=chain_process)
+            pool = make_pool(workers, chain_process=chain_process, nice=nice)
         try:
             g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
             g.verify(first[0], gpu=None if backend == "cpu" else backend)

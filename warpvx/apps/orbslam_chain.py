@@ -108,8 +108,8 @@ def _send_error(outbox, ticket, exc, text):
         outbox.send(("error", ticket, RuntimeError(f"{type(exc).__name__}: {exc}"), text))
 
 
-def _serve(inbox, outbox, workers: int, quiet: bool):
-    """The chain process: its pose pool (``workers`` processes, 0: none), the receiver
+def _serve(inbox, outbox, workers: int, quiet: bool, nice: int):
+    """The chain process: its pose pool (``workers`` processes, 0: none; ``nice``: theirs), the receiver
     thread, and the chain over the queued batches in order, each result (or error) sent back."""
     import signal
 
@@ -118,7 +118,7 @@ def _serve(inbox, outbox, workers: int, quiet: bool):
 
     # SIGTERM (the parent's last resort) unwinds through the finally: the pool goes too.
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
-    pool = PosePool(workers, quiet=quiet, bound=True) if workers else None
+    pool = PosePool(workers, quiet=quiet, bound=True, nice=nice) if workers else None
     timing = collections.Counter()
     try:
         jobs, stopping = queue.SimpleQueue(), threading.Event()
@@ -166,11 +166,12 @@ class ChainProcess:
     close it with :meth:`shutdown` (or a ``with`` block).
 
     ``ahead``, ``share``: the pool's settings (:class:`~warpvx.apps.orbslam_pool.PosePool`),
-    applied at each run's start; ``quiet`` False: multiprocessing's stock ``Pool``.
+    applied at each run's start; ``quiet`` False: multiprocessing's stock ``Pool``; ``nice``:
+    the pose processes' niceness increment (see :func:`~warpvx.apps.orbslam_pool.make_pool`).
     :meth:`counts` (and ``waited_s``, ``started``, ``cancelled``) reports the pool's counters
     and the chain's wall and thread CPU time."""
 
-    def __init__(self, workers: int, quiet: bool = True, ahead: bool = True, share: bool = True):
+    def __init__(self, workers: int, quiet: bool = True, ahead: bool = True, share: bool = True, nice: int = 0):
         from multiprocessing import get_context, util
 
         if os.name != "posix":
@@ -179,7 +180,7 @@ class ChainProcess:
         self.workers, self.ahead, self.share = workers, ahead, share
         child_in, self._to_child = ctx.Pipe(duplex=False)
         self._from_child, child_out = ctx.Pipe(duplex=False)
-        self._process = ctx.Process(target=_serve, args=(child_in, child_out, workers, quiet),
+        self._process = ctx.Process(target=_serve, args=(child_in, child_out, workers, quiet, nice),
                                     name="orbslam-chain")
         with _caller_script_hidden():
             self._process.start()
