@@ -451,7 +451,8 @@ def markdown(report: dict) -> list:
     lines += ["", "What the pose pool did per batch (the chain's waits: for the batch's frame jobs, and for",
               "keyframe cores speculated or guessed on the pool; jobs started and dropped unstarted;",
               "batched_mono_fifo: the pool in submit order, no guessed cores, as before them; counts include",
-              "the verification of the run's graph; chain wall and CPU: the chain's wall time and its",
+              "the verification of the run's graph in the chain-in-this-process row (a chain process answers",
+              "it dry); chain wall and CPU: the chain's wall time and its",
               "thread's CPU time, whose gap is what it waited for: the pool, the GIL, a free core; measured",
               "in the chain process but for the chain-in-this-process row):", "",
               "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | chain computes cores "

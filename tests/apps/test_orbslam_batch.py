@@ -495,6 +495,36 @@ def test_chain_process_survives_stopped_runs_and_leaves_no_process_or_segment(se
     assert not mine & _segments()
 
 
+def test_chain_process_dry_run_answers_without_tracking(seq):
+    """In ChainProcess.dry_run (what the graph's verification runs in) this thread's batches
+    get zero poses and stats shaped and typed as real ones, no pose work started; another
+    thread's batch meanwhile is tracked for real."""
+    frames, camera = _frames(seq, False)
+    config = o.TrackerConfig()
+    images = np.stack([f["image"] for f in frames[:2]])
+    feats = ob.orb_batch(images, config=config)[0]
+    nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=2)[1]
+    kwargs = dict(K=np.ascontiguousarray(camera.K), config=config, baseline=None, frames=2)
+    with ob.make_pool(1, chain_process=True) as proc:
+        before = proc.started["frame_job"]
+        elsewhere = []
+        with proc.dry_run():
+            sent, ticket = orbslam_chain.send_batch(images, feats, nearest, 0, proc=proc, **kwargs)
+            other = threading.Thread(target=lambda: elsewhere.append(
+                orbslam_chain.send_batch(images, feats, nearest, 0, proc=proc, **kwargs)[1]))
+            other.start()
+            other.join()
+        poses, stats = proc.result(ticket)
+        real_poses, real_stats = proc.result(elsewhere[0])
+        assert sent == 1 and not poses.any() and not stats.any()
+        assert (poses.shape, poses.dtype, stats.shape, stats.dtype) == (
+            real_poses.shape, real_poses.dtype, real_stats.shape, real_stats.dtype) == ((2, 4, 4), np.float64,
+                                                                                         (2, len(o.STATS)), np.float64)
+        np.testing.assert_array_equal(real_poses[0], np.eye(4))  # (the run's first frame)
+        assert real_stats[1, 0] > 0
+        assert proc.started["frame_job"] - before == 2  # the real batch's only
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_nice_lowers_the_pose_processes_priority_only():
     """make_pool(nice=N): the pose processes run N nicer than the caller, in this process's

@@ -643,7 +643,9 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
             pool = make_pool(workers, chain_process=chain_process, nice=nice)
         try:
             g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
-            g.verify(first[0], gpu=None if backend == "cpu" else backend)
+            # A chain process answers the verification's batches dry (ChainProcess.dry_run).
+            with pool.dry_run() if isinstance(pool, ChainProcess) else contextlib.nullcontext():
+                g.verify(first[0], gpu=None if backend == "cpu" else backend)
             plan = o.schedule(g, backend)
             counts = [first[1]]
 

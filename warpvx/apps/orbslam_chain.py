@@ -33,6 +33,7 @@ shared blocks are unlinked. POSIX only (the blocks are POSIX shared memory).
 from __future__ import annotations
 
 import collections
+import contextlib
 import os
 import queue
 import sys
@@ -75,8 +76,8 @@ def _receive(inbox, jobs: queue.SimpleQueue, pool, stopping: threading.Event):
     tail, params = NO_TAIL, None
     try:
         while (msg := inbox.recv()) is not None:
-            if msg[0] == "counts":
-                jobs.put(msg)
+            if msg[0] in ("counts", "dry"):
+                jobs.put(msg)  # (in order with the batches; a dry one leaves the run's state alone)
                 continue
             _, ticket, run, payload = msg
             try:
@@ -134,6 +135,9 @@ def _serve(inbox, outbox, workers: int, quiet: bool, nice: int):
                 continue  # shutting down: the parent takes no more results
             elif item[0] == "failed":
                 _send_error(outbox, *item[1:])
+            elif item[0] == "dry":
+                _, ticket, frames = item
+                outbox.send(("done", ticket, np.zeros((frames, 4, 4)), np.zeros((frames, len(o.STATS)))))
             else:
                 _, ticket, first, params, packed, ahead = item
                 if first:
@@ -191,6 +195,7 @@ class ChainProcess:
         self._results, self._next, self._counts = collections.OrderedDict(), 0, collections.deque()
         # (send posts under the send lock: the tickets reach the process in order)
         self._send_lock, self._read_lock = threading.RLock(), threading.Lock()
+        self._local = threading.local()  # .dry: see dry_run
         self._stop = util.Finalize(self, _stop, args=(self._to_child, self._from_child, self._process,
                                                       self._segments), exitpriority=10)
         try:
@@ -200,7 +205,30 @@ class ChainProcess:
             self.shutdown()
             raise
 
+    @contextlib.contextmanager
+    def dry_run(self):
+        """In the block, batches that this thread sends (:func:`send_batch`) get poses and
+        stats of the right shape and dtype, zeros, at once, in order with the others: the
+        process neither reads them nor tracks them, and a run's state stays as it was.
+        :func:`~warpvx.apps.orbslam_batch.track_frames_batched` verifies its graph so (the
+        verification runs two batches; each was the whole pose work and chain of a batch,
+        on the H100 ~2 x 70 ms per call): the stream then runs that work on the same first
+        batch, its errors raised from there. Other threads' batches (a stream's) are real."""
+        before = getattr(self._local, "dry", False)
+        self._local.dry = True
+        try:
+            yield
+        finally:
+            self._local.dry = before
+
     # -- the graph's nodes call these
+
+    def send_dry(self, frames: int) -> int:
+        """A ticket for ``frames`` zero poses and stats (see :meth:`dry_run`)."""
+        with self._send_lock:
+            ticket, self._next = self._next, self._next + 1
+            self._post(("dry", ticket, frames))
+        return ticket
 
     def send(self, payload, run) -> int:
         """Hand a batch (``payload``: (images or None, packed features, nearest), arrays) to
@@ -320,7 +348,10 @@ def _stop(to_child, from_child, process, segments):
 def send_batch(images, feats, nearest, sent, *, K, config, baseline, frames, proc: ChainProcess):
     """The graph's ``pose_batch`` node with a chain process: the batch to ``proc`` ->
     (``sent`` + 1, its ticket). ``sent`` 0: the first batch of a run (its parameters go with
-    it). ``images`` travel only for a stereo camera."""
+    it). ``images`` travel only for a stereo camera. In ``proc``'s
+    :meth:`~ChainProcess.dry_run`, a dry ticket."""
+    if getattr(proc._local, "dry", False):
+        return sent + 1, proc.send_dry(frames)
     run = None
     if sent == 0:
         params = dict(K=K, config=config, baseline=baseline, frames=frames)
