@@ -10,7 +10,8 @@ its chain process and pose pool; ``--chain-in-process``: the chain in this proce
 pose pool alone; ``--workers``, ``--nice``: the pose pool's processes and their niceness).
 ``orb-ab``: an interleaved A/B of one setting (:data:`EXPERIMENTS`: ``chain``, the chain in
 this process vs in its own; ``batch``, B=16 vs 32; ``nice``, the pose processes at niceness 0,
-5, 10; ``workers``, the default pool vs 3 and 5 processes fewer), ``--pairs`` rounds, each a
+5, 10; ``workers``, the default pool vs 3 and 5 processes fewer; ``direct``, the pool's jobs
+written by the dispatching thread vs through multiprocessing's task thread), ``--pairs`` rounds, each a
 fresh process (``orb-round``) running every arm once, the frames rendered once, before; prints
 a markdown table (FPS wall and steady, the chain's wall, CPU and waits per batch; medians) with
 the command at its top and writes it to ``DIR/<experiment>-ab.md`` (``chain-process-ab.md``
@@ -40,6 +41,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))  # this tree's warpvx, not an installed one
 sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT / "benchmarks" / "perf"))
 
@@ -69,9 +71,10 @@ def _arm_row(row) -> dict:
 
 
 def orb(rounds: int, switch, frames: int = 600, chain_process: bool = True, cache=None, backend="cuda",
-        batch: int = 16, workers=None, nice: int = 0, tag: str = "orb round"):
-    """``rounds`` timed runs on one pool (``workers`` pose processes at niceness ``nice``), each
-    printed as ``{tag} {r}: {FPS} FPS {json of _arm_row}``; returns the last run's row."""
+        batch: int = 16, workers=None, nice: int = 0, tag: str = "orb round", settings=None):
+    """``rounds`` timed runs on one pool (``workers`` pose processes at niceness ``nice``;
+    ``settings``: the pool's attributes for the runs, see ``orbslam_bench.bench_frontend_batched``),
+    each printed as ``{tag} {r}: {FPS} FPS {json of _arm_row}``; returns the last run's row."""
     import orbslam_bench as bench
 
     from warpvx.apps import orbslam as o
@@ -84,6 +87,7 @@ def orb(rounds: int, switch, frames: int = 600, chain_process: bool = True, cach
             tempfile.TemporaryDirectory() as out:
         for r in range(rounds):
             row, _ = bench.bench_frontend_batched(feed, camera, backend, Path(out), None, batch, pool,
+                                                  settings=settings,
                                                   switch=ob.SWITCH_INTERVAL if switch is None else switch)
             print(f"{tag} {r}: {row['fps']:.1f} FPS {json.dumps(_arm_row(row))}", flush=True)
     return row
@@ -108,6 +112,9 @@ EXPERIMENTS = {
     "nice": ("the pose processes at the caller's priority (default) vs niceness 5 and 10",
              (("nice 0 (default)", {}), ("nice 5", {"nice": 5}), ("nice 10", {"nice": 10}))),
     "workers": ("fewer pose processes (their cores compete with the chain's)", _workers_arms),
+    "direct": ("jobs written to the pose processes by the thread that dispatches them (default) vs "
+               "through multiprocessing's task thread (before)",
+               (("direct (default)", {}), ("task thread (before)", {"settings": {"direct": False}}))),
 }
 
 

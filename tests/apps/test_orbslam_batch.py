@@ -495,6 +495,33 @@ def test_chain_process_survives_stopped_runs_and_leaves_no_process_or_segment(se
     assert not mine & _segments()
 
 
+@pytest.mark.parametrize("direct", [True, False], ids=["direct", "task_thread"])
+def test_pool_jobs_written_directly_or_through_the_task_thread(direct):
+    """PosePool(direct=True) writes jobs to the processes itself (multiprocessing's task
+    thread never sees one); either way values come back and a job that cannot be pickled
+    fails alone, with its error, the pool still usable."""
+    pool = op.PosePool(1, direct=direct)
+    try:
+        handed = []
+
+        class Spied:  # the task thread's queue, its puts recorded
+            def __init__(self, queue):
+                self.queue = queue
+
+            def put(self, item):
+                handed.append(item)
+                self.queue.put(item)
+
+        pool._pool._taskqueue = Spied(pool._pool._taskqueue)
+        assert pool.map(divmod, [(7, 2), (9, 4)]) == [(3, 1), (2, 1)]
+        with pytest.raises(Exception, match="pickle|lambda"):
+            pool.submit(divmod, lambda: 0, 1).get()
+        assert pool.submit(divmod, 5, 5).get() == (1, 0)
+        assert (len(handed) == 0) == direct
+    finally:
+        pool.shutdown()
+
+
 def test_chain_process_dry_run_answers_without_tracking(seq):
     """In ChainProcess.dry_run (what the graph's verification runs in) this thread's batches
     get zero poses and stats shaped and typed as real ones, no pose work started; another

@@ -169,19 +169,20 @@ class ChainProcess:
     :func:`~warpvx.apps.orbslam_batch.track_frames_batched`'s ``pool`` for any number of runs;
     close it with :meth:`shutdown` (or a ``with`` block).
 
-    ``ahead``, ``share``: the pool's settings (:class:`~warpvx.apps.orbslam_pool.PosePool`),
+    ``ahead``, ``share``, ``direct``: the pool's settings (:class:`~warpvx.apps.orbslam_pool.PosePool`),
     applied at each run's start; ``quiet`` False: multiprocessing's stock ``Pool``; ``nice``:
     the pose processes' niceness increment (see :func:`~warpvx.apps.orbslam_pool.make_pool`).
     :meth:`counts` (and ``waited_s``, ``started``, ``cancelled``) reports the pool's counters
     and the chain's wall and thread CPU time."""
 
-    def __init__(self, workers: int, quiet: bool = True, ahead: bool = True, share: bool = True, nice: int = 0):
+    def __init__(self, workers: int, quiet: bool = True, ahead: bool = True, share: bool = True, nice: int = 0,
+                 direct: bool = True):
         from multiprocessing import get_context, util
 
         if os.name != "posix":
             raise WarpvxValueError("chain_process: needs POSIX shared memory (run the chain in process)")
         ctx = get_context("spawn")
-        self.workers, self.ahead, self.share = workers, ahead, share
+        self.workers, self.ahead, self.share, self.direct = workers, ahead, share, direct
         child_in, self._to_child = ctx.Pipe(duplex=False)
         self._from_child, child_out = ctx.Pipe(duplex=False)
         self._process = ctx.Process(target=_serve, args=(child_in, child_out, workers, quiet, nice),
@@ -355,7 +356,8 @@ def send_batch(images, feats, nearest, sent, *, K, config, baseline, frames, pro
     run = None
     if sent == 0:
         params = dict(K=K, config=config, baseline=baseline, frames=frames)
-        run = (params, {"switch": sys.getswitchinterval(), "ahead": proc.ahead, "share": proc.share})
+        run = (params, {"switch": sys.getswitchinterval(), "ahead": proc.ahead, "share": proc.share,
+                        "direct": proc.direct})
     return sent + 1, proc.send((None if baseline is None else np.asarray(images), _pack_host(feats),
                                 tuple(nearest)), run)
 

@@ -328,10 +328,12 @@ class PosePool:
     stock ``Pool``, whose handler thread spins while results wait (see :func:`_quiet_pool_class`).
     ``bound`` (Linux): the processes end when the thread that opened the pool does (for a
     process's own thread that lives as long as the pool: the chain process's main thread).
-    ``nice`` (POSIX, 0 to 19): the processes' niceness increment (:func:`make_pool`'s)."""
+    ``nice`` (POSIX, 0 to 19): the processes' niceness increment (:func:`make_pool`'s).
+    ``direct`` False (to measure what it gives): jobs go through multiprocessing's task
+    hand-off thread (see :meth:`_apply`)."""
 
     def __init__(self, workers: int, ahead: bool = True, share: bool = True, quiet: bool = True,
-                 bound: bool = False, nice: int = 0):
+                 bound: bool = False, nice: int = 0, direct: bool = True):
         from multiprocessing import get_context
         from multiprocessing.pool import Pool
 
@@ -340,7 +342,9 @@ class PosePool:
                                                                   initargs=(bound, nice), context=get_context("spawn"))
         # the shared blocks are POSIX shared memory (read through _posixshmem in the workers)
         self.workers, self.ahead, self.share = workers, ahead, share and os.name == "posix"
-        self._lock = threading.Lock()
+        self.direct = direct
+        # (re-entrant: a job whose pickling fails is settled, its callback run, while dispatching)
+        self._lock = threading.RLock()
         self._queue, self._order, self._running = [], itertools.count(), 0
         self._segments = Segments()
         self.waited_s, self.started, self.cancelled = (collections.Counter() for _ in range(3))
@@ -371,9 +375,28 @@ class PosePool:
             self.started[fn.__name__] += 1
             self._running += 1
             job = (_shared_call, (fn, *args)) if task._block is not None else task._job
-            done = functools.partial(self._done, task)
-            task._result = self._pool.apply_async(*job, callback=done, error_callback=done)
+            task._result = self._apply(*job, functools.partial(self._done, task))
             task._settled.set()
+
+    def _apply(self, fn, args, done):
+        """``apply_async(fn, args)`` with ``done`` as both callbacks. ``direct`` (and a Python
+        whose ``Pool`` has these internals): the job pickled and written to the processes'
+        queue here, by the thread that dispatches it (the caller holds the lock, as
+        multiprocessing's task thread would be the only writer), instead of handed to that
+        thread: in the chain process each hand-off woke a thread that took the GIL from the
+        chain (~30 per batch)."""
+        from multiprocessing.pool import ApplyResult
+
+        pool = self._pool
+        if not (self.direct and hasattr(pool, "_quick_put") and hasattr(pool, "_check_running")):
+            return pool.apply_async(fn, args, callback=done, error_callback=done)
+        pool._check_running()
+        result = ApplyResult(pool, done, done)
+        try:
+            pool._quick_put((result._job, 0, fn, args, {}))
+        except Exception as exc:  # noqa: BLE001 - as the task thread does: the job's error
+            result._set(0, (False, exc))
+        return result
 
     def _done(self, task, _):
         task._unshare()
