@@ -33,8 +33,8 @@ reading PNGs is timed separately. Measured, side by side in one run:
    the jobs' arrays pickled with each job against a shared block per batch (the default),
    and on multiprocessing's stock ``Pool`` against the pose pool's (``PosePool(quiet=False)``).
 
-FPS columns: "wall" counts everything from the call (graph build, verification, calibration:
-cached after the warm-up run; the batched mode's pool is opened once, before); "steady" is
+FPS columns: "wall" counts everything from the call (graph build, verification: a chain process
+answers it dry, ``ChainProcess.dry_run``; calibration: cached after the warm-up run; the batched mode's pool is opened once, before); "steady" is
 frames over the sum of their output intervals (from the first frame out, no setup).
 
 Accuracy also on ViSP's castle_simu (monocular, warpvx vs the baseline) when
@@ -432,8 +432,8 @@ def markdown(report: dict) -> list:
     lines += [f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | | |",
               f"| OpenCV baseline, thread-pool extraction | {base:.1f} | | 1.0x |",
               f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | | |",
-              "", "FPS (wall): frames over the whole call (graph build, verification; calibration cached "
-              "by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
+              "", "FPS (wall): frames over the whole call (graph build, verification: a chain process "
+              "answers it dry; calibration cached by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
               "", f"Pose work of one mono batch (pose_batch, B={batch}: frame jobs and "
               f"{report['pose_pool'].get('guesses', '?')} guesses), ms per frame: "
               + (f"{report['pose_pool']['one_process_ms']:.2f} on one process, {report['pose_pool']['pool_ms']:.2f} "
