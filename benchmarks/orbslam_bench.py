@@ -31,7 +31,9 @@ reading PNGs is timed separately. Measured, side by side in one run:
    (the poses must be the sequential ones); mono also with Python's GIL switch interval
    (5 ms) against the batched mode's default (``orbslam_batch.SWITCH_INTERVAL``), and with
    the jobs' arrays pickled with each job against a shared block per batch (the default),
-   and on multiprocessing's stock ``Pool`` against the pose pool's (``PosePool(quiet=False)``).
+   and on multiprocessing's stock ``Pool`` against the pose pool's (``PosePool(quiet=False)``),
+   and with the pool's jobs handed to multiprocessing's task thread against written to the
+   processes by the thread that dispatches them (``PosePool(direct=...)``).
 
 FPS columns: "wall" counts everything from the call (graph build, verification: a chain process
 answers it dry, ``ChainProcess.dry_run``; calibration: cached after the warm-up run; the batched mode's pool is opened once, before); "steady" is
@@ -177,11 +179,13 @@ PREVIOUS_ONLY = o.TrackerConfig(keyframe_motion=False)
 #: The batched runs: report key, camera, Gantt name (None: none), tracker settings, the pool's
 #: settings for the run (``ahead`` False: jobs in submit order and no guessed cores, the
 #: scheduling before them; ``share`` False: the jobs' arrays pickled with each job, the
-#: transport before shared blocks), the GIL switch interval (s; None: Python's, 5 ms).
+#: transport before shared blocks; ``direct`` False: the jobs handed to multiprocessing's task
+#: thread, as before), the GIL switch interval (s; None: Python's, 5 ms).
 BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig(), {}, ob.SWITCH_INTERVAL),
            ("batched_mono_switch_5ms", "mono", None, o.TrackerConfig(), {}, None),
            ("batched_mono_pickled", "mono", None, o.TrackerConfig(), {"share": False}, ob.SWITCH_INTERVAL),
            ("batched_mono_fifo", "mono", None, o.TrackerConfig(), {"ahead": False}, ob.SWITCH_INTERVAL),
+           ("batched_mono_task_thread", "mono", None, o.TrackerConfig(), {"direct": False}, ob.SWITCH_INTERVAL),
            ("batched_mono_prev", "mono", "batch_mono_prev", PREVIOUS_ONLY, {}, ob.SWITCH_INTERVAL),
            ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig(), {}, ob.SWITCH_INTERVAL))
 
@@ -413,6 +417,8 @@ def markdown(report: dict) -> list:
               "block, the transport before)", "batched_mono_pickled"),
              (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores",
               "batched_mono_fifo"),
+             (f"front end mono, end to end, batched B={batch}, pool jobs through multiprocessing's task thread "
+              "(before)", "batched_mono_task_thread"),
              (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),
              *([(f"front end mono, end to end, batched B={batch}, multiprocessing's stock Pool (its handler "
                  "thread spins while results wait)", STOCK_POOL)] if STOCK_POOL in report else []),
