@@ -35,9 +35,12 @@ reading PNGs is timed separately. Measured, side by side in one run:
    and with the pool's jobs handed to multiprocessing's task thread against written to the
    processes by the thread that dispatches them (``PosePool(direct=...)``).
 
-FPS columns: "wall" counts everything from the call (graph build, verification: a chain process
-answers it dry, ``ChainProcess.dry_run``; calibration: cached after the warm-up run; the batched mode's pool is opened once, before); "steady" is
-frames over the sum of their output intervals (from the first frame out, no setup).
+FPS columns: "wall" counts everything from the call (graph build, verification: the batched
+mode's by the warm-up run on the same open pool, which keeps the verified graph for the next
+run, see ``orbslam_batch.track_frames_batched``; a chain process answers a verification dry,
+``ChainProcess.dry_run``; calibration: cached after the warm-up run; the batched mode's pool
+is opened once, before); "steady" is frames over the sum of their output intervals (from the
+first frame out, no setup).
 
 Accuracy also on ViSP's castle_simu (monocular, warpvx vs the baseline) when
 ``../shared/data/real/castle_simu`` (or ``--castle``) exists.
@@ -438,8 +441,9 @@ def markdown(report: dict) -> list:
     lines += [f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | | |",
               f"| OpenCV baseline, thread-pool extraction | {base:.1f} | | 1.0x |",
               f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | | |",
-              "", "FPS (wall): frames over the whole call (graph build, verification: a chain process "
-              "answers it dry; calibration cached by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
+              "", "FPS (wall): frames over the whole call (scheduling, run start and end; the batched "
+              "mode's graph built and verified by the warm-up run on the same open pool, which keeps it; "
+              "calibration cached by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
               "", f"Pose work of one mono batch (pose_batch, B={batch}: frame jobs and "
               f"{report['pose_pool'].get('guesses', '?')} guesses), ms per frame: "
               + (f"{report['pose_pool']['one_process_ms']:.2f} on one process, {report['pose_pool']['pool_ms']:.2f} "

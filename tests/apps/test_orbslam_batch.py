@@ -522,6 +522,35 @@ def test_pool_jobs_written_directly_or_through_the_task_thread(direct):
         pool.shutdown()
 
 
+@pytest.mark.parametrize("chain_process", [True, False], ids=["chain_process", "chain_in_process"])
+def test_an_open_pool_keeps_its_verified_graph_for_the_next_run(seq, chain_process, monkeypatch):
+    """A second run on the same open pool with the same settings reuses the first run's
+    verified graph (none built, none verified) and gives the same poses, bit for bit; other
+    settings build their own; a run that fails gives none back; shutdown drops them."""
+    frames, camera = _frames(seq, False)
+    built = []
+    build = ob.build_batch_graph
+    monkeypatch.setattr(ob, "build_batch_graph", lambda *a, **k: built.append(a[1]) or build(*a, **k))
+    with ob.make_pool(1, chain_process=chain_process) as pool:
+        first = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=pool)])
+        again = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=pool)])
+        np.testing.assert_array_equal(again, first)
+        assert built == [BATCH]
+        list(ob.track_frames_batched(frames[:6], camera, batch=3, pool=pool))
+        assert built == [BATCH, 3] and len(pool.graphs) == 2
+        with pytest.raises(WarpvxError, match="dtype"):
+            list(ob.track_frames_batched([{"image": f["image"].astype(np.float32)} for f in frames], camera,
+                                         batch=BATCH, pool=pool))
+        assert len(pool.graphs) == 1  # (taken by the failed run, not given back)
+        np.testing.assert_array_equal([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH,
+                                                                             pool=pool)], first)
+        assert built == [BATCH, 3, BATCH]
+        monkeypatch.setattr(ob, "KEEP_GRAPHS", 1)  # the least recently run dropped
+        list(ob.track_frames_batched(frames[:6], camera, batch=3, pool=pool))
+        assert built == [BATCH, 3, BATCH] and [key[3] for key in pool.graphs] == [3]
+    assert pool.graphs == {}
+
+
 def test_chain_process_dry_run_answers_without_tracking(seq):
     """In ChainProcess.dry_run (what the graph's verification runs in) this thread's batches
     get zero poses and stats shaped and typed as real ones, no pose work started; another

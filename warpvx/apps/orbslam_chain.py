@@ -173,7 +173,8 @@ class ChainProcess:
     applied at each run's start; ``quiet`` False: multiprocessing's stock ``Pool``; ``nice``:
     the pose processes' niceness increment (see :func:`~warpvx.apps.orbslam_pool.make_pool`).
     :meth:`counts` (and ``waited_s``, ``started``, ``cancelled``) reports the pool's counters
-    and the chain's wall and thread CPU time."""
+    and the chain's wall and thread CPU time. ``graphs`` as
+    :class:`~warpvx.apps.orbslam_pool.PosePool`'s."""
 
     def __init__(self, workers: int, quiet: bool = True, ahead: bool = True, share: bool = True, nice: int = 0,
                  direct: bool = True):
@@ -183,6 +184,7 @@ class ChainProcess:
             raise WarpvxValueError("chain_process: needs POSIX shared memory (run the chain in process)")
         ctx = get_context("spawn")
         self.workers, self.ahead, self.share, self.direct = workers, ahead, share, direct
+        self.graphs = {}
         child_in, self._to_child = ctx.Pipe(duplex=False)
         self._from_child, child_out = ctx.Pipe(duplex=False)
         self._process = ctx.Process(target=_serve, args=(child_in, child_out, workers, quiet, nice),
@@ -316,6 +318,7 @@ class ChainProcess:
         """Stop the process (batches still queued there are dropped; ``cancel_futures`` is
         :class:`~warpvx.apps.orbslam_pool.PosePool`'s, kept for its callers: either way) and
         unlink the shared blocks."""
+        self.graphs.clear()
         self._stop()
 
     def __enter__(self):

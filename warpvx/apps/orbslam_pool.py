@@ -330,7 +330,9 @@ class PosePool:
     process's own thread that lives as long as the pool: the chain process's main thread).
     ``nice`` (POSIX, 0 to 19): the processes' niceness increment (:func:`make_pool`'s).
     ``direct`` False (to measure what it gives): jobs go through multiprocessing's task
-    hand-off thread (see :meth:`_apply`)."""
+    hand-off thread (see :meth:`_apply`). ``graphs``: the verified graphs of the runs it
+    served, for the next run with the same settings
+    (:func:`~warpvx.apps.orbslam_batch.track_frames_batched`'s; dropped on :meth:`shutdown`)."""
 
     def __init__(self, workers: int, ahead: bool = True, share: bool = True, quiet: bool = True,
                  bound: bool = False, nice: int = 0, direct: bool = True):
@@ -342,7 +344,7 @@ class PosePool:
                                                                   initargs=(bound, nice), context=get_context("spawn"))
         # the shared blocks are POSIX shared memory (read through _posixshmem in the workers)
         self.workers, self.ahead, self.share = workers, ahead, share and os.name == "posix"
-        self.direct = direct
+        self.direct, self.graphs = direct, {}
         # (re-entrant: a job whose pickling fails is settled, its callback run, while dispatching)
         self._lock = threading.RLock()
         self._queue, self._order, self._running = [], itertools.count(), 0
@@ -417,6 +419,7 @@ class PosePool:
             self.waited_s[what] += time.perf_counter() - t
 
     def shutdown(self, cancel_futures: bool = False):
+        self.graphs.clear()
         with self._lock:
             for *_, task in self._queue:
                 task._drop()
