@@ -11,13 +11,14 @@ pose pool alone; ``--workers``, ``--nice``: the pose pool's processes and their 
 ``orb-ab``: an interleaved A/B of one setting (:data:`EXPERIMENTS`: ``chain``, the chain in
 this process vs in its own; ``batch``, B=16 vs 32; ``nice``, the pose processes at niceness 0,
 5, 10; ``workers``, the default pool vs 3 and 5 processes fewer; ``direct``, the pool's jobs
-written by the dispatching thread vs through multiprocessing's task thread), ``--pairs`` rounds, each a
-fresh process (``orb-round``) running every arm once, the frames rendered once, before; prints
-a markdown table (FPS wall and steady, the chain's wall, CPU and waits per batch; medians) with
-the command at its top and writes it to ``DIR/<experiment>-ab.md`` (``chain-process-ab.md``
-for ``chain``; default ``$OUT``, else the current folder). On the H100 a round takes ~30 s per
-arm (~3 min for ``--experiment nice,workers``). ``cap``: the two-camera graph (16 nodes, 1280x720, baseline placement) as a
-captured stream, depth 3, after a reset (``benchmarks/perf/capture_stream.py``). Prints FPS per
+written by the dispatching thread vs through multiprocessing's task thread), ``--pairs``
+rounds, each a fresh process (``orb-round``) running every arm once (a pool of its own each,
+a warm-up run, then the timed one), the frames rendered once, before; prints a markdown table
+(FPS wall and steady, the chain's wall, CPU and waits per batch; medians) with the command at
+its top and writes it to ``DIR/<experiment>-ab.md`` (``chain-process-ab.md`` for ``chain``;
+default ``$OUT``, else the current folder). ``cap``: the two-camera graph (16 nodes, 1280x720,
+baseline placement) as a captured stream, depth 3, after a reset
+(``benchmarks/perf/capture_stream.py``). Prints FPS per
 round. Under py-spy (staged beside Warp by ``warp-pack ... py-spy``)::
 
     py-spy record -r 200 --threads --gil -f raw -o orb_gil.txt -- python3 benchmarks/perf/hot_paths.py orb
@@ -163,8 +164,8 @@ def orb_ab(pairs: int, out: str, frames: int = 600, backend="cuda", experiment: 
                                    f"{run.stdout}\n{run.stderr}")
             for i, row in found:
                 runs[int(i)].append(json.loads(row))
-            print(f"round {r + 1} ({time.perf_counter() - t:.0f} s): "
-                  + "; ".join(f"{label}: {rows[-1]['fps']:.1f} FPS" for (label, _), rows in zip(arms, runs)), flush=True)
+            fps = "; ".join(f"{label}: {rows[-1]['fps']:.1f} FPS" for (label, _), rows in zip(arms, runs))
+            print(f"round {r + 1} ({time.perf_counter() - t:.0f} s): {fps}", flush=True)
     ref = _median(row["fps"] for row in runs[0])
     lines = [f"Regenerate (H100, one call): `{command}`",
              f"(On {backend}, {pairs} rounds, each a fresh process running every arm once, the order rotated by "
