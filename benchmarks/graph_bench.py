@@ -16,8 +16,12 @@ Steps, per graph and camera size (default 1280x720 and 1920x1080):
 
 1. verify on two real consecutive frames and calibrate (cached per machine); once, the GIL
    switch interval and executor spin are chosen (``--switch-interval``, ``--spin`` fix them);
-2. baseline, heft and xeft run their first ``--fit-frames`` frames in interleaved rounds (as
-   in step 3); the contention model (:mod:`warpvx.graph.model`) is fitted on ``--train``'s
+2. the plans' first round (discarded), the model's probes (contention, GIL shares: they load
+   every core for seconds; run between the training and the later rounds, the later rounds
+   started 14-17% slower on the H100), then interleaved rounds, discarded, until the
+   machine settles (``SETTLE_PCT``, at most ``SETTLE_ROUNDS``); baseline, heft and xeft run
+   their first ``--fit-frames`` frames in interleaved rounds (as in step 3); the contention
+   model (:mod:`warpvx.graph.model`) is fitted on ``--train``'s
    (baseline, calibrated costs); ``best`` takes its candidates (baseline, HEFT and XEFT on the calibrated and on the
    model's costs) and tries those predicted within 20% of the fastest (the model's error),
    and the runner-up if within 50% (its worst out-of-sample error on mixed placements),
@@ -27,10 +31,14 @@ Steps, per graph and camera size (default 1280x720 and 1920x1080):
    frames each, one at a time, in interleaved rounds of ``--block`` frames (A B C D, D C B A, ...; warm-up frames after
    each switch discarded): a drift of the machine (the same placement measured 30-40%
    apart minutes later on the H100) falls on every policy alike; then each is pipelined
-   (``--depth`` in flight, FPS);
+   (``--depth`` in flight, FPS); before each round a fixed single-threaded OpenCV call is
+   timed (the CPU's speed then), with our process's CPU use while idle and the machine's
+   busy and steal time over the round (``round_log``: the machine's drift, told apart from
+   ours);
 4. per policy: predicted in sample (a model on the frames it learnt from) and out of sample
-   (the training model on the frames after the first ``--fit-frames``), errors, the noise
-   floor (the same placement's even rounds against its odd rounds), and whether best is
+   (the training model on the frames after the first ``--fit-frames``, and on those of the
+   rounds right after training), errors, the noise floor (the same placement's even rounds
+   against its odd rounds), its drift (later rounds over its training rounds), and whether best is
    within 5% of the fastest measured; Gantt charts of the prediction over a measured frame
    (``gantt_<graph>_<size>_<policy>.png``) and of 3 pipelined frames (``..._pipelined.png``),
    packed into ``gantt.tar`` (each graph's best chart also beside it: results come back from
@@ -87,6 +95,19 @@ PLAN_WARMUP = 8
 #: Gantt PNGs go to this folder of --out, packed into gantt.tar at the end (results come
 #: back from the GPU machine as at most 8 files); each graph's best chart stays beside it.
 GANTT_DIR = "gantt"
+#: Before the training rounds, interleaved rounds of every plan (discarded) run until the
+#: machine runs them as in the round before: each plan's median within SETTLE_PCT % of its
+#: previous round's on average, at most SETTLE_ROUNDS rounds. The model's probes load every
+#: core for seconds; on the H100 the rounds after them ran 14-17% slower than the rounds
+#: before (s6, s6b at 1280x720), easing off over the next rounds.
+SETTLE_PCT = 5.0
+SETTLE_ROUNDS = 5
+#: Rounds right after the training rounds, the nearest in time: the out-of-sample error is
+#: also given against them (a drift of the machine over the later rounds left out).
+NEAR_ROUNDS = 2
+#: A fixed CPU-only reference timed in the caller's thread between rounds (ms): it moves
+#: with the machine's speed, not with anything of the runtime's.
+REFERENCE_SIZE = (640, 360)
 ROOT = Path(__file__).resolve().parent
 DETECTOR_ITERS = 8
 
@@ -338,32 +359,131 @@ def _err(pred, meas) -> float:
     return 100.0 * (pred - meas) / meas if meas > 0 else float("nan")
 
 
+def reference_ms(repeats: int = 3) -> float:
+    """Median ms of a fixed single-threaded OpenCV call (:func:`denoise` on a
+    :data:`REFERENCE_SIZE` image) in this thread: the machine's CPU speed now."""
+    img = reference_ms.image
+    return statistics.median(_timed(denoise, img) for _ in range(repeats))
+
+
+reference_ms.image = np.random.default_rng(0).integers(0, 256, REFERENCE_SIZE[::-1], dtype=np.uint8)
+
+
+def _timed(fn, *args) -> float:
+    t0 = time.perf_counter()
+    fn(*args)
+    return (time.perf_counter() - t0) * 1e3
+
+
+def idle_cpu_pct(seconds: float = 0.02) -> float:
+    """This process's CPU use (% of one core) while the caller sleeps ``seconds``: the
+    runtime's threads between frames should use none (a spinning one shows here)."""
+    t, c = time.perf_counter(), time.process_time()
+    time.sleep(seconds)
+    return 100.0 * (time.process_time() - c) / (time.perf_counter() - t)
+
+
+def cpu_counters():
+    """(wall s, this process's CPU s, the machine's /proc/stat jiffies: busy, steal, all)
+    or None where there is no /proc/stat."""
+    try:
+        with open("/proc/stat") as f:
+            v = [int(x) for x in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    idle, steal = v[3] + v[4], v[7] if len(v) > 7 else 0
+    return time.perf_counter(), time.process_time(), sum(v) - idle - steal, steal, sum(v)
+
+
+def round_sample(before, after) -> dict:
+    """Between two :func:`cpu_counters`: the machine's busy and steal time (% of all its
+    cores' time: another tenant of the host shows as steal) and the cores this process kept
+    busy on average."""
+    if before is None or after is None:
+        return {}
+    d = [b - a for a, b in zip(before, after)]
+    return {"busy_pct": 100.0 * d[2] / max(d[4], 1), "steal_pct": 100.0 * d[3] / max(d[4], 1),
+            "process_cores": d[1] / max(d[0], 1e-9)}
+
+
+def work_cores(runs) -> float:
+    """Cores the frames' tasks kept busy on average: the CPU tasks' intervals and the GPU
+    tasks' host calls over the makespans (beside a round's ``process_cores``: what the
+    process burnt beyond its tasks, a spinning wait say)."""
+    busy = sum((r.host[t][1] - r.host[t][0]) if tl.processor == "gpu" and t in r.host else
+               (0.0 if tl.processor == "gpu" else tl.finish - tl.start)
+               for r in runs for t, tl in r.timeline.items())
+    return busy / max(sum(r.makespan for r in runs), 1e-9)
+
+
+def rounds(g, plans, frames, n, block, *, start=0, flip=False, log=None) -> list:
+    """:meth:`~warpvx.graph.Graph.measure_plans` one round at a time (A B C, C B A, ...;
+    ``flip``: C B A first), the inputs going on from ``start``. Appended to ``log`` per
+    round: the :func:`reference_ms` and :func:`idle_cpu_pct` before it, its
+    :func:`round_sample`, its :func:`work_cores` and its median makespan per plan. Per
+    plan, its FrameResults."""
+    out = [[] for _ in plans]
+    k = start
+    for r in range(n):
+        order = list(range(len(plans)))
+        if (r + flip) % 2:
+            order.reverse()
+        ref, idle, c0 = reference_ms(), idle_cpu_pct(), cpu_counters()
+        got = g.measure_plans([plans[i] for i in order],
+                              frames[k % len(frames):] + frames[:k % len(frames)],
+                              rounds=1, frames=block, warmup=SWITCH_WARMUP)
+        k += len(plans) * (block + SWITCH_WARMUP)
+        for i, runs in zip(order, got):
+            out[i].extend(runs)
+        if log is not None:
+            log.append({"reference_ms": ref, "idle_cpu_pct": idle,
+                        **round_sample(c0, cpu_counters()),
+                        "work_cores": work_cores([x for runs in got for x in runs]),
+                        "medians": [median_span(out[i][-block:]) for i in range(len(plans))]})
+    return out
+
+
+def settle(g, plans, frames, block) -> dict:
+    """Interleaved rounds of ``plans`` (discarded) until each plan's round median is within
+    :data:`SETTLE_PCT` % of its previous round's on average (at most :data:`SETTLE_ROUNDS`):
+    the rounds run, the change after each (%), whether it settled, the reference per round."""
+    log, changes = [], []
+    for r in range(SETTLE_ROUNDS):
+        rounds(g, plans, frames, 1, block, start=r * len(plans) * (block + SWITCH_WARMUP),
+               flip=bool(r % 2), log=log)
+        if r:
+            changes.append(100.0 * statistics.mean(
+                abs(b / a - 1) for a, b in zip(log[-2]["medians"], log[-1]["medians"])))
+            if changes[-1] < SETTLE_PCT:
+                break
+    return {"rounds": len(log), "change_pct": changes,
+            "settled": bool(changes) and changes[-1] < SETTLE_PCT, "log": log}
+
+
 def experiment(g, frames, args, out_dir, tag: str) -> dict:
-    """One graph at one size. baseline, heft and xeft run their first ``args.fit_frames``
-    frames in interleaved rounds; the contention model learns from the training policy's;
-    ``best`` is chosen with it (its trial interleaves its candidates); then the four
-    policies run the later rounds, up to ``len(frames)`` frames each (best: less the first
-    rounds), in interleaved rounds of ``args.block``
-    (:meth:`~warpvx.graph.Graph.measure_plans`: A B C D, D C B A, ...; warm-up frames after
-    each switch discarded), so a drift of the machine falls on every policy alike, and
-    the drift between a policy's even and odd rounds is the noise floor. Each policy is
-    predicted in sample (a model fitted on the frames it is scored on: the training
-    frames for the training policy, its own first frames for the others) and out of
-    sample (the training model against its frames after the first ``fit_frames``); Gantt
-    charts (predicted over measured, one frame and pipelined)."""
+    """One graph at one size. The plans' first round is discarded; the model's probes run
+    (they load every core for seconds); interleaved rounds run, discarded, until the
+    machine settles (:func:`settle`); then baseline, heft and xeft run their first
+    ``args.fit_frames`` frames in interleaved rounds; the contention model learns from the
+    training policy's; ``best`` is chosen with it (its trial interleaves its candidates);
+    then the four policies run the later rounds, up to ``len(frames)`` frames each (best:
+    less the first rounds), in interleaved rounds of ``args.block`` (A B C D, D C B A, ...;
+    warm-up frames after each switch discarded; a CPU-only reference timed before each
+    round), so a drift of the machine falls on every policy alike, and the drift between a
+    policy's even and odd rounds is the noise floor. Each policy is predicted in sample (a
+    model fitted on the frames it is scored on: the training frames for the training
+    policy, its own first frames for the others) and out of sample (the training model
+    against its frames after the first ``fit_frames``, and against those of the
+    :data:`NEAR_ROUNDS` rounds right after training); its *drift* is its later rounds'
+    median over its training rounds'. Gantt charts (predicted over measured, one frame and
+    pipelined)."""
     fit_n = min(args.fit_frames, len(frames) - 1)
     plans = {p: g.schedule(p, n_cpus=args.n_cpus, gpu=args.gpu) for p in SCHEDULERS}
     block = min(args.block, len(frames))
-    # Training frames in the regime they predict: the policies' first rounds interleaved as
-    # later (frames run alone before the others measured 13-18% faster or 10% slower than the
-    # same placement interleaved on the H100: s3-s5 of benchmarks/results/graph/).
     fit_rounds = -(-fit_n // block)
     # A round discarded first: the plans record their captures and switch once.
-    g.measure_plans([plans[p] for p in SCHEDULERS], frames, rounds=1, frames=PLAN_WARMUP,
-                    warmup=SWITCH_WARMUP)
-    first = g.measure_plans([plans[p] for p in SCHEDULERS], frames, rounds=fit_rounds,
-                            frames=block, warmup=SWITCH_WARMUP)
-    train_runs = dict(zip(SCHEDULERS, first))[args.train][:fit_n]
+    warm = g.measure_plans([plans[p] for p in SCHEDULERS], frames, rounds=1, frames=PLAN_WARMUP,
+                           warmup=SWITCH_WARMUP)
     # The model: GIL-weighted (busy neighbours counted by their GIL shares), the unweighted
     # one reported beside (replayed on the H100 runs s3-s5, trained on each of baseline, heft
     # and xeft: 78 of 108 cells within 20% out of sample against 70, 81 with the segment
@@ -371,6 +491,16 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     # beside a Python loop, minutes on Warp's CPU device (calls there hand the GIL over per
     # launch, each waiting a switch interval), so there the unweighted one.
     gil = not args.quick
+    # The probes now (measured once, kept in the calibration), not between the training and
+    # the later rounds: the rounds after them ran slower on the H100 (s6, s6b).
+    g.fit_model(plans[args.train], runs=dict(zip(SCHEDULERS, warm))[args.train], gil=gil)
+    settled = settle(g, [plans[p] for p in SCHEDULERS], frames, block)
+    # Training frames in the regime they predict: the policies' first rounds interleaved as
+    # later (frames run alone before the others measured 13-18% faster or 10% slower than the
+    # same placement interleaved on the H100: s3-s5 of benchmarks/results/graph/).
+    log = []
+    first = rounds(g, [plans[p] for p in SCHEDULERS], frames, fit_rounds, block, log=log)
+    train_runs = dict(zip(SCHEDULERS, first))[args.train][:fit_n]
     plain = g.fit_model(plans[args.train], runs=train_runs)
     model = g.fit_model(plans[args.train], runs=train_runs, gil=True) if gil else plain
     # best: the model's candidates; those it cannot tell apart are tried in rounds.
@@ -378,13 +508,15 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
              "trial_rounds": args.trial_rounds} if args.trial_frames else {}
     plans["best"] = g.schedule("best", n_cpus=args.n_cpus, gpu=args.gpu, model=model, **trial)
     # best joins the later rounds; the inputs go on where the first rounds stopped.
-    done = fit_rounds * len(SCHEDULERS) * (block + SWITCH_WARMUP)
-    later = g.measure_plans([plans[p] for p in POLICIES], frames[done % len(frames):] +
-                            frames[:done % len(frames)],
-                            rounds=max(1, -(-len(frames) // block) - fit_rounds), frames=block,
-                            warmup=SWITCH_WARMUP)
+    later_log = []
+    later = rounds(g, [plans[p] for p in POLICIES], frames,
+                   max(1, -(-len(frames) // block) - fit_rounds), block,
+                   start=fit_rounds * len(SCHEDULERS) * (block + SWITCH_WARMUP), log=later_log)
     seq = {p: (runs if p == "best" else first[i] + runs)[:len(frames)]
            for i, (p, runs) in enumerate(zip(POLICIES, later))}
+    near = {p: runs[:NEAR_ROUNDS * block] for p, runs in zip(POLICIES, later)}
+    drift = {p: _err(median_span(seq[p][fit_n:]), median_span(first[i]))
+             for i, p in enumerate(SCHEDULERS)}
     piped, fps = {}, {}
     for policy in POLICIES:
         piped[policy], fps[policy] = pipelined(g, plans[policy], frames, args.depth)
@@ -408,6 +540,13 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
             "error_out_plain_pct": _err(pred_plain, meas_out) if gil else None,
             "measured_p90_ms": float(np.percentile([r.makespan for r in runs[fit_n:]], 90)),
             "noise_pct": halves_drift_pct(runs, block),
+            "drift_pct": drift.get(policy),
+            "measured_near_ms": median_span(near[policy]),
+            "error_near_pct": _err(pred_out, median_span(near[policy])),
+            # The training policy as the reference clock: its drift taken out of the
+            # prediction (a machine that slowed down slows every placement alike).
+            "error_dedrift_pct": None if policy == args.train else
+            _err(pred_out * (1 + drift[args.train] / 100), meas_out),
             "sequential_fps": sequential_fps(runs),
             "pipelined_fps": fps[policy],
             "gpu_nodes": sorted(t for t, p in plan.placement.items() if p == "gpu"),
@@ -455,6 +594,9 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
         "gil": plans[args.train].calibration.gil,
         "capturable": sorted(g.capturable_nodes(plans[args.train].gpu)),
         "model_pick": min(best["candidates"], key=best["candidates"].get),
+        "drift_pct": drift[args.train],
+        "settle": settled,
+        "round_log": {"training": log, "later": later_log},
     }
 
 
@@ -500,6 +642,10 @@ def _pct(v) -> str:
     return "-" if v is None or v != v else f"{v:.1f}%"
 
 
+def _signed(v) -> str:
+    return "-" if v is None or v != v else f"{v:+.1f}%"
+
+
 def _fmt(v, spec=".3f"):
     return "-" if v is None else format(v, spec)
 
@@ -531,6 +677,9 @@ def markdown(report) -> str:
         "one replay: a ratio times its nodes' calibrated device times plus a fixed cost, fitted on "
         "the training frames' segments (all of one size: the fixed cost a prior, "
         "`SEGMENT_FIXED_PRIOR`). "
+        "*Settle*: before training, the model's probes run (they load every core for seconds), "
+        "then interleaved rounds, discarded, until each plan's round median is within "
+        f"{SETTLE_PCT:g}% of its round before (at most {SETTLE_ROUNDS} rounds). "
         "*Training*: the training policy's first frames, in the first rounds (baseline, heft and "
         "xeft interleaved; best joins the later rounds). "
         "*In sample*: a model against the frames it learnt from (the training model for the "
@@ -538,7 +687,15 @@ def markdown(report) -> str:
         "frames). *Out of sample*: the training model against every policy's interleaved "
         "frames after the first ones (target: within 20%). *noise*: the same placement's "
         "median makespan in its even against its odd rounds (two interleaved runs of one "
-        "placement): an error below it cannot be told from drift. The model counts each busy "
+        "placement): an error below it cannot be told from drift. *drift*: the policy's "
+        "later rounds' median over its training rounds' (the training policy's is the "
+        "machine's drift as the model sees it: it reproduces those training rounds); *near*: the "
+        f"out-of-sample prediction against the {NEAR_ROUNDS} rounds right after training "
+        "(nearest in time); *drift out*: the out-of-sample error of the prediction times the "
+        "training policy's drift (that policy as the reference clock; not for itself). "
+        "*reference*: a fixed single-threaded OpenCV call timed in the "
+        "caller's thread before each round (the CPU's speed then, none of the runtime's "
+        "work). The model counts each busy "
         "neighbour by its node's GIL pressure and each victim by its sensitivity "
         "(`warpvx.graph.calibration.measure_gil`; not in a quick run); *unweighted*: the same "
         "training frames fitted with every busy thread counted alike. *scheduler*: the makespan "
@@ -567,12 +724,12 @@ def markdown(report) -> str:
             + (f"; captured segment replay {m['segment_ratio']:.2f} x its nodes' calibrated GPU "
                f"(device) time + "
                f"{m.get('segment_fixed_us', 0):.0f} us" if m.get("segment_ratio") else "")
-            + ".", "", probe_line(e.get("probe") or []), "",
+            + ".", "", probe_line(e.get("probe") or []), "", drift_line(e), "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
-            "of sample | measured | error | noise | unweighted: predicted | error | p90 ms | "
-            "sequential FPS | pipelined FPS | GPU nodes |",
-            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
-            "| ---: | --- |",
+            "of sample | measured | error | noise | drift | near: measured | error | drift out | "
+            "unweighted: predicted | error | p90 ms | sequential FPS | pipelined FPS | GPU nodes |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+            "| ---: | ---: | ---: | ---: | ---: | ---: | --- |",
         ]
         for r in e["policies"]:
             name = r["policy"] + (f" ({r['chosen']})" if r["chosen"] != r["policy"] else "")
@@ -580,7 +737,10 @@ def markdown(report) -> str:
                 f"| {name} | {r['scheduler_ms']:.3f} | {r['pred_in_ms']:.3f} | "
                 f"{r['measured_in_ms']:.3f} | {r['error_in_pct']:+.1f}% | {r['pred_out_ms']:.3f} | "
                 f"{r['measured_out_ms']:.3f} | {r['error_out_pct']:+.1f}% | "
-                f"{_pct(r.get('noise_pct'))} | {_fmt(r.get('pred_out_plain_ms'))} | "
+                f"{_pct(r.get('noise_pct'))} | {_signed(r.get('drift_pct'))} | "
+                f"{_fmt(r.get('measured_near_ms'))} | {_signed(r.get('error_near_pct'))} | "
+                f"{_signed(r.get('error_dedrift_pct'))} | "
+                f"{_fmt(r.get('pred_out_plain_ms'))} | "
                 f"{_pct(r.get('error_out_plain_pct'))} | {r['measured_p90_ms']:.3f} | "
                 f"{r['sequential_fps']:.1f} | "
                 f"{r['pipelined_fps']:.1f} | {len(r['gpu_nodes'])}: {', '.join(r['gpu_nodes'])} |")
@@ -641,6 +801,37 @@ def same_placement_lines(policies) -> list:
                 f"{r['policy']} {r['measured_out_ms']:.3f} ms" for r in rows)
                 + f" (spread {100 * (max(ms) / min(ms) - 1):.1f}%: one placement measured twice).")
     return lines + [""] if lines else []
+
+
+#: Per-round quantities of the round log in the drift line: key, label, format.
+ROUND_FIELDS = (("reference_ms", "CPU reference ms", ".2f"),
+                ("idle_cpu_pct", "our CPU % between rounds", ".0f"),
+                ("busy_pct", "machine busy %", ".0f"), ("steal_pct", "steal %", ".1f"),
+                ("process_cores", "our busy cores", ".2f"),
+                ("work_cores", "cores our tasks' intervals span", ".2f"))
+
+
+def drift_line(e) -> str:
+    """The settle phase, the training policy's drift and the per-round machine state (the
+    CPU reference, our idle CPU use, the machine's busy and steal time) in words: medians
+    over the settle, training and later rounds, and per later round (older results have
+    none of them: '')."""
+    st, log = e.get("settle"), e.get("round_log")
+    if not st:
+        return ""
+    changes = ", ".join(f"{c:.1f}" for c in st["change_pct"]) or "-"
+    text = (f"Settle: {st['rounds']} rounds (change after each, %: {changes}; "
+            f"{'settled' if st['settled'] else 'NOT settled'}). Drift of the training policy "
+            f"({e['train']}), later over training rounds: {_signed(e.get('drift_pct'))}.")
+    phases = {"settle": st["log"], "training": log["training"], "later": log["later"]}
+    for key, label, spec in ROUND_FIELDS:
+        got = {ph: [x[key] for x in rows if key in x] for ph, rows in phases.items()}
+        if not any(got.values()):
+            continue
+        text += f" {label} (median settle / training / later): " + " / ".join(
+            format(statistics.median(v), spec) if v else "-" for v in got.values())
+        text += " (per later round: " + ", ".join(format(v, spec) for v in got["later"]) + ")."
+    return text
 
 
 def probe_line(probe) -> str:

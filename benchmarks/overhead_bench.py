@@ -5,6 +5,9 @@
    one timing event per run of GPU tasks instead of one per task), alternating CPU/GPU; per
    node: wall time per frame minus the nodes' own time, over the nodes. These user nodes do
    not opt in to capture.
+   Then the calls a frame makes on those chains, counted rather than timed (``Graph.process``;
+   :mod:`native_counts`): Python function calls and native Warp calls (CUDA events, stream
+   waits and syncs, copies, context and stream switches, by name), per node and per frame.
 2. A GPU-only chain of primitive nodes (3x3 Gaussian blurs of a 16x16 gray image, which the
    runtime may capture), eager and captured: per node = the difference of the frame times of
    a long and a short chain over the difference of their lengths (what one more node costs:
@@ -18,7 +21,8 @@
    revision of this checkout, extracted into a temporary folder): the identity
    chains of section 1 run in fresh processes alternating between TREE and this tree
    (``--ab-pairs`` pairs, the order swapped every pair), so both see the same machine state;
-   the table gives each tree's median and the change.
+   the table gives each tree's median and the change, and each tree's calls per node and per
+   frame (counted once per tree, after its timings).
 
 On Warp's CPU device (``--gpu warp-cpu``) "captured" rows replay Warp's CPU graphs (Warp 1.19
 captures there too, ``capture=True``); on CUDA they are CUDA graphs (the default there).
@@ -55,6 +59,7 @@ ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT))
 
 import graph_bench  # noqa: E402 - the two-camera graph's builder and frames, next to this file
+import native_counts  # noqa: E402 - calls per node and per frame, next to this file
 
 import warpvx  # noqa: E402
 from warpvx.backend import init_warp  # noqa: E402
@@ -89,16 +94,18 @@ def _chains(args) -> list:
 _AB_RUN = """
 import json, statistics, sys, time
 sys.path.insert(0, sys.argv[1])
+sys.path.insert(1, sys.argv[6])
 import cv2
 import numpy as np
 import warpvx
 from warpvx.graph.diagnostics import _chain, _time_direct
+import native_counts
 if not warpvx.__file__.startswith(sys.argv[1]):
     raise SystemExit(f"imported {warpvx.__file__}, not the tree's")
 cv2.setNumThreads(1)
-n, frames, gpu = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+n, frames, gpu, count = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5] == "1"
 x = np.arange(4, dtype=np.float32)
-rows = []
+rows, calls = [], {}
 for chain, nodes in (("gpu", n), ("mixed", n // 2), ("cpu", n)):
     g = _chain(nodes, chain)
     g.schedule("heft", n_cpus=1, gpu=False if chain == "cpu" else gpu)
@@ -118,7 +125,9 @@ for chain, nodes in (("gpu", n), ("mixed", n // 2), ("cpu", n)):
     rows.append({"chain": chain, "n_nodes": nodes,
                  "per_node_us": (statistics.median(wall) - t_call) / nodes * 1e6,
                  "per_node_us_stream": (stream - t_call) / nodes * 1e6})
-print(json.dumps(rows))
+    if count:  # after the timing: the counters slow every call
+        calls[chain] = native_counts.chain_calls(_chain, chain, nodes, gpu)
+print(json.dumps({"rows": rows, "calls": calls}))
 """
 
 
@@ -137,19 +146,24 @@ def _tree(ab: str) -> str:
 def _ab_runs(args, trees: dict) -> dict:
     """tree name -> its runs (each a list of chain rows), ABBA order, fresh processes."""
     runs = {k: [] for k in trees}
+    calls = {}
     for pair in range(args.ab_pairs):
         order = ("before", "after") if pair % 2 == 0 else ("after", "before")
         for k in order:
+            count = "1" if pair == 0 else "0"  # the same every run: each tree's once
             out = subprocess.run([sys.executable, "-c", _AB_RUN, trees[k], str(args.nodes),
-                                  str(args.frames), args.gpu], capture_output=True, text=True,
-                                 timeout=300)
+                                  str(args.frames), args.gpu, count, str(ROOT)],
+                                 capture_output=True, text=True, timeout=300)
             if out.returncode:
                 raise RuntimeError(f"{k} ({trees[k]}): {out.stderr.strip()[-2000:]}")
-            runs[k].append(json.loads(out.stdout.strip().splitlines()[-1]))
+            got = json.loads(out.stdout.strip().splitlines()[-1])
+            runs[k].append(got["rows"])
+            if got["calls"]:
+                calls[k] = got["calls"]
             print(f"  pair {pair + 1}/{args.ab_pairs} {k}: " + ", ".join(
                 f"{r['chain']} {r['per_node_us']:.1f}" for r in runs[k][-1]) + " us/node",
                 flush=True)
-    return runs
+    return runs, calls
 
 
 def _ab(args) -> list:
@@ -157,7 +171,7 @@ def _ab(args) -> list:
     processes, alternating (ABBA...); rows of per-tree medians."""
     trees = {"before": _tree(args.ab), "after": str(ROOT.parent)}
     try:
-        runs = _ab_runs(args, trees)
+        runs, calls = _ab_runs(args, trees)
     finally:
         if not Path(args.ab).is_dir():  # a revision, extracted for this run
             shutil.rmtree(trees["before"], ignore_errors=True)
@@ -169,7 +183,45 @@ def _ab(args) -> list:
                       for m in ("per_node_us", "per_node_us_stream")}
             row[k]["all"] = [round(run[i]["per_node_us"], 2) for run in runs[k]]
         rows.append(row)
-    return [{"trees": trees, "rows": rows}]
+    return [{"trees": trees, "rows": rows, "calls": calls}]
+
+
+def _calls(args) -> list:
+    """Section 1b: this tree's calls per node and per frame on the identity chains (counted;
+    :mod:`native_counts`)."""
+    from warpvx.graph.diagnostics import _chain
+
+    out = {}
+    for chain, nodes in (("gpu", args.nodes), ("mixed", args.nodes // 2), ("cpu", args.nodes)):
+        out[chain] = native_counts.chain_calls(_chain, chain, nodes, args.gpu)
+        print(f"  {chain}: per node / per frame: python {out[chain]['python']}, native "
+              f"{out[chain]['native']}", flush=True)
+    return [{"trees": {"this tree": str(ROOT.parent)}, "calls": {"this tree": out}}]
+
+
+def _calls_table(trees: dict, calls: dict) -> list:
+    """Markdown lines: calls per node and per frame by chain, for each tree of ``calls``."""
+    names = [k for k in ("before", "after", "this tree") if k in calls]
+    if not names:
+        return []
+    head = " | ".join(f"{what} per {unit} ({k})" for what in ("python", "native")
+                      for unit in ("node", "frame") for k in names)
+    lines = ["", "## Calls per node and per frame, identity chains, `Graph.process` (counted)", "",
+             "Trees: " + ", ".join(f"{k} = {trees[k]}" for k in names) + ".", "",
+             f"| chain | {head} | native calls by name, per node / per frame ({names[-1]}) |",
+             "|---|" + "---|" * (4 * len(names) + 1)]
+    for chain in calls[names[-1]]:
+        cells = [f"{calls[k][chain][what][i]:g}" if chain in calls[k] else "?"
+                 for what in ("python", "native") for i in (0, 1) for k in names]
+        by_name = calls[names[-1]][chain]["by_name"]
+        named = ", ".join(f"{n} {a:g}/{b:g}" for n, (a, b) in by_name.items() if a or b)
+        lines.append(f"| {chain} | " + " | ".join(cells) + f" | {named or 'none'} |")
+    lines += ["", "Per node: what one more node adds (chains of n/2 and n nodes, the difference "
+                  "over n/2); per frame: the rest. Python: cProfile's function calls on the "
+                  "caller's thread (where a frame alone runs); native: calls into Warp's library "
+                  "(CUDA events, stream waits and syncs, copies, context and stream switches), "
+                  "through counting wrappers (benchmarks/native_counts.py)."]
+    return lines
 
 
 def _chain_label(row) -> str:
@@ -380,6 +432,8 @@ def markdown(report) -> str:
                       "a fresh process timing both trees with the same code: process (one frame "
                       "at a time, no result kept: as a caller) and stream (4 in flight) us/node, "
                       "the nodes' own time taken off."]
+    for e in report.get("calls", []) + report.get("ab", []):
+        lines += _calls_table(e["trees"], e.get("calls", {}))
     for key, err in report["errors"].items():
         lines += ["", f"**{key} failed**: {err}"]
     return "\n".join(lines) + "\n"
@@ -422,11 +476,12 @@ def main(argv=None):
     sections, errors = {}, {}
     try:
         for key, title, run in (("chains", "identity chains", _chains),
+                                ("calls", "calls per node and per frame (counted)", _calls),
                                 ("primitive_chain", "primitive chain", _primitive_chain),
                                 ("two_cameras", "two-camera graph", _two_cameras),
                                 ("ab", "A/B of the identity chains", _ab)):
-            if key == "ab" and not args.ab:
-                continue
+            if (key == "ab" and not args.ab) or (key == "calls" and args.ab):
+                continue  # (with --ab, the A/B counts both trees)
             print(title, flush=True)
             try:
                 sections[key] = run(args)

@@ -738,7 +738,7 @@ def test_burst_timing_records_one_start_and_one_end_event_per_run_on_cuda_paths(
         ex._events, rec = Pool(), []
         ex._record = rec.append
         x = wp.array(np.ones(4, np.float32), dtype=wp.float32, device="cpu")
-        slots = {"x": Slot.ready(x, DEVICE), **{k: Slot() for k in placement}}
+        slots = {"x": Slot.holding(x, DEVICE), **{k: Slot() for k in placement}}
         frame = Frame(0, slots, 1)
         frame.bursts = timing == "bursts"
         state = GpuState("gpu", Transfers("cpu"))

@@ -524,3 +524,118 @@ def test_gil_weighted_model_transfers_to_mixed_placements_on_h100_s5():
     assert len(mixed) == 2 and all(abs(e) <= 20.0 for e in mixed.values()), mixed
     within = {gil: sum(abs(r["error_pct"]) <= 20.0 for r in got) for gil, got in rows.items()}
     assert within[True] >= within[False] + 2, within
+
+
+# --------------------------------------------------------------------------- the bench's rounds
+
+
+class _ScriptedGraph:
+    """Stands in for a Graph in :func:`graph_bench.rounds`/``settle``: ``measure_plans`` of
+    one round gives each plan ``frames`` runs of the makespan ``spans[call][plan]`` and
+    records the order the plans ran in and the first input of the call."""
+
+    def __init__(self, spans):
+        self.spans, self.orders, self.first_inputs = spans, [], []
+
+    def measure_plans(self, plans, inputs, *, rounds, frames, warmup):
+        assert rounds == 1
+        call = len(self.orders)
+        self.orders.append(list(plans))
+        self.first_inputs.append(inputs[0])
+        return [[type("Run", (), {"makespan": self.spans[call % len(self.spans)][p],
+                                  "timeline": {}, "host": {}})()] * frames for p in plans]
+
+
+def test_bench_rounds_alternate_plans_and_go_on_through_the_inputs():
+    bench = _graph_bench()
+    g = _ScriptedGraph([{"a": 1.0, "b": 2.0, "c": 3.0}])
+    log = []
+    out = bench.rounds(g, ["a", "b", "c"], list(range(100)), 3, 4, start=5, log=log)
+    assert g.orders == [["a", "b", "c"], ["c", "b", "a"], ["a", "b", "c"]]
+    # Each round runs 3 plans x (4 + the switch warm-up) frames; the next starts after them.
+    step = 3 * (4 + bench.SWITCH_WARMUP)
+    assert g.first_inputs == [5, 5 + step, 5 + 2 * step]
+    # Runs come back per plan in the order given, whatever order a round ran them in.
+    assert [[r.makespan for r in runs] for runs in out] == [[1.0] * 12, [2.0] * 12, [3.0] * 12]
+    assert [x["medians"] for x in log] == [[1.0, 2.0, 3.0]] * 3
+    assert all(x["reference_ms"] > 0 and x["idle_cpu_pct"] >= 0 for x in log)
+    assert all(0 <= x["steal_pct"] <= x["steal_pct"] + x["busy_pct"] <= 100.0 for x in log)
+
+
+def test_bench_settle_stops_once_rounds_repeat_and_is_capped():
+    bench = _graph_bench()
+    # A machine slowing down after a load, then steady: 10 -> 8 -> 6.5 -> 6.4 ms per plan.
+    spans = [{"a": v, "b": 2 * v} for v in (10.0, 8.0, 6.5, 6.4, 6.4, 6.4)]
+    got = bench.settle(_ScriptedGraph(spans), ["a", "b"], list(range(50)), 3)
+    assert got["rounds"] == 4 and got["settled"]
+    assert got["change_pct"] == pytest.approx([20.0, 18.75, 100 * (1 - 6.4 / 6.5)])
+    assert len(got["log"]) == 4 and all(x["reference_ms"] > 0 for x in got["log"])
+    # Never steady (two speeds in turn): stops at the cap, and says so.
+    flip = [{"a": 10.0, "b": 10.0}, {"a": 5.0, "b": 5.0}]
+    got = bench.settle(_ScriptedGraph(flip), ["a", "b"], list(range(50)), 3)
+    assert got["rounds"] == bench.SETTLE_ROUNDS and not got["settled"]
+    assert len(got["change_pct"]) == bench.SETTLE_ROUNDS - 1
+
+
+def test_bench_reports_drift_and_nearest_rounds(tmp_path):
+    # A quick run: each scheduler policy's drift is its later frames' median over its
+    # training rounds' (the first block of its makespans), the near error is the
+    # out-of-sample prediction against the rounds right after training, and both are in
+    # the table beside the settle phase and the CPU reference.
+    bench = _graph_bench()
+    report = bench.main(["--quick", "--frames", "8", "--fit-frames", "3", "--block", "3",
+                         "--size", "96x72", "--graphs", "two-cameras", "--out", str(tmp_path),
+                         "--overhead-nodes", "4", "--overhead-frames", "2", "--trial-frames", "0"])
+    e = report["experiments"][0]
+    assert 1 <= e["settle"]["rounds"] <= bench.SETTLE_ROUNDS
+    assert len(e["round_log"]["training"]) == 1 and len(e["round_log"]["later"]) == 2
+    for r in e["policies"]:
+        spans = r["makespans"]
+        if r["policy"] == "best":
+            assert r["drift_pct"] is None
+        else:
+            want = 100 * (statistics.median(spans[3:]) / statistics.median(spans[:3]) - 1)
+            assert r["drift_pct"] == pytest.approx(want)
+        assert r["error_near_pct"] == pytest.approx(
+            100 * (r["pred_out_ms"] - r["measured_near_ms"]) / r["measured_near_ms"])
+    train = next(r for r in e["policies"] if r["policy"] == e["train"])
+    assert e["drift_pct"] == train["drift_pct"]
+    for r in e["policies"]:  # the training policy as the reference clock of the others
+        if r["policy"] == e["train"]:
+            assert r["error_dedrift_pct"] is None
+        else:
+            assert r["error_dedrift_pct"] == pytest.approx(
+                100 * (r["pred_out_ms"] * (1 + e["drift_pct"] / 100) / r["measured_out_ms"] - 1))
+    md = (tmp_path / "graph_bench.md").read_text()
+    assert "Settle: " in md and "| drift | near: measured | error | drift out |" in md
+    assert "CPU reference ms (median settle / training / later)" in md
+
+
+def test_bench_idle_cpu_sees_a_spinning_thread():
+    # The bench's check for a thread of ours burning CPU between rounds: near zero when
+    # every other thread blocks, a good share of a core beside a thread that spins (on a
+    # loaded 2-core machine the spinner gets a third of a core or less).
+    bench = _graph_bench()
+    import threading
+
+    assert bench.idle_cpu_pct(0.2) < 10.0
+    stop = threading.Event()
+    spinner = threading.Thread(target=lambda: [None for _ in iter(stop.is_set, True)], daemon=True)
+    spinner.start()
+    try:
+        assert bench.idle_cpu_pct(0.2) > 10.0
+    finally:
+        stop.set()
+        spinner.join()
+
+
+def test_bench_work_cores_counts_cpu_tasks_and_gpu_host_calls():
+    # Two frames of 10 ms: a CPU task of 4 ms beside a GPU task whose host call took 1 ms
+    # (its 10 ms on the device use no core), then 6 + 2 ms: (4 + 1 + 6 + 2) / 20 cores.
+    bench = _graph_bench()
+    frames = [bench.recorded_frame({"a": ["cpu0", 0.0, 4.0, 0.0, 0, None, None],
+                                    "b": ["gpu", 0.0, 10.0, 0.0, 0, 0.0, 1.0]}),
+              bench.recorded_frame({"a": ["cpu1", 1.0, 7.0, 0.0, 0, None, None],
+                                    "b": ["gpu", 0.0, 10.0, 0.0, 0, 3.0, 5.0]})]
+    assert [f.makespan for f in frames] == [10.0, 10.0]
+    assert bench.work_cores(frames) == pytest.approx(13.0 / 20.0)

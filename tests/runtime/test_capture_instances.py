@@ -98,13 +98,13 @@ def test_instances_must_be_a_positive_int(bad):
 
 
 def test_instances_default_and_reset_captures(warp_backend):
-    """capture.INSTANCES sets on CUDA (1: no overlap measured on the H100), 1 elsewhere;
+    """segment_runner.INSTANCES sets on CUDA (1: no overlap measured on the H100), 1 elsewhere;
     setting it drops the graphs made so far."""
     g = _graph(warp_backend, None)
     try:
         ex = g.plan.executor()
-        from warpvx.runtime import capture
-        assert ex.instances == (capture.INSTANCES if warp_backend == "cuda" else 1) == 1
+        from warpvx.runtime import segment_runner
+        assert ex.instances == (segment_runner.INSTANCES if warp_backend == "cuda" else 1) == 1
         g.process(_cams(1)[0], capture=_capture_arg(warp_backend))
         assert ex._captured
         ex.instances = 2
@@ -206,7 +206,7 @@ def test_a_graph_reading_its_own_delays_is_found_without_the_shapes(warp_backend
     last run published find that graph without walking the inputs' shapes (per frame on the
     GPU thread); a delayed value from elsewhere (after a reset: the initial one) is walked
     again, and every output stays the eager run's."""
-    from warpvx.runtime import capture
+    from warpvx.runtime import segment_runner
 
     cams = _cams(12)
     g = _graph(warp_backend, 3)
@@ -214,14 +214,14 @@ def test_a_graph_reading_its_own_delays_is_found_without_the_shapes(warp_backend
     try:
         eager = list(g.stream(cams, depth=3, capture=False))
         walks = []  # the walks of an input's leaves for its shapes (the key)
-        walk = capture._leaves
+        walk = segment_runner._leaves
 
         def counted(v):
             if sys._getframe(2).f_code.co_name == "_inputs_key":  # (through its genexpr)
                 walks.append(1)
             return walk(v)
 
-        monkeypatch.setattr(capture, "_leaves", counted)
+        monkeypatch.setattr(segment_runner, "_leaves", counted)
         for _ in range(2):
             g.reset()
             before = len(walks)

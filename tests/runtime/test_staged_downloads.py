@@ -134,7 +134,7 @@ def test_a_slot_reads_its_staged_download_as_views_of_the_pool():
     c.count.assign(np.int32([3]))
     pool = HostPool(1 << 20, pinned=False)
     io = Transfers("cpu", pool)
-    slot = Slot.ready(c, DEVICE)
+    slot = Slot.holding(c, DEVICE)
     slot.staged = io.stage_download(c)
     assert slot.ready_event() is None  # done on return on Warp's CPU device
     c.rows.assign(np.zeros_like(rows))  # after the copy: not what is read

@@ -16,7 +16,6 @@ after :attr:`Runner.stream_wait` seconds.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import threading
 import time
@@ -107,6 +106,11 @@ class RunLock:
 
     def __enter__(self):
         self.refuse()
+        # The usual case first: no stream, the lock free (or this thread's): taken at once.
+        if self.stream is None and self._lock.acquire(False):
+            if self.stream is None:
+                return self
+            self._lock.release()  # a stream started meanwhile
         me, waited_from = threading.get_ident(), None
         while True:
             if self._free_for(me):
@@ -249,9 +253,7 @@ class Runner:
                 ex.abort()
                 raise
             plan.last_run.clear()
-            plan.last_run.append(_timing_only(result))
-            self._publish(result)
-            return result.outputs
+            return self._keep(plan, result)
 
     def stream(self, frames, *, depth: int | None = None, host: bool | None = None,
                capture: bool | None = None):
@@ -343,9 +345,18 @@ class Runner:
         except NodeExecutionError:
             ex.abort()
             raise
-        plan.last_run.append(_timing_only(result))
+        return self._keep(plan, result)
+
+    def _keep(self, plan, result) -> dict:
+        """Publish ``result``'s outputs (the graph's output data) and return them; the plan
+        keeps the result without them: its measurements, not its outputs (a plan keeps
+        dozens of frames; their outputs, images among them, went to the caller). The
+        executor's result is this frame's alone: emptied in place, not copied."""
+        outputs = result.outputs
         self._publish(result)
-        return result.outputs
+        result.outputs = {}
+        plan.last_run.append(result)
+        return outputs
 
     def _next_frame(self) -> int:
         i = self._frame
@@ -368,12 +379,6 @@ class Runner:
         """The Warp device of the current plan's GPU role (None: no plan or no GPU role)."""
         plan = self._plan
         return gpu_device(plan.gpu) if plan is not None else None
-
-
-def _timing_only(result):
-    """A frame's result as a plan keeps it: the measurements, not the outputs (a plan keeps
-    dozens of frames; their outputs, images among them, went to the caller)."""
-    return dataclasses.replace(result, outputs={})
 
 
 @functools.lru_cache(maxsize=None)

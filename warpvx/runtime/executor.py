@@ -46,10 +46,13 @@ Timing
     an anchor event recorded while the stream was idle (:meth:`Executor.reanchor`), so a GPU
     interval is when the device ran it, not when the host enqueued it. When the GPU role
     did not have to wait between two tasks, the first one's end event is the second one's
-    start (one event per task, not two). Events come from a pool and return to it once their
+    start (one event per task, not two). Events come from a pool (a frame's worth made at
+    its submission when short, never inside a timed GPU call) and return to it once their
     frame has been waited for and its timeline read: the timeline is read lazily (a native
     call per event, on the caller's thread at the end of every frame otherwise, while most
-    timelines are never read; see :meth:`~.timeline.EventPool.lend`). The host-side time of each GPU call (enqueue plus any host
+    timelines are never read; see :meth:`~.timeline.EventPool.lend`). A graph output staged
+    on the GPU stream is the frame's last event: :meth:`Executor.wait` synchronises once
+    for the GPU work and the output's download. The host-side time of each GPU call (enqueue plus any host
     syncs inside the primitive) is kept too (:attr:`FrameResult.host`), and so is the time
     each task spent on transfers (:attr:`FrameResult.transfers`). Without CUDA (the
     ``"warp-cpu"`` GPU role) calls are synchronous and host times are used; events are not
@@ -121,7 +124,8 @@ import networkx as nx
 from ..check import check_bool
 from ..errors import NodeExecutionError, ScheduleError, WarpvxValueError
 from ..sched.schedule import Schedule
-from .capture import SegmentRunner, segments, signature
+from .capture import segments, signature
+from .segment_runner import SegmentRunner
 from .cycles import Batch, frames_of
 from .native_copy import recorder, synchronize_event, warp
 from .pinned import HostPool
@@ -252,6 +256,9 @@ class Executor(RoleRunner, SegmentRunner):
                                            if rule != "never"}
         self._up_lock = threading.Lock()  # the GPU role leases, wait() returns
         gpu_queue = [t.name for p in self.processors if is_gpu_processor(p) for t in self.queues[p]]
+        # Timing events a frame may take at most (CUDA): a start, an end and an upload's per
+        # GPU task, one per device input; made ahead at submission (EventPool.reserve).
+        self._events_per_frame = 3 * len(gpu_queue) + len(program.inputs)
         # A captured segment is one frame's consecutive GPU tasks; a K-frame order interleaves
         # frames on the GPU queue, so with K > 1 nothing is captured (every task runs eagerly).
         self._segments = segments(program, gpu_queue) if self.frames == 1 else []
@@ -266,6 +273,10 @@ class Executor(RoleRunner, SegmentRunner):
         capture = check_bool(capture, "capture", allow_none=True)
         self.capture = bool(gpu_device) and self.frames == 1 and \
             (self.cuda if capture is None else capture)
+        # A one-frame GPU queue with a segment that may be captured (a frame's capture flag is
+        # False without one).
+        self._capturable = bool(gpu_device) and self.frames == 1 and \
+            any(seg.captured for seg in self._segments)
         self.captures = 0  # segments captured so far (each signature's once)
         self.replays = 0  # captured graphs launched (frames x segments)
         self._captured: OrderedDict = OrderedDict()  # input signature -> per-segment state
@@ -472,7 +483,7 @@ class Executor(RoleRunner, SegmentRunner):
         slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref) for ref in refs]
         waited = False
         for s in slots:
-            if not s.done.is_set():
+            if not s.ready:
                 waited = True
                 frame.wait_slot(s, self._closing, self.spin)
         return slots, waited
@@ -507,7 +518,9 @@ class Executor(RoleRunner, SegmentRunner):
                 if io.moved > before:
                     frame.copied[task.name] = io.moved - before
             else:
-                values = [s.value for s in slots]
+                values = []
+                for s in slots:  # a loop, not a comprehension: no function call
+                    values.append(s.value)
             result = task.cpu(*values)
             t1 = perf_counter()
             outputs = task.outputs
@@ -593,9 +606,9 @@ class Executor(RoleRunner, SegmentRunner):
         h0 = perf_counter()
         ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved
-        values = [s.value if s.where == DEVICE else
-                  s.device(io, self._upload_into(frame, ref))
-                  for ref, s in zip(task.inputs, slots)]
+        values = []
+        for ref, s in zip(task.inputs, slots):  # a loop, not a comprehension: no function call
+            values.append(s.value if s.where == DEVICE else s.device(io, self._upload_into(frame, ref)))
         mid = None
         moved = io.moved - before
         if moved:
@@ -760,14 +773,22 @@ class Executor(RoleRunner, SegmentRunner):
         if self._closing.is_set():
             raise RuntimeError(f"executor {self.name!r} is closed")
         self._start()
-        missing = [k for k in self.program.inputs if k not in inputs]
-        if missing:
-            raise WarpvxValueError(f"inputs: missing {missing} for frame {frame_index}")
+        if self._events is not None:
+            self._events.reserve(self._events_per_frame)
         slots = {}
         events = []
+        # A caller passing device inputs gets device outputs (Graph.process, stream): no
+        # downloads of them to stage.
+        stage_outputs = True
         for key in self.program.inputs:
-            value, where = inputs[key]
-            slot = slots[key] = Slot.ready(value, where)
+            try:
+                value, where = inputs[key]
+            except KeyError:
+                missing = [k for k in self.program.inputs if k not in inputs]
+                raise WarpvxValueError(f"inputs: missing {missing} for frame {frame_index}") from None
+            slot = slots[key] = Slot.holding(value, where)
+            if where != HOST:
+                stage_outputs = False
             if where == DEVICE and self.cuda:
                 # The caller's device data may still be in flight on any stream: an event on
                 # the legacy default stream completes after all work queued so far.
@@ -781,16 +802,16 @@ class Executor(RoleRunner, SegmentRunner):
         for key in self._task_keys:
             slots[key] = Slot()
         frame = Frame(frame_index, slots, self._slot_procs[frame_index % self.frames])
-        frame.events.extend(events)
-        # A caller passing device inputs gets device outputs (Graph.process, stream): no
-        # downloads of them to stage.
-        frame.stage_outputs = all(inputs[k][1] == HOST for k in self.program.inputs)
+        if events:
+            frame.events.extend(events)
+        frame.stage_outputs = stage_outputs
         if self.frames == 1 and self.gpu_device:
             timing = self._timing
             frame.bursts = timing == "bursts" or (timing is None and self.cuda and bool(self._inflight))
-        capture = check_bool(capture, "capture", allow_none=True)
-        frame.capture = bool(self.gpu_device) and self.frames == 1 and \
-            (self.capture if capture is None else capture)
+        if capture is not None:
+            capture = check_bool(capture, "capture", allow_none=True)
+        # (Nothing capturable: no signature to make, no capture state to look up per frame.)
+        frame.capture = self._capturable and (self.capture if capture is None else capture)
         if frame.capture:
             frame.signature = signature(inputs)
         for key, ring in self.program.rings.items():
@@ -866,15 +887,18 @@ class Executor(RoleRunner, SegmentRunner):
                     f"{self.name}: frame {frame.index} was cancelled after frame "
                     f"{frame.cancelled_by} failed"
                 )
-            if self.cuda and frame.gpu_last_event is not None:
-                synchronize_event(frame.gpu_last_event)
+            last = frame.gpu_last_event if self.cuda else None
+            if last is not None:
+                synchronize_event(last)
             for ev in frame.forked:  # (the events of a captured segment's own stream)
                 synchronize_event(ev)
             io = self._io()
             outputs = {}
             for name, key in self.program.outputs.items():
                 slot = frame.slots[key]
-                outputs[name] = slot.host(io) if host else slot.value
+                # (An output whose producer's event or staged download's is ``last``: no
+                # second wait for it.)
+                outputs[name] = slot.host(io, waited=last) if host else slot.value
             self._forget_events(frame)
             # The events go back to the pool once the timeline is read (or never will be).
             if self.cuda:
@@ -927,11 +951,15 @@ class Executor(RoleRunner, SegmentRunner):
         (:func:`~.timeline.frame_result`): their data is ready for any reader."""
         if not frame.events:
             return
-        mine = {id(e) for e in frame.events}
+        mine = None  # the frame's events by id, made only when an outliving slot holds one
         slots = frame.slots
         for key in self._outliving:
             slot = slots[key]
-            if slot.event is not None and id(slot.event) in mine:
+            if slot.event is None:
+                continue
+            if mine is None:
+                mine = {id(e) for e in frame.events}
+            if id(slot.event) in mine:
                 if slot.external:  # the caller's copy, which no task of the frame may have awaited
                     synchronize_event(slot.event)
                 slot.event = None

@@ -256,22 +256,23 @@ class RoleRunner:
             frame = role.frames[0]
         except IndexError:
             return False
-        if frame.cancel.is_set():
+        if frame.cancel.ready:
             return True
         fs = frame.slots
         for ref in role.refs[role.pos]:  # no list: several checks per hand-off
-            if not (fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)).done.is_set():
+            if not (fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)).ready:
                 return False
         return True
 
     def _inputs_if_ready(self, role: Role, frame: Frame):
         """The slots of ``role``'s next unit's inputs in ``frame`` when all are set, else None."""
         fs = frame.slots
-        slots = [fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)
-                 for ref in role.refs[role.pos]]
-        for s in slots:
-            if not s.done.is_set():
+        slots = []
+        for ref in role.refs[role.pos]:  # a loop, not a comprehension: no function call
+            s = fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)
+            if not s.ready:
                 return None
+            slots.append(s)
         return slots
 
     def _advance(self, role: Role, home: Role, touched: list, scoped: bool) -> bool:
@@ -292,7 +293,7 @@ class RoleRunner:
                 role.state.prev_end = None  # the stream may have idled since the last unit
             while frames:
                 frame = frames[0]
-                if frame.cancel.is_set():
+                if frame.cancel.ready:
                     self._end_frame(role, frame)
                     continue
                 # Checked under the token: another thread may have run what made the caller
@@ -364,8 +365,10 @@ class RoleRunner:
             else:
                 self._run_gpu_task(frame, seg.tasks[0], state, slots)
             for key in role.stage[role.pos]:
-                if frame.stage_outputs or key not in self._outputs_staged:
+                if key not in self._outputs_staged:
                     self._stage(frame, frame.slots[key], io)
+                elif frame.stage_outputs:
+                    self._stage(frame, frame.slots[key], io, output=True)
         except Cancelled:
             return False
         except BaseException as exc:  # noqa: BLE001 - reported to the caller
@@ -373,17 +376,22 @@ class RoleRunner:
             return False
         return True
 
-    def _stage(self, frame: Frame, slot: Slot, io: Transfers):
-        """Start the download of a GPU value a CPU task of the frame reads (CUDA): see
-        :meth:`Transfers.stage_download`."""
+    def _stage(self, frame: Frame, slot: Slot, io: Transfers, output: bool = False):
+        """Start the download of a GPU value a CPU task of the frame, or only the caller
+        (``output``), reads (CUDA): see :meth:`Transfers.stage_download`."""
         if slot.where != DEVICE or slot.staged is not None:
             return
         # (A value made on another stream, a captured segment's set's: no stream order.)
-        staged = io.stage_download(slot.value, slot.event,
-                                   after=None if slot.external else self._stream)
+        stream = self._stream
+        staged = io.stage_download(slot.value, slot.event, after=None if slot.external else stream)
         if staged is not None:
             slot.staged = staged
             frame.staged.append(slot)
+            if output and stream is not None and staged.stream is stream:
+                # Queued on the GPU stream behind every GPU task so far, and read by the
+                # caller's wait only (which keeps its event until then): the frame's last
+                # event, which wait() synchronises once for the GPU work and this copy both.
+                frame.gpu_last_event = staged.event
 
     def _run_segment_or_tasks(self, frame: Frame, i: int, seg, state: "GpuState", captures):
         """Capturable GPU segment ``i`` of ``frame``: replayed from its captured graph where

@@ -20,43 +20,45 @@ DEVICE = "device"
 
 
 class Flag:
-    """A one-shot ``threading.Event`` (``set``, ``is_set``, ``wait(timeout)``): a bool, and a
-    lock made only when a thread has to block on it. The executor makes one per value per
-    frame and, with one-frame schedules, never blocks on them (a task runs once its inputs
-    are set), so most flags never make their lock."""
+    """A one-shot ``threading.Event`` (``set``, ``is_set``, ``wait(timeout)``): a bool,
+    ``ready``, and a lock made only when a thread has to block on it. The executor makes one
+    per value per frame (every :class:`Slot` is its own flag) and, with one-frame schedules,
+    never blocks on them (a task runs once its inputs are set), so most flags never make
+    their lock. Hot loops read ``ready`` (what ``is_set()`` returns) without a call."""
 
-    __slots__ = ("_lock", "_set")
+    __slots__ = ("_waiters", "ready")
 
     def __init__(self):
-        self._lock = None
-        self._set = False
+        self._waiters = None
+        self.ready = False
 
     def set(self):
-        if self._set:
-            return
-        self._set = True  # before looking at the lock: a waiter making it looks at _set after
-        lock = self._lock
-        if lock is not None:
-            try:
-                lock.release()
-            except RuntimeError:  # released by a concurrent set()
-                pass
+        if not self.ready:
+            self.ready = True  # before looking at the lock: a waiter making it looks at ready after
+            if self._waiters is not None:
+                self._wake()
+
+    def _wake(self):
+        try:
+            self._waiters.release()
+        except RuntimeError:  # released by a concurrent set()
+            pass
 
     def is_set(self) -> bool:
-        return self._set
+        return self.ready
 
     def wait(self, timeout: float | None = None) -> bool:
-        if self._set:
+        if self.ready:
             return True
-        lock = self._lock
+        lock = self._waiters
         if lock is None:
             with _GUARD_INIT:
-                lock = self._lock
+                lock = self._waiters
                 if lock is None:
                     lock = threading.Lock()
                     lock.acquire()
-                    self._lock = lock
-        if self._set:
+                    self._waiters = lock
+        if self.ready:
             return True
         if lock.acquire(timeout=-1 if timeout is None else timeout):
             try:
@@ -64,39 +66,49 @@ class Flag:
             except RuntimeError:
                 pass
             return True
-        return self._set
+        return self.ready
 
 
-class Slot:
+class Slot(Flag):
     """One value of one frame, where its producer left it, with cached copies elsewhere.
 
     ``where`` is ``"host"`` (NumPy data) or ``"device"`` (``wp.array`` data on the GPU role's
-    device). ``done`` is set once the value may be read (after the CUDA ``event``, if any).
+    device). The slot is its own :class:`Flag`, set (``ready``) once the value may be read
+    (after the CUDA ``event``, if any): one object per value per frame, not two.
     """
 
-    __slots__ = ("value", "where", "event", "external", "done", "staged", "_host", "_device",
-                 "_lock")
+    __slots__ = ("value", "where", "event", "external", "staged", "_host", "_device",
+                 "_copy_lock")
 
     def __init__(self):
+        self._waiters = None
+        self.ready = False
         self.value = None
         self.where = HOST
         self.event = None
         self.external = False  # a device value made outside the executor's stream
-        self.done = Flag()
         self.staged = None  # a download already under way (Transfers.stage_download)
         self._host = None
         self._device = None
-        self._lock = None  # made on the first download (most values are never downloaded)
+        self._copy_lock = None  # made on the first download (most values are never downloaded)
+
+    @property
+    def done(self) -> Flag:
+        """The slot's ready flag: the slot itself (``slot.done.is_set()``, ``wait``)."""
+        return self
 
     @classmethod
-    def ready(cls, value, where=HOST) -> "Slot":
+    def holding(cls, value, where=HOST) -> "Slot":
+        """A slot set to ``value`` (``where`` it lives) from the start."""
         s = cls()
         s.set(value, where)
         return s
 
     def set(self, value, where, event=None):
         self.value, self.where, self.event = value, where, event
-        self.done.set()
+        self.ready = True  # (Flag.set, inline: once per value per frame)
+        if self._waiters is not None:
+            self._wake()
 
     def host(self, io: "Transfers", *, waited=None):
         """The value as host data, downloaded once (thread-safe).
@@ -149,12 +161,12 @@ class Slot:
         return self._device[0]
 
     def _guard(self) -> threading.Lock:
-        lock = self._lock
+        lock = self._copy_lock
         if lock is None:
             with _GUARD_INIT:
-                lock = self._lock
+                lock = self._copy_lock
                 if lock is None:
-                    lock = self._lock = threading.Lock()
+                    lock = self._copy_lock = threading.Lock()
         return lock
 
 
@@ -170,7 +182,7 @@ class Ring:
     def __init__(self, slots: int, initial, lock=None):
         self.slots = int(slots)
         self.lock = lock if lock is not None else threading.RLock()
-        self._initial = Slot.ready(initial)
+        self._initial = Slot.holding(initial)
         self._by_frame: dict[int, Slot] = {}
         self.last_aged = -1
 
@@ -183,13 +195,13 @@ class Ring:
             slot = self._by_frame.get(frame)
             if slot is not None:
                 return slot
-            earlier = [f for f, s in self._by_frame.items() if f < frame and s.done.is_set()]
+            earlier = [f for f, s in self._by_frame.items() if f < frame and s.ready]
             return self._by_frame[max(earlier)] if earlier else self._initial
 
     def put(self, frame: int, value, where=HOST):
         """Replace frame ``frame``'s value (a user write through the communication wrapper)."""
         with self.lock:
-            self._by_frame[frame] = Slot.ready(value, where)
+            self._by_frame[frame] = Slot.holding(value, where)
 
     @property
     def initial(self):
@@ -198,7 +210,7 @@ class Ring:
 
     def set_initial(self, value):
         with self.lock:
-            self._initial = Slot.ready(value)
+            self._initial = Slot.holding(value)
 
     def reset(self):
         """Forget every frame: reads return the initial value again."""
@@ -218,7 +230,7 @@ class Ring:
         """Drop frame ``frame``'s slot if its producer never ran (the frame was cancelled)."""
         with self.lock:
             slot = self._by_frame.get(frame)
-            if slot is not None and not slot.done.is_set():
+            if slot is not None and not slot.ready:
                 del self._by_frame[frame]
 
 

@@ -42,15 +42,20 @@ class Cancelled(Exception):
 class EventPool:
     """Reusable CUDA timing events of one device (creating events per task costs more than
     recording them). :meth:`get` hands out a free one; :meth:`put` takes back events whose
-    frame is over and whose timeline has been read (:meth:`lend`). No lock: a list's ``pop``
-    and ``extend`` are atomic (one per GPU task on the critical thread; ``MAX_FREE`` is a
-    soft bound)."""
+    frame is over and whose timeline has been read (:meth:`lend`); :meth:`reserve` makes
+    events ahead, where their creation is timed by nobody. No lock: a list's ``pop`` and
+    ``extend`` are atomic (one per GPU task on the critical thread; ``MAX_FREE`` is a soft
+    bound)."""
 
-    MAX_FREE = 4096
+    MAX_FREE = 8192
     #: Unread timelines that may hold their frame's events; past it, the oldest one's events
     #: are read and go back: a caller keeping every result must not make the pool create
-    #: events for every frame (creating one costs more than reading one).
-    MAX_UNREAD = 16
+    #: events for every frame (creating one costs more than reading one). Above a plan's
+    #: window of kept results (``Plan.last_run``, 64 frames) plus frames in flight: a stream
+    #: then reads no event on its frames' critical path (a result leaving the window is
+    #: garbage, its events go back unread); below it, every frame read an old frame's
+    #: events (a native call each) before returning.
+    MAX_UNREAD = 96
 
     def __init__(self, device: str):
         self.device = device
@@ -61,7 +66,19 @@ class EventPool:
         try:
             return self._free.pop()
         except IndexError:
-            return warp().Event(self.device, enable_timing=True)
+            return self._make()
+
+    def reserve(self, n: int):
+        """At least ``n`` free events: the executor asks for a frame's worth at its
+        submission, so that no event is made inside a GPU task's timed host call (one
+        creation, a few us, is more than the task's own enqueue of an identity node), as
+        happened on every frame while the kept timelines held the pool's events."""
+        free = self._free
+        while len(free) < n:
+            free.append(self._make())
+
+    def _make(self):
+        return warp().Event(self.device, enable_timing=True)
 
     def put(self, events):
         room = self.MAX_FREE - len(self._free)
@@ -126,16 +143,15 @@ class Frame:
                 self.finished.set()
 
     def wait_slot(self, slot: Slot, closing: threading.Event, spin: float = 0.0):
-        done = slot.done
-        if done.is_set():
+        if slot.ready:
             return
         if spin > 0:
             deadline = time.perf_counter() + spin
             while time.perf_counter() < deadline:
                 time.sleep(0)  # lets the producer have the GIL
-                if done.is_set():
+                if slot.ready:
                     return
-        while not done.wait(WAIT_SLICE):
+        while not slot.wait(WAIT_SLICE):
             if self.cancel.is_set() or closing.is_set():
                 raise Cancelled()
 

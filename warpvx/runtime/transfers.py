@@ -14,9 +14,9 @@ from collections import deque
 import numpy as np
 
 from .._counted import ONE_COPY_MAX_BYTES, Counted, download, map_counted
-from .native_copy import (bytes_to_host_async, is_warp_array, numpy_dtype, record_event,
-                          synchronize_event, synchronize_stream, to_device, to_host,
-                          to_host_async, wait_event, warp)
+from .native_copy import (address, bytes_to_host_async, is_warp_array, numpy_dtype,
+                          record_event, synchronize_event, synchronize_stream, to_device,
+                          to_host, to_host_async, wait_event, warp)
 from .pinned import HostPool
 
 
@@ -81,12 +81,14 @@ class _Staged:
     """A download under way (:meth:`Transfers.stage_download`): the device value, the host
     arrays its device arrays are being copied into (id of the device array -> (it, its host
     copy); of a large Counted block only its count so far), the event after the copies
-    (None on Warp's CPU device: done, or once closed) and their bytes."""
+    (None on Warp's CPU device: done, or once closed), their bytes and the stream they were
+    queued on (None on Warp's CPU device)."""
 
-    __slots__ = ("value", "copies", "event", "nbytes", "_events")
+    __slots__ = ("value", "copies", "event", "nbytes", "stream", "_events")
 
-    def __init__(self, value, copies: dict, event, nbytes: int, events: deque):
+    def __init__(self, value, copies: dict, event, nbytes: int, events: deque, stream=None):
         self.value, self.copies, self.event, self.nbytes = value, copies, event, nbytes
+        self.stream = stream
         self._events = events  # where its event goes back to
 
     def close(self):
@@ -246,7 +248,7 @@ class Transfers:
         if stream is not None:
             done = self._events.pop() if self._events else warp().Event(self.device)
             record_event(stream, done)
-        return _Staged(value, copies, done, nbytes, self._events)
+        return _Staged(value, copies, done, nbytes, self._events, stream)
 
     def _take(self, copies: dict, a):
         """The pool's host buffer device array ``a`` of a staged download is copied into (one
@@ -288,7 +290,7 @@ class Transfers:
             host = self.pool.take(rows, dtype) if self.pool is not None else None
             if host is None:
                 host = np.empty(rows, dtype)
-            bytes_to_host_async(host.ctypes.data, src.device, src.ptr + offset, host.nbytes,
+            bytes_to_host_async(address(host), src.device, src.ptr + offset, host.nbytes,
                                 stream)
             leaves.append(host)
             self.moved += host.nbytes
