@@ -651,7 +651,7 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
         try:
             # An open pool's graph of an earlier run with these settings, verified: taken (a run
             # beside this one builds its own), reset, and given back once this run is through.
-            kept = pool.graphs if pool is not None and not own else {}
+            kept = {} if own else getattr(pool, "graphs", {})
             key = (camera.K.tobytes(), camera.size, camera.baseline, batch, config, backend)
             g = kept.pop(key, None)
             if g is None:
