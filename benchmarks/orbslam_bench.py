@@ -31,11 +31,16 @@ reading PNGs is timed separately. Measured, side by side in one run:
    (the poses must be the sequential ones); mono also with Python's GIL switch interval
    (5 ms) against the batched mode's default (``orbslam_batch.SWITCH_INTERVAL``), and with
    the jobs' arrays pickled with each job against a shared block per batch (the default),
-   and on multiprocessing's stock ``Pool`` against the pose pool's (``PosePool(quiet=False)``).
+   and on multiprocessing's stock ``Pool`` against the pose pool's (``PosePool(quiet=False)``),
+   and with the pool's jobs handed to multiprocessing's task thread against written to the
+   processes by the thread that dispatches them (``PosePool(direct=...)``).
 
-FPS columns: "wall" counts everything from the call (graph build, verification, calibration:
-cached after the warm-up run; the batched mode's pool is opened once, before); "steady" is
-frames over the sum of their output intervals (from the first frame out, no setup).
+FPS columns: "wall" counts everything from the call (graph build, verification: the batched
+mode's by the warm-up run on the same open pool, which keeps the verified graph for the next
+run, see ``orbslam_batch.track_frames_batched``; a chain process answers a verification dry,
+``ChainProcess.dry_run``; calibration: cached after the warm-up run; the batched mode's pool
+is opened once, before); "steady" is frames over the sum of their output intervals (from the
+first frame out, no setup).
 
 Accuracy also on ViSP's castle_simu (monocular, warpvx vs the baseline) when
 ``../shared/data/real/castle_simu`` (or ``--castle``) exists.
@@ -177,11 +182,13 @@ PREVIOUS_ONLY = o.TrackerConfig(keyframe_motion=False)
 #: The batched runs: report key, camera, Gantt name (None: none), tracker settings, the pool's
 #: settings for the run (``ahead`` False: jobs in submit order and no guessed cores, the
 #: scheduling before them; ``share`` False: the jobs' arrays pickled with each job, the
-#: transport before shared blocks), the GIL switch interval (s; None: Python's, 5 ms).
+#: transport before shared blocks; ``direct`` False: the jobs handed to multiprocessing's task
+#: thread, as before), the GIL switch interval (s; None: Python's, 5 ms).
 BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig(), {}, ob.SWITCH_INTERVAL),
            ("batched_mono_switch_5ms", "mono", None, o.TrackerConfig(), {}, None),
            ("batched_mono_pickled", "mono", None, o.TrackerConfig(), {"share": False}, ob.SWITCH_INTERVAL),
            ("batched_mono_fifo", "mono", None, o.TrackerConfig(), {"ahead": False}, ob.SWITCH_INTERVAL),
+           ("batched_mono_task_thread", "mono", None, o.TrackerConfig(), {"direct": False}, ob.SWITCH_INTERVAL),
            ("batched_mono_prev", "mono", "batch_mono_prev", PREVIOUS_ONLY, {}, ob.SWITCH_INTERVAL),
            ("batched_stereo", "stereo", "batch_stereo", o.TrackerConfig(), {}, ob.SWITCH_INTERVAL))
 
@@ -413,6 +420,8 @@ def markdown(report: dict) -> list:
               "block, the transport before)", "batched_mono_pickled"),
              (f"front end mono, end to end, batched B={batch}, pool in submit order, no guessed cores",
               "batched_mono_fifo"),
+             (f"front end mono, end to end, batched B={batch}, pool jobs through multiprocessing's task thread "
+              "(before)", "batched_mono_task_thread"),
              (f"front end mono, end to end, batched B={batch}, keyframe_motion off", "batched_mono_prev"),
              *([(f"front end mono, end to end, batched B={batch}, multiprocessing's stock Pool (its handler "
                  "thread spins while results wait)", STOCK_POOL)] if STOCK_POOL in report else []),
@@ -432,8 +441,9 @@ def markdown(report: dict) -> list:
     lines += [f"| OpenCV baseline, serial (all threads) | {report['opencv_baseline']['serial_fps']:.1f} | | |",
               f"| OpenCV baseline, thread-pool extraction | {base:.1f} | | 1.0x |",
               f"| (reading a PNG: {report['png_read_ms_per_frame']:.2f} ms/frame, not included) | | | |",
-              "", "FPS (wall): frames over the whole call (graph build, verification; calibration cached "
-              "by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
+              "", "FPS (wall): frames over the whole call (scheduling, run start and end; the batched "
+              "mode's graph built and verified by the warm-up run on the same open pool, which keeps it; "
+              "calibration cached by the warm-up run); FPS (steady): frames over the sum of their output intervals.",
               "", f"Pose work of one mono batch (pose_batch, B={batch}: frame jobs and "
               f"{report['pose_pool'].get('guesses', '?')} guesses), ms per frame: "
               + (f"{report['pose_pool']['one_process_ms']:.2f} on one process, {report['pose_pool']['pool_ms']:.2f} "
@@ -451,7 +461,8 @@ def markdown(report: dict) -> list:
     lines += ["", "What the pose pool did per batch (the chain's waits: for the batch's frame jobs, and for",
               "keyframe cores speculated or guessed on the pool; jobs started and dropped unstarted;",
               "batched_mono_fifo: the pool in submit order, no guessed cores, as before them; counts include",
-              "the verification of the run's graph; chain wall and CPU: the chain's wall time and its",
+              "the verification of the run's graph in the chain-in-this-process row (a chain process answers",
+              "it dry); chain wall and CPU: the chain's wall time and its",
               "thread's CPU time, whose gap is what it waited for: the pool, the GIL, a free core; measured",
               "in the chain process but for the chain-in-this-process row):", "",
               "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | chain computes cores "

@@ -210,3 +210,39 @@ def test_bundled_photo_when_scikit_image_is_missing(monkeypatch):
 def test_photo_at_sizes():
     img = bench.photo_at(bench.load_photo(), (1241, 376))
     assert img.shape == (376, 1241, 3) and img.flags.c_contiguous
+
+
+def test_orb_ab_interleaves_rounds_and_reports_medians(tmp_path, monkeypatch):
+    """benchmarks/perf/hot_paths.py orb-ab: a fresh process per round, the arms' order rotated,
+    per arm the medians of its rounds (FPS against the first arm's); a round missing an arm is
+    an error. (The runs faked: FPS 100 (arm 0) or 200 (arm 1, 2) plus the round.)"""
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "perf"))
+    import hot_paths
+
+    monkeypatch.setattr(hot_paths, "_rendered", lambda cache: None)
+    rotations = []
+
+    def fake_run(argv, **kwargs):
+        rotate = int(argv[argv.index("--rotate") + 1])
+        rotations.append(rotate)
+        rows = [{"fps": (100 if i == 0 else 200) + rotate, "steady_fps": 300 + rotate, "wall": 40.0 + i, "cpu": 25.0,
+                 "wait_ahead": 6.0, "wait_keyframe": 0.5} for i in range(3)]
+        out = "".join(f"arm {i} 0: {r['fps']:.1f} FPS {json.dumps(r)}\n" for i, r in enumerate(rows)
+                      if not (missing and i == 2))
+        return type("Done", (), {"stdout": out, "stderr": "", "returncode": 0})()
+
+    monkeypatch.setattr(hot_paths.subprocess, "run", fake_run)
+    missing = False
+    lines = hot_paths.orb_ab(3, str(tmp_path), experiment="nice")
+    assert rotations == [0, 1, 2]
+    assert (tmp_path / "nice-ab.md").read_text().splitlines() == lines
+    assert "--experiment nice" in lines[0]
+    rows = {line.split(" | ")[0][2:]: line.split(" | ") for line in lines if line.startswith("| nice")}
+    assert rows["nice 0 (default)"][1:3] == ["100.0 / 101.0 / 102.0", "101.0 (+0.0%)"]
+    assert rows["nice 5"][2] == "201.0 (+99.0%)" and rows["nice 5"][3] == "301.0"
+    assert rows["nice 10"][4:6] == ["42.00", "25.00"]
+    missing = True
+    with pytest.raises(RuntimeError, match="2 of 3 arms"):
+        hot_paths.orb_ab(1, str(tmp_path), experiment="nice")

@@ -399,6 +399,9 @@ def test_new_settings_refuse_bad_values_by_name():
     for bad in (-1, 1.5, "2"):
         with pytest.raises(WarpvxError, match="workers"):
             ob.make_pool(bad)
+    for bad in (-1, 20, 1.5, None):
+        with pytest.raises(WarpvxError, match="nice"):
+            ob.make_pool(0, nice=bad)
     for bad in ("no", 1, None):
         with pytest.raises(WarpvxError, match="chain_process"):
             ob.make_pool(0, chain_process=bad)
@@ -490,6 +493,111 @@ def test_chain_process_survives_stopped_runs_and_leaves_no_process_or_segment(se
         assert mine
     assert _gone(pids)
     assert not mine & _segments()
+
+
+@pytest.mark.parametrize("direct", [True, False], ids=["direct", "task_thread"])
+def test_pool_jobs_written_directly_or_through_the_task_thread(direct):
+    """PosePool(direct=True) writes jobs to the processes itself (multiprocessing's task
+    thread never sees one); either way values come back and a job that cannot be pickled
+    fails alone, with its error, the pool still usable."""
+    pool = op.PosePool(1, direct=direct)
+    try:
+        handed = []
+
+        class Spied:  # the task thread's queue, its puts recorded
+            def __init__(self, queue):
+                self.queue = queue
+
+            def put(self, item):
+                handed.append(item)
+                self.queue.put(item)
+
+        pool._pool._taskqueue = Spied(pool._pool._taskqueue)
+        assert pool.map(divmod, [(7, 2), (9, 4)]) == [(3, 1), (2, 1)]
+        with pytest.raises(Exception, match="pickle|lambda"):
+            pool.submit(divmod, lambda: 0, 1).get()
+        assert pool.submit(divmod, 5, 5).get() == (1, 0)
+        assert (len(handed) == 0) == direct
+    finally:
+        pool.shutdown()
+
+
+@pytest.mark.parametrize("chain_process", [True, False], ids=["chain_process", "chain_in_process"])
+def test_an_open_pool_keeps_its_verified_graph_for_the_next_run(seq, chain_process, monkeypatch):
+    """A second run on the same open pool with the same settings reuses the first run's
+    verified graph (none built, none verified) and gives the same poses, bit for bit; other
+    settings build their own; a run that fails gives none back; shutdown drops them."""
+    frames, camera = _frames(seq, False)
+    built = []
+    build = ob.build_batch_graph
+    monkeypatch.setattr(ob, "build_batch_graph", lambda *a, **k: built.append(a[1]) or build(*a, **k))
+    with ob.make_pool(1, chain_process=chain_process) as pool:
+        first = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=pool)])
+        again = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=pool)])
+        np.testing.assert_array_equal(again, first)
+        assert built == [BATCH]
+        list(ob.track_frames_batched(frames[:6], camera, batch=3, pool=pool))
+        assert built == [BATCH, 3] and len(pool.graphs) == 2
+        with pytest.raises(WarpvxError, match="dtype"):
+            list(ob.track_frames_batched([{"image": f["image"].astype(np.float32)} for f in frames], camera,
+                                         batch=BATCH, pool=pool))
+        assert len(pool.graphs) == 1  # (taken by the failed run, not given back)
+        np.testing.assert_array_equal([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH,
+                                                                             pool=pool)], first)
+        assert built == [BATCH, 3, BATCH]
+        monkeypatch.setattr(ob, "KEEP_GRAPHS", 1)  # the least recently run dropped
+        list(ob.track_frames_batched(frames[:6], camera, batch=3, pool=pool))
+        assert built == [BATCH, 3, BATCH] and [key[3] for key in pool.graphs] == [3]
+    assert pool.graphs == {}
+
+
+def test_chain_process_dry_run_answers_without_tracking(seq):
+    """In ChainProcess.dry_run (what the graph's verification runs in) this thread's batches
+    get zero poses and stats shaped and typed as real ones, no pose work started; another
+    thread's batch meanwhile is tracked for real."""
+    frames, camera = _frames(seq, False)
+    config = o.TrackerConfig()
+    images = np.stack([f["image"] for f in frames[:2]])
+    feats = ob.orb_batch(images, config=config)[0]
+    nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=2)[1]
+    kwargs = dict(K=np.ascontiguousarray(camera.K), config=config, baseline=None, frames=2)
+    with ob.make_pool(1, chain_process=True) as proc:
+        before = proc.started["frame_job"]
+        elsewhere = []
+        with proc.dry_run():
+            sent, ticket = orbslam_chain.send_batch(images, feats, nearest, 0, proc=proc, **kwargs)
+            other = threading.Thread(target=lambda: elsewhere.append(
+                orbslam_chain.send_batch(images, feats, nearest, 0, proc=proc, **kwargs)[1]))
+            other.start()
+            other.join()
+        poses, stats = proc.result(ticket)
+        real_poses, real_stats = proc.result(elsewhere[0])
+        assert sent == 1 and not poses.any() and not stats.any()
+        assert (poses.shape, poses.dtype, stats.shape, stats.dtype) == (
+            real_poses.shape, real_poses.dtype, real_stats.shape, real_stats.dtype) == ((2, 4, 4), np.float64,
+                                                                                         (2, len(o.STATS)), np.float64)
+        np.testing.assert_array_equal(real_poses[0], np.eye(4))  # (the run's first frame)
+        assert real_stats[1, 0] > 0
+        assert proc.started["frame_job"] - before == 2  # the real batch's only
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_nice_lowers_the_pose_processes_priority_only():
+    """make_pool(nice=N): the pose processes run N nicer than the caller, in this process's
+    pool and in a chain process's (whose own priority stays the caller's)."""
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    want = min(19, base + 3)
+    with ob.make_pool(1, nice=3) as pool:
+        assert pool.submit(os.getpriority, os.PRIO_PROCESS, 0).get() == want
+    with ob.make_pool(1, chain_process=True, nice=3) as proc:
+        # (its pose processes; not the resource tracker it may have started)
+        kids = [k for k in _children(proc._process.pid) if b"spawn_main" in Path(f"/proc/{k}/cmdline").read_bytes()]
+        assert kids
+        assert os.getpriority(os.PRIO_PROCESS, proc._process.pid) == base
+        deadline = time.monotonic() + 60  # (set by the processes' initializer, once they have started)
+        while {os.getpriority(os.PRIO_PROCESS, k) for k in kids} != {want} and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert {os.getpriority(os.PRIO_PROCESS, k) for k in kids} == {want}
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")

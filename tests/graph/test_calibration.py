@@ -55,8 +55,10 @@ def test_cache_is_written_reused_and_recalibrated(fresh_cache, frames):
         "h2d_latency", "h2d_per_byte", "d2h_latency", "d2h_per_byte"}
 
     # Another graph of the same nodes and sizes: everything from the cache.
+    written = fresh_cache.stat().st_mtime_ns
     c2 = _graph(frames[0]).calibrate(gpu="warp-cpu")
     assert c2.fresh == [] and c2.nodes == c1.nodes
+    assert fresh_cache.stat().st_mtime_ns == written  # nothing measured: the file not rewritten
     # recalibrate=True measures again.
     c3 = _graph(frames[0]).calibrate(gpu="warp-cpu", recalibrate=True, repeats=2, warmup=1)
     assert sorted(c3.fresh) == ["gray", "hist", "pyr"]

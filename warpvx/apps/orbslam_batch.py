@@ -607,19 +607,27 @@ def _batches(frames, batch: int, stereo: bool):
         yield stacked(chunk + chunk[-1:] * (batch - len(chunk))), len(chunk)
 
 
+#: Verified graphs an open pool keeps (:func:`track_frames_batched`; each holds a batch's samples).
+KEEP_GRAPHS = 4
+
+
 def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.TrackerConfig(), *,
                          batch: int = 16, workers: int | None = None, pool=None, backend="cpu",
                          depth: int = 2, on_finish=None, gil_switch_s: float | None = SWITCH_INTERVAL,
-                         chain_process: bool = True):
+                         chain_process: bool = True, nice: int = 0):
     """:func:`~warpvx.apps.orbslam.track_frames` in batches of ``batch`` frames
     (:func:`build_batch_graph`), with ``workers`` processes for the pose work (default: see
-    :func:`make_pool`; 0: none), or an open ``pool`` (:func:`make_pool`'s, kept open). The
+    :func:`make_pool`; 0: none; ``nice``: their niceness increment, see :func:`make_pool`),
+    or an open ``pool`` (:func:`make_pool`'s, kept open; ``nice`` then unused). The
     tracking chain (and the pose work) in a process of its own when ``chain_process`` (the
     default, on POSIX; see :mod:`warpvx.apps.orbslam_chain`), else in this one; an open
     ``pool`` decides by its kind (a :class:`~warpvx.apps.orbslam_chain.ChainProcess`: there). A
     generator of :class:`~warpvx.apps.orbslam.TrackedFrame` in order; a
     frame's ``ms`` is its batch's interval divided by the batch's frames. ``depth`` batches in
-    flight; ``on_finish(plan)`` as in ``track_frames``.
+    flight; ``on_finish(plan)`` as in ``track_frames``. An open ``pool`` keeps a run's verified
+    graph (its ``graphs``) once the run is through: the next run with the same camera, batch,
+    config and backend neither builds nor verifies one (it is reset; its inputs are checked
+    by the stream, as always).
 
     ``gil_switch_s``: the GIL switch interval (seconds, > 0) while the generator runs, from
     its first frame until it is exhausted or closed (default :data:`SWITCH_INTERVAL`; None:
@@ -639,10 +647,20 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
     with switch_interval(gil_switch_s):
         own = pool is None
         if own:
-            pool = make_pool(workers, chain_process=chain_process)
+            pool = make_pool(workers, chain_process=chain_process, nice=nice)
         try:
-            g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
-            g.verify(first[0], gpu=None if backend == "cpu" else backend)
+            # An open pool's graph of an earlier run with these settings, verified: taken (a run
+            # beside this one builds its own), reset, and given back once this run is through.
+            kept = {} if own else getattr(pool, "graphs", {})
+            key = (camera.K.tobytes(), camera.size, camera.baseline, batch, config, backend)
+            g = kept.pop(key, None)
+            if g is None:
+                g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
+                # A chain process answers the verification's batches dry (ChainProcess.dry_run).
+                with pool.dry_run() if isinstance(pool, ChainProcess) else contextlib.nullcontext():
+                    g.verify(first[0], gpu=None if backend == "cpu" else backend)
+            else:
+                g.reset()
             plan = o.schedule(g, backend)
             counts = [first[1]]
 
@@ -663,6 +681,9 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
                     t = now
                 if on_finish is not None:
                     on_finish(plan)
+            kept[key] = g
+            while len(kept) > KEEP_GRAPHS:
+                del kept[next(iter(kept))]  # the least recently run
         finally:
             if own and pool is not None:
                 pool.shutdown(cancel_futures=True)

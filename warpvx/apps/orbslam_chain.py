@@ -33,6 +33,7 @@ shared blocks are unlinked. POSIX only (the blocks are POSIX shared memory).
 from __future__ import annotations
 
 import collections
+import contextlib
 import os
 import queue
 import sys
@@ -75,8 +76,8 @@ def _receive(inbox, jobs: queue.SimpleQueue, pool, stopping: threading.Event):
     tail, params = NO_TAIL, None
     try:
         while (msg := inbox.recv()) is not None:
-            if msg[0] == "counts":
-                jobs.put(msg)
+            if msg[0] in ("counts", "dry"):
+                jobs.put(msg)  # (in order with the batches; a dry one leaves the run's state alone)
                 continue
             _, ticket, run, payload = msg
             try:
@@ -108,8 +109,8 @@ def _send_error(outbox, ticket, exc, text):
         outbox.send(("error", ticket, RuntimeError(f"{type(exc).__name__}: {exc}"), text))
 
 
-def _serve(inbox, outbox, workers: int, quiet: bool):
-    """The chain process: its pose pool (``workers`` processes, 0: none), the receiver
+def _serve(inbox, outbox, workers: int, quiet: bool, nice: int):
+    """The chain process: its pose pool (``workers`` processes, 0: none; ``nice``: theirs), the receiver
     thread, and the chain over the queued batches in order, each result (or error) sent back."""
     import signal
 
@@ -118,7 +119,7 @@ def _serve(inbox, outbox, workers: int, quiet: bool):
 
     # SIGTERM (the parent's last resort) unwinds through the finally: the pool goes too.
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
-    pool = PosePool(workers, quiet=quiet, bound=True) if workers else None
+    pool = PosePool(workers, quiet=quiet, bound=True, nice=nice) if workers else None
     timing = collections.Counter()
     try:
         jobs, stopping = queue.SimpleQueue(), threading.Event()
@@ -134,6 +135,9 @@ def _serve(inbox, outbox, workers: int, quiet: bool):
                 continue  # shutting down: the parent takes no more results
             elif item[0] == "failed":
                 _send_error(outbox, *item[1:])
+            elif item[0] == "dry":
+                _, ticket, frames = item
+                outbox.send(("done", ticket, np.zeros((frames, 4, 4)), np.zeros((frames, len(o.STATS)))))
             else:
                 _, ticket, first, params, packed, ahead = item
                 if first:
@@ -165,21 +169,25 @@ class ChainProcess:
     :func:`~warpvx.apps.orbslam_batch.track_frames_batched`'s ``pool`` for any number of runs;
     close it with :meth:`shutdown` (or a ``with`` block).
 
-    ``ahead``, ``share``: the pool's settings (:class:`~warpvx.apps.orbslam_pool.PosePool`),
-    applied at each run's start; ``quiet`` False: multiprocessing's stock ``Pool``.
+    ``ahead``, ``share``, ``direct``: the pool's settings (:class:`~warpvx.apps.orbslam_pool.PosePool`),
+    applied at each run's start; ``quiet`` False: multiprocessing's stock ``Pool``; ``nice``:
+    the pose processes' niceness increment (see :func:`~warpvx.apps.orbslam_pool.make_pool`).
     :meth:`counts` (and ``waited_s``, ``started``, ``cancelled``) reports the pool's counters
-    and the chain's wall and thread CPU time."""
+    and the chain's wall and thread CPU time. ``graphs`` as
+    :class:`~warpvx.apps.orbslam_pool.PosePool`'s."""
 
-    def __init__(self, workers: int, quiet: bool = True, ahead: bool = True, share: bool = True):
+    def __init__(self, workers: int, quiet: bool = True, ahead: bool = True, share: bool = True, nice: int = 0,
+                 direct: bool = True):
         from multiprocessing import get_context, util
 
         if os.name != "posix":
             raise WarpvxValueError("chain_process: needs POSIX shared memory (run the chain in process)")
         ctx = get_context("spawn")
-        self.workers, self.ahead, self.share = workers, ahead, share
+        self.workers, self.ahead, self.share, self.direct = workers, ahead, share, direct
+        self.graphs = {}
         child_in, self._to_child = ctx.Pipe(duplex=False)
         self._from_child, child_out = ctx.Pipe(duplex=False)
-        self._process = ctx.Process(target=_serve, args=(child_in, child_out, workers, quiet),
+        self._process = ctx.Process(target=_serve, args=(child_in, child_out, workers, quiet, nice),
                                     name="orbslam-chain")
         with _caller_script_hidden():
             self._process.start()
@@ -190,6 +198,7 @@ class ChainProcess:
         self._results, self._next, self._counts = collections.OrderedDict(), 0, collections.deque()
         # (send posts under the send lock: the tickets reach the process in order)
         self._send_lock, self._read_lock = threading.RLock(), threading.Lock()
+        self._local = threading.local()  # .dry: see dry_run
         self._stop = util.Finalize(self, _stop, args=(self._to_child, self._from_child, self._process,
                                                       self._segments), exitpriority=10)
         try:
@@ -199,7 +208,30 @@ class ChainProcess:
             self.shutdown()
             raise
 
+    @contextlib.contextmanager
+    def dry_run(self):
+        """In the block, batches that this thread sends (:func:`send_batch`) get poses and
+        stats of the right shape and dtype, zeros, at once, in order with the others: the
+        process neither reads them nor tracks them, and a run's state stays as it was.
+        :func:`~warpvx.apps.orbslam_batch.track_frames_batched` verifies its graph so (the
+        verification runs two batches; each was the whole pose work and chain of a batch,
+        on the H100 ~2 x 70 ms per call): the stream then runs that work on the same first
+        batch, its errors raised from there. Other threads' batches (a stream's) are real."""
+        before = getattr(self._local, "dry", False)
+        self._local.dry = True
+        try:
+            yield
+        finally:
+            self._local.dry = before
+
     # -- the graph's nodes call these
+
+    def send_dry(self, frames: int) -> int:
+        """A ticket for ``frames`` zero poses and stats (see :meth:`dry_run`)."""
+        with self._send_lock:
+            ticket, self._next = self._next, self._next + 1
+            self._post(("dry", ticket, frames))
+        return ticket
 
     def send(self, payload, run) -> int:
         """Hand a batch (``payload``: (images or None, packed features, nearest), arrays) to
@@ -286,6 +318,7 @@ class ChainProcess:
         """Stop the process (batches still queued there are dropped; ``cancel_futures`` is
         :class:`~warpvx.apps.orbslam_pool.PosePool`'s, kept for its callers: either way) and
         unlink the shared blocks."""
+        self.graphs.clear()
         self._stop()
 
     def __enter__(self):
@@ -319,11 +352,15 @@ def _stop(to_child, from_child, process, segments):
 def send_batch(images, feats, nearest, sent, *, K, config, baseline, frames, proc: ChainProcess):
     """The graph's ``pose_batch`` node with a chain process: the batch to ``proc`` ->
     (``sent`` + 1, its ticket). ``sent`` 0: the first batch of a run (its parameters go with
-    it). ``images`` travel only for a stereo camera."""
+    it). ``images`` travel only for a stereo camera. In ``proc``'s
+    :meth:`~ChainProcess.dry_run`, a dry ticket."""
+    if getattr(proc._local, "dry", False):
+        return sent + 1, proc.send_dry(frames)
     run = None
     if sent == 0:
         params = dict(K=K, config=config, baseline=baseline, frames=frames)
-        run = (params, {"switch": sys.getswitchinterval(), "ahead": proc.ahead, "share": proc.share})
+        run = (params, {"switch": sys.getswitchinterval(), "ahead": proc.ahead, "share": proc.share,
+                        "direct": proc.direct})
     return sent + 1, proc.send((None if baseline is None else np.asarray(images), _pack_host(feats),
                                 tuple(nearest)), run)
 

@@ -23,11 +23,14 @@ import numpy as np
 from ..errors import WarpvxValueError
 
 
-def _init_worker(bound: bool = False):
+def _init_worker(bound: bool = False, nice: int = 0):
     import cv2
 
     # One OpenCV thread per process: the pool already spreads the work over the cores.
     cv2.setNumThreads(1)
+    if nice:
+        # Below the chain's priority: a core freeing up goes to the thread the others wait on.
+        os.nice(nice)
     if bound:
         _die_with_parent()
 
@@ -324,19 +327,26 @@ class PosePool:
     pickles instead of a :class:`SharedBlock`. ``quiet`` False (likewise): multiprocessing's
     stock ``Pool``, whose handler thread spins while results wait (see :func:`_quiet_pool_class`).
     ``bound`` (Linux): the processes end when the thread that opened the pool does (for a
-    process's own thread that lives as long as the pool: the chain process's main thread)."""
+    process's own thread that lives as long as the pool: the chain process's main thread).
+    ``nice`` (POSIX, 0 to 19): the processes' niceness increment (:func:`make_pool`'s).
+    ``direct`` False (to measure what it gives): jobs go through multiprocessing's task
+    hand-off thread (see :meth:`_apply`). ``graphs``: the verified graphs of the runs it
+    served, for the next run with the same settings
+    (:func:`~warpvx.apps.orbslam_batch.track_frames_batched`'s; dropped on :meth:`shutdown`)."""
 
     def __init__(self, workers: int, ahead: bool = True, share: bool = True, quiet: bool = True,
-                 bound: bool = False):
+                 bound: bool = False, nice: int = 0, direct: bool = True):
         from multiprocessing import get_context
         from multiprocessing.pool import Pool
 
         with _caller_script_hidden():
             self._pool = (_quiet_pool_class() if quiet else Pool)(workers, initializer=_init_worker,
-                                                                  initargs=(bound,), context=get_context("spawn"))
+                                                                  initargs=(bound, nice), context=get_context("spawn"))
         # the shared blocks are POSIX shared memory (read through _posixshmem in the workers)
         self.workers, self.ahead, self.share = workers, ahead, share and os.name == "posix"
-        self._lock = threading.Lock()
+        self.direct, self.graphs = direct, {}
+        # (re-entrant: a job whose pickling fails is settled, its callback run, while dispatching)
+        self._lock = threading.RLock()
         self._queue, self._order, self._running = [], itertools.count(), 0
         self._segments = Segments()
         self.waited_s, self.started, self.cancelled = (collections.Counter() for _ in range(3))
@@ -367,9 +377,28 @@ class PosePool:
             self.started[fn.__name__] += 1
             self._running += 1
             job = (_shared_call, (fn, *args)) if task._block is not None else task._job
-            done = functools.partial(self._done, task)
-            task._result = self._pool.apply_async(*job, callback=done, error_callback=done)
+            task._result = self._apply(*job, functools.partial(self._done, task))
             task._settled.set()
+
+    def _apply(self, fn, args, done):
+        """``apply_async(fn, args)`` with ``done`` as both callbacks. ``direct`` (and a Python
+        whose ``Pool`` has these internals): the job pickled and written to the processes'
+        queue here, by the thread that dispatches it (the caller holds the lock, as
+        multiprocessing's task thread would be the only writer), instead of handed to that
+        thread: in the chain process each hand-off woke a thread that took the GIL from the
+        chain (~30 per batch)."""
+        from multiprocessing.pool import ApplyResult
+
+        pool = self._pool
+        if not (self.direct and hasattr(pool, "_quick_put") and hasattr(pool, "_check_running")):
+            return pool.apply_async(fn, args, callback=done, error_callback=done)
+        pool._check_running()
+        result = ApplyResult(pool, done, done)
+        try:
+            pool._quick_put((result._job, 0, fn, args, {}))
+        except Exception as exc:  # noqa: BLE001 - as the task thread does: the job's error
+            result._set(0, (False, exc))
+        return result
 
     def _done(self, task, _):
         task._unshare()
@@ -390,6 +419,7 @@ class PosePool:
             self.waited_s[what] += time.perf_counter() - t
 
     def shutdown(self, cancel_futures: bool = False):
+        self.graphs.clear()
         with self._lock:
             for *_, task in self._queue:
                 task._drop()
@@ -419,19 +449,23 @@ def default_workers() -> int:
     return max(2, os.cpu_count() - SPARE_CORES)
 
 
-def make_pool(workers: int | None = None, chain_process: bool = False):
+def make_pool(workers: int | None = None, chain_process: bool = False, nice: int = 0):
     """A :class:`PosePool` for :func:`~warpvx.apps.orbslam_batch.pose_batch` (``workers``
     processes, default :func:`default_workers`; 0: None, the work runs in the calling thread);
     ``chain_process``: a :class:`~warpvx.apps.orbslam_chain.ChainProcess` with such a pool
-    (0: none, the work in that process), on POSIX (elsewhere the pool as without it)."""
+    (0: none, the work in that process), on POSIX (elsewhere the pool as without it).
+    ``nice``: the pose processes' niceness increment (``os.nice``, 0 to 19; 0, the default:
+    the caller's priority; ignored off POSIX), so that the chain and the GPU host thread get
+    a free core before them."""
     from ..check import check_bool, check_int
 
     workers = default_workers() if workers is None else check_int(workers, "workers", min_value=0)
+    nice = check_int(nice, "nice", min_value=0, max_value=19) if os.name == "posix" else 0
     if check_bool(chain_process, "chain_process") and os.name == "posix":
         from .orbslam_chain import ChainProcess
 
-        return ChainProcess(workers)
-    return PosePool(workers) if workers else None
+        return ChainProcess(workers, nice=nice)
+    return PosePool(workers, nice=nice) if workers else None
 
 
 __all__ = ["PosePool", "PoolTask", "SharedBlock", "Segments", "make_pool", "default_workers", "SPARE_CORES"]

@@ -701,13 +701,14 @@ def calibrate(graph, gpu_backend, *, recalibrate: bool = False, warmup: int = 2,
     cpu_backend = resolve_backend("cpu")
     nodes, fresh, keys = {}, [], {}
 
-    transfer = None
+    transfer, fresh_transfer = None, False
     if gpu_name:
         cached = mcache.get("transfer", {}).get(gpu_name)
         if cached and not recalibrate:
             transfer = TransferModel(**cached)
         else:
             transfer = measure_transfer(gpu_backend, repeats=repeats)
+            fresh_transfer = True
     else:
         transfer = TransferModel()
 
@@ -752,7 +753,8 @@ def calibrate(graph, gpu_backend, *, recalibrate: bool = False, warmup: int = 2,
 
     dkey = gpu_name or "none"
     dispatch = mcache.get("executor", {}).get(dkey)
-    if not dispatch or recalibrate:
+    fresh_dispatch = not dispatch or recalibrate
+    if fresh_dispatch:
         dispatch = measure_dispatch(gpu_backend, transfer)
 
     history = {}
@@ -771,7 +773,8 @@ def calibrate(graph, gpu_backend, *, recalibrate: bool = False, warmup: int = 2,
     if gpu_name:
         mupdate["transfer"] = {gpu_name: transfer.__dict__.copy()}
         mupdate["gpu_host"] = {gpu_name: update_host}
-    save_cache({"machines": {machine: mupdate}}, path)
+    if fresh or fresh_transfer or fresh_dispatch:  # (all from the cache: nothing to write, ~40 ms saved)
+        save_cache({"machines": {machine: mupdate}}, path)
     return Calibration(machine, gpu_name, nodes, transfer, fresh, dict(dispatch), history, keys,
                        1.0 if scale is None else float(scale))
 
