@@ -33,7 +33,6 @@ import argparse
 import gc
 import gzip
 import json
-import resource
 import statistics
 import sys
 import threading
@@ -200,15 +199,6 @@ def analyse_main(args):
 # --------------------------------------------------------------------------- soak
 
 
-def rss_mb() -> float:
-    """Current resident set size, MB (Linux /proc; else the peak)."""
-    try:
-        with open("/proc/self/statm") as f:
-            return int(f.read().split()[1]) * resource.getpagesize() / 2 ** 20
-    except OSError:
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-
-
 class GcTimer:
     """Collections per generation and the time spent in them, from ``gc.callbacks``."""
 
@@ -236,10 +226,11 @@ def state(g, gct: GcTimer) -> dict:
     """What could grow in the process, now."""
     import cv2
 
+    from warpvx.graph.diagnostics import host_rss_bytes
     from warpvx.runtime.timeline import EventPool
 
     pools = [o for o in gc.get_objects() if isinstance(o, EventPool)]
-    return {"rss_mb": rss_mb(), "objects": len(gc.get_objects()),
+    return {"rss_mb": host_rss_bytes() / 2 ** 20, "objects": len(gc.get_objects()),
             "threads": threading.active_count(), "gc_counts": list(gct.count),
             "gc_ms": gct.seconds * 1e3, "cv_threads": cv2.getNumThreads(),
             "event_pool": sum(len(p) for p in pools),

@@ -407,6 +407,13 @@ def test_new_settings_refuse_bad_values_by_name():
             ob.make_pool(0, chain_process=bad)
         with pytest.raises(WarpvxError, match="chain_process"):
             next(ob.track_frames_batched([np.zeros((8, 8), np.uint8)], None, chain_process=bad))
+    # nice: checked on every call; with an open pool (whose processes were started with their
+    # own niceness) a nonzero one is refused rather than silently unused.
+    for bad in (-1, 20, 1.5, None):
+        with pytest.raises(WarpvxError, match="nice"):
+            next(ob.track_frames_batched([np.zeros((8, 8), np.uint8)], None, nice=bad))
+    with pytest.raises(WarpvxError, match="nice"):
+        next(ob.track_frames_batched([np.zeros((8, 8), np.uint8)], None, pool=object(), nice=3))
     g = warpvx.Graph("g")
     x = g.input("x", shape=(4,), dtype=np.float32)
     g.output("y", g.user(np.negative, [x], name="neg"))

@@ -618,8 +618,8 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
     """:func:`~warpvx.apps.orbslam.track_frames` in batches of ``batch`` frames
     (:func:`build_batch_graph`), with ``workers`` processes for the pose work (default: see
     :func:`make_pool`; 0: none; ``nice``: their niceness increment, see :func:`make_pool`),
-    or an open ``pool`` (:func:`make_pool`'s, kept open; ``nice`` then unused). The
-    tracking chain (and the pose work) in a process of its own when ``chain_process`` (the
+    or an open ``pool`` (:func:`make_pool`'s, kept open; ``nice`` then 0: the pool's were
+    set there). The tracking chain (and the pose work) in a process of its own when ``chain_process`` (the
     default, on POSIX; see :mod:`warpvx.apps.orbslam_chain`), else in this one; an open
     ``pool`` decides by its kind (a :class:`~warpvx.apps.orbslam_chain.ChainProcess`: there). A
     generator of :class:`~warpvx.apps.orbslam.TrackedFrame` in order; a
@@ -638,6 +638,10 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
 
     batch = check_int(batch, "batch", min_value=1)
     chain_process = check_bool(chain_process, "chain_process")
+    nice = check_int(nice, "nice", min_value=0, max_value=19)
+    if nice and pool is not None:
+        raise WarpvxValueError("nice: sets the priority of the pose processes this call opens; "
+                               "the open pool's were set by make_pool(nice=...)")
     if gil_switch_s is not None:
         gil_switch_s = check_float(gil_switch_s, "gil_switch_s", min_value=0.0, strict_min=True)
     batches = _batches(frames, batch, camera.stereo)

@@ -217,12 +217,17 @@ class ChainProcess:
         verification runs two batches; each was the whole pose work and chain of a batch,
         on the H100 ~2 x 70 ms per call): the stream then runs that work on the same first
         batch, its errors raised from there. Other threads' batches (a stream's) are real."""
-        before = getattr(self._local, "dry", False)
+        before = self.dry
         self._local.dry = True
         try:
             yield
         finally:
             self._local.dry = before
+
+    @property
+    def dry(self) -> bool:
+        """Whether this thread is in :meth:`dry_run`."""
+        return getattr(self._local, "dry", False)
 
     # -- the graph's nodes call these
 
@@ -354,7 +359,7 @@ def send_batch(images, feats, nearest, sent, *, K, config, baseline, frames, pro
     (``sent`` + 1, its ticket). ``sent`` 0: the first batch of a run (its parameters go with
     it). ``images`` travel only for a stereo camera. In ``proc``'s
     :meth:`~ChainProcess.dry_run`, a dry ticket."""
-    if getattr(proc._local, "dry", False):
+    if proc.dry:
         return sent + 1, proc.send_dry(frames)
     run = None
     if sent == 0:

@@ -50,9 +50,7 @@ Timing
     its submission when short, never inside a timed GPU call) and return to it once their
     frame has been waited for and its timeline read: the timeline is read lazily (a native
     call per event, on the caller's thread at the end of every frame otherwise, while most
-    timelines are never read; see :meth:`~.timeline.EventPool.lend`). A graph output staged
-    on the GPU stream is the frame's last event: :meth:`Executor.wait` synchronises once
-    for the GPU work and the output's download. The host-side time of each GPU call (enqueue plus any host
+    timelines are never read; see :meth:`~.timeline.EventPool.lend`). The host-side time of each GPU call (enqueue plus any host
     syncs inside the primitive) is kept too (:attr:`FrameResult.host`), and so is the time
     each task spent on transfers (:attr:`FrameResult.transfers`). Without CUDA (the
     ``"warp-cpu"`` GPU role) calls are synchronous and host times are used; events are not
