@@ -49,6 +49,7 @@ of the device matcher's ties, which match the CPU ones (see the tests).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import itertools
 import sys
@@ -194,8 +195,12 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     else the essential core of the filtered matches to the previous frame (:func:`frame_job`)
     and, on a pool with ``ahead`` and ``keyframe_motion`` on, the one to the frame before it
     as the keyframe (:func:`guess_job`, after the batch's frame jobs: the chain waits for
-    those first). Each is one job: the calling thread only slices the batch, so the pose work
-    holds the GIL of the process that runs the tracking for none of it.
+    those first). Speculating so (on a pool with ``ahead``, mono, ``keyframe_motion`` on),
+    only the first :data:`COVERED` frames get both cores, not knowing which one ``track``
+    takes (the keyframes are the chain's state); the later frames' jobs leave the core out
+    and the chain's :class:`CoreSpeculation` starts the one it will take. Each is one job:
+    the calling thread only slices the batch, so the pose work holds the GIL of the process
+    that runs the tracking for none of it.
 
     Parameters
     ----------
@@ -227,9 +232,10 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
             kr, dr = feats[frames + f - 1]
             stereo = (kps, desc, kr, dr, images[f - 1], images[frames + f - 1], fx, baseline)
         near = batch_pairs(*nearest, f)
-        jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo))
-        guesses.append(None if before is None or not guessing else (before, near, pts, angles, prev_pts,
-                                                                    prev_angles, K, config))
+        covered = not guessing or f <= COVERED
+        jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo, covered))
+        guesses.append(None if before is None or not guessing or not covered else (
+            before, near, pts, angles, prev_pts, prev_angles, K, config))
         before = (near, prev_pts, prev_angles)
         prev_pts, prev_angles = pts, angles
     return (prev_pts, prev_angles, before), _Later(pool, frame_job, jobs, guesses if guessing else (), points)
@@ -243,7 +249,7 @@ def _good(nearest, pts, angles, prev_pts, prev_angles, config):
     return p, d, o.filter_matches(p, d, angles, prev_angles, config) if len(pts) else p[:0]
 
 
-def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
+def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo, core=True):
     """One frame's state-free work (on a pool process): (pairs int32 [M, 2], distances int32
     [M], extra, good int [G, 2]: the pairs ``track``'s match filter keeps, handed to it).
     ``nearest``: :func:`~warpvx.apps.orbslam_match.batch_pairs`' (nearest,
@@ -252,13 +258,13 @@ def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
     the depth float32 [N] of each keypoint (:func:`stereo_depth`); monocular, (p1, p2,
     :func:`~warpvx.apps.orbslam.essential_core`'s result) for the filtered matches to the
     previous frame, what ``track`` hands to it when that frame is the reference, or None when
-    ``track`` will not need one."""
+    ``track`` will not need one, or ``core`` is False (the chain's speculation decides)."""
     p, d, good = _good(nearest, pts, angles, prev_pts, prev_angles, config)
     if stereo is not None:
         kl, dl, kr, dr, left, right, fx, baseline = stereo
         return p, d, stereo_depth(kl, dl, kr, dr, left, right, fx=fx, baseline=baseline,
                                   scale_factor=config.scale_factor, max_distance=config.stereo_max_distance), good
-    return p, d, _core_ahead(prev_pts, pts, good, K, config), good
+    return p, d, _core_ahead(prev_pts, pts, good, K, config) if core else None, good
 
 
 def guess_job(before, nearest, pts, angles, prev_pts, prev_angles, K, config):
@@ -317,8 +323,8 @@ def _essential_ahead(*cores, pool=None, guess=None):
     """An ``essential`` for :func:`~warpvx.apps.orbslam.track`: a core = (p1, p2, result)
     worked out ahead (the result may be a :class:`PoolTask`, waited for on ``pool``) is
     returned for those very points, as is ``guess``'s (a pending :func:`guess_job`: waited for
-    only when no core matches); anything else is computed (its time booked on ``pool`` as
-    ``waited_s["on the spot"]``: nothing ran it ahead)."""
+    only when no core matches); anything else is computed (a speculation's miss: counted on
+    ``pool`` as ``started["on the spot"]``, its time as ``waited_s["on the spot"]``)."""
 
     def guessed():
         # (Cancelled: the chain ruled it out; track then asks for another keyframe's core.)
@@ -334,6 +340,7 @@ def _essential_ahead(*cores, pool=None, guess=None):
         finally:
             if pool is not None:
                 pool.waited_s["on the spot"] += time.perf_counter() - t
+                pool.started["on the spot"] += 1
 
     return essential
 
@@ -393,75 +400,217 @@ def _essential_job(p1, p2, K, config):
     return o.essential_core(p1, p2, K, config)
 
 
-#: Frames ahead of the chain whose keyframe cores :class:`KeyframeSpeculation` keeps started:
+#: Frames ahead of the chain whose cores :class:`CoreSpeculation` keeps started:
 #: ~ a core's latency (one process: ~14 ms on the H100 host) over the chain's time per frame
 #: (~3 ms there).
 SPECULATE_AHEAD = 6
+#: A batch's first frames whose cores :func:`pose_batch` works out for both references
+#: ``track`` may take (:func:`frame_job`, :func:`guess_job`): the chain's speculation can
+#: start those only as the batch starts, a core's latency before it needs the first.
+COVERED = SPECULATE_AHEAD
+#: The inlier fraction of a core :class:`CoreSpeculation` assumes before it has seen one.
+INLIER_FRACTION = 0.5
 
 
-class KeyframeSpeculation:
-    """Monocular: the essential cores ``track`` will ask for when it takes a frame's motion
-    from the current keyframe, started on ``pool`` (urgent) :data:`SPECULATE_AHEAD` frames
-    before the chain reaches the frame. Which frame is the keyframe is state (only ``chain``
-    knows it), but from one frame to the next the keypoints' keyframe tracks only compose the
-    frames' filtered matches, so with the current keyframe the tracks, the parallax test and
-    the points of every later frame of the batch are known until the keyframe changes (then
-    the chain cancels what has not started and speculates again).
+@dataclasses.dataclass
+class _Walked:
+    """One frame of :class:`CoreSpeculation`'s walk: the keyframe it assumes (points, index),
+    the cursor before the frame and after it (see :func:`_track_step`), keyframe_pairs'
+    result, the parallax look-up (reference points, points, pairs, p1, p2; None: no core),
+    the core (p1, p2, PoolTask or value; None: none, or the frame's guess_job has it),
+    the pairs' count, and the keyframe decision taken."""
 
-    ``state``: the chain's before frame ``first`` of the batch; ``pts``, ``good``, ``guessed``
-    per frame of the batch: points float64 [N, 2], filtered matches int [G, 2] to the previous
-    frame, whether :func:`guess_job` runs for it (then the frame two after the keyframe needs
-    no core started). ``hold``: start none past frame ``first + 1`` (the first that may need
-    one) before the chain reaches frame ``first + 2`` (when the last keyframe lasted two
-    frames: the next change, which drops them, comes as soon)."""
+    kf_pts: np.ndarray
+    kf_index: int
+    cursor: tuple
+    after: tuple
+    result: tuple
+    known: tuple | None
+    core: tuple | None
+    guess: object
+    n: int
+    is_kf: bool | None = None
 
-    def __init__(self, state, first, pts, good, guessed, pool, K, config, hold=False):
-        kf, prev = state.keyframe, state.previous
-        self.cores, self._next, self._hold = {}, first, first + 2 if hold else first
-        #: Per frame reached: (cursor before it, keyframe_pairs' result), see :meth:`tracks`.
-        self._tracks = {}
-        self._on = pool is not None and kf is not None and prev is not None and config.keyframe_motion
-        if self._on:
-            self._cursor = (prev.pts, prev.kf_index, kf.index == prev.index)
-            # The batch's frame whose guess_job works out this keyframe's core (if in the batch).
-            self._guessed = first + kf.index + 2 - state.frames
-            self._kf_pts, self._args = kf.pts, (pts, good, guessed, pool, K, config)
 
-    def ahead(self, f):
-        """Started up to frame ``f`` + :data:`SPECULATE_AHEAD` (the chain is at frame ``f``;
-        holding, up to ``first + 1``)."""
+class CoreSpeculation:
+    """Monocular: the essential core ``track`` will take for each frame (to the previous
+    frame or to the keyframe), started on ``pool`` (urgent) :data:`SPECULATE_AHEAD` frames
+    before the chain reaches the frame, and only that one.
+
+    Which reference ``track`` takes depends on the keyframe, the chain's state. The
+    speculation walks the batch's frames ahead of the chain as ``track`` does, on the cheap
+    parts: the keyframe's tracks composed from the frames' filtered matches, the parallax
+    comparison (:func:`~warpvx.apps.orbslam.keyframe_pairs`), the points of the chosen
+    reference's core, and the keyframe decision: ``track``'s own rule on the core's inlier
+    count once the pool has it, else on the pairs' count times the inlier fraction last seen
+    (a keyframe comes where the inliers drop under ``keyframe_ratio`` of those after the last
+    keyframe: measured on the rendered sequences, a drop to ~45% against ~100% otherwise). At
+    each frame the walk is checked again against the chain's state and the cores that came
+    in: from the first decision that differs it walks on anew, and what it no longer reaches
+    is cancelled if not started. A frame lost (or a scale jump: the depths are the chain's)
+    stops it until the chain has tracked past. The cores of the batch's first :data:`COVERED`
+    frames are :func:`pose_batch`'s (both references); one the chain still lacks it computes
+    on the spot (:func:`_essential_ahead`, counted in ``pool.started["on the spot"]``).
+
+    ``pts``, ``good``, ``extra``, ``guesses`` per frame of the batch: points float64 [N, 2],
+    filtered matches int [G, 2] to the previous frame, the frame job's (p1, p2, core) or None,
+    the pending :func:`guess_job` or None."""
+
+    def __init__(self, pts, good, extra, guesses, pool, K, config):
+        self._args = (pts, good, extra, guesses, pool, K, config)
+        self._on = pool is not None and config.keyframe_motion
+        self._walked, self._started = {}, {}  # frame -> _Walked; frame -> [(p1, p2, PoolTask)]
+        self._frac = INLIER_FRACTION
+        for e in extra:
+            if e is not None and e[2] is not None:
+                self._frac = len(e[2][2]) / len(e[0])
+
+    def ahead(self, f, state):
+        """Walked up to frame ``f`` + :data:`SPECULATE_AHEAD`; ``state``: the chain's before
+        frame ``f``."""
         if not self._on:
             return
-        pts, good, guessed, pool, K, config = self._args
-        end = f + 1 + SPECULATE_AHEAD if f >= self._hold else self._hold
-        while self._next < min(end, len(pts)):
-            u = self._next
-            if u == self._guessed and guessed[u] and end == u + 1:
-                break  # the guess covers it: its tracks only when a later frame needs them
-            before = self._cursor
-            kf_good, self._cursor, tracked = _track_step(self._kf_pts, before, pts[u], good[u], config)
-            self._tracks[u] = before, (tracked, kf_good)
-            points = _essential_points(self._kf_pts, pts[u], kf_good, config)
-            if points is not None and not (u == self._guessed and guessed[u]):
-                self.cores[u] = (*points, pool.submit(_essential_job, *points, K, config, urgent=True))
-            self._next += 1
+        kf, prev = state.keyframe, state.previous
+        if kf is None or prev is None or state.lost:
+            self._drop(f)  # (a re-initialisation: the lost frame may become the keyframe)
+            self._prune(f)
+            return
+        sim = (kf.pts, kf.index, (prev.pts, prev.kf_index, kf.index == prev.index), state.keyframe_inliers)
+        step = self._walked.get(f)
+        if step is not None and not (step.cursor[2] == sim[2][2] and _same(step.cursor[0], prev.pts)
+                                     and _same(step.cursor[1], prev.kf_index)):
+            self._drop(f)
+        u, g, end = f, state.frames, min(f + 1 + SPECULATE_AHEAD, len(self._args[0]))
+        while u in self._walked or u < end:
+            step = self._walked.get(u)
+            if step is not None and step.kf_index != sim[1]:
+                self._drop(u)  # (an earlier decision changed: walked anew)
+                continue
+            if step is None:
+                step = self._walked[u] = self._walk(u, sim, g)
+                if step is None:
+                    del self._walked[u]
+                    break
+            decided = self._decide(step, sim, g)
+            if decided is None:  # lost: the walk stops there
+                self._drop(u + 1)
+                break
+            sim, is_kf = decided
+            if step.is_kf is not None and is_kf != step.is_kf:
+                self._drop(u + 1)  # (a core came in: the decision on its inliers differs)
+            step.is_kf = is_kf
+            sim = (self._args[0][u], g, _keyframe_cursor(self._args[0][u]), 0) if is_kf else \
+                (*sim[:2], step.after, sim[3])
+            u, g = u + 1, g + 1
+        self._prune(f)
+
+    def _walk(self, u, sim, g):
+        """Frame ``u``'s step from ``sim`` (keyframe points, index, cursor, inliers after it),
+        ``g`` its index in the run; None where ``track`` leaves the cheap path."""
+        pts, good, extra, guesses, pool, K, config = self._args
+        kf_pts, kf_index, cursor, _ = sim
+        kf_good, after, tracked = _track_step(kf_pts, cursor, pts[u], good[u], config)
+        if kf_good is not None:
+            ref_pts, pairs = kf_pts, kf_good
+        elif len(good[u]) < config.min_matches and not cursor[2]:
+            return None  # (track matches to the keyframe's descriptors)
+        else:
+            ref_pts, pairs = cursor[0], good[u]
+        if len(pairs) < 8:
+            return None
+        points = _essential_points(ref_pts, pts[u], pairs, config)
+        core = guess = None
+        if points is not None:
+            if kf_good is not None and kf_index == g - 2 and guesses[u] is not None:
+                guess = guesses[u]  # (its guess_job works it out)
+            elif extra[u] is not None and _same(extra[u][0], points[0]) and _same(extra[u][1], points[1]):
+                core = extra[u]
+            else:
+                core = next((c for c in self._started.get(u, ()) if _same(c[0], points[0])
+                             and _same(c[1], points[1])), None)
+                if core is None:
+                    core = (*points, pool.submit(_essential_job, *points, K, config, urgent=True))
+                    self._started.setdefault(u, []).append(core)
+        known = None if points is None else (ref_pts, pts[u], pairs, *points)
+        return _Walked(kf_pts, kf_index, cursor, after, (tracked, kf_good), known, core, guess, len(pairs))
+
+    def _inliers(self, step):
+        """The step's inlier count as ``track`` will have it: the core's when in (None: lost),
+        else estimated."""
+        if step.known is None:
+            return step.n  # (no parallax: no core, every pair counts)
+        value = None
+        if step.guess is not None:
+            if step.guess.ready():
+                value = step.guess.get()[0]
+                value = None if value is None else value[2]
+                if value is None:
+                    return None
+        elif isinstance(step.core[2], PoolTask):
+            if step.core[2].ready():
+                value = step.core[2].get()
+                if value is None:
+                    return None
+        else:
+            value = step.core[2]
+            if value is None:
+                return None
+        if value is None:
+            return round(self._frac * len(step.known[3]))
+        self._frac = len(value[2]) / len(step.known[3])
+        return len(value[2])
+
+    def _decide(self, step, sim, g):
+        """(``sim`` with the inliers after the keyframe, whether frame ``g`` of ``step`` becomes
+        the keyframe) as ``track`` decides; None: lost."""
+        config = self._args[6]
+        inliers = self._inliers(step)
+        if inliers is None or inliers < config.min_inliers:
+            return None
+        kf_inliers = sim[3] or inliers
+        is_kf = g - sim[1] >= config.keyframe_interval or inliers < config.keyframe_ratio * kf_inliers
+        return (*sim[:3], kf_inliers), is_kf
+
+    def _drop(self, u):
+        """Forget the walk from frame ``u`` on."""
+        for v in [v for v in self._walked if v >= u]:
+            del self._walked[v]
+
+    def _prune(self, f):
+        """Cancel the started cores the walk no longer takes (from frame ``f`` on) and forget
+        those of the frames before."""
+        for u in list(self._started):
+            step = self._walked.get(u)
+            keep = [c for c in self._started[u] if u >= f and step is not None and c is step.core]
+            for c in self._started[u]:
+                if not keep or c is not keep[0]:
+                    c[2].cancel()
+            if keep:
+                self._started[u] = keep
+            else:
+                del self._started[u]
 
     def tracked(self, f):
         """(keyframe points, the previous frame's points, its keyframe keypoints, whether it
-        is the keyframe, :func:`~warpvx.apps.orbslam.keyframe_pairs`' result) that
-        :meth:`ahead` worked out for frame ``f`` (see :func:`_tracks_ahead`), or None."""
-        done = self._tracks.get(f)
-        return None if done is None else (self._kf_pts, *done[0], done[1])
+        is the keyframe, :func:`~warpvx.apps.orbslam.keyframe_pairs`' result) the walk worked
+        out for frame ``f`` (see :func:`_tracks_ahead`), or None."""
+        step = self._walked.get(f)
+        return None if step is None else (step.kf_pts, *step.cursor, step.result)
 
     def known(self, f):
-        """(keyframe points, frame ``f``'s points, its pairs to the keyframe, p1, p2) of the core
-        started for frame ``f`` (see :func:`_parallax_ahead`), or None."""
-        core = self.cores.get(f)
-        return None if core is None else (self._kf_pts, self._args[0][f], self._tracks[f][1][1], *core[:2])
+        """Frame ``f``'s parallax look-up (see :func:`_parallax_ahead`), or None."""
+        step = self._walked.get(f)
+        return None if step is None else step.known
+
+    def core(self, f):
+        """Frame ``f``'s core started on the pool or worked out by its frame job (p1, p2,
+        PoolTask or value), or None."""
+        step = self._walked.get(f)
+        return None if step is None else step.core
 
     def cancel(self):
-        for *_, task in self.cores.values():
-            task.cancel()
+        self._walked.clear()
+        self._prune(0)
 
 
 def ahead_frames(ahead) -> list:
@@ -472,8 +621,8 @@ def ahead_frames(ahead) -> list:
 
 def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
     """Track the batch's frames in order (:func:`~warpvx.apps.orbslam.track`, cheap with the
-    work done ahead; monocular, the keyframe's cores speculated on ``pool``, see
-    :class:`KeyframeSpeculation`, and ``ahead``'s guesses: one used when the keyframe is two
+    work done ahead; monocular, the cores ``track`` takes speculated on ``pool``, see
+    :class:`CoreSpeculation`, and ``ahead``'s guesses: one used when the keyframe is two
     frames back, dropped unstarted once it cannot be): (state, poses float64 [B, 4, 4], stats
     float64 [B, 6])."""
     feats = unpack_feats(feats)  # (packed, or a list)
@@ -483,21 +632,14 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
     points = ahead.points
     if baseline is None:
         pts, good = [xy for xy, _ in points], [a[3] for a in per_frame]
-        guessed = [g is not None for g in guesses]
-    spec, keyframe, span = None, -1, 0
+        spec = CoreSpeculation(pts, good, [a[2] for a in per_frame], guesses, pool, K, config)
     for f, ((kps, desc), (pairs, dist, extra, kept)) in enumerate(zip(feats[:frames], per_frame)):
         if baseline is not None:
             state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config, good=kept,
                                       points=points[f])
         else:
             now = None if state.keyframe is None else state.keyframe.index
-            if now != keyframe:  # a new keyframe (or the batch's first frame): speculate again
-                if spec is not None:
-                    spec.cancel()
-                    span = now - keyframe if None not in (now, keyframe) else 0
-                keyframe = now
-                spec = KeyframeSpeculation(state, f, pts, good, guessed, pool, K, config, hold=span == 2)
-            spec.ahead(f)
+            spec.ahead(f, state)
             # The guesses for the keyframe two frames back: this frame's needed only if it is
             # so; the next frame's only if the previous frame is the keyframe.
             guess = guesses[f] if now is not None and now == state.frames - 2 else None
@@ -508,12 +650,14 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
             # from the previous batch's points at f = 0: not these very arrays, computed again).
             previous = None if f == 0 or extra is None else (pts[f - 1], pts[f], kept, *extra[:2])
             state, pose, st = o.track(state, kps, desc, pairs, dist, K=K, config=config, good=kept, points=points[f],
-                                      essential=_essential_ahead(extra, spec.cores.get(f), pool=pool, guess=guess),
+                                      essential=_essential_ahead(extra, spec.core(f), pool=pool, guess=guess),
                                       tracks=_tracks_ahead(pts[f], kept, spec.tracked(f),
                                                            _guessed_tracks(guesses[f], pts, f)),
                                       parallax=_parallax_ahead(spec.known(f), previous))
         poses.append(pose)
         stats.append(st)
+    if baseline is None:
+        spec.cancel()
     return state, np.asarray(poses), np.asarray(stats)
 
 
