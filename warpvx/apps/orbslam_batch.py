@@ -443,7 +443,7 @@ class CoreSpeculation:
     comparison (:func:`~warpvx.apps.orbslam.keyframe_pairs`), the points of the chosen
     reference's core, and the keyframe decision: ``track``'s own rule on the core's inlier
     count once the pool has it, else on the pairs' count times the inlier fraction last seen
-    (a keyframe comes where the inliers drop under ``keyframe_ratio`` of those after the last
+    for that reference (a keyframe comes where the inliers drop under ``keyframe_ratio`` of those after the last
     keyframe: measured on the rendered sequences, a drop to ~45% against ~100% otherwise). At
     each frame the walk is checked again against the chain's state and the cores that came
     in: from the first decision that differs it walks on anew, and what it no longer reaches
@@ -460,10 +460,12 @@ class CoreSpeculation:
         self._args = (pts, good, extra, guesses, pool, K, config)
         self._on = pool is not None and config.keyframe_motion
         self._walked, self._started = {}, {}  # frame -> _Walked; frame -> [(p1, p2, PoolTask)]
-        self._frac = INLIER_FRACTION
+        # The inlier fraction last seen by reference (keyframe or not): the previous frame's
+        # matches hold more outliers than the keyframe's tracks (0.35 against 0.55, slow motion).
+        self._frac = {False: INLIER_FRACTION, True: INLIER_FRACTION}
         for e in extra:
             if e is not None and e[2] is not None:
-                self._frac = len(e[2][2]) / len(e[0])
+                self._frac[False] = len(e[2][2]) / len(e[0])
 
     def ahead(self, f, state):
         """Walked up to frame ``f`` + :data:`SPECULATE_AHEAD`; ``state``: the chain's before
@@ -555,9 +557,10 @@ class CoreSpeculation:
             value = step.core[2]
             if value is None:
                 return None
+        from_kf = step.result[1] is not None
         if value is None:
-            return round(self._frac * len(step.known[3]))
-        self._frac = len(value[2]) / len(step.known[3])
+            return round(self._frac[from_kf] * len(step.known[3]))
+        self._frac[from_kf] = len(value[2]) / len(step.known[3])
         return len(value[2])
 
     def _decide(self, step, sim, g):
