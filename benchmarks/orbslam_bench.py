@@ -241,9 +241,9 @@ def _pool_counts(pool):
 
 
 #: pool_per_batch's counts: key, the pool's counter, the job's function.
-POOL_COUNTS = (("frame_jobs", 1, "frame_job"), ("guess_jobs", 1, "guess_job"),
+POOL_COUNTS = (("frame_jobs", 1, "frame_job"), ("pairs_jobs", 1, "pairs_job"), ("guess_jobs", 1, "guess_job"),
                ("guesses_dropped", 2, "guess_job"), ("keyframe_cores", 1, "_essential_job"),
-               ("keyframe_cores_dropped", 2, "_essential_job"))
+               ("keyframe_cores_dropped", 2, "_essential_job"), ("cores_on_the_spot", 1, "on the spot"))
 
 
 def pool_per_batch(pool, before, batches) -> dict:
@@ -468,21 +468,23 @@ def markdown(report: dict) -> list:
     lines += _stage_table(report, ["extract_match", "extract_match_primitive", "frontend_mono",
                                    "frontend_stereo", *batched_keys])
     lines += ["", "What the pose pool did per batch (the chain's waits: for the batch's frame jobs, and for",
-              "keyframe cores speculated or guessed on the pool; jobs started and dropped unstarted;",
+              "keyframe cores speculated or guessed on the pool; jobs started and dropped unstarted (the",
+              "essential cores started: frame jobs, guess jobs, keyframe cores and misses; frame jobs",
+              "without core leave it to the chain's speculation, its cores in 'cores speculated by the chain');",
               "batched_mono_fifo: the pool in submit order, no guessed cores, as before them; counts include",
               "the verification of the run's graph in the chain-in-this-process row (a chain process answers",
               "it dry); chain wall and CPU: the chain's wall time and its",
               "thread's CPU time, whose gap is what it waited for: the pool, the GIL, a free core; measured",
               "in the chain process but for the chain-in-this-process row):", "",
               "| run | chain waits, frame jobs (ms) | chain waits, keyframe cores (ms) | chain computes cores "
-              "(ms) | frame jobs | guess jobs | guesses dropped | keyframe cores | keyframe cores dropped "
-              "| chain wall (ms) | chain CPU (ms) |",
-              "| --- |" + " --- |" * 10]
+              "(ms) | frame jobs | frame jobs without core | guess jobs | guesses dropped | cores speculated by the chain "
+              "| those dropped | cores on the spot (misses) | chain wall (ms) | chain CPU (ms) |",
+              "| --- |" + " --- |" * 12]
     for key in batched_keys:
         b = report[key].get("pool_per_batch")
         cells = [f"{b[f'chain_{k}_ms']:.2f}" for k in ("wait_ahead", "wait_keyframe", "on_the_spot")] \
-            + [f"{b[k]:.1f}" for k, *_ in POOL_COUNTS] \
-            + [f"{b[f'chain_{k}_ms']:.2f}" for k in ("wall", "cpu")] if b else ["n/a"] + [""] * 9
+            + [f"{b.get(k, 0):.1f}" for k, *_ in POOL_COUNTS] \
+            + [f"{b[f'chain_{k}_ms']:.2f}" for k in ("wall", "cpu")] if b else ["n/a"] + [""] * 11
         lines.append(f"| {key} | " + " | ".join(cells) + " |")
     lines += ["", "| accuracy | ATE (m) | RPE t (m) | RPE r (deg) |", "| --- | --- | --- | --- |"]
     for k, v in report["accuracy"].items():

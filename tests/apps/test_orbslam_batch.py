@@ -202,6 +202,29 @@ def test_slow_motion_takes_the_speculated_keyframe_cores(monkeypatch):
     np.testing.assert_allclose(got, [f.pose for f in want], atol=1e-9)
 
 
+@pytest.mark.parametrize("estimate", [0, 10 ** 6], ids=["always_keyframe", "never_keyframe"])
+def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate):
+    """CoreSpeculation's keyframe decisions wrong whenever they rest on an estimate (every frame
+    a keyframe, or none): the cores it starts are the wrong ones, the chain computes the
+    right ones on the spot (counted as misses) or takes the speculation's corrections once
+    the cores come in, and the poses stay the sequential ones, bit for bit."""
+    frames, camera = _frames(seq, False)
+    want = np.array([f.pose for f in o.track_frames(frames, camera)])
+    inliers = ob.CoreSpeculation._inliers
+
+    def wrong(self, step):
+        n = inliers(self, step)
+        exact = step.known is None or (step.guess.ready() if step.guess is not None else
+                                       not isinstance(step.core[2], op.PoolTask) or step.core[2].ready())
+        return n if exact else estimate
+
+    monkeypatch.setattr(ob.CoreSpeculation, "_inliers", wrong)
+    with ob.make_pool(2) as pool:
+        got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=FRAMES, pool=pool)])
+        assert pool.started["on the spot"] > 0 or pool.cancelled["_essential_job"] > 0
+    np.testing.assert_array_equal(got, want)
+
+
 @pytest.mark.parametrize("flags", [[], ["--chain-in-process"]], ids=["chain_process", "chain_in_process"])
 def test_cli_batch_flag_end_to_end(tmp_path, seq, capsys, flags, monkeypatch):
     opened = []

@@ -13,14 +13,17 @@ sequence, the stereo matching of frame t (:func:`~warpvx.apps.orbslam_match.ster
         consecutive frames, one launch for the batch
         (:func:`~warpvx.apps.orbslam_match.nearest_batch_warp`)
     images, feats, nearest, tail[-1] -> pose_batch (CPU) -> tail, ahead: per frame on a
-        process pool, the mutual pairs and their filter, then the essential core to the
-        previous frame (mono) or the stereo depths; mono, the core to the frame before the
-        previous one as the keyframe (a guess: right after a keyframe change)
+        process pool, the mutual pairs and their filter, then the stereo depths, or (mono, the
+        batch's first :data:`COVERED` frames only) the essential core to the previous frame
+        and the one to the frame before it as the keyframe (a guess: right after a keyframe
+        change)
     state[-1], feats, ahead -> chain (CPU) -> state, poses [B, 4, 4], stats [B, 6]: ``track``
         frame by frame, the filtered matches taken from ``ahead`` and the essential matrix
-        too when its inputs are the ones worked out ahead; the cores to the keyframe are speculated on the pool a few
-        frames before the chain needs them (only the chain knows the keyframe), as urgent
-        jobs that start before the next batch's (see :class:`PosePool`)
+        too when its inputs are the ones worked out ahead; mono, the later frames' cores are
+        speculated on the pool a few frames before the chain needs them, the one ``track``
+        will take only (only the chain knows the keyframe: :class:`CoreSpeculation` walks
+        ahead as ``track`` decides), as urgent jobs that start before the next batch's (see
+        :class:`PosePool`)
 
 With ``stream(depth >= 2)`` batch k+1 is extracted and matched on the GPU while batch k is
 tracked. The pool is one of processes (``cv2.setNumThreads(1)`` in each), not threads: the
@@ -66,16 +69,17 @@ from .orbslam_pool import SPARE_CORES, PoolTask, PosePool, default_workers, make
 
 
 class _Later:
-    """``[fn(*job) for job in jobs]``: on ``pool``'s processes when given, submitted now (not
-    urgent: the chain's keyframe jobs go first) and waited for by :meth:`get`; else in the
-    calling thread, now."""
+    """``[fn(*job) for job in jobs]`` (``fn``: one function, or a list of one per job): on
+    ``pool``'s processes when given, submitted now (not urgent: the chain's keyframe jobs go
+    first) and waited for by :meth:`get`; else in the calling thread, now."""
 
     def __init__(self, pool, fn, jobs, guesses=(), points=None):
         #: Per job, the frame's :func:`~warpvx.apps.orbslam.keypoint_xy` (:func:`pose_batch`'s;
         #: the chain's ``track`` takes them as they are).
         self.points = points
         self._pool = pool
-        self._values = None if pool is not None else [fn(*job) for job in jobs]
+        fns = fn if isinstance(fn, list) else [fn] * len(jobs)
+        self._values = None if pool is not None else [f(*job) for f, job in zip(fns, jobs)]
         self._pending, self.guesses = None, [None] * len(jobs)
         if pool is None:
             return
@@ -83,7 +87,7 @@ class _Later:
         block = pool.shared([*jobs, *(g for g in guesses if g is not None)]) if pool.share else None
         refer = block.refer if block is not None else (lambda job: job)
         try:
-            self._pending = [pool.submit(fn, *refer(job), block=block) for job in jobs]
+            self._pending = [pool.submit(f, *refer(job), block=block) for f, job in zip(fns, jobs)]
             #: Per job, a pending :func:`guess_job` (submitted after all the jobs), or None.
             self.guesses = [None if g is None else pool.submit(guess_job, *refer(g), block=block)
                             for g in guesses] or self.guesses
@@ -224,7 +228,7 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     fx = float(K[0, 0])
     # The guesses only pay on a pool (without one the chain computes what it needs).
     guessing = pool is not None and pool.ahead and baseline is None and config.keyframe_motion
-    jobs, guesses, points = [], [], [None] * frames
+    jobs, fns, guesses, points = [], [], [], [None] * frames
     for f, (kps, desc) in enumerate(feats[:frames], 1):
         pts, angles = points[f - 1] = o.keypoint_xy(kps)
         stereo = None
@@ -233,12 +237,13 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
             stereo = (kps, desc, kr, dr, images[f - 1], images[frames + f - 1], fx, baseline)
         near = batch_pairs(*nearest, f)
         covered = not guessing or f <= COVERED
-        jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo, covered))
+        jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo))
+        fns.append(frame_job if covered else pairs_job)
         guesses.append(None if before is None or not guessing or not covered else (
             before, near, pts, angles, prev_pts, prev_angles, K, config))
         before = (near, prev_pts, prev_angles)
         prev_pts, prev_angles = pts, angles
-    return (prev_pts, prev_angles, before), _Later(pool, frame_job, jobs, guesses if guessing else (), points)
+    return (prev_pts, prev_angles, before), _Later(pool, fns, jobs, guesses if guessing else (), points)
 
 
 def _good(nearest, pts, angles, prev_pts, prev_angles, config):
@@ -265,6 +270,11 @@ def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo, co
         return p, d, stereo_depth(kl, dl, kr, dr, left, right, fx=fx, baseline=baseline,
                                   scale_factor=config.scale_factor, max_distance=config.stereo_max_distance), good
     return p, d, _core_ahead(prev_pts, pts, good, K, config) if core else None, good
+
+
+def pairs_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
+    """:func:`frame_job` without the core (mono: the chain's :class:`CoreSpeculation` starts it)."""
+    return frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo, core=False)
 
 
 def guess_job(before, nearest, pts, angles, prev_pts, prev_angles, K, config):
