@@ -14,7 +14,7 @@ sequence, the stereo matching of frame t (:func:`~warpvx.apps.orbslam_match.ster
         (:func:`~warpvx.apps.orbslam_match.nearest_batch_warp`)
     images, feats, nearest, tail[-1] -> pose_batch (CPU) -> tail, ahead: per frame on a
         process pool, the mutual pairs and their filter, then the stereo depths, or (mono, the
-        batch's first :data:`COVERED` frames only) the essential core to the previous frame
+        first :data:`COVERED` frames of a run only) the essential core to the previous frame
         and the one to the frame before it as the keyframe (a guess: right after a keyframe
         change)
     state[-1], feats, ahead -> chain (CPU) -> state, poses [B, 4, 4], stats [B, 6]: ``track``
@@ -22,8 +22,8 @@ sequence, the stereo matching of frame t (:func:`~warpvx.apps.orbslam_match.ster
         too when its inputs are the ones worked out ahead; mono, the later frames' cores are
         speculated on the pool a few frames before the chain needs them, the one ``track``
         will take only (only the chain knows the keyframe: :class:`CoreSpeculation` walks
-        ahead as ``track`` decides), as urgent jobs that start before the next batch's (see
-        :class:`PosePool`)
+        ahead as ``track`` decides, into the next batch as the batch ends), as urgent jobs
+        that start before the next batch's (see :class:`PosePool`)
 
 With ``stream(depth >= 2)`` batch k+1 is extracted and matched on the GPU while batch k is
 tracked. The pool is one of processes (``cv2.setNumThreads(1)`` in each), not threads: the
@@ -78,6 +78,9 @@ class _Later:
         #: the chain's ``track`` takes them as they are).
         self.points = points
         self._pool = pool
+        #: The next batch's (set by its :func:`pose_batch`), and what this batch's chain takes
+        #: over from the previous one's :class:`CoreSpeculation` (see there), or None.
+        self.next = self.handed = None
         fns = fn if isinstance(fn, list) else [fn] * len(jobs)
         self._values = None if pool is not None else [f(*job) for f, job in zip(fns, jobs)]
         self._pending, self.guesses = None, [None] * len(jobs)
@@ -99,6 +102,10 @@ class _Later:
         if self._values is None:
             self._values = [self._pool.wait(t, "ahead") for t in self._pending]
         return self._values
+
+    def ready(self) -> bool:
+        """Whether :meth:`get` would not wait."""
+        return self._values is not None or all(t.ready() for t in self._pending)
 
 
 #: :func:`track_frames_batched`'s default GIL switch interval, seconds (Python's is 5 ms).
@@ -190,7 +197,7 @@ def match_batch_warp(feats, before, *, frames):
 
 
 #: :func:`pose_batch`'s ``tail`` before the first batch: no frame.
-NO_TAIL = (np.zeros((0, 2)), np.zeros(0), None)
+NO_TAIL = (np.zeros((0, 2)), np.zeros(0), None, None)
 
 
 def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, pool):
@@ -200,9 +207,10 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     and, on a pool with ``ahead`` and ``keyframe_motion`` on, the one to the frame before it
     as the keyframe (:func:`guess_job`, after the batch's frame jobs: the chain waits for
     those first). Speculating so (on a pool with ``ahead``, mono, ``keyframe_motion`` on),
-    only the first :data:`COVERED` frames get both cores, not knowing which one ``track``
-    takes (the keyframes are the chain's state); the later frames' jobs leave the core out
-    and the chain's :class:`CoreSpeculation` starts the one it will take. Each is one job:
+    only the first :data:`COVERED` frames of a run's first batch get both cores, not knowing
+    which one ``track`` takes (the keyframes are the chain's state); the other frames' jobs
+    leave the core out and the chain's :class:`CoreSpeculation` starts the one it will take
+    (as the previous batch's chain nears its end, for a batch's first frames). Each is one job:
     the calling thread only slices the batch, so the pose work holds the GIL of the process
     that runs the tracking for none of it.
 
@@ -213,18 +221,22 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     feats : list of B' (Keypoints, uint8 [N, 32]), or :func:`pack_feats`' value
     nearest : (nearest, distance, starts)
         :func:`match_batch`'s second output.
-    tail : tuple (float64 [N, 2] points, float64 [N] angles, before)
+    tail : tuple (float64 [N, 2] points, float64 [N] angles, before, ahead)
         The previous batch's last frame and ``before``, its (nearest, points, angles) of the
-        frame before it (None: none); :data:`NO_TAIL` before the first batch.
+        frame before it (None: none), and the previous batch's ``ahead`` (None: none; its
+        ``next`` becomes this one's); :data:`NO_TAIL` before the first batch.
 
     Returns
     -------
-    tail : the last frame's (points, angles, before)
+    tail : the last frame's (points, angles, before), and ``ahead``
     ahead : the pool's results, still running: :func:`ahead_frames` waits for them; its
         ``guesses``: per frame the pending :func:`guess_job` or None.
     """
     feats = unpack_feats(feats)
-    prev_pts, prev_angles, before = tail
+    prev_pts, prev_angles, before, previous = tail
+    # After a batch, the chain's speculation starts this one's first cores as it ends that one
+    # (CoreSpeculation): none covered here.
+    covering = COVERED if previous is None else 0
     fx = float(K[0, 0])
     # The guesses only pay on a pool (without one the chain computes what it needs).
     guessing = pool is not None and pool.ahead and baseline is None and config.keyframe_motion
@@ -236,14 +248,17 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
             kr, dr = feats[frames + f - 1]
             stereo = (kps, desc, kr, dr, images[f - 1], images[frames + f - 1], fx, baseline)
         near = batch_pairs(*nearest, f)
-        covered = not guessing or f <= COVERED
+        covered = not guessing or f <= covering
         jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo))
         fns.append(frame_job if covered else pairs_job)
         guesses.append(None if before is None or not guessing or not covered else (
             before, near, pts, angles, prev_pts, prev_angles, K, config))
         before = (near, prev_pts, prev_angles)
         prev_pts, prev_angles = pts, angles
-    return (prev_pts, prev_angles, before), _Later(pool, fns, jobs, guesses if guessing else (), points)
+    ahead = _Later(pool, fns, jobs, guesses if guessing else (), points)
+    if previous is not None:
+        previous.next = ahead
+    return (prev_pts, prev_angles, before, ahead), ahead
 
 
 def _good(nearest, pts, angles, prev_pts, prev_angles, config):
@@ -453,22 +468,28 @@ class CoreSpeculation:
     comparison (:func:`~warpvx.apps.orbslam.keyframe_pairs`), the points of the chosen
     reference's core, and the keyframe decision: ``track``'s own rule on the core's inlier
     count once the pool has it, else on the pairs' count times the inlier fraction last seen
-    for that reference (a keyframe comes where the inliers drop under ``keyframe_ratio`` of those after the last
-    keyframe: measured on the rendered sequences, a drop to ~45% against ~100% otherwise). At
+    for that reference (a keyframe comes where the inliers drop under ``keyframe_ratio`` of
+    those after the last keyframe: on the rendered sequences, a drop to ~45% against ~100%
+    otherwise). At
     each frame the walk is checked again against the chain's state and the cores that came
     in: from the first decision that differs it walks on anew, and what it no longer reaches
     is cancelled if not started. A frame lost (or a scale jump: the depths are the chain's)
-    stops it until the chain has tracked past. The cores of the batch's first :data:`COVERED`
-    frames are :func:`pose_batch`'s (both references); one the chain still lacks it computes
-    on the spot (:func:`_essential_ahead`, counted in ``pool.started["on the spot"]``).
+    stops it until the chain has tracked past. Near the batch's end it walks on into the next
+    batch once that one's frame jobs are done, and :meth:`hand_over` gives that batch's
+    speculation what it started; the cores of a run's first :data:`COVERED` frames are
+    :func:`pose_batch`'s (both references). One the chain still lacks it computes on the
+    spot (:func:`_essential_ahead`, counted in ``pool.started["on the spot"]``).
 
-    ``pts``, ``good``, ``extra``, ``guesses`` per frame of the batch: points float64 [N, 2],
+    ``ahead``: the batch's :func:`pose_batch` result, done (per frame: points float64 [N, 2],
     filtered matches int [G, 2] to the previous frame, the frame job's (p1, p2, core) or None,
-    the pending :func:`guess_job` or None."""
+    the pending :func:`guess_job` or None)."""
 
-    def __init__(self, pts, good, extra, guesses, pool, K, config):
-        self._args = (pts, good, extra, guesses, pool, K, config)
+    def __init__(self, ahead, pool, K, config):
+        per_frame = ahead.get()
+        pts, good, extra = [xy for xy, _ in ahead.points], [a[3] for a in per_frame], [a[2] for a in per_frame]
+        self._args = (pts, good, extra, list(ahead.guesses), pool, K, config)
         self._on = pool is not None and config.keyframe_motion
+        self._ahead, self._frames, self._next = ahead, len(pts), None
         self._walked, self._started = {}, {}  # frame -> _Walked; frame -> [(p1, p2, PoolTask)]
         # The inlier fraction last seen by reference (keyframe or not): the previous frame's
         # matches hold more outliers than the keyframe's tracks (0.35 against 0.55, slow motion).
@@ -476,6 +497,9 @@ class CoreSpeculation:
         for e in extra:
             if e is not None and e[2] is not None:
                 self._frac[False] = len(e[2][2]) / len(e[0])
+        if ahead.handed is not None:  # the previous batch's chain walked into this one
+            self._walked, self._started, self._frac = ahead.handed
+            ahead.handed = None
 
     def ahead(self, f, state):
         """Walked up to frame ``f`` + :data:`SPECULATE_AHEAD`; ``state``: the chain's before
@@ -492,7 +516,7 @@ class CoreSpeculation:
         if step is not None and not (step.cursor[2] == sim[2][2] and _same(step.cursor[0], prev.pts)
                                      and _same(step.cursor[1], prev.kf_index)):
             self._drop(f)
-        u, g, end = f, state.frames, min(f + 1 + SPECULATE_AHEAD, len(self._args[0]))
+        u, g, end = f, state.frames, self._end(f + 1 + SPECULATE_AHEAD)
         while u in self._walked or u < end:
             step = self._walked.get(u)
             if step is not None and step.kf_index != sim[1]:
@@ -515,6 +539,32 @@ class CoreSpeculation:
                 (*sim[:2], step.after, sim[3])
             u, g = u + 1, g + 1
         self._prune(f)
+
+    def _end(self, end):
+        """``end``, or the batch's frames and the next batch's walked into when it reaches
+        past this one's and the next batch's frame jobs are done (the chain may then start its
+        first cores as this batch ends; :meth:`hand_over`)."""
+        nxt = self._ahead.next
+        if end > self._frames and self._next is None and nxt is not None and nxt.ready():
+            pts, good, extra, guesses = self._args[:4]
+            per_frame = nxt.get()
+            pts += [xy for xy, _ in nxt.points]
+            good += [a[3] for a in per_frame]
+            extra += [a[2] for a in per_frame]
+            guesses += nxt.guesses
+            self._next = nxt
+        return min(end, len(self._args[0]))
+
+    def hand_over(self):
+        """At the batch's end: the walk into the next batch (its steps and cores) to that
+        batch's speculation; the rest cancelled if not started."""
+        n, nxt = self._frames, self._next
+        if nxt is not None:
+            nxt.handed = ({u - n: s for u, s in self._walked.items() if u >= n},
+                          {u - n: c for u, c in self._started.items() if u >= n}, self._frac)
+            self._started = {u: c for u, c in self._started.items() if u < n}
+        self._walked.clear()
+        self._prune(n)
 
     def _walk(self, u, sim, g):
         """Frame ``u``'s step from ``sim`` (keyframe points, index, cursor, inliers after it),
@@ -621,10 +671,6 @@ class CoreSpeculation:
         step = self._walked.get(f)
         return None if step is None else step.core
 
-    def cancel(self):
-        self._walked.clear()
-        self._prune(0)
-
 
 def ahead_frames(ahead) -> list:
     """:func:`pose_batch`'s ``ahead`` per frame, once the pool's work is done: (pairs,
@@ -645,7 +691,7 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
     points = ahead.points
     if baseline is None:
         pts, good = [xy for xy, _ in points], [a[3] for a in per_frame]
-        spec = CoreSpeculation(pts, good, [a[2] for a in per_frame], guesses, pool, K, config)
+        spec = CoreSpeculation(ahead, pool, K, config)
     for f, ((kps, desc), (pairs, dist, extra, kept)) in enumerate(zip(feats[:frames], per_frame)):
         if baseline is not None:
             state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config, good=kept,
@@ -670,7 +716,7 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
         poses.append(pose)
         stats.append(st)
     if baseline is None:
-        spec.cancel()
+        spec.hand_over()
     return state, np.asarray(poses), np.asarray(stats)
 
 
