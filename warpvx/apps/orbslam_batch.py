@@ -249,7 +249,8 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
             stereo = (kps, desc, kr, dr, images[f - 1], images[frames + f - 1], fx, baseline)
         near = batch_pairs(*nearest, f)
         covered = not guessing or f <= covering
-        jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo))
+        jobs.append((near, pts, angles, prev_pts, prev_angles, K, config, stereo) if covered else
+                    (near, pts, angles, prev_pts, prev_angles, config, before))
         fns.append(frame_job if covered else pairs_job)
         guesses.append(None if before is None or not guessing or not covered else (
             before, near, pts, angles, prev_pts, prev_angles, K, config))
@@ -287,9 +288,15 @@ def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo, co
     return p, d, _core_ahead(prev_pts, pts, good, K, config) if core else None, good
 
 
-def pairs_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
-    """:func:`frame_job` without the core (mono: the chain's :class:`CoreSpeculation` starts it)."""
-    return frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo, core=False)
+def pairs_job(nearest, pts, angles, prev_pts, prev_angles, config, before):
+    """Monocular (on a pool process): :func:`frame_job`'s value without the core (the chain's
+    :class:`CoreSpeculation` starts the one ``track`` takes), and :func:`guess_job`'s second
+    value (the tracks with the frame before the previous one as the keyframe, common: the
+    speculation then need not work them out in the chain's thread), or None (``before`` None:
+    no such frame). Arguments as :func:`guess_job`'s."""
+    p, d, good = _good(nearest, pts, angles, prev_pts, prev_angles, config)
+    return p, d, None, good, None if before is None else _two_back(before, pts, good, prev_pts, prev_angles,
+                                                                   config)[2]
 
 
 def guess_job(before, nearest, pts, angles, prev_pts, prev_angles, K, config):
@@ -301,12 +308,19 @@ def guess_job(before, nearest, pts, angles, prev_pts, prev_angles, K, config):
     ``tracks``: :func:`~warpvx.apps.orbslam.keyframe_pairs`' result for this frame from them.
     ``before``: the previous frame's (nearest, points, angles of that frame); the rest as
     :func:`frame_job`'s."""
+    good = _good(nearest, pts, angles, prev_pts, prev_angles, config)[2]
+    kf_pts, kf_good, tracks = _two_back(before, pts, good, prev_pts, prev_angles, config)
+    return _core_ahead(kf_pts, pts, kf_good, K, config), tracks
+
+
+def _two_back(before, pts, good, prev_pts, prev_angles, config):
+    """(keyframe points, its pairs or None, (kf_index, tracks)) for :func:`guess_job` (see
+    there), ``good`` this frame's filtered matches."""
     near, kf_pts, kf_angles = before
     prev_good = _good(near, prev_pts, prev_angles, kf_pts, kf_angles, config)[2]
     cursor = _track_step(kf_pts, _keyframe_cursor(kf_pts), prev_pts, prev_good, config)[1]
-    good = _good(nearest, pts, angles, prev_pts, prev_angles, config)[2]
     kf_good, _, tracked = _track_step(kf_pts, cursor, pts, good, config)
-    return _core_ahead(kf_pts, pts, kf_good, K, config), (cursor[1], (tracked, kf_good))
+    return kf_pts, kf_good, (cursor[1], (tracked, kf_good))
 
 
 def _keyframe_cursor(kf_pts):
@@ -321,11 +335,16 @@ def _track_step(kf_pts, cursor, pts, good, config):
     previous frame. Returns (pairs int [M, 2] to the keyframe when ``track`` takes the motion
     from it, else None (:func:`~warpvx.apps.orbslam.keyframe_pairs`); this frame's cursor;
     the tracked keyframe keypoint int [G] of each pair of ``good``)."""
-    prev_pts, kf_index, prev_is_kf = cursor
-    tracked, kf_good = o.keyframe_pairs(kf_pts, prev_pts, kf_index, prev_is_kf, pts, good, config)
+    tracked, kf_good = o.keyframe_pairs(kf_pts, *cursor, pts, good, config)
+    return kf_good, _cursor(pts, good, tracked), tracked
+
+
+def _cursor(pts, good, tracked):
+    """:func:`_track_step`'s cursor after a frame (not the keyframe) with points ``pts``,
+    whose filtered matches ``good`` track keyframe keypoints ``tracked``."""
     kf_index = np.full(len(pts), -1)
     kf_index[good[:, 0]] = tracked
-    return kf_good, (pts, kf_index, False), tracked
+    return pts, kf_index, False
 
 
 def _essential_points(ref_pts, pts, pairs, config):
@@ -487,6 +506,8 @@ class CoreSpeculation:
     def __init__(self, ahead, pool, K, config):
         per_frame = ahead.get()
         pts, good, extra = [xy for xy, _ in ahead.points], [a[3] for a in per_frame], [a[2] for a in per_frame]
+        #: Per frame, pairs_job's tracks with the keyframe two frames back, or None.
+        self._twos = [a[4] if len(a) > 4 else None for a in per_frame]
         self._args = (pts, good, extra, list(ahead.guesses), pool, K, config)
         self._on = pool is not None and config.keyframe_motion
         self._ahead, self._frames, self._next = ahead, len(pts), None
@@ -551,6 +572,7 @@ class CoreSpeculation:
             pts += [xy for xy, _ in nxt.points]
             good += [a[3] for a in per_frame]
             extra += [a[2] for a in per_frame]
+            self._twos += [a[4] if len(a) > 4 else None for a in per_frame]
             guesses += nxt.guesses
             self._next = nxt
         return min(end, len(self._args[0]))
@@ -571,7 +593,11 @@ class CoreSpeculation:
         ``g`` its index in the run; None where ``track`` leaves the cheap path."""
         pts, good, extra, guesses, pool, K, config = self._args
         kf_pts, kf_index, cursor, _ = sim
-        kf_good, after, tracked = _track_step(kf_pts, cursor, pts[u], good[u], config)
+        two = self._twos[u]
+        if two is not None and kf_index == g - 2 and not cursor[2] and _same(cursor[1], two[0]):
+            (tracked, kf_good), after = two[1], _cursor(pts[u], good[u], two[1][0])  # (its pairs_job's)
+        else:
+            kf_good, after, tracked = _track_step(kf_pts, cursor, pts[u], good[u], config)
         if kf_good is not None:
             ref_pts, pairs = kf_pts, kf_good
         elif len(good[u]) < config.min_matches and not cursor[2]:
@@ -674,7 +700,8 @@ class CoreSpeculation:
 
 def ahead_frames(ahead) -> list:
     """:func:`pose_batch`'s ``ahead`` per frame, once the pool's work is done: (pairs,
-    distances, extra, good) as :func:`frame_job` returns them."""
+    distances, extra, good) as :func:`frame_job` returns them (:func:`pairs_job`: and the
+    tracks two frames back)."""
     return ahead.get()
 
 
@@ -692,7 +719,7 @@ def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
     if baseline is None:
         pts, good = [xy for xy, _ in points], [a[3] for a in per_frame]
         spec = CoreSpeculation(ahead, pool, K, config)
-    for f, ((kps, desc), (pairs, dist, extra, kept)) in enumerate(zip(feats[:frames], per_frame)):
+    for f, ((kps, desc), (pairs, dist, extra, kept, *_)) in enumerate(zip(feats[:frames], per_frame)):
         if baseline is not None:
             state, pose, st = o.track(state, kps, desc, pairs, dist, extra, K=K, config=config, good=kept,
                                       points=points[f])
