@@ -202,6 +202,24 @@ def test_slow_motion_takes_the_speculated_keyframe_cores(monkeypatch):
     np.testing.assert_allclose(got, [f.pose for f in want], atol=1e-9)
 
 
+def test_about_one_essential_matrix_per_frame(seq):
+    """Speculating, the pool works out the essential matrix track takes and not the other
+    candidate (before: both, ~2 per frame): only the run's first frames (the first batch here)
+    get both, the chain's speculation starts the others' (no miss on this sequence), and the
+    poses are the sequential ones."""
+    frames, camera = _frames(seq, False)
+    want = np.array([f.pose for f in o.track_frames(frames, camera)])
+    with ob.make_pool(2, chain_process=True) as proc:  # (its verification is dry: no jobs)
+        got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=proc)])
+        started = proc.started
+    np.testing.assert_array_equal(got, want)
+    first, padded = min(BATCH, ob.COVERED), -(-FRAMES // BATCH) * BATCH  # (the last batch filled up)
+    assert started["frame_job"] == first and started["pairs_job"] == padded - first
+    assert started["on the spot"] == 0
+    cores = started["frame_job"] + started["guess_job"] + started["_essential_job"]
+    assert cores <= FRAMES + first
+
+
 @pytest.mark.parametrize("estimate", [0, 10 ** 6], ids=["always_keyframe", "never_keyframe"])
 def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate):
     """CoreSpeculation's keyframe decisions wrong whenever they rest on an estimate (every frame
