@@ -46,6 +46,12 @@ class NodeExecutionError(WarpvxError, RuntimeError):
     """A graph node raised while running; the original exception is ``__cause__``."""
 
 
+class CaptureAllocationError(WarpvxError, RuntimeError):
+    """A call would allocate state it keeps (a primitive's scratch, a read-back buffer) inside
+    a CUDA graph capture, where the memory would belong to the graph: run the call once
+    uncaptured, on the same stream and thread, before capturing it."""
+
+
 __all__ = [
     "WarpvxError",
     "WarpvxValueError",
@@ -57,4 +63,5 @@ __all__ = [
     "GraphError",
     "ScheduleError",
     "NodeExecutionError",
+    "CaptureAllocationError",
 ]

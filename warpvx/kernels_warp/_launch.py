@@ -25,6 +25,8 @@ from contextlib import contextmanager
 
 import warp as wp
 
+from ..errors import CaptureAllocationError
+
 _RECORDED: OrderedDict = OrderedDict()
 _RECORDED_MAX = 64
 _recorded_lock = threading.Lock()
@@ -221,15 +223,24 @@ def workspace(kind: str, key: tuple, device, build):
     Reused by calls with the same ``kind`` and ``key`` (sizes) on the same device, current
     stream and thread, so two calls sharing it always run one after the other on one stream
     (a call may keep scratch buffers and recorded launches in it, never its results). The
-    least recently used of :data:`_WORKSPACES_MAX` are dropped.
+    least recently used of :data:`_WORKSPACES_MAX` are dropped. Never built inside a CUDA
+    graph capture (:class:`CaptureAllocationError`).
     """
-    stream = None if device.is_cpu else device.stream.cuda_stream
-    full = (kind, key, str(device), stream, threading.get_ident())
+    stream = None if device.is_cpu else device.stream
+    full = (kind, key, str(device), None if stream is None else stream.cuda_stream,
+            threading.get_ident())
     with _workspaces_lock:
         ws = _WORKSPACES.get(full)
         if ws is not None:
             _WORKSPACES.move_to_end(full)
             return ws
+    if stream is not None and stream.is_capturing:
+        # Built here, its buffers would be the capture's graph memory: valid only inside that
+        # graph, yet kept and reused by later calls outside it (CUDA error 700, an illegal
+        # address, on the H100). Fail the capture instead: the caller runs the call uncaptured,
+        # which builds the workspace, and captures after that.
+        raise CaptureAllocationError(
+            f"{kind}: its workspace would be allocated inside a CUDA graph capture")
     ws = build()
     with _workspaces_lock:
         _WORKSPACES[full] = ws
@@ -309,7 +320,8 @@ class HostReadback:
             # null buffer, which a later read-back would write through: fail the capture
             # instead (the executor runs the call uncaptured, which builds this, and captures
             # the next frame).
-            raise RuntimeError("a read-back buffer cannot be allocated inside a CUDA graph capture")
+            raise CaptureAllocationError(
+                "a read-back buffer cannot be allocated inside a CUDA graph capture")
         self.host = wp.empty(n, dtype=dtype, device="cpu", pinned=not device.is_cpu)
         if n and not self.host.ptr:
             raise RuntimeError(f"pinned allocation of a {n}-element read-back buffer failed")

@@ -69,6 +69,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..check import check_int
+from ..errors import CaptureAllocationError
 from .lanes import MAX_LANES, Lanes, lanes, noted, noting_conditionals
 from .native_copy import (copy_device, is_warp_array, record_event, to_device, wait_event,
                           warp)
@@ -187,6 +188,17 @@ def _workspaces() -> list:
 
     with _launch._workspaces_lock:
         return list(_launch._WORKSPACES.values())
+
+
+def _caused_by(exc: BaseException, kind: type) -> bool:
+    """``exc`` or an exception in its chain (``__cause__``/``__context__``) is a ``kind``."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, kind):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def _fits(values: list, bufs: list) -> bool:
@@ -359,7 +371,6 @@ class SegmentGraph:
             A task returned memory it allocated, or Warp refused or failed the capture (a
             host sync or read-back inside, a caller's capture).
         """
-        wp = warp()
         b = self.sets[self.next]
         # The tasks launch on the device's current stream: the capture's (a set's own stream
         # need not be the current one; ScopedCapture does not make it so).
@@ -368,17 +379,33 @@ class SegmentGraph:
         try:
             if dev is not None:
                 dev.set_stream(streams[0], sync=False)
-            with wp.ScopedCapture(device=device, stream=streams and streams[0]) as cap:
+            try:
+                graph = self._record(device, streams)
+            except NotCapturable as exc:
+                if not _caused_by(exc, CaptureAllocationError):
+                    raise
+                # A primitive's scratch (kept per stream and thread) was missing: the runs
+                # before were on another thread. Made uncaptured here, then captured.
+                _log.debug("segment %s: scratch made before capture (%s)",
+                           self.segment.tasks[0].name, exc)
                 self._run_tasks(self.next, streams=streams)
-        except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
-            raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
+                graph = self._record(device, streams)
         finally:
             if dev is not None:
                 dev.set_stream(current, sync=False)
+        b.graph = graph
+        self.scratch = _workspaces()
+
+    def _record(self, device: str, streams):
+        """The tasks writing the next run's set, captured (on the current stream): the graph."""
+        try:
+            with warp().ScopedCapture(device=device, stream=streams and streams[0]) as cap:
+                self._run_tasks(self.next, streams=streams)
+        except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
+            raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
         if cap.graph is None:
             raise NotCapturable("the capture produced no graph")
-        b.graph = cap.graph
-        self.scratch = _workspaces()
+        return cap.graph
 
     def single_lane(self) -> bool:
         """Run on one lane from now on (after a capture on several failed); False if it
