@@ -78,6 +78,7 @@ import warpvx  # noqa: E402
 from warpvx.apps import orbslam as o  # noqa: E402
 from warpvx.apps import orbslam_batch as ob  # noqa: E402
 from warpvx.apps import trajectory_eval as te  # noqa: E402
+from warpvx.apps import orbslam_speculate as osp  # noqa: E402
 from warpvx.apps.orbslam_match import add_match_node, batch_pairs, mutual_pairs  # noqa: E402
 from warpvx.apps.orbslam_synth import render_sequence  # noqa: E402
 
@@ -319,8 +320,8 @@ def bench_pose_pool(frames, camera, batch, pool):
         ahead = ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1]
         per_frame = ob.ahead_frames(ahead)
         prev = [pts0[0]] + [xy for xy, _ in ahead.points[:-1]]
-        points = [ob._essential_points(r, xy, a[3], config) for r, (xy, _), a in zip(prev, ahead.points, per_frame)]
-        tasks = [p.submit(ob._essential_job, *c, K, config) for c in points if c is not None]
+        points = [osp._essential_points(r, xy, a[3], config) for r, (xy, _), a in zip(prev, ahead.points, per_frame)]
+        tasks = [p.submit(osp._essential_job, *c, K, config) for c in points if c is not None]
         return [t.get() for t in tasks]
 
     with ob.make_pool(1) as one:

@@ -25,6 +25,7 @@ from warpvx.apps import orbslam as o
 from warpvx.apps import orbslam_batch as ob
 from warpvx.apps import orbslam_chain, orbslam_cli
 from warpvx.apps import orbslam_pool as op
+from warpvx.apps import orbslam_speculate as osp
 from warpvx.apps import trajectory_eval as te
 from warpvx.apps.orbslam_synth import render_sequence, write_kitti_sequence
 from warpvx.errors import WarpvxError
@@ -80,7 +81,7 @@ def test_essential_ahead_is_used_only_for_its_own_points(seq):
     p1, p2 = o.keypoint_xy(k0)[0][pairs[:, 1]], o.keypoint_xy(k1)[0][pairs[:, 0]]
     K, config = np.ascontiguousarray(seq[2], np.float64), o.TrackerConfig()
     sentinel = object()
-    essential = ob._essential_ahead((p1, p2, sentinel))
+    essential = osp._essential_ahead((p1, p2, sentinel))
     assert essential(p1.copy(), p2.copy(), K, config) is sentinel
     want = o.essential_core(p1[1:], p2[1:], K, config)
     assert want is not None
@@ -99,7 +100,7 @@ def test_tracks_and_parallax_ahead_are_used_only_for_their_own_inputs(seq):
     kf_pts, pts = o.keypoint_xy(k0)[0], o.keypoint_xy(k1)[0]
     config, kf_index, sentinel = o.TrackerConfig(), np.arange(len(kf_pts)), object()
     # Previous frame = the keyframe (k0): its keypoints track to themselves.
-    tracks = ob._tracks_ahead(pts, pairs, (kf_pts, kf_pts, kf_index, False, sentinel))
+    tracks = osp._tracks_ahead(pts, pairs, (kf_pts, kf_pts, kf_index, False, sentinel))
     assert tracks(kf_pts, kf_pts, kf_index.copy(), False, pts, pairs, config) is sentinel
     for args in ((kf_pts.copy(), kf_pts, kf_index, False, pts, pairs),  # other arrays
                  (kf_pts, kf_pts, kf_index[::-1].copy(), False, pts, pairs),  # other tracks
@@ -107,7 +108,7 @@ def test_tracks_and_parallax_ahead_are_used_only_for_their_own_inputs(seq):
         want = o.keyframe_pairs(*args, config)
         for g, w in zip(tracks(*args, config), want):
             np.testing.assert_array_equal(g, w)
-    parallax = ob._parallax_ahead(None, (kf_pts, pts, pairs, sentinel, sentinel))
+    parallax = osp._parallax_ahead(None, (kf_pts, pts, pairs, sentinel, sentinel))
     assert parallax(kf_pts, pts, pairs, config) == (sentinel, sentinel, True)
     for g, w in zip(parallax(kf_pts, pts, pairs.copy(), config), o.parallax_points(kf_pts, pts, pairs, config)):
         np.testing.assert_array_equal(g, w)
@@ -228,7 +229,7 @@ def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate
     the cores come in, and the poses stay the sequential ones, bit for bit."""
     frames, camera = _frames(seq, False)
     want = np.array([f.pose for f in o.track_frames(frames, camera)])
-    inliers = ob.CoreSpeculation._inliers
+    inliers = osp.CoreSpeculation._inliers
 
     def wrong(self, step):
         n = inliers(self, step)
@@ -236,7 +237,7 @@ def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate
                                        not isinstance(step.core[2], op.PoolTask) or step.core[2].ready())
         return n if exact else estimate
 
-    monkeypatch.setattr(ob.CoreSpeculation, "_inliers", wrong)
+    monkeypatch.setattr(osp.CoreSpeculation, "_inliers", wrong)
     with ob.make_pool(2) as pool:
         got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=FRAMES, pool=pool)])
         assert pool.started["on the spot"] > 0 or pool.cancelled["_essential_job"] > 0
