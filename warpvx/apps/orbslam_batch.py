@@ -14,16 +14,17 @@ sequence, the stereo matching of frame t (:func:`~warpvx.apps.orbslam_match.ster
         (:func:`~warpvx.apps.orbslam_match.nearest_batch_warp`)
     images, feats, nearest, tail[-1] -> pose_batch (CPU) -> tail, ahead: per frame on a
         process pool, the mutual pairs and their filter, then the stereo depths, or (mono, the
-        first :data:`COVERED` frames of a run only) the essential core to the previous frame
-        and the one to the frame before it as the keyframe (a guess: right after a keyframe
-        change)
+        first :data:`~warpvx.apps.orbslam_speculate.COVERED` frames of a run only) the essential
+        core to the previous frame and the one to the frame before it as the keyframe (a
+        guess: right after a keyframe change)
     state[-1], feats, ahead -> chain (CPU) -> state, poses [B, 4, 4], stats [B, 6]: ``track``
         frame by frame, the filtered matches taken from ``ahead`` and the essential matrix
         too when its inputs are the ones worked out ahead; mono, the later frames' cores are
         speculated on the pool a few frames before the chain needs them, the one ``track``
-        will take only (only the chain knows the keyframe: :class:`CoreSpeculation` walks
-        ahead as ``track`` decides, into the next batch as the batch ends), as urgent jobs
-        that start before the next batch's (see :class:`PosePool`)
+        will take only (only the chain knows the keyframe:
+        :class:`~warpvx.apps.orbslam_speculate.CoreSpeculation` walks ahead as ``track``
+        decides, into the next batch as the batch ends), as urgent jobs that start before the
+        next batch's (see :class:`PosePool`)
 
 With ``stream(depth >= 2)`` batch k+1 is extracted and matched on the GPU while batch k is
 tracked. The pool is one of processes (``cv2.setNumThreads(1)`` in each), not threads: the
@@ -79,7 +80,8 @@ class _Later:
         self.points = points
         self._pool = pool
         #: The next batch's (set by its :func:`pose_batch`), and what this batch's chain takes
-        #: over from the previous one's :class:`CoreSpeculation` (see there), or None.
+        #: over from the previous one's speculation (see
+        #: :class:`~warpvx.apps.orbslam_speculate.CoreSpeculation`), or None.
         self.next = self.handed = None
         fns = fn if isinstance(fn, list) else [fn] * len(jobs)
         self._values = None if pool is not None else [f(*job) for f, job in zip(fns, jobs)]
@@ -207,10 +209,11 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
     and, on a pool with ``ahead`` and ``keyframe_motion`` on, the one to the frame before it
     as the keyframe (:func:`guess_job`, after the batch's frame jobs: the chain waits for
     those first). Speculating so (on a pool with ``ahead``, mono, ``keyframe_motion`` on),
-    only the first :data:`COVERED` frames of a run's first batch get both cores, not knowing
-    which one ``track`` takes (the keyframes are the chain's state); the other frames' jobs
-    leave the core out and the chain's :class:`CoreSpeculation` starts the one it will take
-    (as the previous batch's chain nears its end, for a batch's first frames). Each is one job:
+    only a run's first :data:`~warpvx.apps.orbslam_speculate.COVERED` frames get both
+    cores, not knowing which one ``track`` takes (the keyframes are the chain's state); the
+    other frames' jobs leave the core out and the chain's speculation
+    (:class:`~warpvx.apps.orbslam_speculate.CoreSpeculation`) starts the one it will take (as the
+    previous batch's chain nears its end, for a batch's first frames). Each is one job:
     the calling thread only slices the batch, so the pose work holds the GIL of the process
     that runs the tracking for none of it.
 
@@ -290,10 +293,11 @@ def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo, co
 
 def pairs_job(nearest, pts, angles, prev_pts, prev_angles, config, before):
     """Monocular (on a pool process): :func:`frame_job`'s value without the core (the chain's
-    :class:`CoreSpeculation` starts the one ``track`` takes), and :func:`guess_job`'s second
-    value (the tracks with the frame before the previous one as the keyframe, common: the
-    speculation then need not work them out in the chain's thread), or None (``before`` None:
-    no such frame). Arguments as :func:`guess_job`'s."""
+    :class:`~warpvx.apps.orbslam_speculate.CoreSpeculation` starts the one ``track``
+    takes), and :func:`guess_job`'s second value (the tracks with the frame before the
+    previous one as the keyframe, common: the speculation then need not work them out in the
+    chain's thread), or None (``before`` None: no such frame). Arguments as
+    :func:`guess_job`'s."""
     p, d, good = _good(nearest, pts, angles, prev_pts, prev_angles, config)
     return p, d, None, good, None if before is None else _two_back(before, pts, good, prev_pts, prev_angles,
                                                                    config)[2]
@@ -333,9 +337,9 @@ def ahead_frames(ahead) -> list:
 def chain(state, feats, ahead, *, K, config, baseline, frames, pool=None):
     """Track the batch's frames in order (:func:`~warpvx.apps.orbslam.track`, cheap with the
     work done ahead; monocular, the cores ``track`` takes speculated on ``pool``, see
-    :class:`CoreSpeculation`, and ``ahead``'s guesses: one used when the keyframe is two
-    frames back, dropped unstarted once it cannot be): (state, poses float64 [B, 4, 4], stats
-    float64 [B, 6])."""
+    :class:`~warpvx.apps.orbslam_speculate.CoreSpeculation`, and ``ahead``'s guesses: one
+    used when the keyframe is two frames back, dropped unstarted once it cannot be): (state,
+    poses float64 [B, 4, 4], stats float64 [B, 6])."""
     feats = unpack_feats(feats)  # (packed, or a list)
     poses, stats = [], []
     per_frame = ahead_frames(ahead)
