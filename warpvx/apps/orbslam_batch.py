@@ -65,8 +65,8 @@ from . import orbslam as o
 from .orbslam_match import batch_pairs, mutual_pairs, nearest_batch, nearest_batch_warp, stereo_depth
 from .orbslam_chain import ChainProcess, receive_batch, send_batch
 from .orbslam_pool import SPARE_CORES, PosePool, default_workers, make_pool
-from .orbslam_speculate import (COVERED, CoreSpeculation, _core_ahead, _essential_ahead, _guessed_tracks,
-                                _keyframe_cursor, _parallax_ahead, _track_step, _tracks_ahead)
+from .orbslam_speculate import (COVERED, CoreSpeculation, _core_ahead, _essential_ahead, _essential_points,
+                                _guessed_tracks, _keyframe_cursor, _parallax_ahead, _track_step, _tracks_ahead)
 
 
 class _Later:
@@ -294,13 +294,18 @@ def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo, co
 def pairs_job(nearest, pts, angles, prev_pts, prev_angles, config, before):
     """Monocular (on a pool process): :func:`frame_job`'s value without the core (the chain's
     :class:`~warpvx.apps.orbslam_speculate.CoreSpeculation` starts the one ``track``
-    takes), and :func:`guess_job`'s second value (the tracks with the frame before the
-    previous one as the keyframe, common: the speculation then need not work them out in the
-    chain's thread), or None (``before`` None: no such frame). Arguments as
+    takes), and (two, points, two's points) for that speculation, so that it need not work
+    them out in the chain's thread: ``two``, :func:`guess_job`'s second value (the tracks with
+    the frame before the previous one as the keyframe, common), or None (``before`` None: no
+    such frame); ``points``, :func:`_essential_points`' (p1, p2) of the matches to the previous
+    frame; ``two's points``, those of the pairs to that keyframe. Arguments as
     :func:`guess_job`'s."""
     p, d, good = _good(nearest, pts, angles, prev_pts, prev_angles, config)
-    return p, d, None, good, None if before is None else _two_back(before, pts, good, prev_pts, prev_angles,
-                                                                   config)[2]
+    two = two_points = None
+    if before is not None:
+        kf_pts, kf_good, two = _two_back(before, pts, good, prev_pts, prev_angles, config)
+        two_points = _essential_points(kf_pts, pts, kf_good, config)
+    return p, d, None, good, (two, _essential_points(prev_pts, pts, good, config), two_points)
 
 
 def guess_job(before, nearest, pts, angles, prev_pts, prev_angles, K, config):
@@ -329,8 +334,8 @@ def _two_back(before, pts, good, prev_pts, prev_angles, config):
 
 def ahead_frames(ahead) -> list:
     """:func:`pose_batch`'s ``ahead`` per frame, once the pool's work is done: (pairs,
-    distances, extra, good) as :func:`frame_job` returns them (:func:`pairs_job`: and the
-    tracks two frames back)."""
+    distances, extra, good) as :func:`frame_job` returns them (:func:`pairs_job`: and what
+    the chain's speculation takes)."""
     return ahead.get()
 
 

@@ -208,8 +208,9 @@ class CoreSpeculation:
         per_frame = ahead.get()
         pts, good = [xy for xy, _ in ahead.points], [a[3] for a in per_frame]
         extra = [a[2] for a in per_frame]
-        #: Per frame, pairs_job's tracks with the keyframe two frames back, or None.
-        self._twos = [a[4] if len(a) > 4 else None for a in per_frame]
+        #: Per frame, pairs_job's (tracks with the keyframe two frames back, points to the
+        #: previous frame, points to that keyframe), or None (a frame job's).
+        self._jobs = [a[4] if len(a) > 4 else None for a in per_frame]
         self._args = (pts, good, extra, list(ahead.guesses), pool, K, config)
         self._on = pool is not None and config.keyframe_motion
         self._ahead, self._frames, self._next = ahead, len(pts), None
@@ -274,7 +275,7 @@ class CoreSpeculation:
             pts += [xy for xy, _ in nxt.points]
             good += [a[3] for a in per_frame]
             extra += [a[2] for a in per_frame]
-            self._twos += [a[4] if len(a) > 4 else None for a in per_frame]
+            self._jobs += [a[4] if len(a) > 4 else None for a in per_frame]
             guesses += nxt.guesses
             self._next = nxt
         return min(end, len(self._args[0]))
@@ -295,9 +296,11 @@ class CoreSpeculation:
         ``g`` its index in the run; None where ``track`` leaves the cheap path."""
         pts, good, extra, guesses, pool, K, config = self._args
         kf_pts, kf_index, cursor, _ = sim
-        two = self._twos[u]
-        if two is not None and kf_index == g - 2 and not cursor[2] and _same(cursor[1], two[0]):
-            (tracked, kf_good), after = two[1], _cursor(pts[u], good[u], two[1][0])  # (its pairs_job's)
+        job = self._jobs[u]  # (pairs_job's: what it worked out for this step, taken as is)
+        two = job is not None and job[0] is not None and kf_index == g - 2 and not cursor[2] \
+            and _same(cursor[1], job[0][0])
+        if two:
+            (tracked, kf_good), after = job[0][1], _cursor(pts[u], good[u], job[0][1][0])
         else:
             kf_good, after, tracked = _track_step(kf_pts, cursor, pts[u], good[u], config)
         if kf_good is not None:
@@ -308,7 +311,10 @@ class CoreSpeculation:
             ref_pts, pairs = cursor[0], good[u]
         if len(pairs) < 8:
             return None
-        points = _essential_points(ref_pts, pts[u], pairs, config)
+        if job is not None and (two or kf_good is None):
+            points = job[2] if two and kf_good is not None else job[1]
+        else:
+            points = _essential_points(ref_pts, pts[u], pairs, config)
         core = guess = None
         if points is not None:
             if kf_good is not None and kf_index == g - 2 and guesses[u] is not None:
