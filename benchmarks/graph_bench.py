@@ -1140,11 +1140,14 @@ def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
     recorded plan. Rows: tag, policy, predicted ms, measured ms (later frames), error %, and
     ``pooled``: the error against the mean measured makespan of every policy that ran the
     same schedule (identical plans measured in separate runs differ by up to 25% on the
-    H100, a noise floor no model can beat per run)."""
+    H100, a noise floor no model can beat per run); ``pred_eager_ms``/``error_eager_pct``:
+    the prediction told which of the plan's capturable tasks ran eagerly
+    (:func:`~warpvx.graph.model.eager_nodes` of its recorded frames: which segment
+    captures failed, not how long anything took; ``eager``)."""
     import types
 
     from warpvx.graph.calibration import TransferModel
-    from warpvx.graph.model import copied_bytes, fit, graph_reads
+    from warpvx.graph.model import copied_bytes, eager_nodes, fit, graph_reads
     from warpvx.sched.schedule import Schedule, ScheduledTask
 
     tm = report["transfer"]
@@ -1180,10 +1183,15 @@ def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
                                              t["planned_start_ms"] + t["planned_ms"])
                             for n, t in p["nodes"].items()}, procs)
             pred = model.makespan(sch)
+            eager = eager_nodes([recorded_frame(r) for r in p.get("fit_frames_data") or ()],
+                                reads, model.capturable, p["placement"])
+            pred_eager = model.makespan(sch, eager=eager)
             pooled = statistics.mean(same[_plan_key(p)])
             rows.append({"tag": e["tag"], "policy": p["policy"], "train": train, "pred_ms": pred,
                          "measured_ms": p["measured_out_ms"],
                          "error_pct": _err(pred, p["measured_out_ms"]),
+                         "eager": sorted(eager), "pred_eager_ms": pred_eager,
+                         "error_eager_pct": _err(pred_eager, p["measured_out_ms"]),
                          "pooled_ms": pooled, "pooled_error_pct": _err(pred, pooled),
                          "trained_here": p["policy"] == train})
         g.close()

@@ -174,7 +174,7 @@ class Slowdown:
         return 1.0 + self.per_cpu * cpus + self.per_gpu * gpus
 
 
-def fit_slowdown(samples, probes=(), *, per_node: bool = True) -> Slowdown:
+def fit_slowdown(samples, probes=(), *, per_node: bool = True, prior_ratio: float = 1.0) -> Slowdown:
     """Fit ``measured = (ratio * alone + overhead) * (1 + a * cpus + b * gpus) * e_node``.
 
     Parameters
@@ -191,6 +191,8 @@ def fit_slowdown(samples, probes=(), *, per_node: bool = True) -> Slowdown:
     per_node : bool
         Also fit each node's correction ``e`` (the median of its samples' residuals,
         after the shared law), else ``e = 1``.
+    prior_ratio : float
+        ``ratio`` where there is no sample (:func:`_probe_slowdown`).
 
     Returns
     -------
@@ -205,17 +207,18 @@ def fit_slowdown(samples, probes=(), *, per_node: bool = True) -> Slowdown:
         node (its samples about their mean: how one node's time moved with its neighbours)
         -- absolute deviations and medians, so a frame the machine hiccupped in does not
         move the fit. A kind of neighbour never busy in the samples (nor in a probe) cannot
-        be identified and stays 0.
+        be identified and stays 0. Without samples, the probes' law
+        (:func:`_probe_slowdown`).
     """
     rows = [r for r in samples if r[1] > 0 and r[2] > 0]
+    probes = np.array([p for p in probes if p[0] > 0 and p[1] > 0], np.float64).reshape(-1, 4)
+    p_log = np.log(probes[:, 1] / probes[:, 0])
     if not rows:
-        return Slowdown()
+        return _probe_slowdown(probes, p_log, prior_ratio)
     alone = np.array([r[1] for r in rows])
     meas = np.array([r[2] for r in rows])
     cpus = np.array([r[3] for r in rows], np.float64)
     gpus = np.array([r[4] for r in rows], np.float64)
-    probes = np.array([p for p in probes if p[0] > 0 and p[1] > 0], np.float64).reshape(-1, 4)
-    p_log = np.log(probes[:, 1] / probes[:, 0])
     names = sorted({r[0] for r in rows})
     idx = np.array([names.index(r[0]) for r in rows])
     groups = [np.flatnonzero(idx == i) for i in range(len(names))]
@@ -246,6 +249,19 @@ def fit_slowdown(samples, probes=(), *, per_node: bool = True) -> Slowdown:
         z = z - meds[idx]
     return Slowdown(float(ratio), float(a), float(b), node, len(rows),
                     math.sqrt(float(z @ z) / len(rows)), float(d))
+
+
+def _probe_slowdown(probes, p_log, ratio: float = 1.0) -> Slowdown:
+    """The law of a kind no training sample shows (an eager GPU call where the training
+    frames replayed every GPU task): ``ratio`` given, no fixed cost, and ``a``, ``b`` from
+    the probes alone (least absolute deviations on :data:`SLOWDOWN_GRID`), 0 without
+    probes."""
+    if not len(probes):
+        return Slowdown(ratio)
+    grid = [(float(np.abs(p_log - np.log1p(a * probes[:, 2] + b * probes[:, 3])).sum()), a, b)
+            for a in SLOWDOWN_GRID for b in SLOWDOWN_GRID]
+    _, a, b = min(grid, key=lambda c: c[0])
+    return Slowdown(ratio, float(a), float(b))
 
 
 def _weighted_median(values, weights) -> float:
@@ -362,15 +378,16 @@ class ContentionModel:
             return 0.0
         return max(0.0, _copy_ms(self.transfer, pe, nbytes) + self.copy_extra.get(pe, 0.0))
 
-    def predict(self, plan_or_schedule, processors=None) -> Schedule:
+    def predict(self, plan_or_schedule, processors=None, *, eager=()) -> Schedule:
         """The predicted timeline of one frame of a plan (or of a Schedule's orders):
-        :func:`simulate`."""
+        :func:`simulate` (``eager``: its capturable tasks run eagerly, :func:`eager_nodes`
+        of frames the plan ran)."""
         sch = getattr(plan_or_schedule, "schedule", plan_or_schedule)
-        return simulate(self, sch)
+        return simulate(self, sch, eager)
 
-    def makespan(self, plan_or_schedule) -> float:
-        """Predicted makespan (ms) of one frame."""
-        return self.predict(plan_or_schedule).makespan
+    def makespan(self, plan_or_schedule, *, eager=()) -> float:
+        """Predicted makespan (ms) of one frame (``eager``: see :meth:`predict`)."""
+        return self.predict(plan_or_schedule, eager=eager).makespan
 
     def summary(self) -> dict:
         """JSON-friendly parameters."""
@@ -423,6 +440,38 @@ def gpu_segments(reads: dict, capturable, placement: dict, gpu_order) -> list:
     if current:
         groups.append(current)
     return groups
+
+
+def eager_nodes(runs, reads, capturable, placement) -> frozenset:
+    """Capturable GPU tasks that ran eagerly in most of ``runs`` (FrameResults of one plan).
+
+    The executor runs a segment whose capture failed eagerly from then on, task by task
+    (:mod:`warpvx.runtime.segment_runner`: a failure is not retried). A replayed segment's
+    tasks share its one host interval, so theirs abut exactly, and its uploads are not
+    timed apart; an eager task has a host interval of its own and times its uploads
+    (large ones on CUDA). So a segment ran eagerly in a frame where its tasks' host
+    intervals do not abut or a task timed a copy (a one-task segment without a timed
+    upload cannot be told apart: taken as replayed). On the H100, mixed placements lost a
+    segment to a failed capture in 4 of 8 runs of s6/s6b (a CPU worker's copy during the
+    capture is the suspect) and ran it 2x slower than replayed.
+    """
+    capturable = frozenset(capturable)
+    counts, n = {}, 0
+    for run in runs:
+        if not run.timeline:
+            continue
+        n += 1
+        hosts = host_intervals(run)
+        order = sorted((t for t, (p, _, _) in hosts.items() if pe_of(p) == "gpu"),
+                       key=lambda t: hosts[t][1])
+        for seg in gpu_segments(reads, capturable, placement, order):
+            if seg[0] not in capturable:
+                continue
+            apart = any(hosts[a][2] != hosts[b][1] for a, b in zip(seg, seg[1:]))
+            if apart or any(run.transfers.get(t, 0.0) > 0 for t in seg):
+                for t in seg:
+                    counts[t] = counts.get(t, 0) + 1
+    return frozenset(t for t, c in counts.items() if 2 * c > n)
 
 
 def _segment_base(alone, node, cuda) -> float:
@@ -548,12 +597,14 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     copies = {"cpu": [], "gpu": []}
     waits = {k: [] for k in LATENCIES}
     capturable = frozenset(capturable)
+    # What the training frames replayed: their eager segments' tasks were eager calls.
+    replayed = capturable - eager_nodes(runs, reads, capturable, placement)
     shares = ContentionModel({}, {}, alone, reads, None, cuda, gil=dict(gil or {}))
     for run in runs:
         hosts = host_intervals(run)
         gpu_order = sorted((t for t, (p, _, _) in hosts.items() if pe_of(p) == "gpu"),
                            key=lambda t: hosts[t][1])
-        segment = _segment_of(reads, capturable, placement, gpu_order)
+        segment = _segment_of(reads, replayed, placement, gpu_order)
         for task, (proc, s, f) in hosts.items():
             pe = pe_of(proc)
             copy_ms = run.transfers.get(task, 0.0)
@@ -570,7 +621,8 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
                 # on CUDA) are inside the interval: take out what the simulation adds back,
                 # else the node's correction counts them a second time.
                 copy_ms = min(modelled, UNTIMED_COPY_SHARE * (f - s))
-            if alone[task][pe] is not None:
+            # A replayed task's share is the segment model's (fit_segments), not a call's.
+            if alone[task][pe] is not None and not (pe == "gpu" and task in replayed):
                 samples[pe].append((task, alone[task][pe], f - s - copy_ms, *busy))
             cls, ready = _ready_parts(run, task, reads, placement, hosts, segment)
             waits[cls].append(max(0.0, s - ready))
@@ -584,7 +636,8 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
             _mix_share(shares.pressure, alone, mixes.get(loader, ()),
                        "cpu" if loader == "heavy" else loader)
         probes[pe].append((alone_ms, loaded, cpus * w, gpus * w))
-    slow = {pe: fit_slowdown(s, probes[pe]) for pe, s in samples.items()}
+    slow = {pe: fit_slowdown(s, probes[pe], prior_ratio=_probe_ratio(probe, alone, pe))
+            for pe, s in samples.items()}
     d = calibration.dispatch or {}
     fallback = {"start": d.get("start", 0.0), "cpu_same": d.get("cpu_gap", 0.0),
                 "gpu_same": d.get("gpu_gap", 0.0), "cpu_from_cpu": d.get("cpu_gap", 0.0),
@@ -594,11 +647,24 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     # applies the same speed to the whole task), so their extra is taken without that.
     copy_extra = {pe: statistics.median(t / slow[pe].speed_divisor(c, g) - m for t, m, c, g in v)
                   for pe, v in copies.items() if v}
-    ratio, fixed = fit_segments(segment_samples(runs, reads, capturable, placement, alone,
+    ratio, fixed = fit_segments(segment_samples(runs, reads, replayed, placement, alone,
                                                 calibration.transfer, cuda, slow["gpu"]))
     return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
                            f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames",
                            copy_extra, shares.gil, capturable, ratio, fixed)
+
+
+def _probe_ratio(probe, alone, pe) -> float:
+    """The contention probe's ``pe`` mix timed alone (its calls in turn, as a frame makes
+    them) over the sum of its nodes' calibrated times: the in-frame ratio of a kind of call
+    the training frames never made (an eager GPU call beside an all-replayed baseline; the
+    H100's in-frame eager calls ran 2x their calibrated host time, s6/s6b), measured near
+    the training frames where the calibration may be older. 1 without a probe."""
+    for (victim, _), (mix, alone_ms, *_rest) in (probe or {}).items():
+        total = sum(alone[n][pe] or 0.0 for n in mix.split(",") if n in alone)
+        if victim == pe and total > 0:
+            return alone_ms / total
+    return 1.0
 
 
 def _mix_share(share, alone, names, pe) -> float:
@@ -618,8 +684,11 @@ def _copy_ms(transfer, pe, n):
 # --------------------------------------------------------------------------- simulation
 
 
-def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
+def simulate(model: ContentionModel, schedule: Schedule, eager=()) -> Schedule:
     """Play ``schedule``'s per-processor orders through ``model``: the predicted timeline.
+
+    ``eager``: capturable tasks the executor runs eagerly all the same (its segment's
+    capture failed: :func:`eager_nodes`), played as eager calls.
 
     Each processor takes its tasks in the executor's order (by scheduled start). A task
     starts when its processor is free and its inputs are ready, plus the measured latency of
@@ -634,14 +703,15 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
     order = sorted(schedule.tasks, key=lambda t: (schedule.tasks[t].start, schedule.tasks[t].finish))
     queues = {p: [t for t in order if placement[t] == p] for p in schedule.processors}
     queues = {p: q for p, q in queues.items() if q}
-    copied = copied_bytes(model.reads, placement, order, model.capturable)
+    capturable = model.capturable - frozenset(eager)
+    copied = copied_bytes(model.reads, placement, order, capturable)
     # A GPU segment is one unit: CPU readers see its values when its last task ends.
     segs = [seg for p, q in queues.items() if pe_of(p) == "gpu"
-            for seg in gpu_segments(model.reads, model.capturable, placement, q)]
+            for seg in gpu_segments(model.reads, capturable, placement, q)]
     last_of = {t: seg[-1] for seg in segs for t in seg}
     # Tasks replayed in a captured segment: host and device busy for the replay's share.
     replayed = {} if model.segment_ratio is None else \
-        {t: t == seg[0] for seg in segs if seg[0] in model.capturable for t in seg}
+        {t: t == seg[0] for seg in segs if seg[0] in capturable for t in seg}
     seg_end = 0.0
     lat = model.latency
     pos = {p: 0 for p in queues}
@@ -810,6 +880,7 @@ __all__ = [
     "alone_costs",
     "busy_overlap",
     "copied_bytes",
+    "eager_nodes",
     "fit",
     "fit_slowdown",
     "gpu_segments",
