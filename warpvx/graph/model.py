@@ -140,6 +140,15 @@ UNTIMED_COPY_SHARE = 0.9
 #: at a ratio of their device time (a 0.06 ms blur measured 0.27 ms, s4 1280x720).
 SEGMENT_FIXED_PRIOR = 0.1
 
+#: How much of the lanes' concurrency a captured segment's replay gets, tried by
+#: :func:`fit_segments` where the training segments differ in size (1: its independent
+#: branches side by side, as :func:`lane_span` spreads them; 0: one after the other).
+#: Training frames of one segment size take 1: the all-GPU baseline replays both cameras
+#: in one segment, and a ratio learnt on its summed device time (0.3-0.44 on the H100,
+#: s6/s6b) played the one-task segments of mixed placements 2-3x too short.
+LANES_GRID = np.linspace(0.0, 1.0, 5)
+SEGMENT_LANES_PRIOR = 1.0
+
 #: Weight of a contention probe (:func:`~warpvx.graph.calibration.measure_contention`)
 #: measurement in the fit, in training samples.
 PROBE_WEIGHT = 8
@@ -333,6 +342,10 @@ class ContentionModel:
         alone. None where the training frames ran no segment: each task played eagerly.
     segment_fixed : float
         The fixed cost (ms) of one segment's replay (:func:`fit_segments`), on its first task.
+    segment_lanes : float
+        How much of its lanes' concurrency a segment's replay gets (:func:`fit_segments`,
+        :func:`segment_scale`): its calibrated time is that share of its
+        :func:`lane_span` plus the rest of its summed device times.
     """
 
     slowdown: dict
@@ -347,6 +360,7 @@ class ContentionModel:
     capturable: frozenset = frozenset()
     segment_ratio: float | None = None
     segment_fixed: float = 0.0
+    segment_lanes: float = 1.0
 
     def sensitivity(self, node: str, pe: str) -> float:
         """How much ``node`` on ``pe`` suffers from a busy GIL-holding neighbour (0-1)."""
@@ -364,11 +378,11 @@ class ContentionModel:
             raise GraphError(f"node {node!r}: no {pe.upper()} implementation to predict")
         return self.slowdown[pe].in_frame(node, alone) + self.copy_time(pe, copied)
 
-    def segment_work(self, node: str, first: bool) -> float:
+    def segment_work(self, node: str, first: bool, scale: float = 1.0) -> float:
         """``node``'s share (ms) of a captured segment's replay: :attr:`segment_ratio` times
         its calibrated device time (host time without CUDA), plus :attr:`segment_fixed` on
         the segment's ``first`` task."""
-        return self.segment_ratio * _segment_base(self.alone, node, self.cuda) + \
+        return self.segment_ratio * scale * _segment_base(self.alone, node, self.cuda) + \
             (self.segment_fixed if first else 0.0)
 
     def copy_time(self, pe: str, nbytes: int) -> float:
@@ -399,6 +413,7 @@ class ContentionModel:
             "latency_us": {k: v * 1e3 for k, v in self.latency.items()},
             "copy_extra_us": {k: v * 1e3 for k, v in self.copy_extra.items()},
             "segment_ratio": self.segment_ratio, "segment_fixed_us": self.segment_fixed * 1e3,
+            "segment_lanes": self.segment_lanes,
         }
 
 
@@ -480,6 +495,39 @@ def _segment_base(alone, node, cuda) -> float:
     return alone[node]["device"] if cuda else alone[node]["gpu"]
 
 
+def lane_span(reads, seg, base) -> float:
+    """The span (ms) of a captured segment's tasks ``seg`` spread over
+    :data:`~warpvx.runtime.lanes.MAX_LANES` streams as the executor spreads them
+    (:func:`~warpvx.runtime.lanes.lanes`: list scheduling by this frame's dependencies inside
+    the segment), each task taking ``base[task]`` ms: independent branches (two cameras, a
+    detector beside the features) run side by side, so a segment of both cameras replays in
+    about half its summed device time and a one-task segment in all of it."""
+    from ..runtime.lanes import MAX_LANES
+
+    inside, finish, free = set(seg), {}, [0.0] * MAX_LANES
+    for t in seg:
+        ready = max([finish[r.producer] for r in reads[t]
+                     if not r.delayed and r.producer in inside and r.producer in finish], default=0.0)
+        k = min(range(len(free)), key=lambda i: (max(free[i], ready), i))
+        finish[t] = free[k] = max(free[k], ready) + base[t]
+    return max(finish.values(), default=0.0)
+
+
+def segment_scale(reads, segments, alone, cuda, lanes: float = 1.0) -> dict:
+    """task -> its segment's calibrated span over the sum of its tasks'
+    :func:`_segment_base` (1 where that sum is 0), for each of ``segments``: the span is
+    ``lanes`` times the :func:`lane_span` plus ``1 - lanes`` times the sum (``lanes``: how
+    much of the lanes' concurrency the replays get; tasks that insert conditional nodes,
+    Harris's and FAST's, run with every lane joined)."""
+    out = {}
+    for seg in segments:
+        base = {t: _segment_base(alone, t, cuda) or 0.0 for t in seg}
+        total = sum(base.values())
+        f = lanes * lane_span(reads, seg, base) / total + 1.0 - lanes if total > 0 else 1.0
+        out.update((t, f) for t in seg)
+    return out
+
+
 def segment_samples(runs, reads, capturable, placement, alone, transfer, cuda, slow=None) -> list:
     """``(calibrated ms, replay ms)`` of each captured segment of each frame.
 
@@ -498,36 +546,42 @@ def segment_samples(runs, reads, capturable, placement, alone, transfer, cuda, s
             if seg[0] not in capturable:
                 continue
             base = sum(_segment_base(alone, t, cuda) or 0.0 for t in seg)
+            span = base * segment_scale(reads, [seg], alone, cuda).get(seg[0], 1.0)
             s0 = min(run.timeline[t].start for t in seg)
             s1 = max(run.timeline[t].finish for t in seg)
             copies = _copy_ms(transfer, "gpu", sum(run.copied.get(t, 0) for t in seg))
             div = slow.speed_divisor(busy_overlap((s0, s1), cpu_busy), 0.0) if slow else 1.0
             if base > 0 and s1 - s0 > copies:
-                out.append((base, (s1 - s0 - copies) / div))
+                out.append((base, span, (s1 - s0 - copies) / div))
     return out
 
 
 def fit_segments(samples) -> tuple:
-    """``(ratio, fixed ms per segment)`` of ``replay = ratio * calibrated + fixed`` over
-    :func:`segment_samples`: least absolute deviations on :data:`OVERHEAD_GRID` x 10 (the
-    fixed cost of a replay: input fills, launch, copy-out) where the segments differ in
-    size, else (one size cannot tell them apart) :data:`SEGMENT_FIXED_PRIOR`, at most half
-    the shortest replay, and the median ratio of the rest; ``(None, 0)`` without samples."""
+    """``(ratio, fixed ms per segment, lanes)`` of ``replay = ratio * (lanes * span + (1 -
+    lanes) * calibrated) + fixed`` over :func:`segment_samples` (``span``: the lanes'
+    :func:`lane_span`): least absolute deviations on :data:`OVERHEAD_GRID` x 10 (the fixed
+    cost of a replay: input fills, launch, copy-out) and :data:`LANES_GRID` where the
+    segments differ in size, else (one size cannot tell them apart)
+    :data:`SEGMENT_FIXED_PRIOR`, at most half the shortest replay, lanes 1 and the median
+    ratio of the rest; ``(None, 0, 1)`` without samples."""
     if not samples:
-        return None, 0.0
-    base, meas = (np.array(v, np.float64) for v in zip(*samples))
-    if np.ptp(base) <= 0.05 * base.max():
+        return None, 0.0, 1.0
+    total, span, meas = (np.array(v, np.float64) for v in zip(*samples))
+    if np.ptp(total) <= 0.05 * total.max():
         c = min(SEGMENT_FIXED_PRIOR, 0.5 * float(meas.min()))
-        return float(np.median((meas - c) / base)), c
+        w = SEGMENT_LANES_PRIOR
+        return float(np.median((meas - c) / (w * span + (1.0 - w) * total))), c, w
     best = None
-    for c in np.asarray(OVERHEAD_GRID) * 10:
-        if c >= meas.min():
-            break
-        r = _weighted_median((meas - c) / base, base)
-        cost = float(np.abs(meas - r * base - c).sum())
-        if best is None or cost < best[0] - 1e-12:
-            best = (cost, r, float(c))
-    return float(best[1]), best[2]
+    for w in LANES_GRID:
+        base = w * span + (1.0 - w) * total
+        for c in np.asarray(OVERHEAD_GRID) * 10:
+            if c >= meas.min():
+                break
+            r = _weighted_median((meas - c) / base, base)
+            cost = float(np.abs(meas - r * base - c).sum())
+            if best is None or cost < best[0] - 1e-12:
+                best = (cost, r, float(c), float(w))
+    return float(best[1]), best[2], best[3]
 
 
 def _segment_of(reads, capturable, placement, gpu_order) -> dict:
@@ -647,11 +701,11 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     # applies the same speed to the whole task), so their extra is taken without that.
     copy_extra = {pe: statistics.median(t / slow[pe].speed_divisor(c, g) - m for t, m, c, g in v)
                   for pe, v in copies.items() if v}
-    ratio, fixed = fit_segments(segment_samples(runs, reads, replayed, placement, alone,
+    ratio, fixed, lanes = fit_segments(segment_samples(runs, reads, replayed, placement, alone,
                                                 calibration.transfer, cuda, slow["gpu"]))
     return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
                            f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames",
-                           copy_extra, shares.gil, capturable, ratio, fixed)
+                           copy_extra, shares.gil, capturable, ratio, fixed, lanes)
 
 
 def _probe_ratio(probe, alone, pe) -> float:
@@ -712,6 +766,8 @@ def simulate(model: ContentionModel, schedule: Schedule, eager=()) -> Schedule:
     # Tasks replayed in a captured segment: host and device busy for the replay's share.
     replayed = {} if model.segment_ratio is None else \
         {t: t == seg[0] for seg in segs if seg[0] in capturable for t in seg}
+    scale = segment_scale(model.reads, [seg for seg in segs if seg[0] in replayed],
+                          model.alone, model.cuda, model.segment_lanes)
     seg_end = 0.0
     lat = model.latency
     pos = {p: 0 for p in queues}
@@ -753,7 +809,8 @@ def simulate(model: ContentionModel, schedule: Schedule, eager=()) -> Schedule:
             if t <= now + 1e-12:
                 task = queues[p][pos[p]]
                 pe = pe_of(p)
-                work = (model.segment_work(task, replayed[task]) + _copy_ms(model.transfer, pe, copied.get(task, 0))
+                work = (model.segment_work(task, replayed[task], scale[task])
+                        + _copy_ms(model.transfer, pe, copied.get(task, 0))
                         if task in replayed else model.work(task, pe, copied.get(task, 0)))
                 running[p] = [task, work, now]
         if not running:
@@ -810,8 +867,9 @@ def in_frame_dag(model: ContentionModel, pes: dict, n_cpus: int):
     """The task DAG with the model's in-frame costs (no busy neighbour) for a scheduler.
 
     ``pes``: node -> the processing elements it may run on (``{"cpu", "gpu"}``, narrowed by
-    pins). A GPU node costs the longer of its host call and its device time; an edge costs
-    a hand-off plus the transfer model's time for its bytes.
+    pins). A GPU node costs the longer of its host call (its share of a segment's replay
+    where it is capturable) and its device time; an edge costs a hand-off plus the
+    transfer model's time for its bytes.
     """
     from ..sched import cpu_gpu_dag
 
@@ -822,7 +880,10 @@ def in_frame_dag(model: ContentionModel, pes: dict, n_cpus: int):
             if pe not in allowed or model.alone[node][pe] is None:
                 times.append(None)
                 continue
-            t = model.work(node, pe)
+            # A capturable GPU node is replayed in a segment (its share, the segment's
+            # fixed cost apart), not called eagerly.
+            replayed = pe == "gpu" and model.segment_ratio is not None and node in model.capturable
+            t = model.segment_work(node, False) if replayed else model.work(node, pe)
             times.append(max(t, model.alone[node]["device"]) if pe == "gpu" else t)
         tasks[node] = tuple(times)
     handoff = 0.5 * (model.latency["cpu_from_gpu"] + model.latency["gpu_from_cpu"])
