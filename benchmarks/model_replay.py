@@ -24,6 +24,7 @@ import argparse
 import gzip
 import json
 import os
+import shlex
 import statistics
 import subprocess
 import sys
@@ -181,6 +182,8 @@ def main(argv=None):
                         "bench's model does on CUDA)")
     p.add_argument("--out", type=Path, default=None,
                    help="also write the table here (markdown, its first line the command)")
+    p.add_argument("--note", default="",
+                   help="a paragraph written under the command (which runs designed the change)")
     args = p.parse_args(argv)
     paths = [r.resolve() for r in args.results]
     with tempfile.TemporaryDirectory() as tmp:
@@ -198,9 +201,10 @@ def main(argv=None):
              + regime(paths, args.after_gil))
     print(text)
     if args.out:
-        command = "PYTHONPATH=. python benchmarks/model_replay.py " + " ".join(
+        command = "PYTHONPATH=. python benchmarks/model_replay.py " + shlex.join(
             argv if argv is not None else sys.argv[1:])
-        args.out.write_text(f"Regenerate: `{command}`\n\n{text}\n")
+        note = f"{args.note}\n\n" if args.note else ""
+        args.out.write_text(f"Regenerate: `{command}`\n\n{note}{text}\n")
 
 
 if __name__ == "__main__":
