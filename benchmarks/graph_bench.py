@@ -1150,17 +1150,12 @@ def experiments_of(report: dict) -> list:
              "calibration": report["calibration"], "policies": policies}]
 
 
-def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
-    """Refit the contention model offline on ``train``'s recorded fit frames
-    (``fit_frames_data`` and the contention ``probe``; results older than those: one frame
-    rebuilt from its later frames' node medians, no probe) and predict every policy's
-    recorded plan. Rows: tag, policy, predicted ms, measured ms (later frames), error %, and
-    ``pooled``: the error against the mean measured makespan of every policy that ran the
-    same schedule (identical plans measured in separate runs differ by up to 25% on the
-    H100, a noise floor no model can beat per run); ``pred_eager_ms``/``error_eager_pct``:
-    the prediction told which of the plan's capturable tasks ran eagerly
-    (:func:`~warpvx.graph.model.eager_nodes` of its recorded frames: which segment
-    captures failed, not how long anything took; ``eager``)."""
+def replay_models(report: dict, train: str = "baseline", *, gil: bool = False):
+    """Per experiment of a graph_bench.json, the contention model refit offline on
+    ``train``'s recorded fit frames (``fit_frames_data`` and the contention ``probe``;
+    results older than those: one frame rebuilt from its later frames' node medians, no
+    probe; ``gil``: busy neighbours weighed by the recorded GIL shares). Yields
+    ``(experiment, model, policy -> its recorded Schedule)``."""
     import types
 
     from warpvx.graph.calibration import TransferModel
@@ -1171,13 +1166,13 @@ def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
     transfer = TransferModel(tm["h2d_latency_ms"], 1e-6 / tm["h2d_gbps"],
                              tm["d2h_latency_ms"], 1e-6 / tm["d2h_gbps"])
     procs = ["gpu"] + [f"cpu{i}" for i in range(report["n_cpus"])]
-    rows = []
     for e in experiments_of(report):
         w, h = (int(v) for v in e["tag"].rsplit("_", 1)[1].split("x"))
         g = build_graph((w, h), max_corners=200 if report["mode"] == "quick" else 500,
                         cpu_heavy=e["graph"] == "two-cameras-cv")
         g.verify(make_frames((w, h), 2))
         reads = graph_reads(g)
+        g.close()
         cal = types.SimpleNamespace(nodes=e["calibration"], gpu=report["gpu"], transfer=transfer,
                                     dispatch=report["dispatch"])
         src = next(p for p in e["policies"] if p["policy"] == train)
@@ -1192,16 +1187,30 @@ def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
         probe = {tuple(k): tuple(v) for k, v in e.get("probe") or []}
         model = fit(cal, reads, frames, placement, policy=train, probe=probe,
                     gil=e.get("gil") if gil else None, capturable=e.get("capturable", ()))
+        yield e, model, {p["policy"]: Schedule(
+            {n: ScheduledTask(n, t["pe"], t["planned_start_ms"], t["planned_start_ms"] + t["planned_ms"])
+             for n, t in p["nodes"].items()}, procs) for p in e["policies"]}
+
+
+def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
+    """:func:`replay_models`' models predicting every policy's recorded plan. Rows: tag,
+    policy, predicted ms, measured ms (later frames), error %, and ``pooled``: the error
+    against the mean measured makespan of every policy that ran the same schedule
+    (identical plans measured in separate runs differ by up to 25% on the H100, a noise
+    floor no model can beat per run); ``pred_eager_ms``/``error_eager_pct``: the
+    prediction told which of the plan's capturable tasks ran eagerly
+    (:func:`~warpvx.graph.model.eager_nodes` of its recorded frames: which segment
+    captures failed, not how long anything took; ``eager``)."""
+    rows = []
+    for e, model, schedules in replay_models(report, train, gil=gil):
         same = defaultdict(list)
         for p in e["policies"]:
             same[_plan_key(p)].append(p["measured_out_ms"])
         for p in e["policies"]:
-            sch = Schedule({n: ScheduledTask(n, t["pe"], t["planned_start_ms"],
-                                             t["planned_start_ms"] + t["planned_ms"])
-                            for n, t in p["nodes"].items()}, procs)
+            sch = schedules[p["policy"]]
             pred = model.makespan(sch)
             eager = eager_nodes([recorded_frame(r) for r in p.get("fit_frames_data") or ()],
-                                reads, model.capturable, p["placement"])
+                                model.reads, model.capturable, p["placement"])
             pred_eager = model.makespan(sch, eager=eager)
             pooled = statistics.mean(same[_plan_key(p)])
             rows.append({"tag": e["tag"], "policy": p["policy"], "train": train, "pred_ms": pred,
@@ -1211,7 +1220,6 @@ def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
                          "error_eager_pct": _err(pred_eager, p["measured_out_ms"]),
                          "pooled_ms": pooled, "pooled_error_pct": _err(pred, pooled),
                          "trained_here": p["policy"] == train})
-        g.close()
     return rows
 
 

@@ -29,6 +29,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+from collections import defaultdict
 from pathlib import Path
 
 #: The training policies replayed in turn (each predicts the others out of sample).
@@ -165,6 +166,88 @@ def regime(paths, gil: bool = False) -> str:
     return "\n".join(lines)
 
 
+def critical_path(timeline, unit, reads, placement) -> list:
+    """The critical path of one frame's ``timeline`` (task -> (start, end) ms) over its
+    units (``unit``: task -> the tuple of tasks it runs with: a GPU segment, else itself),
+    walked back from the last to end: ``(unit, what it waited for last, wait ms, its ms)``
+    in order, the wait kinds ``"start"``, ``"same <pe>"`` (its processor's previous unit)
+    and ``"<pe> <- <pe>"`` (a hand-off between threads)."""
+    from warpvx.graph.model import pe_of
+
+    span = {u: (min(timeline[t][0] for t in u), max(timeline[t][1] for t in u))
+            for u in set(unit.values())}
+    proc = {u: placement[u[0]] for u in span}
+    out, u = [], max(span, key=lambda v: span[v][1])
+    while u is not None:
+        s, f = span[u]
+        cands = [(span[v][1], v, f"same {pe_of(proc[u])}") for v in span
+                 if v != u and proc[v] == proc[u] and span[v][1] <= s + 1e-9]
+        cands = [max(cands, key=lambda c: c[0])] if cands else []
+        cands += [(span[v][1], v, f"{pe_of(proc[u])} <- {pe_of(proc[v])}")
+                  for t in u for r in reads[t] if not r.delayed and r.producer is not None
+                  for v in (unit[r.producer],) if v != u and proc[v] != proc[u]]
+        if not cands:
+            out.append((u, "start", s, f - s))
+            break
+        ready, v, kind = max(cands, key=lambda c: c[0])
+        out.append((u, kind, s - ready, f - s))
+        u = v
+    return out[::-1]
+
+
+def misses(paths, train: str = "baseline", gil: bool = False, graph: str = "two-cameras") -> str:
+    """Where a model trained on ``train``'s frames 1-20 misses the other placements' frames
+    1-20 (the same interleaved rounds: the machine's drift left out), with this checkout.
+
+    Per policy whose placement differs from ``train``'s: predicted and measured (median)
+    makespan, and the miss attributed along each measured frame's critical path
+    (:func:`critical_path`), averaged over the frames: per unit on it (a CPU task, a
+    replayed GPU segment or a task of an eager one: its capture failed,
+    :func:`~warpvx.graph.model.eager_nodes`) its measured less its predicted time, per kind
+    of wait its measured less its predicted wait. The largest terms, ms."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import graph_bench as gb
+    from warpvx.graph.model import eager_nodes, gpu_segments, pe_of
+
+    lines = ["| run | experiment | policy | predicted ms | measured ms (frames 1-20) | miss ms | "
+             "largest terms on the critical path, measured - predicted (ms) |",
+             "| --- | --- | --- | ---: | ---: | ---: | --- |"]
+    for path in paths:
+        report = load(path)
+        for e, model, schedules in gb.replay_models(report, train, gil=gil):
+            src = next(p for p in e["policies"] if p["policy"] == train)
+            if e["graph"] != graph:
+                continue
+            for p in e["policies"]:
+                if p["placement"] == src["placement"] or not p.get("fit_frames_data"):
+                    continue
+                frames = [gb.recorded_frame(r) for r in p["fit_frames_data"]]
+                place = p["placement"]
+                eager = eager_nodes(frames, model.reads, model.capturable, place)
+                pred = model.predict(schedules[p["policy"]])
+                gpu = sorted((t for t in place if place[t] == "gpu"), key=lambda t: pred.tasks[t].start)
+                unit = {t: (t,) for t in place}
+                unit.update((t, tuple(seg)) for seg in gpu_segments(
+                    model.reads, model.capturable - eager, place, gpu) for t in seg)
+                predicted = {t: (x.start, x.finish) for t, x in pred.tasks.items()}
+                waits = {u: w for u, _, w, _ in critical_path(predicted, unit, model.reads, place)}
+                terms = defaultdict(float)
+                for f in frames:
+                    measured = {t: (x.start, x.finish) for t, x in f.timeline.items()}
+                    for u, kind, w, d in critical_path(measured, unit, model.reads, place):
+                        what = ("cpu " if pe_of(place[u[0]]) == "cpu" else
+                                "gpu eager " if u[0] in eager else "gpu segment ") + "+".join(u)
+                        s0 = min(predicted[t][0] for t in u)
+                        terms[what] += (d - (max(predicted[t][1] for t in u) - s0)) / len(frames)
+                        terms[f"wait {kind}"] += (w - waits.get(u, 0.0)) / len(frames)
+                meas = statistics.median(f.makespan for f in frames)
+                top = sorted(terms.items(), key=lambda kv: -abs(kv[1]))[:6]
+                lines.append(f"| {Path(path).parent.name} | {e['tag']} | {p['policy']} | "
+                             f"{pred.makespan:.3f} | {meas:.3f} | {meas - pred.makespan:+.3f} | "
+                             + "; ".join(f"{k} {v:+.2f}" for k, v in top) + " |")
+    return "\n".join(lines)
+
+
 def _pct(a, b) -> str:
     return f"{100.0 * (a - b) / b:+.1f}%"
 
@@ -182,6 +265,9 @@ def main(argv=None):
                         "bench's model does on CUDA)")
     p.add_argument("--out", type=Path, default=None,
                    help="also write the table here (markdown, its first line the command)")
+    p.add_argument("--misses", action="store_true",
+                   help="also attribute the baseline-trained model's misses on the 16-node "
+                        "graph's mixed placements along each frame's critical path")
     p.add_argument("--note", default="",
                    help="a paragraph written under the command (which runs designed the change)")
     args = p.parse_args(argv)
@@ -199,6 +285,11 @@ def main(argv=None):
              + (", GIL-weighted" if args.after_gil else "") + ")\n\n"
              + (regime.__doc__.split("\n\n")[1].replace("\n    ", " ").strip()) + "\n\n"
              + regime(paths, args.after_gil))
+    if args.misses:
+        text += ("\n\n## Where the model trained on baseline misses the mixed placements (this "
+                 "checkout" + (", GIL-weighted" if args.after_gil else "") + ")\n\n"
+                 + misses.__doc__.split("\n\n")[1].replace("\n    ", " ").strip() + "\n\n"
+                 + misses(paths, gil=args.after_gil))
     print(text)
     if args.out:
         command = "PYTHONPATH=. python benchmarks/model_replay.py " + shlex.join(

@@ -31,6 +31,15 @@ thread taking its next task, a hand-off between threads by kind of edge: CPU aft
 GPU after CPU, CPU after CPU; the start of a frame) are the medians measured in the
 training frames.
 
+A captured GPU segment (consecutive capturable GPU tasks between CPU hand-offs, replayed as
+one CUDA graph: :func:`gpu_segments`) is one replay: ``segment_ratio`` times its calibrated
+device time as its lanes run it (:func:`lane_span`: independent branches side by side, as
+the all-GPU baseline's two cameras; a mixed placement's one-task segment has none beside
+it) plus a fixed cost (:func:`fit_segments`). A segment whose capture failed runs eagerly
+from then on (:func:`eager_nodes`; ``predict(..., eager=)``): its tasks are eager calls,
+whose law is fitted on eager calls alone (the contention probe's GPU mix, its calls in
+turn, as the in-frame ratio where the training frames replayed every GPU task).
+
 :func:`simulate` runs a schedule's per-processor orders through this model, event by event
 (every busy thread advances at its current speed), and returns the predicted timeline; its
 makespan is the prediction. :func:`fit` learns the model from frames run with one plan;
