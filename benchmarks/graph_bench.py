@@ -82,6 +82,7 @@ from warpvx.backend import init_warp  # noqa: E402
 from warpvx.graph import default_n_cpus  # noqa: E402
 from warpvx.graph.costs import SWITCH_WARMUP, TRIAL_ROUNDS  # noqa: E402
 from warpvx.graph.diagnostics import executor_overhead, soak  # noqa: E402
+from warpvx.graph.model import eager_nodes, graph_reads  # noqa: E402
 from warpvx.runtime import executor  # noqa: E402
 
 POLICIES = ("baseline", "heft", "xeft", "best")
@@ -521,12 +522,17 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     for policy in POLICIES:
         piped[policy], fps[policy] = pipelined(g, plans[policy], frames, args.depth)
     rows = []
+    reads = graph_reads(g)
     for policy in POLICIES:
         plan, runs = plans[policy], seq[policy]
         fit_runs = train_runs if policy == args.train else runs[:fit_n]
         own = model if policy == args.train else g.fit_model(plan, runs=fit_runs, gil=gil)
         pred_in, meas_in = own.makespan(plan), median_span(fit_runs)
         pred_out, meas_out = model.makespan(plan), median_span(runs[fit_n:])
+        # Which segments' captures failed (they run eagerly from then on): read off the
+        # policy's first frames, not the ones the prediction is scored on.
+        eager = eager_nodes(fit_runs, reads, model.capturable, plan.placement)
+        pred_eager = model.makespan(plan, eager=eager)
         pred_plain = plain.makespan(plan) if gil else None
         rows.append({
             "policy": policy,
@@ -536,6 +542,8 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
             "pred_in_ms": pred_in, "measured_in_ms": meas_in, "error_in_pct": _err(pred_in, meas_in),
             "pred_out_ms": pred_out, "measured_out_ms": meas_out,
             "error_out_pct": _err(pred_out, meas_out),
+            "eager": sorted(eager),
+            "pred_out_eager_ms": pred_eager, "error_out_eager_pct": _err(pred_eager, meas_out),
             "pred_out_plain_ms": pred_plain,
             "error_out_plain_pct": _err(pred_plain, meas_out) if gil else None,
             "measured_p90_ms": float(np.percentile([r.makespan for r in runs[fit_n:]], 90)),
@@ -674,9 +682,10 @@ def markdown(report) -> str:
         "played through a simulation of the executor; `a`, `b` from all nodes at once and "
         "from a contention probe (mixes of the graph's nodes run beside each other, alone and loaded in "
         "turn; the heavy CPU nodes also beside each other). A captured GPU segment is played as "
-        "one replay: a ratio times its nodes' calibrated device times plus a fixed cost, fitted on "
+        "one replay: a ratio times its nodes' calibrated device times as its lanes run them "
+        "(independent branches side by side: `lane_span`) plus a fixed cost, fitted on "
         "the training frames' segments (all of one size: the fixed cost a prior, "
-        "`SEGMENT_FIXED_PRIOR`). "
+        "`SEGMENT_FIXED_PRIOR`, and all of the lanes' concurrency). "
         "*Settle*: before training, the model's probes run (they load every core for seconds), "
         "then interleaved rounds, discarded, until each plan's round median is within "
         f"{SETTLE_PCT:g}% of its round before (at most {SETTLE_ROUNDS} rounds). "
@@ -698,7 +707,10 @@ def markdown(report) -> str:
         "work). The model counts each busy "
         "neighbour by its node's GIL pressure and each victim by its sensitivity "
         "(`warpvx.graph.calibration.measure_gil`; not in a quick run); *unweighted*: the same "
-        "training frames fitted with every busy thread counted alike. *scheduler*: the makespan "
+        "training frames fitted with every busy thread counted alike. *failed captures known*: "
+        "the out-of-sample prediction told which of the plan's segments the executor runs "
+        "eagerly, their capture having failed (`warpvx.graph.model.eager_nodes` of the policy's "
+        "first frames). *scheduler*: the makespan "
         "the policy's own schedule claims (isolated calibration). `best`: the model's "
         "candidates (baseline, HEFT and XEFT on the calibrated DAG and on the model's "
         "in-frame costs); those predicted within 20% of the fastest (closer than the model "
@@ -723,13 +735,15 @@ def markdown(report) -> str:
             + "; waits (us) " + ", ".join(f"{k} {v:.1f}" for k, v in m["latency_us"].items())
             + (f"; captured segment replay {m['segment_ratio']:.2f} x its nodes' calibrated GPU "
                f"(device) time + "
-               f"{m.get('segment_fixed_us', 0):.0f} us" if m.get("segment_ratio") else "")
+               f"{m.get('segment_fixed_us', 0):.0f} us, lanes {m.get('segment_lanes', 1.0):.2f}"
+               if m.get("segment_ratio") else "")
             + ".", "", probe_line(e.get("probe") or []), "", drift_line(e), "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
             "of sample | measured | error | noise | drift | near: measured | error | drift out | "
-            "unweighted: predicted | error | p90 ms | sequential FPS | pipelined FPS | GPU nodes |",
+            "unweighted: predicted | error | failed captures known: predicted | error | p90 ms | "
+            "sequential FPS | pipelined FPS | GPU nodes |",
             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
-            "| ---: | ---: | ---: | ---: | ---: | ---: | --- |",
+            "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
         ]
         for r in e["policies"]:
             name = r["policy"] + (f" ({r['chosen']})" if r["chosen"] != r["policy"] else "")
@@ -741,7 +755,10 @@ def markdown(report) -> str:
                 f"{_fmt(r.get('measured_near_ms'))} | {_signed(r.get('error_near_pct'))} | "
                 f"{_signed(r.get('error_dedrift_pct'))} | "
                 f"{_fmt(r.get('pred_out_plain_ms'))} | "
-                f"{_pct(r.get('error_out_plain_pct'))} | {r['measured_p90_ms']:.3f} | "
+                f"{_pct(r.get('error_out_plain_pct'))} | {_fmt(r.get('pred_out_eager_ms'))} | "
+                f"{_signed(r.get('error_out_eager_pct'))}"
+                + (f" (eager: {', '.join(r['eager'])})" if r.get("eager") else "")
+                + f" | {r['measured_p90_ms']:.3f} | "
                 f"{r['sequential_fps']:.1f} | "
                 f"{r['pipelined_fps']:.1f} | {len(r['gpu_nodes'])}: {', '.join(r['gpu_nodes'])} |")
         best = e["policies"][-1]
@@ -1133,31 +1150,29 @@ def experiments_of(report: dict) -> list:
              "calibration": report["calibration"], "policies": policies}]
 
 
-def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
-    """Refit the contention model offline on ``train``'s recorded fit frames
-    (``fit_frames_data`` and the contention ``probe``; results older than those: one frame
-    rebuilt from its later frames' node medians, no probe) and predict every policy's
-    recorded plan. Rows: tag, policy, predicted ms, measured ms (later frames), error %, and
-    ``pooled``: the error against the mean measured makespan of every policy that ran the
-    same schedule (identical plans measured in separate runs differ by up to 25% on the
-    H100, a noise floor no model can beat per run)."""
+def replay_models(report: dict, train: str = "baseline", *, gil: bool = False):
+    """Per experiment of a graph_bench.json, the contention model refit offline on
+    ``train``'s recorded fit frames (``fit_frames_data`` and the contention ``probe``;
+    results older than those: one frame rebuilt from its later frames' node medians, no
+    probe; ``gil``: busy neighbours weighed by the recorded GIL shares). Yields
+    ``(experiment, model, policy -> its recorded Schedule)``."""
     import types
 
     from warpvx.graph.calibration import TransferModel
-    from warpvx.graph.model import copied_bytes, fit, graph_reads
+    from warpvx.graph.model import copied_bytes, fit
     from warpvx.sched.schedule import Schedule, ScheduledTask
 
     tm = report["transfer"]
     transfer = TransferModel(tm["h2d_latency_ms"], 1e-6 / tm["h2d_gbps"],
                              tm["d2h_latency_ms"], 1e-6 / tm["d2h_gbps"])
     procs = ["gpu"] + [f"cpu{i}" for i in range(report["n_cpus"])]
-    rows = []
     for e in experiments_of(report):
         w, h = (int(v) for v in e["tag"].rsplit("_", 1)[1].split("x"))
         g = build_graph((w, h), max_corners=200 if report["mode"] == "quick" else 500,
                         cpu_heavy=e["graph"] == "two-cameras-cv")
         g.verify(make_frames((w, h), 2))
         reads = graph_reads(g)
+        g.close()
         cal = types.SimpleNamespace(nodes=e["calibration"], gpu=report["gpu"], transfer=transfer,
                                     dispatch=report["dispatch"])
         src = next(p for p in e["policies"] if p["policy"] == train)
@@ -1172,21 +1187,39 @@ def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
         probe = {tuple(k): tuple(v) for k, v in e.get("probe") or []}
         model = fit(cal, reads, frames, placement, policy=train, probe=probe,
                     gil=e.get("gil") if gil else None, capturable=e.get("capturable", ()))
+        yield e, model, {p["policy"]: Schedule(
+            {n: ScheduledTask(n, t["pe"], t["planned_start_ms"], t["planned_start_ms"] + t["planned_ms"])
+             for n, t in p["nodes"].items()}, procs) for p in e["policies"]}
+
+
+def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
+    """:func:`replay_models`' models predicting every policy's recorded plan. Rows: tag,
+    policy, predicted ms, measured ms (later frames), error %, and ``pooled``: the error
+    against the mean measured makespan of every policy that ran the same schedule
+    (identical plans measured in separate runs differ by up to 25% on the H100, a noise
+    floor no model can beat per run); ``pred_eager_ms``/``error_eager_pct``: the
+    prediction told which of the plan's capturable tasks ran eagerly
+    (:func:`~warpvx.graph.model.eager_nodes` of its recorded frames: which segment
+    captures failed, not how long anything took; ``eager``)."""
+    rows = []
+    for e, model, schedules in replay_models(report, train, gil=gil):
         same = defaultdict(list)
         for p in e["policies"]:
             same[_plan_key(p)].append(p["measured_out_ms"])
         for p in e["policies"]:
-            sch = Schedule({n: ScheduledTask(n, t["pe"], t["planned_start_ms"],
-                                             t["planned_start_ms"] + t["planned_ms"])
-                            for n, t in p["nodes"].items()}, procs)
+            sch = schedules[p["policy"]]
             pred = model.makespan(sch)
+            eager = eager_nodes([recorded_frame(r) for r in p.get("fit_frames_data") or ()],
+                                model.reads, model.capturable, p["placement"])
+            pred_eager = model.makespan(sch, eager=eager)
             pooled = statistics.mean(same[_plan_key(p)])
             rows.append({"tag": e["tag"], "policy": p["policy"], "train": train, "pred_ms": pred,
                          "measured_ms": p["measured_out_ms"],
                          "error_pct": _err(pred, p["measured_out_ms"]),
+                         "eager": sorted(eager), "pred_eager_ms": pred_eager,
+                         "error_eager_pct": _err(pred_eager, p["measured_out_ms"]),
                          "pooled_ms": pooled, "pooled_error_pct": _err(pred, pooled),
                          "trained_here": p["policy"] == train})
-        g.close()
     return rows
 
 

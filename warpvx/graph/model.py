@@ -31,6 +31,15 @@ thread taking its next task, a hand-off between threads by kind of edge: CPU aft
 GPU after CPU, CPU after CPU; the start of a frame) are the medians measured in the
 training frames.
 
+A captured GPU segment (consecutive capturable GPU tasks between CPU hand-offs, replayed as
+one CUDA graph: :func:`gpu_segments`) is one replay: ``segment_ratio`` times its calibrated
+device time as its lanes run it (:func:`lane_span`: independent branches side by side, as
+the all-GPU baseline's two cameras; a mixed placement's one-task segment has none beside
+it) plus a fixed cost (:func:`fit_segments`). A segment whose capture failed runs eagerly
+from then on (:func:`eager_nodes`; ``predict(..., eager=)``): its tasks are eager calls,
+whose law is fitted on eager calls alone (the contention probe's GPU mix, its calls in
+turn, as the in-frame ratio where the training frames replayed every GPU task).
+
 :func:`simulate` runs a schedule's per-processor orders through this model, event by event
 (every busy thread advances at its current speed), and returns the predicted timeline; its
 makespan is the prediction. :func:`fit` learns the model from frames run with one plan;
@@ -140,6 +149,15 @@ UNTIMED_COPY_SHARE = 0.9
 #: at a ratio of their device time (a 0.06 ms blur measured 0.27 ms, s4 1280x720).
 SEGMENT_FIXED_PRIOR = 0.1
 
+#: How much of the lanes' concurrency a captured segment's replay gets, tried by
+#: :func:`fit_segments` where the training segments differ in size (1: its independent
+#: branches side by side, as :func:`lane_span` spreads them; 0: one after the other).
+#: Training frames of one segment size take 1: the all-GPU baseline replays both cameras
+#: in one segment, and a ratio learnt on its summed device time (0.3-0.44 on the H100,
+#: s6/s6b) played the one-task segments of mixed placements 2-3x too short.
+LANES_GRID = np.linspace(0.0, 1.0, 5)
+SEGMENT_LANES_PRIOR = 1.0
+
 #: Weight of a contention probe (:func:`~warpvx.graph.calibration.measure_contention`)
 #: measurement in the fit, in training samples.
 PROBE_WEIGHT = 8
@@ -174,7 +192,7 @@ class Slowdown:
         return 1.0 + self.per_cpu * cpus + self.per_gpu * gpus
 
 
-def fit_slowdown(samples, probes=(), *, per_node: bool = True) -> Slowdown:
+def fit_slowdown(samples, probes=(), *, per_node: bool = True, prior_ratio: float = 1.0) -> Slowdown:
     """Fit ``measured = (ratio * alone + overhead) * (1 + a * cpus + b * gpus) * e_node``.
 
     Parameters
@@ -191,6 +209,8 @@ def fit_slowdown(samples, probes=(), *, per_node: bool = True) -> Slowdown:
     per_node : bool
         Also fit each node's correction ``e`` (the median of its samples' residuals,
         after the shared law), else ``e = 1``.
+    prior_ratio : float
+        ``ratio`` where there is no sample (:func:`_probe_slowdown`).
 
     Returns
     -------
@@ -205,17 +225,18 @@ def fit_slowdown(samples, probes=(), *, per_node: bool = True) -> Slowdown:
         node (its samples about their mean: how one node's time moved with its neighbours)
         -- absolute deviations and medians, so a frame the machine hiccupped in does not
         move the fit. A kind of neighbour never busy in the samples (nor in a probe) cannot
-        be identified and stays 0.
+        be identified and stays 0. Without samples, the probes' law
+        (:func:`_probe_slowdown`).
     """
     rows = [r for r in samples if r[1] > 0 and r[2] > 0]
+    probes = np.array([p for p in probes if p[0] > 0 and p[1] > 0], np.float64).reshape(-1, 4)
+    p_log = np.log(probes[:, 1] / probes[:, 0])
     if not rows:
-        return Slowdown()
+        return _probe_slowdown(probes, p_log, prior_ratio)
     alone = np.array([r[1] for r in rows])
     meas = np.array([r[2] for r in rows])
     cpus = np.array([r[3] for r in rows], np.float64)
     gpus = np.array([r[4] for r in rows], np.float64)
-    probes = np.array([p for p in probes if p[0] > 0 and p[1] > 0], np.float64).reshape(-1, 4)
-    p_log = np.log(probes[:, 1] / probes[:, 0])
     names = sorted({r[0] for r in rows})
     idx = np.array([names.index(r[0]) for r in rows])
     groups = [np.flatnonzero(idx == i) for i in range(len(names))]
@@ -246,6 +267,19 @@ def fit_slowdown(samples, probes=(), *, per_node: bool = True) -> Slowdown:
         z = z - meds[idx]
     return Slowdown(float(ratio), float(a), float(b), node, len(rows),
                     math.sqrt(float(z @ z) / len(rows)), float(d))
+
+
+def _probe_slowdown(probes, p_log, ratio: float = 1.0) -> Slowdown:
+    """The law of a kind no training sample shows (an eager GPU call where the training
+    frames replayed every GPU task): ``ratio`` given, no fixed cost, and ``a``, ``b`` from
+    the probes alone (least absolute deviations on :data:`SLOWDOWN_GRID`), 0 without
+    probes."""
+    if not len(probes):
+        return Slowdown(ratio)
+    grid = [(float(np.abs(p_log - np.log1p(a * probes[:, 2] + b * probes[:, 3])).sum()), a, b)
+            for a in SLOWDOWN_GRID for b in SLOWDOWN_GRID]
+    _, a, b = min(grid, key=lambda c: c[0])
+    return Slowdown(ratio, float(a), float(b))
 
 
 def _weighted_median(values, weights) -> float:
@@ -317,6 +351,10 @@ class ContentionModel:
         alone. None where the training frames ran no segment: each task played eagerly.
     segment_fixed : float
         The fixed cost (ms) of one segment's replay (:func:`fit_segments`), on its first task.
+    segment_lanes : float
+        How much of its lanes' concurrency a segment's replay gets (:func:`fit_segments`,
+        :func:`segment_scale`): its calibrated time is that share of its
+        :func:`lane_span` plus the rest of its summed device times.
     """
 
     slowdown: dict
@@ -331,6 +369,7 @@ class ContentionModel:
     capturable: frozenset = frozenset()
     segment_ratio: float | None = None
     segment_fixed: float = 0.0
+    segment_lanes: float = 1.0
 
     def sensitivity(self, node: str, pe: str) -> float:
         """How much ``node`` on ``pe`` suffers from a busy GIL-holding neighbour (0-1)."""
@@ -348,11 +387,11 @@ class ContentionModel:
             raise GraphError(f"node {node!r}: no {pe.upper()} implementation to predict")
         return self.slowdown[pe].in_frame(node, alone) + self.copy_time(pe, copied)
 
-    def segment_work(self, node: str, first: bool) -> float:
+    def segment_work(self, node: str, first: bool, scale: float = 1.0) -> float:
         """``node``'s share (ms) of a captured segment's replay: :attr:`segment_ratio` times
         its calibrated device time (host time without CUDA), plus :attr:`segment_fixed` on
         the segment's ``first`` task."""
-        return self.segment_ratio * _segment_base(self.alone, node, self.cuda) + \
+        return self.segment_ratio * scale * _segment_base(self.alone, node, self.cuda) + \
             (self.segment_fixed if first else 0.0)
 
     def copy_time(self, pe: str, nbytes: int) -> float:
@@ -362,15 +401,16 @@ class ContentionModel:
             return 0.0
         return max(0.0, _copy_ms(self.transfer, pe, nbytes) + self.copy_extra.get(pe, 0.0))
 
-    def predict(self, plan_or_schedule, processors=None) -> Schedule:
+    def predict(self, plan_or_schedule, processors=None, *, eager=()) -> Schedule:
         """The predicted timeline of one frame of a plan (or of a Schedule's orders):
-        :func:`simulate`."""
+        :func:`simulate` (``eager``: its capturable tasks run eagerly, :func:`eager_nodes`
+        of frames the plan ran)."""
         sch = getattr(plan_or_schedule, "schedule", plan_or_schedule)
-        return simulate(self, sch)
+        return simulate(self, sch, eager)
 
-    def makespan(self, plan_or_schedule) -> float:
-        """Predicted makespan (ms) of one frame."""
-        return self.predict(plan_or_schedule).makespan
+    def makespan(self, plan_or_schedule, *, eager=()) -> float:
+        """Predicted makespan (ms) of one frame (``eager``: see :meth:`predict`)."""
+        return self.predict(plan_or_schedule, eager=eager).makespan
 
     def summary(self) -> dict:
         """JSON-friendly parameters."""
@@ -382,6 +422,7 @@ class ContentionModel:
             "latency_us": {k: v * 1e3 for k, v in self.latency.items()},
             "copy_extra_us": {k: v * 1e3 for k, v in self.copy_extra.items()},
             "segment_ratio": self.segment_ratio, "segment_fixed_us": self.segment_fixed * 1e3,
+            "segment_lanes": self.segment_lanes,
         }
 
 
@@ -425,10 +466,75 @@ def gpu_segments(reads: dict, capturable, placement: dict, gpu_order) -> list:
     return groups
 
 
+def eager_nodes(runs, reads, capturable, placement) -> frozenset:
+    """Capturable GPU tasks that ran eagerly in most of ``runs`` (FrameResults of one plan).
+
+    The executor runs a segment whose capture failed eagerly from then on, task by task
+    (:mod:`warpvx.runtime.segment_runner`: a failure is not retried). A replayed segment's
+    tasks share its one host interval, so theirs abut exactly, and its uploads are not
+    timed apart; an eager task has a host interval of its own and times its uploads
+    (large ones on CUDA). So a segment ran eagerly in a frame where its tasks' host
+    intervals do not abut or a task timed a copy (a one-task segment without a timed
+    upload cannot be told apart: taken as replayed). On the H100, mixed placements lost a
+    segment to a failed capture in 4 of 8 runs of s6/s6b (a CPU worker's copy during the
+    capture is the suspect) and ran it 2x slower than replayed.
+    """
+    capturable = frozenset(capturable)
+    counts, n = {}, 0
+    for run in runs:
+        if not run.timeline:
+            continue
+        n += 1
+        hosts = host_intervals(run)
+        order = sorted((t for t, (p, _, _) in hosts.items() if pe_of(p) == "gpu"),
+                       key=lambda t: hosts[t][1])
+        for seg in gpu_segments(reads, capturable, placement, order):
+            if seg[0] not in capturable:
+                continue
+            apart = any(hosts[a][2] != hosts[b][1] for a, b in zip(seg, seg[1:]))
+            if apart or any(run.transfers.get(t, 0.0) > 0 for t in seg):
+                for t in seg:
+                    counts[t] = counts.get(t, 0) + 1
+    return frozenset(t for t, c in counts.items() if 2 * c > n)
+
+
 def _segment_base(alone, node, cuda) -> float:
     """The calibrated time a captured segment's replay scales: the device time on CUDA (the
     replay is device-bound), else the call."""
     return alone[node]["device"] if cuda else alone[node]["gpu"]
+
+
+def lane_span(reads, seg, base) -> float:
+    """The span (ms) of a captured segment's tasks ``seg`` spread over
+    :data:`~warpvx.runtime.lanes.MAX_LANES` streams as the executor spreads them
+    (:func:`~warpvx.runtime.lanes.lanes`: list scheduling by this frame's dependencies inside
+    the segment), each task taking ``base[task]`` ms: independent branches (two cameras, a
+    detector beside the features) run side by side, so a segment of both cameras replays in
+    about half its summed device time and a one-task segment in all of it."""
+    from ..runtime.lanes import MAX_LANES
+
+    inside, finish, free = set(seg), {}, [0.0] * MAX_LANES
+    for t in seg:
+        ready = max([finish[r.producer] for r in reads[t]
+                     if not r.delayed and r.producer in inside and r.producer in finish], default=0.0)
+        k = min(range(len(free)), key=lambda i: (max(free[i], ready), i))
+        finish[t] = free[k] = max(free[k], ready) + base[t]
+    return max(finish.values(), default=0.0)
+
+
+def segment_scale(reads, segments, alone, cuda, lanes: float = 1.0) -> dict:
+    """task -> its segment's calibrated span over the sum of its tasks'
+    :func:`_segment_base` (1 where that sum is 0), for each of ``segments``: the span is
+    ``lanes`` times the :func:`lane_span` plus ``1 - lanes`` times the sum (``lanes``: how
+    much of the lanes' concurrency the replays get; tasks that insert conditional nodes,
+    Harris's and FAST's, run with every lane joined)."""
+    out = {}
+    for seg in segments:
+        base = {t: _segment_base(alone, t, cuda) or 0.0 for t in seg}
+        total = sum(base.values())
+        f = lanes * lane_span(reads, seg, base) / total + 1.0 - lanes if total > 0 else 1.0
+        out.update((t, f) for t in seg)
+    return out
 
 
 def segment_samples(runs, reads, capturable, placement, alone, transfer, cuda, slow=None) -> list:
@@ -449,36 +555,42 @@ def segment_samples(runs, reads, capturable, placement, alone, transfer, cuda, s
             if seg[0] not in capturable:
                 continue
             base = sum(_segment_base(alone, t, cuda) or 0.0 for t in seg)
+            span = base * segment_scale(reads, [seg], alone, cuda).get(seg[0], 1.0)
             s0 = min(run.timeline[t].start for t in seg)
             s1 = max(run.timeline[t].finish for t in seg)
             copies = _copy_ms(transfer, "gpu", sum(run.copied.get(t, 0) for t in seg))
             div = slow.speed_divisor(busy_overlap((s0, s1), cpu_busy), 0.0) if slow else 1.0
             if base > 0 and s1 - s0 > copies:
-                out.append((base, (s1 - s0 - copies) / div))
+                out.append((base, span, (s1 - s0 - copies) / div))
     return out
 
 
 def fit_segments(samples) -> tuple:
-    """``(ratio, fixed ms per segment)`` of ``replay = ratio * calibrated + fixed`` over
-    :func:`segment_samples`: least absolute deviations on :data:`OVERHEAD_GRID` x 10 (the
-    fixed cost of a replay: input fills, launch, copy-out) where the segments differ in
-    size, else (one size cannot tell them apart) :data:`SEGMENT_FIXED_PRIOR`, at most half
-    the shortest replay, and the median ratio of the rest; ``(None, 0)`` without samples."""
+    """``(ratio, fixed ms per segment, lanes)`` of ``replay = ratio * (lanes * span + (1 -
+    lanes) * calibrated) + fixed`` over :func:`segment_samples` (``span``: the lanes'
+    :func:`lane_span`): least absolute deviations on :data:`OVERHEAD_GRID` x 10 (the fixed
+    cost of a replay: input fills, launch, copy-out) and :data:`LANES_GRID` where the
+    segments differ in size, else (one size cannot tell them apart)
+    :data:`SEGMENT_FIXED_PRIOR`, at most half the shortest replay, lanes 1 and the median
+    ratio of the rest; ``(None, 0, 1)`` without samples."""
     if not samples:
-        return None, 0.0
-    base, meas = (np.array(v, np.float64) for v in zip(*samples))
-    if np.ptp(base) <= 0.05 * base.max():
+        return None, 0.0, 1.0
+    total, span, meas = (np.array(v, np.float64) for v in zip(*samples))
+    if np.ptp(total) <= 0.05 * total.max():
         c = min(SEGMENT_FIXED_PRIOR, 0.5 * float(meas.min()))
-        return float(np.median((meas - c) / base)), c
+        w = SEGMENT_LANES_PRIOR
+        return float(np.median((meas - c) / (w * span + (1.0 - w) * total))), c, w
     best = None
-    for c in np.asarray(OVERHEAD_GRID) * 10:
-        if c >= meas.min():
-            break
-        r = _weighted_median((meas - c) / base, base)
-        cost = float(np.abs(meas - r * base - c).sum())
-        if best is None or cost < best[0] - 1e-12:
-            best = (cost, r, float(c))
-    return float(best[1]), best[2]
+    for w in LANES_GRID:
+        base = w * span + (1.0 - w) * total
+        for c in np.asarray(OVERHEAD_GRID) * 10:
+            if c >= meas.min():
+                break
+            r = _weighted_median((meas - c) / base, base)
+            cost = float(np.abs(meas - r * base - c).sum())
+            if best is None or cost < best[0] - 1e-12:
+                best = (cost, r, float(c), float(w))
+    return float(best[1]), best[2], best[3]
 
 
 def _segment_of(reads, capturable, placement, gpu_order) -> dict:
@@ -548,12 +660,14 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     copies = {"cpu": [], "gpu": []}
     waits = {k: [] for k in LATENCIES}
     capturable = frozenset(capturable)
+    # What the training frames replayed: their eager segments' tasks were eager calls.
+    replayed = capturable - eager_nodes(runs, reads, capturable, placement)
     shares = ContentionModel({}, {}, alone, reads, None, cuda, gil=dict(gil or {}))
     for run in runs:
         hosts = host_intervals(run)
         gpu_order = sorted((t for t, (p, _, _) in hosts.items() if pe_of(p) == "gpu"),
                            key=lambda t: hosts[t][1])
-        segment = _segment_of(reads, capturable, placement, gpu_order)
+        segment = _segment_of(reads, replayed, placement, gpu_order)
         for task, (proc, s, f) in hosts.items():
             pe = pe_of(proc)
             copy_ms = run.transfers.get(task, 0.0)
@@ -570,7 +684,8 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
                 # on CUDA) are inside the interval: take out what the simulation adds back,
                 # else the node's correction counts them a second time.
                 copy_ms = min(modelled, UNTIMED_COPY_SHARE * (f - s))
-            if alone[task][pe] is not None:
+            # A replayed task's share is the segment model's (fit_segments), not a call's.
+            if alone[task][pe] is not None and not (pe == "gpu" and task in replayed):
                 samples[pe].append((task, alone[task][pe], f - s - copy_ms, *busy))
             cls, ready = _ready_parts(run, task, reads, placement, hosts, segment)
             waits[cls].append(max(0.0, s - ready))
@@ -584,7 +699,8 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
             _mix_share(shares.pressure, alone, mixes.get(loader, ()),
                        "cpu" if loader == "heavy" else loader)
         probes[pe].append((alone_ms, loaded, cpus * w, gpus * w))
-    slow = {pe: fit_slowdown(s, probes[pe]) for pe, s in samples.items()}
+    slow = {pe: fit_slowdown(s, probes[pe], prior_ratio=_probe_ratio(probe, alone, pe))
+            for pe, s in samples.items()}
     d = calibration.dispatch or {}
     fallback = {"start": d.get("start", 0.0), "cpu_same": d.get("cpu_gap", 0.0),
                 "gpu_same": d.get("gpu_gap", 0.0), "cpu_from_cpu": d.get("cpu_gap", 0.0),
@@ -594,11 +710,24 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     # applies the same speed to the whole task), so their extra is taken without that.
     copy_extra = {pe: statistics.median(t / slow[pe].speed_divisor(c, g) - m for t, m, c, g in v)
                   for pe, v in copies.items() if v}
-    ratio, fixed = fit_segments(segment_samples(runs, reads, capturable, placement, alone,
+    ratio, fixed, lanes = fit_segments(segment_samples(runs, reads, replayed, placement, alone,
                                                 calibration.transfer, cuda, slow["gpu"]))
     return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
                            f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames",
-                           copy_extra, shares.gil, capturable, ratio, fixed)
+                           copy_extra, shares.gil, capturable, ratio, fixed, lanes)
+
+
+def _probe_ratio(probe, alone, pe) -> float:
+    """The contention probe's ``pe`` mix timed alone (its calls in turn, as a frame makes
+    them) over the sum of its nodes' calibrated times: the in-frame ratio of a kind of call
+    the training frames never made (an eager GPU call beside an all-replayed baseline; the
+    H100's in-frame eager calls ran 2x their calibrated host time, s6/s6b), measured near
+    the training frames where the calibration may be older. 1 without a probe."""
+    for (victim, _), (mix, alone_ms, *_rest) in (probe or {}).items():
+        total = sum(alone[n][pe] or 0.0 for n in mix.split(",") if n in alone)
+        if victim == pe and total > 0:
+            return alone_ms / total
+    return 1.0
 
 
 def _mix_share(share, alone, names, pe) -> float:
@@ -618,8 +747,11 @@ def _copy_ms(transfer, pe, n):
 # --------------------------------------------------------------------------- simulation
 
 
-def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
+def simulate(model: ContentionModel, schedule: Schedule, eager=()) -> Schedule:
     """Play ``schedule``'s per-processor orders through ``model``: the predicted timeline.
+
+    ``eager``: capturable tasks the executor runs eagerly all the same (its segment's
+    capture failed: :func:`eager_nodes`), played as eager calls.
 
     Each processor takes its tasks in the executor's order (by scheduled start). A task
     starts when its processor is free and its inputs are ready, plus the measured latency of
@@ -634,14 +766,17 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
     order = sorted(schedule.tasks, key=lambda t: (schedule.tasks[t].start, schedule.tasks[t].finish))
     queues = {p: [t for t in order if placement[t] == p] for p in schedule.processors}
     queues = {p: q for p, q in queues.items() if q}
-    copied = copied_bytes(model.reads, placement, order, model.capturable)
+    capturable = model.capturable - frozenset(eager)
+    copied = copied_bytes(model.reads, placement, order, capturable)
     # A GPU segment is one unit: CPU readers see its values when its last task ends.
     segs = [seg for p, q in queues.items() if pe_of(p) == "gpu"
-            for seg in gpu_segments(model.reads, model.capturable, placement, q)]
+            for seg in gpu_segments(model.reads, capturable, placement, q)]
     last_of = {t: seg[-1] for seg in segs for t in seg}
     # Tasks replayed in a captured segment: host and device busy for the replay's share.
     replayed = {} if model.segment_ratio is None else \
-        {t: t == seg[0] for seg in segs if seg[0] in model.capturable for t in seg}
+        {t: t == seg[0] for seg in segs if seg[0] in capturable for t in seg}
+    scale = segment_scale(model.reads, [seg for seg in segs if seg[0] in replayed],
+                          model.alone, model.cuda, model.segment_lanes)
     seg_end = 0.0
     lat = model.latency
     pos = {p: 0 for p in queues}
@@ -683,7 +818,8 @@ def simulate(model: ContentionModel, schedule: Schedule) -> Schedule:
             if t <= now + 1e-12:
                 task = queues[p][pos[p]]
                 pe = pe_of(p)
-                work = (model.segment_work(task, replayed[task]) + _copy_ms(model.transfer, pe, copied.get(task, 0))
+                work = (model.segment_work(task, replayed[task], scale[task])
+                        + _copy_ms(model.transfer, pe, copied.get(task, 0))
                         if task in replayed else model.work(task, pe, copied.get(task, 0)))
                 running[p] = [task, work, now]
         if not running:
@@ -740,8 +876,9 @@ def in_frame_dag(model: ContentionModel, pes: dict, n_cpus: int):
     """The task DAG with the model's in-frame costs (no busy neighbour) for a scheduler.
 
     ``pes``: node -> the processing elements it may run on (``{"cpu", "gpu"}``, narrowed by
-    pins). A GPU node costs the longer of its host call and its device time; an edge costs
-    a hand-off plus the transfer model's time for its bytes.
+    pins). A GPU node costs the longer of its host call (its share of a segment's replay
+    where it is capturable) and its device time; an edge costs a hand-off plus the
+    transfer model's time for its bytes.
     """
     from ..sched import cpu_gpu_dag
 
@@ -752,7 +889,10 @@ def in_frame_dag(model: ContentionModel, pes: dict, n_cpus: int):
             if pe not in allowed or model.alone[node][pe] is None:
                 times.append(None)
                 continue
-            t = model.work(node, pe)
+            # A capturable GPU node is replayed in a segment (its share, the segment's
+            # fixed cost apart), not called eagerly.
+            replayed = pe == "gpu" and model.segment_ratio is not None and node in model.capturable
+            t = model.segment_work(node, False) if replayed else model.work(node, pe)
             times.append(max(t, model.alone[node]["device"]) if pe == "gpu" else t)
         tasks[node] = tuple(times)
     handoff = 0.5 * (model.latency["cpu_from_gpu"] + model.latency["gpu_from_cpu"])
@@ -810,6 +950,7 @@ __all__ = [
     "alone_costs",
     "busy_overlap",
     "copied_bytes",
+    "eager_nodes",
     "fit",
     "fit_slowdown",
     "gpu_segments",
