@@ -108,6 +108,44 @@ def test_segment_capture_makes_missing_scratch_uncaptured_then_captures():
     assert sg.sets[0].graph == "graph"
 
 
+def test_segment_capture_retry_may_capture_a_recorded_launch_under_the_capture_lock():
+    """The executor captures a segment holding ``capture_lock``; the uncaptured run of the
+    retry may replay a recorded launch a second time, which captures it under the same lock
+    on the same thread (a non-reentrant lock hung the graph bench on the H100 at 1280x720)."""
+    import threading
+
+    tries = []
+
+    def record(device, streams):
+        tries.append(device)
+        if len(tries) == 1:
+            raise NotCapturable("scratch") from CaptureAllocationError("lk: scratch")
+        return "graph"
+
+    sg = _segment_graph(record)
+    got = []
+
+    def run_tasks(s, fresh=False, streams=None):
+        ok = _launch.capture_lock.acquire(timeout=2)  # as _launch._capture does
+        got.append(ok)
+        if ok:
+            _launch.capture_lock.release()
+
+    sg._run_tasks = run_tasks
+    done = threading.Event()
+
+    def capture():
+        with _launch.capture_lock:  # as SegmentRunner._segment_graph holds it
+            sg.capture("cuda:0", None)
+        done.set()
+
+    th = threading.Thread(target=capture, daemon=True)
+    th.start()
+    assert done.wait(10), "segment capture hung"
+    assert got == [True]
+    assert sg.sets[0].graph == "graph"
+
+
 def test_segment_capture_other_failures_are_not_retried():
     def record(device, streams):
         raise NotCapturable("a host sync inside")

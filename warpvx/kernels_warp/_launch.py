@@ -129,7 +129,10 @@ class _Plan:
 _capture_streams: dict = {}
 #: Held around every capture the package makes and around the executor's records on the
 #: legacy stream, which a capture in progress on a blocking stream forbids (CUDA error 906).
-capture_lock = threading.Lock()
+#: Reentrant: a segment capture runs its tasks uncaptured under it first where their scratch
+#: was missing (:meth:`~warpvx.runtime.capture.SegmentGraph.capture`), and a recorded launch
+#: replayed a second time there captures itself (:func:`_capture`) on the same thread.
+capture_lock = threading.RLock()
 
 
 def _capture(cmds, device):
