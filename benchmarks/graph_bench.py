@@ -987,6 +987,9 @@ def main(argv=None):
     args.command = "PYTHONPATH=. python benchmarks/graph_bench.py " + " ".join(
         argv if argv is not None else sys.argv[1:])
     cv_threads_before = cv2.getNumThreads()
+    # Progress lines as they come (a log file is block-buffered: a stalled run said nothing).
+    if hasattr(sys.stdout, "reconfigure"):
+        sys.stdout.reconfigure(line_buffering=True)
     switch_before = sys.getswitchinterval()
     spin_before = executor.SPIN_SECONDS
     cv2.setNumThreads(args.cv_threads)

@@ -12,6 +12,7 @@ import importlib
 from .backend import available_backends, cuda_available, get_backend, set_backend
 from .errors import (
     BackendError,
+    CaptureAllocationError,
     DTypeError,
     GraphError,
     NodeExecutionError,
@@ -84,5 +85,6 @@ __all__ = [
     "GraphError",
     "ScheduleError",
     "NodeExecutionError",
+    "CaptureAllocationError",
     *_LAZY,
 ]
