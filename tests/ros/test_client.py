@@ -45,12 +45,15 @@ def make_client(rospy, graph, topic, out, encoding="bgr8", **kw):
                        dropped_topic=out + "/dropped", publish_queue=50, **kw)
 
 
-def publish(rospy, topic, frames, encoding="bgr8", period=0.0, wait_for=()):
+def publish(rospy, topic, frames, encoding="bgr8", period=0.0, wait_for=(), queue_size=None):
+    """A publisher of ``frames`` on ``topic`` (stamps 1000, 1001, ...), returned for more;
+    its queue holds ``queue_size`` messages (default: the frames and one), more published
+    before its thread sends them drop the oldest."""
     from sensor_msgs.msg import Image
 
     from warpvx.ros import array_to_image
 
-    pub = rospy.Publisher(topic, Image, queue_size=len(frames) + 1)
+    pub = rospy.Publisher(topic, Image, queue_size=queue_size or len(frames) + 1)
     wait_connected(pub, *wait_for)
     for i, f in enumerate(frames):
         msg = array_to_image(f, encoding)
@@ -125,7 +128,9 @@ def test_bad_frames_are_rejected_and_logged_and_the_stream_goes_on(rospy, bikes,
     topic, out = topics()
     gray_in = Inbox(rospy, out + "/gray", Image)
     client = make_client(rospy, blur_graph(bikes[0].shape), topic, out, queue_size=20)
-    pub = publish(rospy, topic, bikes[:2], wait_for=(gray_in.sub,))
+    # Room for all five: three more go out right after these two (a queue of three dropped
+    # one on a loaded 2-core machine).
+    pub = publish(rospy, topic, bikes[:2], wait_for=(gray_in.sub,), queue_size=6)
     bad = array_to_image(bikes[2], "bgr8")
     bad.encoding = "bgr16"
     pub.publish(bad)
