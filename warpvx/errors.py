@@ -47,9 +47,9 @@ class NodeExecutionError(WarpvxError, RuntimeError):
 
 
 class CaptureAllocationError(WarpvxError, RuntimeError):
-    """A call would allocate state it keeps (a primitive's scratch, a read-back buffer) inside
-    a CUDA graph capture, where the memory would belong to the graph: run the call once
-    uncaptured, on the same stream and thread, before capturing it."""
+    """A call would allocate state it keeps (a primitive's scratch) inside a CUDA graph
+    capture, where the memory would belong to the graph: run the call once uncaptured, on the
+    same stream and thread, before capturing it."""
 
 
 __all__ = [

@@ -146,6 +146,23 @@ def test_segment_capture_retry_may_capture_a_recorded_launch_under_the_capture_l
     assert sg.sets[0].graph == "graph"
 
 
+def test_segment_capture_retry_task_failure_runs_the_segment_eagerly():
+    """A task failing in the retry's uncaptured run fails the capture (NotCapturable: the
+    executor runs the segment eagerly), as it would have inside the capture."""
+    def record(device, streams):
+        raise NotCapturable("scratch") from CaptureAllocationError("lk: scratch")
+
+    sg = _segment_graph(record)
+
+    def run_tasks(s, fresh=False, streams=None):
+        raise ValueError("lkL: bad points")
+
+    sg._run_tasks = run_tasks
+    with pytest.raises(NotCapturable, match="ValueError: lkL: bad points"):
+        sg.capture("cuda:0", None)
+    assert sg.sets[0].graph is None
+
+
 def test_segment_capture_other_failures_are_not_retried():
     def record(device, streams):
         raise NotCapturable("a host sync inside")

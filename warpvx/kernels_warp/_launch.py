@@ -323,8 +323,9 @@ class HostReadback:
             # null buffer, which a later read-back would write through: fail the capture
             # instead (the executor runs the call uncaptured, which builds this, and captures
             # the next frame).
-            raise CaptureAllocationError(
-                "a read-back buffer cannot be allocated inside a CUDA graph capture")
+            # (Not CaptureAllocationError: the read-back's host sync fails a capture anyway,
+            # so a segment capture's retry would only fail again.)
+            raise RuntimeError("a read-back buffer cannot be allocated inside a CUDA graph capture")
         self.host = wp.empty(n, dtype=dtype, device="cpu", pinned=not device.is_cpu)
         if n and not self.host.ptr:
             raise RuntimeError(f"pinned allocation of a {n}-element read-back buffer failed")

@@ -388,13 +388,25 @@ class SegmentGraph:
                 # before were on another thread. Made uncaptured here, then captured.
                 _log.debug("segment %s: scratch made before capture (%s)",
                            self.segment.tasks[0].name, exc)
-                self._run_tasks(self.next, streams=streams)
+                self._scratch_run(streams)
                 graph = self._record(device, streams)
         finally:
             if dev is not None:
                 dev.set_stream(current, sync=False)
         b.graph = graph
         self.scratch = _workspaces()
+
+    def _scratch_run(self, streams):
+        """The tasks writing the next run's set, run uncaptured on ``streams`` (real work, before
+        the frame's own run): after the runs its set's buffers are read or written by (on
+        streams of their own with several sets); a task's failure is :class:`NotCapturable`,
+        as inside the capture."""
+        if streams:
+            self.wait_previous(streams[0], rewrites=True)
+        try:
+            self._run_tasks(self.next, streams=streams)
+        except Exception as exc:  # noqa: BLE001 - as a failed capture: run eagerly
+            raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
 
     def _record(self, device: str, streams):
         """The tasks writing the next run's set, captured (on the current stream): the graph."""
