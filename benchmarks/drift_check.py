@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import gzip
 import json
 import statistics
 import sys
@@ -42,6 +41,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from model_replay import load  # noqa: E402 - a graph_bench.json(.gz)
+
 #: The rounds of each policy's makespans that trained the model (graph_bench: fit frames
 #: 1-20 in rounds of 10; best joins later and has none).
 FIT_ROUNDS = 2
@@ -50,12 +51,6 @@ NEAR_ROUNDS = 2
 POLICIES = ("baseline", "heft", "xeft", "best")
 #: Nodes whose per-worker time is compared (long single-threaded OpenCV calls).
 HEAVY = ("denoiseL", "denoiseR", "edgesL", "edgesR")
-
-
-def load(path) -> dict:
-    path = Path(path)
-    with (gzip.open(path, "rt") if path.suffix == ".gz" else open(path)) as f:
-        return json.load(f)
 
 
 def round_medians(makespans, block: int) -> list:

@@ -522,7 +522,7 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     for policy in POLICIES:
         piped[policy], fps[policy] = pipelined(g, plans[policy], frames, args.depth)
     rows = []
-    reads = graph_reads(g)
+    reads = model.reads
     for policy in POLICIES:
         plan, runs = plans[policy], seq[policy]
         fit_runs = train_runs if policy == args.train else runs[:fit_n]
@@ -532,7 +532,7 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
         # Which segments' captures failed (they run eagerly from then on): read off the
         # policy's first frames, not the ones the prediction is scored on.
         eager = eager_nodes(fit_runs, reads, model.capturable, plan.placement)
-        pred_eager = model.makespan(plan, eager=eager)
+        pred_eager = model.makespan(plan, eager=eager) if eager else pred_out
         pred_plain = plain.makespan(plan) if gil else None
         rows.append({
             "policy": policy,
@@ -1214,7 +1214,7 @@ def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
             pred = model.makespan(sch)
             eager = eager_nodes([recorded_frame(r) for r in p.get("fit_frames_data") or ()],
                                 model.reads, model.capturable, p["placement"])
-            pred_eager = model.makespan(sch, eager=eager)
+            pred_eager = model.makespan(sch, eager=eager) if eager else pred
             pooled = statistics.mean(same[_plan_key(p)])
             rows.append({"tag": e["tag"], "policy": p["policy"], "train": train, "pred_ms": pred,
                          "measured_ms": p["measured_out_ms"],

@@ -480,6 +480,14 @@ def keyframe_pairs(kf_pts, prev_pts, prev_kf_index, prev_is_kf: bool, cur_pts, g
     return tracked, None
 
 
+def keyframe_due(since: int, inliers: int, kf_inliers: int, config) -> bool:
+    """A tracked frame becomes the keyframe (the policy of :class:`TrackerConfig`): ``since``
+    frames after the last keyframe, with ``inliers`` against its reference and the last
+    keyframe's ``kf_inliers`` (:func:`track`'s rule, which the batched front end's look-ahead
+    follows)."""
+    return since >= config.keyframe_interval or inliers < config.keyframe_ratio * kf_inliers
+
+
 def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
           config: TrackerConfig = TrackerConfig(), essential=essential_core, good=None, points=None,
           tracks=keyframe_pairs, parallax=parallax_points):
@@ -623,7 +631,7 @@ def track(state: TrackState, kps, desc, pairs, distances, depth=None, *, K,
     lost = reference == REF_LOST
     # A lost frame keeps the last keyframe: the next frame relocalises against it, as
     # ORB-SLAM2 does against its keyframes, unless it matches the lost frame (see above).
-    is_kf = not lost and (since >= config.keyframe_interval or inliers < config.keyframe_ratio * kf_inliers)
+    is_kf = not lost and keyframe_due(since, inliers, kf_inliers, config)
     if is_kf:
         kf_index = np.arange(n)
     else:
@@ -816,7 +824,7 @@ def opencv_baseline(images, K):
 
 __all__ = [
     "TrackerConfig", "Camera", "TrackState", "FrameRecord", "TrackedFrame", "three_maxima",
-    "rotation_consistent", "filter_matches", "stereo_depth", "essential_core", "track", "track_nearest",
+    "rotation_consistent", "filter_matches", "stereo_depth", "essential_core", "keyframe_due", "track", "track_nearest",
     "build_graph",
     "spread_cpu_nodes", "keyframe_pairs", "schedule", "track_frames", "opencv_baseline", "baseline_step", "BACKENDS", "STATS",
 ]

@@ -70,11 +70,11 @@ from .orbslam_speculate import (COVERED, CoreSpeculation, _core_ahead, _essentia
 
 
 class _Later:
-    """``[fn(*job) for job in jobs]`` (``fn``: one function, or a list of one per job): on
-    ``pool``'s processes when given, submitted now (not urgent: the chain's keyframe jobs go
-    first) and waited for by :meth:`get`; else in the calling thread, now."""
+    """``[fn(*job) for fn, job in zip(fns, jobs)]`` (a function per job): on ``pool``'s
+    processes when given, submitted now (not urgent: the chain's keyframe jobs go first) and
+    waited for by :meth:`get`; else in the calling thread, now."""
 
-    def __init__(self, pool, fn, jobs, guesses=(), points=None):
+    def __init__(self, pool, fns, jobs, guesses=(), points=None):
         #: Per job, the frame's :func:`~warpvx.apps.orbslam.keypoint_xy` (:func:`pose_batch`'s;
         #: the chain's ``track`` takes them as they are).
         self.points = points
@@ -83,7 +83,6 @@ class _Later:
         #: over from the previous one's speculation (see
         #: :class:`~warpvx.apps.orbslam_speculate.CoreSpeculation`), or None.
         self.next = self.handed = None
-        fns = fn if isinstance(fn, list) else [fn] * len(jobs)
         self._values = None if pool is not None else [f(*job) for f, job in zip(fns, jobs)]
         self._pending, self.guesses = None, [None] * len(jobs)
         if pool is None:
@@ -273,7 +272,7 @@ def _good(nearest, pts, angles, prev_pts, prev_angles, config):
     return p, d, o.filter_matches(p, d, angles, prev_angles, config) if len(pts) else p[:0]
 
 
-def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo, core=True):
+def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo):
     """One frame's state-free work (on a pool process): (pairs int32 [M, 2], distances int32
     [M], extra, good int [G, 2]: the pairs ``track``'s match filter keeps, handed to it).
     ``nearest``: :func:`~warpvx.apps.orbslam_match.batch_pairs`' (nearest,
@@ -282,13 +281,13 @@ def frame_job(nearest, pts, angles, prev_pts, prev_angles, K, config, stereo, co
     the depth float32 [N] of each keypoint (:func:`stereo_depth`); monocular, (p1, p2,
     :func:`~warpvx.apps.orbslam.essential_core`'s result) for the filtered matches to the
     previous frame, what ``track`` hands to it when that frame is the reference, or None when
-    ``track`` will not need one, or ``core`` is False (the chain's speculation decides)."""
+    ``track`` will not need one."""
     p, d, good = _good(nearest, pts, angles, prev_pts, prev_angles, config)
     if stereo is not None:
         kl, dl, kr, dr, left, right, fx, baseline = stereo
         return p, d, stereo_depth(kl, dl, kr, dr, left, right, fx=fx, baseline=baseline,
                                   scale_factor=config.scale_factor, max_distance=config.stereo_max_distance), good
-    return p, d, _core_ahead(prev_pts, pts, good, K, config) if core else None, good
+    return p, d, _core_ahead(prev_pts, pts, good, K, config), good
 
 
 def pairs_job(nearest, pts, angles, prev_pts, prev_angles, config, before):

@@ -365,8 +365,7 @@ class CoreSpeculation:
         if inliers is None or inliers < config.min_inliers:
             return None
         kf_inliers = sim[3] or inliers
-        is_kf = g - sim[1] >= config.keyframe_interval or inliers < config.keyframe_ratio * kf_inliers
-        return (*sim[:3], kf_inliers), is_kf
+        return (*sim[:3], kf_inliers), o.keyframe_due(g - sim[1], inliers, kf_inliers, config)
 
     def _drop(self, u):
         """Forget the walk from frame ``u`` on."""

@@ -179,7 +179,7 @@ class Delay(Ring):
                 raise GraphError(f"delay {self.data.name!r}, index: slot {index} has no value "
                                  f"yet; verify or run the graph first, or give "
                                  f"g.delay(..., init=)")
-        if not slot.done.is_set():
+        if not slot.ready:
             raise GraphError(f"delay {self.data.name!r}: slot {index} is not computed yet")
         io = getattr(self._local, "io", None)
         if io is None:

@@ -526,8 +526,9 @@ def segment_scale(reads, segments, alone, cuda, lanes: float = 1.0) -> dict:
     """task -> its segment's calibrated span over the sum of its tasks'
     :func:`_segment_base` (1 where that sum is 0), for each of ``segments``: the span is
     ``lanes`` times the :func:`lane_span` plus ``1 - lanes`` times the sum (``lanes``: how
-    much of the lanes' concurrency the replays get; tasks that insert conditional nodes,
-    Harris's and FAST's, run with every lane joined)."""
+    much of the lanes' concurrency the replays get; the executor joins every lane around
+    the tasks that insert conditional nodes, Harris's and FAST's, which :func:`lane_span`
+    does not model: the fitted ``lanes`` takes it up)."""
     out = {}
     for seg in segments:
         base = {t: _segment_base(alone, t, cuda) or 0.0 for t in seg}
@@ -538,7 +539,8 @@ def segment_scale(reads, segments, alone, cuda, lanes: float = 1.0) -> dict:
 
 
 def segment_samples(runs, reads, capturable, placement, alone, transfer, cuda, slow=None) -> list:
-    """``(calibrated ms, replay ms)`` of each captured segment of each frame.
+    """``(calibrated ms, its lanes' span ms, replay ms)`` of each captured segment of each
+    frame (:func:`lane_span`: the calibrated times as the lanes spread them).
 
     A segment (:func:`gpu_segments`, capturable tasks only) of a frame is timed as one
     interval, shared by its tasks (:mod:`warpvx.runtime.capture`): its span, less the
@@ -554,8 +556,8 @@ def segment_samples(runs, reads, capturable, placement, alone, transfer, cuda, s
         for seg in gpu_segments(reads, capturable, placement, order):
             if seg[0] not in capturable:
                 continue
-            base = sum(_segment_base(alone, t, cuda) or 0.0 for t in seg)
-            span = base * segment_scale(reads, [seg], alone, cuda).get(seg[0], 1.0)
+            times = {t: _segment_base(alone, t, cuda) or 0.0 for t in seg}
+            base, span = sum(times.values()), lane_span(reads, seg, times)
             s0 = min(run.timeline[t].start for t in seg)
             s1 = max(run.timeline[t].finish for t in seg)
             copies = _copy_ms(transfer, "gpu", sum(run.copied.get(t, 0) for t in seg))

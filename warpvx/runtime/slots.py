@@ -92,11 +92,6 @@ class Slot(Flag):
         self._device = None
         self._copy_lock = None  # made on the first download (most values are never downloaded)
 
-    @property
-    def done(self) -> Flag:
-        """The slot's ready flag: the slot itself (``slot.done.is_set()``, ``wait``)."""
-        return self
-
     @classmethod
     def holding(cls, value, where=HOST) -> "Slot":
         """A slot set to ``value`` (``where`` it lives) from the start."""
