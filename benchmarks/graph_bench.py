@@ -483,8 +483,8 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     block = min(args.block, len(frames))
     fit_rounds = -(-fit_n // block)
     # A round discarded first: the plans record their captures and switch once.
-    warm = g.measure_plans([plans[p] for p in SCHEDULERS], frames, rounds=1, frames=PLAN_WARMUP,
-                           warmup=SWITCH_WARMUP)
+    g.measure_plans([plans[p] for p in SCHEDULERS], frames, rounds=1, frames=PLAN_WARMUP,
+                    warmup=SWITCH_WARMUP)
     # The model: GIL-weighted (busy neighbours counted by their GIL shares), the unweighted
     # one reported beside (replayed on the H100 runs s3-s5, trained on each of baseline, heft
     # and xeft: 78 of 108 cells within 20% out of sample against 70, 81 with the segment
@@ -494,7 +494,7 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
     gil = not args.quick
     # The probes now (measured once, kept in the calibration), not between the training and
     # the later rounds: the rounds after them ran slower on the H100 (s6, s6b).
-    g.fit_model(plans[args.train], runs=dict(zip(SCHEDULERS, warm))[args.train], gil=gil)
+    g.measure_probes(plans[args.train], gil=gil)
     settled = settle(g, [plans[p] for p in SCHEDULERS], frames, block)
     # Training frames in the regime they predict: the policies' first rounds interleaved as
     # later (frames run alone before the others measured 13-18% faster or 10% slower than the
@@ -601,6 +601,7 @@ def experiment(g, frames, args, out_dir, tag: str) -> dict:
                   plans[args.train].calibration.contention.get(args.n_cpus, {}).items()],
         "gil": plans[args.train].calibration.gil,
         "capturable": sorted(g.capturable_nodes(plans[args.train].gpu)),
+        "serial": sorted(model.serial),
         "model_pick": min(best["candidates"], key=best["candidates"].get),
         "drift_pct": drift[args.train],
         "settle": settled,
@@ -683,7 +684,8 @@ def markdown(report) -> str:
         "from a contention probe (mixes of the graph's nodes run beside each other, alone and loaded in "
         "turn; the heavy CPU nodes also beside each other). A captured GPU segment is played as "
         "one replay: a ratio times its nodes' calibrated device times as its lanes run them "
-        "(independent branches side by side: `lane_span`) plus a fixed cost, fitted on "
+        "(independent branches side by side, every lane joined before a node that inserts "
+        "conditional graph nodes, Harris's and FAST's: `lane_span`) plus a fixed cost, fitted on "
         "the training frames' segments (all of one size: the fixed cost a prior, "
         "`SEGMENT_FIXED_PRIOR`, and all of the lanes' concurrency). "
         "*Settle*: before training, the model's probes run (they load every core for seconds), "
@@ -1153,6 +1155,30 @@ def experiments_of(report: dict) -> list:
              "calibration": report["calibration"], "policies": policies}]
 
 
+_SERIAL: dict = {}
+
+
+def serial_nodes(graph: str, size, max_corners: int) -> frozenset:
+    """The GPU nodes of the bench's ``graph`` at ``size`` that insert conditional graph nodes
+    (a captured segment's lanes join before each: ``ContentionModel.serial``), for results
+    that did not record them (before session 9): found as the executor finds them, by its
+    segments' first runs, on Warp's CPU device with capture forced (a few frames; the same
+    code paths as on CUDA, where the rule is the input size's); cached per graph and size."""
+    key = (graph, tuple(size), max_corners)
+    if key not in _SERIAL:
+        g = build_graph(size, max_corners=max_corners, cpu_heavy=graph == "two-cameras-cv")
+        try:
+            frames = make_frames(size, 3)
+            g.verify(frames[:2])
+            plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
+            for f in frames:
+                g.process(f, capture=True)
+            _SERIAL[key] = plan.executor().serial_tasks
+        finally:
+            g.close()
+    return _SERIAL[key]
+
+
 def replay_models(report: dict, train: str = "baseline", *, gil: bool = False):
     """Per experiment of a graph_bench.json, the contention model refit offline on
     ``train``'s recorded fit frames (``fit_frames_data`` and the contention ``probe``;
@@ -1188,8 +1214,11 @@ def replay_models(report: dict, train: str = "baseline", *, gil: bool = False):
             frames[0].copied.update(copied_bytes(
                 reads, placement, sorted(table, key=lambda n: table[n]["start_ms"])))
         probe = {tuple(k): tuple(v) for k, v in e.get("probe") or []}
+        serial = e["serial"] if "serial" in e else serial_nodes(
+            e["graph"], (w, h), 200 if report["mode"] == "quick" else 500)
         model = fit(cal, reads, frames, placement, policy=train, probe=probe,
-                    gil=e.get("gil") if gil else None, capturable=e.get("capturable", ()))
+                    gil=e.get("gil") if gil else None, capturable=e.get("capturable", ()),
+                    serial=serial)
         yield e, model, {p["policy"]: Schedule(
             {n: ScheduledTask(n, t["pe"], t["planned_start_ms"], t["planned_start_ms"] + t["planned_ms"])
              for n, t in p["nodes"].items()}, procs) for p in e["policies"]}

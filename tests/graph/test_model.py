@@ -608,9 +608,7 @@ def test_gil_weighted_model_transfers_to_mixed_placements_on_h100_s5():
     # every busy thread counts alike and the 16-node 1280x720 graph's heft and xeft
     # placements (CPU workers running OpenCV calls that release the GIL) are predicted
     # twice too slow; weighted by the recorded GIL shares (the bench's model on CUDA),
-    # less wrong, and at least two more cells within 20% in all. (Since the lanes term,
-    # s5's two are +50% and +42%: its all-GPU segment got little of its lanes'
-    # concurrency, see test_mixed_placements_on_h100_runs_pay_lanes_and_failed_captures.)
+    # less wrong, and at least two more cells within 20% in all.
     bench = _graph_bench()
     report = json.loads((H100.parent.parent / "h100-2026-11-24-s5" / "graph_bench.json").read_text())
     rows = {gil: bench.replay(report, "baseline", gil=gil) for gil in (False, True)}
@@ -624,33 +622,115 @@ def test_gil_weighted_model_transfers_to_mixed_placements_on_h100_s5():
 
 @pytest.mark.slow
 def test_mixed_placements_on_h100_runs_pay_lanes_and_failed_captures():
-    # The H100 runs s5, s6 and s6b, refit offline on baseline's recorded training frames
-    # (GIL-weighted, as the bench): the 16-node graph's heft and xeft placements at
-    # 1280x720 and 1920x1080 (12 cells). The baseline replays both cameras in one segment,
-    # side by side on lanes; mixed placements replay one-task segments with nothing beside
-    # them (the lanes term) and lost a segment to a failed capture in some runs, which ran
-    # eagerly from then on (s6b 1920x1080: blurR's segment in heft and xeft). Before both
-    # terms 5 of the 12 were within 20% (down to -37.5%); with them 8, 9 with the failed
-    # captures known (benchmarks/results/graph/model-replay-s8.md).
+    # The H100 runs s5, s6, s6b, s7a and s9, refit offline on baseline's recorded training
+    # frames (GIL-weighted, as the bench), predicting the 16-node graph's heft and xeft
+    # placements against their own first frames (the training rounds: the machine's later
+    # drift left out, 30% in s6b). The baseline replays both cameras in one segment, on
+    # lanes joined before each Harris and FAST task (they insert conditional graph nodes);
+    # mixed placements replay short chains with nothing beside them. Every placement whose
+    # captures all held is within 20%; with the lanes spread freely past those joins (the
+    # baseline's ratio learnt on a span half the true one) s5's and s9's were +28 to +43%
+    # (benchmarks/results/graph/model-replay-s9.md). Failed captures (segments run eagerly
+    # from then on) are read off the frames: s6b 1920x1080 lost blurR's in heft and xeft.
     import gzip
 
     bench = _graph_bench()
     results = H100.parent.parent
-    errors, eager_errors, eager = [], [], {}
+    errors, eager = {}, {}
     for run in ("h100-2026-11-24-s5/graph_bench.json", "h100-2026-11-24-s6/graph_bench.json.gz",
-                "h100-2026-11-24-s6b/graph_bench.json.gz"):
+                "h100-2026-11-24-s6b/graph_bench.json.gz", "h100-2026-11-24-s7a/graph_bench.json.gz",
+                "h100-2026-11-24-s9/graph_bench_720p.json.gz",
+                "h100-2026-11-24-s9/graph_bench_1080p.json.gz"):
         raw = (results / run).read_bytes()
         report = json.loads(gzip.decompress(raw) if run.endswith(".gz") else raw)
+        first = {(e["tag"], p["policy"]): p["measured_in_ms"] for e in report["experiments"]
+                 for p in e["policies"]}
         for r in bench.replay(report, "baseline", gil=True):
             if r["tag"].startswith("two-cameras_") and r["policy"] in ("heft", "xeft"):
-                errors.append(abs(r["error_pct"]))
-                eager_errors.append(abs(r["error_eager_pct"]))
-                eager[run.split("/")[0].rsplit("-", 1)[1], r["tag"], r["policy"]] = r["eager"]
-    assert len(errors) == 12
-    assert sum(e <= 20.0 for e in errors) >= 8, errors
-    assert sum(e <= 20.0 for e in eager_errors) >= 9, eager_errors
+                key = run.split("/")[0].rsplit("-", 1)[1], r["tag"], r["policy"]
+                eager[key] = r["eager"]
+                errors[key] = 100.0 * (r["pred_ms"] / first[r["tag"], r["policy"]] - 1.0)
+    held = {k: e for k, e in errors.items() if not eager[k]}
+    assert len(held) >= 12, sorted(held)
+    assert all(abs(e) <= 20.0 for e in held.values()), held
     assert eager["s6b", "two-cameras_1920x1080", "heft"] == ["blurR", "detectorL", "fastL", "fastR"]
     assert eager["s5", "two-cameras_1280x720", "heft"] == []
+
+
+def test_a_segments_lanes_join_before_its_serial_tasks():
+    # Two cameras' chains (a1 -> a2, b1 -> b2, 1 ms each) on lanes: side by side, 2 ms. A
+    # task inserting conditional graph nodes (a2) runs with every lane joined before it, and
+    # what the others enqueue goes first: b2 beside a1's successor no longer overlaps it,
+    # 3 ms -- the executor's Lanes (its span), which the model plays and fits on.
+    from warpvx.graph.model import SEGMENT_FIXED_PRIOR, fit, lane_span
+
+    alone, reads, cal = _two_cameras()
+    seg, base = ["a1", "b1", "a2", "b2"], {n: 1.0 for n in alone}
+    assert lane_span(reads, seg, base) == 2.0
+    assert lane_span(reads, seg, base, serial={"a2"}) == 3.0
+    assert lane_span(reads, ["a2"], base, serial={"a2"}) == 1.0
+    # The all-GPU frames replay in 0.5 ms per calibrated ms of that span plus the fixed
+    # cost; fitted without the join, the ratio comes out a third too high (0.5 * 3 / 2).
+    placement = {**dict.fromkeys(seg, "gpu"), "j": "cpu0"}
+    replay = 0.5 * 3.0 + SEGMENT_FIXED_PRIOR
+    edges = [replay * i / 4 for i in range(5)]
+    frame = _frame({t: ("gpu", edges[i], edges[i + 1]) for i, t in enumerate(seg)},
+                   {"j": ("cpu0", replay, replay + 0.1)},
+                   host={t: (0.01 * i, 0.01 * (i + 1)) for i, t in enumerate(seg)})
+    joined = fit(cal, reads, [frame] * 3, placement, capturable=set(seg), serial={"a2"})
+    free = fit(cal, reads, [frame] * 3, placement, capturable=set(seg))
+    assert joined.serial == {"a2"}
+    assert joined.segment_ratio == pytest.approx(0.5, rel=0.02)
+    assert free.segment_ratio == pytest.approx(0.75, rel=0.02)
+    # A mixed placement's one-task segment (a2 after a1's hand-off): 0.5 + 0.1 ms replayed.
+    mixed = joined.predict(_sched([("a1", "cpu0"), ("b1", "gpu"), ("b2", "gpu"), ("a2", "gpu"),
+                                   ("j", "cpu0")]))
+    assert mixed.tasks["a2"].finish - mixed.tasks["a2"].start == pytest.approx(0.6, rel=0.02)
+
+
+def test_fit_model_takes_the_serial_tasks_its_executor_found():
+    # The executor finds a segment's serial tasks on its first run (Warp's conditional-node
+    # calls noted; here on Warp's CPU device, capture forced): the bench's Harris nodes
+    # (FAST's sort takes its one-pass branch at this size), which the fitted model joins
+    # lanes before; graph_bench finds the same for results that did not record them.
+    bench = _graph_bench()
+    size = (320, 240)
+    g = bench.build_graph(size, max_corners=200)
+    try:
+        frames = bench.make_frames(size, 3)
+        g.verify(frames[:2])
+        plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
+        runs = []
+        for f in frames:
+            g.process(f, capture=True)
+            runs.append(plan.last_run[-1])
+        assert g.fit_model(plan, runs=runs).serial == {"harrisL", "harrisR"}
+    finally:
+        g.close()
+    assert bench.serial_nodes("two-cameras", size, 200) == {"harrisL", "harrisR"}
+
+
+def test_cpu_slope_unseen_in_the_frames_is_the_probes():
+    # Baseline-like training frames: one CPU node, never beside another busy worker (its
+    # samples' busy count 0 throughout), some frames slower than others (noise). The slope
+    # per busy CPU worker cannot be learnt from them: it is the contention probe's (a mix
+    # 1.3x slower beside 3 busy workers: 0.1 per worker), not a value fitted to the noise,
+    # and the probe alone gives the same law.
+    from warpvx.graph.model import _probe_slowdown, fit_slowdown
+
+    rng = np.random.default_rng(3)
+    samples = [("homography", 0.5, 0.5 * 1.2 * f, 0.0, 0.0) for f in rng.uniform(0.9, 1.6, 40)]
+    probe = [(1.0, 1.3, 3.0, 0.0)]
+    law = fit_slowdown(samples, probe)
+    assert law.per_cpu == pytest.approx(0.1)
+    probes = np.array(probe)
+    assert law.per_cpu == _probe_slowdown(probes, np.log(probes[:, 1] / probes[:, 0])).per_cpu
+    # A few frames with a sliver of concurrency that happen to be the slow ones do not
+    # move it to the grid's edge: the probe outweighs a regressor that barely varies.
+    samples += [("homography", 0.5, 0.5 * 1.9, 0.02, 0.0)] * 5
+    assert fit_slowdown(samples, probe).per_cpu == pytest.approx(0.1)
+    # Without a probe, a kind never busy in the samples stays 0.
+    assert fit_slowdown(samples[:40]).per_cpu == 0.0
 
 
 # --------------------------------------------------------------------------- the bench's rounds

@@ -370,23 +370,18 @@ class CostModel:
         pes = {n: node.processing_elements for n, node in self.nodes.items()}
         return {"": dag, "model costs": in_frame_dag(model, pes, n_cpus)}
 
-    def fit_model(self, plan=None, *, runs=None, gil: bool = False):
-        """A :class:`~warpvx.graph.model.ContentionModel` learnt from frames run with ``plan``
-        (default: the current plan and its ``last_run``): host contention, copies and
-        hand-offs, to predict this plan's later frames and other plans' (out of sample).
-        The contention probe is measured on first use
-        (:func:`~warpvx.graph.calibration.measure_contention`) and kept in the calibration;
-        with ``gil``, also each node's GIL shares
-        (:func:`~warpvx.graph.calibration.measure_gil`), and busy neighbours count by them
-        (not yet the default: on a loaded 2-core machine the shares are noise; see
-        ``benchmarks/graph_bench.py``, which reports both)."""
+    def measure_probes(self, plan=None, *, gil: bool = False):
+        """Measure what :meth:`fit_model` needs beside the frames, once per calibration (kept
+        there): the contention probe for ``plan``'s CPU workers
+        (:func:`~warpvx.graph.calibration.measure_contention`) and, with ``gil``, each
+        node's GIL shares (:func:`~warpvx.graph.calibration.measure_gil`). They load every
+        core for seconds: a benchmark runs them before its timed frames (default plan: the
+        current one). Returns the plan's calibration."""
         from .calibration import measure_contention, measure_gil
-        from .model import fit, graph_reads
 
         plan = plan or self._plan
-        runs = list(plan.last_run) if runs is None and plan is not None else runs
-        if plan is None or not runs:
-            raise GraphError("fit_model: nothing measured yet; run g.process() first")
+        if plan is None:
+            raise GraphError("measure_probes: no plan yet; call g.schedule() first")
         cal = plan.calibration
         be = gpu_backend(plan.gpu or False)
         with self._run_lock:
@@ -394,9 +389,28 @@ class CostModel:
                 cal.contention[plan.n_cpus] = measure_contention(self, cal, be, plan.n_cpus)
             if gil and cal.gil is None:
                 cal.gil = measure_gil(self, cal, be)
+        return cal
+
+    def fit_model(self, plan=None, *, runs=None, gil: bool = False):
+        """A :class:`~warpvx.graph.model.ContentionModel` learnt from frames run with ``plan``
+        (default: the current plan and its ``last_run``): host contention, copies and
+        hand-offs, to predict this plan's later frames and other plans' (out of sample).
+        The probes are measured on first use (:meth:`measure_probes`: the contention probe;
+        with ``gil``, each node's GIL shares, and busy neighbours count by them: not yet the
+        default, as on a loaded 2-core machine the shares are noise; see
+        ``benchmarks/graph_bench.py``, which reports both). The segments' serial tasks (their
+        lanes joined before each) are the plan's executor's (none before a capture)."""
+        from .model import fit, graph_reads
+
+        plan = plan or self._plan
+        runs = list(plan.last_run) if runs is None and plan is not None else runs
+        if plan is None or not runs:
+            raise GraphError("fit_model: nothing measured yet; run g.process() first")
+        cal = self.measure_probes(plan, gil=gil)
         return fit(cal, graph_reads(self), runs, plan.placement, policy=plan.policy,
                    probe=cal.contention[plan.n_cpus], gil=cal.gil if gil else None,
-                   capturable=self.capturable_nodes(plan.gpu))
+                   capturable=self.capturable_nodes(plan.gpu),
+                   serial=plan.executor().serial_tasks)
 
     def capturable_nodes(self, gpu) -> frozenset:
         """Nodes the executor may run in captured GPU segments with GPU role ``gpu`` (a

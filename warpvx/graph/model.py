@@ -355,6 +355,11 @@ class ContentionModel:
         How much of its lanes' concurrency a segment's replay gets (:func:`fit_segments`,
         :func:`segment_scale`): its calibrated time is that share of its
         :func:`lane_span` plus the rest of its summed device times.
+    serial : frozenset
+        Capturable nodes that insert conditional graph nodes (Harris's selection rounds,
+        FAST's counted sort): a segment's lanes are all joined before each
+        (:class:`~warpvx.runtime.lanes.Lanes`), which :func:`lane_span` plays
+        (:func:`serial_nodes`).
     """
 
     slowdown: dict
@@ -370,6 +375,7 @@ class ContentionModel:
     segment_ratio: float | None = None
     segment_fixed: float = 0.0
     segment_lanes: float = 1.0
+    serial: frozenset = frozenset()
 
     def sensitivity(self, node: str, pe: str) -> float:
         """How much ``node`` on ``pe`` suffers from a busy GIL-holding neighbour (0-1)."""
@@ -504,43 +510,61 @@ def _segment_base(alone, node, cuda) -> float:
     return alone[node]["device"] if cuda else alone[node]["gpu"]
 
 
-def lane_span(reads, seg, base) -> float:
+def lane_span(reads, seg, base, serial=()) -> float:
     """The span (ms) of a captured segment's tasks ``seg`` spread over
     :data:`~warpvx.runtime.lanes.MAX_LANES` streams as the executor spreads them
-    (:func:`~warpvx.runtime.lanes.lanes`: list scheduling by this frame's dependencies inside
-    the segment), each task taking ``base[task]`` ms: independent branches (two cameras, a
-    detector beside the features) run side by side, so a segment of both cameras replays in
-    about half its summed device time and a one-task segment in all of it."""
-    from ..runtime.lanes import MAX_LANES
+    (:func:`~warpvx.runtime.lanes.lanes`, its ``span``: list scheduling by this frame's
+    dependencies inside the segment), each task taking ``base[task]`` ms: independent
+    branches (two cameras, a detector beside the features) run side by side, so a segment of
+    both cameras replays in well under its summed device time and a one-task segment in all
+    of it; the ``serial`` tasks (:attr:`ContentionModel.serial`: they insert conditional
+    graph nodes) each run with every lane joined before them."""
+    from ..runtime.lanes import lanes
 
-    inside, finish, free = set(seg), {}, [0.0] * MAX_LANES
-    for t in seg:
-        ready = max([finish[r.producer] for r in reads[t]
-                     if not r.delayed and r.producer in inside and r.producer in finish], default=0.0)
-        k = min(range(len(free)), key=lambda i: (max(free[i], ready), i))
-        finish[t] = free[k] = max(free[k], ready) + base[t]
-    return max(finish.values(), default=0.0)
+    inside = set(seg)
+    tasks = [_LaneTask(t, tuple(_LaneRead(r.key, int(r.delayed)) for r in reads[t]),
+                       frozenset(r.key for u in inside for r in reads[u] if r.producer == t))
+             for t in seg]
+    return lanes(tasks, base, serial=frozenset(serial) & inside).span
 
 
-def segment_scale(reads, segments, alone, cuda, lanes: float = 1.0) -> dict:
+@dataclass(frozen=True)
+class _LaneRead:
+    """A read as :func:`~warpvx.runtime.lanes.lanes` takes it (offset 0: this frame's)."""
+
+    key: str
+    offset: int
+
+
+@dataclass(frozen=True)
+class _LaneTask:
+    """A segment's task as :func:`~warpvx.runtime.lanes.lanes` takes it."""
+
+    name: str
+    inputs: tuple
+    outputs: frozenset
+
+
+def segment_scale(reads, segments, alone, cuda, lanes: float = 1.0, serial=()) -> dict:
     """task -> its segment's calibrated span over the sum of its tasks'
     :func:`_segment_base` (1 where that sum is 0), for each of ``segments``: the span is
-    ``lanes`` times the :func:`lane_span` plus ``1 - lanes`` times the sum (``lanes``: how
-    much of the lanes' concurrency the replays get; the executor joins every lane around
-    the tasks that insert conditional nodes, Harris's and FAST's, which :func:`lane_span`
-    does not model: the fitted ``lanes`` takes it up)."""
+    ``lanes`` times the :func:`lane_span` (its ``serial`` tasks run with every lane joined)
+    plus ``1 - lanes`` times the sum (``lanes``: how much of the lanes' concurrency the
+    replays get)."""
     out = {}
     for seg in segments:
         base = {t: _segment_base(alone, t, cuda) or 0.0 for t in seg}
         total = sum(base.values())
-        f = lanes * lane_span(reads, seg, base) / total + 1.0 - lanes if total > 0 else 1.0
+        f = lanes * lane_span(reads, seg, base, serial) / total + 1.0 - lanes if total > 0 else 1.0
         out.update((t, f) for t in seg)
     return out
 
 
-def segment_samples(runs, reads, capturable, placement, alone, transfer, cuda, slow=None) -> list:
+def segment_samples(runs, reads, capturable, placement, alone, transfer, cuda, slow=None,
+                    serial=()) -> list:
     """``(calibrated ms, its lanes' span ms, replay ms)`` of each captured segment of each
-    frame (:func:`lane_span`: the calibrated times as the lanes spread them).
+    frame (:func:`lane_span`: the calibrated times as the lanes spread them, ``serial``
+    tasks with every lane joined).
 
     A segment (:func:`gpu_segments`, capturable tasks only) of a frame is timed as one
     interval, shared by its tasks (:mod:`warpvx.runtime.capture`): its span, less the
@@ -557,7 +581,7 @@ def segment_samples(runs, reads, capturable, placement, alone, transfer, cuda, s
             if seg[0] not in capturable:
                 continue
             times = {t: _segment_base(alone, t, cuda) or 0.0 for t in seg}
-            base, span = sum(times.values()), lane_span(reads, seg, times)
+            base, span = sum(times.values()), lane_span(reads, seg, times, serial)
             s0 = min(run.timeline[t].start for t in seg)
             s1 = max(run.timeline[t].finish for t in seg)
             copies = _copy_ms(transfer, "gpu", sum(run.copied.get(t, 0) for t in seg))
@@ -627,7 +651,8 @@ def _ready_parts(run, task, reads, placement, hosts, segment):
 
 
 def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
-        probe: dict | None = None, gil: dict | None = None, capturable=()) -> ContentionModel:
+        probe: dict | None = None, gil: dict | None = None, capturable=(),
+        serial=()) -> ContentionModel:
     """Learn a :class:`ContentionModel` from frames run with one plan.
 
     Parameters
@@ -652,6 +677,8 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
         so ``a`` and ``b`` are per unit of Python run beside, not per busy thread.
     capturable : iterable of str
         Nodes the executor runs in GPU segments (:func:`gpu_segments`).
+    serial : iterable of str
+        Capturable nodes a segment's lanes join before (:attr:`ContentionModel.serial`).
     """
     runs = [r for r in runs if r.timeline]
     if not runs:
@@ -712,11 +739,13 @@ def fit(calibration, reads: dict, runs, placement: dict, *, policy: str = "",
     # applies the same speed to the whole task), so their extra is taken without that.
     copy_extra = {pe: statistics.median(t / slow[pe].speed_divisor(c, g) - m for t, m, c, g in v)
                   for pe, v in copies.items() if v}
+    serial = frozenset(serial)
     ratio, fixed, lanes = fit_segments(segment_samples(runs, reads, replayed, placement, alone,
-                                                calibration.transfer, cuda, slow["gpu"]))
+                                                       calibration.transfer, cuda, slow["gpu"],
+                                                       serial))
     return ContentionModel(slow, latency, alone, reads, calibration.transfer, cuda,
                            f"{policy} ({len(runs)} frames)" if policy else f"{len(runs)} frames",
-                           copy_extra, shares.gil, capturable, ratio, fixed, lanes)
+                           copy_extra, shares.gil, capturable, ratio, fixed, lanes, serial)
 
 
 def _probe_ratio(probe, alone, pe) -> float:
@@ -778,7 +807,7 @@ def simulate(model: ContentionModel, schedule: Schedule, eager=()) -> Schedule:
     replayed = {} if model.segment_ratio is None else \
         {t: t == seg[0] for seg in segs if seg[0] in capturable for t in seg}
     scale = segment_scale(model.reads, [seg for seg in segs if seg[0] in replayed],
-                          model.alone, model.cuda, model.segment_lanes)
+                          model.alone, model.cuda, model.segment_lanes, model.serial)
     seg_end = 0.0
     lat = model.latency
     pos = {p: 0 for p in queues}

@@ -47,6 +47,9 @@ class Lanes:
         The tasks (indices) in the order they are enqueued: a dependency order.
     serial : frozenset of int
         The serial tasks (indices).
+    span : float
+        When the list scheduling expects the segment's last task to end, its serial
+        tasks' joins included, in the unit of ``durations`` (1 a task without them).
     """
 
     of: tuple
@@ -54,6 +57,7 @@ class Lanes:
     count: int
     order: tuple
     serial: frozenset = frozenset()
+    span: float = 0.0
 
     @property
     def signals(self) -> frozenset:
@@ -120,7 +124,7 @@ def lanes(tasks, durations=None, max_lanes: int = MAX_LANES, serial=()) -> Lanes
         free[lane], tail[lane] = finish[i], i
         of[i], waits[i], epoch[i] = lane, wait, e
         count = max(count, len(free))
-    return Lanes(tuple(of), tuple(waits), count, tuple(order), barriers)
+    return Lanes(tuple(of), tuple(waits), count, tuple(order), barriers, max(finish, default=0.0))
 
 
 #: Warp's functions that insert a conditional graph node (pausing a capture).

@@ -72,6 +72,15 @@ class SegmentRunner:
         self._recent = None
 
     @property
+    def serial_tasks(self) -> frozenset:
+        """Names of the tasks that insert conditional graph nodes in the segments made so
+        far: their lanes are joined before each (:class:`~.lanes.Lanes`; known from a
+        segment's first run)."""
+        return frozenset(sg.segment.tasks[i].name for states in self._captured.values()
+                         for by_shape in states if by_shape for sg in by_shape.values()
+                         if sg is not None and sg.lanes is not None for i in sg.lanes.serial)
+
+    @property
     def instances(self) -> int:
         if self._instances is None:
             return INSTANCES if self.cuda else 1
