@@ -1232,7 +1232,8 @@ def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
     floor no model can beat per run); ``pred_eager_ms``/``error_eager_pct``: the
     prediction told which of the plan's capturable tasks ran eagerly
     (:func:`~warpvx.graph.model.eager_nodes` of its recorded frames: which segment
-    captures failed, not how long anything took; ``eager``)."""
+    captures failed, not how long anything took; ``eager``); ``measured_first_ms``: the
+    median of its first frames (the training rounds, where recorded)."""
     rows = []
     for e, model, schedules in replay_models(report, train, gil=gil):
         same = defaultdict(list)
@@ -1247,6 +1248,7 @@ def replay(report: dict, train: str = "baseline", *, gil: bool = False) -> list:
             pooled = statistics.mean(same[_plan_key(p)])
             rows.append({"tag": e["tag"], "policy": p["policy"], "train": train, "pred_ms": pred,
                          "measured_ms": p["measured_out_ms"],
+                         "measured_first_ms": p.get("measured_in_ms"),
                          "error_pct": _err(pred, p["measured_out_ms"]),
                          "eager": sorted(eager), "pred_eager_ms": pred_eager,
                          "error_eager_pct": _err(pred_eager, p["measured_out_ms"]),

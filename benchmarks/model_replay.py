@@ -100,6 +100,17 @@ def markdown(before: dict, after: dict) -> str:
                                 ("after, eager known", after, EAGER))[:2 + eager]:
             rows = [r for p in got.values() for r in p[t]]
             lines.append(f"- All runs, trained on {t}, out of sample, " + summary(rows, label, key))
+    lines += ["", "## Against the first frames (the training rounds: the machine's later drift left out)",
+              "", "Each policy's first recorded frames (measured in the same interleaved rounds as "
+              "the training policy's, after them in the bench: out of sample for every other "
+              "policy) against the prediction" + (" told its failed captures (eager known)" if eager
+                                                  else "") + ", per run, trained on baseline.", "",
+              "| run | before | after |", "| --- | --- | --- |"]
+    for path in after:
+        key = "pred_eager_ms" if eager else "pred_ms"
+        cells = [summary(first_rows(got[path][TRAINS[0]], after[path][TRAINS[0]], key), label)
+                 for got, label in ((before, "before"), (after, "after"))]
+        lines.append(f"| {Path(path).parent.name}/{Path(path).name} | " + " | ".join(cells) + " |")
     lines += ["", "## The pick (target 2)", "",
               "The policy the model would pick (least predicted of the recorded plans) and its "
               "measured makespan over the fastest measured policy's (out-of-sample frames; a "
@@ -119,6 +130,14 @@ def markdown(before: dict, after: dict) -> str:
             lines.append(f"| {Path(path).parent.name} | {tag} | {fastest['policy']} "
                          f"{fastest['pooled_ms']:.3f} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def first_rows(rows, ref, key="pred_ms") -> list:
+    """``rows`` with ``error_pct`` of ``key`` against the policy's first frames
+    (``measured_first_ms`` of ``ref``, the same rows of the checkout that records it); rows
+    without them left out."""
+    return [{**r, "error_pct": 100.0 * (r[key] / m["measured_first_ms"] - 1.0)}
+            for r, m in zip(rows, ref) if m.get("measured_first_ms")]
 
 
 def pick(rows, tag, key="pred_ms") -> str:
