@@ -335,7 +335,13 @@ def test_model_fits_one_placement_and_predicts_others_out_of_sample(frames):
             g.process({"frame": frames[i % len(frames)]})
             got.append(plan.last_run[-1])
         runs[policy] = got
+    # The probes once per calibration, before the frames that train (measure_probes), and
+    # fit_model reuses them (measured on first use otherwise).
+    cal = g.measure_probes(plans["baseline"])
+    probe = cal.contention[1]
+    assert probe and all(v[2] > 0 for v in probe.values())
     model = g.fit_model(plans["baseline"], runs=runs["baseline"][:6])
+    assert cal.contention[1] is probe and plans["baseline"].calibration is cal
     assert set(model.slowdown) == {"cpu", "gpu"}
     errors = {}
     for policy, plan in plans.items():
