@@ -738,6 +738,7 @@ def markdown(report) -> str:
             + (f"; captured segment replay {m['segment_ratio']:.2f} x its nodes' calibrated GPU "
                f"(device) time + "
                f"{m.get('segment_fixed_us', 0):.0f} us, lanes {m.get('segment_lanes', 1.0):.2f}"
+               + (f", every lane joined before {', '.join(e['serial'])}" if e.get("serial") else "")
                if m.get("segment_ratio") else "")
             + ".", "", probe_line(e.get("probe") or []), "", drift_line(e), "",
             "| policy | scheduler ms | predicted in sample | measured | error | predicted out "
