@@ -45,7 +45,7 @@ import numpy as np
 
 from ..errors import NodeExecutionError, WarpvxValueError
 from ..keypoints import FIELDS
-from .orbslam_pool import PosePool, Segments, SharedBlock, _caller_script_hidden, _resolve
+from .orbslam_pool import PosePool, Segments, SharedBlock, _caller_script_hidden, _resolve, check_look_ahead
 
 #: Results a :class:`ChainProcess` keeps (by ticket) after they arrive.
 KEEP_RESULTS = 64
@@ -169,7 +169,7 @@ class ChainProcess:
     :func:`~warpvx.apps.orbslam_batch.track_frames_batched`'s ``pool`` for any number of runs;
     close it with :meth:`shutdown` (or a ``with`` block).
 
-    ``ahead``, ``share``, ``direct``: the pool's settings (:class:`~warpvx.apps.orbslam_pool.PosePool`),
+    ``ahead``, ``share``, ``direct``, ``look_ahead``: the pool's settings (:class:`~warpvx.apps.orbslam_pool.PosePool`),
     applied at each run's start; ``quiet`` False: multiprocessing's stock ``Pool``; ``nice``:
     the pose processes' niceness increment (see :func:`~warpvx.apps.orbslam_pool.make_pool`).
     :meth:`counts` (and ``waited_s``, ``started``, ``cancelled``) reports the pool's counters
@@ -177,13 +177,14 @@ class ChainProcess:
     :class:`~warpvx.apps.orbslam_pool.PosePool`'s."""
 
     def __init__(self, workers: int, quiet: bool = True, ahead: bool = True, share: bool = True, nice: int = 0,
-                 direct: bool = True):
+                 direct: bool = True, look_ahead: int | None = None):
         from multiprocessing import get_context, util
 
         if os.name != "posix":
             raise WarpvxValueError("chain_process: needs POSIX shared memory (run the chain in process)")
         ctx = get_context("spawn")
         self.workers, self.ahead, self.share, self.direct = workers, ahead, share, direct
+        self.look_ahead = check_look_ahead(look_ahead)
         self.graphs = {}
         child_in, self._to_child = ctx.Pipe(duplex=False)
         self._from_child, child_out = ctx.Pipe(duplex=False)
@@ -365,7 +366,7 @@ def send_batch(images, feats, nearest, sent, *, K, config, baseline, frames, pro
     if sent == 0:
         params = dict(K=K, config=config, baseline=baseline, frames=frames)
         run = (params, {"switch": sys.getswitchinterval(), "ahead": proc.ahead, "share": proc.share,
-                        "direct": proc.direct})
+                        "direct": proc.direct, "look_ahead": check_look_ahead(proc.look_ahead)})
     return sent + 1, proc.send((None if baseline is None else np.asarray(images), _pack_host(feats),
                                 tuple(nearest)), run)
 

@@ -145,10 +145,26 @@ def _essential_job(p1, p2, K, config):
     return o.essential_core(p1, p2, K, config)
 
 
-#: Frames ahead of the chain whose cores :class:`CoreSpeculation` keeps started:
-#: ~ a core's latency (one process: ~14 ms on the H100 host) over the chain's time per frame
-#: (~3 ms there).
+#: Frames ahead of the chain whose cores :class:`CoreSpeculation` keeps started, at least
+#: (:func:`look_ahead`): ~ a core's latency (one process: ~14 ms on the H100 host) over the
+#: chain's time per frame (~3 ms there in session 7).
 SPECULATE_AHEAD = 6
+#: :func:`look_ahead`'s most frames by default: a batch's (the walk past it waits for the next
+#: batch's frame jobs).
+MAX_LOOK_AHEAD = 16
+
+
+def look_ahead(pool) -> int:
+    """Frames ahead of the chain whose cores :class:`CoreSpeculation` keeps started on
+    ``pool``: its ``look_ahead`` when set, else one per process but one (that one left to the
+    next batch's frame jobs, which the walk into that batch waits for), between
+    :data:`SPECULATE_AHEAD` and :data:`MAX_LOOK_AHEAD`. The chain waits for a core when the
+    look-ahead is shorter than the core's latency over the chain's own time per frame: on
+    the H100 host ~14 ms over ~1.4 ms (session 8, 6 frames: 14 ms waited per batch of 16)."""
+    if pool.look_ahead is not None:
+        return pool.look_ahead
+    return min(MAX_LOOK_AHEAD, max(SPECULATE_AHEAD, pool.workers - 1))
+
 #: A run's first frames whose cores ``pose_batch`` works out for both references ``track``
 #: may take (its ``frame_job`` and ``guess_job``, :mod:`~warpvx.apps.orbslam_batch`): no chain
 #: before them starts their cores ahead, and the first chain could start them only a core's
@@ -180,7 +196,7 @@ class _Walked:
 
 class CoreSpeculation:
     """Monocular: the essential core ``track`` will take for each frame (to the previous
-    frame or to the keyframe), started on ``pool`` (urgent) :data:`SPECULATE_AHEAD` frames
+    frame or to the keyframe), started on ``pool`` (urgent) :func:`look_ahead` frames
     before the chain reaches the frame, and only that one.
 
     Which reference ``track`` takes depends on the keyframe, the chain's state. The
@@ -213,6 +229,7 @@ class CoreSpeculation:
         self._jobs = [a[4] if len(a) > 4 else None for a in per_frame]
         self._args = (pts, good, extra, list(ahead.guesses), pool, K, config)
         self._on = pool is not None and config.keyframe_motion
+        self._depth = look_ahead(pool) if self._on else 0
         self._ahead, self._frames, self._next = ahead, len(pts), None
         self._walked, self._started = {}, {}  # frame -> _Walked; frame -> [(p1, p2, PoolTask)]
         # The inlier fraction last seen by reference (keyframe or not): the previous frame's
@@ -226,7 +243,7 @@ class CoreSpeculation:
             ahead.handed = None
 
     def ahead(self, f, state):
-        """Walked up to frame ``f`` + :data:`SPECULATE_AHEAD`; ``state``: the chain's before
+        """Walked up to frame ``f`` + :func:`look_ahead`; ``state``: the chain's before
         frame ``f``."""
         if not self._on:
             return
@@ -240,7 +257,7 @@ class CoreSpeculation:
         if step is not None and not (step.cursor[2] == sim[2][2] and _same(step.cursor[0], prev.pts)
                                      and _same(step.cursor[1], prev.kf_index)):
             self._drop(f)
-        u, g, end = f, state.frames, self._end(f + 1 + SPECULATE_AHEAD)
+        u, g, end = f, state.frames, self._end(f + 1 + self._depth)
         while u in self._walked or u < end:
             step = self._walked.get(u)
             if step is not None and step.kf_index != sim[1]:
@@ -405,4 +422,4 @@ class CoreSpeculation:
         return None if step is None else step.core
 
 
-__all__ = ["CoreSpeculation", "SPECULATE_AHEAD", "COVERED", "INLIER_FRACTION"]
+__all__ = ["CoreSpeculation", "look_ahead", "SPECULATE_AHEAD", "MAX_LOOK_AHEAD", "COVERED", "INLIER_FRACTION"]
