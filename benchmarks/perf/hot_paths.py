@@ -116,6 +116,9 @@ EXPERIMENTS = {
     "direct": ("jobs written to the pose processes by the thread that dispatches them (default) vs "
                "through multiprocessing's task thread (before)",
                (("direct (default)", {}), ("task thread (before)", {"settings": {"direct": False}}))),
+    "look_ahead": ("the chain's core look-ahead from the pose processes (default) vs 6 frames (before) and 16",
+                   (("from the processes (default)", {}), ("6 frames (before)", {"settings": {"look_ahead": 6}}),
+                    ("16 frames", {"settings": {"look_ahead": 16}}))),
 }
 
 

@@ -9,6 +9,7 @@ after Sim(3), stereo 1 cm). 12 frames in batches of 5: the last batch is filled 
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 import signal
@@ -203,14 +204,16 @@ def test_slow_motion_takes_the_speculated_keyframe_cores(monkeypatch):
     np.testing.assert_allclose(got, [f.pose for f in want], atol=1e-9)
 
 
-def test_about_one_essential_matrix_per_frame(seq):
+@pytest.mark.parametrize("look_ahead", [None, 1, 16], ids=["from_pool", "one_frame", "past_the_next_batch"])
+def test_about_one_essential_matrix_per_frame(seq, look_ahead):
     """Speculating, the pool works out the essential matrix track takes and not the other
     candidate (before: both, ~2 per frame): only the run's first frames (the first batch here)
     get both, the chain's speculation starts the others' (no miss on this sequence), and the
-    poses are the sequential ones."""
+    poses are the sequential ones, whatever the look-ahead (16: the walk reaches into the
+    next batch of 5 as soon as the chain starts a batch)."""
     frames, camera = _frames(seq, False)
     want = np.array([f.pose for f in o.track_frames(frames, camera)])
-    with ob.make_pool(2, chain_process=True) as proc:  # (its verification is dry: no jobs)
+    with ob.make_pool(2, chain_process=True, look_ahead=look_ahead) as proc:  # (its verification is dry: no jobs)
         got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=proc)])
         started = proc.started
     np.testing.assert_array_equal(got, want)
@@ -221,12 +224,15 @@ def test_about_one_essential_matrix_per_frame(seq):
     assert cores <= FRAMES + first
 
 
+@pytest.mark.parametrize("look_ahead, batch", [(None, FRAMES), (16, BATCH)], ids=["one_batch", "deep_across_batches"])
 @pytest.mark.parametrize("estimate", [0, 10 ** 6], ids=["always_keyframe", "never_keyframe"])
-def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate):
+def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate, look_ahead, batch):
     """CoreSpeculation's keyframe decisions wrong whenever they rest on an estimate (every frame
     a keyframe, or none): the cores it starts are the wrong ones, the chain computes the
     right ones on the spot (counted as misses) or takes the speculation's corrections once
-    the cores come in, and the poses stay the sequential ones, bit for bit."""
+    the cores come in, and the poses stay the sequential ones, bit for bit; also with a
+    look-ahead past the batch's end (16 frames, batches of 5: the walk goes on into the next
+    batch frame by frame and hands it over)."""
     frames, camera = _frames(seq, False)
     want = np.array([f.pose for f in o.track_frames(frames, camera)])
     inliers = osp.CoreSpeculation._inliers
@@ -238,10 +244,54 @@ def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate
         return n if exact else estimate
 
     monkeypatch.setattr(osp.CoreSpeculation, "_inliers", wrong)
-    with ob.make_pool(2) as pool:
-        got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=FRAMES, pool=pool)])
+    with ob.make_pool(2, look_ahead=look_ahead) as pool:
+        got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=batch, pool=pool)])
         assert pool.started["on the spot"] > 0 or pool.cancelled["_essential_job"] > 0
     np.testing.assert_array_equal(got, want)
+
+
+def test_speculation_walks_into_the_next_batch_frame_by_frame(seq, monkeypatch):
+    """With the next batch's frame jobs done one by one (its ``done`` count grows by one per
+    look), a look-ahead past the batch's end walks into the next batch a frame at a time,
+    starts those frames' cores while the chain is still in this batch and hands them over;
+    the poses are the sequential ones, bit for bit."""
+    frames, camera = _frames(seq, False)
+    want = np.array([f.pose for f in o.track_frames(frames, camera)])
+    config, K = o.TrackerConfig(), np.ascontiguousarray(seq[2], np.float64)
+    common = dict(K=K, config=config, baseline=None, frames=BATCH)
+    done, looks, reach = ob._Later.done, collections.Counter(), []
+
+    def one_by_one(self):
+        looks[id(self)] += 1
+        return min(done(self), looks[id(self)])
+
+    end = osp.CoreSpeculation._end
+
+    def spy(self, until):
+        known = end(self, until)
+        reach.append(known - self._frames)  # frames of the next batch known to the walk
+        return known
+
+    monkeypatch.setattr(ob._Later, "done", one_by_one)
+    monkeypatch.setattr(osp.CoreSpeculation, "_end", spy)
+    batches = [images for images, _ in ob._batches(frames, BATCH, False)]
+    with ob.make_pool(2, look_ahead=2 * BATCH) as pool:
+        tail, aheads, feats = ob.NO_TAIL, [], []
+        last = np.zeros((0, 32), np.uint8)
+        for b in batches:
+            feats.append(ob.orb_batch(b["images"], config=config)[0])
+            last, nearest = ob.match_batch(feats[-1], last, frames=BATCH)
+            tail, ahead = ob.pose_batch(b["images"], feats[-1], nearest, tail, pool=pool, **common)
+            aheads.append(ahead)
+        for a in aheads:
+            ob.ahead_frames(a)  # (all done: the counts above decide what the walk sees)
+        state, poses = o.TrackState(), []
+        for f, a in zip(feats, aheads):
+            state, p, _ = ob.chain(state, f, a, pool=pool, **common)
+            poses.append(p)
+        assert pool.started["on the spot"] == 0
+    assert 0 < min(r for r in reach if r > 0) < BATCH  # a part of the next batch, then more
+    np.testing.assert_array_equal(np.concatenate(poses)[:FRAMES], want)
 
 
 @pytest.mark.parametrize("flags", [[], ["--chain-in-process"]], ids=["chain_process", "chain_in_process"])
@@ -469,6 +519,36 @@ def test_new_settings_refuse_bad_values_by_name():
         g.verify({"x": np.zeros(4, np.float32)}, gpu="cpu")
     with pytest.raises(WarpvxError, match="backend|gpu"):
         g.verify({"x": np.zeros(4, np.float32)}, gpu="tpu")
+
+
+def test_look_ahead_follows_the_pool_and_refuses_bad_values_by_name():
+    """The chain's core look-ahead: one frame per pose process but one, within
+    [SPECULATE_AHEAD, MAX_LOOK_AHEAD], unless the pool's look_ahead sets it; a bad look_ahead
+    (to make_pool, PosePool, ChainProcess, or set on a chain process before a run) is a
+    warpvx error naming it, raised before any process starts."""
+
+    class Pool:
+        def __init__(self, workers, look_ahead=None):
+            self.workers, self.look_ahead = workers, look_ahead
+
+    assert [osp.look_ahead(Pool(w)) for w in (1, 2, 7, 8, 13, 40)] == \
+        [osp.SPECULATE_AHEAD] * 3 + [7, 12, osp.MAX_LOOK_AHEAD]
+    assert osp.look_ahead(Pool(13, 3)) == 3 and osp.look_ahead(Pool(2, 30)) == 30
+    for bad in (0, -2, 1.5, "4", True):
+        for make in (lambda: ob.make_pool(0, look_ahead=bad), lambda: op.PosePool(1, look_ahead=bad),
+                     lambda: orbslam_chain.ChainProcess(0, look_ahead=bad)):
+            with pytest.raises(WarpvxError, match="look_ahead"):
+                make()
+
+    class Proc:  # a chain process whose look_ahead was set to a bad value after it opened
+        dry, ahead, share, direct, look_ahead = False, True, True, True, 0
+
+        def send(self, payload, run):
+            raise AssertionError("sent")
+
+    with pytest.raises(WarpvxError, match="look_ahead"):
+        orbslam_chain.send_batch(None, [], (), 0, K=np.eye(3), config=o.TrackerConfig(), baseline=None,
+                                 frames=1, proc=Proc())
 
 
 def test_packed_features_unpack_to_the_device_ones(seq):

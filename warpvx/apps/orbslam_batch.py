@@ -104,9 +104,15 @@ class _Later:
             self._values = [self._pool.wait(t, "ahead") for t in self._pending]
         return self._values
 
-    def ready(self) -> bool:
-        """Whether :meth:`get` would not wait."""
-        return self._values is not None or all(t.ready() for t in self._pending)
+    def done(self) -> int:
+        """How many of the jobs, in order, have their values (:meth:`value` would not wait)."""
+        if self._values is not None:
+            return len(self._values)
+        return next((k for k, t in enumerate(self._pending) if not t.ready()), len(self._pending))
+
+    def value(self, k: int):
+        """Job ``k``'s value (waited for, uncounted: the chain's speculation asks once it is done)."""
+        return self._values[k] if self._values is not None else self._pending[k].get()
 
 
 #: :func:`track_frames_batched`'s default GIL switch interval, seconds (Python's is 5 ms).

@@ -174,6 +174,13 @@ COVERED = SPECULATE_AHEAD
 INLIER_FRACTION = 0.5
 
 
+def _job(per_frame):
+    """A frame job's value -> what its ``pairs_job`` worked out for the walk (tracks with the
+    keyframe two frames back, points to the previous frame, points to that keyframe), or None
+    (a ``frame_job``'s)."""
+    return per_frame[4] if len(per_frame) > 4 else None
+
+
 @dataclasses.dataclass
 class _Walked:
     """One frame of :class:`CoreSpeculation`'s walk: the keyframe it assumes (points, index),
@@ -211,7 +218,7 @@ class CoreSpeculation:
     cores that came in: from the first decision that differs it walks on anew, and what it no longer reaches
     is cancelled if not started. A frame lost (or a scale jump: the depths are the chain's)
     stops it until the chain has tracked past. Near the batch's end it walks on into the next
-    batch once that one's frame jobs are done, and :meth:`hand_over` gives that batch's
+    batch, each frame once its frame job (and those before it) is done, and :meth:`hand_over` gives that batch's
     speculation what it started; the cores of a run's first :data:`COVERED` frames are
     ``pose_batch``'s (both references). One the chain still lacks it computes on the spot
     (:func:`_essential_ahead`, counted in ``pool.started["on the spot"]``).
@@ -226,7 +233,7 @@ class CoreSpeculation:
         extra = [a[2] for a in per_frame]
         #: Per frame, pairs_job's (tracks with the keyframe two frames back, points to the
         #: previous frame, points to that keyframe), or None (a frame job's).
-        self._jobs = [a[4] if len(a) > 4 else None for a in per_frame]
+        self._jobs = [_job(a) for a in per_frame]
         self._args = (pts, good, extra, list(ahead.guesses), pool, K, config)
         self._on = pool is not None and config.keyframe_motion
         self._depth = look_ahead(pool) if self._on else 0
@@ -282,20 +289,22 @@ class CoreSpeculation:
         self._prune(f)
 
     def _end(self, end):
-        """``end``, or the batch's frames and the next batch's walked into when it reaches
-        past this one's and the next batch's frame jobs are done (the chain may then start its
-        first cores as this batch ends; :meth:`hand_over`)."""
-        nxt = self._ahead.next
-        if end > self._frames and self._next is None and nxt is not None and nxt.ready():
-            pts, good, extra, guesses = self._args[:4]
-            per_frame = nxt.get()
-            pts += [xy for xy, _ in nxt.points]
-            good += [a[3] for a in per_frame]
-            extra += [a[2] for a in per_frame]
-            self._jobs += [a[4] if len(a) > 4 else None for a in per_frame]
-            guesses += nxt.guesses
-            self._next = nxt
-        return min(end, len(self._args[0]))
+        """``end``, or as far as the frames known: this batch's, then the next batch's (when
+        the walk reaches past this one) whose frame jobs are done, each as soon as it and those
+        before it are (the chain then starts the next batch's first cores while it tracks this
+        one; :meth:`hand_over`)."""
+        nxt, pts = self._ahead.next, self._args[0]
+        if end > len(pts) and nxt is not None:
+            good, extra, guesses = self._args[1:4]
+            for k in range(len(pts) - self._frames, min(nxt.done(), end - self._frames)):
+                per_frame = nxt.value(k)
+                pts.append(nxt.points[k][0])
+                good.append(per_frame[3])
+                extra.append(per_frame[2])
+                self._jobs.append(_job(per_frame))
+                guesses.append(nxt.guesses[k])
+                self._next = nxt
+        return min(end, len(pts))
 
     def hand_over(self):
         """At the batch's end: the walk into the next batch (its steps and cores) to that
