@@ -328,6 +328,8 @@ def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, dept
     res = list(run(frames, on_finish=plans.append))
     row, poses = _frontend_result(res, time.perf_counter() - t, plans[0], out, name, backend)
     row["setup_parts_ms"] = {k[:-2]: 1e3 * (v - setup[k]) for k, v in SETUP_TIME.items()}
+    # (the first batches' output intervals: where a first run's stream may pay more than a kept graph's)
+    row["first_batches_ms"] = [res[i].ms * batch for i in range(0, min(len(res), 4 * batch), batch)]
     if pool is not None:
         row["pool_per_batch"] = pool_per_batch(pool, before, -(-len(frames) // batch))
     return row, poses
@@ -520,6 +522,11 @@ def markdown(report: dict) -> list:
               + (f"{report['pose_pool']['one_process_ms']:.2f} on one process, {report['pose_pool']['pool_ms']:.2f} "
                  f"on {report['pose_pool']['workers']} processes ({report['pose_pool']['speedup']:.1f}x)"
                  if "speedup" in report["pose_pool"] else f"FAILED ({report['pose_pool'].get('error')})"),
+              *([f"Output interval of the first 4 batches, ms: default "
+                 f"{[round(v, 1) for v in report['batched_mono'].get('first_batches_ms', [])]}, a first run "
+                 f"{[round(v, 1) for v in report[FIRST_CALL].get('first_batches_ms', [])]} (its first batch's "
+                 "pose work primed during the verification, ChainProcess.dry_run)."]
+               if FIRST_CALL in report else []),
               f"Batched poses vs frame-by-frame poses, largest difference: "
               f"{report['batch']['max_pose_difference_vs_sequential']}; mono, chain process vs chain in "
               f"this process: {report['batch']['max_pose_difference_chain_process_vs_in_process']}.",

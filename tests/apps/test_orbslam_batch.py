@@ -213,9 +213,17 @@ def test_about_one_essential_matrix_per_frame(seq, look_ahead):
     next batch of 5 as soon as the chain starts a batch)."""
     frames, camera = _frames(seq, False)
     want = np.array([f.pose for f in o.track_frames(frames, camera)])
-    with ob.make_pool(2, chain_process=True, look_ahead=look_ahead) as proc:  # (its verification is dry: no jobs)
-        got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=proc)])
-        started = proc.started
+    with ob.make_pool(2, chain_process=True, look_ahead=look_ahead) as proc:
+        def run():
+            return np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=proc)])
+
+        np.testing.assert_array_equal(run(), want)  # (calibrates; the first batch primed in vain)
+        # A first run again, calibration cached: its verification is dry but for the first
+        # batch, primed there and taken by the stream (not sent twice: its frame jobs once).
+        proc.graphs.clear()
+        before = proc.started
+        got = run()
+        started = proc.started - before
     np.testing.assert_array_equal(got, want)
     first, padded = min(BATCH, ob.COVERED), -(-FRAMES // BATCH) * BATCH  # (the last batch filled up)
     assert started["frame_job"] == first and started["pairs_job"] == padded - first
@@ -686,16 +694,22 @@ def test_an_open_pool_keeps_its_verified_graph_for_the_next_run(seq, chain_proce
     assert pool.graphs == {}
 
 
-def test_chain_process_dry_run_answers_without_tracking(seq):
-    """In ChainProcess.dry_run (what the graph's verification runs in) this thread's batches
-    get zero poses and stats shaped and typed as real ones, no pose work started; another
-    thread's batch meanwhile is tracked for real."""
+def _two_frame_batch(seq):
+    """The sequence's first two frames as one batch: (images, features, nearest rows, the
+    other arguments of send_batch)."""
     frames, camera = _frames(seq, False)
     config = o.TrackerConfig()
     images = np.stack([f["image"] for f in frames[:2]])
     feats = ob.orb_batch(images, config=config)[0]
     nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=2)[1]
-    kwargs = dict(K=np.ascontiguousarray(camera.K), config=config, baseline=None, frames=2)
+    return images, feats, nearest, dict(K=np.ascontiguousarray(camera.K), config=config, baseline=None, frames=2)
+
+
+def test_chain_process_dry_run_answers_without_tracking(seq):
+    """In ChainProcess.dry_run (what the graph's verification runs in) this thread's batches
+    get zero poses and stats shaped and typed as real ones, no pose work started; another
+    thread's batch meanwhile is tracked for real."""
+    images, feats, nearest, kwargs = _two_frame_batch(seq)
     with ob.make_pool(1, chain_process=True) as proc:
         before = proc.started["frame_job"]
         elsewhere = []
@@ -714,6 +728,45 @@ def test_chain_process_dry_run_answers_without_tracking(seq):
         np.testing.assert_array_equal(real_poses[0], np.eye(4))  # (the run's first frame)
         assert real_stats[1, 0] > 0
         assert proc.started["frame_job"] - before == 2  # the real batch's only
+
+
+def test_chain_process_primes_a_runs_first_batch_during_the_dry_run(seq):
+    """In a priming dry run (the verification's), a run's first batch gets its dry zeros at
+    once and goes to the process for real too; the stream's first batch, equal to it, takes
+    its ticket (its real poses, no second pose work); one that differs is sent anew; a batch
+    of no run after a prime (the calibration's samples) ends the primed run: it fails as in
+    a fresh process, and the next run starts clean."""
+    images, feats, nearest, kwargs = _two_frame_batch(seq)
+
+    def same(got, want):  # poses and stats but the time per frame
+        np.testing.assert_array_equal(got[0], want[0])
+        timed = o.STATS.index("track_ms")
+        np.testing.assert_array_equal(np.delete(got[1], timed, 1), np.delete(want[1], timed, 1))
+
+    def send(sent=0, near=nearest):
+        return orbslam_chain.send_batch(images, feats, near, sent, proc=proc, **kwargs)[1]
+
+    with ob.make_pool(1, chain_process=True) as proc:
+        want = proc.result(send())  # (unprimed: the reference)
+        before = proc.started["frame_job"]
+        with proc.dry_run(prime=True):
+            dry = send()
+        poses, stats = proc.result(dry)
+        assert not poses.any() and not stats.any()
+        ticket = send()  # the stream's first: the primed batch's ticket
+        assert ticket < dry
+        same(proc.result(ticket), want)
+        assert proc.started["frame_job"] - before == 2  # (its 2 frames' jobs, once)
+        with proc.dry_run(prime=True):
+            send()
+        other = send(near=tuple(a.copy() for a in nearest[:2]) + (nearest[2][::-1].copy(),))  # differs
+        assert proc.started["frame_job"] - before == 6
+        with pytest.raises(WarpvxError, match="batch outside a run"):
+            with proc.dry_run(prime=True):
+                send()
+            proc.result(send(sent=1))  # the calibration's: not the primed run's continuation
+        proc.result(other)
+        same(proc.result(send()), want)  # a new run: as the first
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")

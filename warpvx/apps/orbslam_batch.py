@@ -529,8 +529,9 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
             g = kept.pop(key, None)
             if g is None:
                 g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
-                # A chain process answers the verification's batches dry (ChainProcess.dry_run).
-                with pool.dry_run() if isinstance(pool, ChainProcess) else contextlib.nullcontext():
+                # A chain process answers the verification's batches dry, and starts the real
+                # work of the first one meanwhile: the stream's first takes it (ChainProcess.dry_run).
+                with pool.dry_run(prime=True) if isinstance(pool, ChainProcess) else contextlib.nullcontext():
                     g.verify(first[0], gpu=None if backend == "cpu" else backend)
             else:
                 g.reset()
