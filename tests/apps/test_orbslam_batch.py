@@ -377,23 +377,31 @@ def test_switch_interval_is_set_for_the_run_and_the_callers_restored(seq):
 
 
 def test_pool_starts_urgent_jobs_first_and_drops_cancelled_ones():
-    """One process, busy: queued jobs start by urgency, then in submit order; a cancelled
-    job never starts; wait() books its blocked time."""
+    """One process, busy: queued jobs start by urgency, then by the frame they are needed at
+    (sooner first), then those needed at no frame, each in submit order; a cancelled job
+    never starts; wait() books its blocked time. Without ``ahead``: all in submit order."""
     import time
 
     with ob.make_pool(1) as pool:
         busy = pool.submit(time.sleep, 0.5)
         later = [pool.submit(time.time) for _ in range(3)]
         dropped = pool.submit(time.time)
+        needed = [pool.submit(time.time, need=n) for n in (16, 3, 16, 0)]
         urgent = pool.submit(time.time, urgent=True)
         dropped.cancel()
         busy.cancel()  # already started: still runs
         assert pool.wait(busy, "busy") is None and pool.waited_s["busy"] > 0.2
         times = [t.get() for t in later]
-        assert urgent.get() < times[0] < times[1] < times[2]
+        n16, n3, n16b, n0 = (t.get() for t in needed)
+        assert urgent.get() < n0 < n3 < n16 < n16b < times[0] < times[1] < times[2]
         with pytest.raises(WarpvxError, match="cancelled"):
             dropped.get()
-        assert pool.cancelled == {"time": 1} and pool.started == {"sleep": 1, "time": 4}
+        assert pool.cancelled == {"time": 1} and pool.started == {"sleep": 1, "time": 8}
+        pool.ahead = False
+        busy = pool.submit(time.sleep, 0.3)
+        order = [pool.submit(time.time, **kw) for kw in ({}, {"need": 0}, {"urgent": True})]
+        times = [t.get() for t in order]
+        assert times == sorted(times)
 
 
 def test_shared_block_carries_each_array_once_and_its_segment_is_reused_when_its_jobs_are_done():

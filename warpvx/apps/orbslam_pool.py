@@ -317,9 +317,11 @@ class PosePool:
     :meth:`shutdown` (or use it as a context manager).
 
     Jobs wait in the parent, by priority, and go to the processes only as these free up (no
-    more in flight than processes): an ``urgent`` job (what the tracking chain waits on) then
-    starts before every queued non-urgent one (the next batch's work) instead of behind it,
-    and a job cancelled before it starts costs nothing. ``waited_s`` sums the seconds
+    more in flight than processes): a job with a sooner ``need`` (the run's frame at which
+    the tracking chain will wait for it: a frame's essential core, a batch's frame jobs at its
+    first frame) then starts before every queued one needed later (the next batch's work)
+    instead of behind it, an ``urgent`` one before all, and a job cancelled before it starts
+    costs nothing. ``waited_s`` sums the seconds
     :meth:`wait` spent blocked, by its ``what``; ``started`` counts the jobs started and
     ``cancelled`` those dropped unstarted, by function name. ``ahead`` False (to measure
     what it gives): every job in submit order, and ``pose_batch`` guesses no core.
@@ -355,13 +357,17 @@ class PosePool:
         self._segments = Segments()
         self.waited_s, self.started, self.cancelled = (collections.Counter() for _ in range(3))
 
-    def submit(self, fn, *args, urgent: bool = False, block: SharedBlock | None = None) -> PoolTask:
-        """``fn(*args)`` on a process, as soon as one is free and no job more urgent (or
-        submitted earlier at the same urgency) waits; ``block``: the :class:`SharedBlock`
-        whose arrays ``args`` refer to (:meth:`SharedBlock.refer`), held until the job is done."""
+    def submit(self, fn, *args, urgent: bool = False, need: int | None = None,
+               block: SharedBlock | None = None) -> PoolTask:
+        """``fn(*args)`` on a process, as soon as one is free and no job more urgent waits:
+        ``urgent`` ones first, then by ``need`` (the run's frame at which the chain waits for
+        the value; sooner first), then those with none; each in submit order (every job so
+        without ``ahead``). ``block``: the :class:`SharedBlock` whose arrays ``args`` refer to
+        (:meth:`SharedBlock.refer`), held until the job is done."""
         task = PoolTask(fn, args, self._lock, block)
+        rank = (2, 0) if not self.ahead else (0, 0) if urgent else (2, 0) if need is None else (1, need)
         with self._lock:
-            heapq.heappush(self._queue, (not (urgent and self.ahead), next(self._order), task))
+            heapq.heappush(self._queue, (rank, next(self._order), task))
             self._dispatch()
         return task
 

@@ -203,7 +203,7 @@ class _Walked:
 
 class CoreSpeculation:
     """Monocular: the essential core ``track`` will take for each frame (to the previous
-    frame or to the keyframe), started on ``pool`` (urgent) :func:`look_ahead` frames
+    frame or to the keyframe), started on ``pool`` (needed at that frame) :func:`look_ahead` frames
     before the chain reaches the frame, and only that one.
 
     Which reference ``track`` takes depends on the keyframe, the chain's state. The
@@ -351,7 +351,7 @@ class CoreSpeculation:
                 core = next((c for c in self._started.get(u, ()) if _same(c[0], points[0])
                              and _same(c[1], points[1])), None)
                 if core is None:
-                    core = (*points, pool.submit(_essential_job, *points, K, config, urgent=True))
+                    core = (*points, pool.submit(_essential_job, *points, K, config, need=g))
                     self._started.setdefault(u, []).append(core)
         known = None if points is None else (ref_pts, pts[u], pairs, *points)
         return _Walked(kf_pts, kf_index, cursor, after, (tracked, kf_good), known, core, guess, len(pairs))
