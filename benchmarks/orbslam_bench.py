@@ -33,7 +33,11 @@ reading PNGs is timed separately. Measured, side by side in one run:
    the jobs' arrays pickled with each job against a shared block per batch (the default),
    and on multiprocessing's stock ``Pool`` against the pose pool's (``PosePool(quiet=False)``),
    and with the pool's jobs handed to multiprocessing's task thread against written to the
-   processes by the thread that dispatches them (``PosePool(direct=...)``).
+   processes by the thread that dispatches them (``PosePool(direct=...)``), and with the
+   chain's core look-ahead at 6 frames (the fixed value before) and 16 against the default
+   (one frame per pose process but one, ``orbslam_speculate.look_ahead``); the default run
+   also as a first run (graph built and verified in the timed call; its setup split into
+   build, verification and schedule, and the first batches' output intervals).
 
 FPS columns: "wall" counts everything from the call (graph build, verification: the batched
 mode's by the warm-up run on the same open pool, which keeps the verified graph for the next
