@@ -68,6 +68,12 @@ from warpvx.graph.diagnostics import executor_overhead, profile_overhead  # noqa
 MODES = {"eager": False, "captured": True}
 
 
+def chain_sizes(n: int) -> tuple:
+    """The identity chains: (kind, nodes) each; the alternating one has half the nodes, as
+    each of its rounds is two."""
+    return (("gpu", n), ("mixed", n // 2), ("cpu", n))
+
+
 def _chains(args) -> list:
     """Section 1: the identity chains (rows as executor_overhead returns them)."""
     n, frames = args.nodes, args.frames
@@ -79,7 +85,7 @@ def _chains(args) -> list:
         print(f"  {_chain_label(r):5s} chain, {r['n_nodes']} identity nodes: "
               f"{r['per_node_us']:.1f} us/node process, {r['per_node_us_stream']:.1f} stream",
               flush=True)
-    for chain, nodes in (("gpu", n), ("mixed", n // 2)):  # where the host time goes
+    for chain, nodes in chain_sizes(n)[:2]:  # where the host time goes (not the CPU chain)
         try:
             text = profile_overhead(nodes, frames, chain=chain, gpu=args.gpu)
         except Exception as exc:  # noqa: BLE001 - a profiler clash must not lose the tables
@@ -103,10 +109,10 @@ import native_counts
 if not warpvx.__file__.startswith(sys.argv[1]):
     raise SystemExit(f"imported {warpvx.__file__}, not the tree's")
 cv2.setNumThreads(1)
-n, frames, gpu, count = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5] == "1"
+frames, gpu, count = int(sys.argv[3]), sys.argv[4], sys.argv[5] == "1"
 x = np.arange(4, dtype=np.float32)
 rows, calls = [], {}
-for chain, nodes in (("gpu", n), ("mixed", n // 2), ("cpu", n)):
+for chain, nodes in json.loads(sys.argv[7]):
     g = _chain(nodes, chain)
     g.schedule("heft", n_cpus=1, gpu=False if chain == "cpu" else gpu)
     for _ in range(10):
@@ -152,7 +158,8 @@ def _ab_runs(args, trees: dict) -> dict:
         for k in order:
             count = "1" if pair == 0 else "0"  # the same every run: each tree's once
             out = subprocess.run([sys.executable, "-c", _AB_RUN, trees[k], str(args.nodes),
-                                  str(args.frames), args.gpu, count, str(ROOT)],
+                                  str(args.frames), args.gpu, count, str(ROOT),
+                                  json.dumps(chain_sizes(args.nodes))],
                                  capture_output=True, text=True, timeout=300)
             if out.returncode:
                 raise RuntimeError(f"{k} ({trees[k]}): {out.stderr.strip()[-2000:]}")
@@ -192,7 +199,7 @@ def _calls(args) -> list:
     from warpvx.graph.diagnostics import _chain
 
     out = {}
-    for chain, nodes in (("gpu", args.nodes), ("mixed", args.nodes // 2), ("cpu", args.nodes)):
+    for chain, nodes in chain_sizes(args.nodes):
         out[chain] = native_counts.chain_calls(_chain, chain, nodes, args.gpu)
         print(f"  {chain}: per node / per frame: python {out[chain]['python']}, native "
               f"{out[chain]['native']}", flush=True)

@@ -5,6 +5,8 @@ that fits (``ValueError`` or ``TypeError``), so ``except ValueError`` keeps work
 who do not know warpvx. Messages name the argument and say what was expected against what came.
 """
 
+from __future__ import annotations
+
 
 class WarpvxError(Exception):
     """Base of every warpvx error."""
@@ -50,6 +52,17 @@ class CaptureAllocationError(WarpvxError, RuntimeError):
     """A call would allocate state it keeps (a primitive's scratch) inside a CUDA graph
     capture, where the memory would belong to the graph: run the call once uncaptured, on the
     same stream and thread, before capturing it."""
+
+
+def caused_by(exc: BaseException | None, kind: type) -> bool:
+    """``exc`` or an exception in its chain (``__cause__``/``__context__``) is a ``kind``."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, kind):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 __all__ = [

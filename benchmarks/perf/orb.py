@@ -338,8 +338,8 @@ def run_size(device, size, repeat, profile=False):
     plan.run(src)
     plan.run(src)
     t_graph = None
-    if plan.graph is not None:
-        t_graph = median_ms(lambda: wp.capture_launch(plan.graph), device, repeat, inner=20)
+    if plan.captured.graph is not None:
+        t_graph = median_ms(lambda: wp.capture_launch(plan.captured.graph), device, repeat, inner=20)
     n_kp = int(plan.read_head()[kw.C_FINAL])
     print(f"\n== {w}x{h}: {n_kp} keypoints, candidates {int(plan.read_head()[kw.C_CAND])} "
           f"(capacity {plan.cand_cap}), OpenCV threads {cv2.getNumThreads()} ==")

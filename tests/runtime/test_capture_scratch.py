@@ -16,9 +16,9 @@ import types
 
 import pytest
 
-from warpvx.errors import CaptureAllocationError, WarpvxError
+from warpvx.errors import CaptureAllocationError, WarpvxError, caused_by
 from warpvx.kernels_warp import _launch
-from warpvx.runtime.capture import NotCapturable, SegmentGraph, _caused_by
+from warpvx.runtime.capture import NotCapturable, SegmentGraph
 
 
 class _Device:
@@ -71,9 +71,9 @@ def test_caused_by_walks_the_exception_chain():
         except CaptureAllocationError as inner:
             raise NotCapturable("RuntimeError: wrapped") from inner
     except NotCapturable as exc:
-        assert _caused_by(exc, CaptureAllocationError)
-        assert not _caused_by(exc, KeyError)
-    assert not _caused_by(NotCapturable("a host sync inside"), CaptureAllocationError)
+        assert caused_by(exc, CaptureAllocationError)
+        assert not caused_by(exc, KeyError)
+    assert not caused_by(NotCapturable("a host sync inside"), CaptureAllocationError)
 
 
 def _segment_graph(record):

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 
 import numpy as np
 
@@ -146,7 +147,7 @@ class DevicePlan:
         from ..flow import _level_limit
         from ..kernels_warp import stabilize_motion as km
         from ..kernels_warp import stabilize_points as kp
-        from ..kernels_warp._launch import Recorded
+        from ..kernels_warp._launch import CapturedProgram, Recorded
 
         reason = supports(config)
         if reason is not None:
@@ -221,14 +222,16 @@ class DevicePlan:
                                                self.outs[s]) for s in range(R)]
 
         self.use_graph = dev.is_cuda if use_graph is None else bool(use_graph)
-        self.graphs = [None] * R
         # mark(stage) is called after each stage of an eager program (profiling: the
         # benchmark records events there); None in normal runs.
         self.mark = None
-        self.capture_error = None  # why capture failed, when it did (then: eager launches)
         self.steps = 0
         self._wp = wp
         self._streams(wp)
+        # Slot s's program: eager on slot 0's first step (modules load, scratch is made),
+        # captured on first use after that (slots run in order).
+        self.programs = [CapturedProgram(partial(self.program, s), dev, self.compute,
+                                         enabled=self.use_graph, warm=s > 0) for s in range(R)]
         # The buffers were allocated and filled on the compute stream; the copy streams use
         # them from the first frame on.
         wp.synchronize_device(dev)
@@ -256,6 +259,16 @@ class DevicePlan:
         self.done = [wp.Event(dev) for _ in range(self.slots)]
 
     # -- the per-frame program ------------------------------------------------------------
+
+    @property
+    def graphs(self) -> list:
+        """Each slot's captured graph (None: not captured, or not yet)."""
+        return [p.graph for p in self.programs]
+
+    @property
+    def capture_error(self) -> str | None:
+        """Why a slot's capture failed, when one did (that slot then launches eagerly)."""
+        return next((p.error for p in self.programs if p.error), None)
 
     def program(self, s: int):
         """Every device step of a frame in ring slot ``s``: fixed shapes, no host sync (what a
@@ -298,25 +311,6 @@ class DevicePlan:
         self.corners.launch(gray)
         self.merge.launch()
 
-    def _launch(self, s: int):
-        """Slot ``s``'s program: its graph, captured on first use after the first step (which
-        loads the modules and reserves scratch), or eager launches."""
-        wp = self._wp
-        if self.graphs[s] is not None:
-            wp.capture_launch(self.graphs[s])
-            return
-        if self.use_graph and self.steps > 0:
-            try:
-                with wp.ScopedCapture(device=self.device, stream=self.compute) as capture:
-                    self.program(s)
-            except Exception as exc:  # noqa: BLE001 - no conditional nodes, or a caller's capture
-                self.use_graph = False
-                self.capture_error = repr(exc)
-            else:
-                self.graphs[s] = capture.graph
-                wp.capture_launch(capture.graph)
-                return
-        self.program(s)
 
     # -- the frame loop -------------------------------------------------------------------
 
@@ -370,7 +364,7 @@ class DevicePlan:
             self._fill(t, frame)
             if self.device.is_cuda:
                 self._upload(t, s, p)
-        self._launch(s)
+        self.programs[s]()
         if self.device.is_cuda:
             self._download(s, p)
         self.steps += 1

@@ -25,7 +25,7 @@ from contextlib import contextmanager
 
 import warp as wp
 
-from ..errors import CaptureAllocationError
+from ..errors import CaptureAllocationError, caused_by
 
 _RECORDED: OrderedDict = OrderedDict()
 _RECORDED_MAX = 64
@@ -151,6 +151,53 @@ def _capture(cmds, device):
             return capture.graph
         except Exception:  # noqa: BLE001 - keep replaying launches one by one
             return False
+
+
+class CapturedProgram:
+    """A program of launches (no host sync, no allocation it keeps), run eagerly on its first
+    call (its modules load, its primitives make their scratch) and from then on from a CUDA
+    graph captured once on ``stream`` (None: the device's current stream) and launched there.
+
+    Eager for good where Warp refuses or fails the capture (a host sync inside: :attr:`error`
+    says why); eager for one more call where only a primitive's scratch was missing
+    (:class:`CaptureAllocationError`: made by that call, captured on the next); eager, without
+    giving up, inside a caller's capture (its launches join the caller's graph). ``warm``:
+    the program's modules are loaded and its scratch made already (by another program of the
+    same launches): capture on the first call. On Warp's CPU device a capture replays the same
+    launches. ``enabled=False``: always eager.
+    """
+
+    def __init__(self, program, device, stream=None, *, enabled: bool = True, warm: bool = False):
+        self.program = program
+        self.device = device
+        self.stream = stream
+        self.enabled = bool(enabled)
+        self.graph = None
+        self.error = None  # repr of the failure that turned capture off
+        self.runs = int(bool(warm))
+        self._scratch_retry = True
+
+    def __call__(self) -> None:
+        if self.graph is None and self.enabled and self.runs > 0 and not self.device.is_capturing:
+            self.graph = self._capture()
+        if self.graph is not None:
+            wp.capture_launch(self.graph, stream=self.stream)
+        else:
+            self.program()
+        self.runs += 1
+
+    def _capture(self):
+        try:
+            with capture_lock, wp.ScopedCapture(device=self.device, stream=self.stream) as capture:
+                self.program()
+        except Exception as exc:  # noqa: BLE001 - the program runs eagerly instead
+            if caused_by(exc, CaptureAllocationError) and self._scratch_retry:
+                self._scratch_retry = False
+            else:
+                self.enabled = False
+                self.error = repr(exc)
+            return None
+        return capture.graph
 
 
 def run_direct(launches, device) -> None:

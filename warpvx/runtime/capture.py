@@ -64,12 +64,13 @@ Warp's CPU device a capture is process-wide, hence opt-in there.
 from __future__ import annotations
 
 import logging
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..check import check_int
-from ..errors import CaptureAllocationError
+from ..errors import CaptureAllocationError, caused_by
 from .lanes import MAX_LANES, Lanes, lanes, noted, noting_conditionals
 from .native_copy import (copy_device, is_warp_array, record_event, to_device, wait_event,
                           warp)
@@ -190,15 +191,14 @@ def _workspaces() -> list:
         return list(_launch._WORKSPACES.values())
 
 
-def _caused_by(exc: BaseException, kind: type) -> bool:
-    """``exc`` or an exception in its chain (``__cause__``/``__context__``) is a ``kind``."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, kind):
-            return True
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return False
+@contextmanager
+def _failing_capture():
+    """Any failure inside fails the capture: :class:`NotCapturable` (the segment runs eagerly),
+    the failure chained as its cause."""
+    try:
+        yield
+    except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
+        raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
 
 
 def _fits(values: list, bufs: list) -> bool:
@@ -382,7 +382,7 @@ class SegmentGraph:
             try:
                 graph = self._record(device, streams)
             except NotCapturable as exc:
-                if not _caused_by(exc, CaptureAllocationError):
+                if not caused_by(exc, CaptureAllocationError):
                     raise
                 # A primitive's scratch (kept per stream and thread) was missing: the runs
                 # before were on another thread. Made uncaptured here, then captured.
@@ -403,18 +403,14 @@ class SegmentGraph:
         as inside the capture."""
         if streams:
             self.wait_previous(streams[0], rewrites=True)
-        try:
+        with _failing_capture():
             self._run_tasks(self.next, streams=streams)
-        except Exception as exc:  # noqa: BLE001 - as a failed capture: run eagerly
-            raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
 
     def _record(self, device: str, streams):
         """The tasks writing the next run's set, captured (on the current stream): the graph."""
-        try:
+        with _failing_capture():
             with warp().ScopedCapture(device=device, stream=streams and streams[0]) as cap:
                 self._run_tasks(self.next, streams=streams)
-        except Exception as exc:  # noqa: BLE001 - any failure means: run eagerly
-            raise NotCapturable(f"{type(exc).__name__}: {exc}") from exc
         if cap.graph is None:
             raise NotCapturable("the capture produced no graph")
         return cap.graph

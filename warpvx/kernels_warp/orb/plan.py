@@ -20,6 +20,7 @@ from ..._pyramid_sizes import resize_scales, scale_pyramid_sizes
 from ...keypoints import Keypoints
 from ...modes import BORDER_REFLECT_101
 from .._filtering import blur_taps, fit_block, launch_filter
+from .._launch import CapturedProgram
 from ..scale_pyramid import RESIZE_ROWS, linear_taps, resize, resize_kernel, resize_tables
 from .funcs import (C_FINAL, C_NODES, C_OVER, DEPTHS, RANK_CHUNKS, STRIPES, Division, LevelInfo)
 from .host import _capacity, _pattern_on, extract_host
@@ -229,10 +230,8 @@ class OrbPlan:
         self.desc = wp.empty((batch * fc, spec.DESCRIPTOR_BYTES), dtype=wp.uint8, device=dev)
         self.heads = wp.empty((batch, n_heads), dtype=wp.int32, device=dev)
         self.head = wp.empty((batch, n_heads), dtype=wp.int32, device="cpu", pinned=dev.is_cuda)
-        self.use_graph = bool(graph) and dev.is_cuda
         self.side = wp.Stream(dev) if dev.is_cuda else None
-        self.graph = None
-        self.runs = 0
+        self.captured = CapturedProgram(self.program, dev, enabled=bool(graph) and dev.is_cuda)
         self.last_stream = None  # where the last frame's output copies were enqueued (CUDA)
 
     # -- the device program ---------------------------------------------------------------
@@ -399,22 +398,9 @@ class OrbPlan:
         self.stage_describe()
 
     def launch(self):
-        """Run the program: eagerly the first time (loads the modules), then from a graph."""
-        if self.graph is not None:
-            wp.capture_launch(self.graph)
-            return
-        if self.use_graph and self.runs > 0:
-            try:
-                with wp.ScopedCapture(device=self.device) as capture:
-                    self.program()
-                self.graph = capture.graph
-            except Exception:  # noqa: BLE001 - e.g. inside a caller's capture: run eagerly
-                self.use_graph = False
-                self.program()
-            else:
-                wp.capture_launch(self.graph)
-            return
-        self.program()
+        """Run the program: eagerly the first time (loads the modules), then from a graph
+        (:class:`~warpvx.kernels_warp._launch.CapturedProgram`)."""
+        self.captured()
 
     # -- one batch ------------------------------------------------------------------------
 
@@ -454,7 +440,6 @@ class OrbPlan:
             self.last_stream = stream
         self.load(src)
         self.launch()
-        self.runs += 1
         heads = self.read_head()
         over = [self.overflowed(head) for head in heads]
         results = self.take_outputs([min(int(head[C_FINAL]), self.final_cap) for head in heads])
