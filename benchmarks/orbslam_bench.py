@@ -358,7 +358,7 @@ def bench_pose_pool(frames, camera, batch, pool):
 
     def work(p):
         # (a previous batch's ahead: pose_batch then leaves every core to the chain)
-        tail = (*pts0, None, types.SimpleNamespace(next=None))
+        tail = (*pts0, None, types.SimpleNamespace(next=None, start=0))
         ahead = ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1]
         per_frame = ob.ahead_frames(ahead)
         prev = [pts0[0]] + [xy for xy, _ in ahead.points[:-1]]
