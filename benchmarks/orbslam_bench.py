@@ -327,6 +327,7 @@ def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, dept
     if first_call and pool is not None:
         pool.graphs.clear()
     before = _pool_counts(pool) if pool is not None else None
+    primes = dict(getattr(pool, "primes", {}))
     setup = dict(SETUP_TIME)
     t = time.perf_counter()
     res = list(run(frames, on_finish=plans.append))
@@ -334,6 +335,8 @@ def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, dept
     row["setup_parts_ms"] = {k[:-2]: 1e3 * (v - setup[k]) for k, v in SETUP_TIME.items()}
     # (the first batches' output intervals: where a first run's stream may pay more than a kept graph's)
     row["first_batches_ms"] = [res[i].ms * batch for i in range(0, min(len(res), 4 * batch), batch)]
+    # (a chain process's primed first batches: sent, taken by the stream, dropped; ChainProcess.dry_run)
+    row["primes"] = {k: v - primes.get(k, 0) for k, v in getattr(pool, "primes", {}).items()}
     if pool is not None:
         row["pool_per_batch"] = pool_per_batch(pool, before, -(-len(frames) // batch))
     return row, poses
@@ -529,7 +532,8 @@ def markdown(report: dict) -> list:
               *([f"Output interval of the first 4 batches, ms: default "
                  f"{[round(v, 1) for v in report['batched_mono'].get('first_batches_ms', [])]}, a first run "
                  f"{[round(v, 1) for v in report[FIRST_CALL].get('first_batches_ms', [])]} (its first batch's "
-                 "pose work primed during the verification, ChainProcess.dry_run)."]
+                 f"pose work primed during the verification, ChainProcess.dry_run: "
+                 f"{report[FIRST_CALL].get('primes')})."]
                if FIRST_CALL in report else []),
               f"Batched poses vs frame-by-frame poses, largest difference: "
               f"{report['batch']['max_pose_difference_vs_sequential']}; mono, chain process vs chain in "

@@ -769,6 +769,7 @@ def test_chain_process_primes_a_runs_first_batch_during_the_dry_run(seq):
             send()
         other = send(near=tuple(a.copy() for a in nearest[:2]) + (nearest[2][::-1].copy(),))  # differs
         assert proc.started["frame_job"] - before == 6
+        assert proc.primes == {"sent": 2, "taken": 1, "dropped": 1}
         with pytest.raises(WarpvxError, match="batch outside a run"):
             with proc.dry_run(prime=True):
                 send()

@@ -206,6 +206,8 @@ class ChainProcess:
         self._local = threading.local()  # .dry, .prime: see dry_run
         # Dry tickets -> frames (answered here, kept as results are); the primed batch: see dry_run.
         self._dry, self._primed = collections.OrderedDict(), None
+        #: Primed batches (see dry_run): "sent", "taken" by the stream's first, "dropped" (not taken).
+        self.primes = collections.Counter()
         self._stop = util.Finalize(self, _stop, args=(self._to_child, self._from_child, self._process,
                                                       self._segments), exitpriority=10)
         try:
@@ -253,6 +255,7 @@ class ChainProcess:
         """Send a run's first batch (as :meth:`send`) for the stream's first to take (see
         :meth:`dry_run`)."""
         self._primed = (self.send(payload, run), payload, run)
+        self.primes["sent"] += 1
 
     def send_dry(self, frames: int) -> int:
         """A ticket for ``frames`` zero poses and stats (see :meth:`dry_run`)."""
@@ -268,8 +271,11 @@ class ChainProcess:
         the process; ``run``: None, or the first batch's (params, settings). Returns its ticket
         (the primed one's when this is the primed batch, see :meth:`dry_run`)."""
         primed, self._primed = self._primed, None
-        if primed is not None and run is not None and _same_value((payload, run), primed[1:]):
-            return primed[0]
+        if primed is not None:
+            taken = run is not None and _same_value((payload, run), primed[1:])
+            self.primes["taken" if taken else "dropped"] += 1
+            if taken:
+                return primed[0]
         with self._send_lock:
             if primed is not None and run is None:
                 # Not the stream's batch after the primed one (the calibration's samples): the
