@@ -154,14 +154,14 @@ def device_program_ms(plan, n=200):
         times = []
         for k in range(n):
             t = time.perf_counter()
-            plan._launch(k % plan.slots)
+            plan.programs[k % plan.slots]()
             times.append(1e3 * (time.perf_counter() - t))
         return float(np.median(times))
     events = []
     for k in range(n):
         a, b = wp.Event(plan.device, enable_timing=True), wp.Event(plan.device, enable_timing=True)
         plan.compute.record_event(a)
-        plan._launch(k % plan.slots)
+        plan.programs[k % plan.slots]()
         plan.compute.record_event(b)
         events.append((a, b))
     wp.synchronize_device(plan.device)

@@ -278,14 +278,14 @@ def pipelined(src, device, n_plans: int, frames: int) -> float:
     for p in plans:
         p.run(src)
         p.run(src)  # captured
-        if p.graph is None:
+        if p.captured.graph is None:
             return float("nan")
     wp.synchronize_device(device)
     t0 = time.perf_counter()
     for i in range(frames):
         p, s = plans[i % n_plans], streams[i % n_plans]
         wp.copy(p.levels[0], src, stream=s)
-        wp.capture_launch(p.graph, stream=s)
+        wp.capture_launch(p.captured.graph, stream=s)
         wp.copy(p.head, p.counters, count=p.head.shape[0], stream=s)
     wp.synchronize_device(device)
     return frames / (time.perf_counter() - t0)
