@@ -33,7 +33,11 @@ reading PNGs is timed separately. Measured, side by side in one run:
    the jobs' arrays pickled with each job against a shared block per batch (the default),
    and on multiprocessing's stock ``Pool`` against the pose pool's (``PosePool(quiet=False)``),
    and with the pool's jobs handed to multiprocessing's task thread against written to the
-   processes by the thread that dispatches them (``PosePool(direct=...)``).
+   processes by the thread that dispatches them (``PosePool(direct=...)``), and with the
+   chain's core look-ahead at 6 frames (the fixed value before) and 16 against the default
+   (one frame per pose process but one, ``orbslam_speculate.look_ahead``); the default run
+   also as a first run (graph built and verified in the timed call; its setup split into
+   build, verification and schedule, and the first batches' output intervals).
 
 FPS columns: "wall" counts everything from the call (graph build, verification: the batched
 mode's by the warm-up run on the same open pool, which keeps the verified graph for the next
@@ -184,11 +188,15 @@ def _frontend_result(res, dt, plan, out, name, backend):
 #: Monocular motion from the previous frame only: every essential matrix worked out ahead.
 PREVIOUS_ONLY = o.TrackerConfig(keyframe_motion=False)
 #: The batched runs: report key, camera, Gantt name (None: none), tracker settings, the pool's
-#: settings for the run (``ahead`` False: jobs in submit order and no guessed cores, the
+#: settings for the run (``look_ahead``: frames whose cores the chain keeps started, 6 the
+#: fixed value before it followed the pool's processes; ``ahead`` False: jobs in submit order and no guessed cores, the
 #: scheduling before them; ``share`` False: the jobs' arrays pickled with each job, the
 #: transport before shared blocks; ``direct`` False: the jobs handed to multiprocessing's task
 #: thread, as before), the GIL switch interval (s; None: Python's, 5 ms).
 BATCHED = (("batched_mono", "mono", "batch_mono", o.TrackerConfig(), {}, ob.SWITCH_INTERVAL),
+           ("batched_mono_look_ahead_6", "mono", None, o.TrackerConfig(), {"look_ahead": osp.SPECULATE_AHEAD},
+            ob.SWITCH_INTERVAL),
+           ("batched_mono_look_ahead_16", "mono", None, o.TrackerConfig(), {"look_ahead": 16}, ob.SWITCH_INTERVAL),
            ("batched_mono_switch_5ms", "mono", None, o.TrackerConfig(), {}, None),
            ("batched_mono_pickled", "mono", None, o.TrackerConfig(), {"share": False}, ob.SWITCH_INTERVAL),
            ("batched_mono_fifo", "mono", None, o.TrackerConfig(), {"ahead": False}, ob.SWITCH_INTERVAL),
@@ -223,6 +231,36 @@ def _timed_chain(fn):
 
 # The graphs built from here on call the timed chain (build_batch_graph looks it up by name).
 ob.chain = _timed_chain(ob.chain)
+
+#: Over all batched runs: seconds in the parts of a call's setup (a first run's: the graph's
+#: build, its verification; every run's: its schedule). See :func:`_timed_setup`.
+SETUP_TIME = {"build_s": 0.0, "verify_s": 0.0, "schedule_s": 0.0}
+
+
+def _timed(key, fn):
+    """``fn`` adding its wall time to ``SETUP_TIME[key]``."""
+
+    @functools.wraps(fn)
+    def timed(*args, **kwargs):
+        t = time.perf_counter()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            SETUP_TIME[key] += time.perf_counter() - t
+
+    return timed
+
+
+def _timed_build(*args, **kwargs):
+    """``orbslam_batch.build_batch_graph`` timed, its graph's ``verify`` too."""
+    g = _timed("build_s", _build_batch_graph)(*args, **kwargs)
+    g.verify = _timed("verify_s", g.verify)
+    return g
+
+
+# (track_frames_batched looks both up by name at each call)
+_build_batch_graph, ob.build_batch_graph = ob.build_batch_graph, _timed_build
+o.schedule = _timed("schedule_s", o.schedule)
 
 
 #: The default batched mono run on multiprocessing's stock Pool (PosePool(quiet=False)).
@@ -289,9 +327,16 @@ def bench_frontend_batched(frames, camera, backend, out, name, batch, pool, dept
     if first_call and pool is not None:
         pool.graphs.clear()
     before = _pool_counts(pool) if pool is not None else None
+    primes = dict(getattr(pool, "primes", {}))
+    setup = dict(SETUP_TIME)
     t = time.perf_counter()
     res = list(run(frames, on_finish=plans.append))
     row, poses = _frontend_result(res, time.perf_counter() - t, plans[0], out, name, backend)
+    row["setup_parts_ms"] = {k[:-2]: 1e3 * (v - setup[k]) for k, v in SETUP_TIME.items()}
+    # (the first batches' output intervals: where a first run's stream may pay more than a kept graph's)
+    row["first_batches_ms"] = [res[i].ms * batch for i in range(0, min(len(res), 4 * batch), batch)]
+    # (a chain process's primed first batches: sent, taken by the stream, dropped; ChainProcess.dry_run)
+    row["primes"] = {k: v - primes.get(k, 0) for k, v in getattr(pool, "primes", {}).items()}
     if pool is not None:
         row["pool_per_batch"] = pool_per_batch(pool, before, -(-len(frames) // batch))
     return row, poses
@@ -316,7 +361,7 @@ def bench_pose_pool(frames, camera, batch, pool):
 
     def work(p):
         # (a previous batch's ahead: pose_batch then leaves every core to the chain)
-        tail = (*pts0, None, types.SimpleNamespace(next=None))
+        tail = (*pts0, None, types.SimpleNamespace(next=None, start=0))
         ahead = ob.pose_batch(images[1:], feats[1:], nearest, tail, pool=p, **common)[1]
         per_frame = ob.ahead_frames(ahead)
         prev = [pts0[0]] + [xy for xy, _ in ahead.points[:-1]]
@@ -418,24 +463,35 @@ def _stage_table(report, keys):
     return lines
 
 
+def _setup(row) -> str:
+    """A run's setup, ms, and its parts (graph build, verification, schedule) when measured."""
+    parts = row.get("setup_parts_ms")
+    return f"{row.get('setup_ms', float('nan')):.0f} ms" + (
+        " (" + ", ".join(f"{k} {v:.0f}" for k, v in parts.items()) + ")" if parts else "")
+
+
 def markdown(report: dict) -> list:
     """The result file's lines from a report (``orbslam_bench.json``; also re-rendered by
     ``--markdown JSON``)."""
     command, backend, n = report["command"], report["backend"], report["frames_timed"]
     size, batch = report["size"], report["batch"]["batch"]
     base = report["opencv_baseline"]["thread_pool_fps"]
-    batched_keys = [key for key, *_ in BATCHED] + [k for k in (FIRST_CALL, STOCK_POOL, OLD_POOL, CHAIN_IN_PROCESS)
-                                                   if k in report]
+    # (in report: a run's JSON from before a row was added re-renders without it)
+    batched_keys = [k for k in [key for key, *_ in BATCHED] + [FIRST_CALL, STOCK_POOL, OLD_POOL, CHAIN_IN_PROCESS]
+                    if k in report]
     rows = [("extraction + matching, pipelined (match node)", "extract_match"),
             ("extraction + matching, pipelined (match_hamming primitive, before)", "extract_match_primitive")]
     rows += [(f"extraction + matching, batched B={k[len('extract_match_batch'):]} (orb_batch + match_batch)", k)
              for k in report if k.startswith("extract_match_batch")]
     rows += [("front end mono, end to end, frame by frame", "frontend_mono"),
-             (f"front end mono, end to end, batched B={batch} (chain in its own process)", "batched_mono"),
+             (f"front end mono, end to end, batched B={batch} (chain in its own process; look-ahead "
+              f"{report['batch'].get('look_ahead', osp.SPECULATE_AHEAD)} frames)", "batched_mono"),
              *([("same, a first run: the graph built and verified in the timed call (not kept from the "
-                 f"warm-up; setup {report[FIRST_CALL].get('setup_ms', float('nan')):.0f} ms against "
-                 f"{report['batched_mono'].get('setup_ms', float('nan')):.0f})", FIRST_CALL)]
-               if FIRST_CALL in report else []),
+                 f"warm-up; setup {_setup(report[FIRST_CALL])} against {_setup(report['batched_mono'])})",
+                 FIRST_CALL)] if FIRST_CALL in report else []),
+             *[(f"front end mono, end to end, batched B={batch}, look-ahead {n} frames"
+                + (" (before: fixed)" if n == osp.SPECULATE_AHEAD else ""), f"batched_mono_look_ahead_{n}")
+               for n in (osp.SPECULATE_AHEAD, 16) if f"batched_mono_look_ahead_{n}" in report],
              *([(f"front end mono, end to end, batched B={batch}, chain in this process (the path before)",
                  CHAIN_IN_PROCESS)] if CHAIN_IN_PROCESS in report else []),
              (f"front end mono, end to end, batched B={batch}, GIL switch interval 5 ms (Python's; default "
@@ -473,6 +529,12 @@ def markdown(report: dict) -> list:
               + (f"{report['pose_pool']['one_process_ms']:.2f} on one process, {report['pose_pool']['pool_ms']:.2f} "
                  f"on {report['pose_pool']['workers']} processes ({report['pose_pool']['speedup']:.1f}x)"
                  if "speedup" in report["pose_pool"] else f"FAILED ({report['pose_pool'].get('error')})"),
+              *([f"Output interval of the first 4 batches, ms: default "
+                 f"{[round(v, 1) for v in report['batched_mono'].get('first_batches_ms', [])]}, a first run "
+                 f"{[round(v, 1) for v in report[FIRST_CALL].get('first_batches_ms', [])]} (its first batch's "
+                 f"pose work primed during the verification, ChainProcess.dry_run: "
+                 f"{report[FIRST_CALL].get('primes')})."]
+               if FIRST_CALL in report else []),
               f"Batched poses vs frame-by-frame poses, largest difference: "
               f"{report['batch']['max_pose_difference_vs_sequential']}; mono, chain process vs chain in "
               f"this process: {report['batch']['max_pose_difference_chain_process_vs_in_process']}.",
@@ -597,7 +659,8 @@ def main(argv=None):
     # (opened before timing).
     # (--workers 0: neither, the pose work and the chain in this process)
     pool = ob.make_pool(args.workers, chain_process=True) if args.workers != 0 else None
-    report["batch"] = {"batch": batch, "workers": 0 if pool is None else pool.workers}
+    report["batch"] = {"batch": batch, "workers": 0 if pool is None else pool.workers,
+                       "look_ahead": None if pool is None else osp.look_ahead(pool)}
     progress("pose pool", f"{report['batch']['workers']} processes")
     try:
         for b in sorted({batch, args.match_batch if not args.quick else batch} - {0}):

@@ -11,7 +11,8 @@ pose pool alone; ``--workers``, ``--nice``: the pose pool's processes and their 
 ``orb-ab``: an interleaved A/B of one setting (:data:`EXPERIMENTS`: ``chain``, the chain in
 this process vs in its own; ``batch``, B=16 vs 32; ``nice``, the pose processes at niceness 0,
 5, 10; ``workers``, the default pool vs 3 and 5 processes fewer; ``direct``, the pool's jobs
-written by the dispatching thread vs through multiprocessing's task thread), ``--pairs``
+written by the dispatching thread vs through multiprocessing's task thread; ``look_ahead``,
+the chain's core look-ahead from the pose processes vs 6 frames and 16), ``--pairs``
 rounds, each a fresh process (``orb-round``) running every arm once (a pool of its own each,
 a warm-up run, then the timed one), the frames rendered once, before; prints a markdown table
 (FPS wall and steady, the chain's wall, CPU and waits per batch; medians) with the command at
@@ -116,6 +117,9 @@ EXPERIMENTS = {
     "direct": ("jobs written to the pose processes by the thread that dispatches them (default) vs "
                "through multiprocessing's task thread (before)",
                (("direct (default)", {}), ("task thread (before)", {"settings": {"direct": False}}))),
+    "look_ahead": ("the chain's core look-ahead from the pose processes (default) vs 6 frames (before) and 16",
+                   (("from the processes (default)", {}), ("6 frames (before)", {"settings": {"look_ahead": 6}}),
+                    ("16 frames", {"settings": {"look_ahead": 16}}))),
 }
 
 

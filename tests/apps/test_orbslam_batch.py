@@ -9,6 +9,7 @@ after Sim(3), stereo 1 cm). 12 frames in batches of 5: the last batch is filled 
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 import signal
@@ -203,16 +204,26 @@ def test_slow_motion_takes_the_speculated_keyframe_cores(monkeypatch):
     np.testing.assert_allclose(got, [f.pose for f in want], atol=1e-9)
 
 
-def test_about_one_essential_matrix_per_frame(seq):
+@pytest.mark.parametrize("look_ahead", [None, 1, 16], ids=["from_pool", "one_frame", "past_the_next_batch"])
+def test_about_one_essential_matrix_per_frame(seq, look_ahead):
     """Speculating, the pool works out the essential matrix track takes and not the other
     candidate (before: both, ~2 per frame): only the run's first frames (the first batch here)
     get both, the chain's speculation starts the others' (no miss on this sequence), and the
-    poses are the sequential ones."""
+    poses are the sequential ones, whatever the look-ahead (16: the walk reaches into the
+    next batch of 5 as soon as the chain starts a batch)."""
     frames, camera = _frames(seq, False)
     want = np.array([f.pose for f in o.track_frames(frames, camera)])
-    with ob.make_pool(2, chain_process=True) as proc:  # (its verification is dry: no jobs)
-        got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=proc)])
-        started = proc.started
+    with ob.make_pool(2, chain_process=True, look_ahead=look_ahead) as proc:
+        def run():
+            return np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=proc)])
+
+        np.testing.assert_array_equal(run(), want)  # (calibrates; the first batch primed in vain)
+        # A first run again, calibration cached: its verification is dry but for the first
+        # batch, primed there and taken by the stream (not sent twice: its frame jobs once).
+        proc.graphs.clear()
+        before = proc.started
+        got = run()
+        started = proc.started - before
     np.testing.assert_array_equal(got, want)
     first, padded = min(BATCH, ob.COVERED), -(-FRAMES // BATCH) * BATCH  # (the last batch filled up)
     assert started["frame_job"] == first and started["pairs_job"] == padded - first
@@ -221,12 +232,15 @@ def test_about_one_essential_matrix_per_frame(seq):
     assert cores <= FRAMES + first
 
 
+@pytest.mark.parametrize("look_ahead, batch", [(None, FRAMES), (16, BATCH)], ids=["one_batch", "deep_across_batches"])
 @pytest.mark.parametrize("estimate", [0, 10 ** 6], ids=["always_keyframe", "never_keyframe"])
-def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate):
+def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate, look_ahead, batch):
     """CoreSpeculation's keyframe decisions wrong whenever they rest on an estimate (every frame
     a keyframe, or none): the cores it starts are the wrong ones, the chain computes the
     right ones on the spot (counted as misses) or takes the speculation's corrections once
-    the cores come in, and the poses stay the sequential ones, bit for bit."""
+    the cores come in, and the poses stay the sequential ones, bit for bit; also with a
+    look-ahead past the batch's end (16 frames, batches of 5: the walk goes on into the next
+    batch frame by frame and hands it over)."""
     frames, camera = _frames(seq, False)
     want = np.array([f.pose for f in o.track_frames(frames, camera)])
     inliers = osp.CoreSpeculation._inliers
@@ -238,10 +252,54 @@ def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate
         return n if exact else estimate
 
     monkeypatch.setattr(osp.CoreSpeculation, "_inliers", wrong)
-    with ob.make_pool(2) as pool:
-        got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=FRAMES, pool=pool)])
+    with ob.make_pool(2, look_ahead=look_ahead) as pool:
+        got = np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=batch, pool=pool)])
         assert pool.started["on the spot"] > 0 or pool.cancelled["_essential_job"] > 0
     np.testing.assert_array_equal(got, want)
+
+
+def test_speculation_walks_into_the_next_batch_frame_by_frame(seq, monkeypatch):
+    """With the next batch's frame jobs done one by one (its ``done`` count grows by one per
+    look), a look-ahead past the batch's end walks into the next batch a frame at a time,
+    starts those frames' cores while the chain is still in this batch and hands them over;
+    the poses are the sequential ones, bit for bit."""
+    frames, camera = _frames(seq, False)
+    want = np.array([f.pose for f in o.track_frames(frames, camera)])
+    config, K = o.TrackerConfig(), np.ascontiguousarray(seq[2], np.float64)
+    common = dict(K=K, config=config, baseline=None, frames=BATCH)
+    done, looks, reach = ob._Later.done, collections.Counter(), []
+
+    def one_by_one(self):
+        looks[id(self)] += 1
+        return min(done(self), looks[id(self)])
+
+    end = osp.CoreSpeculation._end
+
+    def spy(self, until):
+        known = end(self, until)
+        reach.append(known - self._frames)  # frames of the next batch known to the walk
+        return known
+
+    monkeypatch.setattr(ob._Later, "done", one_by_one)
+    monkeypatch.setattr(osp.CoreSpeculation, "_end", spy)
+    batches = [images for images, _ in ob._batches(frames, BATCH, False)]
+    with ob.make_pool(2, look_ahead=2 * BATCH) as pool:
+        tail, aheads, feats = ob.NO_TAIL, [], []
+        last = np.zeros((0, 32), np.uint8)
+        for b in batches:
+            feats.append(ob.orb_batch(b["images"], config=config)[0])
+            last, nearest = ob.match_batch(feats[-1], last, frames=BATCH)
+            tail, ahead = ob.pose_batch(b["images"], feats[-1], nearest, tail, pool=pool, **common)
+            aheads.append(ahead)
+        for a in aheads:
+            ob.ahead_frames(a)  # (all done: the counts above decide what the walk sees)
+        state, poses = o.TrackState(), []
+        for f, a in zip(feats, aheads):
+            state, p, _ = ob.chain(state, f, a, pool=pool, **common)
+            poses.append(p)
+        assert pool.started["on the spot"] == 0
+    assert 0 < min(r for r in reach if r > 0) < BATCH  # a part of the next batch, then more
+    np.testing.assert_array_equal(np.concatenate(poses)[:FRAMES], want)
 
 
 @pytest.mark.parametrize("flags", [[], ["--chain-in-process"]], ids=["chain_process", "chain_in_process"])
@@ -319,23 +377,31 @@ def test_switch_interval_is_set_for_the_run_and_the_callers_restored(seq):
 
 
 def test_pool_starts_urgent_jobs_first_and_drops_cancelled_ones():
-    """One process, busy: queued jobs start by urgency, then in submit order; a cancelled
-    job never starts; wait() books its blocked time."""
+    """One process, busy: queued jobs start by urgency, then by the frame they are needed at
+    (sooner first), then those needed at no frame, each in submit order; a cancelled job
+    never starts; wait() books its blocked time. Without ``ahead``: all in submit order."""
     import time
 
     with ob.make_pool(1) as pool:
         busy = pool.submit(time.sleep, 0.5)
         later = [pool.submit(time.time) for _ in range(3)]
         dropped = pool.submit(time.time)
+        needed = [pool.submit(time.time, need=n) for n in (16, 3, 16, 0)]
         urgent = pool.submit(time.time, urgent=True)
         dropped.cancel()
         busy.cancel()  # already started: still runs
         assert pool.wait(busy, "busy") is None and pool.waited_s["busy"] > 0.2
         times = [t.get() for t in later]
-        assert urgent.get() < times[0] < times[1] < times[2]
+        n16, n3, n16b, n0 = (t.get() for t in needed)
+        assert urgent.get() < n0 < n3 < n16 < n16b < times[0] < times[1] < times[2]
         with pytest.raises(WarpvxError, match="cancelled"):
             dropped.get()
-        assert pool.cancelled == {"time": 1} and pool.started == {"sleep": 1, "time": 4}
+        assert pool.cancelled == {"time": 1} and pool.started == {"sleep": 1, "time": 8}
+        pool.ahead = False
+        busy = pool.submit(time.sleep, 0.3)
+        order = [pool.submit(time.time, **kw) for kw in ({}, {"need": 0}, {"urgent": True})]
+        times = [t.get() for t in order]
+        assert times == sorted(times)
 
 
 def test_shared_block_carries_each_array_once_and_its_segment_is_reused_when_its_jobs_are_done():
@@ -469,6 +535,36 @@ def test_new_settings_refuse_bad_values_by_name():
         g.verify({"x": np.zeros(4, np.float32)}, gpu="cpu")
     with pytest.raises(WarpvxError, match="backend|gpu"):
         g.verify({"x": np.zeros(4, np.float32)}, gpu="tpu")
+
+
+def test_look_ahead_follows_the_pool_and_refuses_bad_values_by_name():
+    """The chain's core look-ahead: one frame per pose process but one, within
+    [SPECULATE_AHEAD, MAX_LOOK_AHEAD], unless the pool's look_ahead sets it; a bad look_ahead
+    (to make_pool, PosePool, ChainProcess, or set on a chain process before a run) is a
+    warpvx error naming it, raised before any process starts."""
+
+    class Pool:
+        def __init__(self, workers, look_ahead=None):
+            self.workers, self.look_ahead = workers, look_ahead
+
+    assert [osp.look_ahead(Pool(w)) for w in (1, 2, 7, 8, 13, 40)] == \
+        [osp.SPECULATE_AHEAD] * 3 + [7, 12, osp.MAX_LOOK_AHEAD]
+    assert osp.look_ahead(Pool(13, 3)) == 3 and osp.look_ahead(Pool(2, 30)) == 30
+    for bad in (0, -2, 1.5, "4", True):
+        for make in (lambda: ob.make_pool(0, look_ahead=bad), lambda: op.PosePool(1, look_ahead=bad),
+                     lambda: orbslam_chain.ChainProcess(0, look_ahead=bad)):
+            with pytest.raises(WarpvxError, match="look_ahead"):
+                make()
+
+    class Proc:  # a chain process whose look_ahead was set to a bad value after it opened
+        dry, ahead, share, direct, look_ahead = False, True, True, True, 0
+
+        def send(self, payload, run):
+            raise AssertionError("sent")
+
+    with pytest.raises(WarpvxError, match="look_ahead"):
+        orbslam_chain.send_batch(None, [], (), 0, K=np.eye(3), config=o.TrackerConfig(), baseline=None,
+                                 frames=1, proc=Proc())
 
 
 def test_packed_features_unpack_to_the_device_ones(seq):
@@ -606,16 +702,22 @@ def test_an_open_pool_keeps_its_verified_graph_for_the_next_run(seq, chain_proce
     assert pool.graphs == {}
 
 
-def test_chain_process_dry_run_answers_without_tracking(seq):
-    """In ChainProcess.dry_run (what the graph's verification runs in) this thread's batches
-    get zero poses and stats shaped and typed as real ones, no pose work started; another
-    thread's batch meanwhile is tracked for real."""
+def _two_frame_batch(seq):
+    """The sequence's first two frames as one batch: (images, features, nearest rows, the
+    other arguments of send_batch)."""
     frames, camera = _frames(seq, False)
     config = o.TrackerConfig()
     images = np.stack([f["image"] for f in frames[:2]])
     feats = ob.orb_batch(images, config=config)[0]
     nearest = ob.match_batch(feats, np.zeros((0, 32), np.uint8), frames=2)[1]
-    kwargs = dict(K=np.ascontiguousarray(camera.K), config=config, baseline=None, frames=2)
+    return images, feats, nearest, dict(K=np.ascontiguousarray(camera.K), config=config, baseline=None, frames=2)
+
+
+def test_chain_process_dry_run_answers_without_tracking(seq):
+    """In ChainProcess.dry_run (what the graph's verification runs in) this thread's batches
+    get zero poses and stats shaped and typed as real ones, no pose work started; another
+    thread's batch meanwhile is tracked for real."""
+    images, feats, nearest, kwargs = _two_frame_batch(seq)
     with ob.make_pool(1, chain_process=True) as proc:
         before = proc.started["frame_job"]
         elsewhere = []
@@ -634,6 +736,46 @@ def test_chain_process_dry_run_answers_without_tracking(seq):
         np.testing.assert_array_equal(real_poses[0], np.eye(4))  # (the run's first frame)
         assert real_stats[1, 0] > 0
         assert proc.started["frame_job"] - before == 2  # the real batch's only
+
+
+def test_chain_process_primes_a_runs_first_batch_during_the_dry_run(seq):
+    """In a priming dry run (the verification's), a run's first batch gets its dry zeros at
+    once and goes to the process for real too; the stream's first batch, equal to it, takes
+    its ticket (its real poses, no second pose work); one that differs is sent anew; a batch
+    of no run after a prime (the calibration's samples) ends the primed run: it fails as in
+    a fresh process, and the next run starts clean."""
+    images, feats, nearest, kwargs = _two_frame_batch(seq)
+
+    def same(got, want):  # poses and stats but the time per frame
+        np.testing.assert_array_equal(got[0], want[0])
+        timed = o.STATS.index("track_ms")
+        np.testing.assert_array_equal(np.delete(got[1], timed, 1), np.delete(want[1], timed, 1))
+
+    def send(sent=0, near=nearest):
+        return orbslam_chain.send_batch(images, feats, near, sent, proc=proc, **kwargs)[1]
+
+    with ob.make_pool(1, chain_process=True) as proc:
+        want = proc.result(send())  # (unprimed: the reference)
+        before = proc.started["frame_job"]
+        with proc.dry_run(prime=True):
+            dry = send()
+        poses, stats = proc.result(dry)
+        assert not poses.any() and not stats.any()
+        ticket = send()  # the stream's first: the primed batch's ticket
+        assert ticket < dry
+        same(proc.result(ticket), want)
+        assert proc.started["frame_job"] - before == 2  # (its 2 frames' jobs, once)
+        with proc.dry_run(prime=True):
+            send()
+        other = send(near=tuple(a.copy() for a in nearest[:2]) + (nearest[2][::-1].copy(),))  # differs
+        assert proc.started["frame_job"] - before == 6
+        assert proc.primes == {"sent": 2, "taken": 1, "dropped": 1}
+        with pytest.raises(WarpvxError, match="batch outside a run"):
+            with proc.dry_run(prime=True):
+                send()
+            proc.result(send(sent=1))  # the calibration's: not the primed run's continuation
+        proc.result(other)
+        same(proc.result(send()), want)  # a new run: as the first
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")

@@ -23,8 +23,9 @@ sequence, the stereo matching of frame t (:func:`~warpvx.apps.orbslam_match.ster
         speculated on the pool a few frames before the chain needs them, the one ``track``
         will take only (only the chain knows the keyframe:
         :class:`~warpvx.apps.orbslam_speculate.CoreSpeculation` walks ahead as ``track``
-        decides, into the next batch as the batch ends), as urgent jobs that start before the
-        next batch's (see :class:`PosePool`)
+        decides, into the next batch as the batch ends); the pool starts the jobs needed
+        soonest first: a frame's core before the next batch's frame jobs, those before that
+        batch's cores (see :class:`PosePool`)
 
 With ``stream(depth >= 2)`` batch k+1 is extracted and matched on the GPU while batch k is
 tracked. The pool is one of processes (``cv2.setNumThreads(1)`` in each), not threads: the
@@ -71,13 +72,16 @@ from .orbslam_speculate import (COVERED, CoreSpeculation, _core_ahead, _essentia
 
 class _Later:
     """``[fn(*job) for fn, job in zip(fns, jobs)]`` (a function per job): on ``pool``'s
-    processes when given, submitted now (not urgent: the chain's keyframe jobs go first) and
-    waited for by :meth:`get`; else in the calling thread, now."""
+    processes when given, submitted now, needed at the run's frame ``start`` (the batch's
+    first: the speculated cores of the frames before go first) and waited for by :meth:`get`;
+    else in the calling thread, now. ``guesses``: per job, :func:`guess_job`'s arguments or
+    None (needed at the job's frame)."""
 
-    def __init__(self, pool, fns, jobs, guesses=(), points=None):
+    def __init__(self, pool, fns, jobs, guesses=(), points=None, start: int = 0):
         #: Per job, the frame's :func:`~warpvx.apps.orbslam.keypoint_xy` (:func:`pose_batch`'s;
         #: the chain's ``track`` takes them as they are).
         self.points = points
+        self.start = start
         self._pool = pool
         #: The next batch's (set by its :func:`pose_batch`), and what this batch's chain takes
         #: over from the previous one's speculation (see
@@ -91,10 +95,10 @@ class _Later:
         block = pool.shared([*jobs, *(g for g in guesses if g is not None)]) if pool.share else None
         refer = block.refer if block is not None else (lambda job: job)
         try:
-            self._pending = [pool.submit(f, *refer(job), block=block) for f, job in zip(fns, jobs)]
+            self._pending = [pool.submit(f, *refer(job), need=start, block=block) for f, job in zip(fns, jobs)]
             #: Per job, a pending :func:`guess_job` (submitted after all the jobs), or None.
-            self.guesses = [None if g is None else pool.submit(guess_job, *refer(g), block=block)
-                            for g in guesses] or self.guesses
+            self.guesses = [None if g is None else pool.submit(guess_job, *refer(g), need=start + k, block=block)
+                            for k, g in enumerate(guesses)] or self.guesses
         finally:
             if block is not None:
                 block.release()
@@ -104,9 +108,15 @@ class _Later:
             self._values = [self._pool.wait(t, "ahead") for t in self._pending]
         return self._values
 
-    def ready(self) -> bool:
-        """Whether :meth:`get` would not wait."""
-        return self._values is not None or all(t.ready() for t in self._pending)
+    def done(self) -> int:
+        """How many of the jobs, in order, have their values (:meth:`value` would not wait)."""
+        if self._values is not None:
+            return len(self._values)
+        return next((k for k, t in enumerate(self._pending) if not t.ready()), len(self._pending))
+
+    def value(self, k: int):
+        """Job ``k``'s value (waited for, uncounted: the chain's speculation asks once it is done)."""
+        return self._values[k] if self._values is not None else self._pending[k].get()
 
 
 #: :func:`track_frames_batched`'s default GIL switch interval, seconds (Python's is 5 ms).
@@ -258,7 +268,8 @@ def pose_batch(images, feats, nearest, tail, *, K, config, baseline, frames, poo
             before, near, pts, angles, prev_pts, prev_angles, K, config))
         before = (near, prev_pts, prev_angles)
         prev_pts, prev_angles = pts, angles
-    ahead = _Later(pool, fns, jobs, guesses if guessing else (), points)
+    ahead = _Later(pool, fns, jobs, guesses if guessing else (), points,
+                   start=0 if previous is None else previous.start + frames)
     if previous is not None:
         previous.next = ahead
     return (prev_pts, prev_angles, before, ahead), ahead
@@ -523,8 +534,9 @@ def track_frames_batched(frames, camera: o.Camera, config: o.TrackerConfig = o.T
             g = kept.pop(key, None)
             if g is None:
                 g = build_batch_graph(camera, batch, config, backend=backend, pool=pool)
-                # A chain process answers the verification's batches dry (ChainProcess.dry_run).
-                with pool.dry_run() if isinstance(pool, ChainProcess) else contextlib.nullcontext():
+                # A chain process answers the verification's batches dry, and starts the real
+                # work of the first one meanwhile: the stream's first takes it (ChainProcess.dry_run).
+                with pool.dry_run(prime=True) if isinstance(pool, ChainProcess) else contextlib.nullcontext():
                     g.verify(first[0], gpu=None if backend == "cpu" else backend)
             else:
                 g.reset()

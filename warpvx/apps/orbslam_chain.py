@@ -22,8 +22,9 @@ tracked; its main thread runs :func:`~warpvx.apps.orbslam_batch.chain` batch aft
 Same functions, same inputs, in the same order: the poses are the in-process ones, bit for bit.
 
 The process is spawned once (with its pool) and serves any number of runs: a batch whose
-``sent`` is 0 (the first of a stream, or of a verification) starts a new run (fresh tracking
-state, the run's camera and settings). Every batch gets a result, in order, kept for
+``sent`` is 0 (the first of a stream, or a verification's primed one: see
+:meth:`ChainProcess.dry_run`) starts a new run (fresh tracking state, the run's camera and
+settings); a batch of no run fails. Every batch gets a result, in order, kept for
 :data:`KEEP_RESULTS` batches: a ticket may be asked for again (the calibration times a node on
 the same inputs several times). Shut it down with :meth:`ChainProcess.shutdown` (or a
 ``with`` block; also at the interpreter's exit): the pool's processes go with it, and its
@@ -45,7 +46,7 @@ import numpy as np
 
 from ..errors import NodeExecutionError, WarpvxValueError
 from ..keypoints import FIELDS
-from .orbslam_pool import PosePool, Segments, SharedBlock, _caller_script_hidden, _resolve
+from .orbslam_pool import PosePool, Segments, SharedBlock, _caller_script_hidden, _resolve, check_look_ahead
 
 #: Results a :class:`ChainProcess` keeps (by ticket) after they arrive.
 KEEP_RESULTS = 64
@@ -76,8 +77,11 @@ def _receive(inbox, jobs: queue.SimpleQueue, pool, stopping: threading.Event):
     tail, params = NO_TAIL, None
     try:
         while (msg := inbox.recv()) is not None:
-            if msg[0] in ("counts", "dry"):
-                jobs.put(msg)  # (in order with the batches; a dry one leaves the run's state alone)
+            if msg[0] == "counts":
+                jobs.put(msg)  # (in order with the batches)
+                continue
+            if msg[0] == "unprime":
+                tail, params = NO_TAIL, None  # (the primed run is not continued: see ChainProcess.send)
                 continue
             _, ticket, run, payload = msg
             try:
@@ -88,6 +92,9 @@ def _receive(inbox, jobs: queue.SimpleQueue, pool, stopping: threading.Event):
                     for k, v in settings.items():
                         if pool is not None:
                             setattr(pool, k, v)
+                if params is None:
+                    raise NodeExecutionError("chain process: a batch outside a run (a run's first batch, "
+                                             "sent 0, starts one)")
                 images, packed, nearest = payload
                 # Copies: the tracking state keeps the last frame's arrays past the block's reuse.
                 packed, nearest = _resolve((packed, nearest), copy=True)
@@ -135,9 +142,6 @@ def _serve(inbox, outbox, workers: int, quiet: bool, nice: int):
                 continue  # shutting down: the parent takes no more results
             elif item[0] == "failed":
                 _send_error(outbox, *item[1:])
-            elif item[0] == "dry":
-                _, ticket, frames = item
-                outbox.send(("done", ticket, np.zeros((frames, 4, 4)), np.zeros((frames, len(o.STATS)))))
             else:
                 _, ticket, first, params, packed, ahead = item
                 if first:
@@ -169,7 +173,7 @@ class ChainProcess:
     :func:`~warpvx.apps.orbslam_batch.track_frames_batched`'s ``pool`` for any number of runs;
     close it with :meth:`shutdown` (or a ``with`` block).
 
-    ``ahead``, ``share``, ``direct``: the pool's settings (:class:`~warpvx.apps.orbslam_pool.PosePool`),
+    ``ahead``, ``share``, ``direct``, ``look_ahead``: the pool's settings (:class:`~warpvx.apps.orbslam_pool.PosePool`),
     applied at each run's start; ``quiet`` False: multiprocessing's stock ``Pool``; ``nice``:
     the pose processes' niceness increment (see :func:`~warpvx.apps.orbslam_pool.make_pool`).
     :meth:`counts` (and ``waited_s``, ``started``, ``cancelled``) reports the pool's counters
@@ -177,13 +181,14 @@ class ChainProcess:
     :class:`~warpvx.apps.orbslam_pool.PosePool`'s."""
 
     def __init__(self, workers: int, quiet: bool = True, ahead: bool = True, share: bool = True, nice: int = 0,
-                 direct: bool = True):
+                 direct: bool = True, look_ahead: int | None = None):
         from multiprocessing import get_context, util
 
         if os.name != "posix":
             raise WarpvxValueError("chain_process: needs POSIX shared memory (run the chain in process)")
         ctx = get_context("spawn")
         self.workers, self.ahead, self.share, self.direct = workers, ahead, share, direct
+        self.look_ahead = check_look_ahead(look_ahead)
         self.graphs = {}
         child_in, self._to_child = ctx.Pipe(duplex=False)
         self._from_child, child_out = ctx.Pipe(duplex=False)
@@ -198,7 +203,11 @@ class ChainProcess:
         self._results, self._next, self._counts = collections.OrderedDict(), 0, collections.deque()
         # (send posts under the send lock: the tickets reach the process in order)
         self._send_lock, self._read_lock = threading.RLock(), threading.Lock()
-        self._local = threading.local()  # .dry: see dry_run
+        self._local = threading.local()  # .dry, .prime: see dry_run
+        # Dry tickets -> frames (answered here, kept as results are); the primed batch: see dry_run.
+        self._dry, self._primed = collections.OrderedDict(), None
+        #: Primed batches (see dry_run): "sent", "taken" by the stream's first, "dropped" (not taken).
+        self.primes = collections.Counter()
         self._stop = util.Finalize(self, _stop, args=(self._to_child, self._from_child, self._process,
                                                       self._segments), exitpriority=10)
         try:
@@ -209,20 +218,26 @@ class ChainProcess:
             raise
 
     @contextlib.contextmanager
-    def dry_run(self):
+    def dry_run(self, prime: bool = False):
         """In the block, batches that this thread sends (:func:`send_batch`) get poses and
-        stats of the right shape and dtype, zeros, at once, in order with the others: the
-        process neither reads them nor tracks them, and a run's state stays as it was.
+        stats of the right shape and dtype, zeros, at once (answered here: the process neither
+        reads them nor tracks them, and a run's state stays as it was).
         :func:`~warpvx.apps.orbslam_batch.track_frames_batched` verifies its graph so (the
         verification runs two batches; each was the whole pose work and chain of a batch,
         on the H100 ~2 x 70 ms per call): the stream then runs that work on the same first
-        batch, its errors raised from there. Other threads' batches (a stream's) are real."""
-        before = self.dry
-        self._local.dry = True
+        batch, its errors raised from there. Other threads' batches (a stream's) are real.
+
+        ``prime``: the block's first batch of a run (``sent`` 0: the verification's first, the
+        stream's first batch) also goes to the process for real, so that its pose work and
+        chain run while the verification goes on and the stream starts; the stream's first
+        batch, if equal to it (every array), takes its ticket instead of sending it again
+        (one primed batch at a time; a later prime replaces it)."""
+        before = self.dry, getattr(self._local, "prime", False)
+        self._local.dry, self._local.prime = True, prime
         try:
             yield
         finally:
-            self._local.dry = before
+            self._local.dry, self._local.prime = before
 
     @property
     def dry(self) -> bool:
@@ -231,17 +246,41 @@ class ChainProcess:
 
     # -- the graph's nodes call these
 
+    @property
+    def priming(self) -> bool:
+        """Whether this thread is in a priming :meth:`dry_run`."""
+        return self.dry and self._local.prime
+
+    def prime(self, payload, run):
+        """Send a run's first batch (as :meth:`send`) for the stream's first to take (see
+        :meth:`dry_run`)."""
+        self._primed = (self.send(payload, run), payload, run)
+        self.primes["sent"] += 1
+
     def send_dry(self, frames: int) -> int:
         """A ticket for ``frames`` zero poses and stats (see :meth:`dry_run`)."""
         with self._send_lock:
             ticket, self._next = self._next, self._next + 1
-            self._post(("dry", ticket, frames))
+            self._dry[ticket] = frames
+            while len(self._dry) > KEEP_RESULTS:
+                self._dry.popitem(last=False)
         return ticket
 
     def send(self, payload, run) -> int:
         """Hand a batch (``payload``: (images or None, packed features, nearest), arrays) to
-        the process; ``run``: None, or the first batch's (params, settings). Returns its ticket."""
+        the process; ``run``: None, or the first batch's (params, settings). Returns its ticket
+        (the primed one's when this is the primed batch, see :meth:`dry_run`)."""
+        primed, self._primed = self._primed, None
+        if primed is not None:
+            taken = run is not None and _same_value((payload, run), primed[1:])
+            self.primes["taken" if taken else "dropped"] += 1
+            if taken:
+                return primed[0]
         with self._send_lock:
+            if primed is not None and run is None:
+                # Not the stream's batch after the primed one (the calibration's samples): the
+                # primed run ends there, as if it had not started.
+                self._post(("unprime",))
             ticket, self._next = self._next, self._next + 1
             block = SharedBlock([payload], self._segments)
             self._blocks[ticket] = block
@@ -251,6 +290,11 @@ class ChainProcess:
     def result(self, ticket: int):
         """The batch's (poses float64 [B, 4, 4], stats float64 [B, 6]), waited for; the chain
         process's error raised again here."""
+        frames = self._dry.get(ticket)
+        if frames is not None:
+            from .orbslam import STATS
+
+            return np.zeros((frames, 4, 4)), np.zeros((frames, len(STATS)))
         with self._read_lock:
             while ticket not in self._results:
                 if self._results and ticket < next(iter(self._results)):
@@ -333,6 +377,20 @@ class ChainProcess:
         self.shutdown()
 
 
+def _same_value(a, b) -> bool:
+    """Whether ``a`` and ``b`` (nested tuples, lists and dicts of arrays and plain values) are
+    equal, arrays element for element (shape and dtype too)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape
+                and a.dtype == b.dtype and bool((a == b).all()))
+    if isinstance(a, (tuple, list)) or isinstance(b, (tuple, list)):
+        return type(a) is type(b) and len(a) == len(b) and all(_same_value(x, y) for x, y in zip(a, b))
+    if isinstance(a, dict) or isinstance(b, dict):
+        return (type(a) is type(b) and a.keys() == b.keys()
+                and all(_same_value(a[k], b[k]) for k in a))
+    return type(a) is type(b) and a == b
+
+
 def _stop(to_child, from_child, process, segments):
     """:meth:`ChainProcess.shutdown`: an end message (the receiver thread stops and the main
     thread drops what is queued, then shuts its pool down), a wait, SIGTERM and SIGKILL as
@@ -358,16 +416,19 @@ def send_batch(images, feats, nearest, sent, *, K, config, baseline, frames, pro
     """The graph's ``pose_batch`` node with a chain process: the batch to ``proc`` ->
     (``sent`` + 1, its ticket). ``sent`` 0: the first batch of a run (its parameters go with
     it). ``images`` travel only for a stereo camera. In ``proc``'s
-    :meth:`~ChainProcess.dry_run`, a dry ticket."""
-    if proc.dry:
-        return sent + 1, proc.send_dry(frames)
+    :meth:`~ChainProcess.dry_run`, a dry ticket (a priming one's first batch also sent)."""
     run = None
     if sent == 0:
         params = dict(K=K, config=config, baseline=baseline, frames=frames)
         run = (params, {"switch": sys.getswitchinterval(), "ahead": proc.ahead, "share": proc.share,
-                        "direct": proc.direct})
-    return sent + 1, proc.send((None if baseline is None else np.asarray(images), _pack_host(feats),
-                                tuple(nearest)), run)
+                        "direct": proc.direct, "look_ahead": check_look_ahead(proc.look_ahead)})
+    if proc.dry and not (run is not None and proc.priming):
+        return sent + 1, proc.send_dry(frames)
+    payload = (None if baseline is None else np.asarray(images), _pack_host(feats), tuple(nearest))
+    if proc.dry:
+        proc.prime(payload, run)
+        return sent + 1, proc.send_dry(frames)
+    return sent + 1, proc.send(payload, run)
 
 
 def receive_batch(ticket, *, proc: ChainProcess):

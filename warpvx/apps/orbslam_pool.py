@@ -317,9 +317,11 @@ class PosePool:
     :meth:`shutdown` (or use it as a context manager).
 
     Jobs wait in the parent, by priority, and go to the processes only as these free up (no
-    more in flight than processes): an ``urgent`` job (what the tracking chain waits on) then
-    starts before every queued non-urgent one (the next batch's work) instead of behind it,
-    and a job cancelled before it starts costs nothing. ``waited_s`` sums the seconds
+    more in flight than processes): a job with a sooner ``need`` (the run's frame at which
+    the tracking chain will wait for it: a frame's essential core, a batch's frame jobs at its
+    first frame) then starts before every queued one needed later (the next batch's work)
+    instead of behind it, an ``urgent`` one before all, and a job cancelled before it starts
+    costs nothing. ``waited_s`` sums the seconds
     :meth:`wait` spent blocked, by its ``what``; ``started`` counts the jobs started and
     ``cancelled`` those dropped unstarted, by function name. ``ahead`` False (to measure
     what it gives): every job in submit order, and ``pose_batch`` guesses no core.
@@ -330,34 +332,42 @@ class PosePool:
     process's own thread that lives as long as the pool: the chain process's main thread).
     ``nice`` (POSIX, 0 to 19): the processes' niceness increment (:func:`make_pool`'s).
     ``direct`` False (to measure what it gives): jobs go through multiprocessing's task
-    hand-off thread (see :meth:`_apply`). ``graphs``: the verified graphs of the runs it
-    served, for the next run with the same settings
+    hand-off thread (see :meth:`_apply`). ``look_ahead``: frames ahead of the tracking chain
+    whose essential cores it keeps started (int >= 1; None, the default: from the processes,
+    see :func:`~warpvx.apps.orbslam_speculate.look_ahead`). ``graphs``: the verified graphs of
+    the runs it served, for the next run with the same settings
     (:func:`~warpvx.apps.orbslam_batch.track_frames_batched`'s; dropped on :meth:`shutdown`)."""
 
     def __init__(self, workers: int, ahead: bool = True, share: bool = True, quiet: bool = True,
-                 bound: bool = False, nice: int = 0, direct: bool = True):
+                 bound: bool = False, nice: int = 0, direct: bool = True, look_ahead: int | None = None):
         from multiprocessing import get_context
         from multiprocessing.pool import Pool
+
+        look_ahead = check_look_ahead(look_ahead)
 
         with _caller_script_hidden():
             self._pool = (_quiet_pool_class() if quiet else Pool)(workers, initializer=_init_worker,
                                                                   initargs=(bound, nice), context=get_context("spawn"))
         # the shared blocks are POSIX shared memory (read through _posixshmem in the workers)
         self.workers, self.ahead, self.share = workers, ahead, share and os.name == "posix"
-        self.direct, self.graphs = direct, {}
+        self.direct, self.look_ahead, self.graphs = direct, look_ahead, {}
         # (re-entrant: a job whose pickling fails is settled, its callback run, while dispatching)
         self._lock = threading.RLock()
         self._queue, self._order, self._running = [], itertools.count(), 0
         self._segments = Segments()
         self.waited_s, self.started, self.cancelled = (collections.Counter() for _ in range(3))
 
-    def submit(self, fn, *args, urgent: bool = False, block: SharedBlock | None = None) -> PoolTask:
-        """``fn(*args)`` on a process, as soon as one is free and no job more urgent (or
-        submitted earlier at the same urgency) waits; ``block``: the :class:`SharedBlock`
-        whose arrays ``args`` refer to (:meth:`SharedBlock.refer`), held until the job is done."""
+    def submit(self, fn, *args, urgent: bool = False, need: int | None = None,
+               block: SharedBlock | None = None) -> PoolTask:
+        """``fn(*args)`` on a process, as soon as one is free and no job more urgent waits:
+        ``urgent`` ones first, then by ``need`` (the run's frame at which the chain waits for
+        the value; sooner first), then those with none; each in submit order (every job so
+        without ``ahead``). ``block``: the :class:`SharedBlock` whose arrays ``args`` refer to
+        (:meth:`SharedBlock.refer`), held until the job is done."""
         task = PoolTask(fn, args, self._lock, block)
+        rank = (2, 0) if not self.ahead else (0, 0) if urgent else (2, 0) if need is None else (1, need)
         with self._lock:
-            heapq.heappush(self._queue, (not (urgent and self.ahead), next(self._order), task))
+            heapq.heappush(self._queue, (rank, next(self._order), task))
             self._dispatch()
         return task
 
@@ -444,28 +454,37 @@ class PosePool:
 SPARE_CORES = 3
 
 
+def check_look_ahead(value):
+    """A pool's ``look_ahead`` (None, or frames: an int >= 1), checked by name."""
+    from ..check import check_int
+
+    return None if value is None else check_int(value, "look_ahead", min_value=1)
+
+
 def default_workers() -> int:
     """:func:`make_pool`'s default: all cores but :data:`SPARE_CORES`, at least 2."""
     return max(2, os.cpu_count() - SPARE_CORES)
 
 
-def make_pool(workers: int | None = None, chain_process: bool = False, nice: int = 0):
+def make_pool(workers: int | None = None, chain_process: bool = False, nice: int = 0,
+              look_ahead: int | None = None):
     """A :class:`PosePool` for :func:`~warpvx.apps.orbslam_batch.pose_batch` (``workers``
     processes, default :func:`default_workers`; 0: None, the work runs in the calling thread);
     ``chain_process``: a :class:`~warpvx.apps.orbslam_chain.ChainProcess` with such a pool
     (0: none, the work in that process), on POSIX (elsewhere the pool as without it).
     ``nice``: the pose processes' niceness increment (``os.nice``, 0 to 19; 0, the default:
     the caller's priority; ignored off POSIX), so that the chain and the GPU host thread get
-    a free core before them."""
+    a free core before them. ``look_ahead``: :class:`PosePool`'s."""
     from ..check import check_bool, check_int
 
     workers = default_workers() if workers is None else check_int(workers, "workers", min_value=0)
     nice = check_int(nice, "nice", min_value=0, max_value=19) if os.name == "posix" else 0
+    look_ahead = check_look_ahead(look_ahead)
     if check_bool(chain_process, "chain_process") and os.name == "posix":
         from .orbslam_chain import ChainProcess
 
-        return ChainProcess(workers, nice=nice)
-    return PosePool(workers, nice=nice) if workers else None
+        return ChainProcess(workers, nice=nice, look_ahead=look_ahead)
+    return PosePool(workers, nice=nice, look_ahead=look_ahead) if workers else None
 
 
 __all__ = ["PosePool", "PoolTask", "SharedBlock", "Segments", "make_pool", "default_workers", "SPARE_CORES"]

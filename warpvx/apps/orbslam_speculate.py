@@ -145,10 +145,26 @@ def _essential_job(p1, p2, K, config):
     return o.essential_core(p1, p2, K, config)
 
 
-#: Frames ahead of the chain whose cores :class:`CoreSpeculation` keeps started:
-#: ~ a core's latency (one process: ~14 ms on the H100 host) over the chain's time per frame
-#: (~3 ms there).
+#: Frames ahead of the chain whose cores :class:`CoreSpeculation` keeps started, at least
+#: (:func:`look_ahead`): ~ a core's latency (one process: ~14 ms on the H100 host) over the
+#: chain's time per frame (~3 ms there in session 7).
 SPECULATE_AHEAD = 6
+#: :func:`look_ahead`'s most frames by default: a batch's (the walk past it waits for the next
+#: batch's frame jobs).
+MAX_LOOK_AHEAD = 16
+
+
+def look_ahead(pool) -> int:
+    """Frames ahead of the chain whose cores :class:`CoreSpeculation` keeps started on
+    ``pool``: its ``look_ahead`` when set, else one per process but one (that one left to the
+    next batch's frame jobs, which the walk into that batch waits for), between
+    :data:`SPECULATE_AHEAD` and :data:`MAX_LOOK_AHEAD`. The chain waits for a core when the
+    look-ahead is shorter than the core's latency over the chain's own time per frame: on
+    the H100 host ~14 ms over ~1.4 ms (session 8, 6 frames: 14 ms waited per batch of 16)."""
+    if pool.look_ahead is not None:
+        return pool.look_ahead
+    return min(MAX_LOOK_AHEAD, max(SPECULATE_AHEAD, pool.workers - 1))
+
 #: A run's first frames whose cores ``pose_batch`` works out for both references ``track``
 #: may take (its ``frame_job`` and ``guess_job``, :mod:`~warpvx.apps.orbslam_batch`): no chain
 #: before them starts their cores ahead, and the first chain could start them only a core's
@@ -156,6 +172,13 @@ SPECULATE_AHEAD = 6
 COVERED = SPECULATE_AHEAD
 #: The inlier fraction of a core :class:`CoreSpeculation` assumes before it has seen one.
 INLIER_FRACTION = 0.5
+
+
+def _job(per_frame):
+    """A frame job's value -> what its ``pairs_job`` worked out for the walk (tracks with the
+    keyframe two frames back, points to the previous frame, points to that keyframe), or None
+    (a ``frame_job``'s)."""
+    return per_frame[4] if len(per_frame) > 4 else None
 
 
 @dataclasses.dataclass
@@ -180,7 +203,7 @@ class _Walked:
 
 class CoreSpeculation:
     """Monocular: the essential core ``track`` will take for each frame (to the previous
-    frame or to the keyframe), started on ``pool`` (urgent) :data:`SPECULATE_AHEAD` frames
+    frame or to the keyframe), started on ``pool`` (needed at that frame) :func:`look_ahead` frames
     before the chain reaches the frame, and only that one.
 
     Which reference ``track`` takes depends on the keyframe, the chain's state. The
@@ -195,7 +218,7 @@ class CoreSpeculation:
     cores that came in: from the first decision that differs it walks on anew, and what it no longer reaches
     is cancelled if not started. A frame lost (or a scale jump: the depths are the chain's)
     stops it until the chain has tracked past. Near the batch's end it walks on into the next
-    batch once that one's frame jobs are done, and :meth:`hand_over` gives that batch's
+    batch, each frame once its frame job (and those before it) is done, and :meth:`hand_over` gives that batch's
     speculation what it started; the cores of a run's first :data:`COVERED` frames are
     ``pose_batch``'s (both references). One the chain still lacks it computes on the spot
     (:func:`_essential_ahead`, counted in ``pool.started["on the spot"]``).
@@ -210,9 +233,10 @@ class CoreSpeculation:
         extra = [a[2] for a in per_frame]
         #: Per frame, pairs_job's (tracks with the keyframe two frames back, points to the
         #: previous frame, points to that keyframe), or None (a frame job's).
-        self._jobs = [a[4] if len(a) > 4 else None for a in per_frame]
+        self._jobs = [_job(a) for a in per_frame]
         self._args = (pts, good, extra, list(ahead.guesses), pool, K, config)
         self._on = pool is not None and config.keyframe_motion
+        self._depth = look_ahead(pool) if self._on else 0
         self._ahead, self._frames, self._next = ahead, len(pts), None
         self._walked, self._started = {}, {}  # frame -> _Walked; frame -> [(p1, p2, PoolTask)]
         # The inlier fraction last seen by reference (keyframe or not): the previous frame's
@@ -226,7 +250,7 @@ class CoreSpeculation:
             ahead.handed = None
 
     def ahead(self, f, state):
-        """Walked up to frame ``f`` + :data:`SPECULATE_AHEAD`; ``state``: the chain's before
+        """Walked up to frame ``f`` + :func:`look_ahead`; ``state``: the chain's before
         frame ``f``."""
         if not self._on:
             return
@@ -240,7 +264,7 @@ class CoreSpeculation:
         if step is not None and not (step.cursor[2] == sim[2][2] and _same(step.cursor[0], prev.pts)
                                      and _same(step.cursor[1], prev.kf_index)):
             self._drop(f)
-        u, g, end = f, state.frames, self._end(f + 1 + SPECULATE_AHEAD)
+        u, g, end = f, state.frames, self._end(f + 1 + self._depth)
         while u in self._walked or u < end:
             step = self._walked.get(u)
             if step is not None and step.kf_index != sim[1]:
@@ -265,20 +289,22 @@ class CoreSpeculation:
         self._prune(f)
 
     def _end(self, end):
-        """``end``, or the batch's frames and the next batch's walked into when it reaches
-        past this one's and the next batch's frame jobs are done (the chain may then start its
-        first cores as this batch ends; :meth:`hand_over`)."""
-        nxt = self._ahead.next
-        if end > self._frames and self._next is None and nxt is not None and nxt.ready():
-            pts, good, extra, guesses = self._args[:4]
-            per_frame = nxt.get()
-            pts += [xy for xy, _ in nxt.points]
-            good += [a[3] for a in per_frame]
-            extra += [a[2] for a in per_frame]
-            self._jobs += [a[4] if len(a) > 4 else None for a in per_frame]
-            guesses += nxt.guesses
-            self._next = nxt
-        return min(end, len(self._args[0]))
+        """``end``, or as far as the frames known: this batch's, then the next batch's (when
+        the walk reaches past this one) whose frame jobs are done, each as soon as it and those
+        before it are (the chain then starts the next batch's first cores while it tracks this
+        one; :meth:`hand_over`)."""
+        nxt, pts = self._ahead.next, self._args[0]
+        if end > len(pts) and nxt is not None:
+            good, extra, guesses = self._args[1:4]
+            for k in range(len(pts) - self._frames, min(nxt.done(), end - self._frames)):
+                per_frame = nxt.value(k)
+                pts.append(nxt.points[k][0])
+                good.append(per_frame[3])
+                extra.append(per_frame[2])
+                self._jobs.append(_job(per_frame))
+                guesses.append(nxt.guesses[k])
+                self._next = nxt
+        return min(end, len(pts))
 
     def hand_over(self):
         """At the batch's end: the walk into the next batch (its steps and cores) to that
@@ -325,7 +351,7 @@ class CoreSpeculation:
                 core = next((c for c in self._started.get(u, ()) if _same(c[0], points[0])
                              and _same(c[1], points[1])), None)
                 if core is None:
-                    core = (*points, pool.submit(_essential_job, *points, K, config, urgent=True))
+                    core = (*points, pool.submit(_essential_job, *points, K, config, need=g))
                     self._started.setdefault(u, []).append(core)
         known = None if points is None else (ref_pts, pts[u], pairs, *points)
         return _Walked(kf_pts, kf_index, cursor, after, (tracked, kf_good), known, core, guess, len(pairs))
@@ -405,4 +431,4 @@ class CoreSpeculation:
         return None if step is None else step.core
 
 
-__all__ = ["CoreSpeculation", "SPECULATE_AHEAD", "COVERED", "INLIER_FRACTION"]
+__all__ = ["CoreSpeculation", "look_ahead", "SPECULATE_AHEAD", "MAX_LOOK_AHEAD", "COVERED", "INLIER_FRACTION"]
