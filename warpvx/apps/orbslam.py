@@ -366,7 +366,8 @@ def _triangulate_known(ref, cur_pts, pairs, T, K):
     x1, x2 = rays(ref.pts[pairs[:, 1]], Kinv), rays(cur_pts[pairs[:, 0]], Kinv)
     R, t = T[:3, :3], T[:3, 3]
     z1, z2 = _ray_depths(x1, x2, R, t)
-    X = (x1 * z1[:, None]) @ R.T + t
+    with np.errstate(invalid="ignore"):  # parallel rays' depths are not finite: X too, not ok
+        X = (x1 * z1[:, None]) @ R.T + t
     ok = (z1 > 0) & (z2 > 0) & reprojects(X, K, cur_pts[pairs[:, 0]])
     var = log_depth_var(x1[ok], x2[ok], R, K[0, 0])
     keep = var <= NEW_VAR
