@@ -246,3 +246,24 @@ def test_orb_ab_interleaves_rounds_and_reports_medians(tmp_path, monkeypatch):
     missing = True
     with pytest.raises(RuntimeError, match="2 of 3 arms"):
         hot_paths.orb_ab(1, str(tmp_path), experiment="nice")
+
+
+def test_handoff_floor_writes_its_rows(tmp_path):
+    """benchmarks/perf/handoff_floor.py on Warp's CPU device: the four rows, each a positive
+    time per round with its half per node, under the command that regenerates them."""
+    from pathlib import Path
+
+    pytest.importorskip("warp")
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "perf"))
+    import handoff_floor
+
+    assert handoff_floor.main(["--out", str(tmp_path), "--device", "cpu", "--rounds", "20",
+                               "--batches", "2"]) == 0
+    text = (tmp_path / "handoff_floor.md").read_text()
+    assert text.startswith("<!-- PYTHONPATH=. python3 benchmarks/perf/handoff_floor.py --out ")
+    rows = [line.split("|")[1:4] for line in text.splitlines()
+            if line.startswith("| ") and not line.startswith("| what")]
+    assert [r[0].strip() for r in rows] == ["copies", "copies + event", "threads",
+                                            "threads + copies"]
+    for _, per_round, per_node in rows:
+        assert float(per_round) > 0 and float(per_node) == pytest.approx(float(per_round) / 2, abs=0.06)

@@ -60,19 +60,25 @@ def main(argv=None) -> int:
     stream = wp.get_stream(dev) if dev.is_cuda else None
     event = wp.Event(dev) if dev.is_cuda else None
 
+    def up_down():
+        wp.copy(on_dev, host_in)
+        wp.copy(host_out, on_dev)
+
+    def gpu_work():  # what the GPU side of a round enqueues
+        up_down()
+        if event is not None:
+            wp.record_event(event)
+
     def copies(n):
         for _ in range(n):
-            wp.copy(on_dev, host_in)
-            wp.copy(host_out, on_dev)
+            up_down()
             if stream is not None:
                 wp.synchronize_stream(stream)
 
     def copies_event(n):
         for _ in range(n):
-            wp.copy(on_dev, host_in)
-            wp.copy(host_out, on_dev)
+            gpu_work()
             if event is not None:
-                wp.record_event(event)
                 wp.synchronize_event(event)
 
     def handoffs(n, work=None):
@@ -95,12 +101,6 @@ def main(argv=None) -> int:
             if event is not None and work is not None:
                 wp.synchronize_event(event)
         t.join()
-
-    def gpu_work():
-        wp.copy(on_dev, host_in)
-        wp.copy(host_out, on_dev)
-        if event is not None:
-            wp.record_event(event)
 
     rows = [("copies", _median_us(copies, args.rounds, args.batches)),
             ("copies + event", _median_us(copies_event, args.rounds, args.batches)),
