@@ -1174,7 +1174,7 @@ def serial_nodes(graph: str, size, max_corners: int) -> frozenset:
             plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
             for f in frames:
                 g.process(f, capture=True)
-            _SERIAL[key] = plan.executor().serial_tasks
+            _SERIAL[key] = plan.serial_tasks
         finally:
             g.close()
     return _SERIAL[key]

@@ -112,7 +112,7 @@ cv2.setNumThreads(1)
 frames, gpu, count = int(sys.argv[3]), sys.argv[4], sys.argv[5] == "1"
 x = np.arange(4, dtype=np.float32)
 rows, calls = [], {}
-for chain, nodes in json.loads(sys.argv[7]):
+for chain, nodes in json.loads(sys.argv[2]):
     g = _chain(nodes, chain)
     g.schedule("heft", n_cpus=1, gpu=False if chain == "cpu" else gpu)
     for _ in range(10):
@@ -157,9 +157,9 @@ def _ab_runs(args, trees: dict) -> dict:
         order = ("before", "after") if pair % 2 == 0 else ("after", "before")
         for k in order:
             count = "1" if pair == 0 else "0"  # the same every run: each tree's once
-            out = subprocess.run([sys.executable, "-c", _AB_RUN, trees[k], str(args.nodes),
-                                  str(args.frames), args.gpu, count, str(ROOT),
-                                  json.dumps(chain_sizes(args.nodes))],
+            out = subprocess.run([sys.executable, "-c", _AB_RUN, trees[k],
+                                  json.dumps(chain_sizes(args.nodes)), str(args.frames), args.gpu,
+                                  count, str(ROOT)],
                                  capture_output=True, text=True, timeout=300)
             if out.returncode:
                 raise RuntimeError(f"{k} ({trees[k]}): {out.stderr.strip()[-2000:]}")

@@ -831,3 +831,23 @@ def test_chain_process_ends_when_its_parent_dies(tmp_path):
     pids = [int(p) for p in run.stdout.split()]
     assert len(pids) >= 3, run.stderr
     assert _gone(pids)
+
+
+def test_a_prime_is_taken_only_by_the_same_bits():
+    # The stream's first batch takes the primed ticket only when every array is the primed
+    # one bit for bit: -0.0 is not 0.0 (an atan2 tells them apart); a NaN is itself.
+    same = orbslam_chain._same_value
+    assert not same((np.array([0.0]), {"k": 1}), (np.array([-0.0]), {"k": 1}))
+    assert same((np.array([np.nan, 1.0]), [2]), (np.array([np.nan, 1.0]), [2]))
+    assert not same(np.zeros(3, np.float32), np.zeros(3, np.float64))
+    assert not same(np.zeros((1, 3)), np.zeros(3))
+
+
+def test_chain_process_result_of_an_unknown_ticket_is_an_error_not_a_wait():
+    # A ticket it never sent (or whose result it no longer keeps) raises at once (before: a
+    # dry ticket evicted from its table waited for a message that never comes).
+    with ob.make_pool(1, chain_process=True) as proc:
+        t0 = time.perf_counter()
+        with pytest.raises(WarpvxError, match="no longer kept"):
+            proc.result(12345)
+        assert time.perf_counter() - t0 < 5.0

@@ -341,7 +341,7 @@ def test_model_fits_one_placement_and_predicts_others_out_of_sample(frames):
     probe = cal.contention[1]
     assert probe and all(v[2] > 0 for v in probe.values())
     model = g.fit_model(plans["baseline"], runs=runs["baseline"][:6])
-    assert cal.contention[1] is probe and plans["baseline"].calibration is cal
+    assert cal.contention[1] is probe  # not measured again
     assert set(model.slowdown) == {"cpu", "gpu"}
     errors = {}
     for policy, plan in plans.items():
@@ -710,6 +710,10 @@ def test_fit_model_takes_the_serial_tasks_its_executor_found():
         for f in frames:
             g.process(f, capture=True)
             runs.append(plan.last_run[-1])
+        assert g.fit_model(plan, runs=runs).serial == {"harrisL", "harrisR"}
+        # A closed plan (its executor gone; a later run starts a fresh one) keeps them.
+        plan.close()
+        assert plan.serial_tasks == {"harrisL", "harrisR"}
         assert g.fit_model(plan, runs=runs).serial == {"harrisL", "harrisR"}
     finally:
         g.close()

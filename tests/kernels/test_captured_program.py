@@ -112,3 +112,19 @@ def test_inside_a_callers_capture_runs_eagerly_without_giving_up():
     captured.device = prog.device
     _steps(prog, captured, 2)
     assert captured.graph is not None
+
+
+def test_capture_holds_the_capture_lock():
+    # The capture is taken under _launch.capture_lock (the executor's records on the legacy
+    # stream, which a capture in progress forbids, wait for it); an eager run is not. (Its
+    # ``stream`` made current is CUDA's: checked by the stabilizer's CUDA tests.)
+    prog = _Program()
+    owned = []
+
+    def program():
+        owned.append(_launch.capture_lock._is_owned())
+        prog()
+
+    captured = _launch.CapturedProgram(program, prog.device)
+    _steps(prog, captured, 3)
+    assert owned == [False, True]  # eager, then the capture's call; replayed after

@@ -225,13 +225,16 @@ class ChainProcess:
         :func:`~warpvx.apps.orbslam_batch.track_frames_batched` verifies its graph so (the
         verification runs two batches; each was the whole pose work and chain of a batch,
         on the H100 ~2 x 70 ms per call): the stream then runs that work on the same first
-        batch, its errors raised from there. Other threads' batches (a stream's) are real.
+        batch, its errors raised from there. Other threads' batches are real.
 
         ``prime``: the block's first batch of a run (``sent`` 0: the verification's first, the
         stream's first batch) also goes to the process for real, so that its pose work and
         chain run while the verification goes on and the stream starts; the stream's first
-        batch, if equal to it (every array), takes its ticket instead of sending it again
-        (one primed batch at a time; a later prime replaces it)."""
+        batch, if equal to it (every array, bit for bit), takes its ticket instead of sending
+        it again. One primed batch at a time, and none while real batches are in flight (a
+        process tracks one run at a time: a prime starts one). A batch of no run sent after
+        the prime (the calibration's samples) waits for the primed batch's work, so that it is
+        not timed beside it, and ends the primed run."""
         before = self.dry, getattr(self._local, "prime", False)
         self._local.dry, self._local.prime = True, prime
         try:
@@ -251,11 +254,16 @@ class ChainProcess:
         """Whether this thread is in a priming :meth:`dry_run`."""
         return self.dry and self._local.prime
 
-    def prime(self, payload, run):
+    def prime(self, payload, run) -> bool:
         """Send a run's first batch (as :meth:`send`) for the stream's first to take (see
-        :meth:`dry_run`)."""
-        self._primed = (self.send(payload, run), payload, run)
+        :meth:`dry_run`); False, sending nothing, while real batches are in flight or a
+        primed one waits."""
+        with self._send_lock:
+            if self._blocks or self._primed is not None:
+                return False
+            self._primed = (self._send(payload, run), payload, run)
         self.primes["sent"] += 1
+        return True
 
     def send_dry(self, frames: int) -> int:
         """A ticket for ``frames`` zero poses and stats (see :meth:`dry_run`)."""
@@ -270,21 +278,31 @@ class ChainProcess:
         """Hand a batch (``payload``: (images or None, packed features, nearest), arrays) to
         the process; ``run``: None, or the first batch's (params, settings). Returns its ticket
         (the primed one's when this is the primed batch, see :meth:`dry_run`)."""
-        primed, self._primed = self._primed, None
+        with self._send_lock:
+            primed, self._primed = self._primed, None
         if primed is not None:
             taken = run is not None and _same_value((payload, run), primed[1:])
             self.primes["taken" if taken else "dropped"] += 1
             if taken:
                 return primed[0]
-        with self._send_lock:
-            if primed is not None and run is None:
+            if run is None:
                 # Not the stream's batch after the primed one (the calibration's samples): the
-                # primed run ends there, as if it had not started.
+                # primed run ends there, as if it had not started, once its work is done (a
+                # calibration must not time the process while it works the prime).
+                try:
+                    self.result(primed[0])
+                except Exception:  # noqa: BLE001 - a dropped prime's error is nobody's
+                    pass
                 self._post(("unprime",))
-            ticket, self._next = self._next, self._next + 1
-            block = SharedBlock([payload], self._segments)
-            self._blocks[ticket] = block
-            self._post(("batch", ticket, run, block.refer(payload)))
+        with self._send_lock:
+            return self._send(payload, run)
+
+    def _send(self, payload, run) -> int:
+        """Post a batch (the caller holds the send lock): its ticket."""
+        ticket, self._next = self._next, self._next + 1
+        block = SharedBlock([payload], self._segments)
+        self._blocks[ticket] = block
+        self._post(("batch", ticket, run, block.refer(payload)))
         return ticket
 
     def result(self, ticket: int):
@@ -297,7 +315,7 @@ class ChainProcess:
             return np.zeros((frames, 4, 4)), np.zeros((frames, len(STATS)))
         with self._read_lock:
             while ticket not in self._results:
-                if self._results and ticket < next(iter(self._results)):
+                if ticket not in self._blocks:  # (a real batch's block goes when its result comes)
                     raise WarpvxValueError(f"ticket: batch {ticket}'s result is no longer kept")
                 self._file(self._read())
             msg = self._results[ticket]
@@ -368,6 +386,7 @@ class ChainProcess:
         :class:`~warpvx.apps.orbslam_pool.PosePool`'s, kept for its callers: either way) and
         unlink the shared blocks."""
         self.graphs.clear()
+        self._primed = None
         self._stop()
 
     def __enter__(self):
@@ -379,10 +398,10 @@ class ChainProcess:
 
 def _same_value(a, b) -> bool:
     """Whether ``a`` and ``b`` (nested tuples, lists and dicts of arrays and plain values) are
-    equal, arrays element for element (shape and dtype too)."""
+    equal, arrays bit for bit (shape and dtype too: -0.0 is not 0.0, a NaN is itself)."""
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
         return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape
-                and a.dtype == b.dtype and bool((a == b).all()))
+                and a.dtype == b.dtype and a.tobytes() == b.tobytes())
     if isinstance(a, (tuple, list)) or isinstance(b, (tuple, list)):
         return type(a) is type(b) and len(a) == len(b) and all(_same_value(x, y) for x, y in zip(a, b))
     if isinstance(a, dict) or isinstance(b, dict):
@@ -426,7 +445,7 @@ def send_batch(images, feats, nearest, sent, *, K, config, baseline, frames, pro
         return sent + 1, proc.send_dry(frames)
     payload = (None if baseline is None else np.asarray(images), _pack_host(feats), tuple(nearest))
     if proc.dry:
-        proc.prime(payload, run)
+        proc.prime(payload, run)  # (or not: a run on this process goes on)
         return sent + 1, proc.send_dry(frames)
     return sent + 1, proc.send(payload, run)
 

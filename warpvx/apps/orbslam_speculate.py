@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from . import orbslam as o
-from .orbslam_pool import PoolTask
+from .orbslam_pool import PoolTask, check_look_ahead
 
 
 def _keyframe_cursor(kf_pts):
@@ -162,7 +162,7 @@ def look_ahead(pool) -> int:
     look-ahead is shorter than the core's latency over the chain's own time per frame: on
     the H100 host ~14 ms over ~1.4 ms (session 8, 6 frames: 14 ms waited per batch of 16)."""
     if pool.look_ahead is not None:
-        return pool.look_ahead
+        return check_look_ahead(pool.look_ahead)  # (an attribute: may have been set since)
     return min(MAX_LOOK_AHEAD, max(SPECULATE_AHEAD, pool.workers - 1))
 
 #: A run's first frames whose cores ``pose_batch`` works out for both references ``track``

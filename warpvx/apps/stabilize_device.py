@@ -365,6 +365,9 @@ class DevicePlan:
             if self.device.is_cuda:
                 self._upload(t, s, p)
         self.programs[s]()
+        if self.programs[s].error is not None:  # Warp cannot capture it: no slot tries again
+            for prog in self.programs:
+                prog.enabled = False
         if self.device.is_cuda:
             self._download(s, p)
         self.steps += 1

@@ -399,7 +399,8 @@ class CostModel:
         with ``gil``, each node's GIL shares, and busy neighbours count by them: not yet the
         default, as on a loaded 2-core machine the shares are noise; see
         ``benchmarks/graph_bench.py``, which reports both). The segments' serial tasks (their
-        lanes joined before each) are the plan's executor's (none before a capture)."""
+        lanes joined before each) are the plan's executors' (:attr:`Plan.serial_tasks`; none
+        before a capture)."""
         from .model import fit, graph_reads
 
         plan = plan or self._plan
@@ -410,7 +411,7 @@ class CostModel:
         return fit(cal, graph_reads(self), runs, plan.placement, policy=plan.policy,
                    probe=cal.contention[plan.n_cpus], gil=cal.gil if gil else None,
                    capturable=self.capturable_nodes(plan.gpu),
-                   serial=plan.executor().serial_tasks)
+                   serial=plan.serial_tasks)
 
     def capturable_nodes(self, gpu) -> frozenset:
         """Nodes the executor may run in captured GPU segments with GPU role ``gpu`` (a

@@ -35,7 +35,8 @@ A captured GPU segment (consecutive capturable GPU tasks between CPU hand-offs, 
 one CUDA graph: :func:`gpu_segments`) is one replay: ``segment_ratio`` times its calibrated
 device time as its lanes run it (:func:`lane_span`: independent branches side by side, as
 the all-GPU baseline's two cameras, every lane joined before a task that inserts conditional
-graph nodes; a mixed placement's one-task segment has none beside it) plus a fixed cost (:func:`fit_segments`). A segment whose capture failed runs eagerly
+graph nodes; a mixed placement's one-task segment has none beside it) plus a fixed cost
+(:func:`fit_segments`). A segment whose capture failed runs eagerly
 from then on (:func:`eager_nodes`; ``predict(..., eager=)``): its tasks are eager calls,
 whose law is fitted on eager calls alone (the contention probe's GPU mix, its calls in
 turn, as the in-frame ratio where the training frames replayed every GPU task).

@@ -59,6 +59,7 @@ class Plan:
     calibration: object
     last_run: deque = field(default_factory=lambda: deque(maxlen=KEEP_FRAMES))
     _executor: object = None
+    _serial: frozenset = frozenset()  # serial_tasks of executors closed so far
     costs: str = "calibrated"
     prediction: Schedule | None = None
     frame_schedule: Schedule | None = None
@@ -108,9 +109,19 @@ class Plan:
         if self._executor is not None:
             self._executor.abort()
 
+    @property
+    def serial_tasks(self) -> frozenset:
+        """The GPU tasks whose captured segments join their lanes before them (see
+        :attr:`~warpvx.runtime.segment_runner.SegmentRunner.serial_tasks`), as the plan's
+        executors found them, this one and the closed ones (a run after a close starts a fresh
+        executor, which knows none before its captures)."""
+        ex = self._executor
+        return self._serial | (ex.serial_tasks if ex is not None else frozenset())
+
     def close(self):
         """Stop the executor's threads (a later run starts a fresh executor)."""
         if self._executor is not None:
+            self._serial = self.serial_tasks
             self._executor.close()
             self._executor = None
 

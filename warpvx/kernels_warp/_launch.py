@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 
 import warp as wp
 
@@ -161,10 +161,11 @@ class CapturedProgram:
     Eager for good where Warp refuses or fails the capture (a host sync inside: :attr:`error`
     says why); eager for one more call where only a primitive's scratch was missing
     (:class:`CaptureAllocationError`: made by that call, captured on the next); eager, without
-    giving up, inside a caller's capture (its launches join the caller's graph). ``warm``:
+    giving up, inside a caller's capture (its launches join the caller's graph). On Warp's
+    CPU device a capture records every launch of the process, other threads' too: capture
+    there only where nothing else launches (the tests). ``warm``:
     the program's modules are loaded and its scratch made already (by another program of the
-    same launches): capture on the first call. On Warp's CPU device a capture replays the same
-    launches. ``enabled=False``: always eager.
+    same launches): capture on the first call. ``enabled=False``: always eager.
     """
 
     def __init__(self, program, device, stream=None, *, enabled: bool = True, warm: bool = False):
@@ -183,12 +184,21 @@ class CapturedProgram:
         if self.graph is not None:
             wp.capture_launch(self.graph, stream=self.stream)
         else:
-            self.program()
+            with self._on_stream():
+                self.program()
         self.runs += 1
+
+    def _on_stream(self):
+        """The program's launches go to the device's current stream: ``stream`` made current
+        (eager runs and the capture alike), when given."""
+        if self.stream is None:
+            return nullcontext()
+        return wp.ScopedStream(self.stream, sync_enter=False)
 
     def _capture(self):
         try:
-            with capture_lock, wp.ScopedCapture(device=self.device, stream=self.stream) as capture:
+            with capture_lock, self._on_stream(), \
+                    wp.ScopedCapture(device=self.device, stream=self.stream) as capture:
                 self.program()
         except Exception as exc:  # noqa: BLE001 - the program runs eagerly instead
             if caused_by(exc, CaptureAllocationError) and self._scratch_retry:
