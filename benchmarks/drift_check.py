@@ -16,8 +16,9 @@ and records what could grow with frames in our process: frame time, RSS, live ob
 (``len(gc.get_objects())``), gc collections and the time they took (``gc.callbacks``),
 threads, the GPU-timing event pool, ``cv2.getNumThreads()``, the plan's ``last_run``
 (the soak keeps no FrameResult itself);
-with ``--probe`` the bench's model probe (``Graph.fit_model``) runs half-way, as in the
-bench between the training and the later rounds. Writes ``soak.md``/``soak.json``.
+with ``--probe`` the bench's probes (``Graph.measure_probes``: the contention probe and the
+GIL shares) run half-way, as the bench once ran them between the training and the later
+rounds (it runs them before the training since session 6). Writes ``soak.md``/``soak.json``.
 
 Usage::
 
@@ -253,7 +254,7 @@ def soak_main(args):
         for r in range(n_rounds):
             if args.probe and r == n_rounds // 2:
                 t = time.perf_counter()
-                g.fit_model(plan, runs=list(plan.last_run))
+                g.measure_probes(plan, gil=True)
                 print(f"probe: {time.perf_counter() - t:.1f} s", flush=True)
             runs = gb.run_frames(g, plan, [frames[(r * args.block + i) % len(frames)]
                                            for i in range(args.block)])
