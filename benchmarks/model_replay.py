@@ -134,10 +134,11 @@ def markdown(before: dict, after: dict) -> str:
 
 def first_rows(rows, ref, key="pred_ms") -> list:
     """``rows`` with ``error_pct`` of ``key`` against the policy's first frames
-    (``measured_first_ms`` of ``ref``, the same rows of the checkout that records it); rows
-    without them left out."""
-    return [{**r, "error_pct": 100.0 * (r[key] / m["measured_first_ms"] - 1.0)}
-            for r, m in zip(rows, ref) if m.get("measured_first_ms")]
+    (``measured_first_ms`` of ``ref``'s row of the same experiment and policy: the checkout
+    that records it); rows without them left out."""
+    first = {(m["tag"], m["policy"]): m.get("measured_first_ms") for m in ref}
+    return [{**r, "error_pct": 100.0 * (r[key] / first[r["tag"], r["policy"]] - 1.0)}
+            for r in rows if first.get((r["tag"], r["policy"]))]
 
 
 def pick(rows, tag, key="pred_ms") -> str:

@@ -267,3 +267,20 @@ def test_handoff_floor_writes_its_rows(tmp_path):
                                             "threads + copies"]
     for _, per_round, per_node in rows:
         assert float(per_round) > 0 and float(per_node) == pytest.approx(float(per_round) / 2, abs=0.06)
+
+
+def test_model_replay_first_rows_pair_by_experiment_and_policy():
+    """benchmarks/model_replay.py: a prediction is scored against the first frames of its own
+    experiment and policy, whatever order the other checkout recorded its rows in."""
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import model_replay
+
+    rows = [{"tag": "a", "policy": "x", "pred_ms": 2.0}, {"tag": "a", "policy": "y", "pred_ms": 3.0},
+            {"tag": "b", "policy": "x", "pred_ms": 1.0}]
+    ref = [{"tag": "a", "policy": "y", "measured_first_ms": 2.0},
+           {"tag": "a", "policy": "x", "measured_first_ms": 1.0},
+           {"tag": "b", "policy": "x"}]  # not recorded there: left out
+    got = {(r["tag"], r["policy"]): r["error_pct"] for r in model_replay.first_rows(rows, ref)}
+    assert got == {("a", "x"): pytest.approx(100.0), ("a", "y"): pytest.approx(50.0)}
