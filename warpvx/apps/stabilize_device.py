@@ -267,7 +267,8 @@ class DevicePlan:
 
     @property
     def capture_error(self) -> str | None:
-        """Why a slot's capture failed, when one did (that slot then launches eagerly)."""
+        """Why a slot's capture failed, when one did (that slot then launches eagerly; each
+        slot tries once: a failed capture costs one eager run of the program)."""
         return next((p.error for p in self.programs if p.error), None)
 
     def program(self, s: int):
@@ -310,7 +311,6 @@ class DevicePlan:
     def _refill(self, gray):
         self.corners.launch(gray)
         self.merge.launch()
-
 
     # -- the frame loop -------------------------------------------------------------------
 
@@ -365,9 +365,6 @@ class DevicePlan:
             if self.device.is_cuda:
                 self._upload(t, s, p)
         self.programs[s]()
-        if self.programs[s].error is not None:  # Warp cannot capture it: no slot tries again
-            for prog in self.programs:
-                prog.enabled = False
         if self.device.is_cuda:
             self._download(s, p)
         self.steps += 1

@@ -82,6 +82,11 @@ class Reads:
     nbytes: int
     delayed: bool
 
+    @property
+    def offset(self) -> int:
+        """Frames back, as the executor's reads count them (1: a delay's)."""
+        return int(self.delayed)
+
 
 def graph_reads(graph) -> dict:
     """node -> tuple of :class:`Reads` of a verified graph (data sizes from its samples)."""
@@ -523,23 +528,16 @@ def lane_span(reads, seg, base, serial=()) -> float:
     from ..runtime.lanes import lanes
 
     inside = set(seg)
-    tasks = [_LaneTask(t, tuple(_LaneRead(r.key, int(r.delayed)) for r in reads[t]),
-                       frozenset(r.key for u in inside for r in reads[u] if r.producer == t))
+    tasks = [_LaneTask(t, reads[t], frozenset(r.key for u in inside for r in reads[u]
+                                              if r.producer == t))
              for t in seg]
     return lanes(tasks, base, serial=frozenset(serial) & inside).span
 
 
 @dataclass(frozen=True)
-class _LaneRead:
-    """A read as :func:`~warpvx.runtime.lanes.lanes` takes it (offset 0: this frame's)."""
-
-    key: str
-    offset: int
-
-
-@dataclass(frozen=True)
 class _LaneTask:
-    """A segment's task as :func:`~warpvx.runtime.lanes.lanes` takes it."""
+    """A segment's task as :func:`~warpvx.runtime.lanes.lanes` takes it (its reads: the
+    :class:`Reads`, whose ``offset`` it needs; its outputs: the keys read in the segment)."""
 
     name: str
     inputs: tuple
