@@ -267,6 +267,9 @@ def test_handoff_floor_writes_its_rows(tmp_path):
                                             "threads + copies"]
     for _, per_round, per_node in rows:
         assert float(per_round) > 0 and float(per_node) == pytest.approx(float(per_round) / 2, abs=0.06)
+    for bad in (["--rounds", "0"], ["--batches", "-1"]):
+        with pytest.raises(SystemExit):
+            handoff_floor.main(["--out", str(tmp_path), "--device", "cpu", *bad])
 
 
 def test_model_replay_first_rows_pair_by_experiment_and_policy():

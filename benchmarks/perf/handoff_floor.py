@@ -48,6 +48,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=2000)
     ap.add_argument("--batches", type=int, default=7)
     args = ap.parse_args(argv)
+    for name in ("rounds", "batches"):
+        if getattr(args, name) < 1:
+            ap.error(f"--{name}: at least 1, got {getattr(args, name)}")
     import warp as wp
 
     wp.config.quiet = True
