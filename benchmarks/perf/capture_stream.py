@@ -43,7 +43,7 @@ COUNTS = collections.Counter()
 def _count_downloads():
     """Count the downloads of each kind (instrumentation of this benchmark only)."""
     stage, download = Transfers.stage_download, Transfers._download_array
-    counted_rows = Transfers.counted_rows
+    rows_copy = Transfers._counted_rows_copy
 
     def staged(self, value, event=None, **kw):
         got = stage(self, value, event, **kw)
@@ -58,8 +58,8 @@ def _count_downloads():
         COUNTS["synchronous bytes"] += out.nbytes
         return out
 
-    def rows(self, c, count):  # a large Counted's rows, copied when read: the reader waits
-        out = counted_rows(self, c, count)
+    def rows(self, block, n, count):  # a large Counted's rows past its staged prefix, copied
+        out = rows_copy(self, block, n, count)  # when read: the reader waits
         COUNTS["synchronous"] += 1
         sizes = []
         tree_map(lambda a: sizes.append(a.nbytes) or a, out)
@@ -67,7 +67,7 @@ def _count_downloads():
         return out
 
     Transfers.stage_download, Transfers._download_array = staged, synchronous
-    Transfers.counted_rows = rows
+    Transfers._counted_rows_copy = rows
 
 
 def stream_of(name: str) -> str:

@@ -20,6 +20,7 @@ from tests.images import bgr
 from warpvx.backend import init_warp
 from warpvx.runtime import DEVICE, Executor, Slot, Transfers
 from warpvx.runtime.pinned import HostPool, size_class
+from warpvx.runtime.transfers import ROW_HINTS
 
 SIZE = (128, 96)
 
@@ -159,6 +160,7 @@ def test_a_large_counted_block_stages_its_count_and_copies_only_its_counted_rows
     c.rows.assign(rows)
     c.count.assign(np.int32([7]))
     assert c.block.array.shape[0] > ONE_COPY_MAX_BYTES
+    ROW_HINTS._last.clear()  # no count of this layout read yet
     pool = HostPool(1 << 22, pinned=False)
     io = Transfers("cpu", pool)
     staged = io.stage_download(c)
@@ -168,6 +170,45 @@ def test_a_large_counted_block_stages_its_count_and_copies_only_its_counted_rows
     np.testing.assert_array_equal(got, Transfers("cpu").download(c))
     # the count's buffer went back once read (the value holds its rows only)
     assert pool.lent() == got.nbytes and io.moved == 4 + got.nbytes
+
+
+def test_a_large_counted_block_stages_the_rows_its_last_count_suggests(monkeypatch):
+    """Once a count of a large Counted's layout was read, its next staged download copies
+    that many rows (plus a margin) with the count: a reader whose count fits gets them
+    without a second copy; a count past them copies its rows when read, as before. Values
+    always equal the synchronous download's."""
+    from warpvx._counted import ONE_COPY_MAX_BYTES, Block
+
+    cap = ONE_COPY_MAX_BYTES // 8 + 300
+    rows = np.random.default_rng(5).standard_normal((cap, 2)).astype(np.float32)
+    (c,) = Block.layout([rows], cap, "cpu")
+    c.rows.assign(rows)
+    ROW_HINTS._last.clear()
+    pool = HostPool(1 << 22, pinned=False)
+    io = Transfers("cpu", pool)
+    copies = []
+    real_copy = Transfers._counted_rows_copy
+
+    def copy(self, block, n, count):
+        copies.append(n)
+        return real_copy(self, block, n, count)
+
+    monkeypatch.setattr(Transfers, "_counted_rows_copy", copy)
+    ahead = 40 + 40 // 4 + ROW_HINTS.MARGIN  # rows staged after a count of 40
+    for count, staged_rows, copied in [(40, 0, [40]), (45, ahead, []), (ahead, 45 + 45 // 4 + 64, []),
+                                       (cap, ahead + ahead // 4 + 64, [cap]), (3, cap, [])]:
+        copies.clear()
+        c.count.assign(np.int32([count]))
+        staged = io.stage_download(c)
+        assert staged.nbytes == 4 + 8 * staged_rows
+        got = io.unstage(staged)
+        np.testing.assert_array_equal(got, rows[:count])
+        np.testing.assert_array_equal(got, Transfers("cpu").download(c))
+        assert copies == copied
+    # a value read from a prefix keeps its buffer; once garbage, every buffer went back
+    del got, staged
+    gc.collect()
+    assert pool.lent() == 0
 
 
 @pytest.mark.parametrize("capture", [False, True], ids=["eager", "captured"])

@@ -61,6 +61,38 @@ def _large(c) -> bool:
     return c.block.array.shape[0] > ONE_COPY_MAX_BYTES
 
 
+class _RowHints:
+    """How many rows to stage ahead of a large Counted's count (:meth:`Transfers.stage_download`):
+    the last count read of a block of that layout, with a margin. A stream's detector finds
+    about as many keypoints frame after frame, so a staged prefix of that many rows usually
+    holds the whole value and the reader waits for no second copy; a count past it copies
+    the rows it counts as before. Shared by every thread (the stager and the reader differ);
+    a hint only, never a correctness matter."""
+
+    #: Rows staged beyond the last count: 1/4 more, plus this many.
+    MARGIN = 64
+    #: Layouts remembered (a stream has a few; past this, forgotten all at once).
+    MAX_LAYOUTS = 256
+
+    def __init__(self):
+        self._last: dict = {}
+
+    def rows(self, block) -> int:
+        """Rows to stage ahead for ``block`` (0: no count read yet), at most its capacity."""
+        last = self._last.get(block.part)
+        if last is None:
+            return 0
+        return min(block.part[0][2][0], last + (last >> 2) + self.MARGIN)
+
+    def saw(self, block, n: int):
+        if len(self._last) >= self.MAX_LAYOUTS and block.part not in self._last:
+            self._last.clear()
+        self._last[block.part] = n
+
+
+ROW_HINTS = _RowHints()
+
+
 class _UploadStage:
     """A pinned host buffer of one shape and dtype an upload goes through, and the event of
     its last copy (None: never used)."""
@@ -80,13 +112,16 @@ class _Unstageable(Exception):
 class _Staged:
     """A download under way (:meth:`Transfers.stage_download`): the device value, the host
     arrays its device arrays are being copied into (id of the device array -> (it, its host
-    copy); of a large Counted block only its count so far), the event after the copies
-    (None on Warp's CPU device: done, or once closed) and their bytes."""
+    copy); of a large Counted block its count and a prefix of its rows so far), the event
+    after the copies (None on Warp's CPU device: done, or once closed) and their bytes."""
 
-    __slots__ = ("value", "copies", "event", "nbytes", "_events")
+    __slots__ = ("value", "copies", "prefix", "event", "nbytes", "_events")
 
-    def __init__(self, value, copies: dict, event, nbytes: int, events: deque):
+    def __init__(self, value, copies: dict, prefix: dict, event, nbytes: int, events: deque):
         self.value, self.copies, self.event, self.nbytes = value, copies, event, nbytes
+        # id of a large Counted's count -> the host buffers of its rows' first rows
+        # (:class:`_RowHints`), one per rows array, being copied with it.
+        self.prefix = prefix
         self._events = events  # where its event goes back to
 
     def close(self):
@@ -104,7 +139,7 @@ class _Staged:
 
         def counted(c):
             if _large(c):
-                return io.counted_rows(c, copies[id(c.count)][1])
+                return io.counted_rows(c, copies[id(c.count)][1], self.prefix.get(id(c.count)))
             return c.block.host_value(copies[id(c.block.array)][1])
 
         return host_value(self.value, lambda a: copies[id(a)][1], counted)
@@ -220,14 +255,23 @@ class Transfers:
         if self.pool is None:
             return None
         copies: dict = {}
+        prefix: dict = {}
         try:
             if is_warp_array(value):  # the usual value: no tree to walk
                 self._take(copies, value)
             else:
                 # The walk that builds the value once copied (_Staged.host) lists what to
-                # copy; a large Counted block copies its count now, its counted rows when read.
+                # copy; a large Counted block copies its count and the rows it likely counts
+                # now (_RowHints), the rest of its counted rows when read.
                 take = functools.partial(self._take, copies)
-                host_value(value, take, lambda c: take(c.count if _large(c) else c.block.array))
+
+                def counted(c):
+                    if not _large(c):
+                        return take(c.block.array)
+                    self._take_prefix(prefix, c)
+                    return take(c.count)
+
+                host_value(value, take, counted)
         except _Unstageable:
             return None  # the buffers taken are garbage: back to the pool
         if not copies:
@@ -235,6 +279,9 @@ class Transfers:
         nbytes = 0
         for _, host in copies.values():
             nbytes += host.nbytes
+        for _, leaves in prefix.values():
+            for _, host in leaves:
+                nbytes += host.nbytes
         stream = self.stream
         if after is not None and stream is not None and nbytes < self.SAME_STREAM_MAX_BYTES:
             stream = after
@@ -242,11 +289,32 @@ class Transfers:
             wait_event(stream, event)
         for a, host in copies.values():
             to_host_async(host, a, stream)
+        for src, leaves in prefix.values():
+            for offset, host in leaves:
+                bytes_to_host_async(address(host), src.device, src.ptr + offset, host.nbytes,
+                                    stream)
         done = None
         if stream is not None:
             done = self._events.pop() if self._events else warp().Event(self.device)
             record_event(stream, done)
-        return _Staged(value, copies, done, nbytes, self._events)
+        return _Staged(value, copies, {k: [h for _, h in v] for k, (_, v) in prefix.items()},
+                       done, nbytes, self._events)
+
+    def _take_prefix(self, prefix: dict, c):
+        """Pool buffers for the first :class:`_RowHints` rows of large Counted ``c``'s rows
+        arrays: ``prefix[id(c.count)] = (block array, [(byte offset, host buffer), ...])``;
+        nothing when there is no hint yet or no pool room (its rows are copied when read)."""
+        block = c.block
+        k = ROW_HINTS.rows(block)
+        if k <= 0 or id(c.count) in prefix:
+            return
+        leaves = []
+        for offset, _, shape, dtype in block.part:
+            host = self.pool.take((k,) + shape[1:], dtype)
+            if host is None:
+                return  # the buffers taken are garbage: back to the pool
+            leaves.append((offset, host))
+        prefix[id(c.count)] = (block.array, leaves)
 
     def _take(self, copies: dict, a):
         """The pool's host buffer device array ``a`` of a staged download is copied into (one
@@ -274,12 +342,21 @@ class Transfers:
         staged.copies = None  # the value holds the pool's buffers now, not the download
         return value
 
-    def counted_rows(self, c, count: np.ndarray):
+    def counted_rows(self, c, count: np.ndarray, prefix: list | None = None):
         """The host value of Counted ``c`` (with a block) from its ``count`` already on the
-        host: its counted rows copied into buffers of the pool (fresh arrays past its cap),
-        on this thread's copy stream, waited for."""
+        host: views of ``prefix`` (host copies of the first rows of each of its rows arrays,
+        already copied) when they hold the counted rows, else its counted rows copied into
+        buffers of the pool (fresh arrays past its cap), on this thread's copy stream,
+        waited for."""
         block = c.block
         n = max(0, min(int(count[0]), block.part[0][2][0]))
+        ROW_HINTS.saw(block, n)
+        if prefix is not None and n <= prefix[0].shape[0]:
+            return Counted.__warpvx_unflatten__(block.aux, tuple(prefix) + (count,))
+        return self._counted_rows_copy(block, n, count)
+
+    def _counted_rows_copy(self, block, n: int, count: np.ndarray):
+        """:meth:`counted_rows`'s copy of ``n`` rows of ``block``, waited for."""
         src = block.array
         stream = self.stream
         leaves = []
