@@ -61,6 +61,8 @@ SIGNALS = ("reference_ms", "busy_pct", "steal_pct", "process_cores")
 PARTS = {"cpu": ("cpu",), "cpu+host": ("cpu", "gpu")}
 #: Probe statistics (see the module docstring), in table order.
 PROBES = ("round", "first", "rolling", "oracle")
+#: The heavy single-threaded OpenCV nodes of the CV graph (``denoise``: the reference's call).
+HEAVY = ("denoiseL", "denoiseR", "edgesL", "edgesR")
 #: Rounds the rolling probe takes the median of (the round's and those before it).
 ROLLING = 3
 WITHIN = 20.0
@@ -118,25 +120,46 @@ def tracking(e) -> dict:
         got["slope"] = _slope(x, y)
         got["rounds"] = len(sel)
         out["policies"][pol] = got
-        out["points"][pol] = list(zip(x - math.log(mid_ref), y - float(np.median(y))))
+        busy, cores = (np.array([r.get(k, np.nan) for r, _ in sel], dtype=float)
+                       for k in ("busy_pct", "process_cores"))
+        out["points"][pol] = list(zip(x - math.log(mid_ref), y - float(np.median(y)),
+                                      busy - np.nanmedian(busy), cores - np.nanmedian(cores)))
+    out["steal_max"] = max(r.get("steal_pct", 0.0) for _, r, _ in rows)
     return out
 
 
-def heavy_drift(e) -> list:
-    """Per scheduler policy and heavy OpenCV node on a CPU worker: its median in-frame
-    time in the later (out-of-sample) frames over the training frames, beside the
-    reference's median in the later rounds over the training rounds."""
+def reference_step(e) -> float:
+    """The reference's median over the later rounds over its median over the training rounds."""
     rl = e["round_log"]
-    ref = (statistics.median(r["reference_ms"] for r in rl["later"])
-           / statistics.median(r["reference_ms"] for r in rl["training"]))
+    return (statistics.median(r["reference_ms"] for r in rl["later"])
+            / statistics.median(r["reference_ms"] for r in rl["training"]))
+
+
+def step(e) -> tuple:
+    """The training policy's median makespan over its later (out-of-sample) frames over
+    its training frames, and :func:`reference_step`."""
+    p = next(p for p in e["policies"] if p["policy"] == e["train"])
+    fit_n = e["fit_frames"]
+    return (statistics.median(p["makespans"][fit_n:]) / statistics.median(p["makespans"][:fit_n]),
+            reference_step(e))
+
+
+def heavy_drift(e) -> list:
+    """Per scheduler policy: each heavy OpenCV node on a CPU worker, its worker and its
+    median in-frame time in the later (out-of-sample) frames over the training frames;
+    beside :func:`reference_step`."""
+    ref = reference_step(e)
     out = []
     for p in e["policies"]:
         if p["policy"] == "best":
             continue
-        for n in ("denoiseL", "denoiseR", "edgesL", "edgesR"):
+        nodes = []
+        for n in HEAVY:
             a, b = p.get("fit_nodes", {}).get(n), p.get("nodes", {}).get(n)
-            if a and b and a["pe"].startswith("cpu") and b["pe"].startswith("cpu"):
-                out.append((p["policy"], n, b["measured_ms"] / a["measured_ms"], ref))
+            if a and b and a["pe"].startswith("cpu") and b["pe"] == a["pe"]:
+                nodes.append((n, a["pe"], b["measured_ms"] / a["measured_ms"]))
+        if nodes:
+            out.append((p["policy"], nodes, ref))
     return out
 
 
@@ -171,6 +194,21 @@ def probe_ratios(e, policy: str, fit_rounds: int, block: int, n_out: int) -> dic
             "oracle": [oracle / train] * n_out}
 
 
+def predictor(model, schedules):
+    """``pred(policy, r, parts)``: the predicted makespan (ms) of ``policy``'s schedule with
+    :data:`PARTS` ``parts`` :func:`scaled` by ``r`` (memoised: frames share rounds)."""
+    cache = {}
+
+    def pred(policy, r, parts):
+        key = (policy, round(r, 9), parts)
+        if key not in cache:
+            m = model if r == 1.0 else scaled(model, r, PARTS[parts])
+            cache[key] = m.makespan(schedules[policy])
+        return cache[key]
+
+    return pred
+
+
 def replay_scaled(report, train: str = "baseline") -> list:
     """Check 2 for one graph_bench.json: rows per experiment and policy with the plain
     out-of-sample prediction and, per :data:`PARTS` and :data:`PROBES`, the scaled one
@@ -181,17 +219,9 @@ def replay_scaled(report, train: str = "baseline") -> list:
     for e, model, schedules in gb.replay_models(report, train, gil=True):
         fit_n = e["fit_frames"]
         fit_rounds = -(-fit_n // block)
-        cache = {}
-
-        def pred(policy, r, parts):
-            key = (policy, round(r, 9), parts)
-            if key not in cache:
-                m = model if r == 1.0 else scaled(model, r, PARTS[parts])
-                cache[key] = m.makespan(schedules[policy])
-            return cache[key]
-
-        later = [m for ph, _, m in round_table(e) if ph == "later"]
-        later_refs = [r["reference_ms"] for ph, r, _ in round_table(e) if ph == "later"]
+        pred = predictor(model, schedules)
+        later = [(r["reference_ms"], m) for ph, r, m in round_table(e) if ph == "later"]
+        train_ref = statistics.median(r["reference_ms"] for r in e["round_log"]["training"])
         for p in e["policies"]:
             pol = p["policy"]
             out = p["makespans"][fit_n:]
@@ -199,6 +229,7 @@ def replay_scaled(report, train: str = "baseline") -> list:
             plain = pred(pol, 1.0, "cpu")
             row = {"run": report["_name"], "tag": e["tag"], "graph": e["graph"], "policy": pol,
                    "trained_here": pol == train, "measured_ms": statistics.median(out),
+                   "measured_first_ms": statistics.median(p["makespans"][:fit_n]),
                    "plain_ms": plain, "scaled_ms": {}, "round_err": {}}
             for parts in PARTS:
                 for probe in PROBES:
@@ -206,14 +237,12 @@ def replay_scaled(report, train: str = "baseline") -> list:
                         pred(pol, r, parts) for r in ratios[probe])
             # Per later round scored: its median against the plain and the round-scaled
             # prediction (does the probe track the rounds?).
-            train_ref = statistics.median(r["reference_ms"] for r in e["round_log"]["training"])
-            skip = 2 if pol == "best" else 0  # best's first 20 frames are its fit frames
-            for k in range(skip, len(later)):
-                meas = later[k][pol]
-                row["round_err"].setdefault("plain", []).append(gb._err(plain, meas))
+            skip = fit_rounds if pol == "best" else 0  # best's first rounds: its fit frames
+            for ref, meds in later[skip:]:
+                row["round_err"].setdefault("plain", []).append(gb._err(plain, meds[pol]))
                 for parts in PARTS:
                     row["round_err"].setdefault(parts, []).append(
-                        gb._err(pred(pol, later_refs[k] / train_ref, parts), meas))
+                        gb._err(pred(pol, ref / train_ref, parts), meds[pol]))
             rows.append(row)
     return rows
 
@@ -228,7 +257,7 @@ def _f(v, spec="+.2f") -> str:
     return "-" if v is None or v != v else format(v, spec)
 
 
-def markdown(named: dict, reports: dict, rows: list) -> str:
+def markdown(reports: dict, rows: list) -> str:
     lines = ["## 1. Does the makespan track the host signals, round by round?", "",
              "Per run and experiment, over its settle, training and later rounds (best: later "
              "rounds only): the reference's range and lag-1 autocorrelation; per policy the "
@@ -240,10 +269,11 @@ def markdown(named: dict, reports: dict, rows: list) -> str:
              "| run | experiment | reference ms | lag-1 | round index | index r | " + " | ".join(
                  f"{p}: r / b / busy r / cores r" for p in POLICIES) + " |",
              "| --- | --- | --- | ---: | --- | ---: | " + " | ".join("---" for _ in POLICIES) + " |"]
-    pooled = {}
+    pooled, steal = {}, []
     for name, report in reports.items():
         for e in report["experiments"]:
             t = tracking(e)
+            steal.append(t["steal_max"])
             cells = []
             for pol in POLICIES:
                 g = t["policies"][pol]
@@ -253,22 +283,45 @@ def markdown(named: dict, reports: dict, rows: list) -> str:
             lines.append(f"| {name} | {e['tag']} | {t['ref_min']:.1f}-{t['ref_max']:.1f} | "
                          f"{_f(t['lag1'])} | {t['index_range'][0]:.2f}-{t['index_range'][1]:.2f} | "
                          f"{_f(t['index'])} | " + " | ".join(cells) + " |")
-    lines += ["", "Pooled per graph and policy (each series' log median and log reference "
-              "taken about its own median):", "",
-              "| graph | policy | rounds | r | b |", "| --- | --- | ---: | ---: | ---: |"]
+    lines += ["", f"Steal time: at most {max(steal):.2f}% of the machine in any round.", "",
+              "Pooled per graph and policy (each series' log median, log reference, busy % "
+              "and busy cores taken about its own median):", "",
+              "| graph | policy | rounds | r | b | busy r | cores r |",
+              "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
     for (graph, pol), pts in pooled.items():
-        x, y = np.array(pts).T
-        lines.append(f"| {graph} | {pol} | {len(pts)} | {_f(_corr(x, y))} | {_f(_slope(x, y))} |")
-    lines += ["", "The heavy OpenCV nodes on a CPU worker (the reference is the same OpenCV "
-              "call as `denoise`, on a smaller image): their median in-frame time in the "
-              "out-of-sample frames over the training frames, beside the reference's later "
-              "over training median.", "",
-              "| run | experiment | policy | node | node later / training | reference later / training |",
-              "| --- | --- | --- | --- | ---: | ---: |"]
+        x, y, busy, cores = np.array(pts).T
+        ok = ~np.isnan(busy) & ~np.isnan(cores)
+        lines.append(f"| {graph} | {pol} | {len(pts)} | {_f(_corr(x, y))} | {_f(_slope(x, y))} | "
+                     f"{_f(_corr(busy[ok], y[ok]))} | {_f(_corr(cores[ok], y[ok]))} |")
+    lines += ["", "The training policy's step (its later frames' median makespan over its "
+              "training frames': the drift the model meets) beside the reference's (later "
+              "rounds' median over the training rounds'):", "",
+              "| run | experiment | training policy later / training | reference later / training |",
+              "| --- | --- | ---: | ---: |"]
+    steps = []
     for name, report in reports.items():
         for e in report["experiments"]:
-            for pol, n, ratio, ref in heavy_drift(e):
-                lines.append(f"| {name} | {e['tag']} | {pol} | {n} | {ratio:.2f} | {ref:.2f} |")
+            steps.append(step(e))
+            lines.append(f"| {name} | {e['tag']} | {steps[-1][0]:.2f} | {steps[-1][1]:.2f} |")
+    x, y = np.log(np.array(steps)).T[::-1]
+    lines += ["", f"Over the {len(steps)} experiments: correlation of the log steps "
+              f"{_f(_corr(x, y))}, slope {_f(_slope(x, y))}."]
+    lines += ["", "The heavy OpenCV nodes on a CPU worker (the reference is the same OpenCV "
+              "call as `denoise`, on a quarter of the 1280x720 image): their median in-frame "
+              "time in the out-of-sample frames over the training frames (node@worker ratio), "
+              "beside the reference's later over training median.", "",
+              "| run | experiment | policy | node@worker later / training | reference later / training |",
+              "| --- | --- | --- | --- | ---: |"]
+    pts = []
+    for name, report in reports.items():
+        for e in report["experiments"]:
+            for pol, nodes, ref in heavy_drift(e):
+                pts += [(math.log(ref), math.log(v)) for _, _, v in nodes]
+                lines.append(f"| {name} | {e['tag']} | {pol} | " + ", ".join(
+                    f"{n}@{pe} {v:.2f}" for n, pe, v in nodes) + f" | {ref:.2f} |")
+    x, y = np.array(pts).T
+    lines += ["", f"Over the {len(pts)} node series: correlation of the log ratios "
+              f"{_f(_corr(x, y))}, slope {_f(_slope(x, y))}."]
     lines += ["", "## 2. The prediction scaled by the probe ratio, out of sample", "",
               "Trained on baseline (the bench's model, GIL-weighted); error of each cell's "
               "prediction against the median of its frames 21-100 (best: its frames 21-80, "
@@ -318,6 +371,24 @@ def markdown(named: dict, reports: dict, rows: list) -> str:
             med = statistics.median(abs(v) for r in sel for v in r["round_err"][key])
             cells.append(f"{spread:.1f}% / {med:.1f}%")
         lines.append(f"| {graph} | {sum(len(r['round_err']['plain']) for r in sel)} | " + " | ".join(cells) + " |")
+    lines += ["", "## 3. How much of each miss is the drift at all?", "",
+              "Each cell's plain prediction against its policy's first 20 frames (baseline, "
+              "heft, xeft: the training rounds, the very rounds the model learnt from, so no "
+              "drift between them; best: its first two later rounds) and the policy's own "
+              "step (frames 21-100 over its first 20 frames' median). A probe that took the "
+              "drift out perfectly would leave the first column's error.", "",
+              "| run | experiment | policy | plain vs frames 21-100 | plain vs first 20 frames | own step |",
+              "| --- | --- | --- | ---: | ---: | ---: |"]
+    for r in rows:
+        lines.append(f"| {r['run']} | {r['tag']} | {r['policy']}{' (trained)' if r['trained_here'] else ''} | "
+                     f"{gb._err(r['plain_ms'], r['measured_ms']):+.1f}% | "
+                     f"{gb._err(r['plain_ms'], r['measured_first_ms']):+.1f}% | "
+                     f"{r['measured_ms'] / r['measured_first_ms']:.2f} |")
+    first = [r for r in others if r["policy"] != "best"]
+    lines += ["", "heft and xeft (their first frames in the training rounds), against frames "
+              "21-100: " + _summary([gb._err(r["plain_ms"], r["measured_ms"]) for r in first])
+              + "; against their first 20 frames: "
+              + _summary([gb._err(r["plain_ms"], r["measured_first_ms"]) for r in first]) + "."]
     return "\n".join(lines)
 
 
@@ -337,7 +408,7 @@ def main(argv=None):
         report["_name"] = f"{path.parent.name.replace('h100-2026-11-24-', '')}/{path.name.split('.')[0]}"
         reports[report["_name"]] = report
     rows = [r for report in reports.values() for r in replay_scaled(report)]
-    text = markdown({}, reports, rows)
+    text = markdown(reports, rows)
     print(text)
     if args.out:
         command = "PYTHONPATH=. python benchmarks/host_speed_replay.py " + shlex.join(
