@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import shlex
 import statistics
 import sys
 from pathlib import Path
@@ -48,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import graph_bench as gb  # noqa: E402
-from model_replay import load  # noqa: E402 - a graph_bench.json(.gz)
+from model_replay import load, write_result  # noqa: E402 - a graph_bench.json(.gz); a result file
 
 #: The policies of the first rounds and of the later ones (graph_bench.SCHEDULERS, POLICIES).
 SCHEDULERS = gb.SCHEDULERS
@@ -247,6 +246,13 @@ def replay_scaled(report, train: str = "baseline") -> list:
     return rows
 
 
+def _experiments(reports: dict):
+    """``(run name, experiment)`` of every report, in order."""
+    for name, report in reports.items():
+        for e in report["experiments"]:
+            yield name, e
+
+
 def _summary(errs) -> str:
     a = [abs(v) for v in errs]
     return (f"{sum(v <= WITHIN for v in a)}/{len(a)} within {WITHIN:g}%, mean |error| "
@@ -270,19 +276,18 @@ def markdown(reports: dict, rows: list) -> str:
                  f"{p}: r / b / busy r / cores r" for p in POLICIES) + " |",
              "| --- | --- | --- | ---: | --- | ---: | " + " | ".join("---" for _ in POLICIES) + " |"]
     pooled, steal = {}, []
-    for name, report in reports.items():
-        for e in report["experiments"]:
-            t = tracking(e)
-            steal.append(t["steal_max"])
-            cells = []
-            for pol in POLICIES:
-                g = t["policies"][pol]
-                cells.append(f"{_f(g['reference_ms'])} / {_f(g['slope'])} / {_f(g['busy_pct'])} / "
-                             f"{_f(g['process_cores'])}")
-                pooled.setdefault((e["graph"], pol), []).extend(t["points"][pol])
-            lines.append(f"| {name} | {e['tag']} | {t['ref_min']:.1f}-{t['ref_max']:.1f} | "
-                         f"{_f(t['lag1'])} | {t['index_range'][0]:.2f}-{t['index_range'][1]:.2f} | "
-                         f"{_f(t['index'])} | " + " | ".join(cells) + " |")
+    for name, e in _experiments(reports):
+        t = tracking(e)
+        steal.append(t["steal_max"])
+        cells = []
+        for pol in POLICIES:
+            g = t["policies"][pol]
+            cells.append(f"{_f(g['reference_ms'])} / {_f(g['slope'])} / {_f(g['busy_pct'])} / "
+                         f"{_f(g['process_cores'])}")
+            pooled.setdefault((e["graph"], pol), []).extend(t["points"][pol])
+        lines.append(f"| {name} | {e['tag']} | {t['ref_min']:.1f}-{t['ref_max']:.1f} | "
+                     f"{_f(t['lag1'])} | {t['index_range'][0]:.2f}-{t['index_range'][1]:.2f} | "
+                     f"{_f(t['index'])} | " + " | ".join(cells) + " |")
     lines += ["", f"Steal time: at most {max(steal):.2f}% of the machine in any round.", "",
               "Pooled per graph and policy (each series' log median, log reference, busy % "
               "and busy cores taken about its own median):", "",
@@ -299,10 +304,9 @@ def markdown(reports: dict, rows: list) -> str:
               "| run | experiment | training policy later / training | reference later / training |",
               "| --- | --- | ---: | ---: |"]
     steps = []
-    for name, report in reports.items():
-        for e in report["experiments"]:
-            steps.append(step(e))
-            lines.append(f"| {name} | {e['tag']} | {steps[-1][0]:.2f} | {steps[-1][1]:.2f} |")
+    for name, e in _experiments(reports):
+        steps.append(step(e))
+        lines.append(f"| {name} | {e['tag']} | {steps[-1][0]:.2f} | {steps[-1][1]:.2f} |")
     x, y = np.log(np.array(steps)).T[::-1]
     lines += ["", f"Over the {len(steps)} experiments: correlation of the log steps "
               f"{_f(_corr(x, y))}, slope {_f(_slope(x, y))}."]
@@ -313,12 +317,11 @@ def markdown(reports: dict, rows: list) -> str:
               "| run | experiment | policy | node@worker later / training | reference later / training |",
               "| --- | --- | --- | --- | ---: |"]
     pts = []
-    for name, report in reports.items():
-        for e in report["experiments"]:
-            for pol, nodes, ref in heavy_drift(e):
-                pts += [(math.log(ref), math.log(v)) for _, _, v in nodes]
-                lines.append(f"| {name} | {e['tag']} | {pol} | " + ", ".join(
-                    f"{n}@{pe} {v:.2f}" for n, pe, v in nodes) + f" | {ref:.2f} |")
+    for name, e in _experiments(reports):
+        for pol, nodes, ref in heavy_drift(e):
+            pts += [(math.log(ref), math.log(v)) for _, _, v in nodes]
+            lines.append(f"| {name} | {e['tag']} | {pol} | " + ", ".join(
+                f"{n}@{pe} {v:.2f}" for n, pe, v in nodes) + f" | {ref:.2f} |")
     x, y = np.array(pts).T
     lines += ["", f"Over the {len(pts)} node series: correlation of the log ratios "
               f"{_f(_corr(x, y))}, slope {_f(_slope(x, y))}."]
@@ -411,10 +414,7 @@ def main(argv=None):
     text = markdown(reports, rows)
     print(text)
     if args.out:
-        command = "PYTHONPATH=. python benchmarks/host_speed_replay.py " + shlex.join(
-            argv if argv is not None else sys.argv[1:])
-        note = f"{args.note}\n\n" if args.note else ""
-        args.out.write_text(f"Regenerate: `{command}`\n\n{note}{text}\n")
+        write_result(args.out, "benchmarks/host_speed_replay.py", argv, args.note, text)
 
 
 if __name__ == "__main__":
