@@ -268,6 +268,14 @@ def misses(paths, train: str = "baseline", gil: bool = False, graph: str = "two-
     return "\n".join(lines)
 
 
+def write_result(out: Path, script: str, argv, note: str, text: str) -> None:
+    """Write ``text`` to ``out`` under its first line, the command that regenerates it
+    (``script`` with ``argv``, or this process's arguments), and ``note`` if any."""
+    command = f"PYTHONPATH=. python {script} " + shlex.join(argv if argv is not None else sys.argv[1:])
+    note = f"{note}\n\n" if note else ""
+    out.write_text(f"Regenerate: `{command}`\n\n{note}{text}\n")
+
+
 def _pct(a, b) -> str:
     return f"{100.0 * (a - b) / b:+.1f}%"
 
@@ -312,10 +320,7 @@ def main(argv=None):
                  + misses(paths, gil=args.after_gil))
     print(text)
     if args.out:
-        command = "PYTHONPATH=. python benchmarks/model_replay.py " + shlex.join(
-            argv if argv is not None else sys.argv[1:])
-        note = f"{args.note}\n\n" if args.note else ""
-        args.out.write_text(f"Regenerate: `{command}`\n\n{note}{text}\n")
+        write_result(args.out, "benchmarks/model_replay.py", argv, args.note, text)
 
 
 if __name__ == "__main__":

@@ -287,3 +287,60 @@ def test_model_replay_first_rows_pair_by_experiment_and_policy():
            {"tag": "b", "policy": "x"}]  # not recorded there: left out
     got = {(r["tag"], r["policy"]): r["error_pct"] for r in model_replay.first_rows(rows, ref)}
     assert got == {("a", "x"): pytest.approx(100.0), ("a", "y"): pytest.approx(50.0)}
+
+
+def _host_speed_replay():
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import host_speed_replay
+
+    return host_speed_replay
+
+
+def test_host_speed_probe_ratios_pair_frames_with_their_rounds():
+    """benchmarks/host_speed_replay.py: each out-of-sample frame gets the reference of the
+    round it ran in over the training rounds' median; baseline, heft and xeft count their
+    training rounds among their frames, best joined at the later rounds."""
+    hs = _host_speed_replay()
+
+    def log(refs, n):
+        return [{"reference_ms": r, "medians": [1.0] * n} for r in refs]
+
+    e = {"settle": {"log": log([9.0], 3)},
+         "round_log": {"training": log([2.0, 4.0], 3), "later": log([6.0, 3.0, 12.0, 1.5], 4)}}
+    # baseline: frames 21-40 ran in the first two later rounds (block 10, 20 fit frames).
+    got = hs.probe_ratios(e, "baseline", fit_rounds=2, block=10, n_out=20)
+    assert got["round"] == [2.0] * 10 + [1.0] * 10
+    assert got["first"] == [2.0] * 20
+    assert got["oracle"] == [4.5 / 3.0] * 20
+    # the rolling median of the round and the two before, over the settle and training rounds'
+    assert got["rolling"][0] == pytest.approx(4.0 / 4.0)
+    assert got["rolling"][10] == pytest.approx(4.0 / 4.0)
+    # best: its frames 21-40 are its third and fourth later rounds.
+    got = hs.probe_ratios(e, "best", fit_rounds=2, block=10, n_out=20)
+    assert got["round"] == [4.0] * 10 + [0.5] * 10
+    assert got["first"] == [4.0] * 20
+
+
+def test_host_speed_scaled_scales_only_the_named_parts():
+    """benchmarks/host_speed_replay.py: ``scaled`` multiplies the named processing elements'
+    task work (ratio and fixed cost per task: the whole in-frame time) and, with the GPU
+    host thread, a captured segment's fixed cost per replay; nothing else."""
+    from warpvx.graph.model import ContentionModel, Slowdown
+
+    hs = _host_speed_replay()
+    model = ContentionModel(
+        slowdown={"cpu": Slowdown(ratio=1.2, overhead=0.1, node={"a": 1.5}, per_cpu=0.3),
+                  "gpu": Slowdown(ratio=0.8, overhead=0.02, per_gpu=0.1)},
+        latency={}, alone={}, reads={}, transfer=None, cuda=True, segment_ratio=0.5,
+        segment_fixed=0.05)
+    cpu = hs.scaled(model, 2.0, ("cpu",))
+    assert cpu.slowdown["cpu"].in_frame("a", 3.0) == pytest.approx(2.0 * model.slowdown["cpu"].in_frame("a", 3.0))
+    assert cpu.slowdown["cpu"].speed_divisor(1, 0) == model.slowdown["cpu"].speed_divisor(1, 0)
+    assert cpu.slowdown["gpu"] == model.slowdown["gpu"]
+    assert (cpu.segment_fixed, cpu.segment_ratio) == (0.05, 0.5)
+    both = hs.scaled(model, 2.0, ("cpu", "gpu"))
+    assert both.slowdown["gpu"].in_frame("b", 1.0) == pytest.approx(2.0 * model.slowdown["gpu"].in_frame("b", 1.0))
+    assert (both.segment_fixed, both.segment_ratio) == (pytest.approx(0.1), 0.5)
+    assert model.slowdown["cpu"].ratio == 1.2  # the model itself untouched
