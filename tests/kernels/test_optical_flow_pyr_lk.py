@@ -125,7 +125,7 @@ def test_more_levels_than_one_launch_takes(backend):
 
     a, b = (cv2.resize(x, (1280, 960), interpolation=cv2.INTER_LINEAR) for x in _basketball())
     pts = _corners(a, 150, 10)
-    assert warpvx.flow._level_limit((1280, 960), (3, 3), 12) == 8 >= LEVELS_PER_LAUNCH
+    assert warpvx.flow._level_limit((1280, 960), (3, 3), 12) + 1 > LEVELS_PER_LAUNCH
     ours = warpvx.optical_flow_pyr_lk(a, b, pts, win_size=(3, 3), max_level=12, backend=backend)
     _assert_parity(ours, _opencv(a, b, pts, win=(3, 3), max_level=12))
 

@@ -418,7 +418,9 @@ def track_level(
     return res_x, res_y, alive, error
 
 
-@wp.kernel
+# No grid-stride loop (a thread per lane of a point, never more threads than the launch's):
+# 128 registers a lane on sm_90 instead of 154, so 4 points of 128 lanes fit an SM, not 3.
+@wp.kernel(grid_stride=False)
 def track_points(
     prev_pyr: Pyramid,
     next_pyr: Pyramid,
@@ -495,7 +497,7 @@ class _TrackWorkspace:
         self.tmp = [wp.empty((n, 2), dtype=wp.float32, device=device) for _ in range(2)]
         self.guess = wp.empty((n, 2), dtype=wp.float32, device=device)
         self.patch = wp.empty((n, win_w * win_h), dtype=wp.int64, device=device)
-        self.pyramids = {}  # level arrays' keys -> their Pyramid struct (see _pyramid_struct)
+        self.pyramids = {}  # level arrays' keys -> their Pyramid struct (see pyramid())
         self.cmds = []
         guess = self.guess
         top = max_level
@@ -608,7 +610,7 @@ def optical_flow_pyr_lk(
     settings = (int(max_iters), float(eps), float(min_eig_threshold), use_initial)
     block_dim = BLOCK_DIM
     ws = workspace("optical_flow_pyr_lk", (n, win_w, win_h, max_level, tuple(sizes), settings,
-                                           block_dim, LEVELS_PER_LAUNCH), device,
+                                           block_dim, LEVELS_PER_LAUNCH, track_points), device,
                    lambda: _TrackWorkspace(n, win_w, win_h, max_level, sizes, settings, device,
                                            block_dim))
 
