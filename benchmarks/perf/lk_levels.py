@@ -17,13 +17,17 @@ Variants, in one process on the same data (``same``: outputs bit-identical to th
   module of ``warpvx.kernels_warp``;
 - ``per level``: this checkout with ``LEVELS_PER_LAUNCH = 1`` (a launch per level, the maths
   unchanged);
-- ``fused``: this checkout as it is (all 4 levels in one launch).
+- ``fused``: this checkout as it is (all 4 levels in one launch, no grid-stride loop);
+- with ``--sweep``, ``fused`` variants: ``grid-stride`` (the kernel with Warp's grid-stride
+  loop: more registers), ``<=R regs`` (``launch_bounds=(BLOCK_DIM, B)``: B points per SM,
+  the compiler spilling what does not fit), ``L lanes`` (``BLOCK_DIM``; the sums' order
+  changes, so not bit-identical).
 
 A checkout without ``LEVELS_PER_LAUNCH`` (the per-level kernel) gives one row, ``as is``.
 
-Run on the GPU machine from the repository root (about a minute on an H100)::
+Run on the GPU machine from the repository root (a minute or two on an H100)::
 
-    PYTHONPATH=. python3 benchmarks/perf/lk_levels.py --out $OUT
+    PYTHONPATH=. python3 benchmarks/perf/lk_levels.py --sweep --out $OUT
 
 ``--device cpu`` runs it on Warp's CPU device (no capture; host wall time; a smoke test).
 """
@@ -60,21 +64,32 @@ def load_module(path: str):
     return mod
 
 
-def variants(before: str | None) -> list:
-    """``(label, module, context)`` of each variant to time."""
+def variants(before: str | None, sweep: bool) -> list:
+    """``(label, module, context)`` of each variant to time (kernels compiled once)."""
     from warpvx.kernels_warp import optical_flow_pyr_lk as lk
 
     out = [("before", load_module(before), contextlib.nullcontext)] if before else []
-    if hasattr(lk, "LEVELS_PER_LAUNCH"):
-        out += [("per level", lk, lambda: patched(lk, LEVELS_PER_LAUNCH=1)),
-                ("fused", lk, contextlib.nullcontext)]
-    else:
-        out.append(("as is", lk, contextlib.nullcontext))
+    if not hasattr(lk, "LEVELS_PER_LAUNCH"):
+        return out + [("as is", lk, contextlib.nullcontext)]
+    out += [("per level", lk, lambda: patched(lk, LEVELS_PER_LAUNCH=1)),
+            ("fused", lk, contextlib.nullcontext)]
+    if sweep:
+        def kernel(**options):  # the same kernel function compiled with other options
+            k = wp.kernel(lk.track_points.func, module="unique", enable_backward=False, **options)
+            return lambda: patched(lk, track_points=k)
+
+        out.append(("fused, grid-stride", lk, kernel(grid_stride=True)))
+        for blocks in (5, 8):
+            regs = 65536 // (blocks * lk.BLOCK_DIM) // 8 * 8
+            out.append((f"fused, <={regs} regs", lk,
+                        kernel(grid_stride=False, launch_bounds=(lk.BLOCK_DIM, blocks))))
+        for lanes in (64, 256):
+            out.append((f"fused, {lanes} lanes", lk, lambda n=lanes: patched(lk, BLOCK_DIM=n)))
     return out
 
 
-def lk_rows(cams, device, timer, counts, before) -> list:
-    """A row per camera, point count and variant."""
+def lk_rows(cams, device, timer, counts, kinds) -> list:
+    """A row per camera, point count and variant (``kinds``: :func:`variants`)."""
     import warpvx
 
     rows = []
@@ -90,7 +105,7 @@ def lk_rows(cams, device, timer, counts, before) -> list:
                    wp.empty(m, dtype=wp.uint8, device=device),
                    wp.empty(m, dtype=wp.float32, device=device))
             first = None
-            for label, mod, ctx in variants(before):
+            for label, mod, ctx in kinds:
                 print(f"  LK {cam} {m} points: {label}", flush=True)
                 with ctx():
                     def call(mod=mod):
@@ -114,6 +129,7 @@ def markdown(rows, device, args) -> str:
     how = "captured graph replays" if not device.is_cpu else "host wall time"
     command = COMMAND + "".join(f" --{k} {v}" for k, v in (("before", args.before),
                                                             ("points", args.points)) if v)
+    command += " --sweep" if args.sweep else ""
     lines = [f"Regenerate: `{command}`", "",
              f"# LK device time per call, {SIZE[0]}x{SIZE[1]}, 21x21, 4 levels, {device.name}", "",
              f"{how}, median of {args.repeat} trials of {args.replays} replays; `x first`: the "
@@ -139,6 +155,7 @@ def main(argv=None) -> None:
     ap.add_argument("--device", default="cuda:0", help="cuda:N or cpu")
     ap.add_argument("--points", default="500,1000", help="corner counts, comma separated")
     ap.add_argument("--before", default=None, help="another LK module file to time first")
+    ap.add_argument("--sweep", action="store_true", help="also the fused kernel's variants")
     ap.add_argument("--repeat", type=int, default=9)
     ap.add_argument("--replays", type=int, default=50)
     ap.add_argument("--out", default=os.environ.get("OUT", "."))
@@ -149,7 +166,7 @@ def main(argv=None) -> None:
     t0 = time.time()
     with wp.ScopedDevice(device):
         rows = lk_rows(frames(device), device, Timer(device, args.repeat, args.replays),
-                       [int(v) for v in args.points.split(",")], args.before)
+                       [int(v) for v in args.points.split(",")], variants(args.before, args.sweep))
     text = markdown(rows, device, args)
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, "lk_levels.md"), "w") as f:
