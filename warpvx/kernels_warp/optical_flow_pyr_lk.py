@@ -55,10 +55,10 @@ COORD_LIMIT = wp.constant(1.0e7)  # beyond this a coordinate is lost before any 
 
 
 LEVELS_PER_LAUNCH = 8
-"""Pyramid levels tracked by one launch (the :class:`Pyramid` slots); deeper pyramids take a
-launch per 8 levels, the coarser launch's result being the next one's guess. At 1280x720
-OpenCV's level limit (:func:`warpvx.flow._level_limit`) allows 6 levels to a 21x21 window,
-8 to a 3x3 one."""
+"""Pyramid levels tracked by one launch (at most the 8 :class:`Pyramid` slots); deeper
+pyramids take a launch per 8 levels, the coarser launch's result being the next one's guess.
+At 1280x720 OpenCV's level limit (:func:`warpvx.flow._level_limit`) allows 6 levels to a
+21x21 window, 8 to a 3x3 one."""
 
 _PYRAMIDS_MAX = 16  # Pyramid structs a workspace keeps (a graph alternates a few level sets)
 
@@ -536,9 +536,9 @@ class _TrackWorkspace:
             if len(self.pyramids) >= _PYRAMIDS_MAX:
                 self.pyramids.clear()
             pyr = Pyramid()
-            for k in range(LEVELS_PER_LAUNCH):
+            for k, slot in enumerate(Pyramid.vars):
                 # Slots past the launch's levels are never read; any valid level fills them.
-                setattr(pyr, f"level{k}", as_view(levels[min(k, len(levels) - 1)]))
+                setattr(pyr, slot, as_view(levels[min(k, len(levels) - 1)]))
             self.pyramids[key] = pyr
         return pyr
 
