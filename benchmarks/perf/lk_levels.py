@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib.util
-import json
 import os
 import sys
 import time
@@ -47,7 +46,8 @@ import numpy as np
 import warp as wp
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from harris_select import SIZE, Timer, frames, kernel_breakdown, patched  # noqa: E402
+from harris_select import (SIZE, Timer, frames, kernel_breakdown, patched,  # noqa: E402
+                           write_results)
 
 LK = dict(win_size=(21, 21), max_level=3, max_iters=30, eps=0.01, min_eig_threshold=1e-4)
 COMMAND = "PYTHONPATH=. python3 benchmarks/perf/lk_levels.py --out $OUT"
@@ -167,14 +167,7 @@ def main(argv=None) -> None:
     with wp.ScopedDevice(device):
         rows = lk_rows(frames(device), device, Timer(device, args.repeat, args.replays),
                        [int(v) for v in args.points.split(",")], variants(args.before, args.sweep))
-    text = markdown(rows, device, args)
-    os.makedirs(args.out, exist_ok=True)
-    with open(os.path.join(args.out, "lk_levels.md"), "w") as f:
-        f.write(text)
-    with open(os.path.join(args.out, "lk_levels.json"), "w") as f:
-        json.dump(rows, f, indent=1)
-    print(text)
-    print(f"done in {time.time() - t0:.0f} s", flush=True)
+    write_results(args.out, "lk_levels", markdown(rows, device, args), rows, t0)
 
 
 if __name__ == "__main__":
