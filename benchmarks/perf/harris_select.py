@@ -203,11 +203,16 @@ def main(argv=None) -> None:
         except Exception:  # noqa: BLE001 - one run on the GPU machine: keep the other part
             failures.append(f"{name} failed:\n\n```\n{traceback.format_exc()}```\n")
             print(failures[-1], flush=True)
-    text = markdown(rows, device, args) + "\n".join(failures)
-    os.makedirs(args.out, exist_ok=True)
-    with open(os.path.join(args.out, "harris_select.md"), "w") as f:
+    write_results(args.out, "harris_select", markdown(rows, device, args) + "\n".join(failures),
+                  rows, t0)
+
+
+def write_results(out: str, name: str, text: str, rows: list, t0: float) -> None:
+    """``out/name.md`` (``text``, also printed) and ``out/name.json`` (``rows``)."""
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, f"{name}.md"), "w") as f:
         f.write(text)
-    with open(os.path.join(args.out, "harris_select.json"), "w") as f:
+    with open(os.path.join(out, f"{name}.json"), "w") as f:
         json.dump(rows, f, indent=1)
     print(text)
     print(f"done in {time.time() - t0:.0f} s", flush=True)

@@ -106,7 +106,8 @@ def test_warp_in_warp_out(warp_backend):
 @pytest.mark.parametrize(
     "size, win, max_level",
     [((640, 480), (21, 21), 3), ((321, 239), (15, 9), 2), ((257, 131), (7, 7), 4), ((200, 151), (31, 31), 0),
-     ((640, 480), (7, 7), 6)],  # 7 levels: two launches (the kernel takes 4 levels at most)
+     ((640, 480), (7, 7), 6),
+     ((97, 75), (3, 3), 9)],  # many levels on a small image: OpenCV's limit stops at 4x3
 )
 def test_shapes(backend, size, win, max_level):
     a, b = _basketball()
@@ -115,6 +116,18 @@ def test_shapes(backend, size, win, max_level):
     pts = _corners(a, 120, 5)
     ours = warpvx.optical_flow_pyr_lk(a, b, pts, win_size=win, max_level=max_level, backend=backend)
     _assert_parity(ours, _opencv(a, b, pts, win=win, max_level=max_level))
+
+
+def test_more_levels_than_one_launch_takes(backend):
+    """9 levels (the photo at 2x, 3x3 window): the Warp kernel walks 8 levels per launch, the
+    next launch starting from the coarser one's result; parity with OpenCV."""
+    from warpvx.kernels_warp.optical_flow_pyr_lk import LEVELS_PER_LAUNCH
+
+    a, b = (cv2.resize(x, (1280, 960), interpolation=cv2.INTER_LINEAR) for x in _basketball())
+    pts = _corners(a, 150, 10)
+    assert warpvx.flow._level_limit((1280, 960), (3, 3), 12) + 1 > LEVELS_PER_LAUNCH
+    ours = warpvx.optical_flow_pyr_lk(a, b, pts, win_size=(3, 3), max_level=12, backend=backend)
+    _assert_parity(ours, _opencv(a, b, pts, win=(3, 3), max_level=12))
 
 
 def test_points_n12_shape(backend):
@@ -312,6 +325,56 @@ def test_parity_known_subpixel_shift(backend):
     err = np.linalg.norm(p[s == 1] - (pts[s == 1] + shift), axis=1)
     assert np.median(err) < 0.05
     assert np.mean(err < 0.25) >= 0.95
+
+
+def test_point_lost_at_a_coarse_level_continues_from_its_guess(backend):
+    """Points tracked at level 3, lost at level 2 (window too flat: min eigenvalue under the
+    threshold), trackable at level 0: OpenCV carries level 3's result down as the guess
+    (status is only cleared at level 0) and tracks them at the finer levels; so do we. A
+    14 px shift: restarting such a point from zero flow below level 2 misses it."""
+    cam, moved, shift = _camera_shifted(14.2, -8.4)
+    thr = 5e-3
+    pts = _corners(cam, 400)
+    _, pa = cv2.buildOpticalFlowPyramid(cam, (21, 21), 3, withDerivatives=False)
+    _, pb = cv2.buildOpticalFlowPyramid(moved, (21, 21), 3, withDerivatives=False)
+    eig = np.array([cv2.calcOpticalFlowPyrLK(pa[k], pb[k], (pts / 2**k).reshape(-1, 1, 2), None,
+                                             winSize=(21, 21), maxLevel=0, minEigThreshold=0,
+                                             flags=cv2.OPTFLOW_LK_GET_MIN_EIGENVALS)[2].ravel()
+                    for k in range(4)])
+    pts = pts[(eig[3] >= 1.5 * thr) & (eig[2] < thr) & (eig[0] >= 1.5 * thr)]
+    assert len(pts) >= 8
+    p, s, e = warpvx.optical_flow_pyr_lk(cam, moved, pts, min_eig_threshold=thr, backend=backend)
+    rp, rs, re = _opencv(cam, moved, pts, min_eig=thr)
+    assert np.all(rs == 1)
+    np.testing.assert_array_equal(s, rs)
+    assert np.abs(p - rp).max() < 0.01
+    assert np.abs(e - re).max() < 0.05
+    assert np.linalg.norm(p - (pts + shift), axis=1).max() < 0.1
+
+
+def test_levels_per_launch_do_not_change_results(warp_backend, monkeypatch):
+    """The Warp kernel walks a point through LEVELS_PER_LAUNCH levels in one launch; any split
+    of the pyramid into launches (one level each, as the per-level kernel did; 3) gives the
+    same bits, with and without initial flow, lost points included."""
+    import warpvx.kernels_warp.optical_flow_pyr_lk as lk
+
+    a, b = _basketball()
+    h, w = a.shape
+    pts = np.concatenate([_corners(a, 200, 5), np.float32([[-4.5, 100.2], [w + 3.3, 240.7], [-100, 50],
+                                                           [0, 0], [w - 1, h - 1], [5.5, h + 2.2]])])
+    guess = pts + np.float32([1.5, -0.5])
+    cases = [dict(win_size=(7, 7), max_level=6), dict(win_size=(21, 21), max_level=3),
+             dict(win_size=(15, 15), max_level=0), dict(win_size=(9, 9), max_level=2, next_pts=guess)]
+    for kw in cases:
+        kw = dict(kw, backend=warp_backend, min_eig_threshold=1e-3)
+        want = warpvx.optical_flow_pyr_lk(a, b, pts, **kw)
+        assert np.mean(want[1]) < 0.99  # some points lost
+        for per_launch in (1, 3):
+            monkeypatch.setattr(lk, "LEVELS_PER_LAUNCH", per_launch)
+            got = warpvx.optical_flow_pyr_lk(a, b, pts, **kw)
+            for x, y in zip(got, want):
+                np.testing.assert_array_equal(x, y)
+        monkeypatch.undo()
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,9 +1,12 @@
 """Pyramidal Lucas-Kanade sparse optical flow on Warp (OpenCV's ``calcOpticalFlowPyrLK``).
 
 One thread block per point (:data:`BLOCK_DIM` lanes; one lane on Warp's CPU device), one
-launch per pyramid level, coarse to fine. The lanes of a block split the integration window
-between them and combine their partial sums with block reductions (``wp.tile_sum``); every
-lane then holds the same sums, so the iteration and its exit tests run in lock step.
+launch for all pyramid levels (up to :data:`LEVELS_PER_LAUNCH`): each block walks its point
+coarse to fine, a level's result being the next level's guess, so a call costs the slowest
+point's total rather than the sum of each level's slowest point. The lanes of a block split
+the integration window between them and combine their partial sums with block reductions
+(``wp.tile_sum``); every lane then holds the same sums, so the iteration and its exit tests
+run in lock step.
 
 Arithmetic follows OpenCV's ``LKTrackerInvoker`` (``modules/video/src/lkpyramid.cpp``):
 
@@ -25,9 +28,9 @@ Arithmetic follows OpenCV's ``LKTrackerInvoker`` (``modules/video/src/lkpyramid.
 Speed: each lane steps through its share of the window without integer divisions; the window
 patch (value, Ix, Iy) is one int64 per sample, read with one load per iteration; windows that
 lie with their derivative margins inside the level read pixels directly (the reflecting reads
-serve the edges only). Scratch (pyramid levels of image inputs, coarse-level results, window patches)
-and the per-level launches are recorded once per problem size and replayed
-(:func:`._launch.workspace`); no host sync.
+serve the edges only). Scratch (pyramid levels of image inputs, window patches) and the
+launch are made and recorded once per problem size and replayed (:func:`._launch.workspace`);
+no host sync.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import warp as wp
 
 from .._counted import Counted, is_counted
 from ._sampling import read_reflect101
-from ._launch import Recorded, workspace
+from ._launch import Recorded, array_key, as_view, workspace
 
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
@@ -51,13 +54,38 @@ FLT_EPSILON = wp.constant(1.1920928955078125e-07)
 COORD_LIMIT = wp.constant(1.0e7)  # beyond this a coordinate is lost before any int conversion
 
 
+LEVELS_PER_LAUNCH = 8
+"""Pyramid levels tracked by one launch (at most the 8 :class:`Pyramid` slots); deeper
+pyramids take a launch per 8 levels, the coarser launch's result being the next one's guess.
+At 1280x720 OpenCV's level limit (:func:`warpvx.flow._level_limit`) allows 6 levels to a
+21x21 window, 8 to a 3x3 one."""
+
+_PYRAMIDS_MAX = 16  # Pyramid structs a workspace keeps (a graph alternates a few level sets)
+
+
+@wp.struct
+class Pyramid:
+    """Up to :data:`LEVELS_PER_LAUNCH` consecutive levels of one frame, finest first (slot k
+    holds level ``bottom + k`` of the launch); slots past the launch's levels are unused."""
+
+    level0: wp.array2d(dtype=wp.uint8)
+    level1: wp.array2d(dtype=wp.uint8)
+    level2: wp.array2d(dtype=wp.uint8)
+    level3: wp.array2d(dtype=wp.uint8)
+    level4: wp.array2d(dtype=wp.uint8)
+    level5: wp.array2d(dtype=wp.uint8)
+    level6: wp.array2d(dtype=wp.uint8)
+    level7: wp.array2d(dtype=wp.uint8)
+
+
 @wp.struct
 class TrackParams:
-    """Per-level parameters of :func:`track_points_level`."""
+    """Parameters of a :func:`track_points` launch (levels ``top`` .. ``bottom``)."""
 
     win_w: int
     win_h: int
-    level: int
+    top: int
+    bottom: int
     max_level: int
     max_iters: int
     eps2: wp.float64  # squared step threshold, compared in double as OpenCV's ddot
@@ -211,68 +239,59 @@ def unpack_field(p: wp.int64, shift: int) -> int:
 
 
 @wp.func
-def finish_level(i: int, lane: int, level: int, res_x: float, res_y: float, alive: bool,
-                 error: float, tracked_pts: wp.array2d(dtype=wp.float32),
-                 status: wp.array(dtype=wp.uint8), err: wp.array(dtype=wp.float32)):
-    """Lane 0 writes the point's result (status and error at level 0 only)."""
-    if lane == 0:
-        tracked_pts[i, 0] = res_x
-        tracked_pts[i, 1] = res_y
-        if level == 0:
-            if alive:
-                status[i] = wp.uint8(1)
-                err[i] = error
-            else:
-                status[i] = wp.uint8(0)
-                err[i] = 0.0
+def pyramid_level(pyr: Pyramid, k: int) -> wp.array2d(dtype=wp.uint8):
+    """Level ``k`` of the launch's levels (``pyr.level0`` is its finest)."""
+    if k == 0:
+        return pyr.level0
+    if k == 1:
+        return pyr.level1
+    if k == 2:
+        return pyr.level2
+    if k == 3:
+        return pyr.level3
+    if k == 4:
+        return pyr.level4
+    if k == 5:
+        return pyr.level5
+    if k == 6:
+        return pyr.level6
+    return pyr.level7
 
 
-@wp.kernel
-def track_points_level(
+@wp.func
+def track_level(
     prev_img: wp.array2d(dtype=wp.uint8),
     next_img: wp.array2d(dtype=wp.uint8),
-    prev_pts: wp.array2d(dtype=wp.float32),
-    guess_pts: wp.array2d(dtype=wp.float32),
-    params: TrackParams,
     patch: wp.array2d(dtype=wp.int64),
-    tracked_pts: wp.array2d(dtype=wp.float32),
-    status: wp.array(dtype=wp.uint8),
-    err: wp.array(dtype=wp.float32),
-):
-    """Track point ``i`` on one level; lanes split the window. Points are [N, 2] (x, y).
+    i: int,
+    lane: int,
+    level: int,
+    px: float,
+    py: float,
+    nx: float,
+    ny: float,
+    params: TrackParams,
+) -> tuple[float, float, bool, float]:
+    """Track point ``i`` on one level; lanes split the window.
 
-    ``guess_pts`` is the previous (coarser) level's result, or the initial flow at the top
-    level; ``tracked_pts`` receives this level's result. ``status`` and ``err`` are written
-    at level 0 only. ``patch[i]`` holds the window of ``prev`` (value * 32, Ix, Iy packed by
-    :func:`pack_sample`) between the covariance pass and the iterations; each lane reads
-    back only what it wrote. Lane ``lane`` takes samples ``lane + j * lanes``.
+    ``(px, py)``: the point in ``prev`` and ``(nx, ny)`` the guess in ``next``, both in this
+    level's pixels. Returns ``(x, y, alive, err)``: the level's result (the guess itself, or
+    the last estimate, where the point is lost), whether it was tracked, and at level 0 the
+    mean absolute difference of the windows (0 elsewhere and for lost points). ``patch[i]``
+    holds the window of ``prev`` (value * 32, Ix, Iy packed by :func:`pack_sample`) between
+    the covariance pass and the iterations; each lane reads back only what it wrote. Lane
+    ``lane`` takes samples ``lane + j * lanes``. Every branch depends only on block-uniform
+    values (the lanes' sums are block reductions), so all lanes take it together and reach
+    the same reductions.
     """
-    i, lane = wp.tid()
     nlanes = wp.block_dim()
     win_w = params.win_w
     win_h = params.win_h
     area = win_w * win_h
-    level = params.level
     h = prev_img.shape[0]
     w = prev_img.shape[1]
     start = first_sample(lane, win_w)
     step = first_sample(nlanes, win_w)
-
-    scale = 1.0 / float(1 << level)
-    px = prev_pts[i, 0] * scale
-    py = prev_pts[i, 1] * scale
-    nx = float(0.0)
-    ny = float(0.0)
-    if level == params.max_level:
-        if params.use_initial_flow != 0:
-            nx = guess_pts[i, 0] * scale
-            ny = guess_pts[i, 1] * scale
-        else:
-            nx = px
-            ny = py
-    else:
-        nx = guess_pts[i, 0] * 2.0
-        ny = guess_pts[i, 1] * 2.0
     res_x = nx
     res_y = ny
 
@@ -281,7 +300,6 @@ def track_points_level(
     x0 = px - half_x
     y0 = py - half_y
 
-    # Every branch below depends only on block-uniform values, so all lanes take it together.
     ok = coords_usable(x0, y0)
     ix0 = int(0)
     iy0 = int(0)
@@ -291,8 +309,7 @@ def track_points_level(
         if window_outside(ix0, iy0, win_w, win_h, w, h):
             ok = False
     if not ok:
-        finish_level(i, lane, level, res_x, res_y, False, 0.0, tracked_pts, status, err)
-        return
+        return res_x, res_y, False, 0.0
 
     # Window of prev and covariance matrix of its derivatives. Interior: the samples' taps
     # and their Scharr neighbours (rows iy0 - 1 .. iy0 + win_h + 1, same for columns) all
@@ -319,8 +336,7 @@ def track_points_level(
     det = a11 * a22 - a12 * a12
     min_eig = (a22 + a11 - wp.sqrt((a11 - a22) * (a11 - a22) + 4.0 * a12 * a12)) / float(2 * area)
     if min_eig < params.min_eig_threshold or det < FLT_EPSILON:
-        finish_level(i, lane, level, res_x, res_y, False, 0.0, tracked_pts, status, err)
-        return
+        return res_x, res_y, False, 0.0
     inv_det = 1.0 / det
 
     # Gauss-Newton steps on the window of next.
@@ -399,12 +415,76 @@ def track_points_level(
                     rc = next_sample(rc, step, win_w)
                 total = wp.tile_extract(wp.tile_sum(wp.tile(esum)), 0)
                 error = total / float(32 * area)
-    finish_level(i, lane, level, res_x, res_y, alive, error, tracked_pts, status, err)
+    return res_x, res_y, alive, error
+
+
+# No grid-stride loop (a thread per lane of a point, never more threads than the launch's):
+# 128 registers a lane on sm_90 instead of 154, so 4 points of 128 lanes fit an SM, not 3.
+@wp.kernel(grid_stride=False)
+def track_points(
+    prev_pyr: Pyramid,
+    next_pyr: Pyramid,
+    prev_pts: wp.array2d(dtype=wp.float32),
+    guess_pts: wp.array2d(dtype=wp.float32),
+    params: TrackParams,
+    patch: wp.array2d(dtype=wp.int64),
+    tracked_pts: wp.array2d(dtype=wp.float32),
+    status: wp.array(dtype=wp.uint8),
+    err: wp.array(dtype=wp.float32),
+):
+    """Track point ``i`` through levels ``params.top`` .. ``params.bottom``, coarse to fine
+    (:func:`track_level` on each); lanes split the window. Points are [N, 2] (x, y).
+
+    ``guess_pts`` is the initial flow (``top`` = ``max_level``) or the result of the launch
+    of the coarser levels; a level's result, lost point or not, is the next level's guess
+    (times 2), as in OpenCV. Lane 0 writes the result of level ``bottom`` to ``tracked_pts``,
+    and when that is level 0, ``status`` and ``err`` (status is only cleared at level 0).
+    """
+    i, lane = wp.tid()
+    x = prev_pts[i, 0]
+    y = prev_pts[i, 1]
+    level = params.top
+    nx = float(0.0)
+    ny = float(0.0)
+    if level == params.max_level:
+        scale = 1.0 / float(1 << level)
+        if params.use_initial_flow != 0:
+            nx = guess_pts[i, 0] * scale
+            ny = guess_pts[i, 1] * scale
+        else:
+            nx = x * scale
+            ny = y * scale
+    else:
+        nx = guess_pts[i, 0] * 2.0
+        ny = guess_pts[i, 1] * 2.0
+    alive = bool(False)
+    error = float(0.0)
+    while True:
+        scale = 1.0 / float(1 << level)
+        k = level - params.bottom
+        nx, ny, alive, error = track_level(
+            pyramid_level(prev_pyr, k), pyramid_level(next_pyr, k), patch, i, lane, level,
+            x * scale, y * scale, nx, ny, params)
+        if level == params.bottom:
+            break
+        nx *= 2.0
+        ny *= 2.0
+        level -= 1
+    if lane == 0:
+        tracked_pts[i, 0] = nx
+        tracked_pts[i, 1] = ny
+        if level == 0:
+            if alive:
+                status[i] = wp.uint8(1)
+                err[i] = error
+            else:
+                status[i] = wp.uint8(0)
+                err[i] = 0.0
 
 
 class _TrackWorkspace:
-    """Scratch of one problem size: pyramid levels for image inputs, coarse-level results,
-    window patches, and one recorded launch per level."""
+    """Scratch of one problem size: pyramid levels for image inputs, the results of coarser
+    launches, window patches, and one recorded launch per :data:`LEVELS_PER_LAUNCH` levels."""
 
     def __init__(self, n, win_w, win_h, max_level, sizes, settings, device, block_dim):
         max_iters, eps, min_eig_threshold, use_initial = settings
@@ -412,33 +492,55 @@ class _TrackWorkspace:
             which: [wp.empty(hw, dtype=wp.uint8, device=device) for hw in sizes[1:]]
             for which in ("prev", "next")
         }
-        # Coarser levels' results ping-pong between two buffers (a level never reads what
+        # Coarser launches' results ping-pong between two buffers (a launch never reads what
         # it writes); `guess` holds a copy of the initial flow (it may alias the output).
         self.tmp = [wp.empty((n, 2), dtype=wp.float32, device=device) for _ in range(2)]
         self.guess = wp.empty((n, 2), dtype=wp.float32, device=device)
         self.patch = wp.empty((n, win_w * win_h), dtype=wp.int64, device=device)
+        self.pyramids = {}  # level arrays' keys -> their Pyramid struct (see pyramid())
         self.cmds = []
         guess = self.guess
-        for level in range(max_level, -1, -1):
+        top = max_level
+        while top >= 0:
+            bottom = max(top - LEVELS_PER_LAUNCH + 1, 0)
             params = TrackParams()
             params.win_w = win_w
             params.win_h = win_h
-            params.level = level
+            params.top = top
+            params.bottom = bottom
             params.max_level = max_level
             params.max_iters = int(max_iters)
             params.eps2 = float(eps) * float(eps)
             params.min_eig_threshold = float(min_eig_threshold)
             params.use_initial_flow = 1 if use_initial else 0
             # Placeholders for the per-call arrays (set before each launch).
-            img = wp.empty(sizes[level], dtype=wp.uint8, device=device)
+            imgs = self.pyramid([wp.empty(hw, dtype=wp.uint8, device=device)
+                                 for hw in sizes[bottom:top + 1]])
             pts = wp.empty((n, 2), dtype=wp.float32, device=device)
-            target = pts if level == 0 else self.tmp[level % 2]
-            self.cmds.append((level, Recorded(
-                track_points_level, [n], device, block_dim=block_dim, prev_img=img,
-                next_img=img, prev_pts=pts, guess_pts=guess, params=params, patch=self.patch,
+            target = pts if bottom == 0 else self.tmp[len(self.cmds) % 2]
+            self.cmds.append((bottom, top, Recorded(
+                track_points, [n], device, block_dim=block_dim, prev_pyr=imgs, next_pyr=imgs,
+                prev_pts=pts, guess_pts=guess, params=params, patch=self.patch,
                 tracked_pts=target, status=wp.empty(n, dtype=wp.uint8, device=device),
                 err=wp.empty(n, dtype=wp.float32, device=device))))
             guess = target
+            top = bottom - 1
+
+    def pyramid(self, levels) -> Pyramid:
+        """A :class:`Pyramid` of ``levels`` (finest first, at most :data:`LEVELS_PER_LAUNCH`),
+        made once per set of arrays (pointer, shape, strides) and reused: passing the same
+        struct again re-packs nothing. It holds non-owning views, so it keeps no image alive."""
+        key = tuple(array_key(a) for a in levels)
+        pyr = self.pyramids.get(key)
+        if pyr is None:
+            if len(self.pyramids) >= _PYRAMIDS_MAX:
+                self.pyramids.clear()
+            pyr = Pyramid()
+            for k, slot in enumerate(Pyramid.vars):
+                # Slots past the launch's levels are never read; any valid level fills them.
+                setattr(pyr, slot, as_view(levels[min(k, len(levels) - 1)]))
+            self.pyramids[key] = pyr
+        return pyr
 
 
 def _build_pyramid(img, n_levels: int, out=None) -> list:
@@ -508,7 +610,7 @@ def optical_flow_pyr_lk(
     settings = (int(max_iters), float(eps), float(min_eig_threshold), use_initial)
     block_dim = BLOCK_DIM
     ws = workspace("optical_flow_pyr_lk", (n, win_w, win_h, max_level, tuple(sizes), settings,
-                                           block_dim), device,
+                                           block_dim, LEVELS_PER_LAUNCH, track_points), device,
                    lambda: _TrackWorkspace(n, win_w, win_h, max_level, sizes, settings, device,
                                            block_dim))
 
@@ -518,12 +620,14 @@ def optical_flow_pyr_lk(
         next, n_levels, ws.levels["next"])
     if use_initial:
         wp.copy(ws.guess, next_pts)
-    for level, cmd in ws.cmds:
-        if level == 0:
-            cmd.launch(prev_img=prev_pyr[0], next_img=next_pyr[0], prev_pts=prev_pts,
+    for bottom, top, cmd in ws.cmds:
+        prev_imgs = ws.pyramid(prev_pyr[bottom:top + 1])
+        next_imgs = ws.pyramid(next_pyr[bottom:top + 1])
+        if bottom == 0:
+            cmd.launch(prev_pyr=prev_imgs, next_pyr=next_imgs, prev_pts=prev_pts,
                        tracked_pts=res, status=status, err=err)
         else:
-            cmd.launch(prev_img=prev_pyr[level], next_img=next_pyr[level], prev_pts=prev_pts)
+            cmd.launch(prev_pyr=prev_imgs, next_pyr=next_imgs, prev_pts=prev_pts)
     return result
 
 
