@@ -349,6 +349,31 @@ def test_two_cameras_pipelined_captured_equals_eager(frames, warp_backend):
         g.close()
 
 
+def test_delayed_values_buffers_go_back_to_their_pools_once_the_delays_let_go(frames,
+                                                                              warp_backend):
+    """The copies out of values a delay holds (pyramids, corners) are reused once every
+    delay has aged past their frame: a steady captured stream allocates no device buffer,
+    and its outputs (which read those delayed values) equal the eager run's."""
+    cams = _camera_frames(frames) * 4
+    g = _two_cameras(frames, warp_backend)
+    try:
+        eager = list(g.stream(cams, depth=3, capture=False))
+        g.reset()
+        ex = g.plan.executor()
+        got, fresh = [], []
+        for out in g.stream(cams, depth=3, capture=_capture_arg(warp_backend)):
+            got.append(out)
+            fresh.append(ex.fresh_buffers)
+        assert ex.captures > 0 and ex.replays > len(cams) // 2
+        warm = len(cams) // 2
+        assert fresh[warm] == fresh[-1], fresh  # none after the first half
+        for e, c in zip(eager, got):
+            for k in e:
+                assert _same(e[k], c[k]), k
+    finally:
+        g.close()
+
+
 def _blur_chain(frames, gpu, shape=None):
     """gray -> blur -> blur on the GPU role (one segment), any frame size (None dims)."""
     g = warpvx.Graph("chain")

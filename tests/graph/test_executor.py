@@ -415,11 +415,16 @@ def test_flag_is_a_one_shot_event_for_many_waiters():
     assert woke == [True] * 4 and f.is_set() and f.wait(0) and f.wait()
 
 
-def _pooled_program(ring: bool = False):
-    """x -> a (GPU, pooled output buffer: x * 2) -> b (CPU: a + 1); a also a graph output."""
+def _pooled_program(ring: bool = False, a_output: bool = True):
+    """x -> a (GPU, pooled output buffer: x * 2) -> b (CPU: a + 1); a also a graph output
+    (unless not ``a_output``)."""
     import warp as wp
 
-    made = []
+    class Made(list):
+        written: list  # the buffer each frame's a went into, in order
+
+    made = Made()
+    made.written = []
 
     def new_buffer():
         buf = wp.empty(3, dtype=wp.float32, device="cpu")
@@ -429,6 +434,7 @@ def _pooled_program(ring: bool = False):
     def double(x, out=None):  # like a primitive: allocates when given no buffer
         out = new_buffer() if out is None else out
         out.assign(x.numpy() * 2)
+        made.written.append(out.ptr)
         return out
 
     tasks = {
@@ -438,7 +444,7 @@ def _pooled_program(ring: bool = False):
     rings = {"a": Ring(1, np.zeros(3, np.float32))} if ring else {}
     if ring:  # a task reading a's previous value keeps it alive past its frame
         tasks["c"] = ExecTask("c", (InputRef("a", -1),), ("c",), cpu=lambda p: p.copy())
-    outputs = {"a": "a", "b": "b"} | ({"c": "c"} if ring else {})
+    outputs = ({"a": "a"} if a_output else {}) | {"b": "b"} | ({"c": "c"} if ring else {})
     return Program(tasks, ("x",), outputs, rings=rings), made
 
 
@@ -476,6 +482,32 @@ def test_buffers_a_delay_or_the_caller_may_hold_are_not_reused():
     ex.close()
     assert len(made) == 4  # handed to the caller on the device: never reused
     assert [float(r.outputs["a"].numpy()[0]) for r in device_outs] == [0.0, 2.0, 4.0, 6.0]
+
+
+@pytest.mark.parametrize("depth", [1, 3])
+def test_buffers_a_delay_holds_are_reused_once_the_delay_lets_their_frame_go(depth):
+    """A delayed value that is no graph output: its buffer goes back to the pool once the
+    delay has aged past its frame (never while a later frame may still read it), so a
+    steady stream allocates nothing and every frame reads its predecessor's own value."""
+    prog, made = _pooled_program(ring=True, a_output=False)
+    ex = Executor(sched({"a": "gpu", "b": "cpu0", "c": "cpu1"}, ["a", "b", "c"]), prog,
+                  gpu_device="cpu")
+    assert ex._pool_rule["a"] == "ring"
+    pending, outs = [], []
+    for i in range(16):
+        pending.append(ex.submit(i, {"x": (np.full(3, i + 1, np.float32), HOST)}))
+        if len(pending) >= depth:
+            outs.append(ex.wait(pending.pop(0)))
+    outs += [ex.wait(f) for f in pending]
+    ex.close()
+    assert [float(r.outputs["c"][0]) for r in outs] == [0.0] + [2.0 * i for i in range(1, 16)]
+    assert [float(r.outputs["b"][0]) for r in outs] == [2.0 * i + 1 for i in range(1, 17)]
+    assert len(made) <= depth + 3  # the ring's frames and those in flight, then reuse
+    # (c's host copy of a is cached by b's download, so values alone would not show a buffer
+    # reused too early:) no frame writes the buffer its predecessor's value is held in.
+    w = made.written
+    assert len(w) == 16 and all(w[j] != w[j - 1] for j in range(1, 16))
+    assert len(set(w)) < 16  # and buffers are reused
 
 
 def test_frame_result_reports_transfers_copies_and_host_times():

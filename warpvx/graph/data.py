@@ -173,18 +173,20 @@ class Delay(Ring):
         """
         index = self._index(index, -self.slots, 0)
         graph = self._graph()
+        io = getattr(self._local, "io", None)
+        if io is None:
+            io = self._local.io = Transfers(graph._gpu_device() if graph is not None else None)
+        # The copy is made under the lock: once a frame ages out of the ring, the runtime
+        # reuses its device buffers (Executor._recycle_ring_held).
         with self.lock:
             slot = self.get(self.last_aged + index)
             if slot is self._initial and slot.value is None and not (graph and graph.verified):
                 raise GraphError(f"delay {self.data.name!r}, index: slot {index} has no value "
                                  f"yet; verify or run the graph first, or give "
                                  f"g.delay(..., init=)")
-        if not slot.ready:
-            raise GraphError(f"delay {self.data.name!r}: slot {index} is not computed yet")
-        io = getattr(self._local, "io", None)
-        if io is None:
-            io = self._local.io = Transfers(graph._gpu_device() if graph is not None else None)
-        return slot.host(io)
+            if not slot.ready:
+                raise GraphError(f"delay {self.data.name!r}: slot {index} is not computed yet")
+            return slot.host(io)
 
     def write(self, value, index: int = -1):
         """Replace slot ``index`` (``-slots <= index <= -1``) as seen by the next frame.

@@ -109,6 +109,7 @@ Errors
 
 from __future__ import annotations
 
+import collections
 import functools
 import queue
 import threading
@@ -242,6 +243,8 @@ class Executor(RoleRunner, SegmentRunner):
         self._record = None  # event -> recorded on _stream (CUDA)
         self._anchor = None  # (host seconds, timing event) on CUDA
         self._events = EventPool(gpu_device) if self.cuda else None
+        self._gpu_tasks = {t.name for p in self.processors if is_gpu_processor(p)
+                           for t in self.queues[p]}
         self._out_pools: dict[str, list] = {t: [] for t, task in program.tasks.items()
                                             if task.gpu_out is not None}
         self._pool_rule = self._pool_rules()
@@ -253,6 +256,9 @@ class Executor(RoleRunner, SegmentRunner):
         self._up_pools: dict[str, list] = {k: [] for k, rule in self._upload_rule.items()
                                            if rule != "never"}
         self._up_lock = threading.Lock()  # the GPU role leases, wait() returns
+        # (frame index, [(an output pool's?, task or key, buffer)]) of frames waited for whose
+        # buffers a delay may still hold, oldest first (_recycle_ring_held).
+        self._ring_held: collections.deque = collections.deque()
         gpu_queue = [t.name for p in self.processors if is_gpu_processor(p) for t in self.queues[p]]
         # Timing events a frame may take at most (CUDA): a start, an end and an upload's per
         # GPU task, one per device input; made ahead at submission (EventPool.reserve).
@@ -276,6 +282,9 @@ class Executor(RoleRunner, SegmentRunner):
         self._capturable = bool(gpu_device) and self.frames == 1 and \
             any(seg.captured for seg in self._segments)
         self.captures = 0  # segments captured so far (each signature's once)
+        #: Device buffers allocated so far for pooled GPU outputs, uploads and captured
+        #: segments' copies out (a steady stream allocates none).
+        self.fresh_buffers = 0
         self.replays = 0  # captured graphs launched (frames x segments)
         self._captured: OrderedDict = OrderedDict()  # input signature -> per-segment state
         # Held while capturing and while recording on the legacy stream (submit): that
@@ -654,6 +663,7 @@ class Executor(RoleRunner, SegmentRunner):
             buf = pool.pop()
         except IndexError:
             buf = task.gpu_out()
+            self.fresh_buffers += 1
         frame.leases.append((task, buf))
         return buf
 
@@ -670,6 +680,7 @@ class Executor(RoleRunner, SegmentRunner):
         copy-out): from the key's pool when it has one, else fresh."""
         pool = self._up_pools.get(key)
         if pool is None:
+            self.fresh_buffers += 1
             return warp().empty(shape, dtype=dtype, device=self.gpu_device)
         buf = None
         with self._up_lock:
@@ -681,24 +692,36 @@ class Executor(RoleRunner, SegmentRunner):
                     break
         if buf is None:
             buf = warp().empty(shape, dtype=dtype, device=self.gpu_device)
+            self.fresh_buffers += 1
         frame.uploads.append((key, buf))
         return buf
 
     def _reuse_rule(self, g, tasks, keys) -> str:
         """When a buffer that ``tasks`` may see (and ``keys`` may hold) can be reused after
-        its frame: ``"never"`` when a delay may hold it, ``"host"`` when a graph output may
-        be it (reusable only if outputs went to the host as copies), ``"always"`` otherwise.
-        Any task may return its input or a view of it (a pyramid's level 0 is its source), so
-        everything downstream of ``tasks`` counts."""
-        reach = set(tasks)
-        for t in tasks:
-            reach |= nx.descendants(g, t)
-        keys = set(keys) | {k for t in reach for k in self.program.tasks[t].outputs}
+        its frame: ``"ring"`` when a delay may hold it (once every delay has let the frame
+        go: :meth:`_recycle_ring_held`), ``"never"`` when a graph output may be it too,
+        ``"host"`` when a graph output may be it (reusable only if outputs went to the host
+        as copies), ``"always"`` otherwise. Any GPU task may return its input or a view of it
+        (a pyramid's level 0 is its source), so every GPU task downstream of ``tasks`` through
+        GPU tasks counts; a CPU task gets host copies, so what it makes never holds the buffer."""
+        gpu = self._gpu_tasks
+        tasks_of = self.program.tasks
+        keys = set(keys)
+        reach: set = set()
+        todo = [t for t in tasks if t in gpu]
+        while todo:  # GPU tasks reached through this frame's edges, then the delays' reads
+            while todo:
+                t = todo.pop()
+                if t not in reach:
+                    reach.add(t)
+                    keys.update(tasks_of[t].outputs)
+                    todo += [u for u in g.successors(t) if u in gpu]
+            todo = [u for u in gpu if u not in reach and
+                    any(r.offset < 0 and r.key in keys for r in tasks_of[u].inputs)]
+        output = bool(keys & set(self.program.outputs.values()))
         if keys & set(self.program.rings):
-            return "never"
-        if keys & set(self.program.outputs.values()):
-            return "host"
-        return "always"
+            return "never" if output else "ring"
+        return "host" if output else "always"
 
     def _pool_rules(self) -> dict:
         """task -> when its pooled output buffer may be reused (:meth:`_reuse_rule`)."""
@@ -711,9 +734,8 @@ class Executor(RoleRunner, SegmentRunner):
         """key -> when the device copy of that host value, uploaded for the GPU tasks that
         read it in its frame, may be reused (:meth:`_reuse_rule`; a delayed key's slot, and
         the copy cached in it, outlive the frame: never)."""
-        gpu = {t.name for p in self.processors if is_gpu_processor(p) for t in self.queues[p]}
         readers: dict = {}
-        for name in gpu:
+        for name in self._gpu_tasks:
             for r in self.program.tasks[name].inputs:
                 readers.setdefault(r.key, set()).add(name)
         if not readers:
@@ -723,24 +745,62 @@ class Executor(RoleRunner, SegmentRunner):
 
     def _release(self, frame: Frame, host: bool):
         """Frame waited for: its output and upload buffers go back to their pools where
-        nothing else can still hold them (see :meth:`_reuse_rule`)."""
+        nothing else can still hold them (see :meth:`_reuse_rule`); those a delay may hold
+        wait for the delays to let the frame go (:meth:`_recycle_ring_held`)."""
+        held = []
         for task, buf in frame.leases:
-            if self._pool_rule[task.name] == "host" and not host:
+            rule = self._pool_rule[task.name]
+            if rule == "ring":
+                held.append((True, task.name, buf))
                 continue
-            pool = self._out_pools[task.name]
-            if len(pool) < self.OUT_POOL:
-                pool.append(buf)
+            if rule == "host" and not host:
+                continue
+            self._give_out(task.name, buf)
         frame.leases = []
         if frame.uploads:
             with self._up_lock:
                 for key, buf in frame.uploads:
-                    if self._upload_rule[key] == "host" and not host:
+                    rule = self._upload_rule[key]
+                    if rule == "ring":
+                        held.append((False, key, buf))
                         continue
-                    pool = self._up_pools[key]
-                    if len(pool) >= self.UPLOAD_POOL:  # shapes vary: the oldest go
-                        del pool[0]
-                    pool.append(buf)
+                    if rule == "host" and not host:
+                        continue
+                    self._give_up(key, buf)
             frame.uploads = []
+        if held:
+            self._ring_held.append((frame.index, held))
+
+    def _give_out(self, task: str, buf):
+        pool = self._out_pools[task]
+        if len(pool) < self.OUT_POOL:
+            pool.append(buf)
+
+    def _give_up(self, key: str, buf):
+        """(``_up_lock`` held.)"""
+        pool = self._up_pools[key]
+        if len(pool) >= self.UPLOAD_POOL:  # shapes vary: the oldest go
+            del pool[0]
+        pool.append(buf)
+
+    def _recycle_ring_held(self):
+        """Buffers of frames no delay holds any more (every ring has aged past them: a ring
+        keeps its last ``slots + 1`` frames) go back to their pools. A frame's values reach
+        the delays' readers only through the rings (:meth:`Ring.get`; ``Delay.read`` copies
+        under the ring's lock), so once dropped there nothing reads them."""
+        held = self._ring_held
+        if not held:
+            return
+        rings = self.program.rings.values()
+        oldest_kept = min(r.last_aged - r.slots for r in rings)
+        while held and held[0][0] < oldest_kept:
+            _, bufs = held.popleft()
+            with self._up_lock:
+                for out, name, buf in bufs:
+                    if out:
+                        self._give_out(name, buf)
+                    else:
+                        self._give_up(name, buf)
 
     def _fail(self, frame: Frame, task: str, proc: str, exc: BaseException):
         with self._lock:
@@ -904,6 +964,7 @@ class Executor(RoleRunner, SegmentRunner):
             self._release(frame, host)
             for ring in self.program.rings.values():
                 ring.age(frame.index)
+            self._recycle_ring_held()
             return result
         finally:
             self._unstage(frame)
