@@ -256,13 +256,18 @@ def test_pooled_uploads_handed_to_the_caller_on_the_device_are_never_reused():
     g.close()
 
 
-def test_uploads_a_delay_may_keep_are_not_pooled():
+def test_uploads_a_delay_may_keep_are_reused_only_once_the_delay_lets_their_frame_go():
     seen = []
     g = _upload_chain(seen, delayed=True)
     plan = g.schedule("heft", n_cpus=1, gpu="cuda")
-    xs = _xs(8)
+    ex = plan.executor()
+    xs = _xs(12)
+    seen.clear()
     outs = list(g.stream(({"x": x} for x in xs), depth=3))
-    assert not plan.executor()._up_pools
+    [key] = ex._up_pools
+    assert ex._upload_rule[key] == "ring"
+    assert len(seen) == len(xs) and len(set(seen)) < len(xs)  # reused...
+    assert all(seen[i] != seen[i - 1] for i in range(1, len(xs)))  # ...never under a held value
     np.testing.assert_array_equal(outs[0]["prev"], np.zeros((3, 5), np.float32))
     for i in range(1, len(xs)):
         np.testing.assert_array_equal(outs[i]["prev"], (xs[i - 1] + 1) * 2, err_msg=f"frame {i}")

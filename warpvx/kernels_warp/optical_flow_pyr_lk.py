@@ -44,10 +44,13 @@ from ._launch import Recorded, array_key, as_view, workspace
 # Forward-only kernels: no adjoint code to generate and compile.
 wp.set_module_options({"enable_backward": False})
 
-BLOCK_DIM = 128
+BLOCK_DIM = 256
 """Lanes per point on CUDA (Warp's CPU device runs one lane per block). The kernel is bound by
-the latency of each point's iterations: on an H200, 1000 points of 21x21 took 743 / 524 /
-437 us over four levels with 32 / 64 / 128 lanes."""
+the latency of each point's iterations: more lanes, fewer samples each. With all levels in one
+launch, on an H100 at 1280x720 (21x21, 4 levels; benchmarks/results/graph/h100-2026-11-25-s10/
+lk_levels.md) 500 points took 217-230 / 137-139 / 97-111 us and 1000 points 275-304 / 204-226 /
+188-198 us with 64 / 128 / 256 lanes (one launch per level and 128 lanes before: 169-183 and
+250-252 us). The block sums' order follows the lane count, so their last bits do too."""
 
 FLT_SCALE = wp.constant(1.0 / float(1 << 20))
 FLT_EPSILON = wp.constant(1.1920928955078125e-07)
