@@ -856,3 +856,50 @@ def test_bench_work_cores_counts_cpu_tasks_and_gpu_host_calls():
                                     "b": ["gpu", 0.0, 10.0, 0.0, 0, 3.0, 5.0]})]
     assert [f.makespan for f in frames] == [10.0, 10.0]
     assert bench.work_cores(frames) == pytest.approx(13.0 / 20.0)
+
+
+def _sleep_ms(ms):
+    def fn(x):
+        time.sleep(ms / 1e3)
+        return x
+    return fn
+
+
+def test_best_for_throughput_keeps_the_placement_that_streams_fastest():
+    """A -> B, B on the GPU role only. A on the GPU role finishes a frame first (15 + 15 ms
+    against 20 + 15) but streams slower (the GPU role does 30 ms per frame, against 20 for
+    the busier of a CPU worker and the GPU role). The latency trial keeps the first, the
+    throughput trial the second, each measured."""
+    g = warpvx.Graph("throughput")
+    x = g.input("x", shape=(4,), dtype=np.float32)
+    a = g.user(_sleep_ms(20), [x], warp_fn=_sleep_ms(15), name="A")
+    g.output("y", g.user(None, [a], warp_fn=_sleep_ms(15), name="B"))
+    frame = {"x": np.arange(4, dtype=np.float32)}
+    g.verify(frame)
+    plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
+    runs = []
+    for _ in range(3):
+        g.process(frame)
+        runs.append(plan.last_run[-1])
+    model = g.fit_model(plan, runs=runs)
+    # Told A is slower on the GPU role than it is, so that HEFT on the model's costs places
+    # it on the CPU worker: the trials' second candidate.
+    model.alone["A"] = {**model.alone["A"], "gpu": 40.0, "device": 0.0}
+    kw = dict(n_cpus=1, gpu="warp-cpu", model=model, trial_inputs=[frame], trial_frames=6,
+              trial_margin=1e6)
+    latency = g.schedule("best", **kw)
+    assert set(latency.schedule.info["trial_ms"]) == {"baseline", "heft (model costs)"}
+    assert latency.placement["A"] == "gpu" and latency.schedule.info["objective"] == "latency"
+    streamed = g.schedule("best", objective="throughput", trial_depth=3, **kw)
+    fps = streamed.schedule.info["trial_fps"]
+    assert streamed.placement["A"] == "cpu0"
+    assert fps[streamed.schedule.info["chosen"]] == max(fps.values())
+    assert max(fps.values()) > 1.2 * min(fps.values())  # ~50 against ~33 FPS
+    assert streamed.schedule.info["trial_frames"] == {k: 6 * 4 for k in fps}
+    np.testing.assert_array_equal(g.process(frame)["y"], frame["x"])
+    with pytest.raises(warpvx.WarpvxValueError, match="objective"):
+        g.schedule("best", objective="fps", **kw)
+    for bad in (0, True, 2.5):
+        with pytest.raises((warpvx.WarpvxTypeError, warpvx.WarpvxValueError), match="trial_depth"):
+            g.schedule("best", objective="throughput", trial_depth=bad, **kw)
+    g.close()

@@ -11,7 +11,7 @@ import os
 import warnings
 import weakref
 
-from ..check import check_float, check_int
+from ..check import check_choice, check_float, check_int
 from ..errors import GraphError
 from .data import INPUT, Data, nbytes
 
@@ -41,6 +41,9 @@ SWITCH_WARMUP = 2
 #: every other round (ABBA), so a drift of the machine over the trial (measured on the H100:
 #: the same placement 30-40% apart minutes later) falls on every candidate alike.
 TRIAL_ROUNDS = 4
+
+#: Frames in flight in a throughput trial (``schedule(..., objective="throughput")``).
+TRIAL_DEPTH = 3
 
 
 class NoCudaWarning(UserWarning):
@@ -175,7 +178,8 @@ class CostModel:
                  recalibrate: bool = False, costs: str = "calibrated", model=None,
                  trial_inputs=None, trial_frames: int = 5, trial_margin: float = TRIAL_MARGIN,
                  trial_runner_up: float = TRIAL_RUNNER_UP_MARGIN,
-                 trial_rounds: int = TRIAL_ROUNDS, trial_seconds: float | None = None):
+                 trial_rounds: int = TRIAL_ROUNDS, trial_seconds: float | None = None,
+                 objective: str = "latency", trial_depth: int = TRIAL_DEPTH):
         """Calibrate (cached), schedule with ``policy`` and make the result the current plan.
 
         Parameters
@@ -220,6 +224,17 @@ class CostModel:
         trial_seconds : float, optional
             Time budget of the trial (s): no round starts after it is spent (the first
             always runs).
+        objective : {"latency", "throughput"}
+            What ``"best"`` optimises: one frame's makespan (``process``, the default), or
+            the frame rate of a pipelined ``stream`` (a placement that finishes one frame
+            first may stream slower: its CPU workers' and GPU thread's work per frame, not
+            its critical path, bounds a stream). With ``"throughput"`` candidates are ranked
+            by the model's :func:`~warpvx.graph.model.pipeline_period` (a lower bound) and a
+            trial streams each for ``trial_frames`` frames (``trial_depth`` in flight) per
+            round, after :data:`SWITCH_WARMUP` discarded ones, keeping the highest median
+            frame rate (``info["trial_fps"]``).
+        trial_depth : int
+            Frames in flight in a throughput trial (>= 1).
 
         Returns
         -------
@@ -243,6 +258,8 @@ class CostModel:
         trial_rounds = check_int(trial_rounds, "trial_rounds", min_value=1)
         if trial_seconds is not None:
             trial_seconds = check_float(trial_seconds, "trial_seconds", min_value=0.0)
+        objective = check_choice(objective, "objective", ("latency", "throughput"))
+        trial_depth = check_int(trial_depth, "trial_depth", min_value=1)
         be = gpu_backend(gpu)
         with self._run_lock:
             if not self.verified:
@@ -266,20 +283,24 @@ class CostModel:
             if model is not None and policy == "best":
                 from .model import choose
 
-                cands = choose(model, self._candidate_dags(dag, model, n_cpus))
-                fastest = cands[0][3].makespan
+                cands = choose(model, self._candidate_dags(dag, model, n_cpus),
+                               objective=objective)
+                predicted = cands[0][1].info["candidates"]  # name -> ms (objective's)
+                fastest = predicted[cands[0][0]]
                 top = [c for i, c in enumerate(cands)
-                       if c[3].makespan <= fastest * (1 + (max(trial_margin, trial_runner_up) if i == 1
-                                                         else trial_margin))]
+                       if predicted[c[0]] <= fastest * (1 + (max(trial_margin, trial_runner_up)
+                                                             if i == 1 else trial_margin))]
                 chosen, trial, plan = cands[0], None, None
                 if trial_inputs is not None and len(top) > 1:
                     chosen, trial, plan = self._trial(
                         top, trial_inputs, make_plan, frames=trial_frames, rounds=trial_rounds,
-                        seconds=trial_seconds)
+                        seconds=trial_seconds,
+                        depth=trial_depth if objective == "throughput" else None)
                 label, sch, dag, prediction = chosen
-                sch.info = {**sch.info, "chosen": label}
+                sch.info = {**sch.info, "chosen": label, "objective": objective}
                 if trial is not None:
-                    sch.info["trial_ms"] = {k: v[0] for k, v in trial.items()}
+                    what = "trial_fps" if objective == "throughput" else "trial_ms"
+                    sch.info[what] = {k: v[0] for k, v in trial.items()}
                     sch.info["trial_frames"] = {k: v[1] for k, v in trial.items()}
                 sch.policy = "best"
                 plan = plan or make_plan(sch, dag, prediction)
@@ -291,22 +312,32 @@ class CostModel:
                 warn_no_cuda(self.name, on_gpu)
         return plan
 
-    def _trial(self, candidates, inputs, make_plan, *, frames, rounds, seconds) -> tuple:
+    def _trial(self, candidates, inputs, make_plan, *, frames, rounds, seconds,
+               depth=None) -> tuple:
         """Measure each candidate (``(name, Schedule, dag, prediction)``) with
-        :meth:`measure_plans`; (the fastest by median measured makespan, name -> (that
-        median in ms, frames measured), its plan, now the current one)."""
+        :meth:`measure_plans` (or, with ``depth``, :meth:`measure_streams`); (the fastest by
+        median measured makespan, or highest median frame rate, name -> (that median in ms,
+        or FPS, frames measured), its plan, now the current one)."""
         import statistics
 
         plans = [make_plan(sch, dag, prediction) for _, sch, dag, prediction in candidates]
         try:
-            runs = self.measure_plans(plans, inputs, rounds=rounds, frames=frames, seconds=seconds)
+            if depth is None:
+                runs = self.measure_plans(plans, inputs, rounds=rounds, frames=frames,
+                                          seconds=seconds)
+                measured = {c[0]: (statistics.median(r.makespan for r in got), len(got))
+                            for c, got in zip(candidates, runs)}
+            else:
+                runs = self.measure_streams(plans, inputs, rounds=rounds, frames=frames,
+                                            depth=depth, seconds=seconds)
+                measured = {c[0]: (statistics.median(got), frames * len(got))
+                            for c, got in zip(candidates, runs)}
         except BaseException:
             for plan in plans:
                 plan.close()
             raise
-        measured = {c[0]: (statistics.median(r.makespan for r in got), len(got))
-                    for c, got in zip(candidates, runs)}
-        i = min(range(len(candidates)), key=lambda k: measured[candidates[k][0]][0])
+        sign = 1 if depth is None else -1  # least ms, or most frames per second
+        i = min(range(len(candidates)), key=lambda k: sign * measured[candidates[k][0]][0])
         for k, plan in enumerate(plans):  # idle executors' threads: only the kept one stays
             if k != i:
                 plan.close()
@@ -361,6 +392,42 @@ class CostModel:
                     k += 1
                     if j >= warmup:
                         out[i].append(plans[i].last_run[-1])
+        return out
+
+    def measure_streams(self, plans, inputs, *, rounds: int = TRIAL_ROUNDS, frames: int = 20,
+                        depth: int = TRIAL_DEPTH, warmup: int = SWITCH_WARMUP,
+                        seconds: float | None = None) -> list:
+        """Stream ``plans`` (this graph's) in interleaved rounds, as :meth:`measure_plans`
+        runs them one frame at a time: per plan, the frame rate (frames per second of wall
+        time) of each round's ``frames`` frames streamed ``depth`` in flight, after
+        ``warmup`` discarded ones. Rounds alternate the order (A B B A); no round starts
+        once ``seconds`` have passed (the first always runs). Frames are real: outputs are
+        published and delays advance. The last plan run stays current."""
+        import time
+
+        inputs = [inputs] if isinstance(inputs, dict) else list(inputs)
+        if not inputs:
+            raise GraphError("inputs: expected a dict of inputs or a non-empty list of them")
+        rounds = check_int(rounds, "rounds", min_value=1)
+        frames = check_int(frames, "frames", min_value=1)
+        depth = check_int(depth, "depth", min_value=1)
+        warmup = check_int(warmup, "warmup", min_value=0)
+        out = [[] for _ in plans]
+        t0, k = time.perf_counter(), 0
+        for r in range(rounds):
+            if r and seconds is not None and time.perf_counter() - t0 > seconds:
+                break
+            order = range(len(plans)) if r % 2 == 0 else range(len(plans) - 1, -1, -1)
+            for i in order:
+                self.use_plan(plans[i])
+                feed = (inputs[(k + j) % len(inputs)] for j in range(warmup + frames))
+                k += warmup + frames
+                stream = self.stream(feed, depth=depth)
+                for _ in range(warmup):
+                    next(stream)
+                start = time.perf_counter()
+                done = sum(1 for _ in stream)
+                out[i].append(done / max(time.perf_counter() - start, 1e-9))
         return out
 
     def _candidate_dags(self, dag, model, n_cpus) -> dict:
@@ -444,4 +511,4 @@ class CostModel:
         return self._plan
 
 
-__all__ = ["CostModel", "NoCudaWarning", "SWITCH_WARMUP", "TRIAL_MARGIN", "TRIAL_ROUNDS", "TRIAL_RUNNER_UP_MARGIN", "default_n_cpus", "gpu_backend", "warn_no_cuda"]
+__all__ = ["CostModel", "NoCudaWarning", "SWITCH_WARMUP", "TRIAL_DEPTH", "TRIAL_MARGIN", "TRIAL_ROUNDS", "TRIAL_RUNNER_UP_MARGIN", "default_n_cpus", "gpu_backend", "warn_no_cuda"]

@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..check import check_choice
 from ..errors import GraphError
 from ..sched.schedule import Schedule, ScheduledTask
 from .data import INPUT, Data, DelayRef, nbytes
@@ -934,13 +935,28 @@ def in_frame_dag(model: ContentionModel, pes: dict, n_cpus: int):
     return cpu_gpu_dag(tasks, edges, n_cpus)
 
 
-def choose(model: ContentionModel, dags: dict, policies=("baseline", "heft", "xeft")) -> list:
+def pipeline_period(predicted: Schedule) -> float:
+    """The least time between two frames of a pipelined stream of ``predicted`` (a
+    :func:`simulate` timeline), ms: its busiest processor's work per frame (a GPU's: its
+    device intervals). A lower bound: the host threads' own work between a frame's tasks is
+    not in it, so streams measure slower (``schedule(..., objective="throughput")`` ranks by
+    it and a trial measures)."""
+    busy: dict = {}
+    for st in predicted.tasks.values():
+        busy[st.processor] = busy.get(st.processor, 0.0) + (st.finish - st.start)
+    return max(busy.values(), default=0.0)
+
+
+def choose(model: ContentionModel, dags: dict, policies=("baseline", "heft", "xeft"), *,
+           objective: str = "latency") -> list:
     """Every candidate schedule of ``policies`` on each of ``dags``, fastest predicted first.
 
     Parameters
     ----------
     dags : dict
         label -> task DAG (same tasks and processors).
+    objective : {"latency", "throughput"}
+        Fastest by predicted makespan (one frame), or by :func:`pipeline_period` (a stream).
 
     Returns
     -------
@@ -948,30 +964,36 @@ def choose(model: ContentionModel, dags: dict, policies=("baseline", "heft", "xe
         ``name``: ``"<policy>"`` or ``"<policy> (<label>)"``; a schedule with the same
         placement and per-processor order as a faster one is left out (it would run the
         same). Each Schedule's ``info["candidates"]`` maps every candidate's name to its
-        predicted makespan (ms).
+        predicted makespan (ms; with ``objective="throughput"``, its predicted period).
     """
     from .. import sched
 
+    cost = _OBJECTIVES[check_choice(objective, "objective", tuple(_OBJECTIVES))]
     found, seen, out = {}, set(), []
     for label, dag in dags.items():
         for policy in policies:
             sch = sched.schedule(dag, policy)
             pred = simulate(model, sch)
             name = f"{policy} ({label})" if label else policy
-            found[name] = pred.makespan
+            found[name] = cost(pred)
             order = tuple(sorted(sch.tasks, key=lambda v: (sch.tasks[v].processor, sch.tasks[v].start)))
             key = (tuple(sch.tasks[v].processor for v in order), order)
             if key not in seen:
                 seen.add(key)
                 out.append((name, sch, dag, pred))
-    out.sort(key=lambda c: c[3].makespan)
+    out.sort(key=lambda c: found[c[0]])
     for _, sch, _, _ in out:
         sch.info = {**sch.info, "candidates": found}
     return out
 
 
+#: What :func:`choose` ranks candidates by, per objective.
+_OBJECTIVES = {"latency": lambda pred: pred.makespan, "throughput": pipeline_period}
+
+
 __all__ = [
     "choose",
+    "pipeline_period",
     "in_frame_dag",
     "ContentionModel",
     "LATENCIES",
