@@ -26,9 +26,10 @@ Cross-queue edges
     Every (frame, value) pair is a :class:`Slot`, set when its producer has finished (CPU) or
     enqueued (GPU). GPU -> CPU: the producer's end event is recorded on the stream; on
     CUDA, where a CPU task of the frame or of a later one (a delay's value) or the caller (a
-    graph output) reads the value, the GPU role then starts its download at once (:meth:`Transfers.stage_download`: pinned
-    buffers of the executor's :class:`~.pinned.HostPool`, on the GPU role's copy stream
-    after the producer's event, or for a value under
+    graph output) reads the value, the GPU role then starts its download at once
+    (:meth:`Transfers.stage_download`: pinned buffers of the executor's
+    :class:`~.pinned.HostPool`, on the GPU role's copy stream after the producer's event, or
+    for a value under
     :attr:`Transfers.SAME_STREAM_MAX_BYTES` on the compute stream right behind its
     producer), so the compute stream runs on while the DMA runs and the reader waits for
     the copy's event only, then gets NumPy views of the pinned buffers (no
