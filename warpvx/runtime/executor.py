@@ -25,16 +25,20 @@ Roles and threads
 Cross-queue edges
     Every (frame, value) pair is a :class:`Slot`, set when its producer has finished (CPU) or
     enqueued (GPU). GPU -> CPU: the producer's end event is recorded on the stream; on
-    CUDA, where a CPU task of the frame or the caller (a graph output) reads the value, the
-    GPU role then starts its download at once (:meth:`Transfers.stage_download`: pinned
-    buffers of the executor's :class:`~.pinned.HostPool`, on the GPU role's copy stream
-    after the producer's event, or for a value under
+    CUDA, where a CPU task of the frame or of a later one (a delay's value) or the caller (a
+    graph output) reads the value, the GPU role then starts its download at once
+    (:meth:`Transfers.stage_download`: pinned buffers of the executor's
+    :class:`~.pinned.HostPool`, on the GPU role's copy stream after the producer's event, or
+    for a value under
     :attr:`Transfers.SAME_STREAM_MAX_BYTES` on the compute stream right behind its
     producer), so the compute stream runs on while the DMA runs and the reader waits for
     the copy's event only, then gets NumPy views of the pinned buffers (no
-    host copy; a buffer returns to the pool once every array on it is garbage); otherwise
-    (the pool full, a delay's value, a vector dtype) the reader waits for the producer's
-    event and downloads on its thread's copy stream.
+    host copy; a buffer returns to the pool once every array on it is garbage). A download
+    nobody read is waited for and dropped when its frame is waited for, or for a delay's
+    value when the ring drops its slot (aged out, reset, cancelled, or the executor closes):
+    the next frame's reader of ``delay[-1]`` finds it staged. Otherwise (the pool full, a
+    vector dtype) the reader waits for the producer's event and downloads on its thread's
+    copy stream.
     CPU -> GPU: the GPU role uploads on the GPU stream (stream-ordered, so the kernel after
     it sees the data; large arrays go through reusable pinned staging buffers, so the copy is
     asynchronous and the host does not wait for the kernels queued before it). Between two
@@ -787,7 +791,10 @@ class Executor(RoleRunner, SegmentRunner):
         """Buffers of frames no delay holds any more (every ring has aged past them: a ring
         keeps its last ``slots + 1`` frames) go back to their pools. A frame's values reach
         the delays' readers only through the rings (:meth:`Ring.get`; ``Delay.read`` copies
-        under the ring's lock), so once dropped there nothing reads them."""
+        under the ring's lock), so once dropped there nothing reads them. A staged download
+        of such a value (:meth:`_stage`) was queued when it was published and is waited for
+        by its reader or by the ring dropping the slot (``Ring.age``, called before this):
+        no copy from a buffer given back here is still running."""
         held = self._ring_held
         if not held:
             return
@@ -1069,6 +1076,8 @@ class Executor(RoleRunner, SegmentRunner):
             th.join(timeout=5.0)
         self._threads.clear()
         if self._host_pool is not None:
+            for ring in self.program.rings.values():  # (the graph's: they outlive us)
+                ring.release_staged()
             self._host_pool.close()
 
 

@@ -119,7 +119,9 @@ class Role:
         self.state = state
         self.captures = None  # the oldest frame's capture states (GPU role)
         self.touch: list = []  # per unit: the other roles that read what it publishes
-        self.stage: list = []  # per GPU unit: its output keys whose download starts at once
+        # Per GPU unit: (key, held) of its outputs whose download starts at once; held: a
+        # delay's value, its download kept in the ring's slot for a later frame's reader.
+        self.stage: list = []
 
     def wake(self):
         try:
@@ -156,6 +158,7 @@ class RoleRunner:
             return ms <= self.INLINE_MAX_MS
 
         staged, self._outputs_staged = self._staged_keys()
+        rings = self.program.rings
         roles = {}
         for p in self._active:
             if is_gpu_processor(p):
@@ -177,22 +180,23 @@ class RoleRunner:
                 keys = [k for t in (unit[1].tasks if role.gpu else [unit]) for k in t.outputs]
                 touch = {id(r): r for k in keys for r in reading.get(k, {}).values() if r is not role}
                 role.touch.append(tuple(touch.values()))
-                role.stage.append(tuple(k for k in keys if k in staged))
+                role.stage.append(tuple((k, k in rings) for k in keys if k in staged))
         return roles
 
     def _staged_keys(self) -> tuple:
         """(keys whose download starts as soon as the GPU role publishes them (with a host
-        pool), the graph outputs among them no CPU task reads): read by a CPU task of the same
-        frame, or by the caller (a graph output; staged only in frames whose caller wants host
-        data: ``Frame.stage_outputs``), and by no delay (a later frame may read a delay's value
-        after its frame)."""
+        pool), the graph outputs among them no CPU task reads): read by a CPU task, of the
+        same frame or (a delay's value, ``delay[-j]``) of a later one, or by the caller (a
+        graph output; staged only in frames whose caller wants host data:
+        ``Frame.stage_outputs``). A delay's staged download lives in its ring's slot until a
+        reader takes it or the ring drops the slot (:class:`~.slots.Ring`), not until its
+        frame is waited for: the reader of frame *i+j* may run after frame *i*'s wait."""
         if self._host_pool is None:
             return set(), set()
         reads = {r.key for p in self._active if not is_gpu_processor(p)
-                 for t in self.queues[p] for r in t.inputs if r.offset == 0}
+                 for t in self.queues[p] for r in t.inputs}
         outputs = set(self.program.outputs.values())
-        rings = set(self.program.rings)
-        return (reads | outputs) - rings, outputs - reads - rings
+        return reads | outputs, outputs - reads
 
     def _role_loop(self, proc: str):
         home = self._roles[proc]
@@ -364,9 +368,9 @@ class RoleRunner:
                 self._run_segment_or_tasks(frame, i, seg, state, role.captures)
             else:
                 self._run_gpu_task(frame, seg.tasks[0], state, slots)
-            for key in role.stage[role.pos]:
+            for key, held in role.stage[role.pos]:
                 if frame.stage_outputs or key not in self._outputs_staged:
-                    self._stage(frame, frame.slots[key], io)
+                    self._stage(frame, frame.slots[key], io, held)
         except Cancelled:
             return False
         except BaseException as exc:  # noqa: BLE001 - reported to the caller
@@ -374,9 +378,16 @@ class RoleRunner:
             return False
         return True
 
-    def _stage(self, frame: Frame, slot: Slot, io: Transfers):
-        """Start the download of a GPU value a CPU task of the frame reads (CUDA): see
-        :meth:`Transfers.stage_download`."""
+    def _stage(self, frame: Frame, slot: Slot, io: Transfers, held: bool):
+        """Start the download of a GPU value a CPU task (or the caller) reads (CUDA): see
+        :meth:`Transfers.stage_download`. ``held``: a delay's value, whose download its ring's
+        slot keeps for a later frame's reader and releases (:class:`~.slots.Ring`); else the
+        frame's wait releases it if unread (``Executor._unstage``).
+
+        A delay's device buffer goes back to its pool only once every ring has dropped its
+        frame (``Executor._recycle_ring_held``, after ``Ring.age``): this download is queued
+        here, as the value is published, so before that; and the ring, dropping the slot,
+        waits for the copy (:meth:`Slot.release_staged`) before the buffer is recycled."""
         if slot.where != DEVICE or slot.staged is not None:
             return
         # (A value made on another stream, a captured segment's set's: no stream order.)
@@ -384,7 +395,8 @@ class RoleRunner:
                                    after=None if slot.external else self._stream)
         if staged is not None:
             slot.staged = staged
-            frame.staged.append(slot)
+            if not held:
+                frame.staged.append(slot)
 
     def _run_segment_or_tasks(self, frame: Frame, i: int, seg, state: "GpuState", captures):
         """Capturable GPU segment ``i`` of ``frame``: replayed from its captured graph where

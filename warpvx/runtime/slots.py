@@ -126,15 +126,19 @@ class Slot(Flag):
             return self._host[0]
 
     def release_staged(self):
-        """Drop the staged download not read (the frame is over): its buffers go back to the
-        pool once its copy is done (waited for here: a buffer is never lent again while a
-        copy into it may run)."""
-        staged = self.staged
-        if staged is not None:
-            self.staged = None
-            if staged.event is not None:
-                synchronize_event(staged.event)
-            staged.close()
+        """Drop the staged download not read (its frame is over, or a delay's ring let the
+        slot go): its buffers go back to the pool once its copy is done (waited for here: a
+        buffer is never lent again while a copy into it may run). Under the copy lock: a
+        delay's reader of a later frame may be reading it."""
+        if self.staged is None:
+            return
+        with self._guard():
+            staged = self.staged
+            if staged is not None:
+                self.staged = None
+                if staged.event is not None:
+                    synchronize_event(staged.event)
+                staged.close()
 
     def ready_event(self):
         """The CUDA event after which :meth:`host` copies without waiting: the staged
@@ -172,6 +176,12 @@ class Ring:
     Frames before the first one, and frames whose slot was dropped (a cancelled frame), read
     the latest earlier slot that was filled, else the initial value. ``lock`` guards every
     access; the graph layer shares it with user threads (thesis §4.2).
+
+    A slot may hold a staged download for a later frame's CPU reader (the executor stages
+    a delay's value read on the host as it is produced): a slot dropped (aged out, replaced,
+    reset, its frame cancelled) releases it (:meth:`Slot.release_staged`, outside the lock:
+    it waits for the copy), so the pool's buffers go back and a device buffer the delay held
+    is recycled only after the copy from it is done.
     """
 
     def __init__(self, slots: int, initial, lock=None):
@@ -196,7 +206,9 @@ class Ring:
     def put(self, frame: int, value, where=HOST):
         """Replace frame ``frame``'s value (a user write through the communication wrapper)."""
         with self.lock:
+            old = self._by_frame.get(frame)
             self._by_frame[frame] = Slot.holding(value, where)
+        _release_staged([old])
 
     @property
     def initial(self):
@@ -210,23 +222,46 @@ class Ring:
     def reset(self):
         """Forget every frame: reads return the initial value again."""
         with self.lock:
+            dropped = list(self._by_frame.values())
             self._by_frame.clear()
             self.last_aged = -1
+        _release_staged(dropped)
 
     def age(self, frame: int):
         """Frame ``frame`` completed: it becomes the newest value; forget what no frame needs."""
         with self.lock:
             self.last_aged = max(self.last_aged, frame)
             keep_from = self.last_aged - self.slots
-            for f in [f for f in self._by_frame if f < keep_from]:
-                del self._by_frame[f]
+            dropped = [f for f in self._by_frame if f < keep_from]
+            if not dropped:
+                return
+            dropped = [self._by_frame.pop(f) for f in dropped]
+        _release_staged(dropped)
 
     def discard_pending(self, frame: int):
-        """Drop frame ``frame``'s slot if its producer never ran (the frame was cancelled)."""
+        """Frame ``frame`` was cancelled: drop its slot if its producer never ran; a slot kept
+        (its producer ran) lets its staged download go (a later reader downloads it)."""
         with self.lock:
             slot = self._by_frame.get(frame)
             if slot is not None and not slot.ready:
                 del self._by_frame[frame]
+                return
+        if slot is not None:
+            slot.release_staged()
+
+    def release_staged(self):
+        """Let every slot's staged download go (the executor that staged them closes; the
+        values stay, a later reader downloads them)."""
+        with self.lock:
+            slots = list(self._by_frame.values())
+        _release_staged(slots)
+
+
+def _release_staged(slots):
+    """:meth:`Slot.release_staged` of each of ``slots`` (None skipped)."""
+    for slot in slots:
+        if slot is not None and slot.staged is not None:
+            slot.release_staged()
 
 
 __all__ = ["HOST", "DEVICE", "Flag", "Slot", "Ring"]
