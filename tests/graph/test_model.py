@@ -373,6 +373,17 @@ def _fast_on_gpu(x):
     return x
 
 
+def _baseline_model(g, frame):
+    """``g`` verified on ``frame`` and a model fitted on 3 frames of its baseline."""
+    g.verify(frame)
+    plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
+    runs = []
+    for _ in range(3):
+        g.process(frame)
+        runs.append(plan.last_run[-1])
+    return g.fit_model(plan, runs=runs)
+
+
 def _one_node_wrong_model(name, cpu_fn, gpu_fn):
     """A one-node graph (``cpu_fn`` on a CPU worker, ``gpu_fn`` on the GPU role), a frame,
     and a model fitted on its baseline then told the CPU placement is far faster."""
@@ -380,13 +391,7 @@ def _one_node_wrong_model(name, cpu_fn, gpu_fn):
     x = g.input("x", shape=(4,), dtype=np.float32)
     g.output("y", g.user(cpu_fn, [x], warp_fn=gpu_fn, name="work"))
     frame = {"x": np.arange(4, dtype=np.float32)}
-    g.verify(frame)
-    plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
-    runs = []
-    for _ in range(3):
-        g.process(frame)
-        runs.append(plan.last_run[-1])
-    model = g.fit_model(plan, runs=runs)
+    model = _baseline_model(g, frame)
     model.alone["work"] = {"cpu": 0.001, "gpu": 50.0, "device": 0.0}  # wrong on purpose
     return g, frame, model
 
@@ -875,13 +880,7 @@ def test_best_for_throughput_keeps_the_placement_that_streams_fastest():
     a = g.user(_sleep_ms(20), [x], warp_fn=_sleep_ms(15), name="A")
     g.output("y", g.user(None, [a], warp_fn=_sleep_ms(15), name="B"))
     frame = {"x": np.arange(4, dtype=np.float32)}
-    g.verify(frame)
-    plan = g.schedule("baseline", n_cpus=1, gpu="warp-cpu")
-    runs = []
-    for _ in range(3):
-        g.process(frame)
-        runs.append(plan.last_run[-1])
-    model = g.fit_model(plan, runs=runs)
+    model = _baseline_model(g, frame)
     # Told A is slower on the GPU role than it is, so that HEFT on the model's costs places
     # it on the CPU worker: the trials' second candidate.
     model.alone["A"] = {**model.alone["A"], "gpu": 40.0, "device": 0.0}

@@ -371,27 +371,12 @@ class CostModel:
         Inputs cycle through ``inputs`` (a dict or a list of dicts); frames are real:
         outputs are published and delays advance. The last plan run stays current.
         """
-        import time
-
-        inputs = [inputs] if isinstance(inputs, dict) else list(inputs)
-        if not inputs:
-            raise GraphError("inputs: expected a dict of inputs or a non-empty list of them")
-        rounds = check_int(rounds, "rounds", min_value=1)
-        frames = check_int(frames, "frames", min_value=1)
-        warmup = check_int(warmup, "warmup", min_value=0)
         out = [[] for _ in plans]
-        t0, k = time.perf_counter(), 0
-        for r in range(rounds):
-            if r and seconds is not None and time.perf_counter() - t0 > seconds:
-                break
-            order = range(len(plans)) if r % 2 == 0 else range(len(plans) - 1, -1, -1)
-            for i in order:
-                self.use_plan(plans[i])
-                for j in range(warmup + frames):
-                    self.process(inputs[k % len(inputs)])
-                    k += 1
-                    if j >= warmup:
-                        out[i].append(plans[i].last_run[-1])
+        for i, feed in self._rounds(plans, inputs, rounds, frames, warmup, seconds):
+            for j, frame in enumerate(feed):
+                self.process(frame)
+                if j >= warmup:
+                    out[i].append(plans[i].last_run[-1])
         return out
 
     def measure_streams(self, plans, inputs, *, rounds: int = TRIAL_ROUNDS, frames: int = 20,
@@ -400,35 +385,39 @@ class CostModel:
         """Stream ``plans`` (this graph's) in interleaved rounds, as :meth:`measure_plans`
         runs them one frame at a time: per plan, the frame rate (frames per second of wall
         time) of each round's ``frames`` frames streamed ``depth`` in flight, after
-        ``warmup`` discarded ones. Rounds alternate the order (A B B A); no round starts
-        once ``seconds`` have passed (the first always runs). Frames are real: outputs are
-        published and delays advance. The last plan run stays current."""
+        ``warmup`` discarded ones."""
+        import time
+
+        depth = check_int(depth, "depth", min_value=1)
+        out = [[] for _ in plans]
+        for i, feed in self._rounds(plans, inputs, rounds, frames, warmup, seconds):
+            stream = self.stream(feed, depth=depth)
+            for _ in range(warmup):
+                next(stream)
+            start = time.perf_counter()
+            done = sum(1 for _ in stream)
+            out[i].append(done / max(time.perf_counter() - start, 1e-9))
+        return out
+
+    def _rounds(self, plans, inputs, rounds, frames, warmup, seconds):
+        """:meth:`measure_plans`' rounds: ``(i, the inputs of plan i's warmup + frames
+        frames)`` with plan i made current, in A B B A order, until ``rounds`` or
+        ``seconds``; inputs cycle through ``inputs``."""
         import time
 
         inputs = [inputs] if isinstance(inputs, dict) else list(inputs)
         if not inputs:
             raise GraphError("inputs: expected a dict of inputs or a non-empty list of them")
         rounds = check_int(rounds, "rounds", min_value=1)
-        frames = check_int(frames, "frames", min_value=1)
-        depth = check_int(depth, "depth", min_value=1)
-        warmup = check_int(warmup, "warmup", min_value=0)
-        out = [[] for _ in plans]
+        n = check_int(frames, "frames", min_value=1) + check_int(warmup, "warmup", min_value=0)
         t0, k = time.perf_counter(), 0
         for r in range(rounds):
             if r and seconds is not None and time.perf_counter() - t0 > seconds:
                 break
-            order = range(len(plans)) if r % 2 == 0 else range(len(plans) - 1, -1, -1)
-            for i in order:
+            for i in range(len(plans)) if r % 2 == 0 else range(len(plans) - 1, -1, -1):
                 self.use_plan(plans[i])
-                feed = (inputs[(k + j) % len(inputs)] for j in range(warmup + frames))
-                k += warmup + frames
-                stream = self.stream(feed, depth=depth)
-                for _ in range(warmup):
-                    next(stream)
-                start = time.perf_counter()
-                done = sum(1 for _ in stream)
-                out[i].append(done / max(time.perf_counter() - start, 1e-9))
-        return out
+                yield i, [inputs[(k + j) % len(inputs)] for j in range(n)]
+                k += n
 
     def _candidate_dags(self, dag, model, n_cpus) -> dict:
         """name -> task DAG: the schedule's own and one with the model's in-frame costs."""
