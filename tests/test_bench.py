@@ -344,3 +344,27 @@ def test_host_speed_scaled_scales_only_the_named_parts():
     assert both.slowdown["gpu"].in_frame("b", 1.0) == pytest.approx(2.0 * model.slowdown["gpu"].in_frame("b", 1.0))
     assert (both.segment_fixed, both.segment_ratio) == (pytest.approx(0.1), 0.5)
     assert model.slowdown["cpu"].ratio == 1.2  # the model itself untouched
+
+
+def test_best_throughput_writes_both_objectives_rows(tmp_path):
+    """benchmarks/perf/best_throughput.py on Warp's CPU device: the baseline and the two
+    kept plans, each measured both ways (a positive makespan and frame rate), each best row
+    naming a candidate its own trial measured, under the command that regenerates them."""
+    from pathlib import Path
+
+    pytest.importorskip("warp")
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "perf"))
+    import best_throughput
+
+    best_throughput.main(["--out", str(tmp_path), "--gpu", "warp-cpu", "--size", "160x120",
+                          "--rounds", "1", "--frames", "2"])
+    text = (tmp_path / "best_throughput.md").read_text()
+    assert text.startswith("<!-- PYTHONPATH=. python3 benchmarks/perf/best_throughput.py --out ")
+    rows = [[c.strip() for c in line.split("|")[1:-1]] for line in text.splitlines()
+            if line.startswith("| ") and not line.startswith("| plan")]
+    assert [r[0] for r in rows] == ["baseline", "best (latency)", "best (throughput)"]
+    for name, kept, trial, _, ms, fps in rows:
+        assert float(ms) > 0 and float(fps) > 0
+        if name != "baseline" and trial != "-":
+            unit = "FPS" if "throughput" in name else "ms"
+            assert f"{kept} " in trial and trial.endswith(unit)
