@@ -34,6 +34,9 @@ def main(argv=None):
     ap.add_argument("--n-cpus", type=int, default=4)
     ap.add_argument("--rounds", type=int, default=4, help="rounds of each trial and of the final measure")
     ap.add_argument("--frames", type=int, default=30, help="frames per plan and round")
+    ap.add_argument("--margin", type=float, default=None,
+                    help="the trials' trial_margin (default the library's): candidates "
+                         "predicted within this fraction of the fastest are measured")
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
     import cv2
@@ -58,7 +61,8 @@ def main(argv=None):
     for objective in ("latency", "throughput"):
         plan = g.schedule("best", n_cpus=args.n_cpus, gpu=args.gpu, model=model,
                           trial_inputs=frames, trial_frames=args.frames if objective == "throughput"
-                          else 5, trial_rounds=args.rounds, objective=objective)
+                          else 5, trial_rounds=args.rounds, objective=objective,
+                          **({} if args.margin is None else {"trial_margin": args.margin}))
         kept[objective] = plan
         print(f"best for {objective}: {plan.schedule.info['chosen']}", flush=True)
     plans = [base, kept["latency"], kept["throughput"]]
