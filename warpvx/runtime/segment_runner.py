@@ -14,7 +14,7 @@ from .._counted import is_counted
 from ..check import check_bool, check_int
 from .capture import (MAX_LANES, MAX_SIGNATURES, NotCapturable, Segment, SegmentGraph,
                       _leaves, _log)
-from .native_copy import copy_device, record_event, wait_event, warp
+from .native_copy import copy_device, is_warp_array, record_event, wait_event, warp
 from .slots import DEVICE
 from .timeline import Frame, proportional_shares
 from .transfers import tree_map
@@ -47,6 +47,7 @@ class SegmentRunner:
     _set_streams = None  # set index (-1: the executor's) -> its stream and lanes' (CUDA)
     _fork_events = None  # a set's stream -> the event it waits for on the executor's
     _recent = None  # segment index -> the SegmentGraph its last frame ran (_inputs_key)
+    _seg_shares = None  # id of a captured segment -> its tasks' shares (_task_shares)
     _linked = True
 
     @property
@@ -262,11 +263,13 @@ class SegmentRunner:
         if ev1 is False:  # run eagerly
             return
         h1 = time.perf_counter()
-        for task in seg.tasks:
-            lo, hi = frame.shares[task.name] = self._shares[task.name]
-            frame.trace[task.name] = (state.proc, ev0, ev1, None) if cuda else \
-                (state.proc, h0, h1, None)
-            frame.host_trace[task.name] = (h0 + lo * (h1 - h0), h0 + hi * (h1 - h0))
+        shares = self._task_shares(seg)
+        frame.shares.update(shares)
+        frame.trace.update(dict.fromkeys(shares, (state.proc, ev0, ev1, None) if cuda else
+                                         (state.proc, h0, h1, None)))
+        span = h1 - h0
+        frame.host_trace.update({name: (h0 + lo * span, h0 + hi * span)
+                                 for name, (lo, hi) in shares.items()})
         # The next eager task's start event is on the executor's stream: not this one's.
         state.prev_end = None if forked else ev1
 
@@ -327,8 +330,20 @@ class SegmentRunner:
         self.replays += replay
         outs = dict(fixed)
         blocks = {}  # a node's Counted outputs share one block: copied once
-        for key in seg.outputs:
-            outs[key] = self._copy_out(frame, key, fixed[key], sg, blocks, stream)
+        b = sg.sets[sg.last]
+        plan = b.plan
+        if plan is None or plan[0] is not fixed:
+            plan = b.plan = (fixed, self._copy_plan(fixed, seg.outputs))
+        for key, value, block, rule in plan[1]:
+            if block is None:
+                outs[key] = self._copy_array(frame, key, value, stream) if value is not None \
+                    else tree_map(lambda a: self._copy_array(frame, key, a, stream), fixed[key])
+                continue
+            array = block.array
+            buf = blocks.get((id(array), rule))
+            if buf is None:
+                buf = blocks[id(array), rule] = self._copy_array(frame, key, array, stream)
+            outs[key] = sg.block_view(block, buf, rule != "never")
         sg.publish(outs)
         ev1 = None
         if streams and stream is not self._stream:
@@ -353,20 +368,22 @@ class SegmentRunner:
         frame.forked.append(ev1)
         return ev1
 
-    def _copy_out(self, frame: Frame, key: str, fixed, sg: SegmentGraph, blocks: dict, stream):
-        """A copy of ``fixed`` (the value of ``key`` in ``sg``'s buffers) in buffers of
-        ``frame``'s, on ``stream``: a Counted with a block as one copy of the block, shared
-        with its node's other outputs whose copies are reused under the same rule
-        (``blocks``: (id of a fixed block, rule) -> its copy in this frame); other values
-        array by array."""
-        if is_counted(fixed) and fixed.block is not None:
-            rule = self._upload_rule.get(key)
-            array = fixed.block.array
-            buf = blocks.get((id(array), rule))
-            if buf is None:
-                buf = blocks[id(array), rule] = self._copy_array(frame, key, array, stream)
-            return sg.block_view(fixed.block, buf, rule != "never")
-        return tree_map(lambda a: self._copy_array(frame, key, a, stream), fixed)
+    def _copy_plan(self, fixed: dict, keys) -> tuple:
+        """How :meth:`_replay` copies values ``keys`` of ``fixed`` (a buffer set's outputs:
+        key -> its value in the fixed buffers) into buffers of the frame's, each
+        ``(key, array, block, rule)``: a Counted with a block as one copy of the block
+        (``block``), shared with its node's other outputs whose copies are reused under the
+        same ``rule`` (a view of the copy made once per pooled buffer:
+        :meth:`SegmentGraph.block_view`); a Warp array as one copy (``array``); another tree
+        array by array (both None). Made once per outputs dict, not per frame."""
+        plan = []
+        for key in keys:
+            value = fixed[key]
+            if is_counted(value) and value.block is not None:
+                plan.append((key, None, value.block, self._upload_rule.get(key)))
+            else:
+                plan.append((key, value if is_warp_array(value) else None, None, None))
+        return tuple(plan)
 
     def _copy_array(self, frame: Frame, key: str, fixed, stream):
         """A copy of fixed array ``fixed`` (of value ``key``) into a buffer of ``frame``'s."""
@@ -381,6 +398,17 @@ class SegmentRunner:
         readers = [t.name for t in self.program.tasks.values() if t.name not in inside
                    and any(r.key == key for r in t.inputs)]
         return self._reuse_rule(self._data, readers, [key])
+
+    def _task_shares(self, seg: Segment) -> dict:
+        """Task -> its (start, end) fractions of captured segment ``seg``'s interval, in
+        queue order (of :attr:`_shares`; one dict per segment, made once)."""
+        by_seg = self._seg_shares
+        if by_seg is None:
+            by_seg = self._seg_shares = {}
+        shares = by_seg.get(id(seg))  # (the executor's segments live as long as it)
+        if shares is None:
+            shares = by_seg[id(seg)] = {t.name: self._shares[t.name] for t in seg.tasks}
+        return shares
 
     def _segment_shares(self) -> dict:
         """task -> (start, end) fractions of its captured segment's measured interval, in

@@ -13,7 +13,7 @@ from collections import deque
 
 import numpy as np
 
-from .._counted import ONE_COPY_MAX_BYTES, Counted, download, map_counted
+from .._counted import ONE_COPY_MAX_BYTES, Block, Counted, download, map_counted
 from .native_copy import (address, bytes_to_host_async, is_warp_array, numpy_dtype,
                           record_event, synchronize_event, synchronize_stream, to_device,
                           to_host, to_host_async, wait_event, warp)
@@ -50,9 +50,17 @@ def host_value(value, fetch, counted):
     any other Counted is cut to its count on the host (its flatten protocol)."""
     if is_warp_array(value):
         return fetch(value)
+    if _block_counted(value):  # a node's Counted output, the usual tree: no walk
+        return counted(value)
     value = map_counted(lambda c: c if c.block is None or not is_warp_array(c.count)
                         else counted(c), value)
     return tree_map(lambda a: fetch(a) if is_warp_array(a) else a, value)
+
+
+def _block_counted(value) -> bool:
+    """``value`` is a device :class:`~warpvx._counted.Counted` with a block (a graph node's),
+    which :func:`host_value` hands to its ``counted`` whole (what its tree walk would do)."""
+    return type(value) is Counted and value.block is not None and is_warp_array(value.count)
 
 
 def _large(c) -> bool:
@@ -91,6 +99,20 @@ class _RowHints:
 
 
 ROW_HINTS = _RowHints()
+
+
+@functools.lru_cache(maxsize=256)
+def _prefix_layout(part: tuple) -> tuple:
+    """Where the first rows of each rows array of a :class:`~warpvx._counted.Block` part go in
+    one host buffer (:meth:`Transfers._take_prefix`): ``(((block offset, offset in units of k
+    rows, bytes per row, row shape, dtype), ...), bytes per k rows)``; each array starts
+    :data:`~warpvx._counted.Block.ALIGN`-aligned for any ``k`` (a multiple of that per row)."""
+    layout, at = [], 0
+    for offset, _, shape, dtype in part:
+        row = int(np.prod(shape[1:], dtype=np.int64)) * dtype.itemsize
+        layout.append((offset, at, row, tuple(shape[1:]), dtype))
+        at += -(-row // Block.ALIGN) * Block.ALIGN
+    return tuple(layout), at
 
 
 class _UploadStage:
@@ -215,6 +237,8 @@ class Transfers:
         """
         if is_warp_array(value):  # the usual value: no tree to walk
             return self._download_array(value, event)
+        if _block_counted(value) and not _large(value):  # one copy of its block, no walk
+            return download(value, lambda a: self._download_array(a, event))
         value = map_counted(lambda c: download(c, lambda a: self._download_array(a, event))
                             if is_warp_array(c.count) else c, value)
         return tree_map(lambda a: self._download_array(a, event) if is_warp_array(a) else a,
@@ -308,12 +332,14 @@ class Transfers:
         k = ROW_HINTS.rows(block)
         if k <= 0 or id(c.count) in prefix:
             return
-        leaves = []
-        for offset, _, shape, dtype in block.part:
-            host = self.pool.take((k,) + shape[1:], dtype)
-            if host is None:
-                return  # the buffers taken are garbage: back to the pool
-            leaves.append((offset, host))
+        # One pool buffer for every rows array's prefix (a lease costs ~10 us, a view ~1 us):
+        # (its byte offset, bytes per row, shape of a row, dtype) per rows array.
+        layout = _prefix_layout(block.part)
+        raw = self.pool.take((k * layout[-1],), np.uint8)
+        if raw is None:
+            return  # no pool room: its rows are copied when read
+        leaves = [(offset, raw[k * at:k * (at + row)].view(dtype).reshape((k,) + shape))
+                  for offset, at, row, shape, dtype in layout[0]]
         prefix[id(c.count)] = (block.array, leaves)
 
     def _take(self, copies: dict, a):
