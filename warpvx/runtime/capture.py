@@ -336,6 +336,9 @@ class SegmentGraph:
         self._producer = {}  # swapped InputRef -> the task making it
         self._views = {}  # (id of a copy buffer, part) -> a Counted of views of it
         self._swapped = frozenset(segment.swapped)
+        #: (frame, the slots of its inputs, all set) from the executor's look-up of this
+        #: graph to its run of it (SegmentRunner), None otherwise.
+        self.ready = None
         self._input_leaves = {}  # (InputRef, set) -> the leaves of its input buffers (fill)
 
     @property
@@ -556,13 +559,16 @@ class SegmentGraph:
         :meth:`launch`): one of them is unlike the previous set's outputs (a delay's initial
         value after a reset, where this segment's own outputs swap in later); that run is not
         captured."""
-        other = self.previous(self.next).outputs if self.segment.swapped else {}
+        other = self.previous(self.next).outputs if self.segment.swapped else None
         if not other:
             return False
         published = self.sets[self.last].published  # (the usual value: no leaves to walk)
-        return any(ref in self.segment.swapped and published.get(ref.key) is not v
-                   and not _fits(_leaves(v), _leaves(other[ref.key]))
-                   for ref, v in zip(self.segment.inputs, values))
+        swapped = self._swapped
+        for ref, v in zip(self.segment.inputs, values):
+            if ref in swapped and published.get(ref.key) is not v and \
+                    not _fits(_leaves(v), _leaves(other[ref.key])):
+                return True
+        return False
 
     def fill(self, ref: InputRef, value, io, stream, fresh: bool = False):
         """Copy this frame's ``value`` of ``ref`` into the fixed buffers the next run reads

@@ -176,6 +176,7 @@ class SegmentRunner:
             sg = by_shape[key]
         if sg is not None:
             sg.key = key
+            sg.ready = (frame, slots)  # for _run_segment, next on this thread
             if self._recent is None:
                 self._recent = {}
             self._recent[i] = sg
@@ -200,6 +201,7 @@ class SegmentRunner:
         except NotCapturable as exc:  # a host sync or read-back inside, a caller's capture
             _log.debug("segment %s, inputs %s, not captured: %s", seg.tasks[0].name, key, exc)
             by_shape[key] = None
+            sg.ready = None
             return None
         self.captures += first
         state.prev_end = None  # the stream idled while the host captured
@@ -246,7 +248,11 @@ class SegmentRunner:
         :attr:`instances` > 1) all of it runs there (:meth:`_fork`)."""
         state.task = seg.tasks[0].name
         cuda = self.cuda
-        slots, waited = self._ready_inputs(frame, seg.inputs)
+        ready, sg.ready = sg.ready, None
+        if ready is not None and ready[0] is frame:  # found by _segment_graph, all set
+            slots, waited = ready[1], False
+        else:
+            slots, waited = self._ready_inputs(frame, seg.inputs)
         h0 = time.perf_counter()
         streams = self._streams(sg, sg.next)
         stream = streams[0] if cuda else None

@@ -155,16 +155,19 @@ class _Staged:
     def host(self, io: "Transfers"):
         """The host value, its arrays views of the pool's buffers (call after the copy; the
         rows of a large Counted block are copied now, on ``io``'s stream: the reader's)."""
+        copies, value = self.copies, self.value
+        if is_warp_array(value):  # the usual values: no tree to walk
+            return copies[id(value)][1]
+        if _block_counted(value):
+            return self._counted(io, value)
+        return host_value(value, lambda a: copies[id(a)][1], functools.partial(self._counted, io))
+
+    def _counted(self, io: "Transfers", c):
+        """The host value of Counted ``c`` (with a block) from its copies (:meth:`host`)."""
         copies = self.copies
-        if is_warp_array(self.value):  # the usual value: no tree to walk
-            return copies[id(self.value)][1]
-
-        def counted(c):
-            if _large(c):
-                return io.counted_rows(c, copies[id(c.count)][1], self.prefix.get(id(c.count)))
-            return c.block.host_value(copies[id(c.block.array)][1])
-
-        return host_value(self.value, lambda a: copies[id(a)][1], counted)
+        if _large(c):
+            return io.counted_rows(c, copies[id(c.count)][1], self.prefix.get(id(c.count)))
+        return c.block.host_value(copies[id(c.block.array)][1])
 
 
 class Transfers:
@@ -281,21 +284,15 @@ class Transfers:
         copies: dict = {}
         prefix: dict = {}
         try:
-            if is_warp_array(value):  # the usual value: no tree to walk
+            if is_warp_array(value):  # the usual values: no tree to walk
                 self._take(copies, value)
+            elif _block_counted(value):
+                self._take_counted(copies, prefix, value)
             else:
                 # The walk that builds the value once copied (_Staged.host) lists what to
-                # copy; a large Counted block copies its count and the rows it likely counts
-                # now (_RowHints), the rest of its counted rows when read.
-                take = functools.partial(self._take, copies)
-
-                def counted(c):
-                    if not _large(c):
-                        return take(c.block.array)
-                    self._take_prefix(prefix, c)
-                    return take(c.count)
-
-                host_value(value, take, counted)
+                # copy.
+                host_value(value, functools.partial(self._take, copies),
+                           functools.partial(self._take_counted, copies, prefix))
         except _Unstageable:
             return None  # the buffers taken are garbage: back to the pool
         if not copies:
@@ -303,9 +300,9 @@ class Transfers:
         nbytes = 0
         for _, host in copies.values():
             nbytes += host.nbytes
-        for _, leaves in prefix.values():
-            for _, host in leaves:
-                nbytes += host.nbytes
+        for _, _, spans in prefix.values():
+            for _, _, n in spans:
+                nbytes += n
         stream = self.stream
         if after is not None and stream is not None and nbytes < self.SAME_STREAM_MAX_BYTES:
             stream = after
@@ -313,34 +310,46 @@ class Transfers:
             wait_event(stream, event)
         for a, host in copies.values():
             to_host_async(host, a, stream)
-        for src, leaves in prefix.values():
-            for offset, host in leaves:
-                bytes_to_host_async(address(host), src.device, src.ptr + offset, host.nbytes,
-                                    stream)
+        for src, _, spans in prefix.values():
+            for offset, dst, n in spans:
+                bytes_to_host_async(dst, src.device, src.ptr + offset, n, stream)
         done = None
         if stream is not None:
             done = self._events.pop() if self._events else warp().Event(self.device)
             record_event(stream, done)
-        return _Staged(value, copies, {k: [h for _, h in v] for k, (_, v) in prefix.items()},
-                       done, nbytes, self._events)
+        return _Staged(value, copies, {k: v[1] for k, v in prefix.items()}, done, nbytes,
+                       self._events)
+
+    def _take_counted(self, copies: dict, prefix: dict, c):
+        """The host buffer (:meth:`_take`) a staged download copies Counted ``c`` (with a
+        block) into: its whole block, or for a large one its count, with the rows it likely
+        counts (:class:`_RowHints`: :meth:`_take_prefix`; the rest of its counted rows are
+        copied when read)."""
+        if not _large(c):
+            return self._take(copies, c.block.array)
+        self._take_prefix(prefix, c)
+        return self._take(copies, c.count)
 
     def _take_prefix(self, prefix: dict, c):
-        """Pool buffers for the first :class:`_RowHints` rows of large Counted ``c``'s rows
-        arrays: ``prefix[id(c.count)] = (block array, [(byte offset, host buffer), ...])``;
-        nothing when there is no hint yet or no pool room (its rows are copied when read)."""
+        """One pool buffer for the first :class:`_RowHints` rows of large Counted ``c``'s rows
+        arrays: ``prefix[id(c.count)] = (block array, [host view per rows array], [(byte
+        offset in the block, host address, bytes) per rows array])``; nothing when there is
+        no hint yet or no pool room (its rows are copied when read)."""
         block = c.block
         k = ROW_HINTS.rows(block)
         if k <= 0 or id(c.count) in prefix:
             return
-        # One pool buffer for every rows array's prefix (a lease costs ~10 us, a view ~1 us):
-        # (its byte offset, bytes per row, shape of a row, dtype) per rows array.
-        layout = _prefix_layout(block.part)
-        raw = self.pool.take((k * layout[-1],), np.uint8)
+        # One buffer, not one per rows array: a lease costs several times a view.
+        layout, row_bytes = _prefix_layout(block.part)
+        raw = self.pool.take((k * row_bytes,), np.uint8)
         if raw is None:
             return  # no pool room: its rows are copied when read
-        leaves = [(offset, raw[k * at:k * (at + row)].view(dtype).reshape((k,) + shape))
-                  for offset, at, row, shape, dtype in layout[0]]
-        prefix[id(c.count)] = (block.array, leaves)
+        base = address(raw)
+        leaves, spans = [], []
+        for offset, at, row, shape, dtype in layout:
+            leaves.append(raw[k * at:k * (at + row)].view(dtype).reshape((k,) + shape))
+            spans.append((offset, base + k * at, k * row))
+        prefix[id(c.count)] = (block.array, leaves, spans)
 
     def _take(self, copies: dict, a):
         """The pool's host buffer device array ``a`` of a staged download is copied into (one
