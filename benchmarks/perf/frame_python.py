@@ -17,7 +17,12 @@ time of the functions defined in Python source (the interpreter running our code
 reported apart as *native*. Native calls made through ctypes (Warp's memcpy, event calls) are
 not seen by the profiler: they count in their Python caller (memcpy of a few KB: small at this
 size). yappi's per-call instrumentation inflates Python time (about 2x): compare trees in one
-run, not with host times measured unprofiled on the GPU machine.
+run, not with host times measured unprofiled on the GPU machine. Thread CPU times vary by 10-20%
+between runs on a shared machine; the Python function calls per frame (the profiler's count,
+device work excluded) do not, and go with the time. The caller's blocked wait for a frame
+polls every 20 ms (``Executor.wait``: ``Flag.wait``, ``Thread.is_alive``): on Warp's CPU device,
+where a frame's kernels take ~0.2 s, that polling is part of its Python time; on the GPU machine
+a frame takes a few ms.
 
 Each repetition runs in a fresh process per tree (``--before TREE``: another checkout, e.g.
 ``git archive main | tar -x -C TREE``; this tree is "after"), the trees alternating; the table
@@ -96,6 +101,7 @@ def one(size, frames: int, depth: int, warm: int) -> dict:
         role = _role(names.get(th.tid, f"{th.name}-{th.id}"))
         threads[role] = {
             "python_us": python / done * 1e6, "native_us": native / done * 1e6,
+            "calls": sum(f.ncall for f in py) / done,
             "device_us": device / done * 1e6, "cpu_us": th.ttot / done * 1e6,
             "top": [(f"{f.name} ({Path(f.module).name}:{f.lineno})", f.tsub / done * 1e6,
                      f.ncall / done) for f in top]}
@@ -116,18 +122,19 @@ def _table(runs: dict) -> list:
     """Medians per tree and thread: Python, native and device us per frame."""
     roles = sorted({r for reps in runs.values() for rep in reps for r in rep["threads"]},
                    key=lambda r: (r != "caller", r != "gpu", r))
-    lines = ["| tree | thread | Python us / frame | native us / frame | device (kernels) us / "
-             "frame | reps |", "|---|---|---:|---:|---:|---:|"]
+    lines = ["| tree | thread | Python us / frame | Python calls / frame | native us / frame | "
+             "device (kernels) us / frame | reps |", "|---|---|---:|---:|---:|---:|---:|"]
     for tree, reps in runs.items():
         for role in roles:
             got = [rep["threads"][role] for rep in reps if role in rep["threads"]]
             if not got:
                 continue
             med = {k: statistics.median(t[k] for t in got)
-                   for k in ("python_us", "native_us", "device_us")}
+                   for k in ("python_us", "calls", "native_us", "device_us")}
             spread = ", ".join(f"{t['python_us']:.0f}" for t in got)
             lines.append(f"| {tree} | {role} | {med['python_us']:.0f} ({spread}) | "
-                         f"{med['native_us']:.0f} | {med['device_us']:.0f} | {len(got)} |")
+                         f"{med['calls']:.0f} | {med['native_us']:.0f} | "
+                         f"{med['device_us']:.0f} | {len(got)} |")
     lines.append("")
     lines.append("| tree | replays / frame | fresh device buffers (timed frames) |")
     lines.append("|---|---:|---:|")
