@@ -565,7 +565,7 @@ class SegmentGraph:
         published = self.sets[self.last].published  # (the usual value: no leaves to walk)
         swapped = self._swapped
         for ref, v in zip(self.segment.inputs, values):
-            if ref in swapped and published.get(ref.key) is not v and \
+            if ref.offset == -1 and ref in swapped and published.get(ref.key) is not v and \
                     not _fits(_leaves(v), _leaves(other[ref.key])):
                 return True
         return False
@@ -577,7 +577,8 @@ class SegmentGraph:
         is what the last run published. A host array in pinned memory
         (:func:`~.pinned.pinned_array`) is copied straight from there, asynchronously."""
         s = self.next
-        swapped = ref in self._swapped and not fresh
+        # (A swapped input is a delay of one frame: no hash of the others' refs.)
+        swapped = ref.offset == -1 and not fresh and ref in self._swapped
         if swapped:
             if self.last >= 0 and self.sets[self.last].published.get(ref.key) is value:
                 return
