@@ -58,14 +58,19 @@ def _role(name: str) -> str:
     return name.rsplit("-", 1)[-1]
 
 
-def one(size, frames: int, depth: int, warm: int) -> dict:
-    """One repetition in this process (the tree on ``sys.path``): per-thread times per frame."""
-    sys.path.insert(0, str(ROOT / "benchmarks"))
+def one(tree: Path, size, frames: int, depth: int, warm: int) -> dict:
+    """One repetition in this process of ``tree``'s graph benchmark and package (its
+    ``graph_bench`` puts its own tree first on ``sys.path``): per-thread times per frame."""
+    sys.path.insert(0, str(tree / "benchmarks"))
     import cv2
     import yappi
 
     import graph_bench
+    import warpvx
     from warpvx.runtime import Executor
+
+    if Path(warpvx.__file__).resolve().parents[1] != tree.resolve():
+        raise RuntimeError(f"warpvx of {warpvx.__file__}, not of {tree}")
 
     cv2.setNumThreads(1)  # as the graph benchmark: one core per worker
     Executor.STAGE_ON_HOST = True
@@ -106,13 +111,14 @@ def one(size, frames: int, depth: int, warm: int) -> dict:
             "top": [(f"{f.name} ({Path(f.module).name}:{f.lineno})", f.tsub / done * 1e6,
                      f.ncall / done) for f in top]}
     g.close()
-    return {"frames": done, "wall_s": wall, "replays": ex.replays - replays,
+    return {"tree": str(tree), "frames": done, "wall_s": wall, "replays": ex.replays - replays,
             "fresh_buffers": ex.fresh_buffers - fresh, "threads": threads}
 
 
 def _child(tree: Path, args) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
-    cmd = [sys.executable, str(HERE), "--one", "--size", args.size, "--frames", str(args.frames),
+    cmd = [sys.executable, str(HERE), "--one", str(tree), "--size", args.size,
+           "--frames", str(args.frames),
            "--depth", str(args.depth), "--warm", str(args.warm)]
     out = subprocess.run(cmd, env=env, cwd=str(tree), check=True, capture_output=True, text=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -167,11 +173,11 @@ def main(argv=None):
     ap.add_argument("--depth", type=int, default=3)
     ap.add_argument("--warm", type=int, default=20, help="frames before profiling (captures)")
     ap.add_argument("--reps", type=int, default=3)
-    ap.add_argument("--one", action="store_true", help="one repetition here, a JSON line")
+    ap.add_argument("--one", metavar="TREE", help="one repetition here of TREE, a JSON line")
     args = ap.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
     if args.one:
-        print(json.dumps(one(size, args.frames, args.depth, args.warm)))
+        print(json.dumps(one(Path(args.one), size, args.frames, args.depth, args.warm)))
         return
     trees = {"after": ROOT}
     if args.before:
