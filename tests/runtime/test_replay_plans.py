@@ -180,3 +180,29 @@ def test_a_large_counted_blocks_staged_prefix_is_one_pool_buffer_for_all_its_arr
     del got, staged
     gc.collect()
     assert pool.lent() == 0
+
+
+@pytest.mark.parametrize("shape,dtype", [((7, 9), np.float32), ((5,), np.int32), ((0, 3), np.uint8)])
+def test_copier_copies_its_source_into_each_destination(warp_backend, shape, dtype):
+    """copier(src), made once per fixed buffer of a copy-out plan, copies src's bytes into
+    each buffer it is given (a later write of src is copied too: it reads src per call),
+    as copy_device does; an empty source copies nothing."""
+    from warpvx.backend import resolve_backend
+    from warpvx.runtime.native_copy import copier, copy_device
+
+    wp = init_warp()
+    device = resolve_backend(warp_backend).device
+    rng = np.random.default_rng(9)
+    host = (rng.random(shape) * 100).astype(dtype)
+    src = wp.array(host, device=device)
+    copy = copier(src)
+    a, b, ref = wp.zeros_like(src), wp.zeros_like(src), wp.zeros_like(src)
+    copy(a, None)
+    np.testing.assert_array_equal(a.numpy(), host)
+    host2 = (rng.random(shape) * 100).astype(dtype)
+    src.assign(host2)
+    copy(b, None)
+    copy_device(ref, src)
+    np.testing.assert_array_equal(b.numpy(), host2)
+    np.testing.assert_array_equal(b.numpy(), ref.numpy())
+    np.testing.assert_array_equal(a.numpy(), host)  # the first copy is its own

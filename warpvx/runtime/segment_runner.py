@@ -14,7 +14,8 @@ from .._counted import is_counted
 from ..check import check_bool, check_int
 from .capture import (MAX_LANES, MAX_SIGNATURES, NotCapturable, Segment, SegmentGraph,
                       _leaves, _log)
-from .native_copy import copy_device, is_warp_array, record_event, wait_event, warp
+from .native_copy import (copier, copy_device, is_warp_array, record_event, wait_event,
+                          warp)
 from .slots import DEVICE
 from .timeline import Frame, proportional_shares
 from .transfers import tree_map
@@ -47,7 +48,7 @@ class SegmentRunner:
     _set_streams = None  # set index (-1: the executor's) -> its stream and lanes' (CUDA)
     _fork_events = None  # a set's stream -> the event it waits for on the executor's
     _recent = None  # segment index -> the SegmentGraph its last frame ran (_inputs_key)
-    _seg_shares = None  # id of a captured segment -> its tasks' shares (_task_shares)
+    _seg_info = None  # id of a captured segment -> its tasks' shares and keys (_segment_info)
     _linked = True
 
     @property
@@ -269,7 +270,7 @@ class SegmentRunner:
         if ev1 is False:  # run eagerly
             return
         h1 = time.perf_counter()
-        shares = self._task_shares(seg)
+        shares = self._segment_info(seg)[0]
         frame.shares.update(shares)
         frame.trace.update(dict.fromkeys(shares, (state.proc, ev0, ev1, None) if cuda else
                                          (state.proc, h0, h1, None)))
@@ -340,16 +341,16 @@ class SegmentRunner:
         plan = b.plan
         if plan is None or plan[0] is not fixed:
             plan = b.plan = (fixed, self._copy_plan(fixed, seg.outputs))
-        for key, value, block, rule in plan[1]:
-            if block is None:
-                outs[key] = self._copy_array(frame, key, value, stream) if value is not None \
-                    else tree_map(lambda a: self._copy_array(frame, key, a, stream), fixed[key])
-                continue
-            array = block.array
-            buf = blocks.get((id(array), rule))
-            if buf is None:
-                buf = blocks[id(array), rule] = self._copy_array(frame, key, array, stream)
-            outs[key] = sg.block_view(block, buf, rule != "never")
+        for key, src, copy, block, rule in plan[1]:
+            if src is None:
+                outs[key] = tree_map(lambda a: self._copy_array(frame, key, a, stream), fixed[key])
+            elif block is None:
+                outs[key] = self._copy_array(frame, key, src, stream, copy)
+            else:
+                buf = blocks.get((id(src), rule))
+                if buf is None:
+                    buf = blocks[id(src), rule] = self._copy_array(frame, key, src, stream, copy)
+                outs[key] = sg.block_view(block, buf, rule != "never")
         sg.publish(outs)
         ev1 = None
         if streams and stream is not self._stream:
@@ -358,12 +359,12 @@ class SegmentRunner:
             ev1 = self._end_event(frame) if stream is self._stream else \
                 self._forked_end(frame, stream)
         external = ev1 is not None and stream is not self._stream
-        for task in seg.tasks:
-            for key in task.outputs:
-                slot = frame.slots[key]
-                slot.set(outs[key], DEVICE, ev1)
-                # Made on another stream than the executor's: its readers there wait for it.
-                slot.external = external
+        slots = frame.slots
+        for key in self._segment_info(seg)[1]:
+            slot = slots[key]
+            slot.set(outs[key], DEVICE, ev1)
+            # Made on another stream than the executor's: its readers there wait for it.
+            slot.external = external
         return ev1
 
     def _forked_end(self, frame: Frame, stream):
@@ -377,24 +378,32 @@ class SegmentRunner:
     def _copy_plan(self, fixed: dict, keys) -> tuple:
         """How :meth:`_replay` copies values ``keys`` of ``fixed`` (a buffer set's outputs:
         key -> its value in the fixed buffers) into buffers of the frame's, each
-        ``(key, array, block, rule)``: a Counted with a block as one copy of the block
-        (``block``), shared with its node's other outputs whose copies are reused under the
-        same ``rule`` (a view of the copy made once per pooled buffer:
-        :meth:`SegmentGraph.block_view`); a Warp array as one copy (``array``); another tree
-        array by array (both None). Made once per outputs dict, not per frame."""
+        ``(key, src, copy, block, rule)``: a Counted with a block as one copy of the block
+        (``src``, its array; ``block``), shared with its node's other outputs whose copies are
+        reused under the same ``rule`` (a view of the copy made once per pooled buffer:
+        :meth:`SegmentGraph.block_view`); a Warp array as one copy (``src``); ``copy``: the
+        copy's :func:`~.native_copy.copier`; another tree array by array (all None). Made
+        once per outputs dict, not per frame."""
         plan = []
         for key in keys:
             value = fixed[key]
             if is_counted(value) and value.block is not None:
-                plan.append((key, None, value.block, self._upload_rule.get(key)))
+                src = value.block.array
+                plan.append((key, src, copier(src), value.block, self._upload_rule.get(key)))
+            elif is_warp_array(value):
+                plan.append((key, value, copier(value), None, None))
             else:
-                plan.append((key, value if is_warp_array(value) else None, None, None))
+                plan.append((key, None, None, None, None))
         return tuple(plan)
 
-    def _copy_array(self, frame: Frame, key: str, fixed, stream):
-        """A copy of fixed array ``fixed`` (of value ``key``) into a buffer of ``frame``'s."""
+    def _copy_array(self, frame: Frame, key: str, fixed, stream, copy=None):
+        """A copy of fixed array ``fixed`` (of value ``key``) into a buffer of ``frame``'s
+        (``copy``: its :func:`~.native_copy.copier`, if made)."""
         buf = self._lease_upload(frame, key, fixed.shape, fixed.dtype)
-        copy_device(buf, fixed, stream)
+        if copy is None:
+            copy_device(buf, fixed, stream)
+        else:
+            copy(buf, stream)
         return buf
 
     def _copy_rule(self, seg: Segment, key: str) -> str:
@@ -405,16 +414,18 @@ class SegmentRunner:
                    and any(r.key == key for r in t.inputs)]
         return self._reuse_rule(self._data, readers, [key])
 
-    def _task_shares(self, seg: Segment) -> dict:
-        """Task -> its (start, end) fractions of captured segment ``seg``'s interval, in
-        queue order (of :attr:`_shares`; one dict per segment, made once)."""
-        by_seg = self._seg_shares
+    def _segment_info(self, seg: Segment) -> tuple:
+        """Of captured segment ``seg``, made once: (task -> its (start, end) fractions of the
+        segment's interval (of :attr:`_shares`), in queue order; every key its tasks
+        publish)."""
+        by_seg = self._seg_info
         if by_seg is None:
-            by_seg = self._seg_shares = {}
-        shares = by_seg.get(id(seg))  # (the executor's segments live as long as it)
-        if shares is None:
-            shares = by_seg[id(seg)] = {t.name: self._shares[t.name] for t in seg.tasks}
-        return shares
+            by_seg = self._seg_info = {}
+        info = by_seg.get(id(seg))  # (the executor's segments live as long as it)
+        if info is None:
+            info = by_seg[id(seg)] = ({t.name: self._shares[t.name] for t in seg.tasks},
+                                      tuple(k for t in seg.tasks for k in t.outputs))
+        return info
 
     def _segment_shares(self) -> dict:
         """task -> (start, end) fractions of its captured segment's measured interval, in
