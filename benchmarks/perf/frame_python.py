@@ -22,7 +22,8 @@ between runs on a shared machine; the Python function calls per frame (the profi
 device work excluded) do not, and go with the time. The caller's blocked wait for a frame
 polls every 20 ms (``Executor.wait``: ``Flag.wait``, ``Thread.is_alive``): on Warp's CPU device,
 where a frame's kernels take ~0.2 s, that polling is part of its Python time; on the GPU machine
-a frame takes a few ms.
+a frame takes a few ms. The garbage collector's time (every thread's, ``gc.callbacks``) is
+reported apart; it counts in the Python time of whatever function allocated.
 
 Each repetition runs in a fresh process per tree (``--before TREE``: another checkout, e.g.
 ``git archive main | tar -x -C TREE``; this tree is "after"), the trees alternating; the table
@@ -33,6 +34,7 @@ gives medians over ``--reps``. Writes ``DIR/frame_python.md`` (the command on to
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import statistics
@@ -85,6 +87,16 @@ def one(tree: Path, size, frames: int, depth: int, warm: int) -> dict:
     for _ in range(warm):
         next(stream)
     replays, fresh = ex.replays, ex.fresh_buffers
+    collected = {"s": 0.0, "n": [0, 0, 0]}  # the garbage collector's time, every thread's
+
+    def timed(phase, info, started=[0.0]):  # noqa: B006 - the start of the running collection
+        if phase == "start":
+            started[0] = time.perf_counter()
+        else:
+            collected["s"] += time.perf_counter() - started[0]
+            collected["n"][info["generation"]] += 1
+
+    gc.callbacks.append(timed)
     yappi.clear_stats()
     yappi.set_clock_type("cpu")
     yappi.start(builtins=True, profile_threads=True)
@@ -92,6 +104,7 @@ def one(tree: Path, size, frames: int, depth: int, warm: int) -> dict:
     done = sum(1 for _ in stream)
     wall = time.perf_counter() - t0
     yappi.stop()
+    gc.callbacks.remove(timed)
     names = {t.ident: t.name for t in threading.enumerate()}
     threads = {}
     for th in yappi.get_thread_stats():
@@ -112,6 +125,7 @@ def one(tree: Path, size, frames: int, depth: int, warm: int) -> dict:
                      f.ncall / done) for f in top]}
     g.close()
     return {"tree": str(tree), "frames": done, "wall_s": wall, "replays": ex.replays - replays,
+            "gc_us": collected["s"] / done * 1e6, "collections": collected["n"],
             "fresh_buffers": ex.fresh_buffers - fresh, "threads": threads}
 
 
@@ -142,11 +156,14 @@ def _table(runs: dict) -> list:
                          f"{med['calls']:.0f} | {med['native_us']:.0f} | "
                          f"{med['device_us']:.0f} | {len(got)} |")
     lines.append("")
-    lines.append("| tree | replays / frame | fresh device buffers (timed frames) |")
-    lines.append("|---|---:|---:|")
+    lines.append("| tree | replays / frame | fresh device buffers (timed frames) | garbage "
+                 "collection us / frame (collections of generation 0, 1, 2) |")
+    lines.append("|---|---:|---:|---|")
     for tree, reps in runs.items():
         lines.append(f"| {tree} | " + ", ".join(f"{r['replays'] / r['frames']:.2f}" for r in reps)
-                     + " | " + ", ".join(str(r["fresh_buffers"]) for r in reps) + " |")
+                     + " | " + ", ".join(str(r["fresh_buffers"]) for r in reps) + " | "
+                     + ", ".join(f"{r['gc_us']:.0f} ({'/'.join(map(str, r['collections']))})"
+                                 for r in reps) + " |")
     return lines
 
 
