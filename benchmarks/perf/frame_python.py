@@ -2,7 +2,7 @@
 the device work left out: what bounds the stream on the GPU machine (issue 11: host-bound,
 three threads under one GIL), measured without a GPU.
 
-    PYTHONPATH=. python3 benchmarks/perf/frame_python.py --out DIR [--before TREE] [--reps 3]
+    PYTHONPATH=. python3 benchmarks/perf/frame_python.py --out DIR [--before REV|TREE] [--reps 3]
 
 The graph of ``benchmarks/graph_bench.py`` (``build_graph``: 16 nodes, two cameras) at
 ``--size`` (320x240), baseline placement on 4 CPU workers and Warp's CPU device as the GPU role,
@@ -25,8 +25,8 @@ where a frame's kernels take ~0.2 s, that polling is part of its Python time; on
 a frame takes a few ms. The garbage collector's time (every thread's, ``gc.callbacks``) is
 reported apart; it counts in the Python time of whatever function allocated.
 
-Each repetition runs in a fresh process per tree (``--before TREE``: another checkout, e.g.
-``git archive main | tar -x -C TREE``; this tree is "after"), the trees alternating; the table
+Each repetition runs in a fresh process per tree (``--before``: a git revision, exported, or
+another checkout's folder; this tree is "after"), the trees alternating; the table
 gives medians over ``--reps``. Writes ``DIR/frame_python.md`` (the command on top) and
 ``DIR/frame_python.json`` (every repetition, with each thread's top functions).
 """
@@ -129,6 +129,24 @@ def one(tree: Path, size, frames: int, depth: int, warm: int) -> dict:
             "fresh_buffers": ex.fresh_buffers - fresh, "threads": threads}
 
 
+def _tree(before: str) -> Path:
+    """``before``: a folder holding another tree, else a git revision of this repository,
+    exported into a temporary folder (removed at exit)."""
+    path = Path(before)
+    if path.is_dir():
+        return path.resolve()
+    import atexit
+    import shutil
+    import tempfile
+
+    out = Path(tempfile.mkdtemp(prefix="frame_python_"))
+    atexit.register(shutil.rmtree, out, ignore_errors=True)
+    archive = subprocess.run(["git", "archive", before], cwd=ROOT, check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(out)], input=archive, check=True)
+    return out
+
+
 def _child(tree: Path, args) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
     cmd = [sys.executable, str(HERE), "--one", str(tree), "--size", args.size,
@@ -184,7 +202,8 @@ def _tops(runs: dict) -> list:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", help="a folder for frame_python.md and .json")
-    ap.add_argument("--before", help="another tree to compare with (its repo root)")
+    ap.add_argument("--before", help="another tree to compare with: its folder (repo root) or "
+                    "a git revision of this repository")
     ap.add_argument("--size", default="320x240")
     ap.add_argument("--frames", type=int, default=60, help="profiled frames per repetition")
     ap.add_argument("--depth", type=int, default=3)
@@ -198,7 +217,7 @@ def main(argv=None):
         return
     trees = {"after": ROOT}
     if args.before:
-        trees = {"before": Path(args.before).resolve(), **trees}
+        trees = {"before": _tree(args.before), **trees}
     runs = {t: [] for t in trees}
     for rep in range(args.reps):
         for tree, path in trees.items():  # alternating: drifts of the machine hit both
