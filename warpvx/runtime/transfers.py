@@ -9,6 +9,7 @@ copies every leaf of a tree between host memory and the GPU role's device, throu
 from __future__ import annotations
 
 import functools
+import math
 from collections import deque
 
 import numpy as np
@@ -101,17 +102,17 @@ class _RowHints:
 ROW_HINTS = _RowHints()
 
 
-@functools.lru_cache(maxsize=256)
-def _prefix_layout(part: tuple) -> tuple:
-    """Where the first rows of each rows array of a :class:`~warpvx._counted.Block` part go in
-    one host buffer (:meth:`Transfers._take_prefix`): ``(((block offset, offset in units of k
-    rows, bytes per row, row shape, dtype), ...), bytes per k rows)``; each array starts
-    :data:`~warpvx._counted.Block.ALIGN`-aligned for any ``k`` (a multiple of that per row)."""
+def _prefix_layout(part: tuple, k: int) -> tuple:
+    """Where the first ``k`` rows of each rows array of a :class:`~warpvx._counted.Block` part
+    go in one host buffer (:meth:`Transfers._take_prefix`): ``(((block offset, buffer offset,
+    bytes, shape, dtype) per rows array), buffer bytes)``, each array
+    :data:`~warpvx._counted.Block.ALIGN`-aligned in the buffer."""
     layout, at = [], 0
     for offset, _, shape, dtype in part:
-        row = int(np.prod(shape[1:], dtype=np.int64)) * dtype.itemsize
-        layout.append((offset, at, row, tuple(shape[1:]), dtype))
-        at += -(-row // Block.ALIGN) * Block.ALIGN
+        rows = (k,) + tuple(shape[1:])
+        n = math.prod(rows) * dtype.itemsize
+        layout.append((offset, at, n, rows, dtype))
+        at += -(-n // Block.ALIGN) * Block.ALIGN
     return tuple(layout), at
 
 
@@ -340,15 +341,15 @@ class Transfers:
         if k <= 0 or id(c.count) in prefix:
             return
         # One buffer, not one per rows array: a lease costs several times a view.
-        layout, row_bytes = _prefix_layout(block.part)
-        raw = self.pool.take((k * row_bytes,), np.uint8)
+        layout, nbytes = _prefix_layout(block.part, k)
+        raw = self.pool.take((nbytes,), np.uint8)
         if raw is None:
             return  # no pool room: its rows are copied when read
         base = address(raw)
         leaves, spans = [], []
-        for offset, at, row, shape, dtype in layout:
-            leaves.append(raw[k * at:k * (at + row)].view(dtype).reshape((k,) + shape))
-            spans.append((offset, base + k * at, k * row))
+        for offset, at, n, rows, dtype in layout:
+            leaves.append(raw[at:at + n].view(dtype).reshape(rows))
+            spans.append((offset, base + at, n))
         prefix[id(c.count)] = (block.array, leaves, spans)
 
     def _take(self, copies: dict, a):
