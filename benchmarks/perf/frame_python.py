@@ -28,7 +28,8 @@ reported apart; it counts in the Python time of whatever function allocated.
 Each repetition runs in a fresh process per tree (``--before``: a git revision, exported, or
 another checkout's folder; this tree is "after"), the trees alternating; the table
 gives medians over ``--reps``. Writes ``DIR/frame_python.md`` (the command on top) and
-``DIR/frame_python.json`` (every repetition, with each thread's top functions).
+``DIR/frame_python.json`` (the command, then every repetition with each thread's top
+functions).
 """
 
 from __future__ import annotations
@@ -239,7 +240,8 @@ def main(argv=None):
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         (out / "frame_python.md").write_text(text)
-        (out / "frame_python.json").write_text(json.dumps(runs, indent=1))
+        (out / "frame_python.json").write_text(json.dumps({"command": cmd, "runs": runs},
+                                                          indent=1))
 
 
 if __name__ == "__main__":
