@@ -210,6 +210,8 @@ def _fits(values: list, bufs: list) -> bool:
 def _leaves(value) -> list:
     """The array leaves of a value (an array, or a tree of them: :func:`.transfers.tree_map`)
     in a fixed order; NotCapturable when it has none."""
+    if isinstance(value, np.ndarray) or is_warp_array(value):  # the usual value: no walk
+        return [value]
     leaves = []
 
     def take(a):
@@ -256,9 +258,13 @@ class _BufferSet:
         Recorded after this set's last run and its copies out (CUDA, overlapping frames):
         the runs that read or write its buffers next wait for it on the device
         (:meth:`SegmentGraph.wait_previous`).
+    plan : tuple or None
+        ``(outputs, plan)``: what the executor copies out of ``outputs`` after each run,
+        listed once for that dict (a replay returns the same one; an uncaptured run makes
+        another); see :meth:`~warpvx.runtime.segment_runner.SegmentRunner._copy_plan`.
     """
 
-    __slots__ = ("outs", "outputs", "graph", "published", "warm", "inputs", "done")
+    __slots__ = ("outs", "outputs", "graph", "published", "warm", "inputs", "done", "plan")
 
     def __init__(self, tasks, inputs: dict):
         self.outs = {task.name: task.gpu_out() for task in tasks}
@@ -268,6 +274,7 @@ class _BufferSet:
         self.warm = False
         self.inputs = inputs
         self.done = None
+        self.plan = None  # (outputs, the executor's copy-out plan of them: SegmentRunner)
 
 
 class SegmentGraph:
@@ -328,6 +335,11 @@ class SegmentGraph:
         self.self_keyed = False
         self._producer = {}  # swapped InputRef -> the task making it
         self._views = {}  # (id of a copy buffer, part) -> a Counted of views of it
+        self._swapped = frozenset(segment.swapped)
+        #: (frame, the slots of its inputs, all set) from the executor's look-up of this
+        #: graph to its run of it (SegmentRunner), None otherwise.
+        self.ready = None
+        self._input_leaves = {}  # (InputRef, set) -> the leaves of its input buffers (fill)
 
     @property
     def next(self) -> int:
@@ -547,13 +559,16 @@ class SegmentGraph:
         :meth:`launch`): one of them is unlike the previous set's outputs (a delay's initial
         value after a reset, where this segment's own outputs swap in later); that run is not
         captured."""
-        other = self.previous(self.next).outputs if self.segment.swapped else {}
+        other = self.previous(self.next).outputs if self.segment.swapped else None
         if not other:
             return False
         published = self.sets[self.last].published  # (the usual value: no leaves to walk)
-        return any(ref in self.segment.swapped and published.get(ref.key) is not v
-                   and not _fits(_leaves(v), _leaves(other[ref.key]))
-                   for ref, v in zip(self.segment.inputs, values))
+        swapped = self._swapped
+        for ref, v in zip(self.segment.inputs, values):
+            if ref.offset == -1 and ref in swapped and published.get(ref.key) is not v and \
+                    not _fits(_leaves(v), _leaves(other[ref.key])):
+                return True
+        return False
 
     def fill(self, ref: InputRef, value, io, stream, fresh: bool = False):
         """Copy this frame's ``value`` of ``ref`` into the fixed buffers the next run reads
@@ -562,10 +577,16 @@ class SegmentGraph:
         is what the last run published. A host array in pinned memory
         (:func:`~.pinned.pinned_array`) is copied straight from there, asynchronously."""
         s = self.next
-        if self.last >= 0 and ref in self.segment.swapped and not fresh and \
-                self.sets[self.last].published.get(ref.key) is value:
-            return
-        bufs = _leaves(self.value(ref, s, {}, fresh))
+        # (A swapped input is a delay of one frame: no hash of the others' refs.)
+        swapped = ref.offset == -1 and not fresh and ref in self._swapped
+        if swapped:
+            if self.last >= 0 and self.sets[self.last].published.get(ref.key) is value:
+                return
+            bufs = _leaves(self.value(ref, s, {}, fresh))
+        else:  # the set's own input buffers, fixed for its life: their leaves listed once
+            bufs = self._input_leaves.get((ref, s))
+            if bufs is None:
+                bufs = self._input_leaves[ref, s] = _leaves(self.sets[s].inputs[ref])
         values = _leaves(value)
         if len(values) != len(bufs):
             raise NotCapturable(f"input {ref.key!r}: {len(values)} arrays, not {len(bufs)}")

@@ -228,6 +228,31 @@ def copy_device(dst, src, stream=None, *, native: bool = True):
         raise RuntimeError(f"device copy of {n} bytes failed")
 
 
+def copier(src):
+    """``(dst, stream) -> None``: :func:`copy_device` of ``src`` into ``dst`` (an array of
+    ``src``'s shape and dtype) with the checks and look-ups done once: a captured segment's
+    fixed buffers are copied out into a fresh buffer every frame, on its thread's
+    critical path."""
+    fast = _fast(True, src)
+    n, dev, ptr = src.capacity, src.device, src.ptr
+    if fast is None or not n:
+        return lambda dst, stream: copy_device(dst, src, stream)
+    if dev.is_cuda:
+        d2d, context = fast.d2d, dev.context
+
+        def copy(dst, stream):
+            s = stream if stream is not None else dev.stream
+            if not d2d(context, dst.ptr, ptr, n, s.cuda_stream):
+                raise RuntimeError(f"device copy of {n} bytes failed")
+    else:
+        h2h = fast.h2h
+
+        def copy(dst, stream):
+            if not h2h(dst.ptr, ptr, n):
+                raise RuntimeError(f"device copy of {n} bytes failed")
+    return copy
+
+
 def record_event(stream, event):
     """``stream.record_event(event)`` (a timing event) without Warp's Python checks."""
     fast = native_entry_points()
@@ -282,5 +307,5 @@ def elapsed_since(start):
 
 __all__ = ["warp", "is_warp_array", "address", "native_entry_points", "numpy_dtype", "to_host",
            "to_host_async", "bytes_to_host_async", "synchronize_stream", "to_device",
-           "copy_device", "record_event", "recorder", "wait_event", "synchronize_event",
+           "copy_device", "copier", "record_event", "recorder", "wait_event", "synchronize_event",
            "elapsed_since"]

@@ -100,8 +100,11 @@ class HostPool:
     def take(self, shape: tuple, dtype) -> np.ndarray | None:
         """A NumPy array of ``shape`` and ``dtype`` (contents undefined) in a pool buffer, or
         None (the pool is full of lent buffers, or closed)."""
-        dtype = np.dtype(dtype)
-        nbytes = size_class(math.prod(shape) * dtype.itemsize)
+        if not isinstance(dtype, np.dtype):
+            dtype = np.dtype(dtype)
+        nbytes = math.prod(shape) * dtype.itemsize
+        if nbytes > EXACT_MAX_BYTES:
+            nbytes = size_class(nbytes)
         with self._lock:
             if self._closed:
                 return None

@@ -14,7 +14,8 @@ from .._counted import is_counted
 from ..check import check_bool, check_int
 from .capture import (MAX_LANES, MAX_SIGNATURES, NotCapturable, Segment, SegmentGraph,
                       _leaves, _log)
-from .native_copy import copy_device, record_event, wait_event, warp
+from .native_copy import (copier, copy_device, is_warp_array, record_event, wait_event,
+                          warp)
 from .slots import DEVICE
 from .timeline import Frame, proportional_shares
 from .transfers import tree_map
@@ -47,6 +48,7 @@ class SegmentRunner:
     _set_streams = None  # set index (-1: the executor's) -> its stream and lanes' (CUDA)
     _fork_events = None  # a set's stream -> the event it waits for on the executor's
     _recent = None  # segment index -> the SegmentGraph its last frame ran (_inputs_key)
+    _seg_info = None  # id of a captured segment -> its tasks' shares and keys (_segment_info)
     _linked = True
 
     @property
@@ -175,6 +177,7 @@ class SegmentRunner:
             sg = by_shape[key]
         if sg is not None:
             sg.key = key
+            sg.ready = (frame, slots)  # for _run_segment, next on this thread
             if self._recent is None:
                 self._recent = {}
             self._recent[i] = sg
@@ -199,6 +202,7 @@ class SegmentRunner:
         except NotCapturable as exc:  # a host sync or read-back inside, a caller's capture
             _log.debug("segment %s, inputs %s, not captured: %s", seg.tasks[0].name, key, exc)
             by_shape[key] = None
+            sg.ready = None
             return None
         self.captures += first
         state.prev_end = None  # the stream idled while the host captured
@@ -245,7 +249,11 @@ class SegmentRunner:
         :attr:`instances` > 1) all of it runs there (:meth:`_fork`)."""
         state.task = seg.tasks[0].name
         cuda = self.cuda
-        slots, waited = self._ready_inputs(frame, seg.inputs)
+        ready, sg.ready = sg.ready, None
+        if ready is not None and ready[0] is frame:  # found by _segment_graph, all set
+            slots, waited = ready[1], False
+        else:
+            slots, waited = self._ready_inputs(frame, seg.inputs)
         h0 = time.perf_counter()
         streams = self._streams(sg, sg.next)
         stream = streams[0] if cuda else None
@@ -262,11 +270,13 @@ class SegmentRunner:
         if ev1 is False:  # run eagerly
             return
         h1 = time.perf_counter()
-        for task in seg.tasks:
-            lo, hi = frame.shares[task.name] = self._shares[task.name]
-            frame.trace[task.name] = (state.proc, ev0, ev1, None) if cuda else \
-                (state.proc, h0, h1, None)
-            frame.host_trace[task.name] = (h0 + lo * (h1 - h0), h0 + hi * (h1 - h0))
+        shares = self._segment_info(seg)[0]
+        frame.shares.update(shares)
+        frame.trace.update(dict.fromkeys(shares, (state.proc, ev0, ev1, None) if cuda else
+                                         (state.proc, h0, h1, None)))
+        span = h1 - h0
+        frame.host_trace.update({name: (h0 + lo * span, h0 + hi * span)
+                                 for name, (lo, hi) in shares.items()})
         # The next eager task's start event is on the executor's stream: not this one's.
         state.prev_end = None if forked else ev1
 
@@ -327,8 +337,20 @@ class SegmentRunner:
         self.replays += replay
         outs = dict(fixed)
         blocks = {}  # a node's Counted outputs share one block: copied once
-        for key in seg.outputs:
-            outs[key] = self._copy_out(frame, key, fixed[key], sg, blocks, stream)
+        b = sg.sets[sg.last]
+        plan = b.plan
+        if plan is None or plan[0] is not fixed:
+            plan = b.plan = (fixed, self._copy_plan(fixed, seg.outputs))
+        for key, src, copy, block, rule in plan[1]:
+            if src is None:
+                outs[key] = tree_map(lambda a: self._copy_array(frame, key, a, stream), fixed[key])
+            elif block is None:
+                outs[key] = self._copy_array(frame, key, src, stream, copy)
+            else:
+                buf = blocks.get((id(src), rule))
+                if buf is None:
+                    buf = blocks[id(src), rule] = self._copy_array(frame, key, src, stream, copy)
+                outs[key] = sg.block_view(block, buf, rule != "never")
         sg.publish(outs)
         ev1 = None
         if streams and stream is not self._stream:
@@ -337,12 +359,12 @@ class SegmentRunner:
             ev1 = self._end_event(frame) if stream is self._stream else \
                 self._forked_end(frame, stream)
         external = ev1 is not None and stream is not self._stream
-        for task in seg.tasks:
-            for key in task.outputs:
-                slot = frame.slots[key]
-                slot.set(outs[key], DEVICE, ev1)
-                # Made on another stream than the executor's: its readers there wait for it.
-                slot.external = external
+        slots = frame.slots
+        for key in self._segment_info(seg)[1]:
+            slot = slots[key]
+            slot.set(outs[key], DEVICE, ev1)
+            # Made on another stream than the executor's: its readers there wait for it.
+            slot.external = external
         return ev1
 
     def _forked_end(self, frame: Frame, stream):
@@ -353,25 +375,35 @@ class SegmentRunner:
         frame.forked.append(ev1)
         return ev1
 
-    def _copy_out(self, frame: Frame, key: str, fixed, sg: SegmentGraph, blocks: dict, stream):
-        """A copy of ``fixed`` (the value of ``key`` in ``sg``'s buffers) in buffers of
-        ``frame``'s, on ``stream``: a Counted with a block as one copy of the block, shared
-        with its node's other outputs whose copies are reused under the same rule
-        (``blocks``: (id of a fixed block, rule) -> its copy in this frame); other values
-        array by array."""
-        if is_counted(fixed) and fixed.block is not None:
-            rule = self._upload_rule.get(key)
-            array = fixed.block.array
-            buf = blocks.get((id(array), rule))
-            if buf is None:
-                buf = blocks[id(array), rule] = self._copy_array(frame, key, array, stream)
-            return sg.block_view(fixed.block, buf, rule != "never")
-        return tree_map(lambda a: self._copy_array(frame, key, a, stream), fixed)
+    def _copy_plan(self, fixed: dict, keys) -> tuple:
+        """How :meth:`_replay` copies values ``keys`` of ``fixed`` (a buffer set's outputs:
+        key -> its value in the fixed buffers) into buffers of the frame's, each
+        ``(key, src, copy, block, rule)``: a Counted with a block as one copy of the block
+        (``src``, its array; ``block``), shared with its node's other outputs whose copies are
+        reused under the same ``rule`` (a view of the copy made once per pooled buffer:
+        :meth:`SegmentGraph.block_view`); a Warp array as one copy (``src``); ``copy``: the
+        copy's :func:`~.native_copy.copier`; another tree array by array (all None). Made
+        once per outputs dict, not per frame."""
+        plan = []
+        for key in keys:
+            value = fixed[key]
+            if is_counted(value) and value.block is not None:
+                src = value.block.array
+                plan.append((key, src, copier(src), value.block, self._upload_rule.get(key)))
+            elif is_warp_array(value):
+                plan.append((key, value, copier(value), None, None))
+            else:
+                plan.append((key, None, None, None, None))
+        return tuple(plan)
 
-    def _copy_array(self, frame: Frame, key: str, fixed, stream):
-        """A copy of fixed array ``fixed`` (of value ``key``) into a buffer of ``frame``'s."""
+    def _copy_array(self, frame: Frame, key: str, fixed, stream, copy=None):
+        """A copy of fixed array ``fixed`` (of value ``key``) into a buffer of ``frame``'s
+        (``copy``: its :func:`~.native_copy.copier`, if made)."""
         buf = self._lease_upload(frame, key, fixed.shape, fixed.dtype)
-        copy_device(buf, fixed, stream)
+        if copy is None:
+            copy_device(buf, fixed, stream)
+        else:
+            copy(buf, stream)
         return buf
 
     def _copy_rule(self, seg: Segment, key: str) -> str:
@@ -381,6 +413,19 @@ class SegmentRunner:
         readers = [t.name for t in self.program.tasks.values() if t.name not in inside
                    and any(r.key == key for r in t.inputs)]
         return self._reuse_rule(self._data, readers, [key])
+
+    def _segment_info(self, seg: Segment) -> tuple:
+        """Of captured segment ``seg``, made once: (task -> its (start, end) fractions of the
+        segment's interval (of :attr:`_shares`), in queue order; every key its tasks
+        publish)."""
+        by_seg = self._seg_info
+        if by_seg is None:
+            by_seg = self._seg_info = {}
+        info = by_seg.get(id(seg))  # (the executor's segments live as long as it)
+        if info is None:
+            info = by_seg[id(seg)] = ({t.name: self._shares[t.name] for t in seg.tasks},
+                                      tuple(k for t in seg.tasks for k in t.outputs))
+        return info
 
     def _segment_shares(self) -> dict:
         """task -> (start, end) fractions of its captured segment's measured interval, in

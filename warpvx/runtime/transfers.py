@@ -9,11 +9,12 @@ copies every leaf of a tree between host memory and the GPU role's device, throu
 from __future__ import annotations
 
 import functools
+import math
 from collections import deque
 
 import numpy as np
 
-from .._counted import ONE_COPY_MAX_BYTES, Counted, download, map_counted
+from .._counted import ONE_COPY_MAX_BYTES, Block, Counted, download, map_counted
 from .native_copy import (address, bytes_to_host_async, is_warp_array, numpy_dtype,
                           record_event, synchronize_event, synchronize_stream, to_device,
                           to_host, to_host_async, wait_event, warp)
@@ -50,9 +51,17 @@ def host_value(value, fetch, counted):
     any other Counted is cut to its count on the host (its flatten protocol)."""
     if is_warp_array(value):
         return fetch(value)
+    if _block_counted(value):  # a node's Counted output, the usual tree: no walk
+        return counted(value)
     value = map_counted(lambda c: c if c.block is None or not is_warp_array(c.count)
                         else counted(c), value)
     return tree_map(lambda a: fetch(a) if is_warp_array(a) else a, value)
+
+
+def _block_counted(value) -> bool:
+    """``value`` is a device :class:`~warpvx._counted.Counted` with a block (a graph node's),
+    which :func:`host_value` hands to its ``counted`` whole (what its tree walk would do)."""
+    return type(value) is Counted and value.block is not None and is_warp_array(value.count)
 
 
 def _large(c) -> bool:
@@ -91,6 +100,20 @@ class _RowHints:
 
 
 ROW_HINTS = _RowHints()
+
+
+def _prefix_layout(part: tuple, k: int) -> tuple:
+    """Where the first ``k`` rows of each rows array of a :class:`~warpvx._counted.Block` part
+    go in one host buffer (:meth:`Transfers._take_prefix`): ``(((block offset, buffer offset,
+    bytes, shape, dtype) per rows array), buffer bytes)``, each array
+    :data:`~warpvx._counted.Block.ALIGN`-aligned in the buffer."""
+    layout, at = [], 0
+    for offset, _, shape, dtype in part:
+        rows = (k,) + tuple(shape[1:])
+        n = math.prod(rows) * dtype.itemsize
+        layout.append((offset, at, n, rows, dtype))
+        at += -(-n // Block.ALIGN) * Block.ALIGN
+    return tuple(layout), at
 
 
 class _UploadStage:
@@ -133,16 +156,19 @@ class _Staged:
     def host(self, io: "Transfers"):
         """The host value, its arrays views of the pool's buffers (call after the copy; the
         rows of a large Counted block are copied now, on ``io``'s stream: the reader's)."""
+        copies, value = self.copies, self.value
+        if is_warp_array(value):  # the usual values: no tree to walk
+            return copies[id(value)][1]
+        if _block_counted(value):
+            return self._counted(io, value)
+        return host_value(value, lambda a: copies[id(a)][1], functools.partial(self._counted, io))
+
+    def _counted(self, io: "Transfers", c):
+        """The host value of Counted ``c`` (with a block) from its copies (:meth:`host`)."""
         copies = self.copies
-        if is_warp_array(self.value):  # the usual value: no tree to walk
-            return copies[id(self.value)][1]
-
-        def counted(c):
-            if _large(c):
-                return io.counted_rows(c, copies[id(c.count)][1], self.prefix.get(id(c.count)))
-            return c.block.host_value(copies[id(c.block.array)][1])
-
-        return host_value(self.value, lambda a: copies[id(a)][1], counted)
+        if _large(c):
+            return io.counted_rows(c, copies[id(c.count)][1], self.prefix.get(id(c.count)))
+        return c.block.host_value(copies[id(c.block.array)][1])
 
 
 class Transfers:
@@ -215,6 +241,8 @@ class Transfers:
         """
         if is_warp_array(value):  # the usual value: no tree to walk
             return self._download_array(value, event)
+        if _block_counted(value) and not _large(value):  # one copy of its block, no walk
+            return download(value, lambda a: self._download_array(a, event))
         value = map_counted(lambda c: download(c, lambda a: self._download_array(a, event))
                             if is_warp_array(c.count) else c, value)
         return tree_map(lambda a: self._download_array(a, event) if is_warp_array(a) else a,
@@ -257,21 +285,15 @@ class Transfers:
         copies: dict = {}
         prefix: dict = {}
         try:
-            if is_warp_array(value):  # the usual value: no tree to walk
+            if is_warp_array(value):  # the usual values: no tree to walk
                 self._take(copies, value)
+            elif _block_counted(value):
+                self._take_counted(copies, prefix, value)
             else:
                 # The walk that builds the value once copied (_Staged.host) lists what to
-                # copy; a large Counted block copies its count and the rows it likely counts
-                # now (_RowHints), the rest of its counted rows when read.
-                take = functools.partial(self._take, copies)
-
-                def counted(c):
-                    if not _large(c):
-                        return take(c.block.array)
-                    self._take_prefix(prefix, c)
-                    return take(c.count)
-
-                host_value(value, take, counted)
+                # copy.
+                host_value(value, functools.partial(self._take, copies),
+                           functools.partial(self._take_counted, copies, prefix))
         except _Unstageable:
             return None  # the buffers taken are garbage: back to the pool
         if not copies:
@@ -279,9 +301,9 @@ class Transfers:
         nbytes = 0
         for _, host in copies.values():
             nbytes += host.nbytes
-        for _, leaves in prefix.values():
-            for _, host in leaves:
-                nbytes += host.nbytes
+        for _, _, spans in prefix.values():
+            for _, _, n in spans:
+                nbytes += n
         stream = self.stream
         if after is not None and stream is not None and nbytes < self.SAME_STREAM_MAX_BYTES:
             stream = after
@@ -289,32 +311,46 @@ class Transfers:
             wait_event(stream, event)
         for a, host in copies.values():
             to_host_async(host, a, stream)
-        for src, leaves in prefix.values():
-            for offset, host in leaves:
-                bytes_to_host_async(address(host), src.device, src.ptr + offset, host.nbytes,
-                                    stream)
+        for src, _, spans in prefix.values():
+            for offset, dst, n in spans:
+                bytes_to_host_async(dst, src.device, src.ptr + offset, n, stream)
         done = None
         if stream is not None:
             done = self._events.pop() if self._events else warp().Event(self.device)
             record_event(stream, done)
-        return _Staged(value, copies, {k: [h for _, h in v] for k, (_, v) in prefix.items()},
-                       done, nbytes, self._events)
+        return _Staged(value, copies, {k: v[1] for k, v in prefix.items()}, done, nbytes,
+                       self._events)
+
+    def _take_counted(self, copies: dict, prefix: dict, c):
+        """The host buffer (:meth:`_take`) a staged download copies Counted ``c`` (with a
+        block) into: its whole block, or for a large one its count, with the rows it likely
+        counts (:class:`_RowHints`: :meth:`_take_prefix`; the rest of its counted rows are
+        copied when read)."""
+        if not _large(c):
+            return self._take(copies, c.block.array)
+        self._take_prefix(prefix, c)
+        return self._take(copies, c.count)
 
     def _take_prefix(self, prefix: dict, c):
-        """Pool buffers for the first :class:`_RowHints` rows of large Counted ``c``'s rows
-        arrays: ``prefix[id(c.count)] = (block array, [(byte offset, host buffer), ...])``;
-        nothing when there is no hint yet or no pool room (its rows are copied when read)."""
+        """One pool buffer for the first :class:`_RowHints` rows of large Counted ``c``'s rows
+        arrays: ``prefix[id(c.count)] = (block array, [host view per rows array], [(byte
+        offset in the block, host address, bytes) per rows array])``; nothing when there is
+        no hint yet or no pool room (its rows are copied when read)."""
         block = c.block
         k = ROW_HINTS.rows(block)
         if k <= 0 or id(c.count) in prefix:
             return
-        leaves = []
-        for offset, _, shape, dtype in block.part:
-            host = self.pool.take((k,) + shape[1:], dtype)
-            if host is None:
-                return  # the buffers taken are garbage: back to the pool
-            leaves.append((offset, host))
-        prefix[id(c.count)] = (block.array, leaves)
+        # One buffer, not one per rows array: a lease costs several times a view.
+        layout, nbytes = _prefix_layout(block.part, k)
+        raw = self.pool.take((nbytes,), np.uint8)
+        if raw is None:
+            return  # no pool room: its rows are copied when read
+        base = address(raw)
+        leaves, spans = [], []
+        for offset, at, n, rows, dtype in layout:
+            leaves.append(raw[at:at + n].view(dtype).reshape(rows))
+            spans.append((offset, base + at, n))
+        prefix[id(c.count)] = (block.array, leaves, spans)
 
     def _take(self, copies: dict, a):
         """The pool's host buffer device array ``a`` of a staged download is copied into (one
