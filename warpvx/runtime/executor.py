@@ -968,6 +968,9 @@ class Executor(RoleRunner, SegmentRunner):
                 self._events.lend(result)
             else:
                 result = frame_result(frame, outputs)
+            # Staged downloads nobody read waited for first: their copies read device
+            # buffers _release may hand to the next frame.
+            self._unstage(frame)
             self._release(frame, host)
             for ring in self.program.rings.values():
                 ring.age(frame.index)
