@@ -478,10 +478,10 @@ class Executor(RoleRunner, SegmentRunner):
         return self.program.rings[ref.key].get(frame.index + ref.offset)
 
     def _publish(self, frame: Frame, task: ExecTask, result, where, event=None):
-        n = len(task.outputs)
-        if n == 1:
-            frame.slots[task.outputs[0]].set(result, where, event)
+        if task.output is not None:
+            frame.slots[task.output].set(result, where, event)
             return
+        n = len(task.outputs)
         if not isinstance(result, (tuple, list)) or len(result) != n:
             raise TypeError(f"expected {n} outputs {task.outputs}, got {type(result).__name__}")
         for key, value in zip(task.outputs, result):
@@ -512,31 +512,35 @@ class Executor(RoleRunner, SegmentRunner):
                 if s.where == DEVICE:
                     remote = True
                     break
-            if remote and self.cuda:
+            t_mid = None
+            values = []
+            if not remote:
+                t0 = perf_counter()
+                for s in slots:  # a loop, not a comprehension: no function call
+                    values.append(s.value)
+            elif self.cuda:
                 # Waiting for the producer (or its staged download) is not the task's time.
                 waited = [s.ready_event() if s.where == DEVICE else None for s in slots]
                 for ev in waited:
                     if ev is not None:
                         synchronize_event(ev)
-            elif remote:
-                waited = [None] * len(slots)
-            t0 = perf_counter()
-            t_mid = None
-            if remote:
+                t0 = perf_counter()
                 before = io.moved
-                values = [s.host(io, waited=ev) for s, ev in zip(slots, waited)]
+                for s, ev in zip(slots, waited):
+                    values.append(s.host(io, waited=ev))
+            else:  # (Warp's CPU device: nothing to wait for)
+                t0 = perf_counter()
+                before = io.moved
+                for s in slots:
+                    values.append(s.host(io))
+            if remote:
                 t_mid = perf_counter()
                 if io.moved > before:
                     frame.copied[task.name] = io.moved - before
-            else:
-                values = []
-                for s in slots:  # a loop, not a comprehension: no function call
-                    values.append(s.value)
             result = task.cpu(*values)
             t1 = perf_counter()
-            outputs = task.outputs
-            if len(outputs) == 1:  # the usual task: _publish's one-output case, inline
-                frame.slots[outputs[0]].set(result, HOST)
+            if task.output is not None:  # the usual task: _publish's one-output case, inline
+                frame.slots[task.output].set(result, HOST)
             else:
                 self._publish(frame, task, result, HOST)
         except Cancelled:
@@ -618,8 +622,14 @@ class Executor(RoleRunner, SegmentRunner):
         ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved
         values = []
+        up_pools = self._up_pools
         for ref, s in zip(task.inputs, slots):  # a loop, not a comprehension: no function call
-            values.append(s.value if s.where == DEVICE else s.device(io, self._upload_into(frame, ref)))
+            if s.where == DEVICE:
+                values.append(s.value)
+            elif ref.offset or ref.key not in up_pools:  # no pooled buffers (a delay, warp-cpu)
+                values.append(s.device(io))
+            else:
+                values.append(s.device(io, self._upload_into(frame, ref)))
         mid = None
         moved = io.moved - before
         if moved:
@@ -655,9 +665,8 @@ class Executor(RoleRunner, SegmentRunner):
             h1 = perf_counter()
             frame.trace[name] = (state.proc, h0, h1, mid)
         frame.host_trace[name] = (h0, h1)
-        outputs = task.outputs
-        if len(outputs) == 1:  # the usual task: _publish's one-output case, inline
-            frame.slots[outputs[0]].set(result, DEVICE, ev1)
+        if task.output is not None:  # the usual task: _publish's one-output case, inline
+            frame.slots[task.output].set(result, DEVICE, ev1)
         else:
             self._publish(frame, task, result, DEVICE, ev1)
 
@@ -672,11 +681,9 @@ class Executor(RoleRunner, SegmentRunner):
         return buf
 
     def _upload_into(self, frame: Frame, ref: InputRef):
-        """``into`` for uploading input ``ref`` of a GPU task (see :meth:`Transfers.upload`):
-        buffers from the key's pool, leased to ``frame``; None where its uploads cannot be
-        pooled."""
-        if ref.offset or ref.key not in self._up_pools:
-            return None
+        """``into`` for uploading input ``ref`` of a GPU task, a value of its own frame with
+        a pool of upload buffers (see :meth:`Transfers.upload`): buffers from the key's
+        pool, leased to ``frame``."""
         return functools.partial(self._lease_upload, frame, ref.key)
 
     def _lease_upload(self, frame: Frame, key: str, shape, dtype):
