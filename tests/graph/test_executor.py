@@ -274,6 +274,50 @@ def test_alternating_chain_runs_short_tasks_inline_and_long_ones_on_their_thread
         assert elsewhere >= len(ran) // 4
 
 
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize("kind", ["cpu", "gpu"])
+@pytest.mark.parametrize("ms", [LONG, SHORT])
+def test_alternating_chain_failing_mid_chain_reports_the_node_and_runs_the_next_frames(ms, kind):
+    """A task of the alternating chain raising in frame 1 (inline or on its thread): that
+    frame's wait names it, the frame behind it in flight is cancelled, and later frames run
+    the whole chain again (no role is left holding a token or a stale position)."""
+    n = 8
+    prog, placement, _ = _alternating(n)
+    bad = "t3" if kind == "gpu" else "t4"  # mid-chain: units before it ran inline
+    task = prog.tasks[bad]
+    good = getattr(task, kind)
+
+    def flaky(v):
+        if flaky.frame == 1:
+            raise ValueError("frame 1 fails")
+        return good(v)
+
+    flaky.frame = 0
+    setattr(task, kind, flaky)
+    ex = Executor(sched(placement, ms=ms), prog, gpu_device="cpu")
+    try:
+        x = np.full(3, 2, np.float32)
+        res = ex.wait(ex.submit(0, {"x": (x, HOST)}))
+        np.testing.assert_array_equal(res.outputs["y"], _expected(x, n))
+        flaky.frame = 1
+        f1 = ex.submit(1, {"x": (x, HOST)})
+        f2 = ex.submit(2, {"x": (x + 1, HOST)})
+        with pytest.raises(NodeExecutionError, match=rf"node '{bad}' on {placement[bad]} failed "
+                                                     r"in frame 1") as info:
+            ex.wait(f1)
+        assert isinstance(info.value.__cause__, ValueError)
+        with pytest.raises(NodeExecutionError, match="frame 2 was cancelled after frame 1"):
+            ex.wait(f2)
+        flaky.frame = 3
+        for i in (3, 4):  # one at a time (run inline by the caller), then two in flight
+            frames = [ex.submit(i * 10 + j, {"x": (x + j, HOST)}) for j in range(i - 2)]
+            for j, f in enumerate(frames):
+                np.testing.assert_array_equal(ex.wait(f).outputs["y"], _expected(x + j, n))
+        assert ex.in_flight == 0
+    finally:
+        ex.close()
+
+
 class _Device:
     """A stand-in Warp CUDA device: its current stream, the process's default device, and
     a per-thread count of pushed contexts."""

@@ -513,10 +513,10 @@ class Executor(RoleRunner, SegmentRunner):
                     remote = True
                     break
             t_mid = None
-            values = []
             if not remote:
                 t0 = perf_counter()
-                for s in slots:  # a loop, not a comprehension: no function call
+                values = []
+                for s in slots:  # a loop, not a comprehension: no function call before 3.12
                     values.append(s.value)
             elif self.cuda:
                 # Waiting for the producer (or its staged download) is not the task's time.
@@ -526,13 +526,11 @@ class Executor(RoleRunner, SegmentRunner):
                         synchronize_event(ev)
                 t0 = perf_counter()
                 before = io.moved
-                for s, ev in zip(slots, waited):
-                    values.append(s.host(io, waited=ev))
+                values = [s.host(io, waited=ev) for s, ev in zip(slots, waited)]
             else:  # (Warp's CPU device: nothing to wait for)
                 t0 = perf_counter()
                 before = io.moved
-                for s in slots:
-                    values.append(s.host(io))
+                values = [s.host(io) for s in slots]
             if remote:
                 t_mid = perf_counter()
                 if io.moved > before:
