@@ -306,6 +306,7 @@ class Executor(RoleRunner, SegmentRunner):
                     self._up_pools.pop(key, None)
         self._null_stream = None  # the device's legacy stream (CUDA), looked up once
         self._task_keys = [k for t in program.tasks.values() for k in t.outputs]
+        self._host_alone = self._sole_host_readers()
         # The slots a frame's events may outlive it in (_forget_events): the caller's inputs and
         # the delays' (kept by their rings); the others go with the frame.
         self._outliving = list(dict.fromkeys([*program.inputs, *program.rings]))
@@ -322,6 +323,18 @@ class Executor(RoleRunner, SegmentRunner):
         on = [(st, e) for e, st in self.placed.items() if st.processor == proc]
         on.sort(key=lambda x: (x[0].start, x[0].finish, x[1][1], self._topo.get(x[1][0], 0)))
         return [e for _, e in on]
+
+    def _sole_host_readers(self) -> set:
+        """CPU tasks each of whose inputs no one else reads on the host (no other CPU task,
+        not the caller: not a graph output, not a delay's value): they download their device
+        inputs without a copy lock (:meth:`Slot.host`'s ``alone``)."""
+        cpu_tasks = {t.name: t for p in self.processors if not is_gpu_processor(p)
+                     for t in self.queues[p]}
+        reads = collections.Counter(r.key for t in cpu_tasks.values() for r in t.inputs)
+        shared = set(self.program.outputs.values()) | set(self.program.rings)
+        return {name for name, t in cpu_tasks.items()
+                if all(r.offset == 0 and reads[r.key] == 1 and r.key not in shared
+                       for r in t.inputs)}
 
     def _label(self, task: str, slot: int):
         """How messages name entry ``(task, slot)``: the task alone for one frame."""
@@ -526,11 +539,13 @@ class Executor(RoleRunner, SegmentRunner):
                         synchronize_event(ev)
                 t0 = perf_counter()
                 before = io.moved
-                values = [s.host(io, waited=ev) for s, ev in zip(slots, waited)]
+                alone = task.name in self._host_alone
+                values = [s.host(io, waited=ev, alone=alone) for s, ev in zip(slots, waited)]
             else:  # (Warp's CPU device: nothing to wait for)
                 t0 = perf_counter()
                 before = io.moved
-                values = [s.host(io) for s in slots]
+                alone = task.name in self._host_alone
+                values = [s.host(io, alone=alone) for s in slots]
             if remote:
                 t_mid = perf_counter()
                 if io.moved > before:
