@@ -528,9 +528,9 @@ class Executor(RoleRunner, SegmentRunner):
             t_mid = None
             if not remote:
                 t0 = perf_counter()
-                values = []
-                for s in slots:  # a loop, not a comprehension: no function call before 3.12
-                    values.append(s.value)
+                # (A comprehension: no call from Python 3.12 (PEP 709), one before, as one
+                # append would be.)
+                values = [s.value for s in slots]
             elif self.cuda:
                 # Waiting for the producer (or its staged download) is not the task's time.
                 waited = [s.ready_event() if s.where == DEVICE else None for s in slots]
@@ -634,15 +634,11 @@ class Executor(RoleRunner, SegmentRunner):
         h0 = perf_counter()
         ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
         before = io.moved
-        values = []
-        up_pools = self._up_pools
-        for ref, s in zip(task.inputs, slots):  # a loop, not a comprehension: no function call
-            if s.where == DEVICE:
-                values.append(s.value)
-            elif ref.offset or ref.key not in up_pools:  # no pooled buffers (a delay, warp-cpu)
-                values.append(s.device(io))
-            else:
-                values.append(s.device(io, self._upload_into(frame, ref)))
+        up_pools = self._up_pools  # (none for a delay's value, nor on Warp's CPU device)
+        values = [s.value if s.where == DEVICE else s.device(
+                      io, None if ref.offset or ref.key not in up_pools else
+                      self._upload_into(frame, ref))
+                  for ref, s in zip(task.inputs, slots)]
         mid = None
         moved = io.moved - before
         if moved:
