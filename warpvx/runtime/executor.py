@@ -629,10 +629,25 @@ class Executor(RoleRunner, SegmentRunner):
             slots, waited = self._ready_inputs(frame, task.inputs)
         else:
             waited = False
-        if state.burst and (waited or any(s.where != DEVICE or s.external for s in slots)):
-            self._close_burst(state)  # a task with uploads or a wait starts at an event of its own
+        if state.burst:  # a task with uploads or a wait starts at an event of its own
+            close = waited
+            for s in slots:  # (a loop: no generator call per task)
+                if s.where != DEVICE or s.external:
+                    close = True
+                    break
+            if close:
+                self._close_burst(state)
         h0 = perf_counter()
-        ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
+        if cuda:
+            ev0 = state.prev_end  # the usual start: the last task's end, nothing to wait for
+            for s in slots:
+                if s.external:
+                    ev0 = None
+                    break
+            if ev0 is None or waited:
+                ev0 = self._start_event(frame, state, slots, waited)
+        else:
+            ev0 = h0
         before = io.moved
         up_pools = self._up_pools  # (none for a delay's value, nor on Warp's CPU device)
         values = [s.value if s.where == DEVICE else s.device(
