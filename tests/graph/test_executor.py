@@ -274,6 +274,90 @@ def test_alternating_chain_runs_short_tasks_inline_and_long_ones_on_their_thread
         assert elsewhere >= len(ran) // 4
 
 
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize("kind", ["cpu", "gpu"])
+@pytest.mark.parametrize("ms", [LONG, SHORT])
+def test_alternating_chain_failing_mid_chain_reports_the_node_and_runs_the_next_frames(ms, kind):
+    """A task of the alternating chain raising in frame 1 (inline or on its thread): that
+    frame's wait names it, the frame behind it in flight is cancelled, and later frames run
+    the whole chain again (no role is left holding a token or a stale position)."""
+    n = 8
+    prog, placement, _ = _alternating(n)
+    bad = "t3" if kind == "gpu" else "t4"  # mid-chain: units before it ran inline
+    task = prog.tasks[bad]
+    good = getattr(task, kind)
+
+    def flaky(v):
+        if flaky.frame == 1:
+            raise ValueError("frame 1 fails")
+        return good(v)
+
+    flaky.frame = 0
+    setattr(task, kind, flaky)
+    ex = Executor(sched(placement, ms=ms), prog, gpu_device="cpu")
+    try:
+        x = np.full(3, 2, np.float32)
+        res = ex.wait(ex.submit(0, {"x": (x, HOST)}))
+        np.testing.assert_array_equal(res.outputs["y"], _expected(x, n))
+        flaky.frame = 1
+        f1 = ex.submit(1, {"x": (x, HOST)})
+        f2 = ex.submit(2, {"x": (x + 1, HOST)})
+        with pytest.raises(NodeExecutionError, match=rf"node '{bad}' on {placement[bad]} failed "
+                                                     r"in frame 1") as info:
+            ex.wait(f1)
+        assert isinstance(info.value.__cause__, ValueError)
+        with pytest.raises(NodeExecutionError, match="frame 2 was cancelled after frame 1"):
+            ex.wait(f2)
+        flaky.frame = 3
+        for i in (3, 4):  # one at a time (run inline by the caller), then two in flight
+            frames = [ex.submit(i * 10 + j, {"x": (x + j, HOST)}) for j in range(i - 2)]
+            for j, f in enumerate(frames):
+                np.testing.assert_array_equal(ex.wait(f).outputs["y"], _expected(x + j, n))
+        assert ex.in_flight == 0
+    finally:
+        ex.close()
+
+
+@pytest.mark.parametrize("ms", [LONG, SHORT])
+def test_only_a_sole_host_reader_downloads_without_a_copy_lock(ms):
+    """Slot.host reads lock-free for a CPU task alone in reading its inputs on the host:
+    not a value two CPU tasks read, a graph output (the caller reads it too) or a delay's
+    (later frames and user threads do); the results are the same either way."""
+    prog = diamond()
+    # c reads a (a graph output) and b; d reads c alone.
+    ex = Executor(sched({"a": "gpu", "b": "gpu", "c": "cpu0", "d": "cpu1"}, ms=ms), prog,
+                  gpu_device="cpu")
+    assert ex._host_alone == {"d"}
+    # a and b both read x (one value, two CPU readers).
+    ex2 = Executor(sched({"a": "cpu0", "b": "cpu1", "c": "gpu", "d": "cpu0"}, ms=ms), diamond(),
+                   gpu_device="cpu")
+    assert ex2._host_alone == {"d"}
+    # t1 reads v0, a delay's value (its ring keeps it for the next frame's t2).
+    import warp as wp
+
+    double = lambda v: wp.array(v.numpy() * 2, dtype=wp.float32, device=v.device)  # noqa: E731
+    delayed = Program({
+        "t0": ExecTask("t0", (InputRef("x"),), ("v0",), lambda v: v * 2, double),
+        "t1": ExecTask("t1", (InputRef("v0"),), ("v1",), lambda v: v + 1),
+        "t2": ExecTask("t2", (InputRef("v0", -1), InputRef("v1")), ("v2",), lambda a, b: a + b),
+    }, ("x",), {"y": "v2"}, {"v0": Ring(1, np.zeros(3, np.float32))})
+    ex3 = Executor(sched({"t0": "gpu", "t1": "cpu0", "t2": "cpu1"}, ms=ms), delayed,
+                   gpu_device="cpu")
+    assert ex3._host_alone == set()
+    try:
+        for e in (ex, ex2):
+            frames = [e.submit(i, {"x": (np.full(3, i, np.float32), HOST)}) for i in range(4)]
+            for i, f in enumerate(frames):
+                np.testing.assert_array_equal(e.wait(f).outputs["out"], np.full(3, 3 * i))
+        frames = [ex3.submit(i, {"x": (np.full(3, i, np.float32), HOST)}) for i in range(4)]
+        for i, f in enumerate(frames):  # 2i + 1 + 2(i - 1), frame 0's delay its zeros
+            np.testing.assert_array_equal(ex3.wait(f).outputs["y"],
+                                          np.full(3, 4 * i - 1 if i else 1))
+    finally:
+        for e in (ex, ex2, ex3):
+            e.close()
+
+
 class _Device:
     """A stand-in Warp CUDA device: its current stream, the process's default device, and
     a per-thread count of pushed contexts."""

@@ -53,7 +53,10 @@ def _marked(node, fn):
 
     @functools.wraps(fn)
     def run(*args, **kwargs):
-        stack = _running.__dict__.setdefault("nodes", [])
+        try:
+            stack = _running.nodes
+        except AttributeError:  # this thread's first node (an attribute read, not a call, after)
+            stack = _running.nodes = []
         stack.append(where)
         try:
             return fn(*args, **kwargs)

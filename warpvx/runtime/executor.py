@@ -306,6 +306,7 @@ class Executor(RoleRunner, SegmentRunner):
                     self._up_pools.pop(key, None)
         self._null_stream = None  # the device's legacy stream (CUDA), looked up once
         self._task_keys = [k for t in program.tasks.values() for k in t.outputs]
+        self._host_alone = self._sole_host_readers()
         # The slots a frame's events may outlive it in (_forget_events): the caller's inputs and
         # the delays' (kept by their rings); the others go with the frame.
         self._outliving = list(dict.fromkeys([*program.inputs, *program.rings]))
@@ -322,6 +323,18 @@ class Executor(RoleRunner, SegmentRunner):
         on = [(st, e) for e, st in self.placed.items() if st.processor == proc]
         on.sort(key=lambda x: (x[0].start, x[0].finish, x[1][1], self._topo.get(x[1][0], 0)))
         return [e for _, e in on]
+
+    def _sole_host_readers(self) -> set:
+        """CPU tasks each of whose inputs no one else reads on the host (no other CPU task,
+        not the caller: not a graph output, not a delay's value): they download their device
+        inputs without a copy lock (:meth:`Slot.host`'s ``alone``)."""
+        cpu_tasks = {t.name: t for p in self.processors if not is_gpu_processor(p)
+                     for t in self.queues[p]}
+        reads = collections.Counter(r.key for t in cpu_tasks.values() for r in t.inputs)
+        shared = set(self.program.outputs.values()) | set(self.program.rings)
+        return {name for name, t in cpu_tasks.items()
+                if all(r.offset == 0 and reads[r.key] == 1 and r.key not in shared
+                       for r in t.inputs)}
 
     def _label(self, task: str, slot: int):
         """How messages name entry ``(task, slot)``: the task alone for one frame."""
@@ -478,10 +491,10 @@ class Executor(RoleRunner, SegmentRunner):
         return self.program.rings[ref.key].get(frame.index + ref.offset)
 
     def _publish(self, frame: Frame, task: ExecTask, result, where, event=None):
-        n = len(task.outputs)
-        if n == 1:
-            frame.slots[task.outputs[0]].set(result, where, event)
+        if task.output is not None:
+            frame.slots[task.output].set(result, where, event)
             return
+        n = len(task.outputs)
         if not isinstance(result, (tuple, list)) or len(result) != n:
             raise TypeError(f"expected {n} outputs {task.outputs}, got {type(result).__name__}")
         for key, value in zip(task.outputs, result):
@@ -512,31 +525,35 @@ class Executor(RoleRunner, SegmentRunner):
                 if s.where == DEVICE:
                     remote = True
                     break
-            if remote and self.cuda:
+            t_mid = None
+            if not remote:
+                t0 = perf_counter()
+                # (A comprehension: no call from Python 3.12 (PEP 709), one before, as one
+                # append would be.)
+                values = [s.value for s in slots]
+            elif self.cuda:
                 # Waiting for the producer (or its staged download) is not the task's time.
                 waited = [s.ready_event() if s.where == DEVICE else None for s in slots]
                 for ev in waited:
                     if ev is not None:
                         synchronize_event(ev)
-            elif remote:
-                waited = [None] * len(slots)
-            t0 = perf_counter()
-            t_mid = None
-            if remote:
+                t0 = perf_counter()
                 before = io.moved
-                values = [s.host(io, waited=ev) for s, ev in zip(slots, waited)]
+                alone = task.name in self._host_alone
+                values = [s.host(io, waited=ev, alone=alone) for s, ev in zip(slots, waited)]
+            else:  # (Warp's CPU device: nothing to wait for)
+                t0 = perf_counter()
+                before = io.moved
+                alone = task.name in self._host_alone
+                values = [s.host(io, alone=alone) for s in slots]
+            if remote:
                 t_mid = perf_counter()
                 if io.moved > before:
                     frame.copied[task.name] = io.moved - before
-            else:
-                values = []
-                for s in slots:  # a loop, not a comprehension: no function call
-                    values.append(s.value)
             result = task.cpu(*values)
             t1 = perf_counter()
-            outputs = task.outputs
-            if len(outputs) == 1:  # the usual task: _publish's one-output case, inline
-                frame.slots[outputs[0]].set(result, HOST)
+            if task.output is not None:  # the usual task: _publish's one-output case, inline
+                frame.slots[task.output].set(result, HOST)
             else:
                 self._publish(frame, task, result, HOST)
         except Cancelled:
@@ -612,14 +629,31 @@ class Executor(RoleRunner, SegmentRunner):
             slots, waited = self._ready_inputs(frame, task.inputs)
         else:
             waited = False
-        if state.burst and (waited or any(s.where != DEVICE or s.external for s in slots)):
-            self._close_burst(state)  # a task with uploads or a wait starts at an event of its own
+        if state.burst:  # a task with uploads or a wait starts at an event of its own
+            close = waited
+            for s in slots:  # (a loop: no generator call per task)
+                if s.where != DEVICE or s.external:
+                    close = True
+                    break
+            if close:
+                self._close_burst(state)
         h0 = perf_counter()
-        ev0 = self._start_event(frame, state, slots, waited) if cuda else h0
+        if cuda:
+            ev0 = state.prev_end  # the usual start: the last task's end, nothing to wait for
+            for s in slots:
+                if s.external:
+                    ev0 = None
+                    break
+            if ev0 is None or waited:
+                ev0 = self._start_event(frame, state, slots, waited)
+        else:
+            ev0 = h0
         before = io.moved
-        values = []
-        for ref, s in zip(task.inputs, slots):  # a loop, not a comprehension: no function call
-            values.append(s.value if s.where == DEVICE else s.device(io, self._upload_into(frame, ref)))
+        up_pools = self._up_pools  # (none for a delay's value, nor on Warp's CPU device)
+        values = [s.value if s.where == DEVICE else s.device(
+                      io, None if ref.offset or ref.key not in up_pools else
+                      self._upload_into(frame, ref))
+                  for ref, s in zip(task.inputs, slots)]
         mid = None
         moved = io.moved - before
         if moved:
@@ -655,9 +689,8 @@ class Executor(RoleRunner, SegmentRunner):
             h1 = perf_counter()
             frame.trace[name] = (state.proc, h0, h1, mid)
         frame.host_trace[name] = (h0, h1)
-        outputs = task.outputs
-        if len(outputs) == 1:  # the usual task: _publish's one-output case, inline
-            frame.slots[outputs[0]].set(result, DEVICE, ev1)
+        if task.output is not None:  # the usual task: _publish's one-output case, inline
+            frame.slots[task.output].set(result, DEVICE, ev1)
         else:
             self._publish(frame, task, result, DEVICE, ev1)
 
@@ -672,11 +705,9 @@ class Executor(RoleRunner, SegmentRunner):
         return buf
 
     def _upload_into(self, frame: Frame, ref: InputRef):
-        """``into`` for uploading input ``ref`` of a GPU task (see :meth:`Transfers.upload`):
-        buffers from the key's pool, leased to ``frame``; None where its uploads cannot be
-        pooled."""
-        if ref.offset or ref.key not in self._up_pools:
-            return None
+        """``into`` for uploading input ``ref`` of a GPU task, a value of its own frame with
+        a pool of upload buffers (see :meth:`Transfers.upload`): buffers from the key's
+        pool, leased to ``frame``."""
         return functools.partial(self._lease_upload, frame, ref.key)
 
     def _lease_upload(self, frame: Frame, key: str, shape, dtype):

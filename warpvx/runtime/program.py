@@ -27,6 +27,7 @@ class ExecTask:
     ``gpu(*device_values, out=buffer)`` (buffers are pooled across frames). ``capture``: the
     GPU callable, given ``out=``, only enqueues work on the current stream, so it may be
     captured into a CUDA graph with its neighbours (:mod:`.capture`); needs ``gpu_out``.
+    ``output``: the key of its only output, else None (derived).
     """
 
     name: str
@@ -36,6 +37,11 @@ class ExecTask:
     gpu: Callable | None = None
     gpu_out: Callable | None = None
     capture: bool = False
+    output: str | None = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        # The usual task has one output: published without a length check per call.
+        self.output = self.outputs[0] if len(self.outputs) == 1 else None
 
 
 @dataclass

@@ -100,16 +100,20 @@ class Role:
     ``(index, segment)``); ``refs``: each unit's input references (what makes it ready);
     ``frames``: the frames it has still to run, oldest first, ``pos`` the next unit of the
     oldest; ``signal``: released to wake its thread; ``short``: which units may run inline
-    (:attr:`RoleRunner.INLINE_MAX_MS`)."""
+    (:attr:`RoleRunner.INLINE_MAX_MS`); ``one``: per unit, the key of its only input when it
+    reads one value of its own frame (the usual unit: its readiness is one slot's flag), else
+    None."""
 
-    __slots__ = ("proc", "gpu", "units", "refs", "short", "frames", "pos", "token", "signal",
-                 "state", "captures", "touch", "stage")
+    __slots__ = ("proc", "gpu", "units", "refs", "one", "last", "short", "frames", "pos",
+                 "token", "signal", "state", "captures", "touch", "stage")
 
     def __init__(self, proc: str, units: list, refs: list, short: list, state: "GpuState | None"):
         self.proc = proc
         self.gpu = state is not None
         self.units = units
         self.refs = refs
+        self.one = [r[0].key if len(r) == 1 and r[0].offset == 0 else None for r in refs]
+        self.last = len(units) - 1  # the frame's last unit here
         self.short = short  # per unit: short enough to run inline on another role's thread
         self.frames: deque = deque()
         self.pos = 0
@@ -228,14 +232,19 @@ class RoleRunner:
         does not run."""
         role = home
         scoped = False  # this thread holds the GPU role's DeviceScope
+        idle = False  # home had nothing ready at this thread's last look
+        io = None  # this thread's transfers, for CPU units
         try:
             while True:
+                if io is None and not role.gpu:
+                    io = self._io()
                 touched: list = []
-                scoped = self._advance(role, home, touched, scoped)
+                scoped = self._advance(role, home, touched, scoped, idle, io)
                 if role is not home and self._ready(role):
                     role.wake()  # left for a ready home unit, or a long one
                 role = None
-                if self._ready(home) and not home.token.locked():
+                idle = not self._ready(home)
+                if not idle and not home.token.locked():
                     role = home
                 for r in touched:
                     if r is role or r is home or r.token.locked() or not self._ready(r):
@@ -262,8 +271,12 @@ class RoleRunner:
             return False
         if frame.cancel.ready:
             return True
+        pos = role.pos
+        key = role.one[pos]
+        if key is not None:  # the usual unit: one flag
+            return frame.slots[key].ready
         fs = frame.slots
-        for ref in role.refs[role.pos]:  # no list: several checks per hand-off
+        for ref in role.refs[pos]:  # no list: several checks per hand-off
             if not (fs[ref.key] if ref.offset == 0 else self._slot(frame, ref)).ready:
                 return False
         return True
@@ -279,22 +292,29 @@ class RoleRunner:
             slots.append(s)
         return slots
 
-    def _advance(self, role: Role, home: Role, touched: list, scoped: bool) -> bool:
-        """Holding ``role``'s token (if free), run its units while they may run here
-        (:meth:`_may_run`). After a unit, the roles that read what it published are woken
-        when this thread goes on with ``role`` (at once: a producer does not sit on a ready
-        consumer while it runs its next unit), else appended to ``touched`` (the caller may
-        run one of them inline). ``scoped``: this thread holds the GPU role's
-        :class:`DeviceScope`; returned, acquired here before a GPU unit if not (the caller
-        releases it)."""
+    def _advance(self, role: Role, home: Role, touched: list, scoped: bool, idle: bool,
+                 io: "Transfers | None") -> bool:
+        """Holding ``role``'s token (if free), run its units while they may run here: its
+        next unit is ready, and ``role`` is ``home`` or the unit is short while ``home`` has
+        nothing ready (``idle``: the caller just found it so; looked at again before each
+        later unit). After a unit, the roles that read what it published are woken when this
+        thread goes on with ``role`` (at once: a producer does not sit on a ready consumer
+        while it runs its next unit), else appended to ``touched`` (the caller may run one of
+        them inline). ``scoped``: this thread holds the GPU role's :class:`DeviceScope`;
+        returned, acquired here before a GPU unit if not (the caller releases it). ``io``:
+        this thread's transfers (CPU units)."""
         if not role.token.acquire(False):
             return scoped
         held = scoped
+        gpu = role.gpu
         try:
             frames = role.frames
-            io = role.state.io if role.gpu else self._io()
-            if role.gpu:
+            if gpu:
+                io = role.state.io
                 role.state.prev_end = None  # the stream may have idled since the last unit
+            inline = role is not home
+            one = role.one
+            readers = ()  # of the unit just run, not told yet
             while frames:
                 frame = frames[0]
                 if frame.cancel.ready:
@@ -302,46 +322,62 @@ class RoleRunner:
                     continue
                 # Checked under the token: another thread may have run what made the caller
                 # come (and running a unit not ready would block holding the token).
-                slots = self._inputs_if_ready(role, frame)
-                if slots is None or (role is not home and (
-                        not role.short[role.pos] or self._ready(home))):
-                    break
-                if role.gpu and not scoped and self._scope is not None:
-                    self._scope.acquire()
-                    scoped = True
                 pos = role.pos
-                ok = self._run_unit(role, frame, slots, io)
-                if pos + 1 == len(role.units):
+                key = one[pos]
+                if key is None:
+                    slots = self._inputs_if_ready(role, frame)
+                else:  # the usual unit: one input of its own frame, no call
+                    s = frame.slots[key]
+                    slots = [s] if s.ready else None
+                go = slots is not None and (not inline or (
+                    role.short[pos] and (idle or not self._ready(home))))
+                idle = False
+                for r in readers:
+                    if r is home or r in touched:
+                        continue
+                    if not go:
+                        touched.append(r)
+                    elif not r.token.locked() and self._ready(r):
+                        r.wake()
+                readers = ()
+                if not go:
+                    break
+                if gpu:
+                    if not scoped and self._scope is not None:
+                        self._scope.acquire()
+                        scoped = True
+                    seg = role.units[pos][1]
+                    if pos == 0 or seg.captured or role.stage[pos]:
+                        ok = self._run_unit(role, frame, slots, io)
+                    else:  # the usual unit: one eager task, nothing to stage (no call more)
+                        ok = True
+                        try:
+                            self._run_gpu_task(frame, seg.tasks[0], role.state, slots)
+                        except Cancelled:
+                            ok = False
+                        except BaseException as exc:  # noqa: BLE001 - reported to the caller
+                            self._fail(frame, role.state.task, role.proc, exc)
+                            ok = False
+                else:
+                    ok = self._run_cpu_task(role.proc, frame, role.units[pos], io, slots)
+                if pos == role.last:
                     self._end_frame(role, frame)
                 else:
                     role.pos = pos + 1
-                readers = role.touch[pos] if ok else ()
-                if readers:
-                    go = self._may_run(role, home)
-                    for r in readers:
-                        if r is home or r in touched:
-                            continue
-                        if not go:
-                            touched.append(r)
-                        elif not r.token.locked() and self._ready(r):
-                            r.wake()
-                    if not go:
-                        break
+                if ok:
+                    readers = role.touch[pos]
+            for r in readers:  # no unit left here for now: the caller looks at them
+                if r is not home and r not in touched:
+                    touched.append(r)
         except BaseException:
             if scoped and not held:
                 self._scope.release()  # raising: the caller never learns it holds the scope
             raise
         finally:
-            if role.gpu and role.state.burst:  # another thread may run the next units
+            if gpu and role.state.burst:  # another thread may run the next units
                 self._close_burst(role.state)
             role.token.release()
         return scoped
-
-    def _may_run(self, role: Role, home: Role) -> bool:
-        """``role``'s next unit may run on the thread of ``home``: it is ready, and it is
-        ``home``'s, or short while ``home`` has nothing ready."""
-        return self._ready(role) and (role is home or (
-            role.short[role.pos] and not self._ready(home)))
 
     def _end_frame(self, role: Role, frame: Frame):
         role.pos = 0
@@ -350,11 +386,8 @@ class RoleRunner:
         frame.processor_done()
 
     def _run_unit(self, role: Role, frame: Frame, slots: list, io: Transfers) -> bool:
-        """Run ``role``'s next unit of ``frame`` (``slots``: its inputs, all set; ``io``: the
-        transfers of this thread, or the GPU role's); False when it failed (the frame is
-        cancelled)."""
-        if not role.gpu:
-            return self._run_cpu_task(role.proc, frame, role.units[role.pos], io, slots)
+        """Run the GPU role's next unit of ``frame`` (``slots``: its inputs, all set; ``io``:
+        the GPU role's transfers); False when it failed (the frame is cancelled)."""
         i, seg = role.units[role.pos]
         state = role.state
         if role.pos == 0:

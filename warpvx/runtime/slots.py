@@ -105,25 +105,33 @@ class Slot(Flag):
         if self._waiters is not None:
             self._wake()
 
-    def host(self, io: "Transfers", *, waited=None):
+    def host(self, io: "Transfers", *, waited=None, alone: bool = False):
         """The value as host data, downloaded once (thread-safe).
 
         ``waited``: the event (:meth:`ready_event`) the caller already waited for on the
-        host; the copy does not wait for it again.
+        host; the copy does not wait for it again. ``alone``: the caller is the value's only
+        host reader (one task's, not the caller's nor a delay's): no other thread reads or
+        drops it meanwhile, so no lock is made.
         """
         if self.where == HOST:
             return self.value
+        if alone:
+            return self._download(io, waited)
         with self._guard():
-            if self._host is None:
-                staged = self.staged
-                if staged is not None:
-                    # Views of the pool's buffers, lent for as long as the value lives.
-                    self._host = (io.unstage(staged, ready=waited is staged.event),)
-                    self.staged = None
-                else:
-                    event = self.event
-                    self._host = (io.download(self.value, None if waited is event else event),)
-            return self._host[0]
+            return self._download(io, waited)
+
+    def _download(self, io: "Transfers", waited):
+        """:meth:`host`'s copy, made once (the caller holds the copy lock, or reads alone)."""
+        if self._host is None:
+            staged = self.staged
+            if staged is not None:
+                # Views of the pool's buffers, lent for as long as the value lives.
+                self._host = (io.unstage(staged, ready=waited is staged.event),)
+                self.staged = None
+            else:
+                event = self.event
+                self._host = (io.download(self.value, None if waited is event else event),)
+        return self._host[0]
 
     def release_staged(self):
         """Drop the staged download not read (its frame is over, or a delay's ring let the
