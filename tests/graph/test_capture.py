@@ -366,7 +366,10 @@ def test_delayed_values_buffers_go_back_to_their_pools_once_the_delays_let_go(fr
             fresh.append(ex.fresh_buffers)
         assert ex.captures > 0 and ex.replays > len(cams) // 2
         warm = len(cams) // 2
-        assert fresh[warm] == fresh[-1], fresh  # none after the first half
+        # At most a couple after the first half (the pools grow to the most buffers frames in
+        # flight and the delays hold at once, which thread timing may raise late), against
+        # two or more per frame when a delay's buffers are not reused.
+        assert fresh[-1] - fresh[warm] <= 2, fresh
         for e, c in zip(eager, got):
             for k in e:
                 assert _same(e[k], c[k]), k
