@@ -357,7 +357,7 @@ def test_best_throughput_writes_both_objectives_rows(tmp_path):
     import best_throughput
 
     best_throughput.main(["--out", str(tmp_path), "--gpu", "warp-cpu", "--size", "160x120",
-                          "--rounds", "1", "--frames", "2"])
+                          "--rounds", "1", "--frames", "2", "--margin", "1e6"])
     text = (tmp_path / "best_throughput.md").read_text()
     assert text.startswith("<!-- PYTHONPATH=. python3 benchmarks/perf/best_throughput.py --out ")
     rows = [[c.strip() for c in line.split("|")[1:-1]] for line in text.splitlines()
@@ -365,6 +365,6 @@ def test_best_throughput_writes_both_objectives_rows(tmp_path):
     assert [r[0] for r in rows] == ["baseline", "best (latency)", "best (throughput)"]
     for name, kept, trial, _, ms, fps in rows:
         assert float(ms) > 0 and float(fps) > 0
-        if name != "baseline" and trial != "-":
+        if name != "baseline":  # (every candidate within the margin: a trial ran)
             unit = "FPS" if "throughput" in name else "ms"
             assert f"{kept} " in trial and trial.endswith(unit)

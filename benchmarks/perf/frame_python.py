@@ -226,7 +226,7 @@ def main(argv=None):
             print(f"rep {rep} {tree}: " + ", ".join(
                 f"{r} {t['python_us']:.0f} us" for r, t in runs[tree][-1]["threads"].items()),
                 flush=True)
-    cmd = " ".join(["PYTHONPATH=. python3 benchmarks/perf/frame_python.py", *sys.argv[1:]])
+    cmd = " ".join(["PYTHONPATH=. python3 benchmarks/perf/frame_python.py", *(sys.argv[1:] if argv is None else argv)])
     lines = [f"<!-- {cmd} -->",
              f"# Python time per frame and thread: two-camera graph {args.size}, warp-cpu, "
              f"captured, staged on host, pipelined depth {args.depth}, {args.frames} frames per "

@@ -83,7 +83,7 @@ def variants(before: str | None, sweep: bool) -> list:
             regs = 65536 // (blocks * lk.BLOCK_DIM) // 8 * 8
             out.append((f"fused, <={regs} regs", lk,
                         kernel(grid_stride=False, launch_bounds=(lk.BLOCK_DIM, blocks))))
-        for lanes in (64, 256):
+        for lanes in (n for n in (64, 128, 256) if n != lk.BLOCK_DIM):
             out.append((f"fused, {lanes} lanes", lk, lambda n=lanes: patched(lk, BLOCK_DIM=n)))
     return out
 

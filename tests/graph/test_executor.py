@@ -594,6 +594,44 @@ def test_buffers_a_delay_holds_are_reused_once_the_delay_lets_their_frame_go(dep
     assert len(set(w)) < 16  # and buffers are reused
 
 
+def test_a_delayed_value_passed_on_into_a_delay_keeps_its_buffer():
+    """A GPU task that passes an earlier frame's value on as a delay's (a keyframe kept:
+    ``k = prev if prev is set else a``) moves the buffer ``a`` made in frame 0 into every
+    later frame's slot of the delay: no frame's aging frees it, so ``a``'s buffers are never
+    reused (a reused one would be overwritten under the kept keyframe)."""
+    import warp as wp
+
+    made = []
+
+    def double(x, out=None):
+        out = wp.empty(3, dtype=wp.float32, device="cpu") if out is None else out
+        out.assign(x.numpy() * 2)
+        return out
+
+    def new_buffer():
+        buf = wp.empty(3, dtype=wp.float32, device="cpu")
+        made.append(buf)
+        return buf
+
+    def keep(a, prev):
+        held = prev.numpy() if hasattr(prev, "numpy") else np.asarray(prev)
+        return prev if held.any() else a
+
+    tasks = {
+        "a": ExecTask("a", (InputRef("x"),), ("a",), gpu=double, gpu_out=new_buffer),
+        "k": ExecTask("k", (InputRef("a"), InputRef("k", -1)), ("k",), gpu=keep),
+        "c": ExecTask("c", (InputRef("k"),), ("c",), cpu=lambda k: k.copy()),
+    }
+    prog = Program(tasks, ("x",), {"c": "c"}, rings={"k": Ring(1, np.zeros(3, np.float32))})
+    ex = Executor(sched({"a": "gpu", "k": "gpu", "c": "cpu0"}, ["a", "k", "c"]), prog,
+                  gpu_device="cpu")
+    assert ex._pool_rule["a"] == "never"
+    outs = [ex.wait(ex.submit(i, {"x": (np.full(3, i + 1, np.float32), HOST)}))
+            for i in range(8)]
+    ex.close()
+    assert [float(r.outputs["c"][0]) for r in outs] == [2.0] * 8
+
+
 def test_frame_result_reports_transfers_copies_and_host_times():
     x = np.arange(5, dtype=np.float32)
     res = run_schedule(sched({"a": "gpu", "b": "cpu0", "c": "cpu1", "d": "gpu"}), diamond(),

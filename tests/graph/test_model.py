@@ -898,6 +898,9 @@ def test_best_for_throughput_keeps_the_placement_that_streams_fastest():
     np.testing.assert_array_equal(g.process(frame)["y"], frame["x"])
     with pytest.raises(warpvx.WarpvxValueError, match="objective"):
         g.schedule("best", objective="fps", **kw)
+    for policy, model_kw in (("heft", {"model": model}), ("best", {})):
+        with pytest.raises(warpvx.GraphError, match="objective"):  # not silently ignored
+            g.schedule(policy, n_cpus=1, gpu="warp-cpu", objective="throughput", **model_kw)
     for bad in (0, True, 2.5):
         with pytest.raises((warpvx.WarpvxTypeError, warpvx.WarpvxValueError), match="trial_depth"):
             g.schedule("best", objective="throughput", trial_depth=bad, **kw)

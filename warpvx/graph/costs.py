@@ -225,7 +225,7 @@ class CostModel:
             Time budget of the trial (s): no round starts after it is spent (the first
             always runs).
         objective : {"latency", "throughput"}
-            What ``"best"`` optimises: one frame's makespan (``process``, the default), or
+            What ``"best"`` with a ``model`` optimises: one frame's makespan (``process``, the default), or
             the frame rate of a pipelined ``stream`` (a placement that finishes one frame
             first may stream slower: its CPU workers' and GPU thread's work per frame, not
             its critical path, bounds a stream). With ``"throughput"`` candidates are ranked
@@ -260,6 +260,9 @@ class CostModel:
             trial_seconds = check_float(trial_seconds, "trial_seconds", min_value=0.0)
         objective = check_choice(objective, "objective", ("latency", "throughput"))
         trial_depth = check_int(trial_depth, "trial_depth", min_value=1)
+        if objective != "latency" and (model is None or policy != "best"):
+            raise GraphError("objective: a throughput objective needs policy='best' and a "
+                             "model= (g.fit_model()) to rank its candidates by")
         be = gpu_backend(gpu)
         with self._run_lock:
             if not self.verified:

@@ -165,6 +165,10 @@ class Delay(Ring):
         value: what ``delay[-j]`` reads in the next frame, as an OpenVX delay's slots hold
         their initial contents until aged.
 
+        Read between frames: during a pipelined ``stream`` with captured GPU segments, a
+        delay made and read inside one captured segment lives in that segment's own buffers,
+        which the frames in flight rewrite, so a read then may see a later frame's value.
+
         Raises
         ------
         GraphError
@@ -177,7 +181,7 @@ class Delay(Ring):
         if io is None:
             io = self._local.io = Transfers(graph._gpu_device() if graph is not None else None)
         # The copy is made under the lock: once a frame ages out of the ring, the runtime
-        # reuses its device buffers (Executor._recycle_ring_held).
+        # reuses its device buffers (Executor._recycle_ring_held), and aging takes the lock.
         with self.lock:
             slot = self.get(self.last_aged + index)
             if slot is self._initial and slot.value is None and not (graph and graph.verified):

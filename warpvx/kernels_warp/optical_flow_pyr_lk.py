@@ -422,7 +422,8 @@ def track_level(
 
 
 # No grid-stride loop (a thread per lane of a point, never more threads than the launch's):
-# 128 registers a lane on sm_90 instead of 154, so 4 points of 128 lanes fit an SM, not 3.
+# 128 registers a lane on sm_90 instead of 154 (at 128 lanes, 4 points fit an SM, not 3; at
+# BLOCK_DIM's 256, 2), and measured faster (benchmarks/perf/lk_levels.py, "grid-stride").
 @wp.kernel(grid_stride=False)
 def track_points(
     prev_pyr: Pyramid,

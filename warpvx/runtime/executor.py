@@ -754,9 +754,24 @@ class Executor(RoleRunner, SegmentRunner):
             todo = [u for u in gpu if u not in reach and
                     any(r.offset < 0 and r.key in keys for r in tasks_of[u].inputs)]
         output = bool(keys & set(self.program.outputs.values()))
-        if keys & set(self.program.rings):
-            return "never" if output else "ring"
-        return "host" if output else "always"
+        rings = set(self.program.rings)
+        if not keys & rings:
+            return "host" if output else "always"
+        # A GPU task reading an earlier frame's value may pass it on (a keyframe kept): if
+        # what it or its GPU successors make is a delay's, the buffer outlives its frame's
+        # slot in the rings, and no frame index says when it is free.
+        carried = [u for u in reach if any(r.offset < 0 and r.key in keys
+                                           for r in tasks_of[u].inputs)]
+        seen: set = set()
+        while carried:
+            t = carried.pop()
+            if t in seen:
+                continue
+            seen.add(t)
+            if rings.intersection(tasks_of[t].outputs):
+                return "never"
+            carried += [u for u in g.successors(t) if u in gpu]
+        return "never" if output else "ring"
 
     def _pool_rules(self) -> dict:
         """task -> when its pooled output buffer may be reused (:meth:`_reuse_rule`)."""
@@ -768,7 +783,7 @@ class Executor(RoleRunner, SegmentRunner):
     def _upload_rules(self) -> dict:
         """key -> when the device copy of that host value, uploaded for the GPU tasks that
         read it in its frame, may be reused (:meth:`_reuse_rule`; a delayed key's slot, and
-        the copy cached in it, outlive the frame: never)."""
+        the copy cached in it, outlive the frame: once the delays let it go, "ring")."""
         readers: dict = {}
         for name in self._gpu_tasks:
             for r in self.program.tasks[name].inputs:
@@ -822,7 +837,10 @@ class Executor(RoleRunner, SegmentRunner):
         """Buffers of frames no delay holds any more (every ring has aged past them: a ring
         keeps its last ``slots + 1`` frames) go back to their pools. A frame's values reach
         the delays' readers only through the rings (:meth:`Ring.get`; ``Delay.read`` copies
-        under the ring's lock), so once dropped there nothing reads them. A staged download
+        under the ring's lock), so once dropped there nothing reads them (a value a GPU task
+        passes on into a later frame's delay slot is never pooled: :meth:`_reuse_rule`; a
+        delay kept inside one captured segment lives in its buffer set, not in these
+        buffers). A staged download
         of such a value (:meth:`_stage`) was queued when it was published and is waited for
         by its reader or by the ring dropping the slot (``Ring.age``, called before this):
         no copy from a buffer given back here is still running."""
