@@ -273,7 +273,7 @@ class Executor(RoleRunner, SegmentRunner):
         # Every task's scheduled duration: its share of a captured segment's or a timing
         # burst's measured interval.
         self._spans = {t: st.finish - st.start for (t, f), st in self.placed.items() if f == 0}
-        self._shares = self._segment_shares()
+        self._seg_info = self._segment_info()  # captured segments' shares and keys
         self.timing = timing
         # Timing "bursts": GPU tasks whose end needs an event of its own (a value read off
         # the GPU stream: by a CPU task, the caller, a delay; or the GPU queue's last task).
@@ -652,7 +652,7 @@ class Executor(RoleRunner, SegmentRunner):
         up_pools = self._up_pools  # (none for a delay's value, nor on Warp's CPU device)
         values = [s.value if s.where == DEVICE else s.device(
                       io, None if ref.offset or ref.key not in up_pools else
-                      self._upload_into(frame, ref))
+                      functools.partial(self._lease_upload, frame, ref.key))
                   for ref, s in zip(task.inputs, slots)]
         mid = None
         moved = io.moved - before
@@ -703,12 +703,6 @@ class Executor(RoleRunner, SegmentRunner):
             self.fresh_buffers += 1
         frame.leases.append((task, buf))
         return buf
-
-    def _upload_into(self, frame: Frame, ref: InputRef):
-        """``into`` for uploading input ``ref`` of a GPU task, a value of its own frame with
-        a pool of upload buffers (see :meth:`Transfers.upload`): buffers from the key's
-        pool, leased to ``frame``."""
-        return functools.partial(self._lease_upload, frame, ref.key)
 
     def _lease_upload(self, frame: Frame, key: str, shape, dtype):
         """A device buffer for value ``key`` of ``frame`` (an upload or a captured segment's

@@ -346,18 +346,7 @@ class RoleRunner:
                     if not scoped and self._scope is not None:
                         self._scope.acquire()
                         scoped = True
-                    seg = role.units[pos][1]
-                    if pos == 0 or seg.captured or role.stage[pos]:
-                        ok = self._run_unit(role, frame, slots, io)
-                    else:  # the usual unit: one eager task, nothing to stage (no call more)
-                        ok = True
-                        try:
-                            self._run_gpu_task(frame, seg.tasks[0], role.state, slots)
-                        except Cancelled:
-                            ok = False
-                        except BaseException as exc:  # noqa: BLE001 - reported to the caller
-                            self._fail(frame, role.state.task, role.proc, exc)
-                            ok = False
+                    ok = self._run_unit(role, frame, slots, io)
                 else:
                     ok = self._run_cpu_task(role.proc, frame, role.units[pos], io, slots)
                 if pos == role.last:

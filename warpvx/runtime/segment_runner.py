@@ -48,7 +48,6 @@ class SegmentRunner:
     _set_streams = None  # set index (-1: the executor's) -> its stream and lanes' (CUDA)
     _fork_events = None  # a set's stream -> the event it waits for on the executor's
     _recent = None  # segment index -> the SegmentGraph its last frame ran (_inputs_key)
-    _seg_info = None  # id of a captured segment -> its tasks' shares and keys (_segment_info)
     _linked = True
 
     @property
@@ -270,7 +269,7 @@ class SegmentRunner:
         if ev1 is False:  # run eagerly
             return
         h1 = time.perf_counter()
-        shares = self._segment_info(seg)[0]
+        shares = self._seg_info[id(seg)][0]
         frame.shares.update(shares)
         frame.trace.update(dict.fromkeys(shares, (state.proc, ev0, ev1, None) if cuda else
                                          (state.proc, h0, h1, None)))
@@ -360,7 +359,7 @@ class SegmentRunner:
                 self._forked_end(frame, stream)
         external = ev1 is not None and stream is not self._stream
         slots = frame.slots
-        for key in self._segment_info(seg)[1]:
+        for key in self._seg_info[id(seg)][1]:
             slot = slots[key]
             slot.set(outs[key], DEVICE, ev1)
             # Made on another stream than the executor's: its readers there wait for it.
@@ -414,28 +413,19 @@ class SegmentRunner:
                    and any(r.key == key for r in t.inputs)]
         return self._reuse_rule(self._data, readers, [key])
 
-    def _segment_info(self, seg: Segment) -> tuple:
-        """Of captured segment ``seg``, made once: (task -> its (start, end) fractions of the
-        segment's interval (of :attr:`_shares`), in queue order; every key its tasks
-        publish)."""
-        by_seg = self._seg_info
-        if by_seg is None:
-            by_seg = self._seg_info = {}
-        info = by_seg.get(id(seg))  # (the executor's segments live as long as it)
-        if info is None:
-            info = by_seg[id(seg)] = ({t.name: self._shares[t.name] for t in seg.tasks},
-                                      tuple(k for t in seg.tasks for k in t.outputs))
-        return info
-
-    def _segment_shares(self) -> dict:
-        """task -> (start, end) fractions of its captured segment's measured interval, in
-        proportion to the schedule's durations (a replay is timed as a whole)."""
-        shares = {}
+    def _segment_info(self) -> dict:
+        """id of each captured segment -> (task -> its (start, end) fractions of the segment's
+        measured interval, in proportion to the schedule's durations (a replay is timed as a
+        whole), in queue order; every key its tasks publish). The executor's segments live
+        as long as it."""
+        info = {}
         for seg in self._segments:
             if seg.captured:
                 names = [t.name for t in seg.tasks]
-                shares.update(zip(names, proportional_shares([self._spans[n] for n in names])))
-        return shares
+                shares = proportional_shares([self._spans[n] for n in names])
+                info[id(seg)] = (dict(zip(names, shares)),
+                                 tuple(k for t in seg.tasks for k in t.outputs))
+        return info
 
 
 __all__ = ["SegmentRunner"]
