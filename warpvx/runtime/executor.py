@@ -490,7 +490,9 @@ class Executor(RoleRunner, SegmentRunner):
             return frame.slots[ref.key]
         return self.program.rings[ref.key].get(frame.index + ref.offset)
 
-    def _publish(self, frame: Frame, task: ExecTask, result, where, event=None):
+    def _publish(self, frame: Frame, task: ExecTask, result, where, event=None, state=None):
+        """Set ``task``'s output slots of ``frame`` to ``result``; a GPU task's (``state``:
+        the GPU role's) through :meth:`_set_device`, which stages the downloads due."""
         if task.output is not None:
             frame.slots[task.output].set(result, where, event)
             return
@@ -498,7 +500,10 @@ class Executor(RoleRunner, SegmentRunner):
         if not isinstance(result, (tuple, list)) or len(result) != n:
             raise TypeError(f"expected {n} outputs {task.outputs}, got {type(result).__name__}")
         for key, value in zip(task.outputs, result):
-            frame.slots[key].set(value, where, event)
+            if state is not None:
+                self._set_device(frame, key, value, event, state)
+            else:
+                frame.slots[key].set(value, where, event)
 
     def _ready_inputs(self, frame: Frame, refs):
         """The slots of input references ``refs`` (a task's or a captured segment's) once all
@@ -689,10 +694,12 @@ class Executor(RoleRunner, SegmentRunner):
             h1 = perf_counter()
             frame.trace[name] = (state.proc, h0, h1, mid)
         frame.host_trace[name] = (h0, h1)
-        if task.output is not None:  # the usual task: _publish's one-output case, inline
+        if task.output is None:
+            self._publish(frame, task, result, DEVICE, ev1, state)
+        elif state.stage:
+            self._set_device(frame, task.output, result, ev1, state)
+        else:  # the usual task: _publish's one-output case, inline
             frame.slots[task.output].set(result, DEVICE, ev1)
-        else:
-            self._publish(frame, task, result, DEVICE, ev1)
 
     def _lease(self, frame: Frame, task: ExecTask):
         pool = self._out_pools[task.name]

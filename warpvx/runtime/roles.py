@@ -23,7 +23,7 @@ def is_gpu_processor(name: str) -> bool:
 class GpuState:
     """The GPU role's state through a frame (whichever thread runs it)."""
 
-    __slots__ = ("proc", "io", "prev_end", "task", "burst", "burst_frame")
+    __slots__ = ("proc", "io", "prev_end", "task", "burst", "burst_frame", "stage")
 
     def __init__(self, proc: str, io: Transfers):
         self.proc = proc
@@ -34,6 +34,9 @@ class GpuState:
         self.task = "<executor>"  # the task running, for error reports
         self.burst: list = []  # timing "bursts": tasks enqueued since prev_end, no end event yet
         self.burst_frame = None  # their frame
+        # The running unit's outputs to stage (key -> held by a delay's ring): their downloads
+        # start as they are published, before a reader can see them (RoleRunner._stage).
+        self.stage: dict = {}
 
 
 class DeviceScope:
@@ -384,15 +387,17 @@ class RoleRunner:
             state.burst = []  # (a cancelled frame's tasks, never reported)
             role.captures = self._captures_of(frame) if frame.capture else None
         try:
+            stage = state.stage
+            stage.clear()
+            for key, held in role.stage[role.pos]:
+                if frame.stage_outputs or key not in self._outputs_staged:
+                    stage[key] = held
             if seg.captured:
                 if state.burst:  # a segment's replay is timed on its own
                     self._close_burst(state)
                 self._run_segment_or_tasks(frame, i, seg, state, role.captures)
             else:
                 self._run_gpu_task(frame, seg.tasks[0], state, slots)
-            for key, held in role.stage[role.pos]:
-                if frame.stage_outputs or key not in self._outputs_staged:
-                    self._stage(frame, frame.slots[key], io, held)
         except Cancelled:
             return False
         except BaseException as exc:  # noqa: BLE001 - reported to the caller
@@ -400,9 +405,25 @@ class RoleRunner:
             return False
         return True
 
+    def _set_device(self, frame: Frame, key: str, value, event, state: GpuState,
+                    external: bool = False):
+        """Publish GPU value ``value`` of ``key`` (ready after CUDA ``event``): when the
+        running unit stages it (``state.stage``), its download is queued first, so a reader
+        woken by the publication always finds it (else it copied on its own, rarely, when it
+        ran before the staging: a wasted copy, and a count of downloads that varied with
+        thread timing)."""
+        slot = frame.slots[key]
+        slot.external = external
+        held = state.stage.get(key)
+        if held is not None:
+            slot.value, slot.where, slot.event = value, DEVICE, event
+            self._stage(frame, slot, state.io, held)
+        slot.set(value, DEVICE, event)
+
     def _stage(self, frame: Frame, slot: Slot, io: Transfers, held: bool):
         """Start the download of a GPU value a CPU task (or the caller) reads (CUDA): see
-        :meth:`Transfers.stage_download`. ``held``: a delay's value, whose download its ring's
+        :meth:`Transfers.stage_download`; called as the value is published
+        (:meth:`_set_device`). ``held``: a delay's value, whose download its ring's
         slot keeps for a later frame's reader and releases (:class:`~.slots.Ring`); else the
         frame's wait releases it if unread (``Executor._unstage``).
 

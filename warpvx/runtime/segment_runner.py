@@ -16,7 +16,6 @@ from .capture import (MAX_LANES, MAX_SIGNATURES, NotCapturable, Segment, Segment
                       _leaves, _log)
 from .native_copy import (copier, copy_device, is_warp_array, record_event, wait_event,
                           warp)
-from .slots import DEVICE
 from .timeline import Frame, proportional_shares
 from .transfers import tree_map
 
@@ -358,12 +357,9 @@ class SegmentRunner:
             ev1 = self._end_event(frame) if stream is self._stream else \
                 self._forked_end(frame, stream)
         external = ev1 is not None and stream is not self._stream
-        slots = frame.slots
+        # (external: made on another stream than the executor's; its readers there wait.)
         for key in self._seg_info[id(seg)][1]:
-            slot = slots[key]
-            slot.set(outs[key], DEVICE, ev1)
-            # Made on another stream than the executor's: its readers there wait for it.
-            slot.external = external
+            self._set_device(frame, key, outs[key], ev1, state, external)
         return ev1
 
     def _forked_end(self, frame: Frame, stream):

@@ -111,10 +111,8 @@ class Slot(Flag):
         ``waited``: the event (:meth:`ready_event`) the caller already waited for on the
         host; the copy does not wait for it again. ``alone``: the caller is the value's only
         host reader (one task's, not the caller's nor a delay's): no other thread reads or
-        drops it meanwhile, so no lock is made. (The GPU role may still attach a staged
-        download after the reader was woken: the reader then copies on its own and the staged
-        one is released unread when the frame is waited for; a wasted copy, never a wrong
-        value.)
+        drops it meanwhile, so no lock is made. (The GPU role attaches a staged download
+        before it publishes the value: ``RoleRunner._set_device``.)
         """
         if self.where == HOST:
             return self.value
