@@ -15,7 +15,7 @@ import pytest
 import warpvx
 from warpvx.runtime import ExecTask, InputRef, Program, Ring
 from warpvx.runtime.capture import segments
-from tests.benchmark_scripts import bench_module
+from tests.benchmark_scripts import load_bench
 from tests.isolated import run_python
 
 pytestmark = pytest.mark.timeout(300)
@@ -118,7 +118,7 @@ def _camera_frames(frames):
 
 
 def _two_cameras(frames, gpu):
-    bench = bench_module("graph_bench")
+    bench = load_bench("graph_bench")
     h, w = frames[0].shape[:2]
     g = bench.build_graph((w, h), max_corners=100)
     g.verify(_camera_frames(frames)[:2])

@@ -14,7 +14,7 @@ import pytest
 import warpvx
 from warpvx.graph.diagnostics import executor_overhead, host_rss_bytes, soak
 
-from tests.benchmark_scripts import bench_module
+from tests.benchmark_scripts import load_bench
 
 pytestmark = pytest.mark.timeout(300)  # a hang guard; the bench run takes ~15 s alone
 
@@ -69,7 +69,7 @@ def test_soak_reports_memory_at_start_and_end(frames):
 
 
 def test_graph_bench_quick_runs(tmp_path):
-    bench = bench_module("graph_bench")
+    bench = load_bench("graph_bench")
     g = bench.build_graph((96, 72), max_corners=50)
     assert len(g.nodes) == 16
     kinds = {n.kind for n in g.nodes.values()}

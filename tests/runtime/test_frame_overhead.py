@@ -18,7 +18,7 @@ from warpvx.graph.plan import KEEP_FRAMES
 from warpvx.runtime import HOST, Flag, Slot
 from warpvx.runtime import timeline as tl
 
-from tests.benchmark_scripts import bench_module
+from tests.benchmark_scripts import load_bench
 
 
 def test_slot_is_its_own_flag_and_wakes_every_waiter():
@@ -124,7 +124,7 @@ def test_native_counter_counts_warps_native_calls_and_restores_them():
     from warpvx.backend import init_warp
     from warpvx.runtime import native_copy
 
-    counts = bench_module("native_counts")
+    counts = load_bench("native_counts")
     wp = init_warp()
     a = wp.array(np.arange(6, dtype=np.float32), device="cpu")
     with counts.NativeCounter() as c:
@@ -141,7 +141,7 @@ def test_native_counter_counts_warps_native_calls_and_restores_them():
 
 
 def test_calls_split_into_per_node_and_per_frame():
-    counts = bench_module("native_counts")
+    counts = load_bench("native_counts")
     # chains of 4 and 8 nodes: 3 Python calls and 1 event per node, 20 calls and 2 syncs per frame
     short = {"python": 20 + 4 * 3, "native": {"event": 4.0, "sync": 2.0}}
     long_ = {"python": 20 + 8 * 3, "native": {"event": 8.0, "sync": 2.0}}
