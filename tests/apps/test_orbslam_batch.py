@@ -47,11 +47,19 @@ def _frames(seq, stereo):
     return [{"image": a, "right": b} if stereo else {"image": a} for a, b in zip(left, right)], camera
 
 
+@pytest.fixture(scope="module")
+def sequential(seq):
+    """stereo (False, True) -> the sequential tracker's poses of ``seq`` (12 x 4 x 4 float64),
+    tracked once: the reference every batched run here is compared with."""
+    return {stereo: np.array([f.pose for f in o.track_frames(*_frames(seq, stereo))])
+            for stereo in (False, True)}
+
+
 @pytest.mark.parametrize("chain_process", [True, False], ids=["chain_process", "chain_in_process"])
 @pytest.mark.parametrize("stereo", [False, True], ids=["mono", "stereo"])
-def test_batched_poses_are_the_sequential_ones(seq, stereo, chain_process):
+def test_batched_poses_are_the_sequential_ones(seq, sequential, stereo, chain_process):
     frames, camera = _frames(seq, stereo)
-    want = np.array([f.pose for f in o.track_frames(frames, camera)])
+    want = sequential[stereo]
     got = list(ob.track_frames_batched(frames, camera, batch=BATCH, workers=2, chain_process=chain_process))
     assert [f.index for f in got] == list(range(FRAMES))
     got = np.array([f.pose for f in got])
@@ -205,14 +213,14 @@ def test_slow_motion_takes_the_speculated_keyframe_cores(monkeypatch):
 
 
 @pytest.mark.parametrize("look_ahead", [None, 1, 16], ids=["from_pool", "one_frame", "past_the_next_batch"])
-def test_about_one_essential_matrix_per_frame(seq, look_ahead):
+def test_about_one_essential_matrix_per_frame(seq, sequential, look_ahead):
     """Speculating, the pool works out the essential matrix track takes and not the other
     candidate (before: both, ~2 per frame): only the run's first frames (the first batch here)
     get both, the chain's speculation starts the others' (no miss on this sequence), and the
     poses are the sequential ones, whatever the look-ahead (16: the walk reaches into the
     next batch of 5 as soon as the chain starts a batch)."""
     frames, camera = _frames(seq, False)
-    want = np.array([f.pose for f in o.track_frames(frames, camera)])
+    want = sequential[False]
     with ob.make_pool(2, chain_process=True, look_ahead=look_ahead) as proc:
         def run():
             return np.array([f.pose for f in ob.track_frames_batched(frames, camera, batch=BATCH, pool=proc)])
@@ -234,7 +242,7 @@ def test_about_one_essential_matrix_per_frame(seq, look_ahead):
 
 @pytest.mark.parametrize("look_ahead, batch", [(None, FRAMES), (16, BATCH)], ids=["one_batch", "deep_across_batches"])
 @pytest.mark.parametrize("estimate", [0, 10 ** 6], ids=["always_keyframe", "never_keyframe"])
-def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate, look_ahead, batch):
+def test_speculation_misses_give_the_sequential_poses(seq, sequential, monkeypatch, estimate, look_ahead, batch):
     """CoreSpeculation's keyframe decisions wrong whenever they rest on an estimate (every frame
     a keyframe, or none): the cores it starts are the wrong ones, the chain computes the
     right ones on the spot (counted as misses) or takes the speculation's corrections once
@@ -242,7 +250,7 @@ def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate
     look-ahead past the batch's end (16 frames, batches of 5: the walk goes on into the next
     batch frame by frame and hands it over)."""
     frames, camera = _frames(seq, False)
-    want = np.array([f.pose for f in o.track_frames(frames, camera)])
+    want = sequential[False]
     inliers = osp.CoreSpeculation._inliers
 
     def wrong(self, step):
@@ -258,13 +266,13 @@ def test_speculation_misses_give_the_sequential_poses(seq, monkeypatch, estimate
     np.testing.assert_array_equal(got, want)
 
 
-def test_speculation_walks_into_the_next_batch_frame_by_frame(seq, monkeypatch):
+def test_speculation_walks_into_the_next_batch_frame_by_frame(seq, sequential, monkeypatch):
     """With the next batch's frame jobs done one by one (its ``done`` count grows by one per
     look), a look-ahead past the batch's end walks into the next batch a frame at a time,
     starts those frames' cores while the chain is still in this batch and hands them over;
     the poses are the sequential ones, bit for bit."""
     frames, camera = _frames(seq, False)
-    want = np.array([f.pose for f in o.track_frames(frames, camera)])
+    want = sequential[False]
     config, K = o.TrackerConfig(), np.ascontiguousarray(seq[2], np.float64)
     common = dict(K=K, config=config, baseline=None, frames=BATCH)
     done, looks, reach = ob._Later.done, collections.Counter(), []
@@ -616,12 +624,12 @@ def _segments() -> set:
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc and /dev/shm")
-def test_chain_process_survives_stopped_runs_and_leaves_no_process_or_segment(seq):
+def test_chain_process_survives_stopped_runs_and_leaves_no_process_or_segment(seq, sequential):
     """One chain process for several runs: a run closed early and one whose frames fail leave
     batches in flight there, yet the next run gives the sequential poses; its shutdown ends it
     and its pool's processes and unlinks its shared blocks (stereo: the images travel too)."""
     frames, camera = _frames(seq, True)
-    want = np.array([f.pose for f in o.track_frames(frames, camera)])
+    want = sequential[True]
 
     def failing():
         yield from frames[:7]

@@ -8,8 +8,6 @@ default (on).
 
 from __future__ import annotations
 
-import importlib.util
-import os
 
 import numpy as np
 import pytest
@@ -17,12 +15,10 @@ import pytest
 import warpvx
 from warpvx.runtime import ExecTask, InputRef, Program, Ring
 from warpvx.runtime.capture import segments
+from tests.benchmark_scripts import load_bench
 from tests.isolated import run_python
 
 pytestmark = pytest.mark.timeout(300)
-
-BENCH = os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks", "graph_bench.py")
-
 
 # --------------------------------------------------------------------------- the segmenter
 
@@ -99,13 +95,6 @@ def test_segments_delayed_values_read_elsewhere_leave_the_segment():
 # --------------------------------------------------------------------------- runs
 
 
-def _bench():
-    spec = importlib.util.spec_from_file_location("graph_bench", BENCH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def _capture_arg(gpu):
     """warp-cpu captures only when asked; cuda by default."""
     return True if gpu == "warp-cpu" else None
@@ -129,7 +118,7 @@ def _camera_frames(frames):
 
 
 def _two_cameras(frames, gpu):
-    bench = _bench()
+    bench = load_bench("graph_bench")
     h, w = frames[0].shape[:2]
     g = bench.build_graph((w, h), max_corners=100)
     g.verify(_camera_frames(frames)[:2])

@@ -3,12 +3,10 @@ benchmark script in its --quick form."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import statistics
 import tarfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,9 +14,9 @@ import pytest
 import warpvx
 from warpvx.graph.diagnostics import executor_overhead, host_rss_bytes, soak
 
-pytestmark = pytest.mark.timeout(300)  # a hang guard; the bench run takes ~15 s alone
+from tests.benchmark_scripts import load_bench
 
-ROOT = Path(__file__).resolve().parents[2]
+pytestmark = pytest.mark.timeout(300)  # a hang guard; the bench run takes ~15 s alone
 
 
 @pytest.mark.parametrize("mixed", [False, True], ids=["cpu", "cpu+gpu"])
@@ -71,9 +69,7 @@ def test_soak_reports_memory_at_start_and_end(frames):
 
 
 def test_graph_bench_quick_runs(tmp_path):
-    spec = importlib.util.spec_from_file_location("graph_bench", ROOT / "benchmarks" / "graph_bench.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_bench("graph_bench")
     g = bench.build_graph((96, 72), max_corners=50)
     assert len(g.nodes) == 16
     kinds = {n.kind for n in g.nodes.values()}

@@ -3,7 +3,8 @@ hand-computed timelines, and on a real graph it predicts other placements out of
 
 from __future__ import annotations
 
-import importlib.util
+import functools
+import gzip
 import json
 import math
 import statistics
@@ -26,6 +27,8 @@ from warpvx.graph.model import (
     simulate,
 )
 from warpvx.sched.schedule import Schedule, ScheduledTask
+
+from tests.benchmark_scripts import bench_module
 
 from .helpers import joined_pair
 
@@ -592,10 +595,20 @@ H100 = ROOT / "benchmarks" / "results" / "graph" / "h100-2026-11-24" / "graph_be
 
 
 def _graph_bench():
-    spec = importlib.util.spec_from_file_location("graph_bench", ROOT / "benchmarks" / "graph_bench.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
-    return bench
+    return bench_module("graph_bench")
+
+
+@functools.lru_cache(maxsize=None)
+def _report(run: str) -> dict:
+    """A recorded graph_bench.json (``.gz``: compressed) under benchmarks/results/graph."""
+    raw = (H100.parent.parent / run).read_bytes()
+    return json.loads(gzip.decompress(raw) if run.endswith(".gz") else raw)
+
+
+@functools.lru_cache(maxsize=None)
+def _replay(run: str, gil: bool = False) -> list:
+    """graph_bench's replay of ``run`` trained on baseline, fitted once for the tests that share it."""
+    return _graph_bench().replay(_report(run), "baseline", gil=gil)
 
 
 @pytest.mark.slow
@@ -604,7 +617,7 @@ def test_replayed_h100_measurements_are_predicted_within_20_percent():
     # on the baseline placement's node medians and predicts the plans of heft, xeft and
     # best, which ran separately. Every policy within 20% of its measured makespan; the
     # model before the per-kind contention law missed xeft on the 16-node 1280x720 graph.
-    rows = _graph_bench().replay(json.loads(H100.read_text()), "baseline")
+    rows = _replay("h100-2026-11-24/graph_bench.json")
     assert len(rows) == 16
     worst = max(rows, key=lambda r: abs(r["error_pct"]))
     assert abs(worst["error_pct"]) <= 20.0, worst
@@ -620,9 +633,7 @@ def test_gil_weighted_model_transfers_to_mixed_placements_on_h100_s5():
     # placements (CPU workers running OpenCV calls that release the GIL) are predicted
     # twice too slow; weighted by the recorded GIL shares (the bench's model on CUDA),
     # less wrong, and at least two more cells within 20% in all.
-    bench = _graph_bench()
-    report = json.loads((H100.parent.parent / "h100-2026-11-24-s5" / "graph_bench.json").read_text())
-    rows = {gil: bench.replay(report, "baseline", gil=gil) for gil in (False, True)}
+    rows = {gil: _replay("h100-2026-11-24-s5/graph_bench.json", gil) for gil in (False, True)}
     mixed = {gil: {r["policy"]: abs(r["error_pct"]) for r in got
                    if r["tag"] == "two-cameras_1280x720" and r["policy"] in ("heft", "xeft")}
              for gil, got in rows.items()}
@@ -643,20 +654,14 @@ def test_mixed_placements_on_h100_runs_pay_lanes_and_failed_captures():
     # baseline's ratio learnt on a span half the true one) s5's and s9's were +28 to +43%
     # (benchmarks/results/graph/model-replay-s9.md). Failed captures (segments run eagerly
     # from then on) are read off the frames: s6b 1920x1080 lost blurR's in heft and xeft.
-    import gzip
-
-    bench = _graph_bench()
-    results = H100.parent.parent
     errors, eager = {}, {}
     for run in ("h100-2026-11-24-s5/graph_bench.json", "h100-2026-11-24-s6/graph_bench.json.gz",
                 "h100-2026-11-24-s6b/graph_bench.json.gz", "h100-2026-11-24-s7a/graph_bench.json.gz",
                 "h100-2026-11-24-s9/graph_bench_720p.json.gz",
                 "h100-2026-11-24-s9/graph_bench_1080p.json.gz"):
-        raw = (results / run).read_bytes()
-        report = json.loads(gzip.decompress(raw) if run.endswith(".gz") else raw)
-        first = {(e["tag"], p["policy"]): p["measured_in_ms"] for e in report["experiments"]
+        first = {(e["tag"], p["policy"]): p["measured_in_ms"] for e in _report(run)["experiments"]
                  for p in e["policies"]}
-        for r in bench.replay(report, "baseline", gil=True):
+        for r in _replay(run, True):
             if r["tag"].startswith("two-cameras_") and r["policy"] in ("heft", "xeft"):
                 key = run.split("/")[0].rsplit("-", 1)[1], r["tag"], r["policy"]
                 eager[key] = r["eager"]

@@ -15,7 +15,8 @@ import sys
 import numpy as np
 import pytest
 
-from tests.graph.test_capture import _bench, _capture_arg
+from tests.benchmark_scripts import load_bench
+from tests.graph.test_capture import _capture_arg
 from tests.runtime.test_staged_downloads import SIZE, _cams, _same
 from warpvx.errors import WarpvxError
 from warpvx.runtime import is_pinned, pinned_array, pinned_copy
@@ -24,7 +25,7 @@ pytestmark = pytest.mark.timeout(300)
 
 
 def _graph(gpu, instances):
-    g = _bench().build_graph(SIZE, max_corners=100)
+    g = load_bench("graph_bench").build_graph(SIZE, max_corners=100)
     g.verify(_cams(2))
     g.schedule("baseline", n_cpus=2, gpu=gpu)
     g.plan.executor().instances = instances

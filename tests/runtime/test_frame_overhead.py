@@ -6,11 +6,9 @@ the benchmark's call counters count Warp's native calls and leave Warp as it was
 from __future__ import annotations
 
 import gc
-import importlib.util
 import threading
 import time
 from collections import deque
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,14 +18,7 @@ from warpvx.graph.plan import KEEP_FRAMES
 from warpvx.runtime import HOST, Flag, Slot
 from warpvx.runtime import timeline as tl
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def _bench_module(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.benchmark_scripts import load_bench
 
 
 def test_slot_is_its_own_flag_and_wakes_every_waiter():
@@ -133,7 +124,7 @@ def test_native_counter_counts_warps_native_calls_and_restores_them():
     from warpvx.backend import init_warp
     from warpvx.runtime import native_copy
 
-    counts = _bench_module("native_counts")
+    counts = load_bench("native_counts")
     wp = init_warp()
     a = wp.array(np.arange(6, dtype=np.float32), device="cpu")
     with counts.NativeCounter() as c:
@@ -150,7 +141,7 @@ def test_native_counter_counts_warps_native_calls_and_restores_them():
 
 
 def test_calls_split_into_per_node_and_per_frame():
-    counts = _bench_module("native_counts")
+    counts = load_bench("native_counts")
     # chains of 4 and 8 nodes: 3 Python calls and 1 event per node, 20 calls and 2 syncs per frame
     short = {"python": 20 + 4 * 3, "native": {"event": 4.0, "sync": 2.0}}
     long_ = {"python": 20 + 8 * 3, "native": {"event": 8.0, "sync": 2.0}}

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.graph.test_capture import _bench
+from tests.benchmark_scripts import load_bench
 from tests.images import bgr
 from tests.isolated import run_isolated
 from warpvx.backend import init_warp
@@ -60,7 +60,7 @@ POOL_BYTES = Executor.HOST_POOL_BYTES
 
 
 def _graph(cams, gpu):
-    g = _bench().build_graph(SIZE, max_corners=100)
+    g = load_bench("graph_bench").build_graph(SIZE, max_corners=100)
     g.verify(cams[:2])
     g.schedule("baseline", n_cpus=2, gpu=gpu)
     return g
@@ -393,7 +393,7 @@ def test_lent_bytes_return_to_the_same_value_after_each_reset(warp_backend, monk
 
 
 RESET_AND_FAIL = """
-from tests.graph.test_capture import _bench
+from tests.benchmark_scripts import load_bench
 from tests.runtime.test_staged_downloads import SIZE, _cams, _same
 from warpvx.errors import NodeExecutionError
 from warpvx.runtime import Executor
@@ -404,7 +404,7 @@ POOL = Executor.HOST_POOL_BYTES
 def run(staged):  # unstaged: no pool on warp-cpu, an empty one on CUDA
     Executor.STAGE_ON_HOST = staged
     Executor.HOST_POOL_BYTES = POOL if staged else 0
-    bench = _bench()
+    bench = load_bench("graph_bench")
     homography, calls, armed = bench.homography, [], []
 
     def failing(*args):  # both cameras' homographies: two calls a frame
