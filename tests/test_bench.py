@@ -272,6 +272,29 @@ def test_handoff_floor_writes_its_rows(tmp_path):
             handoff_floor.main(["--out", str(tmp_path), "--device", "cpu", *bad])
 
 
+def test_pipeline_threads_writes_a_row_per_round_and_placement(tmp_path):
+    """benchmarks/perf/pipeline_threads.py on Warp's CPU device (small frames): one row per
+    placement, its FPS positive, the split placement's homographies on two CPU workers and
+    the baseline's on one, each CPU task's times listed, under the regenerating command."""
+    from pathlib import Path
+
+    pytest.importorskip("warp")
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "perf"))
+    import pipeline_threads
+
+    pipeline_threads.main(["--out", str(tmp_path), "--gpu", "warp-cpu", "--size", "160x120",
+                           "--frames", "4", "--rounds", "1"])
+    text = (tmp_path / "pipeline_threads.md").read_text()
+    assert text.startswith("<!-- PYTHONPATH=. python3 benchmarks/perf/pipeline_threads.py --out ")
+    assert "baseline: homographyL cpu0, homographyR cpu0" in text
+    assert "split: homographyL cpu0, homographyR cpu1" in text
+    rows = {r.split("|")[2].strip(): r.split("|") for r in text.splitlines() if r.startswith("| 0 |")}
+    assert set(rows) == {"baseline", "split"}
+    assert all(float(r[3]) > 0 for r in rows.values())
+    for r in rows.values():
+        assert [t.split()[0] for t in r[6].split(",")] == ["homographyL", "homographyR", "fuse"]
+
+
 def test_model_replay_first_rows_pair_by_experiment_and_policy():
     """benchmarks/model_replay.py: a prediction is scored against the first frames of its own
     experiment and policy, whatever order the other checkout recorded its rows in."""

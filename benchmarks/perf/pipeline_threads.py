@@ -1,0 +1,130 @@
+"""Where the pipelined two-camera stream's time goes, per thread: FPS per placement with the
+CPU time each thread spent per frame (``/proc/self/task/*/stat``: user + system in clock
+ticks, 10 ms: time long runs; it includes CUDA's spin-waits), and the CPU tasks' compute and transfer-wait medians.
+
+    PYTHONPATH=. python3 benchmarks/perf/pipeline_threads.py --out $OUT/pt
+
+1280x720 (``--size``), pinned frames, depth 3, captured, 3 linked buffer sets (``capture_stream.py``'s
+fastest configuration); placements: ``baseline`` (the CPU-only nodes, the two homographies
+and ``fuse``, all on one CPU worker), ``split`` (the baseline with ``homographyR`` on a
+second worker) and any policy name (``heft``, ...), run in interleaved rounds. Writes
+``pipeline_threads.md`` (the command on top).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import graph_bench  # noqa: E402
+
+from warpvx.runtime import pinned_copy  # noqa: E402
+from warpvx.sched import policies  # noqa: E402
+from warpvx.sched.schedule import Schedule, ScheduledTask  # noqa: E402
+
+
+def split(dag):
+    """The baseline placement with ``homographyR`` on a second CPU worker."""
+    s = policies.baseline(dag)
+    tasks = dict(s.tasks)
+    st = tasks["homographyR"]
+    tasks["homographyR"] = ScheduledTask(st.task, "cpu1", st.start, st.finish)
+    return Schedule(tasks, s.processors, "baseline-split", s.priority, dict(s.info))
+
+
+def cpu_seconds_by_thread() -> dict:
+    """native thread id -> (CPU seconds so far, Python thread name or "?" (OpenCV's, Warp's))."""
+    clk = os.sysconf("SC_CLK_TCK")
+    names = {t.native_id: t.name for t in threading.enumerate()}
+    out = {}
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:  # the thread ended
+            continue
+        out[int(tid)] = ((int(fields[11]) + int(fields[12])) / clk, names.get(int(tid), "?"))
+    return out
+
+
+def stream_round(g, plan, frames, n: int, warm: int = 20) -> dict:
+    """``n`` frames streamed through ``plan`` after a reset: FPS, the frame period's median,
+    each thread's CPU ms per frame and the CPU tasks' compute / transfer medians (ms)."""
+    g.use_plan(plan)
+    ex = plan.executor()
+    ex.instances, ex.linked = 3, True
+    g.reset()
+    st = g.stream((frames[i % len(frames)] for i in range(n + warm)), depth=3, capture=True)
+    for _ in range(warm):
+        next(st)
+    a = cpu_seconds_by_thread()
+    t0 = time.perf_counter()
+    done = sum(1 for _ in st)
+    dt = time.perf_counter() - t0
+    b = cpu_seconds_by_thread()
+    threads = sorted(((b[t][0] - a.get(t, (0.0, ""))[0]) / done * 1e3, b[t][1]) for t in b)[::-1]
+    runs = list(plan.last_run)[-48:]
+    cpu_nodes = [n for n, p in plan.placement.items() if p != "gpu"]
+    tasks = {n: (statistics.median(r.compute_ms(n) for r in runs if n in r.timeline),
+                 statistics.median(r.transfers.get(n, 0.0) for r in runs if n in r.timeline))
+             for n in cpu_nodes}
+    starts = sorted(r.t0 for r in runs)
+    period = statistics.median(y - x for x, y in zip(starts, starts[1:])) * 1e3
+    return {"fps": done / dt, "period_ms": period, "threads": threads, "tasks": tasks}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, help="a new folder for pipeline_threads.md")
+    ap.add_argument("--frames", type=int, default=1200, help="timed frames per run")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--policies", default="baseline,split")
+    ap.add_argument("--size", default="1280x720")
+    ap.add_argument("--gpu", default="cuda", help="the GPU role's device (warp-cpu: a smoke test)")
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    size = tuple(int(v) for v in args.size.split("x"))
+    frames = graph_bench.make_frames(size, 16)
+    if args.gpu.startswith("cuda"):
+        frames = [{k: pinned_copy(v) for k, v in f.items()} for f in frames]
+    g = graph_bench.build_graph(size, max_corners=500)
+    g.verify(frames[:2])
+    plans = {}
+    for name in args.policies.split(","):
+        g.schedule(split if name == "split" else name, n_cpus=4, gpu=args.gpu)
+        plans[name] = g.plan
+    lines = [f"<!-- PYTHONPATH=. python3 benchmarks/perf/pipeline_threads.py {' '.join(argv)} -->",
+             f"# Two-camera graph {size[0]}x{size[1]} pipelined (pinned, depth 3, captured, 3 linked sets): "
+             "per-thread CPU ms per frame", "",
+             "Placements (CPU nodes): " + "; ".join(
+                 f"{k}: " + ", ".join(f"{n} {p}" for n, p in pl.placement.items() if p != "gpu")
+                 for k, pl in plans.items()), "",
+             "| round | placement | FPS | frame period ms (median) | thread CPU ms / frame | "
+             "CPU tasks: compute / transfer wait ms (median) |", "|---:|---|---:|---:|---|---|"]
+    try:
+        for r in range(args.rounds):
+            for name, plan in plans.items():
+                res = stream_round(g, plan, frames, args.frames)
+                threads = ", ".join(f"{n} {ms:.3f}" for ms, n in res["threads"] if ms > 0.01)
+                tasks = ", ".join(f"{n} {c:.3f} / {w:.3f}" for n, (c, w) in res["tasks"].items())
+                row = f"| {r} | {name} | {res['fps']:.1f} | {res['period_ms']:.3f} | {threads} | {tasks} |"
+                lines.append(row)
+                print(row, flush=True)
+    finally:
+        g.close()
+    (out / "pipeline_threads.md").write_text("\n".join(lines) + "\n")
+    print(f"wrote {out / 'pipeline_threads.md'}")
+
+
+if __name__ == "__main__":
+    main()
