@@ -349,7 +349,7 @@ class RoleRunner:
                     if not scoped and self._scope is not None:
                         self._scope.acquire()
                         scoped = True
-                    ok = self._run_unit(role, frame, slots, io)
+                    ok = self._run_unit(role, frame, slots)
                 else:
                     ok = self._run_cpu_task(role.proc, frame, role.units[pos], io, slots)
                 if pos == role.last:
@@ -377,9 +377,9 @@ class RoleRunner:
         role.frames.popleft()
         frame.processor_done()
 
-    def _run_unit(self, role: Role, frame: Frame, slots: list, io: Transfers) -> bool:
-        """Run the GPU role's next unit of ``frame`` (``slots``: its inputs, all set; ``io``:
-        the GPU role's transfers); False when it failed (the frame is cancelled)."""
+    def _run_unit(self, role: Role, frame: Frame, slots: list) -> bool:
+        """Run the GPU role's next unit of ``frame`` (``slots``: its inputs, all set); False
+        when it failed (the frame is cancelled)."""
         i, seg = role.units[role.pos]
         state = role.state
         if role.pos == 0:
