@@ -293,6 +293,10 @@ def test_pipeline_threads_writes_a_row_per_round_and_placement(tmp_path):
     assert all(float(r[3]) > 0 for r in rows.values())
     for r in rows.values():
         assert [t.split()[0] for t in r[6].split(",")] == ["homographyL", "homographyR", "fuse"]
+    for bad in (["--frames", "0"], ["--rounds", "-1"], ["--size", "320"], ["--size", "8x8"],
+                ["--policies", "baseline,nope"]):
+        with pytest.raises(SystemExit):
+            pipeline_threads.main(["--out", str(tmp_path), "--gpu", "warp-cpu", *bad])
 
 
 def test_model_replay_first_rows_pair_by_experiment_and_policy():

@@ -1,11 +1,12 @@
 """Where the pipelined two-camera stream's time goes, per thread: FPS per placement with the
 CPU time each thread spent per frame (``/proc/self/task/*/stat``: user + system in clock
-ticks, 10 ms: time long runs; it includes CUDA's spin-waits), and the CPU tasks' compute and transfer-wait medians.
+ticks of 10 ms, so time long runs; it includes CUDA's spin-waits), and the CPU tasks' compute
+and transfer-wait medians.
 
     PYTHONPATH=. python3 benchmarks/perf/pipeline_threads.py --out $OUT/pt
 
-1280x720 (``--size``), pinned frames, depth 3, captured, 3 linked buffer sets (``capture_stream.py``'s
-fastest configuration); placements: ``baseline`` (the CPU-only nodes, the two homographies
+1280x720 (``--size``), pinned frames, depth 3, captured, 3 linked buffer sets
+(``capture_stream.py``'s fastest configuration); placements: ``baseline`` (the CPU-only nodes, the two homographies
 and ``fuse``, all on one CPU worker), ``split`` (the baseline with ``homographyR`` on a
 second worker) and any policy name (``heft``, ...), run in interleaved rounds. Writes
 ``pipeline_threads.md`` (the command on top).
@@ -72,35 +73,64 @@ def stream_round(g, plan, frames, n: int, warm: int = 20) -> dict:
     b = cpu_seconds_by_thread()
     threads = sorted(((b[t][0] - a.get(t, (0.0, ""))[0]) / done * 1e3, b[t][1]) for t in b)[::-1]
     runs = list(plan.last_run)[-48:]
-    cpu_nodes = [n for n, p in plan.placement.items() if p != "gpu"]
-    tasks = {n: (statistics.median(r.compute_ms(n) for r in runs if n in r.timeline),
-                 statistics.median(r.transfers.get(n, 0.0) for r in runs if n in r.timeline))
-             for n in cpu_nodes}
+    cpu_nodes = [node for node, p in plan.placement.items() if p != "gpu"]
+    tasks = {node: (statistics.median(r.compute_ms(node) for r in runs if node in r.timeline),
+                    statistics.median(r.transfers.get(node, 0.0) for r in runs
+                                      if node in r.timeline))
+             for node in cpu_nodes}
     starts = sorted(r.t0 for r in runs)
     period = statistics.median(y - x for x, y in zip(starts, starts[1:])) * 1e3
     return {"fps": done / dt, "period_ms": period, "threads": threads, "tasks": tasks}
 
 
+#: Placements a run may name: the scheduler's policies (placed on the graph's calibrated
+#: costs) and :func:`split`.
+PLACEMENTS = (*graph_bench.SCHEDULERS, "split")
+
+
+def _positive(text: str) -> int:
+    n = int(text)
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text}")
+    return n
+
+
+def _size(text: str) -> tuple:
+    try:
+        w, h = (int(v) for v in text.split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH, e.g. 1280x720, got {text!r}") from None
+    if w < 32 or h < 32:  # the graph's 4-level pyramids and 21x21 LK windows
+        raise argparse.ArgumentTypeError(f"expected at least 32x32, got {text}")
+    return w, h
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="a new folder for pipeline_threads.md")
-    ap.add_argument("--frames", type=int, default=1200, help="timed frames per run")
-    ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--policies", default="baseline,split")
-    ap.add_argument("--size", default="1280x720")
+    ap.add_argument("--frames", type=_positive, default=1200, help="timed frames per run")
+    ap.add_argument("--rounds", type=_positive, default=3)
+    ap.add_argument("--policies", default="baseline,split",
+                    help=f"comma-separated, of {', '.join(PLACEMENTS)}")
+    ap.add_argument("--size", type=_size, default=(1280, 720), help="WxH")
     ap.add_argument("--gpu", default="cuda", help="the GPU role's device (warp-cpu: a smoke test)")
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
+    names = args.policies.split(",")
+    unknown = [n for n in names if n not in PLACEMENTS]
+    if unknown:
+        ap.error(f"--policies: unknown {', '.join(map(repr, unknown))}; "
+                 f"expected some of {', '.join(PLACEMENTS)}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    size = tuple(int(v) for v in args.size.split("x"))
+    size = args.size
     frames = graph_bench.make_frames(size, 16)
     if args.gpu.startswith("cuda"):
         frames = [{k: pinned_copy(v) for k, v in f.items()} for f in frames]
     g = graph_bench.build_graph(size, max_corners=500)
     g.verify(frames[:2])
     plans = {}
-    for name in args.policies.split(","):
+    for name in names:
         g.schedule(split if name == "split" else name, n_cpus=4, gpu=args.gpu)
         plans[name] = g.plan
     lines = [f"<!-- PYTHONPATH=. python3 benchmarks/perf/pipeline_threads.py {' '.join(argv)} -->",

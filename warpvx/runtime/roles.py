@@ -34,8 +34,9 @@ class GpuState:
         self.task = "<executor>"  # the task running, for error reports
         self.burst: list = []  # timing "bursts": tasks enqueued since prev_end, no end event yet
         self.burst_frame = None  # their frame
-        # The running unit's outputs to stage (key -> held by a delay's ring): their downloads
-        # start as they are published, before a reader can see them (RoleRunner._stage).
+        # The running unit's outputs to stage (key -> held by a delay's ring; one of
+        # Role.stage's maps, read only): their downloads start as they are published, before
+        # a reader can see them (RoleRunner._set_device).
         self.stage: dict = {}
 
 
@@ -126,8 +127,9 @@ class Role:
         self.state = state
         self.captures = None  # the oldest frame's capture states (GPU role)
         self.touch: list = []  # per unit: the other roles that read what it publishes
-        # Per GPU unit: (key, held) of its outputs whose download starts at once; held: a
-        # delay's value, its download kept in the ring's slot for a later frame's reader.
+        # Per GPU unit: its outputs whose download starts at once, key -> held (a delay's
+        # value, its download kept in the ring's slot for a later frame's reader), as two
+        # maps: [0] for a frame whose caller wants no host outputs, [1] for one that does.
         self.stage: list = []
 
     def wake(self):
@@ -164,7 +166,7 @@ class RoleRunner:
             ms = sum(self.placed[t.name, 0].finish - self.placed[t.name, 0].start for t in tasks)
             return ms <= self.INLINE_MAX_MS
 
-        staged, self._outputs_staged = self._staged_keys()
+        staged, outputs_staged = self._staged_keys()
         rings = self.program.rings
         roles = {}
         for p in self._active:
@@ -187,7 +189,9 @@ class RoleRunner:
                 keys = [k for t in (unit[1].tasks if role.gpu else [unit]) for k in t.outputs]
                 touch = {id(r): r for k in keys for r in reading.get(k, {}).values() if r is not role}
                 role.touch.append(tuple(touch.values()))
-                role.stage.append(tuple((k, k in rings) for k in keys if k in staged))
+                held = {k: k in rings for k in keys if k in staged}
+                role.stage.append(({k: h for k, h in held.items() if k not in outputs_staged},
+                                   held))
         return roles
 
     def _staged_keys(self) -> tuple:
@@ -387,11 +391,7 @@ class RoleRunner:
             state.burst = []  # (a cancelled frame's tasks, never reported)
             role.captures = self._captures_of(frame) if frame.capture else None
         try:
-            stage = state.stage
-            stage.clear()
-            for key, held in role.stage[role.pos]:
-                if frame.stage_outputs or key not in self._outputs_staged:
-                    stage[key] = held
+            state.stage = role.stage[role.pos][frame.stage_outputs]
             if seg.captured:
                 if state.burst:  # a segment's replay is timed on its own
                     self._close_burst(state)
