@@ -230,6 +230,78 @@ def test_staged_stream_gives_the_unstaged_outputs(capture, depth, warp_backend, 
         assert _same(a, b)
 
 
+def _lease(a):
+    """The pool lease (or other owner) under NumPy array ``a`` and its views."""
+    while isinstance(a, np.ndarray):
+        a = a.base
+    return a
+
+
+def test_a_units_staged_downloads_take_one_pool_lease_a_frame(monkeypatch):
+    """The captured segment's outputs that CPU tasks and the caller read (9 values a frame:
+    keypoints, the detector's score map, the homographies' points) are staged as one batch:
+    once the first frame sized it, one pool lease a frame with every buffer carved from it,
+    not one lease per buffer (11); buffers past BATCH_LEASE_MAX_BYTES get their own, so a
+    caller keeping a frame's keypoints does not hold its score map's buffer. Outputs: the
+    unstaged run's, bit for bit."""
+    cams = _cams(20)
+    ref, _ = _stream(cams, "warp-cpu", staged=False, capture=True, monkeypatch=monkeypatch)
+    monkeypatch.setattr(Executor, "STAGE_ON_HOST", True)
+    monkeypatch.setattr(Executor, "HOST_POOL_BYTES", POOL_BYTES)
+    counts = collections.Counter()
+    take, batch = HostPool.take, Transfers.stage_downloads
+
+    def counted_take(self, shape, dtype):
+        counts["takes"] += 1
+        return take(self, shape, dtype)
+
+    def counted_batch(self, values, *args, **kwargs):
+        counts["batches"] += 1
+        counts["values"] += len(values)
+        return batch(self, values, *args, **kwargs)
+
+    monkeypatch.setattr(HostPool, "take", counted_take)
+    monkeypatch.setattr(Transfers, "stage_downloads", counted_batch)
+    for limit, takes in ((Transfers.BATCH_LEASE_MAX_BYTES, 1), (4096, 2)):
+        monkeypatch.setattr(Transfers, "BATCH_LEASE_MAX_BYTES", limit)
+        g = _graph(cams, "warp-cpu")
+        try:
+            got = []
+            for i, outputs in enumerate(g.stream(cams, depth=3, capture=True)):
+                if i == 3:
+                    counts.clear()
+                got.append(outputs)
+        finally:
+            g.close()
+        frames = len(cams) - 4
+        assert counts["batches"] == frames and counts["values"] == 9 * frames
+        # The score map (128x96 float32, 48 KB) is the one buffer past 4096 bytes.
+        assert counts["takes"] == takes * frames
+        last = got[-1]
+        kps = [_lease(a) for a in last["keypointsL"].__warpvx_flatten__()[0]]
+        assert len({id(x) for x in kps}) == 1
+        assert (_lease(last["scoreL"]) is kps[0]) == (limit > 48 << 10)
+        for a, b in zip(got, ref):
+            assert _same(a, b)
+
+
+def test_a_batchs_shared_event_is_recycled_once_every_download_is_closed():
+    """Downloads staged as one batch share one event: it goes back to the free events only
+    when the last of them is closed (read or dropped), once."""
+    from warpvx.runtime.transfers import _Sharers, _Staged
+
+    free = collections.deque()
+    event = object()
+    sharers = _Sharers(3)
+    batch = [_Staged(None, {}, {}, event, 0, free, sharers) for _ in range(3)]
+    batch[1].close()
+    batch[1].close()  # closed twice: counted once
+    batch[0].close()
+    assert not free
+    batch[2].close()
+    assert list(free) == [event]
+
+
 def test_outputs_kept_across_many_frames_keep_their_values(warp_backend, monkeypatch):
     """A caller keeping the first 10 frames' outputs while 50 more run sees their values
     (a pool buffer is never lent again while an array on it lives), and a small pool stays

@@ -499,11 +499,11 @@ class Executor(RoleRunner, SegmentRunner):
         n = len(task.outputs)
         if not isinstance(result, (tuple, list)) or len(result) != n:
             raise TypeError(f"expected {n} outputs {task.outputs}, got {type(result).__name__}")
+        if state is not None:
+            self._set_devices(frame, task.outputs, result, event, state, unit=task.name)
+            return
         for key, value in zip(task.outputs, result):
-            if state is not None:
-                self._set_device(frame, key, value, event, state)
-            else:
-                frame.slots[key].set(value, where, event)
+            frame.slots[key].set(value, where, event)
 
     def _ready_inputs(self, frame: Frame, refs):
         """The slots of input references ``refs`` (a task's or a captured segment's) once all

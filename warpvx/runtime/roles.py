@@ -420,6 +420,38 @@ class RoleRunner:
             self._stage(frame, slot, state.io, held)
         slot.set(value, DEVICE, event)
 
+    def _set_devices(self, frame: Frame, keys, values, event, state: GpuState,
+                     external: bool = False, unit: str | None = None):
+        """:meth:`_set_device` of a GPU unit's outputs ``keys`` (``values``, all ready after
+        ``event``): the downloads its readers need are queued as one batch
+        (:meth:`Transfers.stage_downloads`: one wait, one event, one pool buffer for
+        ``unit``), all before any value is published."""
+        stage = state.stage
+        todo = [k for k in keys if k in stage] if stage else ()
+        if len(todo) < 2:
+            for key, value in zip(keys, values):
+                self._set_device(frame, key, value, event, state, external)
+            return
+        fs = frame.slots
+        batch = []
+        for key, value in zip(keys, values):
+            if key in stage:
+                slot = fs[key]
+                if slot.staged is None:
+                    batch.append((slot, value, stage[key]))
+        downloads = state.io.stage_downloads([value for _, value, _ in batch], event,
+                                             after=None if external else self._stream,
+                                             unit=unit)
+        for (slot, _, held), staged in zip(batch, downloads):
+            if staged is not None:
+                slot.staged = staged
+                if not held:
+                    frame.staged.append(slot)
+        for key, value in zip(keys, values):
+            slot = fs[key]
+            slot.external = external
+            slot.set(value, DEVICE, event)
+
     def _stage(self, frame: Frame, slot: Slot, io: Transfers, held: bool):
         """Start the download of a GPU value a CPU task (or the caller) reads (CUDA): see
         :meth:`Transfers.stage_download`; called as the value is published

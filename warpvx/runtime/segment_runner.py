@@ -358,8 +358,9 @@ class SegmentRunner:
                 self._forked_end(frame, stream)
         external = ev1 is not None and stream is not self._stream
         # (external: made on another stream than the executor's; its readers there wait.)
-        for key in self._seg_info[id(seg)][1]:
-            self._set_device(frame, key, outs[key], ev1, state, external)
+        keys = self._seg_info[id(seg)][1]
+        self._set_devices(frame, keys, [outs[key] for key in keys], ev1, state, external,
+                          seg.tasks[0].name)
         return ev1
 
     def _forked_end(self, frame: Frame, stream):

@@ -9,6 +9,7 @@ copies every leaf of a tree between host memory and the GPU role's device, throu
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from collections import deque
 
@@ -132,25 +133,45 @@ class _Unstageable(Exception):
     """A leaf :meth:`Transfers.stage_download` cannot copy asynchronously, or no pool room."""
 
 
+class _Sharers:
+    """How many downloads share one event (:meth:`Transfers.stage_downloads`); the last to
+    close recycles it. Counted with ``itertools.count`` (atomic: readers close on their own
+    threads)."""
+
+    __slots__ = ("n", "closed")
+
+    def __init__(self, n: int):
+        self.n = n
+        self.closed = itertools.count(1)
+
+    def last(self) -> bool:
+        return next(self.closed) == self.n
+
+
 class _Staged:
     """A download under way (:meth:`Transfers.stage_download`): the device value, the host
     arrays its device arrays are being copied into (id of the device array -> (it, its host
     copy); of a large Counted block its count and a prefix of its rows so far), the event
-    after the copies (None on Warp's CPU device: done, or once closed) and their bytes."""
+    after the copies (None on Warp's CPU device: done, or once closed; shared by a batch's
+    downloads: ``sharers``) and their bytes."""
 
-    __slots__ = ("value", "copies", "prefix", "event", "nbytes", "_events")
+    __slots__ = ("value", "copies", "prefix", "event", "nbytes", "_events", "_sharers")
 
-    def __init__(self, value, copies: dict, prefix: dict, event, nbytes: int, events: deque):
+    def __init__(self, value, copies: dict, prefix: dict, event, nbytes: int, events: deque,
+                 sharers: _Sharers):
         self.value, self.copies, self.event, self.nbytes = value, copies, event, nbytes
         # id of a large Counted's count -> the host buffers of its rows' first rows
         # (:class:`_RowHints`), one per rows array, being copied with it.
         self.prefix = prefix
         self._events = events  # where its event goes back to
+        self._sharers = sharers
 
     def close(self):
-        """Read or dropped, its copy waited for: its event may be recorded again."""
+        """Read or dropped, its copy waited for: its event may be recorded again once every
+        download sharing it is closed too."""
         if self.event is not None:
-            self._events.append(self.event)
+            if self._sharers.last():
+                self._events.append(self.event)
             self.event = None
 
     def host(self, io: "Transfers"):
@@ -210,6 +231,10 @@ class Transfers:
     #: (:meth:`stage_download`'s ``after``): the copy delays the producer's next kernels by
     #: about a microsecond, a cross-stream wait would delay the reader by more.
     SAME_STREAM_MAX_BYTES = 1 << 12
+    #: A staged batch's buffers up to this size (bytes) share one pool lease
+    #: (:meth:`stage_downloads`); larger ones get their own, so a caller keeping one small
+    #: output of a frame does not keep a large one's buffer from the pool.
+    BATCH_LEASE_MAX_BYTES = 1 << 16
 
     def __init__(self, device: str | None, pool: HostPool | None = None):
         self.device = device
@@ -222,6 +247,11 @@ class Transfers:
         # read or dropped (_Staged.close), from any thread (deque: atomic append and pop).
         self._events: deque = deque()
         self._wp_dtypes: dict = {}  # NumPy dtype -> Warp dtype, looked up once
+        # stage_downloads' batches: unit -> bytes its last batch carved (its next lease's
+        # size); the batch under way's lease and bytes carved, and bytes wanted.
+        self._arena_hints: dict = {}
+        self._arena = None
+        self._wanted = 0
         self.moved = 0  # bytes copied so far, both ways
 
     @property
@@ -280,46 +310,100 @@ class Transfers:
 
         Every other staged copy goes on this thread's copy stream (see
         :class:`~.pinned.HostPool`)."""
+        return self.stage_downloads((value,), event, after=after)[0]
+
+    def stage_downloads(self, values, event=None, *, after=None, unit=None) -> list:
+        """:meth:`stage_download` of several values made by one producer (a GPU unit's
+        outputs, all ready after ``event``), as one: one stream choice and wait, one event
+        after all the copies (shared by the downloads, recycled once every one is read or
+        dropped) and, for ``unit`` (any hashable naming the producer), the host buffers of
+        up to :attr:`BATCH_LEASE_MAX_BYTES` carved from one pool buffer of the size the
+        unit's last batch needed (a lease costs several times a view; the rest from the
+        pool as usual). Returns a download or None per value, in order."""
         if self.pool is None:
-            return None
-        copies: dict = {}
-        prefix: dict = {}
+            return [None] * len(values)
+        if unit is not None:  # carve the batch's buffers from one lease
+            hint = self._arena_hints.get(unit)
+            raw = self.pool.take((hint,), np.uint8) if hint else None
+            self._arena = [raw, 0]  # the lease (None: every buffer from the pool), bytes carved
+            self._wanted = 0
+        parts = []
         try:
-            if is_warp_array(value):  # the usual values: no tree to walk
-                self._take(copies, value)
-            elif _block_counted(value):
-                self._take_counted(copies, prefix, value)
-            else:
-                # The walk that builds the value once copied (_Staged.host) lists what to
-                # copy.
-                host_value(value, functools.partial(self._take, copies),
-                           functools.partial(self._take_counted, copies, prefix))
-        except _Unstageable:
-            return None  # the buffers taken are garbage: back to the pool
-        if not copies:
-            return None
+            for value in values:
+                copies: dict = {}
+                prefix: dict = {}
+                try:
+                    if is_warp_array(value):  # the usual values: no tree to walk
+                        self._take(copies, value)
+                    elif _block_counted(value):
+                        self._take_counted(copies, prefix, value)
+                    else:
+                        # The walk that builds the value once copied (_Staged.host) lists
+                        # what to copy.
+                        host_value(value, functools.partial(self._take, copies),
+                                   functools.partial(self._take_counted, copies, prefix))
+                except _Unstageable:
+                    parts.append(None)  # the buffers taken are garbage: back to the pool
+                    continue
+                parts.append((value, copies, prefix) if copies else None)
+        finally:
+            if unit is not None:
+                self._arena = None
+                # Room for the next batch to grow a little (a detector's rows vary).
+                self._arena_hints[unit] = self._wanted + (self._wanted >> 3)
         nbytes = 0
-        for _, host in copies.values():
-            nbytes += host.nbytes
-        for _, _, spans in prefix.values():
-            for _, _, n in spans:
-                nbytes += n
+        for part in parts:
+            if part is not None:
+                for _, host in part[1].values():
+                    nbytes += host.nbytes
+                for _, _, spans in part[2].values():
+                    for _, _, n in spans:
+                        nbytes += n
+        if not nbytes:
+            return [None] * len(values)
         stream = self.stream
         if after is not None and stream is not None and nbytes < self.SAME_STREAM_MAX_BYTES:
             stream = after
         elif stream is not None and event is not None:
             wait_event(stream, event)
-        for a, host in copies.values():
-            to_host_async(host, a, stream)
-        for src, _, spans in prefix.values():
-            for offset, dst, n in spans:
-                bytes_to_host_async(dst, src.device, src.ptr + offset, n, stream)
+        for part in parts:
+            if part is None:
+                continue
+            for a, host in part[1].values():
+                to_host_async(host, a, stream)
+            for src, _, spans in part[2].values():
+                for offset, dst, n in spans:
+                    bytes_to_host_async(dst, src.device, src.ptr + offset, n, stream)
         done = None
         if stream is not None:
             done = self._events.pop() if self._events else warp().Event(self.device)
             record_event(stream, done)
-        return _Staged(value, copies, {k: v[1] for k, v in prefix.items()}, done, nbytes,
-                       self._events)
+        sharers = _Sharers(sum(part is not None for part in parts))
+        return [None if part is None else
+                _Staged(part[0], part[1], {k: v[1] for k, v in part[2].items()}, done,
+                        sum(h.nbytes for _, h in part[1].values()) +
+                        sum(n for _, _, spans in part[2].values() for _, _, n in spans),
+                        self._events, sharers)
+                for part in parts]
+
+    def _host_buffer(self, shape: tuple, dtype: np.dtype):
+        """A host buffer of ``shape`` and ``dtype`` for a staged copy: carved from the batch's
+        lease while it has room (:meth:`stage_downloads`), else the pool's (None: no room)."""
+        arena = self._arena
+        if arena is None:
+            return self.pool.take(shape, dtype)
+        if not isinstance(dtype, np.dtype):
+            dtype = np.dtype(dtype)
+        nbytes = math.prod(shape) * dtype.itemsize
+        if nbytes > self.BATCH_LEASE_MAX_BYTES:
+            return self.pool.take(shape, dtype)
+        step = -(-nbytes // Block.ALIGN) * Block.ALIGN  # (aligned as a Block's arrays are)
+        self._wanted += step
+        raw, at = arena
+        if raw is None or at + nbytes > raw.shape[0]:
+            return self.pool.take(shape, dtype)
+        arena[1] = at + step
+        return raw[at:at + nbytes].view(dtype).reshape(shape)
 
     def _take_counted(self, copies: dict, prefix: dict, c):
         """The host buffer (:meth:`_take`) a staged download copies Counted ``c`` (with a
@@ -342,7 +426,7 @@ class Transfers:
             return
         # One buffer, not one per rows array: a lease costs several times a view.
         layout, nbytes = _prefix_layout(block.part, k)
-        raw = self.pool.take((nbytes,), np.uint8)
+        raw = self._host_buffer((nbytes,), np.dtype(np.uint8))
         if raw is None:
             return  # no pool room: its rows are copied when read
         base = address(raw)
@@ -360,7 +444,7 @@ class Transfers:
             dtype = numpy_dtype(a.dtype)
             if dtype is None or not a.is_contiguous:
                 raise _Unstageable
-            host = self.pool.take(a.shape, dtype)
+            host = self._host_buffer(a.shape, dtype)
             if host is None:
                 raise _Unstageable
             got = copies[id(a)] = (a, host)
