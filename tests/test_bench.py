@@ -280,12 +280,16 @@ def test_pipeline_threads_writes_a_row_per_round_and_placement(tmp_path):
 
     pytest.importorskip("warp")
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "perf"))
+    import cv2
     import pipeline_threads
 
+    threads = cv2.getNumThreads()
     pipeline_threads.main(["--out", str(tmp_path), "--gpu", "warp-cpu", "--size", "160x120",
                            "--frames", "4", "--rounds", "1"])
     text = (tmp_path / "pipeline_threads.md").read_text()
     assert text.startswith("<!-- PYTHONPATH=. python3 benchmarks/perf/pipeline_threads.py --out ")
+    assert "OpenCV threads: 1." in text  # the default, as graph_bench's
+    assert cv2.getNumThreads() == threads  # restored after the run
     assert "baseline: homographyL cpu0, homographyR cpu0" in text
     assert "split: homographyL cpu0, homographyR cpu1" in text
     rows = {r.split("|")[2].strip(): r.split("|") for r in text.splitlines() if r.startswith("| 0 |")}
@@ -294,7 +298,7 @@ def test_pipeline_threads_writes_a_row_per_round_and_placement(tmp_path):
     for r in rows.values():
         assert [t.split()[0] for t in r[6].split(",")] == ["homographyL", "homographyR", "fuse"]
     for bad in (["--frames", "0"], ["--rounds", "-1"], ["--size", "320"], ["--size", "8x8"],
-                ["--policies", "baseline,nope"]):
+                ["--policies", "baseline,nope"], ["--cv-threads", "-2"]):
         with pytest.raises(SystemExit):
             pipeline_threads.main(["--out", str(tmp_path), "--gpu", "warp-cpu", *bad])
 

@@ -5,7 +5,8 @@ and transfer-wait medians.
 
     PYTHONPATH=. python3 benchmarks/perf/pipeline_threads.py --out $OUT/pt
 
-1280x720 (``--size``), pinned frames, depth 3, captured, 3 linked buffer sets
+1280x720 (``--size``), pinned frames, depth 3, captured, 3 linked buffer sets, OpenCV on one
+thread (``--cv-threads``, as ``graph_bench.py``)
 (``capture_stream.py``'s fastest configuration); placements: ``baseline`` (the CPU-only nodes, the two homographies
 and ``fuse``, all on one CPU worker), ``split`` (the baseline with ``homographyR`` on a
 second worker) and any policy name (``heft``, ...), run in interleaved rounds. Writes
@@ -21,6 +22,8 @@ import sys
 import threading
 import time
 from pathlib import Path
+
+import cv2
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -114,6 +117,9 @@ def main(argv=None):
                     help=f"comma-separated, of {', '.join(PLACEMENTS)}")
     ap.add_argument("--size", type=_size, default=(1280, 720), help="WxH")
     ap.add_argument("--gpu", default="cuda", help="the GPU role's device (warp-cpu: a smoke test)")
+    ap.add_argument("--cv-threads", type=int, default=1,
+                    help="cv2.setNumThreads for the run (default 1, as graph_bench: one core per "
+                         "CPU worker; 0: OpenCV's own pool left as it is)")
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
     names = args.policies.split(",")
@@ -121,8 +127,13 @@ def main(argv=None):
     if unknown:
         ap.error(f"--policies: unknown {', '.join(map(repr, unknown))}; "
                  f"expected some of {', '.join(PLACEMENTS)}")
+    if args.cv_threads < 0:
+        ap.error(f"--cv-threads: expected 0 or more, got {args.cv_threads}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    cv_threads_before = cv2.getNumThreads()
+    if args.cv_threads:
+        cv2.setNumThreads(args.cv_threads)
     size = args.size
     frames = graph_bench.make_frames(size, 16)
     if args.gpu.startswith("cuda"):
@@ -136,6 +147,7 @@ def main(argv=None):
     lines = [f"<!-- PYTHONPATH=. python3 benchmarks/perf/pipeline_threads.py {' '.join(argv)} -->",
              f"# Two-camera graph {size[0]}x{size[1]} pipelined (pinned, depth 3, captured, 3 linked sets): "
              "per-thread CPU ms per frame", "",
+             f"OpenCV threads: {cv2.getNumThreads()}.", "",
              "Placements (CPU nodes): " + "; ".join(
                  f"{k}: " + ", ".join(f"{n} {p}" for n, p in pl.placement.items() if p != "gpu")
                  for k, pl in plans.items()), "",
@@ -152,6 +164,7 @@ def main(argv=None):
                 print(row, flush=True)
     finally:
         g.close()
+        cv2.setNumThreads(cv_threads_before)
     (out / "pipeline_threads.md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out / 'pipeline_threads.md'}")
 
