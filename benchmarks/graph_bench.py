@@ -197,9 +197,13 @@ def edge_density(e_left, e_right):
     return np.array([np.count_nonzero(e_left), np.count_nonzero(e_right)]) / e_left.size
 
 
-def build_graph(size, *, max_corners=500, levels=4, cpu_heavy=False) -> warpvx.Graph:
+def build_graph(size, *, max_corners=500, levels=4, cpu_heavy=False, homography_fn=None,
+                detector=True) -> warpvx.Graph:
     """The two-camera graph (16 nodes); ``cpu_heavy`` adds per camera a bilateral filter and
-    Canny edges and one node combining them (OpenCV user nodes, CPU only: 21 nodes)."""
+    Canny edges and one node combining them (OpenCV user nodes, CPU only: 21 nodes).
+    Variants for diagnostics (``benchmarks/perf/pipeline_bottleneck.py``): ``homography_fn``
+    in place of :func:`homography`, and ``detector=False`` leaves out ``detectorL`` and its
+    output (15 nodes)."""
     w, h = size
     g = warpvx.Graph("two-cameras-cv" if cpu_heavy else "two-cameras")
     cv_edges = []
@@ -217,14 +221,15 @@ def build_graph(size, *, max_corners=500, levels=4, cpu_heavy=False) -> warpvx.G
         nxt, status, _err = g.optical_flow_pyr_lk(prev_pyr[-1], pyr, prev_pts[-1],
                                                   win_size=(21, 21), max_level=levels - 1,
                                                   name=f"lk{cam}")
-        H = g.user(homography, [prev_pts[-1], nxt, status], "H", name=f"homography{cam}")
+        H = g.user(homography_fn or homography, [prev_pts[-1], nxt, status], "H",
+                   name=f"homography{cam}")
         homs.append(H)
         g.output(f"keypoints{cam}", kps)
         g.output(f"H{cam}", H)
         if cpu_heavy:
             smooth = g.user(denoise, [gray], "smooth", name=f"denoise{cam}")
             cv_edges.append(g.user(edges, [smooth], "edges", name=f"edges{cam}"))
-        if cam == "L":
+        if cam == "L" and detector:
             det = g.user(None, [gray], "score", warp_fn=detector_warp, name="detectorL",
                          capturable=True)
             g.output("scoreL", det)

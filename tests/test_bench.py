@@ -303,6 +303,39 @@ def test_pipeline_threads_writes_a_row_per_round_and_placement(tmp_path):
             pipeline_threads.main(["--out", str(tmp_path), "--gpu", "warp-cpu", *bad])
 
 
+def test_pipeline_bottleneck_runs_each_variant_and_takes_away_what_it_says(tmp_path):
+    """benchmarks/perf/pipeline_bottleneck.py on Warp's CPU device (small frames): a row per
+    variant with a positive frame rate and the medians, under the regenerating command; its
+    variants of the graph leave out what they name (the detector and its output; RANSAC:
+    the identity, from the same inputs)."""
+    from pathlib import Path
+
+    pytest.importorskip("warp")
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "perf"))
+    import graph_bench
+    import pipeline_bottleneck
+
+    full = graph_bench.build_graph((160, 120))
+    bare = graph_bench.build_graph((160, 120), detector=False)
+    assert "detectorL" in full.nodes and "detectorL" not in bare.nodes
+    assert len(bare.nodes) == len(full.nodes) - 1 and "scoreL" not in bare.outputs
+    status = np.ones((5, 1), np.uint8)
+    pts = np.float32([[0, 0], [9, 0], [0, 9], [9, 9], [5, 4]])
+    assert np.array_equal(pipeline_bottleneck.homography_without_ransac(pts, pts + 1, status),
+                          np.eye(3))
+    pipeline_bottleneck.main(["--out", str(tmp_path), "--gpu", "warp-cpu", "--size", "160x120",
+                              "--frames", "3", "--rounds", "1"])
+    text = (tmp_path / "pipeline_bottleneck.md").read_text()
+    assert text.startswith("<!-- PYTHONPATH=. python3 benchmarks/perf/pipeline_bottleneck.py --out ")
+    rows = {r.split("|")[2].strip(): float(r.split("|")[3]) for r in text.splitlines()
+            if r.startswith("| 0 |")}
+    assert set(rows) == set(pipeline_bottleneck.VARIANTS) and min(rows.values()) > 0
+    assert "Medians over the rounds: as-is" in text
+    for bad in (["--frames", "0"], ["--size", "8x8"], ["--cv-threads", "0"]):
+        with pytest.raises(SystemExit):
+            pipeline_bottleneck.main(["--out", str(tmp_path), "--gpu", "warp-cpu", *bad])
+
+
 def test_model_replay_first_rows_pair_by_experiment_and_policy():
     """benchmarks/model_replay.py: a prediction is scored against the first frames of its own
     experiment and policy, whatever order the other checkout recorded its rows in."""
