@@ -35,38 +35,6 @@ def test_this_warp_has_the_native_entry_points():
     assert nc.native_entry_points() is not None
 
 
-def _keeps_gil(fn) -> bool:
-    import ctypes
-
-    return bool(fn._flags_ & ctypes._FUNCFLAG_PYTHONAPI)
-
-
-def test_enqueues_keep_the_gil_and_waits_let_it_go():
-    """Calls that only enqueue (asynchronous copies, event records and waits, graph launches)
-    keep the GIL: ctypes would let it go and take it back behind whichever thread ran
-    meanwhile. Synchronisations and pageable copies, which may block, let it go."""
-    init_warp()
-    fast = nc.native_entry_points()
-    for name in ("h2d_async", "d2h_async", "d2d", "event_record", "stream_wait_event",
-                 "event_elapsed", "graph_launch"):
-        assert _keeps_gil(getattr(fast, name)), name
-    for name in ("h2d", "d2h", "h2h", "stream_sync", "event_sync"):
-        assert not _keeps_gil(getattr(fast, name)), name
-
-
-def test_a_benchmark_counting_native_calls_still_sees_the_enqueues():
-    """benchmarks/native_counts wraps Warp's functions: the GIL-keeping ones are then its
-    wrappers (counted), and Warp's library functions again once it is done."""
-    from tests.benchmark_scripts import load_bench
-
-    init_warp()
-    counts = load_bench("native_counts")
-    with counts.NativeCounter():
-        fast = nc.native_entry_points()
-        assert not hasattr(fast.event_record, "_flags_")  # the counting wrapper
-    assert _keeps_gil(nc.native_entry_points().event_record)
-
-
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("host", ARRAYS, ids=lambda a: f"{a.dtype}{list(a.shape)}")
 def test_native_and_public_copies_give_the_same_bytes(device, host):

@@ -72,8 +72,8 @@ import numpy as np
 from ..check import check_int
 from ..errors import CaptureAllocationError, caused_by
 from .lanes import MAX_LANES, Lanes, lanes, noted, noting_conditionals
-from .native_copy import (copy_device, is_warp_array, launch_graph, record_event, to_device,
-                          wait_event, warp)
+from .native_copy import (copy_device, is_warp_array, record_event, to_device, wait_event,
+                          warp)
 from .pinned import is_pinned
 from .program import InputRef, Program
 from .transfers import tree_map
@@ -599,7 +599,7 @@ class SegmentGraph:
                 if v.ptr != buf.ptr:
                     copy_device(buf, v, stream)
             elif buf.device.is_cuda and is_pinned(v):  # a DMA straight from the caller's
-                to_device(buf, v, stream, pinned=True)
+                to_device(buf, v, stream)
                 io.moved += v.nbytes
             elif buf.device.is_cuda:  # pageable: through the transfers' pinned staging
                 io.upload(v, lambda shape, dtype, buf=buf: buf)
@@ -616,7 +616,7 @@ class SegmentGraph:
         if b.graph is None or fresh:
             self._run_tasks(s, fresh, streams)
         else:
-            launch_graph(b.graph, streams[0] if streams else None)
+            warp().capture_launch(b.graph, stream=streams and streams[0])
         self.last = s
         return b.outputs
 

@@ -60,50 +60,9 @@ def address(a: np.ndarray) -> int:
         return a.ctypes.data
 
 
-#: Calls that only enqueue work (asynchronous copies, event records and waits, graph
-#: launches) keep the GIL: ctypes releases it around every foreign call, and a thread taking
-#: it back waits for whichever thread holds it meanwhile (up to the interpreter's switch
-#: interval, 5 ms, behind a thread running Python), several times per frame on the GPU
-#: thread. Calls that may block (synchronisations, copies to or from pageable memory) let
-#: it go as usual.
-HOLD_GIL_FOR_ENQUEUES = True
-
-#: A copy from pageable host memory this small is staged by the driver at once: it may keep
-#: the GIL (:func:`to_device`).
-HELD_PAGEABLE_MAX_BYTES = 1 << 16
-
-_ENQUEUES = {"h2d_async": "wp_memcpy_h2d", "d2h_async": "wp_memcpy_d2h", "d2d": "wp_memcpy_d2d",
-             "event_record": "wp_cuda_event_record",
-             "stream_wait_event": "wp_cuda_stream_wait_event",
-             "event_elapsed": "wp_cuda_event_elapsed_time",
-             "graph_launch": "wp_cuda_graph_launch"}
-
-
-def _gil_holding(core, names: dict) -> dict:
-    """``names`` (ours -> Warp's) as functions of Warp's native library that keep the GIL
-    (``ctypes.PyDLL`` on the same library: the same code and state), with Warp's argument
-    types; Warp's own (GIL-releasing) ones when the library cannot be opened so."""
-    try:
-        held = ctypes.PyDLL(core._name)
-    except (OSError, AttributeError, TypeError):
-        return {ours: getattr(core, theirs) for ours, theirs in names.items()}
-    out = {}
-    for ours, theirs in names.items():
-        theirs_fn = getattr(core, theirs)
-        if not isinstance(theirs_fn, ctypes._CFuncPtr):  # wrapped (a benchmark counting calls)
-            out[ours] = theirs_fn
-            continue
-        fn = getattr(held, theirs)
-        fn.argtypes, fn.restype = theirs_fn.argtypes, theirs_fn.restype
-        out[ours] = fn
-    return out
-
-
 def native_entry_points():
     """Warp's native copy, sync and event functions (a namespace), or None when this Warp
-    lacks them. ``h2d``/``d2h`` release the GIL (copies that may wait: pageable memory);
-    ``h2d_async``, ``d2h_async`` (pinned memory), ``d2d``, the event records and waits and
-    ``graph_launch`` keep it (:data:`HOLD_GIL_FOR_ENQUEUES`)."""
+    lacks them."""
     global _NATIVE
     if _NATIVE is False:
         try:
@@ -111,12 +70,14 @@ def native_entry_points():
             from warp._src import context as ctx
 
             core = ctx.runtime.core
-            enqueues = (_gil_holding(core, _ENQUEUES) if HOLD_GIL_FOR_ENQUEUES else
-                        {ours: getattr(core, theirs) for ours, theirs in _ENQUEUES.items()})
             _NATIVE = SimpleNamespace(
                 h2d=core.wp_memcpy_h2d, d2h=core.wp_memcpy_d2h, h2h=core.wp_memcpy_h2h,
+                d2d=core.wp_memcpy_d2d,
                 stream_sync=core.wp_cuda_stream_synchronize,
-                event_sync=core.wp_cuda_event_synchronize, **enqueues)
+                event_record=core.wp_cuda_event_record,
+                stream_wait_event=core.wp_cuda_stream_wait_event,
+                event_sync=core.wp_cuda_event_synchronize,
+                event_elapsed=core.wp_cuda_event_elapsed_time)
         except (ImportError, AttributeError):
             _NATIVE = None
     return _NATIVE
@@ -160,19 +121,18 @@ def to_host(a, stream=None, *, native: bool = True) -> np.ndarray:
         wp.synchronize_stream(stream)
         return host.numpy()
     out = np.empty(a.shape, dtype=numpy_dtype(a.dtype))
-    bytes_to_host_async(address(out), a.device, a.ptr, out.nbytes, stream, fast, pinned=False)
+    bytes_to_host_async(address(out), a.device, a.ptr, out.nbytes, stream, fast)
     if a.device.is_cuda and out.nbytes:
         synchronize_stream(stream)
     return out
 
 
-def to_host_async(dst, a, stream=None, *, native: bool = True, pinned: bool = True):
+def to_host_async(dst, a, stream=None, *, native: bool = True):
     """Queue a copy of contiguous ``wp.array`` ``a`` into ``dst``, host memory of the same
     size and dtype (a host ``wp.array`` or a NumPy array; pinned, for the copy to be
     asynchronous), on ``stream`` (a ``wp.Stream``; CUDA), without waiting for it: the caller
     records an event after it. On Warp's CPU device the copy is done on return.
-    ``pinned=False``: ``dst`` is pageable (the copy is done on return, the GIL let go
-    meanwhile). ``native=False`` takes ``wp.copy``."""
+    ``native=False`` takes ``wp.copy``."""
     host = isinstance(dst, np.ndarray)
     fast = _fast(native, a)
     if fast is None:
@@ -182,14 +142,12 @@ def to_host_async(dst, a, stream=None, *, native: bool = True, pinned: bool = Tr
         wp.copy(dst, a, stream=stream if a.device.is_cuda else None)
         return
     ptr, n = (address(dst), dst.nbytes) if host else (dst.ptr, dst.capacity)
-    bytes_to_host_async(ptr, a.device, a.ptr, n, stream, fast, pinned=pinned)
+    bytes_to_host_async(ptr, a.device, a.ptr, n, stream, fast)
 
 
-def bytes_to_host_async(dst_ptr: int, device, src_ptr: int, n: int, stream=None, fast=None,
-                        *, pinned: bool = True):
+def bytes_to_host_async(dst_ptr: int, device, src_ptr: int, n: int, stream=None, fast=None):
     """Queue a copy of ``n`` bytes at ``src_ptr`` in the memory of Warp device ``device`` into
-    host memory at ``dst_ptr`` (``pinned``: page-locked, the copy asynchronous; else the
-    call returns once the copy is done, the GIL let go meanwhile) on ``stream`` (CUDA), as
+    host memory at ``dst_ptr`` (pinned, for it to be asynchronous) on ``stream`` (CUDA), as
     :func:`to_host_async` does for whole arrays: for a part of an allocation without making a
     ``wp.array`` of it (~10 us of Python). ``fast``: the native entry points (looked up when
     None; without them, Warp's public API)."""
@@ -203,8 +161,7 @@ def bytes_to_host_async(dst_ptr: int, device, src_ptr: int, n: int, stream=None,
         wp.copy(dst, src, stream=stream if device.is_cuda else None)
         return
     if device.is_cuda:
-        d2h = fast.d2h_async if pinned else fast.d2h
-        ok = d2h(device.context, dst_ptr, src_ptr, n, stream.cuda_stream)
+        ok = fast.d2h(device.context, dst_ptr, src_ptr, n, stream.cuda_stream)
     else:
         ok = fast.h2h(dst_ptr, src_ptr, n)
     if not ok:
@@ -218,14 +175,13 @@ def synchronize_stream(stream):
         warp().synchronize_stream(stream)
 
 
-def to_device(dst, src, stream=None, *, native: bool = True, pinned: bool = False):
+def to_device(dst, src, stream=None, *, native: bool = True):
     """Copy host data ``src`` into the contiguous ``wp.array`` ``dst`` (same size and dtype).
 
     ``src``: a contiguous NumPy array (pageable: the driver stages it before returning) or a
     ``wp.array`` in pinned host memory (asynchronous). On CUDA the copy is queued on
     ``stream`` (a ``wp.Stream``; the device's current one when None); on Warp's CPU device it
-    is done on return. ``pinned``: ``src`` is in page-locked memory (a pinned ``wp.array``
-    says so itself). ``native=False`` takes Warp's public API (the fallback, for tests).
+    is done on return. ``native=False`` takes Warp's public API (the fallback, for tests).
     """
     fast = _fast(native, dst)
     if fast is None:
@@ -244,10 +200,7 @@ def to_device(dst, src, stream=None, *, native: bool = True, pinned: bool = Fals
     dev = dst.device
     if dev.is_cuda:
         s = stream if stream is not None else dev.stream
-        # Pinned, or small enough for the driver to stage at once: an enqueue.
-        enqueue = pinned or n <= HELD_PAGEABLE_MAX_BYTES or getattr(src, "pinned", False)
-        h2d = fast.h2d_async if enqueue else fast.h2d
-        ok = h2d(dev.context, dst.ptr, ptr, n, s.cuda_stream)
+        ok = fast.h2d(dev.context, dst.ptr, ptr, n, s.cuda_stream)
     else:
         ok = fast.h2h(dst.ptr, ptr, n)
     if not ok:
@@ -298,19 +251,6 @@ def copier(src):
             if not h2h(dst.ptr, ptr, n):
                 raise RuntimeError(f"device copy of {n} bytes failed")
     return copy
-
-
-def launch_graph(graph, stream):
-    """``wp.capture_launch(graph, stream=stream)`` of a CUDA graph captured live and launched
-    before (its executable made), through the GIL-keeping entry point
-    (:data:`HOLD_GIL_FOR_ENQUEUES`); any other graph through Warp's."""
-    fast = native_entry_points()
-    exec_ = getattr(graph, "graph_exec", None)
-    if (fast is None or stream is None or exec_ is None or not stream.device.is_cuda
-            or getattr(graph, "_native_graph", None) is not None):
-        warp().capture_launch(graph, stream=stream)
-    elif not fast.graph_launch(exec_, stream.cuda_stream):
-        warp().capture_launch(graph, stream=stream)  # again, Warp's way: it reports the error
 
 
 def record_event(stream, event):
@@ -367,5 +307,5 @@ def elapsed_since(start):
 
 __all__ = ["warp", "is_warp_array", "address", "native_entry_points", "numpy_dtype", "to_host",
            "to_host_async", "bytes_to_host_async", "synchronize_stream", "to_device",
-           "copy_device", "copier", "launch_graph", "record_event", "recorder", "wait_event", "synchronize_event",
+           "copy_device", "copier", "record_event", "recorder", "wait_event", "synchronize_event",
            "elapsed_since"]

@@ -483,11 +483,10 @@ class Transfers:
         for offset, _, shape, dtype in block.part:
             rows = (n,) + shape[1:]
             host = self.pool.take(rows, dtype) if self.pool is not None else None
-            pinned = host is not None and self.pool.pinned
             if host is None:
                 host = np.empty(rows, dtype)
             bytes_to_host_async(address(host), src.device, src.ptr + offset, host.nbytes,
-                                stream, pinned=pinned)
+                                stream)
             leaves.append(host)
             self.moved += host.nbytes
         if stream is not None:
