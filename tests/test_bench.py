@@ -331,7 +331,7 @@ def test_pipeline_bottleneck_runs_each_variant_and_takes_away_what_it_says(tmp_p
             if r.startswith("| 0 |")}
     assert set(rows) == set(pipeline_bottleneck.VARIANTS) and min(rows.values()) > 0
     assert "Medians over the rounds: as-is" in text
-    for bad in (["--frames", "0"], ["--size", "8x8"], ["--cv-threads", "0"]):
+    for bad in (["--frames", "0"], ["--size", "8x8"], ["--cv-threads", "-1"]):
         with pytest.raises(SystemExit):
             pipeline_bottleneck.main(["--out", str(tmp_path), "--gpu", "warp-cpu", *bad])
 

@@ -63,17 +63,21 @@ def main(argv=None):
     ap.add_argument("--rounds", type=pipeline_threads._positive, default=3)
     ap.add_argument("--size", type=pipeline_threads._size, default=(1280, 720), help="WxH")
     ap.add_argument("--gpu", default="cuda", help="the GPU role's device (warp-cpu: a smoke test)")
-    ap.add_argument("--cv-threads", type=pipeline_threads._positive, default=1,
-                    help="cv2.setNumThreads for the run (default 1, as graph_bench)")
+    ap.add_argument("--cv-threads", type=int, default=1,
+                    help="cv2.setNumThreads for the run (default 1, as graph_bench; 0: OpenCV's "
+                         "own pool left as it is)")
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
+    if args.cv_threads < 0:
+        ap.error(f"--cv-threads: expected 0 or more, got {args.cv_threads}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     frames = graph_bench.make_frames(args.size, 16)
     if args.gpu.startswith("cuda"):
         frames = [{k: pinned_copy(v) for k, v in f.items()} for f in frames]
     threads_before = cv2.getNumThreads()
-    cv2.setNumThreads(args.cv_threads)
+    if args.cv_threads:
+        cv2.setNumThreads(args.cv_threads)
     graphs = {}
     fps = {name: [] for name in VARIANTS}
     lines = [f"<!-- PYTHONPATH=. python3 benchmarks/perf/pipeline_bottleneck.py {' '.join(argv)} -->",
