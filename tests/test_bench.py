@@ -312,9 +312,9 @@ def test_pipeline_bottleneck_runs_each_variant_and_takes_away_what_it_says(tmp_p
 
     pytest.importorskip("warp")
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "perf"))
-    import graph_bench
-    import pipeline_bottleneck
+    import pipeline_bottleneck  # (puts benchmarks/ on the path too)
 
+    graph_bench = pipeline_bottleneck.graph_bench
     full = graph_bench.build_graph((160, 120))
     bare = graph_bench.build_graph((160, 120), detector=False)
     assert "detectorL" in full.nodes and "detectorL" not in bare.nodes
