@@ -198,12 +198,13 @@ def edge_density(e_left, e_right):
 
 
 def build_graph(size, *, max_corners=500, levels=4, cpu_heavy=False, homography_fn=None,
-                detector=True) -> warpvx.Graph:
+                detector=True, homography_process=False) -> warpvx.Graph:
     """The two-camera graph (16 nodes); ``cpu_heavy`` adds per camera a bilateral filter and
     Canny edges and one node combining them (OpenCV user nodes, CPU only: 21 nodes).
     Variants for diagnostics (``benchmarks/perf/pipeline_bottleneck.py``): ``homography_fn``
     in place of :func:`homography`, and ``detector=False`` leaves out ``detectorL`` and its
-    output (15 nodes)."""
+    output (15 nodes); ``homography_process`` runs the homographies in worker processes
+    (``Graph.user(..., process=True)``)."""
     w, h = size
     g = warpvx.Graph("two-cameras-cv" if cpu_heavy else "two-cameras")
     cv_edges = []
@@ -222,7 +223,7 @@ def build_graph(size, *, max_corners=500, levels=4, cpu_heavy=False, homography_
                                                   win_size=(21, 21), max_level=levels - 1,
                                                   name=f"lk{cam}")
         H = g.user(homography_fn or homography, [prev_pts[-1], nxt, status], "H",
-                   name=f"homography{cam}")
+                   name=f"homography{cam}", process=homography_process)
         homs.append(H)
         g.output(f"keypoints{cam}", kps)
         g.output(f"H{cam}", H)

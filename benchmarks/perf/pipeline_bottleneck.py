@@ -12,7 +12,9 @@ captured, 3 linked buffer sets, as ``pipeline_threads.py``):
   no ``cv2.findHomography`` (identity);
 - ``no-detector``: without ``detectorL`` (8 smoothing passes on the device, ~0.16 ms of the
   device's frame at 1280x720, and its 3.7 MB score map downloaded every frame);
-- ``neither``: both taken away.
+- ``neither``: both taken away;
+- ``ransac-in-process``: nothing taken away, the homographies run in a worker process
+  (``Graph.user(..., process=True)``: off this process's GIL, a pickled round trip a call).
 
 Writes ``pipeline_bottleneck.md`` (the command on top): FPS per variant and round, with each
 thread's CPU ms per frame.
@@ -52,6 +54,7 @@ VARIANTS = {
     "no-ransac": {"homography_fn": homography_without_ransac},
     "no-detector": {"detector": False},
     "neither": {"homography_fn": homography_without_ransac, "detector": False},
+    "ransac-in-process": {"homography_process": True},
 }
 
 

@@ -31,6 +31,7 @@ import numpy as np
 from ..check import check_bool, check_int
 from ..errors import GraphError
 from ..registry import REGISTRY
+from ..runtime.processes import ProcessCall
 from .costs import CostModel, default_n_cpus
 from .data import INPUT, VIRTUAL, Data, Delay, DelayRef, nbytes
 from .nodes import PrimitiveNode, UserNode
@@ -144,7 +145,7 @@ class Graph(CostModel, Runner):
         return sorted(set(super().__dir__()) | set(REGISTRY))
 
     def user(self, fn, inputs, outputs=("out",), *, warp_fn=None, name: str | None = None,
-             target: str | None = None, capturable: bool = False):
+             target: str | None = None, capturable: bool = False, process: bool = False):
         """Add a node running a Python callable.
 
         Parameters
@@ -168,10 +169,25 @@ class Graph(CostModel, Runner):
             enqueues Warp work on the current stream (no allocation, host sync or read-back
             once warm): the runtime may then capture the node with its GPU neighbours
             (:mod:`warpvx.runtime.capture`).
+        process : bool
+            Run ``fn`` in a worker process (one per CPU worker thread that runs it), off this
+            process's GIL: for a CPU node whose native work is long beside its Python (an
+            OpenCV call) in a pipelined graph whose threads contend for the GIL. ``fn`` and
+            its inputs and outputs must pickle (``fn`` a module-level function); each call
+            pays a pickled round trip (~0.1 ms). :meth:`close` ends the processes.
+            (:mod:`warpvx.runtime.processes`)
         """
         self._check_building(f"node {name or 'user'!r}")
         name = self._node_name(name, "user")
         ports = self._user_ports(fn if fn is not None else warp_fn, inputs, name)
+        if check_bool(process, "process"):
+            if fn is None:
+                raise GraphError(f"node {name!r} (user), port 'process': runs fn in a worker "
+                                 "process, and the node has no fn")
+            try:
+                fn = ProcessCall(fn, f"node {name!r}")
+            except TypeError as exc:
+                raise GraphError(f"node {name!r} (user), port 'fn': {exc}") from None
         for port, ref in ports.items():
             self._own(ref, f"node {name!r}, port {port!r}")
         if isinstance(outputs, str):

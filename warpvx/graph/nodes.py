@@ -21,6 +21,7 @@ import numpy as np
 
 from .._counted import Block, is_counted, row_arrays
 from ..errors import GraphError, WarpvxError
+from ..runtime.processes import ProcessCall
 from ..registry import REGISTRY, get_primitive
 from .data import Data, DelayRef
 
@@ -422,9 +423,14 @@ class UserNode(Node):
             if f is None:
                 parts.append("-")
                 continue
+            # A worker process's call costs its round trip: not the in-process function's.
+            process = isinstance(f, ProcessCall)
+            if process:
+                f = f.fn
             code = getattr(f, "__code__", None)
             where = f"@{code.co_filename}:{code.co_firstlineno}" if code is not None else ""
-            parts.append(f"{getattr(f, '__module__', '?')}.{getattr(f, '__qualname__', repr(f))}{where}")
+            parts.append(f"{getattr(f, '__module__', '?')}.{getattr(f, '__qualname__', repr(f))}"
+                         f"{where}{'[process]' if process else ''}")
         return "user:" + "/".join(parts)
 
 

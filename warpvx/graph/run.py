@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import GraphError, NodeExecutionError
 from ..runtime import DEVICE, HOST, WAIT_SLICE, ExecTask, InputRef, Program
+from ..runtime.processes import ProcessCall
 from .bind import bind
 from .data import DelayRef
 from .nodes import running_node
@@ -372,8 +373,13 @@ class Runner:
                 d.reset()
 
     def close(self):
-        """Stop the executor threads of the current plan (the graph stays usable)."""
+        """Stop the executor threads of the current plan and the worker processes of its
+        ``process=True`` nodes (the graph stays usable: they start again when needed)."""
         self._invalidate_plan()
+        for node in self.nodes.values():
+            fn = getattr(node, "fn", None)
+            if isinstance(fn, ProcessCall):
+                fn.close()
 
     def _gpu_device(self) -> str | None:
         """The Warp device of the current plan's GPU role (None: no plan or no GPU role)."""

@@ -1,0 +1,85 @@
+"""CPU nodes in worker processes (``Graph.user(..., process=True)``,
+:mod:`warpvx.runtime.processes`): the same outputs as in this process on a real photo, run
+in another process, one per CPU worker; errors raised there reach the caller, a worker that
+dies is reported by node without a hang, and ``close`` ends the processes."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+import warpvx
+from tests.images import bgr
+from tests.runtime import _process_nodes as pn
+from warpvx.errors import GraphError, NodeExecutionError
+from warpvx.runtime.processes import ProcessCall
+
+
+def _graph(fn, process):
+    g = warpvx.Graph("proc")
+    x = g.input("frame", shape=(96, 128, 3), dtype=np.uint8)
+    out, pid = g.user(fn, [x], ["out", "pid"], name="blur", process=process)
+    g.output("out", out)
+    g.output("pid", pid)
+    return g
+
+
+def _frames(n):
+    img = bgr("astronaut")
+    import cv2
+
+    return [{"frame": cv2.resize(np.roll(img, 7 * i, axis=1), (128, 96))} for i in range(n)]
+
+
+@pytest.mark.timeout(120)
+def test_a_process_node_gives_the_in_process_outputs_from_another_process():
+    frames = _frames(6)
+    outs = {}
+    for process in (False, True):
+        g = _graph(pn.blur, process)
+        try:
+            g.verify(frames[0])
+            g.schedule("baseline", n_cpus=2, gpu=False)
+            outs[process] = list(g.stream(frames, depth=2))
+            if process:
+                fn = g.node("blur").fn
+                assert isinstance(fn, ProcessCall) and fn.workers >= 1
+        finally:
+            g.close()
+        if process:
+            assert fn.workers == 0  # close ended them
+    for a, b in zip(outs[False], outs[True]):
+        np.testing.assert_array_equal(a["out"], b["out"])  # exact: the same OpenCV call
+    assert all(int(o["pid"]) == os.getpid() for o in outs[False])
+    assert all(int(o["pid"]) != os.getpid() for o in outs[True])
+
+
+@pytest.mark.timeout(120)
+def test_an_error_in_the_worker_reaches_the_caller_and_a_dead_worker_is_named():
+    frames = _frames(1)
+    g = warpvx.Graph("proc-errors")
+    x = g.input("frame", shape=(96, 128, 3), dtype=np.uint8)
+    g.output("out", g.user(pn.fails, [x], "out", name="failing", process=True))
+    with pytest.raises(GraphError) as err:  # verification runs it too
+        g.verify(frames[0])
+    assert "failing" in str(err.value) and "bad frame of shape (96, 128, 3)" in str(err.value)
+    g.close()
+    call = ProcessCall(pn.dies, "node 'dies'")
+    with pytest.raises(NodeExecutionError, match="node 'dies': its worker process ended"):
+        call(frames[0]["frame"])
+    assert call.workers == 0
+    # A later call starts a new worker.
+    assert ProcessCall(pn.blur)(frames[0]["frame"])[0].shape == (96, 128, 3)
+
+
+def test_a_callable_that_does_not_pickle_is_refused_by_name():
+    g = warpvx.Graph("proc-bad")
+    x = g.input("frame", shape=(4,), dtype=np.float32)
+    with pytest.raises(GraphError, match="node 'lam'.*does not pickle"):
+        g.user(lambda v: v, [x], "out", name="lam", process=True)
+    with pytest.raises(GraphError, match="node 'gpu_only'.*no fn"):
+        g.user(None, [x], "out", warp_fn=pn.blur, name="gpu_only", process=True)
+    with pytest.raises(Exception, match="process"):
+        g.user(pn.blur, [x], "out", name="flag", process="yes")
