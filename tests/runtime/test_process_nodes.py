@@ -13,7 +13,7 @@ import pytest
 import warpvx
 from tests.images import bgr
 from tests.runtime import _process_nodes as pn
-from warpvx.errors import GraphError, NodeExecutionError
+from warpvx.errors import GraphError, NodeExecutionError, WarpvxError
 from warpvx.runtime.processes import ProcessCall
 
 
@@ -81,5 +81,41 @@ def test_a_callable_that_does_not_pickle_is_refused_by_name():
         g.user(lambda v: v, [x], "out", name="lam", process=True)
     with pytest.raises(GraphError, match="node 'gpu_only'.*no fn"):
         g.user(None, [x], "out", warp_fn=pn.blur, name="gpu_only", process=True)
-    with pytest.raises(Exception, match="process"):
+    with pytest.raises(WarpvxError, match="process"):
         g.user(pn.blur, [x], "out", name="flag", process="yes")
+
+
+@pytest.mark.timeout(300)
+def test_the_two_camera_graph_with_its_homographies_in_processes_gives_the_same_outputs():
+    """On Warp's CPU device, captured, staged downloads on, pipelined (3 in flight): the
+    homographies in worker processes give the in-process run's outputs bit for bit (their
+    inputs come from the GPU role's staged downloads; the delayed corners too)."""
+    import sys
+    from pathlib import Path
+
+    from tests.runtime.test_staged_downloads import SIZE, _cams, _same
+    from warpvx.runtime import Executor
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    import graph_bench
+
+    cams = _cams(10)
+    saved = Executor.STAGE_ON_HOST
+    Executor.STAGE_ON_HOST = True
+    try:
+        outs = {}
+        for process in (False, True):
+            g = graph_bench.build_graph(SIZE, max_corners=100, homography_process=process)
+            try:
+                g.verify(cams[:2])
+                g.schedule("baseline", n_cpus=2, gpu="warp-cpu")
+                outs[process] = list(g.stream(cams, depth=3, capture=True))
+                assert isinstance(g.node("homographyL").fn, ProcessCall) == process
+            finally:
+                g.close()
+    finally:
+        Executor.STAGE_ON_HOST = saved
+    assert len(outs[True]) == len(outs[False]) == 10
+    for a, b in zip(outs[False], outs[True]):
+        assert _same(a, b)
+    assert any(not np.allclose(o["HL"], np.eye(3)) for o in outs[True])  # RANSAC ran

@@ -174,8 +174,9 @@ class Graph(CostModel, Runner):
             process's GIL: for a CPU node whose native work is long beside its Python (an
             OpenCV call) in a pipelined graph whose threads contend for the GIL. ``fn`` and
             its inputs and outputs must pickle (``fn`` a module-level function); each call
-            pays a pickled round trip (~0.1 ms). :meth:`close` ends the processes.
-            (:mod:`warpvx.runtime.processes`)
+            pays a pickled round trip (~0.1 ms); a script guards its entry point with
+            ``if __name__ == "__main__":`` (the workers are spawned). :meth:`close` ends the
+            processes (:mod:`warpvx.runtime.processes`).
         """
         self._check_building(f"node {name or 'user'!r}")
         name = self._node_name(name, "user")

@@ -13,7 +13,8 @@ CUDA and threads, which ``fork`` would copy half-way), the arguments and results
 pickled through a pipe (the calling thread waits without the GIL), and an exception in the
 worker is raised again in the caller. The callable must be picklable by reference (a
 module-level function of an importable module: not a lambda, a closure or a bound method of
-an unpicklable object).
+an unpicklable object). As with any ``spawn`` worker, a script that runs such nodes guards its
+entry point with ``if __name__ == "__main__":`` (the worker imports the script's module).
 """
 
 from __future__ import annotations
