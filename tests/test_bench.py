@@ -336,6 +336,29 @@ def test_pipeline_bottleneck_runs_each_variant_and_takes_away_what_it_says(tmp_p
             pipeline_bottleneck.main(["--out", str(tmp_path), "--gpu", "warp-cpu", *bad])
 
 
+def test_process_nodes_bench_runs_both_graphs_both_ways(tmp_path):
+    """benchmarks/perf/process_nodes.py (CPU only, small): a row per round, graph and
+    placement, the medians, and the outputs of the two placements equal; bad arguments
+    refused by name."""
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "perf"))
+    import process_nodes
+
+    process_nodes.main(["--out", str(tmp_path), "--frames", "12", "--rounds", "1",
+                        "--python-ms", "0.2"])
+    text = (tmp_path / "process_nodes.md").read_text()
+    assert text.startswith("<!-- PYTHONPATH=. python3 benchmarks/perf/process_nodes.py --out ")
+    rows = [r.split("|") for r in text.splitlines() if r.startswith("| 0 |")]
+    assert {(r[2].strip(), r[3].strip()) for r in rows} == {
+        (k, w) for k in ("python", "ransac") for w in ("in this process", "in worker processes")}
+    assert all(float(r[4]) > 0 for r in rows)
+    assert text.count("outputs equal bit for bit: yes") == 2
+    for bad in (["--frames", "0"], ["--python-ms", "0"], ["--depth", "-1"]):
+        with pytest.raises(SystemExit):
+            process_nodes.main(["--out", str(tmp_path), *bad])
+
+
 def test_model_replay_first_rows_pair_by_experiment_and_policy():
     """benchmarks/model_replay.py: a prediction is scored against the first frames of its own
     experiment and policy, whatever order the other checkout recorded its rows in."""
