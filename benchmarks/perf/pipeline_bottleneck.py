@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT / "benchmarks" / "perf"))
 
 import graph_bench  # noqa: E402
 import pipeline_threads  # noqa: E402
+from perf_common import add_cv_threads, frame_size, opencv_threads, positive  # noqa: E402
 
 from warpvx.runtime import pinned_copy  # noqa: E402
 
@@ -61,26 +62,23 @@ VARIANTS = {
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="a new folder for pipeline_bottleneck.md")
-    ap.add_argument("--frames", type=pipeline_threads._positive, default=1200,
-                    help="timed frames per run")
-    ap.add_argument("--rounds", type=pipeline_threads._positive, default=3)
-    ap.add_argument("--size", type=pipeline_threads._size, default=(1280, 720), help="WxH")
+    ap.add_argument("--frames", type=positive, default=1200, help="timed frames per run")
+    ap.add_argument("--rounds", type=positive, default=3)
+    ap.add_argument("--size", type=frame_size, default=(1280, 720), help="WxH")
     ap.add_argument("--gpu", default="cuda", help="the GPU role's device (warp-cpu: a smoke test)")
-    ap.add_argument("--cv-threads", type=int, default=1,
-                    help="cv2.setNumThreads for the run (default 1, as graph_bench; 0: OpenCV's "
-                         "own pool left as it is)")
+    add_cv_threads(ap)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
-    if args.cv_threads < 0:
-        ap.error(f"--cv-threads: expected 0 or more, got {args.cv_threads}")
+    with opencv_threads(args.cv_threads):
+        _run(args, argv)
+
+
+def _run(args, argv):
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     frames = graph_bench.make_frames(args.size, 16)
     if args.gpu.startswith("cuda"):
         frames = [{k: pinned_copy(v) for k, v in f.items()} for f in frames]
-    threads_before = cv2.getNumThreads()
-    if args.cv_threads:
-        cv2.setNumThreads(args.cv_threads)
     graphs = {}
     fps = {name: [] for name in VARIANTS}
     lines = [f"<!-- PYTHONPATH=. python3 benchmarks/perf/pipeline_bottleneck.py {' '.join(argv)} -->",
@@ -106,7 +104,6 @@ def main(argv=None):
     finally:
         for g in graphs.values():
             g.close()
-        cv2.setNumThreads(threads_before)
     base = statistics.median(fps["as-is"])
     lines += ["", "Medians over the rounds: " + "; ".join(
         f"{name} {statistics.median(v):.1f} FPS ({statistics.median(v) / base - 1:+.0%})"

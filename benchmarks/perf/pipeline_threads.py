@@ -27,21 +27,17 @@ import cv2
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "benchmarks" / "perf"))
 
 import graph_bench  # noqa: E402
+from perf_common import baseline_moving, add_cv_threads, frame_size, opencv_threads, positive  # noqa: E402
 
 from warpvx.runtime import pinned_copy  # noqa: E402
-from warpvx.sched import policies  # noqa: E402
-from warpvx.sched.schedule import Schedule, ScheduledTask  # noqa: E402
 
 
 def split(dag):
     """The baseline placement with ``homographyR`` on a second CPU worker."""
-    s = policies.baseline(dag)
-    tasks = dict(s.tasks)
-    st = tasks["homographyR"]
-    tasks["homographyR"] = ScheduledTask(st.task, "cpu1", st.start, st.finish)
-    return Schedule(tasks, s.processors, "baseline-split", s.priority, dict(s.info))
+    return baseline_moving(dag, "homographyR", "cpu1", "baseline-split")
 
 
 def cpu_seconds_by_thread() -> dict:
@@ -91,35 +87,16 @@ def stream_round(g, plan, frames, n: int, warm: int = 20) -> dict:
 PLACEMENTS = (*graph_bench.SCHEDULERS, "split")
 
 
-def _positive(text: str) -> int:
-    n = int(text)
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text}")
-    return n
-
-
-def _size(text: str) -> tuple:
-    try:
-        w, h = (int(v) for v in text.split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WxH, e.g. 1280x720, got {text!r}") from None
-    if w < 32 or h < 32:  # the graph's 4-level pyramids and 21x21 LK windows
-        raise argparse.ArgumentTypeError(f"expected at least 32x32, got {text}")
-    return w, h
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="a new folder for pipeline_threads.md")
-    ap.add_argument("--frames", type=_positive, default=1200, help="timed frames per run")
-    ap.add_argument("--rounds", type=_positive, default=3)
+    ap.add_argument("--frames", type=positive, default=1200, help="timed frames per run")
+    ap.add_argument("--rounds", type=positive, default=3)
     ap.add_argument("--policies", default="baseline,split",
                     help=f"comma-separated, of {', '.join(PLACEMENTS)}")
-    ap.add_argument("--size", type=_size, default=(1280, 720), help="WxH")
+    ap.add_argument("--size", type=frame_size, default=(1280, 720), help="WxH")
     ap.add_argument("--gpu", default="cuda", help="the GPU role's device (warp-cpu: a smoke test)")
-    ap.add_argument("--cv-threads", type=int, default=1,
-                    help="cv2.setNumThreads for the run (default 1, as graph_bench: one core per "
-                         "CPU worker; 0: OpenCV's own pool left as it is)")
+    add_cv_threads(ap)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
     names = args.policies.split(",")
@@ -127,13 +104,13 @@ def main(argv=None):
     if unknown:
         ap.error(f"--policies: unknown {', '.join(map(repr, unknown))}; "
                  f"expected some of {', '.join(PLACEMENTS)}")
-    if args.cv_threads < 0:
-        ap.error(f"--cv-threads: expected 0 or more, got {args.cv_threads}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    cv_threads_before = cv2.getNumThreads()
-    if args.cv_threads:
-        cv2.setNumThreads(args.cv_threads)
+    with opencv_threads(args.cv_threads):
+        _run(args, argv, names, out)
+
+
+def _run(args, argv, names, out):
     size = args.size
     frames = graph_bench.make_frames(size, 16)
     if args.gpu.startswith("cuda"):
@@ -164,7 +141,6 @@ def main(argv=None):
                 print(row, flush=True)
     finally:
         g.close()
-        cv2.setNumThreads(cv_threads_before)
     (out / "pipeline_threads.md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out / 'pipeline_threads.md'}")
 

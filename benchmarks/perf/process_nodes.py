@@ -31,10 +31,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks" / "perf"))
 
 import warpvx  # noqa: E402
-from warpvx.sched import policies  # noqa: E402
-from warpvx.sched.schedule import Schedule, ScheduledTask  # noqa: E402
+from perf_common import baseline_moving, opencv_threads, positive, positive_float  # noqa: E402
 
 #: Loop iterations of :func:`python_work` per millisecond, measured once by :func:`_calibrate`.
 _ITERS_PER_MS = None
@@ -96,11 +96,7 @@ def build_graph(kind: str, process: bool) -> warpvx.Graph:
 
 def side_by_side(dag):
     """The baseline placement (every node on cpu0) with the moved node on cpu1."""
-    s = policies.baseline(dag)
-    tasks = dict(s.tasks)
-    st = tasks["moved"]
-    tasks["moved"] = ScheduledTask(st.task, "cpu1", st.start, st.finish)
-    return Schedule(tasks, s.processors, "side-by-side", s.priority, dict(s.info))
+    return baseline_moving(dag, "moved", "cpu1", "side-by-side")
 
 
 def stream_round(g, feeds, depth: int) -> tuple:
@@ -112,35 +108,24 @@ def stream_round(g, feeds, depth: int) -> tuple:
     return fps, statistics.median(r.compute_ms("moved") for r in runs)
 
 
-def _positive(text: str) -> int:
-    n = int(text)
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text}")
-    return n
-
-
-def _positive_float(text: str) -> float:
-    v = float(text)
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
-    return v
-
-
 def main(argv=None):
-    global _ITERS_PER_MS
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="a new folder for process_nodes.md")
-    ap.add_argument("--frames", type=_positive, default=200, help="frames per round")
-    ap.add_argument("--rounds", type=_positive, default=3)
-    ap.add_argument("--depth", type=_positive, default=3, help="frames in flight")
-    ap.add_argument("--python-ms", type=_positive_float, default=2.0,
+    ap.add_argument("--frames", type=positive, default=200, help="frames per round")
+    ap.add_argument("--rounds", type=positive, default=3)
+    ap.add_argument("--depth", type=positive, default=3, help="frames in flight")
+    ap.add_argument("--python-ms", type=positive_float, default=2.0,
                     help="the Python node's time per frame (ms)")
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
+    with opencv_threads(1):
+        _run(args, argv)
+
+
+def _run(args, argv):
+    global _ITERS_PER_MS
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    threads_before = cv2.getNumThreads()
-    cv2.setNumThreads(1)
     if _ITERS_PER_MS is None:
         _ITERS_PER_MS = _calibrate()
     iters = np.array([int(args.python_ms * _ITERS_PER_MS)], np.int64)
@@ -176,7 +161,6 @@ def main(argv=None):
     finally:
         for g in graphs.values():
             g.close()
-        cv2.setNumThreads(threads_before)
     lines.append("")
     for kind in ("python", "ransac"):
         t, p = (statistics.median(rows[kind, q]) for q in (False, True))
