@@ -1,4 +1,4 @@
-"""Module-level callables for tests/runtime/test_process_nodes.py: a worker process imports
+"""Module-level callables for tests/runtime/test_processes.py: a worker process imports
 them by name (spawn)."""
 
 from __future__ import annotations
