@@ -67,7 +67,7 @@ def test_an_error_in_the_worker_reaches_the_caller_and_a_dead_worker_is_named():
     assert "failing" in str(err.value) and "bad frame of shape (96, 128, 3)" in str(err.value)
     g.close()
     call = ProcessCall(pn.dies, "node 'dies'")
-    with pytest.raises(NodeExecutionError, match="node 'dies': its worker process ended"):
+    with pytest.raises(NodeExecutionError, match=r"node 'dies': its worker process ended \(exit code 3\)"):
         call(frames[0]["frame"])
     assert call.workers == 0
     # A later call starts a new worker.

@@ -331,9 +331,9 @@ def test_outputs_are_staged_only_for_a_caller_wanting_host_data(monkeypatch):
     those of the GPU -> CPU edges still are."""
     wp = init_warp()
     staged = []
-    stage = Transfers.stage_download
-    monkeypatch.setattr(Transfers, "stage_download",
-                        lambda self, v, e=None, **kw: staged.append(v) or stage(self, v, e, **kw))
+    stage = Transfers.stage_downloads  # (every staged download goes through it)
+    monkeypatch.setattr(Transfers, "stage_downloads",
+                        lambda self, vs, e=None, **kw: staged.extend(vs) or stage(self, vs, e, **kw))
     monkeypatch.setattr(Executor, "STAGE_ON_HOST", True)
     cams = _cams(3)
     g = _graph(cams, "warp-cpu")

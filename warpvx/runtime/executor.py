@@ -492,7 +492,7 @@ class Executor(RoleRunner, SegmentRunner):
 
     def _publish(self, frame: Frame, task: ExecTask, result, where, event=None, state=None):
         """Set ``task``'s output slots of ``frame`` to ``result``; a GPU task's (``state``:
-        the GPU role's) through :meth:`_set_device`, which stages the downloads due."""
+        the GPU role's) through :meth:`_set_devices`, which stages the downloads due."""
         if task.output is not None:
             frame.slots[task.output].set(result, where, event)
             return
@@ -697,7 +697,7 @@ class Executor(RoleRunner, SegmentRunner):
         if task.output is None:
             self._publish(frame, task, result, DEVICE, ev1, state)
         elif state.stage:
-            self._set_device(frame, task.output, result, ev1, state)
+            self._set_devices(frame, (task.output,), (result,), ev1, state, unit=name)
         else:  # the usual task: _publish's one-output case, inline
             frame.slots[task.output].set(result, DEVICE, ev1)
 

@@ -52,6 +52,7 @@ class _Worker:
     """One worker process and its end of the pipe."""
 
     def __init__(self, ctx, label: str):
+        self.closed = False  # by close(): its thread starts another on its next call
         self.conn, child = ctx.Pipe()
         self.proc = ctx.Process(target=_serve, args=(child,), daemon=True,
                                 name=f"warpvx-{label}")
@@ -62,9 +63,9 @@ class _Worker:
         try:
             self.conn.send((fn, args))
             ok, value = self.conn.recv()
-        except (EOFError, OSError, BrokenPipeError):
+        except (EOFError, OSError):  # (BrokenPipeError is an OSError)
+            self.close()  # (joins it: its exit code is known after)
             code = self.proc.exitcode
-            self.close()
             raise NodeExecutionError(f"{label}: its worker process ended (exit code {code}) "
                                      "before returning a result") from None
         if ok:
@@ -72,6 +73,7 @@ class _Worker:
         raise value
 
     def close(self):
+        self.closed = True
         try:
             self.conn.send(None)
         except (OSError, ValueError):
@@ -111,7 +113,7 @@ class ProcessCall:
 
     def __call__(self, *args):
         worker = getattr(self._local, "worker", None)
-        if worker is None or not worker.proc.is_alive():
+        if worker is None or worker.closed:  # (a flag, not a waitpid per call)
             worker = self._local.worker = _Worker(self._ctx, self.label)
             with self._lock:
                 self._workers.append(worker)
@@ -120,7 +122,6 @@ class ProcessCall:
     def close(self):
         """End the worker processes (a later call starts its thread's again)."""
         _close_all(self._workers, self._lock)
-        self._local = threading.local()
 
     @property
     def workers(self) -> int:

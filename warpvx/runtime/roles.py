@@ -10,7 +10,7 @@ import time
 from collections import deque
 
 from .capture import NotCapturable, _log
-from .slots import DEVICE, Slot
+from .slots import DEVICE
 from .timeline import WAIT_SLICE, Cancelled, Frame
 from .transfers import Transfers
 
@@ -36,7 +36,7 @@ class GpuState:
         self.burst_frame = None  # their frame
         # The running unit's outputs to stage (key -> held by a delay's ring; one of
         # Role.stage's maps, read only): their downloads start as they are published, before
-        # a reader can see them (RoleRunner._set_device).
+        # a reader can see them (RoleRunner._set_devices).
         self.stage: dict = {}
 
 
@@ -405,73 +405,45 @@ class RoleRunner:
             return False
         return True
 
-    def _set_device(self, frame: Frame, key: str, value, event, state: GpuState,
-                    external: bool = False):
-        """Publish GPU value ``value`` of ``key`` (ready after CUDA ``event``): when the
-        running unit stages it (``state.stage``), its download is queued first, so a reader
-        woken by the publication always finds it (else it copied on its own, rarely, when it
-        ran before the staging: a wasted copy, and a count of downloads that varied with
-        thread timing)."""
-        slot = frame.slots[key]
-        slot.external = external
-        held = state.stage.get(key)
-        if held is not None:
-            slot.value, slot.where, slot.event = value, DEVICE, event
-            self._stage(frame, slot, state.io, held)
-        slot.set(value, DEVICE, event)
-
     def _set_devices(self, frame: Frame, keys, values, event, state: GpuState,
                      external: bool = False, unit: str | None = None):
-        """:meth:`_set_device` of a GPU unit's outputs ``keys`` (``values``, all ready after
-        ``event``): the downloads its readers need are queued as one batch
-        (:meth:`Transfers.stage_downloads`: one wait, one event, one pool buffer for
-        ``unit``), all before any value is published."""
-        stage = state.stage
-        todo = [k for k in keys if k in stage] if stage else ()
-        if len(todo) < 2:
-            for key, value in zip(keys, values):
-                self._set_device(frame, key, value, event, state, external)
-            return
+        """Publish a GPU unit's outputs ``keys`` (``values``, all ready after CUDA ``event``;
+        ``external``: made on another stream than the executor's, a captured segment's
+        set's). The downloads of those the running unit stages (``state.stage``: read by a
+        CPU task or the caller) are queued first, as one batch
+        (:meth:`Transfers.stage_downloads`: one wait, one event, one pool lease for
+        ``unit``), so a reader woken by the publication always finds its download (else it
+        copied on its own when it ran before the staging: a wasted copy, and a count of
+        downloads that varied with thread timing).
+
+        A staged value ``held`` (a delay's) keeps its download in its ring's slot for a later
+        frame's reader, which releases it (:class:`~.slots.Ring`); any other is released by
+        the frame's wait if unread (``Executor._unstage``). A delay's device buffer goes back
+        to its pool only once every ring has dropped its frame (``Executor._recycle_ring_held``,
+        after ``Ring.age``): its download is queued here, before that; and the ring, dropping
+        the slot, waits for the copy (:meth:`Slot.release_staged`) before the buffer is
+        recycled."""
         fs = frame.slots
-        batch = []
-        for key, value in zip(keys, values):
-            if key in stage:
-                slot = fs[key]
-                if slot.staged is None:
-                    batch.append((slot, value, stage[key]))
-        downloads = state.io.stage_downloads([value for _, value, _ in batch], event,
-                                             after=None if external else self._stream,
-                                             unit=unit)
-        for (slot, _, held), staged in zip(batch, downloads):
-            if staged is not None:
-                slot.staged = staged
-                if not held:
-                    frame.staged.append(slot)
+        stage = state.stage
+        if stage:
+            batch = []
+            for key, value in zip(keys, values):
+                held = stage.get(key)
+                if held is not None and fs[key].staged is None:
+                    batch.append((fs[key], value, held))
+            if batch:
+                downloads = state.io.stage_downloads(
+                    [value for _, value, _ in batch], event,
+                    after=None if external else self._stream, unit=unit)
+                for (slot, _, held), staged in zip(batch, downloads):
+                    if staged is not None:
+                        slot.staged = staged
+                        if not held:
+                            frame.staged.append(slot)
         for key, value in zip(keys, values):
             slot = fs[key]
             slot.external = external
             slot.set(value, DEVICE, event)
-
-    def _stage(self, frame: Frame, slot: Slot, io: Transfers, held: bool):
-        """Start the download of a GPU value a CPU task (or the caller) reads (CUDA): see
-        :meth:`Transfers.stage_download`; called as the value is published
-        (:meth:`_set_device`). ``held``: a delay's value, whose download its ring's
-        slot keeps for a later frame's reader and releases (:class:`~.slots.Ring`); else the
-        frame's wait releases it if unread (``Executor._unstage``).
-
-        A delay's device buffer goes back to its pool only once every ring has dropped its
-        frame (``Executor._recycle_ring_held``, after ``Ring.age``): this download is queued
-        here, as the value is published, so before that; and the ring, dropping the slot,
-        waits for the copy (:meth:`Slot.release_staged`) before the buffer is recycled."""
-        if slot.where != DEVICE or slot.staged is not None:
-            return
-        # (A value made on another stream, a captured segment's set's: no stream order.)
-        staged = io.stage_download(slot.value, slot.event,
-                                   after=None if slot.external else self._stream)
-        if staged is not None:
-            slot.staged = staged
-            if not held:
-                frame.staged.append(slot)
 
     def _run_segment_or_tasks(self, frame: Frame, i: int, seg, state: "GpuState", captures):
         """Capturable GPU segment ``i`` of ``frame``: replayed from its captured graph where

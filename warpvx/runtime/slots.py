@@ -112,7 +112,7 @@ class Slot(Flag):
         host; the copy does not wait for it again. ``alone``: the caller is the value's only
         host reader (one task's, not the caller's nor a delay's): no other thread reads or
         drops it meanwhile, so no lock is made. (The GPU role attaches a staged download
-        before it publishes the value: ``RoleRunner._set_device``.)
+        before it publishes the value: ``RoleRunner._set_devices``.)
         """
         if self.where == HOST:
             return self.value

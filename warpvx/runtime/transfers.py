@@ -345,20 +345,18 @@ class Transfers:
                 except _Unstageable:
                     parts.append(None)  # the buffers taken are garbage: back to the pool
                     continue
-                parts.append((value, copies, prefix) if copies else None)
+                if not copies:
+                    parts.append(None)
+                    continue
+                nbytes = sum(host.nbytes for _, host in copies.values())
+                nbytes += sum(n for _, _, spans in prefix.values() for _, _, n in spans)
+                parts.append((value, copies, prefix, nbytes))
         finally:
             if unit is not None:
                 self._arena = None
                 # Room for the next batch to grow a little (a detector's rows vary).
                 self._arena_hints[unit] = self._wanted + (self._wanted >> 3)
-        nbytes = 0
-        for part in parts:
-            if part is not None:
-                for _, host in part[1].values():
-                    nbytes += host.nbytes
-                for _, _, spans in part[2].values():
-                    for _, _, n in spans:
-                        nbytes += n
+        nbytes = sum(part[3] for part in parts if part is not None)
         if not nbytes:
             return [None] * len(values)
         stream = self.stream
@@ -380,9 +378,7 @@ class Transfers:
             record_event(stream, done)
         sharers = _Sharers(sum(part is not None for part in parts))
         return [None if part is None else
-                _Staged(part[0], part[1], {k: v[1] for k, v in part[2].items()}, done,
-                        sum(h.nbytes for _, h in part[1].values()) +
-                        sum(n for _, _, spans in part[2].values() for _, _, n in spans),
+                _Staged(part[0], part[1], {k: v[1] for k, v in part[2].items()}, done, part[3],
                         self._events, sharers)
                 for part in parts]
 
