@@ -20,3 +20,7 @@ def fails(img):
 
 def dies(img):
     os._exit(3)
+
+
+def unpicklable_result(img):
+    return lambda: img  # a closure: does not pickle

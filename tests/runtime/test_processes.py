@@ -6,6 +6,7 @@ dies is reported by node without a hang, and ``close`` ends the processes."""
 from __future__ import annotations
 
 import os
+import threading
 
 import numpy as np
 import pytest
@@ -72,6 +73,14 @@ def test_an_error_in_the_worker_reaches_the_caller_and_a_dead_worker_is_named():
     assert call.workers == 0
     # A later call starts a new worker.
     assert ProcessCall(pn.blur)(frames[0]["frame"])[0].shape == (96, 128, 3)
+    # What cannot cross the pipe is named, either way, and the worker goes on serving.
+    call = ProcessCall(pn.unpicklable_result, "node 'odd'")
+    with pytest.raises(NodeExecutionError, match="could not be sent back.*does not pickle"):
+        call(frames[0]["frame"])
+    with pytest.raises(NodeExecutionError, match="node 'odd': its inputs cannot be sent"):
+        call(threading.Lock())
+    assert call.workers == 1
+    call.close()
 
 
 def test_a_callable_that_does_not_pickle_is_refused_by_name():
@@ -79,6 +88,8 @@ def test_a_callable_that_does_not_pickle_is_refused_by_name():
     x = g.input("frame", shape=(4,), dtype=np.float32)
     with pytest.raises(GraphError, match="node 'lam'.*does not pickle"):
         g.user(lambda v: v, [x], "out", name="lam", process=True)
+    with pytest.raises(GraphError, match="node 'num'.*expected a callable, got int"):
+        g.user(5, [x], "out", name="num", process=True)
     with pytest.raises(GraphError, match="node 'gpu_only'.*no fn"):
         g.user(None, [x], "out", warp_fn=pn.blur, name="gpu_only", process=True)
     with pytest.raises(WarpvxError, match="process"):

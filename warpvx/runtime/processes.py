@@ -45,7 +45,9 @@ def _serve(conn):
         try:
             conn.send(reply)
         except Exception as exc:  # noqa: BLE001 - the result or exception did not pickle
-            conn.send((False, TypeError(f"the node's result could not be sent back: {exc}")))
+            conn.send((False, NodeExecutionError(
+                f"its result could not be sent back from its worker process (it does not "
+                f"pickle: {exc})")))
 
 
 class _Worker:
@@ -61,7 +63,12 @@ class _Worker:
 
     def call(self, fn, args, label: str):
         try:
-            self.conn.send((fn, args))
+            message = pickle.dumps((fn, args))
+        except Exception as exc:  # noqa: BLE001 - pickle raises several kinds
+            raise NodeExecutionError(f"{label}: its inputs cannot be sent to its worker process "
+                                     f"(they do not pickle: {exc})") from None
+        try:
+            self.conn.send_bytes(message)
             ok, value = self.conn.recv()
         except (EOFError, OSError):  # (BrokenPipeError is an OSError)
             self.close()  # (joins it: its exit code is known after)
@@ -94,10 +101,12 @@ class ProcessCall:
     Raises
     ------
     TypeError
-        ``fn`` cannot be pickled by reference.
+        ``fn`` is not callable, or cannot be pickled by reference.
     """
 
     def __init__(self, fn, label: str = "node"):
+        if not callable(fn):
+            raise TypeError(f"expected a callable, got {type(fn).__name__}")
         try:
             pickle.dumps(fn)
         except Exception as exc:  # noqa: BLE001 - pickle raises several kinds
